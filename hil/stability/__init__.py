@@ -1,0 +1,1 @@
+"""Stability core: rational network models and exact passivity / absolute-stability criteria."""

@@ -1,0 +1,1 @@
+"""hil.identify: frequency-response estimation, grey-box models and posteriors (emcee)."""

@@ -1,0 +1,1 @@
+"""hil.mocks: simulated plants and simulated devices answering on the other side of real transports."""

@@ -1,0 +1,1 @@
+"""hil.protocols: role interfaces (actuator, force sensor) and device adapters over real transports."""
