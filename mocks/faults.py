@@ -1,0 +1,197 @@
+"""Seeded fault injection shared by every simulated device (CAN, serial, Modbus, Dynamixel).
+
+A :class:`FaultPlan` says *which* faults happen and how often; a :class:`FaultInjector` draws the
+decisions from a seeded :func:`numpy.random.default_rng`, so a lockstep mocked run with one seed
+is bit-identical on any machine. Each fault kind has its **own** random stream (spawned from the
+seed), so enabling e.g. corruption does not change which frames get dropped.
+
+What each fault means (a simulated device decides per *outgoing* frame / reply unless noted):
+
+* **drop** (``drop_prob``, ``drop_ticks``): the device does not send this frame/reply at all.
+  The adapter sees silence -> it must raise :class:`hil.errors.DeviceTimeout` (polling) or record
+  a gap (streams).
+* **corrupt** (``corrupt_prob``): one byte of the encoded frame is XOR-ed with a non-zero mask
+  (so the frame always changes). Where a frame carries a CRC the damage is detected
+  (:class:`hil.errors.ChecksumError` / a counted CRC failure); on CAN (no CRC visible to the host:
+  the controller checks it) the device instead corrupts the payload bytes, which a careful adapter
+  may or may not detect - use it to test plausibility checks.
+* **late** (``late_prob``, ``late_ticks``, ``late_s``): the frame is delivered late: in lockstep
+  mode it is held back and sent ``late_ticks`` ticks later (after the next frames of that tick);
+  in free-running mode it is delayed by ``late_s`` seconds.
+* **stale** (``stale_prob``): the device repeats its previous data (the same measurement values
+  *and* the same device timestamp/sequence) instead of a fresh sample.
+* **garbage** (``garbage_prob``, ``garbage_len``): random bytes are inserted *before* the frame on
+  byte streams (serial); adapters must resynchronise. Ignored by message-based transports.
+* **device error** (``error_code`` from tick ``error_at_tick`` until ``error_until_tick``
+  exclusive, or for ever if ``None``): the device reports this raw fault code in its status /
+  heartbeat / error field. Adapters raise :class:`hil.errors.DeviceFault` with ``code``.
+* **disconnect** (from tick ``disconnect_at_tick`` until ``reconnect_at_tick`` exclusive, or for
+  ever): the device is silent (answers nothing, ignores commands). On transports that can signal
+  it (pty, socket) the device may additionally close its end.
+
+Ticks are the device's own counter of processed lockstep steps / emitted frames; each device
+documents what it counts (e.g. one ``process_pending()`` call or one ``emit()``).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+_STREAMS = ("drop", "corrupt", "late", "stale", "garbage")
+
+
+@dataclass(frozen=True)
+class FaultPlan:
+    """Which faults to inject. All probabilities are per outgoing frame, in [0, 1].
+
+    The default plan injects nothing.
+    """
+
+    drop_prob: float = 0.0
+    drop_ticks: frozenset[int] = field(default_factory=frozenset)  # always drop at these ticks
+    corrupt_prob: float = 0.0
+    corrupt_ticks: frozenset[int] = field(default_factory=frozenset)
+    late_prob: float = 0.0
+    late_ticks: int = 1  # lockstep: deliver this many ticks later
+    late_s: float = 0.005  # free-running: delay in seconds
+    stale_prob: float = 0.0
+    garbage_prob: float = 0.0
+    garbage_len: int = 7  # max number of garbage bytes inserted (1..garbage_len)
+    error_code: int = 0
+    error_at_tick: int | None = None
+    error_until_tick: int | None = None
+    disconnect_at_tick: int | None = None
+    reconnect_at_tick: int | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("drop_prob", "corrupt_prob", "late_prob", "stale_prob", "garbage_prob"):
+            p = getattr(self, name)
+            if not 0.0 <= p <= 1.0:
+                raise ValueError(f"FaultPlan.{name} must be in [0, 1], got {p!r}")
+        if self.late_ticks < 1 or self.late_s < 0 or self.garbage_len < 1:
+            raise ValueError("FaultPlan: late_ticks >= 1, late_s >= 0 and garbage_len >= 1 required")
+        # accept any iterable for the tick sets (e.g. a list from a YAML scene)
+        object.__setattr__(self, "drop_ticks", frozenset(self.drop_ticks))
+        object.__setattr__(self, "corrupt_ticks", frozenset(self.corrupt_ticks))
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> FaultPlan:
+        """Build from a plain mapping (scene files); unknown keys raise ``ValueError``."""
+        if not d:
+            return cls()
+        known = set(cls.__dataclass_fields__)
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"unknown fault plan keys {sorted(unknown)}; known: {sorted(known)}")
+        return cls(**d)
+
+    @property
+    def is_null(self) -> bool:
+        return self == FaultPlan()
+
+
+class FaultInjector:
+    """Draws fault decisions for one simulated device from ``plan`` and ``seed``.
+
+    Deterministic: the same plan, seed and sequence of calls give the same decisions. Each fault
+    kind has an independent random stream. ``injected`` counts what was actually injected
+    (keys: ``drop``, ``corrupt``, ``late``, ``stale``, ``garbage``).
+    """
+
+    def __init__(self, plan: FaultPlan | None = None, seed: int | None = 0) -> None:
+        self.plan = plan or FaultPlan()
+        self.seed = seed
+        children = np.random.SeedSequence(seed).spawn(len(_STREAMS))
+        self._rng = {name: np.random.default_rng(s) for name, s in zip(_STREAMS, children, strict=True)}
+        self.injected: Counter[str] = Counter()
+
+    # -- per-frame decisions --------------------------------------------------------------
+    def _draw(self, kind: str, p: float) -> bool:
+        if p <= 0.0:
+            return False
+        hit = bool(self._rng[kind].random() < p)
+        if hit:
+            self.injected[kind] += 1
+        return hit
+
+    def should_drop(self, tick: int | None = None) -> bool:
+        """True if the frame about to be sent must be dropped (scheduled tick or random draw)."""
+        if tick is not None and tick in self.plan.drop_ticks:
+            self.injected["drop"] += 1
+            return True
+        return self._draw("drop", self.plan.drop_prob)
+
+    def should_corrupt(self, tick: int | None = None) -> bool:
+        if tick is not None and tick in self.plan.corrupt_ticks:
+            self.injected["corrupt"] += 1
+            return True
+        return self._draw("corrupt", self.plan.corrupt_prob)
+
+    def corrupt(self, data: bytes, start: int = 0, stop: int | None = None) -> bytes:
+        """Return ``data`` with one byte in ``data[start:stop]`` XOR-ed by a non-zero mask.
+
+        Unconditional (call :meth:`should_corrupt` first, or use :meth:`maybe_corrupt`).
+        """
+        stop = len(data) if stop is None else stop
+        if stop <= start:
+            return bytes(data)
+        rng = self._rng["corrupt"]
+        i = int(rng.integers(start, stop))
+        mask = int(rng.integers(1, 256))
+        out = bytearray(data)
+        out[i] ^= mask
+        return bytes(out)
+
+    def maybe_corrupt(
+        self, data: bytes, tick: int | None = None, start: int = 0, stop: int | None = None
+    ) -> bytes:
+        """Corrupt ``data`` if the plan says so for this frame, else return it unchanged."""
+        return self.corrupt(data, start, stop) if self.should_corrupt(tick) else data
+
+    def is_late(self) -> bool:
+        """True if this frame must be delivered late (see ``late_ticks`` / ``late_s``)."""
+        return self._draw("late", self.plan.late_prob)
+
+    def late_delay(self) -> float:
+        """Free-running helper: seconds to delay this frame (0.0 = on time)."""
+        return self.plan.late_s if self.is_late() else 0.0
+
+    def should_repeat_stale(self) -> bool:
+        """True if the device must repeat its previous sample instead of a fresh one."""
+        return self._draw("stale", self.plan.stale_prob)
+
+    def garbage(self) -> bytes:
+        """Bytes to insert before the next frame on a byte stream (usually ``b""``)."""
+        if not self._draw("garbage", self.plan.garbage_prob):
+            return b""
+        rng = self._rng["garbage"]
+        n = int(rng.integers(1, self.plan.garbage_len + 1))
+        return rng.integers(0, 256, size=n, dtype=np.uint8).tobytes()
+
+    # -- scheduled state ------------------------------------------------------------------
+    def error_code(self, tick: int) -> int:
+        """Raw device fault code to report at ``tick`` (0 = no fault)."""
+        p = self.plan
+        if p.error_at_tick is None or not p.error_code:
+            return 0
+        if tick < p.error_at_tick:
+            return 0
+        if p.error_until_tick is not None and tick >= p.error_until_tick:
+            return 0
+        return p.error_code
+
+    def is_disconnected(self, tick: int) -> bool:
+        """True while the device is disconnected (silent) at ``tick``."""
+        p = self.plan
+        if p.disconnect_at_tick is None or tick < p.disconnect_at_tick:
+            return False
+        return p.reconnect_at_tick is None or tick < p.reconnect_at_tick
+
+
+NO_FAULTS = FaultPlan()
