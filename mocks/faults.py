@@ -12,9 +12,9 @@ What each fault means (a simulated device decides per *outgoing* frame / reply u
   a gap (streams).
 * **corrupt** (``corrupt_prob``): one byte of the encoded frame is XOR-ed with a non-zero mask
   (so the frame always changes). Where a frame carries a CRC the damage is detected
-  (:class:`hil.errors.ChecksumError` / a counted CRC failure); on CAN (no CRC visible to the host:
-  the controller checks it) the device instead corrupts the payload bytes, which a careful adapter
-  may or may not detect - use it to test plausibility checks.
+  (:class:`hil.errors.ChecksumError` / a counted CRC failure); on CAN the CRC is checked by the
+  controllers, so a corrupted frame never reaches the host: CAN devices send an error frame instead
+  (the adapter sees an error frame and no data).
 * **late** (``late_prob``, ``late_ticks``, ``late_s``): the frame is delivered late: in lockstep
   mode it is held back and sent ``late_ticks`` ticks later (after the next frames of that tick);
   in free-running mode it is delayed by ``late_s`` seconds.

@@ -1,0 +1,434 @@
+"""Simulated CAN devices (ODrive CANSimple axis, CubeMars AK "MIT mode" motor) on a python-can bus.
+
+The simulated node is a *separate* bus connection on the same channel as the adapter (normally
+``interface="virtual"``; ``"udp_multicast"`` or a ``vcan`` socketcan channel also work across
+processes). It never integrates physics: it applies effort to, and reads state from, a
+:class:`hil.mocks.interfaces.SimulatedJoints` handle that somebody else steps.
+
+Three ways to run a node:
+
+* **explicit lockstep** - call :meth:`SimCanNode.tick` once per control period (after the
+  adapter sent its commands/requests): it handles every frame received so far, replying to each
+  synchronously from the current joint state, advances the node's tick counter, delivers late
+  frames that are due and publishes the cyclic frames due at this tick (ODrive heartbeat /
+  encoder estimates). :meth:`SimCanNode.process_pending` does the first part only.
+* **synchronous replies** (``sync=True``, virtual bus only) - every frame is handled at the moment
+  it is delivered to the node, in the sender's thread, so a polling adapter gets its answer
+  before ``bus.send`` returns. Fully deterministic, no threads. Call :meth:`tick` per period for
+  cyclic frames and fault schedules.
+* **free running** - :meth:`SimCanNode.start` runs ``tick`` in a background thread at
+  ``rate_hz`` while answering requests as they arrive (for ``hil mock serve`` and manual tests;
+  not deterministic).
+
+Fault injection (:mod:`hil.mocks.faults`) applies to every frame the node sends: drop,
+corruption (the frame is replaced by a CAN error frame, as the controllers' CRC check would do),
+late delivery (``late_ticks`` ticks later in lockstep), stale data (the previous payload of that
+message is repeated), device error codes and disconnects (node silent and deaf) scheduled by the
+node's tick counter.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+import time
+from typing import Any
+
+import can
+import numpy as np
+from hil.mocks.faults import FaultInjector, FaultPlan
+from hil.mocks.interfaces import SimulatedJoints
+from hil.protocols import can_cubemars as cm
+from hil.protocols import can_odrive as od
+
+log = logging.getLogger(__name__)
+
+
+class _SyncQueue(queue.Queue):
+    """Receive queue of a virtual bus that hands every delivered frame to the node immediately."""
+
+    def __init__(self, node: SimCanNode) -> None:
+        super().__init__()
+        self._node = node
+
+    def put(self, item: can.Message, block: bool = True, timeout: float | None = None) -> None:
+        self._node._deliver_sync(item)
+
+
+class SimCanNode:
+    """Common machinery of a simulated CAN node (see module docstring)."""
+
+    kind = "can-node"
+
+    def __init__(
+        self,
+        joints: SimulatedJoints,
+        channel: str,
+        interface: str = "virtual",
+        *,
+        faults: FaultPlan | FaultInjector | None = None,
+        seed: int | None = 0,
+        sync: bool = False,
+        **bus_kwargs: Any,
+    ) -> None:
+        self.joints = joints
+        self.channel = channel
+        self.interface = interface
+        self.injector = faults if isinstance(faults, FaultInjector) else FaultInjector(faults, seed)
+        self.tick_count = 0
+        self.frames_in = 0
+        self.frames_out = 0
+        self._late: list[tuple[int, can.Message]] = []
+        self._last_payload: dict[int, bytes] = {}
+        self._lock = threading.RLock()
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._closed = False
+        self.bus = can.Bus(interface=interface, channel=channel, **bus_kwargs)
+        self.sync = sync
+        if sync:
+            self._install_sync_queue()
+
+    # -- transport ----------------------------------------------------------------------------
+    def _install_sync_queue(self) -> None:
+        from can.interfaces import virtual
+
+        bus = self.bus
+        if not isinstance(bus, virtual.VirtualBus):
+            raise ValueError("sync=True needs interface='virtual' (use tick()/process_pending() otherwise)")
+        with virtual.channels_lock:
+            q = _SyncQueue(self)
+            idx = next(i for i, x in enumerate(bus.channel) if x is bus.queue)
+            bus.channel[idx] = q
+            bus.queue = q
+
+    def _deliver_sync(self, msg: can.Message) -> None:
+        with self._lock:
+            if not self._closed:
+                self._receive(msg)
+
+    def _receive(self, msg: can.Message) -> None:
+        if self.injector.is_disconnected(self.tick_count):
+            return
+        self.frames_in += 1
+        try:
+            self.handle(msg)
+        except Exception:  # a malformed frame must not kill the simulated device
+            log.exception("%s: error handling %s", self.kind, msg)
+
+    def send(self, arb_id: int, data: bytes, *, stale_key: int | None = None) -> None:
+        """Send one frame through the fault injector (drop / stale / corrupt / late)."""
+        inj = self.injector
+        t = self.tick_count
+        if inj.is_disconnected(t) or self._closed:
+            return
+        if inj.should_drop(t):
+            return
+        key = arb_id if stale_key is None else stale_key
+        if key in self._last_payload and inj.should_repeat_stale():
+            data = self._last_payload[key]
+        else:
+            self._last_payload[key] = data
+        if inj.should_corrupt(t):
+            # A corrupted CAN frame fails the controllers' CRC check and is destroyed by an error
+            # frame: the host never sees the payload, only the error frame.
+            msg = can.Message(arbitration_id=0, is_error_frame=True, is_extended_id=False)
+        else:
+            msg = can.Message(arbitration_id=arb_id, data=data, is_extended_id=False)
+        if inj.is_late():
+            self._late.append((t + inj.plan.late_ticks, msg))
+            return
+        self._send_now(msg)
+
+    def _send_now(self, msg: can.Message) -> None:
+        try:
+            self.bus.send(msg, timeout=0.1)
+            self.frames_out += 1
+        except can.CanError as exc:  # pragma: no cover
+            log.warning("%s: send failed: %s", self.kind, exc)
+
+    # -- lockstep -----------------------------------------------------------------------------
+    def process_pending(self) -> int:
+        """Handle (and answer) every frame received so far. Returns the number of frames."""
+        n = 0
+        with self._lock:
+            if self.sync:
+                return 0
+            while (msg := self.bus.recv(timeout=0.0)) is not None:
+                self._receive(msg)
+                n += 1
+        return n
+
+    def tick(self) -> None:
+        """One control period: process pending frames, advance, send late and cyclic frames."""
+        with self._lock:
+            self.process_pending()
+            self.tick_count += 1
+            if self._late:
+                due = [m for d, m in self._late if d <= self.tick_count]
+                self._late = [(d, m) for d, m in self._late if d > self.tick_count]
+                for m in due:
+                    if not self.injector.is_disconnected(self.tick_count):
+                        self._send_now(m)
+            self.on_tick()
+
+    # -- free running -------------------------------------------------------------------------
+    def start(self, rate_hz: float = 1000.0) -> None:
+        """Run ticks at ``rate_hz`` in a daemon thread, answering requests as they arrive."""
+        if self._thread is not None:
+            return
+        if self.sync:
+            raise ValueError("free-running mode needs sync=False")
+        period = 1.0 / rate_hz
+        self._stop.clear()
+
+        def run() -> None:
+            next_t = time.monotonic() + period
+            while not self._stop.is_set():
+                remaining = next_t - time.monotonic()
+                if remaining > 0:
+                    msg = self.bus.recv(timeout=remaining)
+                    if msg is not None:
+                        with self._lock:
+                            self._receive(msg)
+                    continue
+                self.tick()
+                next_t += period
+                if next_t < time.monotonic() - 10 * period:  # fell far behind: resynchronise
+                    next_t = time.monotonic() + period
+
+        self._thread = threading.Thread(target=run, name=f"{self.kind}-{self.channel}", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        if self._thread is not None:
+            self._stop.set()
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self.stop()
+        with self._lock:
+            self._closed = True
+            self.bus.shutdown()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- to override --------------------------------------------------------------------------
+    def handle(self, msg: can.Message) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def on_tick(self) -> None:
+        """Called after each tick (cyclic frames)."""
+
+
+class SimODrive(SimCanNode):
+    """Simulated ODrive axis speaking CANSimple (see :mod:`hil.protocols.can_odrive`).
+
+    ``gear_ratio`` / ``linear_scale`` must match the adapter's: the node converts the joint state
+    to motor turns and the motor torque to joint effort with them. The drive applies torque only
+    in CLOSED_LOOP_CONTROL with TORQUE_CONTROL and no (injected or latched) axis error.
+    ``heartbeat_every`` / ``encoder_every``: period of the cyclic frames in ticks (0 = off).
+    Injected error codes are OR-ed into ``axis_error`` and disarm the axis while active.
+    """
+
+    kind = "odrive"
+
+    def __init__(
+        self,
+        joints: SimulatedJoints,
+        channel: str,
+        node_id: int = 0,
+        interface: str = "virtual",
+        *,
+        gear_ratio: float = 1.0,
+        linear_scale: float | None = None,
+        heartbeat_every: int = 1,
+        encoder_every: int = 0,
+        **kw: Any,
+    ) -> None:
+        self.node_id = node_id
+        self.gear_ratio = gear_ratio
+        self.linear_scale = linear_scale
+        self.heartbeat_every = heartbeat_every
+        self.encoder_every = encoder_every
+        self.axis_state = int(od.AxisState.IDLE)
+        self.control_mode = int(od.ControlMode.VOLTAGE_CONTROL)
+        self.input_mode = int(od.InputMode.INACTIVE)
+        self.input_torque = 0.0  # motor N.m
+        self.latched_error = 0
+        self.commands: list[tuple[int, float]] = []  # (tick, motor torque) log, for tests
+        super().__init__(joints, channel, interface, **kw)
+
+    # conversions (inverse of the adapter's)
+    def _joint_to_turns(self, q: float) -> float:
+        if self.linear_scale is not None:
+            return q / self.linear_scale
+        return q * self.gear_ratio / (2.0 * math.pi)
+
+    def _motor_torque_to_joint(self, tau: float) -> float:
+        if self.linear_scale is not None:
+            return tau * 2.0 * math.pi / self.linear_scale
+        return tau * self.gear_ratio
+
+    @property
+    def axis_error(self) -> int:
+        return self.latched_error | self.injector.error_code(self.tick_count)
+
+    def _armed(self) -> bool:
+        return (
+            self.axis_state == od.AxisState.CLOSED_LOOP_CONTROL
+            and self.control_mode == od.ControlMode.TORQUE_CONTROL
+            and self.axis_error == 0
+        )
+
+    def applied_motor_torque(self) -> float:
+        return self.input_torque if self._armed() else 0.0
+
+    def _apply(self) -> None:
+        effort = self._motor_torque_to_joint(self.applied_motor_torque())
+        self.joints.apply_effort(np.full(self.joints.dof, effort))
+
+    def _reply(self, cmd: int, data: bytes) -> None:
+        self.send(od.arbitration_id(self.node_id, cmd), data)
+
+    def _encoder_payload(self) -> bytes:
+        q = float(self.joints.position()[0])
+        v = float(self.joints.velocity()[0])
+        return od.encode_f32x2(self._joint_to_turns(q), self._joint_to_turns(v))
+
+    def handle(self, msg: can.Message) -> None:
+        if msg.is_extended_id or msg.is_error_frame:
+            return
+        node, cmd = od.split_id(msg.arbitration_id)
+        if node != self.node_id:
+            return
+        data = bytes(msg.data)
+        is_request = msg.is_remote_frame or len(data) == 0
+        if cmd == od.CMD_SET_INPUT_TORQUE and len(data) >= 4:
+            self.input_torque = od.struct.unpack_from("<f", data)[0]
+            self.commands.append((self.tick_count, self.input_torque))
+            self._apply()
+        elif cmd == od.CMD_SET_AXIS_STATE and len(data) >= 4:
+            req = od.struct.unpack_from("<I", data)[0]
+            if req == od.AxisState.CLOSED_LOOP_CONTROL and self.axis_error:
+                req = od.AxisState.IDLE  # refuses to arm while in error
+            self.axis_state = int(req)
+            self._apply()
+        elif cmd == od.CMD_SET_CONTROLLER_MODE and len(data) >= 8:
+            self.control_mode, self.input_mode = od.struct.unpack_from("<II", data)
+            self._apply()
+        elif cmd == od.CMD_ESTOP:
+            self.latched_error |= od.AXIS_ERROR_ESTOP_REQUESTED
+            self.axis_state = int(od.AxisState.IDLE)
+            self._apply()
+        elif cmd == od.CMD_CLEAR_ERRORS:
+            self.latched_error = 0
+        elif cmd == od.CMD_GET_ENCODER_ESTIMATES and is_request:
+            self._reply(cmd, self._encoder_payload())
+        elif cmd == od.CMD_GET_TORQUES and is_request:
+            self._reply(cmd, od.encode_f32x2(self.input_torque, self.applied_motor_torque()))
+        elif cmd == od.CMD_HEARTBEAT and is_request:
+            self._reply(cmd, od.encode_heartbeat(self.axis_error, self.axis_state))
+
+    def on_tick(self) -> None:
+        if self.axis_error and self.axis_state != od.AxisState.IDLE:
+            self.axis_state = int(od.AxisState.IDLE)  # a fault disarms the axis
+        self._apply()
+        t = self.tick_count
+        if self.heartbeat_every and t % self.heartbeat_every == 0:
+            self._reply(od.CMD_HEARTBEAT, od.encode_heartbeat(self.axis_error, self.axis_state))
+        if self.encoder_every and t % self.encoder_every == 0:
+            self._reply(od.CMD_GET_ENCODER_ESTIMATES, self._encoder_payload())
+
+
+class SimCubeMars(SimCanNode):
+    """Simulated CubeMars / T-Motor AK actuator in MIT mode (see :mod:`hil.protocols.can_cubemars`).
+
+    Commands arrive on id ``motor_id``; every command (and each special frame) is answered with a
+    state frame on id ``reply_id`` whose first byte is ``motor_id``. The impedance law
+    ``tau = kp*(p_des - q) + kd*(v_des - qd) + t_ff`` is evaluated once per command from the
+    current state and held until the next command (the real drive re-evaluates it at its own
+    loop rate; torque-only control with kp = kd = 0 is exact). Torque is clamped to the model's T
+    range. Positions/velocities outside the model range saturate in the reply.
+    ``temperature`` is reported in byte 6, injected error codes in byte 7 (and disable torque).
+    """
+
+    kind = "cubemars"
+
+    def __init__(
+        self,
+        joints: SimulatedJoints,
+        channel: str,
+        motor_id: int = 1,
+        interface: str = "virtual",
+        *,
+        model: str = "AK80-9",
+        reply_id: int = 0,
+        temperature: int = 30,
+        short_reply: bool = False,
+        **kw: Any,
+    ) -> None:
+        self.motor_id = motor_id
+        self.limits = cm.model_limits(model)
+        self.reply_id = reply_id
+        self.temperature = temperature
+        self.short_reply = short_reply  # old firmware: 6-byte reply without temperature/error
+        self.enabled = False
+        self.zero_offset = 0.0
+        self.torque = 0.0
+        self.commands: list[tuple[int, cm.MitCommand]] = []
+        super().__init__(joints, channel, interface, **kw)
+
+    def _error(self) -> int:
+        return self.injector.error_code(self.tick_count)
+
+    def _apply(self) -> None:
+        tau = self.torque if (self.enabled and not self._error()) else 0.0
+        self.joints.apply_effort(np.full(self.joints.dof, tau))
+
+    def _send_state(self) -> None:
+        q = float(self.joints.position()[0]) - self.zero_offset
+        v = float(self.joints.velocity()[0])
+        tau = self.torque if (self.enabled and not self._error()) else 0.0
+        reply = cm.MitReply(self.motor_id, q, v, tau, self.temperature, self._error())
+        data = cm.pack_reply(reply, self.limits, short=self.short_reply)
+        self.send(self.reply_id, data, stale_key=0x10000 + self.motor_id)
+
+    def handle(self, msg: can.Message) -> None:
+        if msg.is_extended_id or msg.is_remote_frame or msg.arbitration_id != self.motor_id:
+            return
+        data = bytes(msg.data)
+        if len(data) != 8:
+            return
+        special = cm.SPECIAL_FRAMES_INV.get(data)
+        if special == "enter":
+            self.enabled = True
+        elif special == "exit":
+            self.enabled = False
+            self.torque = 0.0
+        elif special == "zero":
+            self.zero_offset = float(self.joints.position()[0])
+        else:
+            c = cm.unpack_command(data, self.limits)
+            self.commands.append((self.tick_count, c))
+            q = float(self.joints.position()[0]) - self.zero_offset
+            v = float(self.joints.velocity()[0])
+            tau = c.kp * (c.p_des - q) + c.kd * (c.v_des - v) + c.t_ff
+            self.torque = min(max(tau, self.limits.t_min), self.limits.t_max)
+        self._apply()
+        self._send_state()
+
+    def on_tick(self) -> None:
+        self._apply()
+
+
+__all__ = ["SimCanNode", "SimCubeMars", "SimODrive"]

@@ -1,0 +1,393 @@
+"""CubeMars / T-Motor AK series in "MIT mode" over CAN, as an :class:`~hil.protocols.base.Actuator`.
+
+Wire format (sources, consulted through the search tool: CubeMars "AK Series Module Driver User
+Manual", section 5.3 *MIT Mode Communication Protocol* as quoted in public drivers; the
+``neurobionics/TMotorCANControl`` python driver ``mit_can.py`` for the per-model ranges, the reply
+layout and the error codes; the MIT mini-cheetah ``pack_cmd``/``unpack_reply`` convention):
+
+* Host -> motor, standard id = motor id, 8 bytes, big-endian bit packing::
+
+      byte0..1  p_des  16 bit          byte3[3:0]..4  kp  12 bit
+      byte2..3  v_des  12 bit (byte3[7:4])   byte5..6   kd  12 bit (byte6[7:4])
+                                         byte6[3:0]..7  t_ff 12 bit
+
+  Each field is an unsigned int mapped linearly from ``[min, max]`` of the model
+  (``x_uint = (x - min) * (2**bits - 1) / (max - min)``, clamped).
+* Special frames: ``FF FF FF FF FF FF FF FC`` enter motor mode, ``... FD`` exit motor mode,
+  ``... FE`` set current position as zero. Every frame is answered with a state reply.
+* Motor -> host reply (id ``reply_id``, 0x000 on the firmware the sources describe, driver id in
+  byte 0)::
+
+      byte0 motor id | byte1..2 position 16 bit | byte3..4[7:4] velocity 12 bit |
+      byte4[3:0]..5 torque 12 bit | byte6 temperature [deg C] | byte7 error code
+
+  Older firmware sends 6 bytes (no temperature/error). The 12-bit "current" field is scaled with
+  the torque range T and is reported here as effort [N.m]. Error codes: see :data:`ERROR_CODES`.
+
+Conversion: as in the reference C code, :func:`float_to_uint` truncates (so a zero torque is sent
+as 0x7FF = -0.0044 N.m on an AK80-9: zero is not representable with an even number of codes).
+
+Units: position rad, velocity rad/s, torque N.m, all at the output shaft (the motor reports output
+quantities). Positive torque accelerates towards positive position.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import can
+import numpy as np
+from hil.protocols.base import Actuator, DeviceInfo, JointSample
+from hil.protocols.can_odrive import open_can_bus
+
+from hil.errors import DeviceDisconnected, DeviceFault, DeviceTimeout, ProtocolError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class MitLimits:
+    """Mapping ranges of one AK model: P [rad], V [rad/s], T [N.m], KP [N.m/rad], KD [N.m.s/rad]."""
+
+    p_min: float
+    p_max: float
+    v_min: float
+    v_max: float
+    t_min: float
+    t_max: float
+    kp_min: float = 0.0
+    kp_max: float = 500.0
+    kd_min: float = 0.0
+    kd_max: float = 5.0
+
+
+#: Per-model ranges (manual / TMotorCANControl ``MIT_Params``). P is +-12.5 rad for all.
+MODEL_LIMITS: dict[str, MitLimits] = {
+    #            P            V            T
+    "AK10-9": MitLimits(-12.5, 12.5, -50.0, 50.0, -65.0, 65.0),
+    "AK60-6": MitLimits(-12.5, 12.5, -50.0, 50.0, -15.0, 15.0),
+    "AK70-10": MitLimits(-12.5, 12.5, -50.0, 50.0, -25.0, 25.0),
+    "AK80-6": MitLimits(-12.5, 12.5, -76.0, 76.0, -12.0, 12.0),
+    "AK80-9": MitLimits(-12.5, 12.5, -50.0, 50.0, -18.0, 18.0),
+    "AK80-64": MitLimits(-12.5, 12.5, -8.0, 8.0, -144.0, 144.0),
+}
+
+#: MIT-mode error codes (byte 7 of the reply).
+ERROR_CODES: dict[int, str] = {
+    0: "no error",
+    1: "over temperature",
+    2: "over current",
+    3: "over voltage",
+    4: "under voltage",
+    5: "encoder fault",
+    6: "phase current unbalance (hardware may be damaged)",
+}
+
+_FF7 = b"\xff" * 7
+SPECIAL_FRAMES: dict[str, bytes] = {"enter": _FF7 + b"\xfc", "exit": _FF7 + b"\xfd", "zero": _FF7 + b"\xfe"}
+SPECIAL_FRAMES_INV: dict[bytes, str] = {v: k for k, v in SPECIAL_FRAMES.items()}
+
+
+def model_limits(model: str | MitLimits) -> MitLimits:
+    if isinstance(model, MitLimits):
+        return model
+    try:
+        return MODEL_LIMITS[model]
+    except KeyError:
+        raise ValueError(f"unknown CubeMars model {model!r}; known: {sorted(MODEL_LIMITS)}") from None
+
+
+def float_to_uint(x: float, x_min: float, x_max: float, bits: int) -> int:
+    """Clamp ``x`` to [x_min, x_max] and map it to 0 .. 2**bits - 1 (truncated, like the firmware)."""
+    top = (1 << bits) - 1
+    x = min(max(float(x), x_min), x_max)
+    return min(top, max(0, int((x - x_min) * top / (x_max - x_min))))
+
+
+def uint_to_float(u: int, x_min: float, x_max: float, bits: int) -> float:
+    return u * (x_max - x_min) / ((1 << bits) - 1) + x_min
+
+
+@dataclass(frozen=True)
+class MitCommand:
+    p_des: float
+    v_des: float
+    kp: float
+    kd: float
+    t_ff: float
+
+
+@dataclass(frozen=True)
+class MitReply:
+    motor_id: int
+    position: float
+    velocity: float
+    torque: float
+    temperature: int | None = None
+    error: int | None = None
+
+
+def pack_command(c: MitCommand, lim: MitLimits) -> bytes:
+    p = float_to_uint(c.p_des, lim.p_min, lim.p_max, 16)
+    v = float_to_uint(c.v_des, lim.v_min, lim.v_max, 12)
+    kp = float_to_uint(c.kp, lim.kp_min, lim.kp_max, 12)
+    kd = float_to_uint(c.kd, lim.kd_min, lim.kd_max, 12)
+    t = float_to_uint(c.t_ff, lim.t_min, lim.t_max, 12)
+    b3 = ((v & 0xF) << 4) | (kp >> 8)
+    b6 = ((kd & 0xF) << 4) | (t >> 8)
+    return bytes((p >> 8, p & 0xFF, v >> 4, b3, kp & 0xFF, kd >> 4, b6, t & 0xFF))
+
+
+def unpack_command(data: bytes, lim: MitLimits) -> MitCommand:
+    if len(data) != 8:
+        raise ProtocolError(f"MIT command needs 8 bytes, got {len(data)}")
+    d = data
+    p = (d[0] << 8) | d[1]
+    v = (d[2] << 4) | (d[3] >> 4)
+    kp = ((d[3] & 0xF) << 8) | d[4]
+    kd = (d[5] << 4) | (d[6] >> 4)
+    t = ((d[6] & 0xF) << 8) | d[7]
+    return MitCommand(
+        uint_to_float(p, lim.p_min, lim.p_max, 16),
+        uint_to_float(v, lim.v_min, lim.v_max, 12),
+        uint_to_float(kp, lim.kp_min, lim.kp_max, 12),
+        uint_to_float(kd, lim.kd_min, lim.kd_max, 12),
+        uint_to_float(t, lim.t_min, lim.t_max, 12),
+    )
+
+
+def pack_reply(r: MitReply, lim: MitLimits, short: bool = False) -> bytes:
+    p = float_to_uint(r.position, lim.p_min, lim.p_max, 16)
+    v = float_to_uint(r.velocity, lim.v_min, lim.v_max, 12)
+    t = float_to_uint(r.torque, lim.t_min, lim.t_max, 12)
+    head = bytes((r.motor_id & 0xFF, p >> 8, p & 0xFF, v >> 4, ((v & 0xF) << 4) | (t >> 8), t & 0xFF))
+    if short:
+        return head
+    return head + bytes(((r.temperature or 0) & 0xFF, (r.error or 0) & 0xFF))
+
+
+def unpack_reply(data: bytes, lim: MitLimits) -> MitReply:
+    if len(data) not in (6, 8):
+        raise ProtocolError(f"MIT reply needs 6 or 8 bytes, got {len(data)}")
+    d = data
+    p = (d[1] << 8) | d[2]
+    v = (d[3] << 4) | (d[4] >> 4)
+    t = ((d[4] & 0xF) << 8) | d[5]
+    temp = d[6] if len(d) == 8 else None
+    err = d[7] if len(d) == 8 else None
+    return MitReply(
+        d[0],
+        uint_to_float(p, lim.p_min, lim.p_max, 16),
+        uint_to_float(v, lim.v_min, lim.v_max, 12),
+        uint_to_float(t, lim.t_min, lim.t_max, 12),
+        temp,
+        err,
+    )
+
+
+class CubeMarsMIT(Actuator):
+    """One AK actuator in MIT mode; ``dof`` = 1, rotary, output-shaft rad / rad/s / N.m.
+
+    Parameters
+    ----------
+    motor_id: CAN id of the motor (commands are sent on this id).
+    model: key of :data:`MODEL_LIMITS` or a :class:`MitLimits`.
+    reply_id: arbitration id of the replies (``None``: accept any id and match byte 0).
+    channel, interface, bitrate, bus, clock: as for :class:`hil.protocols.can_odrive.ODriveCAN`.
+    enable: send "enter motor mode" on open and "exit motor mode" on close.
+    zero_on_open: send "set zero" after entering motor mode.
+
+    :meth:`command_effort` sends a torque-only command (kp = kd = 0, t_ff = effort);
+    :meth:`command_mit` exposes the full impedance command. Each command is answered by the motor;
+    :meth:`read` returns the newest reply received since the previous read, or re-sends the last
+    command (idempotent) to elicit one. A non-zero error byte raises :class:`DeviceFault`.
+    """
+
+    dof = 1
+    units = "rotary"
+
+    def __init__(
+        self,
+        motor_id: int = 1,
+        channel: str = "can0",
+        interface: str = "socketcan",
+        bitrate: int | None = None,
+        *,
+        model: str | MitLimits = "AK80-9",
+        reply_id: int | None = None,
+        bus: can.BusABC | None = None,
+        enable: bool = True,
+        zero_on_open: bool = False,
+        clock: Callable[[], float] = time.monotonic,
+        timeout: float = 0.1,
+        **bus_kwargs: Any,
+    ) -> None:
+        self.motor_id = int(motor_id)
+        self.limits = model_limits(model)
+        self.reply_id = reply_id
+        self.clock = clock
+        self.timeout = timeout
+        self._enable = enable
+        self._closed = False
+        self._seq = 0
+        self._fresh: MitReply | None = None
+        self._last_cmd: bytes = pack_command(MitCommand(0.0, 0.0, 0.0, 0.0, 0.0), self.limits)
+        self.temperature: int | None = None
+        self.decode_errors = 0
+        self.error_frames = 0  # CAN error frames seen (e.g. a corrupted reply)
+        filters = None  # error frames must reach us; reply filtering is done in _handle
+        if bus is None:
+            self._bus = open_can_bus(interface, channel, bitrate, filters, **bus_kwargs)
+            self._own_bus = True
+        else:
+            self._bus, self._own_bus = bus, False
+        name = model if isinstance(model, str) else "custom"
+        self.info = DeviceInfo(
+            driver="cubemars_mit",
+            transport=f"can:{interface}:{channel}",
+            vendor="CubeMars",
+            model=name,
+            extra={"motor_id": self.motor_id, "limits": self.limits.__dict__},
+        )
+        if enable:
+            try:
+                self.enter_motor_mode(timeout)
+                if zero_on_open:
+                    self.set_zero(timeout)
+            except Exception:
+                self.close()
+                raise
+
+    # -- low level ----------------------------------------------------------------------------
+    def _send(self, data: bytes, timeout: float) -> None:
+        if self._closed:
+            raise DeviceDisconnected("CubeMarsMIT is closed")
+        msg = can.Message(arbitration_id=self.motor_id, data=data, is_extended_id=False)
+        try:
+            self._bus.send(msg, timeout=timeout)
+        except can.CanOperationError as exc:
+            raise DeviceTimeout(f"CubeMars {self.motor_id}: send failed: {exc}") from exc
+        except can.CanError as exc:
+            raise DeviceDisconnected(f"CubeMars {self.motor_id}: bus error: {exc}") from exc
+
+    def _recv(self, timeout: float) -> can.Message | None:
+        if self._closed:
+            raise DeviceDisconnected("CubeMarsMIT is closed")
+        try:
+            return self._bus.recv(timeout=max(0.0, timeout))
+        except can.CanError as exc:
+            raise DeviceDisconnected(f"CubeMars {self.motor_id}: bus error: {exc}") from exc
+
+    def _handle(self, msg: can.Message) -> bool:
+        if msg.is_error_frame:
+            self.error_frames += 1
+            return False
+        if msg.is_remote_frame or msg.is_extended_id:
+            return False
+        if msg.arbitration_id == self.motor_id:  # a command (ours or another master's)
+            return False
+        if self.reply_id is not None and msg.arbitration_id != self.reply_id:
+            return False
+        data = bytes(msg.data)
+        if len(data) not in (6, 8) or data[0] != self.motor_id:
+            return False
+        try:
+            self._fresh = unpack_reply(data, self.limits)
+        except ProtocolError:
+            self.decode_errors += 1
+            return False
+        return True
+
+    def _drain(self) -> None:
+        while (msg := self._recv(0.0)) is not None:
+            self._handle(msg)
+
+    def _await_reply(self, deadline: float) -> MitReply:
+        while self._fresh is None:
+            remaining = deadline - time.monotonic()
+            msg = self._recv(remaining if remaining > 0 else 0.0)
+            if msg is None:
+                raise DeviceTimeout(f"CubeMars {self.motor_id}: no reply within timeout")
+            self._handle(msg)
+        return self._fresh
+
+    def _transact(self, data: bytes, timeout: float) -> MitReply:
+        self._drain()
+        self._fresh = None
+        self._send(data, timeout)
+        return self._await_reply(time.monotonic() + timeout)
+
+    # -- commands -----------------------------------------------------------------------------
+    def enter_motor_mode(self, timeout: float = 0.1) -> MitReply:
+        return self._transact(SPECIAL_FRAMES["enter"], timeout)
+
+    def exit_motor_mode(self, timeout: float = 0.1) -> None:
+        self._send(SPECIAL_FRAMES["exit"], timeout)
+
+    def set_zero(self, timeout: float = 0.1) -> MitReply:
+        return self._transact(SPECIAL_FRAMES["zero"], timeout)
+
+    def command_mit(
+        self, p_des: float, v_des: float, kp: float, kd: float, t_ff: float, timeout: float = 0.1
+    ) -> None:
+        """Impedance command: tau = kp*(p_des - q) + kd*(v_des - qd) + t_ff (all clamped to range)."""
+        data = pack_command(MitCommand(p_des, v_des, kp, kd, t_ff), self.limits)
+        self._send(data, timeout)
+        self._last_cmd = data
+
+    def command_effort(self, effort: np.ndarray, timeout: float = 0.1) -> None:
+        """Torque-only command in N.m at the output (kp = kd = 0), clamped to the model's T range."""
+        u = float(np.asarray(effort, dtype=float).reshape(-1)[0])
+        if not math.isfinite(u):
+            raise ValueError(f"non-finite effort {u!r}")
+        self.command_mit(0.0, 0.0, 0.0, 0.0, u, timeout)
+
+    # -- feedback -----------------------------------------------------------------------------
+    def read(self, timeout: float = 0.1) -> JointSample:
+        deadline = time.monotonic() + timeout
+        self._drain()
+        if self._fresh is None:
+            self._send(self._last_cmd, timeout)
+            self._await_reply(deadline)
+            self._drain()
+        r = self._fresh
+        assert r is not None
+        self._fresh = None
+        self.temperature = r.temperature
+        err = r.error or 0
+        if err:
+            what = ERROR_CODES.get(err, "unknown")
+            raise DeviceFault(f"CubeMars {self.motor_id}: error {err} ({what})", code=err)
+        self._seq += 1
+        return JointSample(
+            t=self.clock(),
+            seq=self._seq,
+            position=np.array([r.position]),
+            velocity=np.array([r.velocity]),
+            effort=np.array([r.torque]),
+            fault=err,
+        )
+
+    def safe_stop(self) -> None:
+        with contextlib.suppress(Exception):  # must not raise
+            self.command_effort(np.zeros(1), timeout=0.05)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        if self._enable:
+            self.safe_stop()
+            with contextlib.suppress(Exception):
+                self.exit_motor_mode(0.05)
+        self._closed = True
+        if self._own_bus:
+            try:
+                self._bus.shutdown()
+            except (can.CanError, OSError) as exc:  # pragma: no cover
+                log.debug("bus shutdown failed: %s", exc)

@@ -1,0 +1,468 @@
+"""ODrive over CAN ("CANSimple"), torque control, as an :class:`~hil.protocols.base.Actuator`.
+
+Wire format (sources: ODrive docs "CAN Protocol", https://docs.odriverobotics.com/v/latest/
+can-protocol.html, and the odrive-cansimple DBC tables as rendered by the ``odrive_can`` project
+and the ``odrive-messages`` crate, all consulted through the search tool):
+
+* 11-bit standard id ``node_id << 5 | cmd_id`` (node 0..63, cmd 0..31); little-endian payloads.
+* Messages used here:
+
+  ====  =====================  ========  =========================================================
+  cmd   name                   dir       payload
+  ====  =====================  ========  =========================================================
+  0x01  Heartbeat              drive->   axis_error u32, axis_state u8, procedure_result u8,
+                                         trajectory_done u8, reserved u8 (cyclic)
+  0x02  Estop                  ->drive   empty
+  0x07  Set_Axis_State         ->drive   axis_requested_state u32 (IDLE=1, CLOSED_LOOP_CONTROL=8)
+  0x09  Get_Encoder_Estimates  drive->   pos_estimate f32 [turns], vel_estimate f32 [turns/s]
+                                         (cyclic, or answer to an RTR frame with this id)
+  0x0B  Set_Controller_Mode    ->drive   control_mode u32 (TORQUE_CONTROL=1), input_mode u32
+                                         (PASSTHROUGH=1)
+  0x0E  Set_Input_Torque       ->drive   input_torque f32 [N.m at the motor]
+  0x18  Clear_Errors           ->drive   identify u8 (firmware 0.6; older firmware: empty)
+  0x1C  Get_Torques            drive->   torque_target f32, torque_estimate f32 [N.m]
+  ====  =====================  ========  =========================================================
+
+  Example (conformance vector): Set_Input_Torque to node 3 with 1.5 N.m is id 0x6E, data
+  ``00 00 C0 3F``.
+
+Units and scaling: the drive works in motor turns and motor N.m. This adapter reports SI joint
+units. Rotary (default): ``q [rad] = 2*pi*turns / gear_ratio``, ``tau_joint = gear_ratio *
+tau_motor``. Linear (``linear_scale`` = metres per motor turn, e.g. a ball screw lead): ``x [m] =
+linear_scale * turns``, ``F [N] = 2*pi * tau_motor / linear_scale`` (ideal, lossless
+transmission). Sign: positive effort drives the joint in its positive direction (the drive's
+positive direction; flip it on the drive or with a negative ``gear_ratio``).
+
+Feedback: ``feedback="poll"`` sends an RTR frame for Get_Encoder_Estimates on every
+:meth:`ODriveCAN.read` and waits for the answer (stale answers queued before the request are
+discarded); ``feedback="cyclic"`` uses the frames the drive broadcasts at its configured
+``encoder_msg_rate_ms`` and returns the newest one received since the previous read. Heartbeats
+are processed whenever frames are read; a non-zero ``axis_error`` raises
+:class:`hil.errors.DeviceFault` (``code`` = axis_error) on every read until cleared.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import struct
+import time
+from collections.abc import Callable
+from enum import IntEnum
+from typing import Any, Literal
+
+import can
+import numpy as np
+from hil.protocols.base import Actuator, DeviceInfo, JointSample
+
+from hil.errors import DeviceDisconnected, DeviceFault, DeviceTimeout, ProtocolError
+
+log = logging.getLogger(__name__)
+
+# -- command ids ----------------------------------------------------------------------------
+CMD_HEARTBEAT = 0x01
+CMD_ESTOP = 0x02
+CMD_SET_AXIS_STATE = 0x07
+CMD_GET_ENCODER_ESTIMATES = 0x09
+CMD_SET_CONTROLLER_MODE = 0x0B
+CMD_SET_INPUT_TORQUE = 0x0E
+CMD_CLEAR_ERRORS = 0x18
+CMD_GET_TORQUES = 0x1C
+
+
+class AxisState(IntEnum):
+    UNDEFINED = 0
+    IDLE = 1
+    CLOSED_LOOP_CONTROL = 8
+
+
+class ControlMode(IntEnum):
+    VOLTAGE_CONTROL = 0
+    TORQUE_CONTROL = 1
+    VELOCITY_CONTROL = 2
+    POSITION_CONTROL = 3
+
+
+class InputMode(IntEnum):
+    INACTIVE = 0
+    PASSTHROUGH = 1
+
+
+# ODrive Pro / S1 (firmware 0.6) axis_error bits used by the simulator and in messages
+AXIS_ERROR_ESTOP_REQUESTED = 0x02000000
+AXIS_ERROR_NAMES = {
+    0x1: "INITIALIZING",
+    0x2: "SYSTEM_LEVEL",
+    0x4: "TIMING_ERROR",
+    0x8: "MISSING_ESTIMATE",
+    0x10: "BAD_CONFIG",
+    0x20: "DRV_FAULT",
+    0x40: "MISSING_INPUT",
+    0x100: "DC_BUS_OVER_VOLTAGE",
+    0x200: "DC_BUS_UNDER_VOLTAGE",
+    0x400: "DC_BUS_OVER_CURRENT",
+    0x800: "DC_BUS_OVER_REGEN_CURRENT",
+    0x1000: "CURRENT_LIMIT_VIOLATION",
+    0x2000: "MOTOR_OVER_TEMP",
+    0x4000: "INVERTER_OVER_TEMP",
+    0x8000: "VELOCITY_LIMIT_VIOLATION",
+    0x10000: "POSITION_LIMIT_VIOLATION",
+    0x1000000: "WATCHDOG_TIMER_EXPIRED",
+    0x2000000: "ESTOP_REQUESTED",
+    0x4000000: "SPINOUT_DETECTED",
+    0x8000000: "BRAKE_RESISTOR_DISARMED",
+    0x10000000: "THERMISTOR_DISCONNECTED",
+    0x40000000: "CALIBRATION_ERROR",
+}
+
+
+def describe_axis_error(code: int) -> str:
+    names = [n for bit, n in AXIS_ERROR_NAMES.items() if code & bit]
+    unknown = code & ~sum(AXIS_ERROR_NAMES)
+    if unknown:
+        names.append(f"0x{unknown:X}")
+    return "|".join(names) or "NONE"
+
+
+# -- pure wire helpers (shared with the simulator) ------------------------------------------
+def arbitration_id(node_id: int, cmd_id: int) -> int:
+    """CANSimple id: upper 6 bits node id, lower 5 bits command id."""
+    if not 0 <= node_id <= 0x3F or not 0 <= cmd_id <= 0x1F:
+        raise ValueError(f"node_id 0..63 and cmd_id 0..31 required, got {node_id}, {cmd_id}")
+    return (node_id << 5) | cmd_id
+
+
+def split_id(arb_id: int) -> tuple[int, int]:
+    """(node_id, cmd_id) of a CANSimple id."""
+    return (arb_id >> 5) & 0x3F, arb_id & 0x1F
+
+
+def encode_f32(x: float) -> bytes:
+    return struct.pack("<f", x)
+
+
+def encode_f32x2(a: float, b: float) -> bytes:
+    return struct.pack("<ff", a, b)
+
+
+def decode_f32x2(data: bytes | bytearray) -> tuple[float, float]:
+    if len(data) < 8:
+        raise ProtocolError(f"expected 8 data bytes, got {len(data)}")
+    a, b = struct.unpack_from("<ff", bytes(data))
+    return a, b
+
+
+def encode_u32(x: int) -> bytes:
+    return struct.pack("<I", x)
+
+
+def encode_controller_mode(control_mode: int, input_mode: int) -> bytes:
+    return struct.pack("<II", control_mode, input_mode)
+
+
+def encode_heartbeat(axis_error: int, axis_state: int, procedure: int = 0, traj_done: int = 0) -> bytes:
+    return struct.pack("<IBBBx", axis_error, axis_state, procedure, traj_done)
+
+
+def decode_heartbeat(data: bytes | bytearray) -> tuple[int, int]:
+    """(axis_error, axis_state) of a Heartbeat payload (at least 5 bytes)."""
+    if len(data) < 5:
+        raise ProtocolError(f"heartbeat needs >= 5 bytes, got {len(data)}")
+    err, state = struct.unpack_from("<IB", bytes(data))
+    return err, state
+
+
+def open_can_bus(
+    interface: str, channel: str, bitrate: int | None, filters: list[dict] | None, **kw: Any
+) -> can.BusABC:
+    """Open a python-can bus, mapping failures to :class:`hil.errors.DeviceDisconnected`."""
+    kwargs: dict[str, Any] = dict(kw)
+    if bitrate is not None:
+        kwargs["bitrate"] = bitrate
+    try:
+        return can.Bus(interface=interface, channel=channel, can_filters=filters, **kwargs)
+    except (can.CanError, OSError, ValueError) as exc:
+        raise DeviceDisconnected(f"cannot open CAN bus {interface}:{channel}: {exc}") from exc
+
+
+class ODriveCAN(Actuator):
+    """One ODrive axis (one CANSimple node) in torque control; ``dof`` = 1.
+
+    Parameters
+    ----------
+    node_id: CANSimple node id of the axis (0..63).
+    channel, interface, bitrate: python-can bus (e.g. ``"can0"``/``"socketcan"`` on a bench,
+        ``"hil0"``/``"virtual"`` against the simulator). Extra ``bus_kwargs`` go to ``can.Bus``.
+    bus: use an already open bus instead (not shut down by :meth:`close`).
+    gear_ratio: motor turns per joint turn (rotary).
+    linear_scale: metres of joint travel per motor turn; makes the joint linear (units "linear").
+    feedback: ``"poll"`` (RTR request per read) or ``"cyclic"`` (drive broadcasts estimates).
+    read_torque: also poll Get_Torques (0x1C) and report ``effort`` = torque estimate (joint units).
+    effort_limit: symmetric clamp on commanded joint effort (N or N.m), ``None`` = no clamp.
+    enable: on open, set TORQUE_CONTROL/PASSTHROUGH and request CLOSED_LOOP_CONTROL; on close,
+        command zero torque and request IDLE.
+    clock: time source for ``JointSample.t`` (pass the simulator clock in lockstep runs).
+    """
+
+    dof = 1
+
+    def __init__(
+        self,
+        node_id: int = 0,
+        channel: str = "can0",
+        interface: str = "socketcan",
+        bitrate: int | None = None,
+        *,
+        bus: can.BusABC | None = None,
+        gear_ratio: float = 1.0,
+        linear_scale: float | None = None,
+        feedback: Literal["poll", "cyclic"] = "poll",
+        read_torque: bool = False,
+        effort_limit: float | None = None,
+        enable: bool = True,
+        clock: Callable[[], float] = time.monotonic,
+        timeout: float = 0.1,
+        **bus_kwargs: Any,
+    ) -> None:
+        if feedback not in ("poll", "cyclic"):
+            raise ValueError(f"feedback must be 'poll' or 'cyclic', got {feedback!r}")
+        if gear_ratio == 0 or (linear_scale is not None and linear_scale == 0):
+            raise ValueError("gear_ratio and linear_scale must be non-zero")
+        self.node_id = int(node_id)
+        arbitration_id(self.node_id, 0)  # validates the node id
+        self.gear_ratio = float(gear_ratio)
+        self.linear_scale = None if linear_scale is None else float(linear_scale)
+        self.units = "linear" if self.linear_scale is not None else "rotary"
+        self.feedback = feedback
+        self.read_torque = read_torque
+        self.effort_limit = effort_limit
+        self.clock = clock
+        self.timeout = timeout
+        self._enable = enable
+        self._seq = 0
+        self._closed = False
+        self._fault = 0
+        self.axis_state: int | None = None
+        self.error_frames = 0  # CAN error frames seen (e.g. a corrupted answer)
+        self.stale_discarded = 0  # poll mode: late answers discarded before a new request
+        self._estimate: tuple[float, float] | None = None  # newest unread (pos, vel) in turns
+        self._torques: tuple[float, float] | None = None
+        # no acceptance filter: error frames (id 0) must reach us too; node filtering is done in _handle
+        filters = None
+        if bus is None:
+            self._bus = open_can_bus(interface, channel, bitrate, filters, **bus_kwargs)
+            self._own_bus = True
+        else:
+            self._bus = bus
+            self._own_bus = False
+        self.info = DeviceInfo(
+            driver="odrive_can",
+            transport=f"can:{interface}:{channel}" if bus is None else f"can:{bus.channel_info}",
+            vendor="ODrive Robotics",
+            model="CANSimple axis",
+            extra={"node_id": self.node_id, "gear_ratio": self.gear_ratio, "linear_scale": self.linear_scale},
+        )
+        if enable:
+            try:
+                self.set_controller_mode(ControlMode.TORQUE_CONTROL, InputMode.PASSTHROUGH)
+                self.set_axis_state(AxisState.CLOSED_LOOP_CONTROL)
+            except Exception:
+                self.close()
+                raise
+
+    # -- unit conversion --------------------------------------------------------------------
+    def _turns_to_joint(self, turns: float) -> float:
+        if self.linear_scale is not None:
+            return turns * self.linear_scale
+        return turns * 2.0 * math.pi / self.gear_ratio
+
+    def _motor_torque_to_joint(self, tau: float) -> float:
+        if self.linear_scale is not None:
+            return tau * 2.0 * math.pi / self.linear_scale
+        return tau * self.gear_ratio
+
+    def joint_effort_to_motor_torque(self, effort: float) -> float:
+        """Joint effort (N or N.m) -> motor torque (N.m) sent in Set_Input_Torque."""
+        if self.linear_scale is not None:
+            return effort * self.linear_scale / (2.0 * math.pi)
+        return effort / self.gear_ratio
+
+    # -- low level ----------------------------------------------------------------------------
+    def _send(self, cmd: int, data: bytes = b"", remote: bool = False, timeout: float | None = None) -> None:
+        if self._closed:
+            raise DeviceDisconnected("ODriveCAN is closed")
+        msg = can.Message(
+            arbitration_id=arbitration_id(self.node_id, cmd),
+            data=data,
+            is_extended_id=False,
+            is_remote_frame=remote,
+            dlc=8 if remote else len(data),
+        )
+        try:
+            self._bus.send(msg, timeout=self.timeout if timeout is None else timeout)
+        except can.CanOperationError as exc:
+            raise DeviceTimeout(f"ODrive node {self.node_id}: send of cmd 0x{cmd:02X} failed: {exc}") from exc
+        except can.CanError as exc:
+            raise DeviceDisconnected(f"ODrive node {self.node_id}: bus error: {exc}") from exc
+
+    def _recv(self, timeout: float) -> can.Message | None:
+        if self._closed:
+            raise DeviceDisconnected("ODriveCAN is closed")
+        try:
+            return self._bus.recv(timeout=max(0.0, timeout))
+        except can.CanError as exc:
+            raise DeviceDisconnected(f"ODrive node {self.node_id}: bus error: {exc}") from exc
+
+    def _handle(self, msg: can.Message) -> int | None:
+        """Digest one received frame; return its cmd id (None if not ours / a request)."""
+        if msg.is_error_frame:
+            self.error_frames += 1
+            return None
+        if msg.is_extended_id or msg.is_remote_frame:
+            return None
+        node, cmd = split_id(msg.arbitration_id)
+        if node != self.node_id:
+            return None
+        if cmd == CMD_HEARTBEAT:
+            err, state = decode_heartbeat(msg.data)
+            if err != self._fault:
+                if err:
+                    log.warning("ODrive node %d: axis_error 0x%X (%s)", node, err, describe_axis_error(err))
+                else:
+                    log.info("ODrive node %d: axis_error cleared", node)
+            self._fault, self.axis_state = err, state
+        elif cmd == CMD_GET_ENCODER_ESTIMATES:
+            self._estimate = decode_f32x2(msg.data)
+        elif cmd == CMD_GET_TORQUES:
+            self._torques = decode_f32x2(msg.data)
+        return cmd
+
+    def _drain(self) -> None:
+        while (msg := self._recv(0.0)) is not None:
+            self._handle(msg)
+
+    def _raise_if_fault(self) -> None:
+        if self._fault:
+            raise DeviceFault(
+                f"ODrive node {self.node_id}: axis_error 0x{self._fault:X} "
+                f"({describe_axis_error(self._fault)})",
+                code=self._fault,
+            )
+
+    def _wait_for(self, cmd: int, deadline: float) -> None:
+        while True:
+            remaining = deadline - time.monotonic()
+            msg = self._recv(remaining) if remaining > 0 else self._recv(0.0)
+            if msg is None:
+                raise DeviceTimeout(f"ODrive node {self.node_id}: no answer to cmd 0x{cmd:02X} in time")
+            if self._handle(msg) == cmd:
+                return
+
+    # -- commands -----------------------------------------------------------------------------
+    def set_axis_state(self, state: int, timeout: float = 0.1) -> None:
+        self._send(CMD_SET_AXIS_STATE, encode_u32(int(state)), timeout=timeout)
+
+    def set_controller_mode(self, control_mode: int, input_mode: int, timeout: float = 0.1) -> None:
+        data = encode_controller_mode(int(control_mode), int(input_mode))
+        self._send(CMD_SET_CONTROLLER_MODE, data, timeout=timeout)
+
+    def set_input_torque(self, motor_torque: float, timeout: float = 0.1) -> None:
+        """Raw Set_Input_Torque in motor N.m (no gear/scale conversion)."""
+        self._send(CMD_SET_INPUT_TORQUE, encode_f32(float(motor_torque)), timeout=timeout)
+
+    def estop(self, timeout: float = 0.1) -> None:
+        """Send Estop (0x02): the drive disarms and latches ESTOP_REQUESTED."""
+        self._send(CMD_ESTOP, b"", timeout=timeout)
+
+    def clear_errors(self, timeout: float = 0.1) -> None:
+        self._send(CMD_CLEAR_ERRORS, b"\x00", timeout=timeout)
+        self._fault = 0
+
+    def command_effort(self, effort: np.ndarray, timeout: float = 0.1) -> None:
+        """Command joint effort (N.m rotary / N linear), converted to motor torque (see module doc)."""
+        u = float(np.asarray(effort, dtype=float).reshape(-1)[0])
+        if not math.isfinite(u):
+            raise ValueError(f"non-finite effort {u!r}")
+        if self.effort_limit is not None:
+            u = min(max(u, -self.effort_limit), self.effort_limit)
+        self.set_input_torque(self.joint_effort_to_motor_torque(u), timeout=timeout)
+
+    # -- feedback -----------------------------------------------------------------------------
+    def read(self, timeout: float = 0.1) -> JointSample:
+        """Newest encoder estimate as a JointSample (rad, rad/s or m, m/s).
+
+        Raises DeviceTimeout when no fresh estimate arrives within ``timeout`` and DeviceFault when
+        the latest heartbeat carries a non-zero axis_error.
+        """
+        deadline = time.monotonic() + timeout
+        if self.feedback == "poll":
+            self._drain()
+            if self._estimate is not None:
+                self.stale_discarded += 1
+                self._estimate = None
+            self._raise_if_fault()
+            self._send(CMD_GET_ENCODER_ESTIMATES, remote=True, timeout=timeout)
+            self._wait_for(CMD_GET_ENCODER_ESTIMATES, deadline)
+            if self.read_torque:
+                self._torques = None
+                self._send(CMD_GET_TORQUES, remote=True, timeout=timeout)
+                self._wait_for(CMD_GET_TORQUES, deadline)
+        else:
+            self._drain()
+            if self._estimate is None:
+                self._wait_for(CMD_GET_ENCODER_ESTIMATES, deadline)
+                self._drain()
+        self._raise_if_fault()
+        est = self._estimate
+        if est is None:  # pragma: no cover - guarded by _wait_for
+            raise DeviceTimeout(f"ODrive node {self.node_id}: no encoder estimate")
+        self._estimate = None
+        effort = None
+        if self._torques is not None:
+            effort = np.array([self._motor_torque_to_joint(self._torques[1])])
+        self._seq += 1
+        return JointSample(
+            t=self.clock(),
+            seq=self._seq,
+            position=np.array([self._turns_to_joint(est[0])]),
+            velocity=np.array([self._turns_to_joint(est[1])]),
+            effort=effort,
+            fault=self._fault,
+        )
+
+    def safe_stop(self) -> None:
+        """Zero torque, then request IDLE. Never raises."""
+        with contextlib.suppress(Exception):
+            self.set_input_torque(0.0, 0.05)
+        with contextlib.suppress(Exception):
+            self.set_axis_state(AxisState.IDLE, 0.05)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        if self._enable:
+            self.safe_stop()
+        self._closed = True
+        if self._own_bus:
+            try:
+                self._bus.shutdown()
+            except (can.CanError, OSError) as exc:  # pragma: no cover
+                log.debug("bus shutdown failed: %s", exc)
+
+
+__all__ = [
+    "CMD_ESTOP",
+    "CMD_GET_ENCODER_ESTIMATES",
+    "CMD_GET_TORQUES",
+    "CMD_HEARTBEAT",
+    "CMD_SET_AXIS_STATE",
+    "CMD_SET_CONTROLLER_MODE",
+    "CMD_SET_INPUT_TORQUE",
+    "AxisState",
+    "ControlMode",
+    "InputMode",
+    "ODriveCAN",
+    "arbitration_id",
+    "split_id",
+]
