@@ -1,0 +1,182 @@
+"""CubeMars AK MIT-mode adapter: pack/unpack conformance and the adapter against the simulated motor."""
+
+from __future__ import annotations
+
+import itertools
+
+import can
+import numpy as np
+import pytest
+from hil.mocks.can_devices import SimCubeMars
+from hil.mocks.faults import FaultPlan
+from hil.mocks.interfaces import FreeJoints
+from hil.protocols import can_cubemars as cm
+from hil.protocols.can_cubemars import CubeMarsMIT, MitCommand, MitReply
+
+from hil.errors import DeviceFault, DeviceTimeout
+
+pytestmark = pytest.mark.timeout(20)
+_chan = itertools.count()
+AK80_9 = cm.MODEL_LIMITS["AK80-9"]
+
+
+def channel() -> str:
+    return f"test-cubemars-{next(_chan)}"
+
+
+# Known frames (AK manual / MIT mini-cheetah pack_cmd, truncating float->uint):
+KNOWN_COMMANDS = [
+    # zero command: p=0x7FFF, v=0x7FF, kp=0, kd=0, t=0x7FF
+    (MitCommand(0, 0, 0, 0, 0), "7fff7ff0000007ff"),
+    # every field at its minimum
+    (MitCommand(-12.5, -50, 0, 0, -18), "0000000000000000"),
+    # every field at its maximum
+    (MitCommand(12.5, 50, 500, 5, 18), "ffffffffffffffff"),
+    # beyond range saturates
+    (MitCommand(99, -99, 1e4, -1, 99), "ffff000fff000fff"),
+]
+
+
+@pytest.mark.parametrize(("cmd", "hexdata"), KNOWN_COMMANDS)
+def test_known_command_frames(cmd, hexdata):
+    assert cm.pack_command(cmd, AK80_9).hex() == hexdata
+
+
+@pytest.mark.parametrize("model", sorted(cm.MODEL_LIMITS))
+def test_roundtrip_at_range_ends(model):
+    lim = cm.MODEL_LIMITS[model]
+    for c in (
+        MitCommand(lim.p_min, lim.v_min, lim.kp_min, lim.kd_min, lim.t_min),
+        MitCommand(lim.p_max, lim.v_max, lim.kp_max, lim.kd_max, lim.t_max),
+    ):
+        back = cm.unpack_command(cm.pack_command(c, lim), lim)
+        for a, b in zip(back.__dict__.values(), c.__dict__.values(), strict=True):
+            assert a == pytest.approx(b, abs=1e-9)
+    for r in (MitReply(3, lim.p_min, lim.v_min, lim.t_min, 40, 0), MitReply(3, lim.p_max, lim.v_max, lim.t_max, 41, 2)):
+        back = cm.unpack_reply(cm.pack_reply(r, lim), lim)
+        assert back.__dict__ == pytest.approx(r.__dict__)
+
+
+def test_roundtrip_resolution_mid_range():
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        c = MitCommand(*rng.uniform([-12.5, -50, 0, 0, -18], [12.5, 50, 500, 5, 18]))
+        back = cm.unpack_command(cm.pack_command(c, AK80_9), AK80_9)
+        assert abs(back.p_des - c.p_des) <= 25 / 65535
+        assert abs(back.v_des - c.v_des) <= 100 / 4095
+        assert abs(back.t_ff - c.t_ff) <= 36 / 4095
+
+
+def test_known_reply_frame():
+    # id 1, position 0x8000, velocity 0x800, torque 0x800, 30 degC, no error
+    r = cm.unpack_reply(bytes.fromhex("0180008008001e00"), AK80_9)
+    assert r.motor_id == 1 and r.temperature == 30 and r.error == 0
+    assert r.position == pytest.approx(25 * 0x8000 / 65535 - 12.5)
+    short = cm.unpack_reply(bytes.fromhex("018000800800"), AK80_9)
+    assert short.temperature is None and short.error is None
+
+
+def test_special_frames_on_the_bus():
+    ch = channel()
+    j = FreeJoints()
+    spy = can.Bus(interface="virtual", channel=ch)
+    with SimCubeMars(j, ch, motor_id=2, sync=True) as node:
+        dev = CubeMarsMIT(2, ch, "virtual", zero_on_open=True)
+        assert node.enabled
+        dev.close()
+        assert not node.enabled
+    frames = []
+    while (m := spy.recv(0.0)) is not None:
+        if m.arbitration_id == 2:
+            frames.append(bytes(m.data).hex())
+    spy.shutdown()
+    assert frames[0] == "fffffffffffffffc" and frames[1] == "fffffffffffffffe"
+    assert frames[-1] == "fffffffffffffffd"
+
+
+@pytest.fixture
+def rig():
+    ch = channel()
+    j = FreeJoints()
+    node = SimCubeMars(j, ch, motor_id=1, sync=True)
+    dev = CubeMarsMIT(1, ch, "virtual", reply_id=0)
+    yield j, node, dev
+    dev.close()
+    node.close()
+
+
+def test_torque_command_scaling_and_feedback(rig):
+    j, node, dev = rig
+    dev.command_effort(np.array([5.0]))
+    (_, c), = node.commands[-1:]
+    assert c.kp == 0 and c.kd == 0 and c.t_ff == pytest.approx(5.0, abs=36 / 4095)
+    assert j.measured_force()[0] == pytest.approx(5.0, abs=36 / 4095)
+    s = dev.read()  # the reply to the command
+    assert s.effort[0] == pytest.approx(5.0, abs=2 * 36 / 4095)
+    for _ in range(100):
+        j.step(0.001)
+    s = dev.read()  # re-sends the last command to get a fresh state
+    assert s.position[0] == pytest.approx(j.position()[0], abs=25 / 65535)
+    assert s.velocity[0] == pytest.approx(j.velocity()[0], abs=100 / 4095)
+    assert dev.temperature == 30
+
+
+def test_impedance_command(rig):
+    j, node, dev = rig
+    j._x[:] = 1.0
+    dev.command_mit(p_des=0.0, v_des=0.0, kp=10.0, kd=0.0, t_ff=0.0)
+    assert node.torque == pytest.approx(-10.0, abs=500 / 4095)  # kp LSB = 0.122
+
+
+def test_error_code_raises_fault():
+    ch = channel()
+    j = FreeJoints()
+    plan = FaultPlan(error_code=1, error_at_tick=1)
+    with SimCubeMars(j, ch, motor_id=1, sync=True, faults=plan) as node, CubeMarsMIT(1, ch, "virtual") as dev:
+        dev.command_effort(np.array([1.0]))
+        dev.read()
+        node.tick()
+        dev.command_effort(np.array([1.0]))
+        with pytest.raises(DeviceFault) as ei:
+            dev.read()
+        assert ei.value.code == 1 and "over temperature" in str(ei.value)
+        assert j.measured_force()[0] == 0.0
+
+
+def test_drop_and_corrupt_time_out():
+    ch = channel()
+    j = FreeJoints()
+    plan = FaultPlan(drop_ticks=frozenset({1}), corrupt_ticks=frozenset({2}))
+    with SimCubeMars(j, ch, motor_id=1, sync=True, faults=plan) as node, CubeMarsMIT(1, ch, "virtual") as dev:
+        for expect in ("timeout", "timeout", "ok"):
+            node.tick()
+            try:
+                dev.read(timeout=0.02)
+                got = "ok"
+            except DeviceTimeout:
+                got = "timeout"
+            assert got == expect
+        assert dev.error_frames == 1
+
+
+def test_old_firmware_short_reply():
+    ch = channel()
+    j = FreeJoints()
+    with SimCubeMars(j, ch, motor_id=9, sync=True, short_reply=True), CubeMarsMIT(9, ch, "virtual") as dev:
+        s = dev.read()
+        assert s.fault == 0 and dev.temperature is None
+
+
+def test_lockstep_without_sync_uses_tick():
+    ch = channel()
+    j = FreeJoints()
+    node = SimCubeMars(j, ch, motor_id=1)
+    try:
+        dev = CubeMarsMIT(1, ch, "virtual", enable=False)
+        dev.command_effort(np.array([1.0]))
+        node.tick()  # answers the command
+        s = dev.read(timeout=0.05)
+        assert s.seq == 1
+        dev.close()
+    finally:
+        node.close()
