@@ -321,7 +321,9 @@ class CubeMarsMIT(Actuator):
         self._drain()
         self._fresh = None
         self._send(data, timeout)
-        return self._await_reply(time.monotonic() + timeout)
+        reply = self._await_reply(time.monotonic() + timeout)
+        self._fresh = None  # consumed: read() must not return it as a new sample
+        return reply
 
     # -- commands -----------------------------------------------------------------------------
     def enter_motor_mode(self, timeout: float = 0.1) -> MitReply:
