@@ -1,0 +1,400 @@
+"""DYNAMIXEL X-series servos (e.g. XM430-W350) in current control, over Protocol 2.0 with the
+official ``dynamixel_sdk``.
+
+Role: :class:`hil.protocols.base.Actuator`, rotary, ``dof`` = number of servo ids (a leader or
+follower arm is one adapter with several ids on one bus). Joint ``i`` is servo ``ids[i]``.
+
+Per tick the adapter sends one *sync write* of Goal Current and one *sync read* of the contiguous
+block Present Current .. Present Position (addresses 126..135, 10 bytes).
+
+Control table (ROBOTIS e-manual, XM430-W350 page, Protocol 2.0 control table):
+
+============================ ======= ====== ===================================================
+item                         address bytes  unit / meaning
+============================ ======= ====== ===================================================
+Model Number                 0       2      1020 for XM430-W350
+Firmware Version             6       1
+Operating Mode               11      1      0 = current control (EEPROM: torque must be off)
+Current Limit                38      2      2.69 mA, initial 1193 (~3.2 A)
+Torque Enable                64      1      0 / 1
+Hardware Error Status        70      1      bit field (input voltage, overheating, encoder,
+                                            electrical shock, overload)
+Goal Current                 102     2      signed, 2.69 mA, -limit..+limit
+Present Current              126     2      signed, 2.69 mA
+Present Velocity             128     4      signed, 0.229 rev/min
+Present Position             132     4      signed, 4096 ticks per revolution
+============================ ======= ====== ===================================================
+
+Conversions (SI, per joint, ``d = directions[i]`` = +1 or -1):
+
+* ``position [rad] = d * (ticks - zero_ticks) * 2 pi / 4096``
+* ``velocity [rad/s] = d * raw * 0.229 * 2 pi / 60``
+* ``effort [N.m] = d * raw_current * 2.69e-3 * kt`` (measured through the current)
+* command: ``raw_current = round(d * effort / kt / 2.69e-3)`` clamped to +-Current Limit(38)
+
+``kt`` is the output torque per motor current (N.m/A). The default for the XM430-W350,
+1.78 N.m/A, is the e-manual's stall point at 12 V (4.1 N.m at 2.3 A); the real torque/current
+curve is not linear (friction, saturation), so identify it on the bench and pass
+``torque_constant=``.
+
+Status packets carry an error byte: bit 7 (alert) means a hardware error; the adapter then reads
+Hardware Error Status(70) and raises :class:`DeviceFault` with that code. Error numbers 1..7
+(result fail, instruction, CRC, range, length, limit, access) raise :class:`DeviceFault` with
+``code = 0x100 | number``. No status packet within the timeout raises :class:`DeviceTimeout`;
+a status packet with a bad CRC raises :class:`ChecksumError`.
+
+Timeouts: the SDK's own packet timeout (based on a 16 ms USB latency timer) is replaced by the
+call's ``timeout``; its polling loop is made to sleep in ``select`` instead of spinning.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import select
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from hil.protocols.base import Actuator, DeviceInfo, JointSample
+
+from hil.errors import ChecksumError, DeviceDisconnected, DeviceError, DeviceFault, DeviceTimeout, ProtocolError
+
+log = logging.getLogger(__name__)
+
+ADDR_MODEL_NUMBER = 0
+ADDR_FIRMWARE_VERSION = 6
+ADDR_OPERATING_MODE = 11
+ADDR_CURRENT_LIMIT = 38
+ADDR_TORQUE_ENABLE = 64
+ADDR_HARDWARE_ERROR = 70
+ADDR_GOAL_CURRENT = 102
+ADDR_PRESENT_CURRENT = 126
+ADDR_PRESENT_VELOCITY = 128
+ADDR_PRESENT_POSITION = 132
+PRESENT_BLOCK_LEN = 10  # 126..135
+MODE_CURRENT = 0
+ERRBIT_ALERT = 0x80
+
+CURRENT_UNIT_A = 2.69e-3
+VELOCITY_UNIT_RAD_S = 0.229 * 2.0 * math.pi / 60.0
+TICKS_PER_REV = 4096
+RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
+
+
+@dataclass(frozen=True)
+class XModel:
+    """Constants of one X-series model."""
+
+    name: str
+    model_number: int
+    torque_constant: float  # N.m per A (output side)
+    current_limit: int  # Current Limit(38) factory value, units of 2.69 mA
+
+
+MODELS: dict[str, XModel] = {
+    # e-manual: stall torque 4.1 N.m @ 12 V, 2.3 A -> 1.78 N.m/A; Current Limit initial value 1193
+    "XM430-W350": XModel("XM430-W350", 1020, 4.1 / 2.3, 1193),
+}
+
+
+# ------------------------------------------------------------------------------------------------
+# pure conversions
+# ------------------------------------------------------------------------------------------------
+def to_signed(value: int, nbytes: int) -> int:
+    """Two's complement: unsigned ``nbytes`` integer -> signed."""
+    bits = 8 * nbytes
+    value = int(value) & ((1 << bits) - 1)
+    return value - (1 << bits) if value >= 1 << (bits - 1) else value
+
+
+def to_unsigned(value: int, nbytes: int) -> int:
+    """Signed integer -> its ``nbytes`` two's complement (raises if it does not fit)."""
+    bits = 8 * nbytes
+    if not -(1 << (bits - 1)) <= int(value) < (1 << bits):
+        raise OverflowError(f"{value} does not fit in {nbytes} bytes")
+    return int(value) & ((1 << bits) - 1)
+
+
+def effort_to_current_raw(
+    effort: np.ndarray, torque_constant: np.ndarray, limit_raw: np.ndarray, directions: np.ndarray
+) -> np.ndarray:
+    """Effort (N.m) -> Goal Current register values (signed ints), clamped to +-limit."""
+    raw = np.rint(directions * np.asarray(effort, dtype=float) / torque_constant / CURRENT_UNIT_A)
+    return np.clip(raw, -limit_raw, limit_raw).astype(np.int64)
+
+
+def decode_present_block(block: bytes | Sequence[int]) -> tuple[int, int, int]:
+    """The 10-byte block read at 126 -> (current, velocity, position) raw signed integers."""
+    b = bytes(block)
+    if len(b) != PRESENT_BLOCK_LEN:
+        raise ProtocolError(f"present block must be {PRESENT_BLOCK_LEN} bytes, got {len(b)}")
+    cur = to_signed(int.from_bytes(b[0:2], "little"), 2)
+    vel = to_signed(int.from_bytes(b[2:6], "little"), 4)
+    pos = to_signed(int.from_bytes(b[6:10], "little"), 4)
+    return cur, vel, pos
+
+
+# ------------------------------------------------------------------------------------------------
+# SDK port with real timeouts
+# ------------------------------------------------------------------------------------------------
+def _make_port_handler(port_name: str) -> Any:
+    from dynamixel_sdk import PortHandler
+
+    class TimedPortHandler(PortHandler):  # type: ignore[misc, valid-type]
+        """``PortHandler`` whose packet timeout is the adapter's call timeout and whose read
+        waits in ``select`` (the stock one polls a non-blocking port in a busy loop)."""
+
+        def __init__(self, name: str) -> None:
+            super().__init__(name)
+            self.call_timeout_ms = 100.0
+            self.tx_bytes = 0
+
+        def setPacketTimeout(self, packet_length: int) -> None:
+            self.packet_start_time = self.getCurrentTime()
+            self.packet_timeout = self.call_timeout_ms
+
+        def readPort(self, length: int) -> bytes:
+            if self.ser.in_waiting == 0 and self.packet_timeout > 0:
+                left = self.packet_timeout - self.getTimeSinceStart()
+                if left > 0:
+                    select.select([self.ser.fileno()], [], [], min(left, 5.0) / 1000.0)
+            return self.ser.read(length)
+
+        def writePort(self, packet: Any) -> int:
+            n = self.ser.write(packet)
+            self.tx_bytes += n or 0
+            return n
+
+    return TimedPortHandler(port_name)
+
+
+class DynamixelX(Actuator):
+    """X-series servos on one Protocol 2.0 bus, in current (torque) control.
+
+    ``port`` is the serial device (``/dev/ttyUSB0``, a U2D2, or the pty of a simulated chain).
+    ``current_limit`` (raw units) further restricts commands below each servo's Current Limit(38).
+    ``zero_ticks`` (per joint) is the raw position reported as 0 rad. ``clock`` gives ``t``.
+    On open: ping every id, read Current Limit, torque off, Operating Mode = current, torque on
+    (unless ``enable=False``). :meth:`close` commands zero current and turns torque off.
+    """
+
+    units = "rotary"
+
+    def __init__(
+        self,
+        port: str,
+        ids: Sequence[int] = (1,),
+        *,
+        baudrate: int = 1_000_000,
+        model: str | XModel = "XM430-W350",
+        torque_constant: float | Sequence[float] | None = None,
+        current_limit: int | Sequence[int] | None = None,
+        directions: Sequence[int] | None = None,
+        zero_ticks: Sequence[int] | None = None,
+        timeout: float = 0.1,
+        enable: bool = True,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        from dynamixel_sdk import GroupSyncRead, GroupSyncWrite, PacketHandler
+
+        self.ids = [int(i) for i in ids]
+        if not self.ids or len(set(self.ids)) != len(self.ids):
+            raise ValueError(f"ids must be non-empty and unique, got {ids}")
+        self.dof = len(self.ids)
+        self.model = MODELS[model] if isinstance(model, str) else model
+        n = self.dof
+        kt = self.model.torque_constant if torque_constant is None else torque_constant
+        self.torque_constant = np.broadcast_to(np.asarray(kt, dtype=float), (n,)).copy()
+        self.directions = np.ones(n) if directions is None else np.asarray(directions, dtype=float)
+        if self.directions.shape != (n,) or not np.all(np.abs(self.directions) == 1):
+            raise ValueError("directions must be +1/-1 per joint")
+        self.zero_ticks = np.zeros(n) if zero_ticks is None else np.asarray(zero_ticks, dtype=float)
+        self._user_limit = None if current_limit is None else np.broadcast_to(
+            np.asarray(current_limit, dtype=np.int64), (n,)
+        )
+        self.timeout = float(timeout)
+        self._clock = clock
+        self._seq = 0
+        self._closed = False
+        self._enabled = False
+        self.port_name = port
+        self.info = DeviceInfo(
+            driver="dynamixel_x", transport="dynamixel2-serial", vendor="ROBOTIS", model=self.model.name,
+            extra={"port": port, "ids": list(self.ids), "baudrate": baudrate},
+        )
+        self._port = _make_port_handler(port)
+        self._ph = PacketHandler(2.0)
+        try:
+            ok = self._port.openPort() and self._port.setBaudRate(baudrate)
+        except Exception as exc:  # pyserial raises SerialException (an OSError) on a bad path
+            raise DeviceDisconnected(f"cannot open {port}: {exc}") from exc
+        if not ok:
+            raise DeviceError(f"cannot open {port} at {baudrate} bps")
+        try:
+            self._init_servos(enable)
+        except BaseException:
+            self._closed = True
+            self._port.closePort()
+            raise
+        self._gsw = GroupSyncWrite(self._port, self._ph, ADDR_GOAL_CURRENT, 2)
+        for i in self.ids:
+            self._gsw.addParam(i, [0, 0])
+        self._gsr = GroupSyncRead(self._port, self._ph, ADDR_PRESENT_CURRENT, PRESENT_BLOCK_LEN)
+        for i in self.ids:
+            self._gsr.addParam(i)
+        log.info("DYNAMIXEL %s ids %s on %s opened", self.model.name, self.ids, port)
+
+    # -- Actuator ---------------------------------------------------------------------------------
+    @property
+    def tx_bytes(self) -> int:
+        """Bytes written to the bus so far (for a simulated chain's lockstep ``sync``)."""
+        return int(self._port.tx_bytes)
+
+    def current_command(self, effort: np.ndarray) -> np.ndarray:
+        """The Goal Current register values that :meth:`command_effort` would send."""
+        e = np.asarray(effort, dtype=float).reshape(self.dof)
+        return effort_to_current_raw(e, self.torque_constant, self.current_limit, self.directions)
+
+    def command_effort(self, effort: np.ndarray, timeout: float = 0.1) -> None:
+        """Sync-write Goal Current for every joint (no reply on the bus, so it never waits)."""
+        self._check_open()
+        raw = self.current_command(effort)
+        for i, r in zip(self.ids, raw, strict=True):
+            u = to_unsigned(int(r), 2)
+            self._gsw.changeParam(i, [u & 0xFF, u >> 8])
+        self._port.call_timeout_ms = 1000.0 * timeout
+        self._check_comm(self._gsw.txPacket(), "sync write Goal Current")
+
+    def read(self, timeout: float = 0.1) -> JointSample:
+        """Sync-read Present Current/Velocity/Position of every joint."""
+        self._check_open()
+        from dynamixel_sdk import COMM_SUCCESS
+
+        self._port.call_timeout_ms = 1000.0 * timeout
+        self._check_comm(self._gsr.txPacket(), "sync read")
+        blocks: list[bytes] = []
+        errors: list[int] = []
+        for i in self.ids:
+            data, result, error = self._ph.readRx(self._port, i, PRESENT_BLOCK_LEN)
+            if result != COMM_SUCCESS:
+                self._check_comm(result, f"sync read status of id {i}")
+            blocks.append(bytes(data))
+            errors.append(int(error))
+        for i, err in zip(self.ids, errors, strict=True):
+            self._raise_for_error(i, err, timeout)
+        cur, vel, pos = (np.array(v, dtype=float) for v in zip(*map(decode_present_block, blocks), strict=True))
+        d = self.directions
+        self._seq += 1
+        return JointSample(
+            t=self._clock(),
+            seq=self._seq,
+            position=d * (pos - self.zero_ticks) * RAD_PER_TICK,
+            velocity=d * vel * VELOCITY_UNIT_RAD_S,
+            effort=d * cur * CURRENT_UNIT_A * self.torque_constant,
+        )
+
+    def enable(self, on: bool = True, timeout: float | None = None) -> None:
+        """Torque Enable(64) on every servo."""
+        self._check_open()
+        for i in self.ids:
+            self._write(i, ADDR_TORQUE_ENABLE, 1, int(on), timeout)
+        self._enabled = on
+
+    def safe_stop(self) -> None:
+        """Zero current, then torque off. Never raises."""
+        try:
+            self.command_effort(np.zeros(self.dof), timeout=0.05)
+        except Exception:
+            log.debug("safe_stop: zero command failed", exc_info=True)
+        for i in self.ids:
+            try:
+                self._write(i, ADDR_TORQUE_ENABLE, 1, 0, 0.05)
+            except Exception:
+                log.debug("safe_stop: torque off failed for id %d", i, exc_info=True)
+        self._enabled = False
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        if self._enabled:
+            self.safe_stop()
+        self._closed = True
+        try:
+            self._port.closePort()
+        except Exception:
+            log.debug("error closing %s", self.port_name, exc_info=True)
+
+    # -- internals --------------------------------------------------------------------------------
+    def _init_servos(self, enable: bool) -> None:
+        limits = []
+        for i in self.ids:
+            model_number, result, error = self._ph.ping(self._port, i)
+            self._check_comm(result, f"ping id {i}")
+            self._raise_for_error(i, error, None)
+            if model_number != self.model.model_number:
+                log.warning("id %d reports model %d, expected %d (%s)", i, model_number,
+                            self.model.model_number, self.model.name)
+            limits.append(self._read(i, ADDR_CURRENT_LIMIT, 2, None))
+            self.info.extra.setdefault("firmware", {})[i] = self._read(i, ADDR_FIRMWARE_VERSION, 1, None)
+        device_limit = np.array(limits, dtype=np.int64)
+        self.current_limit = device_limit if self._user_limit is None else np.minimum(device_limit, self._user_limit)
+        fw = sorted(set(self.info.extra["firmware"].values()))
+        self.info.firmware = ",".join(str(v) for v in fw)
+        for i in self.ids:
+            self._write(i, ADDR_TORQUE_ENABLE, 1, 0, None)
+            self._write(i, ADDR_OPERATING_MODE, 1, MODE_CURRENT, None)
+            self._write(i, ADDR_GOAL_CURRENT, 2, 0, None)
+        if enable:
+            self.enable(True)
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise DeviceDisconnected("DYNAMIXEL adapter is closed")
+
+    def _check_comm(self, result: int, what: str) -> None:
+        from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, COMM_TX_FAIL
+
+        if result == COMM_SUCCESS:
+            return
+        text = self._ph.getTxRxResult(result)
+        if result == COMM_RX_TIMEOUT:
+            raise DeviceTimeout(f"DYNAMIXEL {what}: no status packet ({text})")
+        if result == COMM_RX_CORRUPT:
+            raise ChecksumError(f"DYNAMIXEL {what}: corrupt status packet ({text})")
+        if result == COMM_TX_FAIL:
+            raise DeviceDisconnected(f"DYNAMIXEL {what}: transmit failed ({text})")
+        raise ProtocolError(f"DYNAMIXEL {what}: {text} ({result})")
+
+    def _raise_for_error(self, dxl_id: int, error: int, timeout: float | None) -> None:
+        if not error:
+            return
+        if error & ERRBIT_ALERT:
+            hw = self._read(dxl_id, ADDR_HARDWARE_ERROR, 1, timeout, check_alert=False)
+            raise DeviceFault(f"DYNAMIXEL id {dxl_id}: hardware error status 0x{hw:02x}", code=hw)
+        num = error & 0x7F
+        raise DeviceFault(
+            f"DYNAMIXEL id {dxl_id}: {self._ph.getRxPacketError(error)} (error {num})", code=0x100 | num
+        )
+
+    def _with_timeout(self, timeout: float | None) -> None:
+        self._port.call_timeout_ms = 1000.0 * (self.timeout if timeout is None else timeout)
+
+    def _read(self, dxl_id: int, addr: int, size: int, timeout: float | None, check_alert: bool = True) -> int:
+        self._with_timeout(timeout)
+        data, result, error = self._ph.readTxRx(self._port, dxl_id, addr, size)
+        self._check_comm(result, f"read {addr} of id {dxl_id}")
+        if check_alert:
+            self._raise_for_error(dxl_id, error, timeout)
+        elif error & 0x7F:
+            self._raise_for_error(dxl_id, error & 0x7F, timeout)
+        return int.from_bytes(bytes(data[:size]), "little")
+
+    def _write(self, dxl_id: int, addr: int, size: int, value: int, timeout: float | None) -> None:
+        self._with_timeout(timeout)
+        u = to_unsigned(int(value), size)
+        result, error = self._ph.writeTxRx(self._port, dxl_id, addr, size, list(u.to_bytes(size, "little")))
+        self._check_comm(result, f"write {addr} of id {dxl_id}")
+        self._raise_for_error(dxl_id, error, timeout)
