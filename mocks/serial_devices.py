@@ -1,0 +1,188 @@
+"""Simulated serial devices: a Bota-style F/T sensor streaming binary frames into a pty.
+
+The simulator owns the *master* side of a pseudo terminal (:func:`os.openpty`); the adapter opens
+the slave path (:attr:`SimBota.path`) with ``serial.serial_for_url`` exactly as it would open
+``/dev/ttyUSB0``. The frame format is :mod:`hil.protocols.serial_bota`'s.
+
+Modes:
+
+* **lockstep**: call :meth:`SimBota.emit` once per control period; it writes one frame built from
+  ``joints.measured_force()`` and the simulated timestamp (``tick * period_us``), so the byte
+  stream is a pure function of the plant state, the plan and the seed.
+* **free running**: :meth:`SimBota.start` emits at ``rate_hz`` from a thread.
+
+Faults (:mod:`hil.mocks.faults`), decided per emitted frame: drop (nothing written, the timestamp
+still advances -> the adapter records a gap), corrupt (one byte after the header flipped -> CRC
+failure), garbage (random bytes before the frame -> resynchronisation), stale (the previous frame
+is re-sent byte for byte), late (the frame is held and written after the next one), device error
+(the code is OR-ed into ``status``), disconnect (silent from tick N to M). :meth:`hangup` closes
+the master side: the adapter then gets an I/O error -> DeviceDisconnected.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import threading
+import time
+import tty
+from collections import Counter
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from hil.mocks.faults import FaultInjector, FaultPlan
+from hil.mocks.interfaces import SimulatedJoints
+from hil.protocols.serial_bota import encode_frame
+
+log = logging.getLogger(__name__)
+
+
+class SimBota:
+    """Simulated Bota serial sensor on a pty.
+
+    ``wrench_fn(joints) -> 6-vector`` maps the plant to the measured wrench; by default the
+    joints' ``measured_force()`` goes to the axes in ``axes`` (default: first DOF -> Fz).
+    ``period_s`` sets the timestamp increment per frame (and the thread rate if started).
+    """
+
+    kind = "bota"
+
+    def __init__(
+        self,
+        joints: SimulatedJoints,
+        *,
+        period_s: float = 0.001,
+        faults: FaultPlan | FaultInjector | None = None,
+        seed: int | None = 0,
+        axes: tuple[int, ...] = (2,),
+        wrench_fn: Callable[[SimulatedJoints], Any] | None = None,
+        temperature: float = 25.0,
+        status: int = 0,
+    ) -> None:
+        self.joints = joints
+        self.period_s = period_s
+        self.period_us = round(period_s * 1e6)
+        self.injector = faults if isinstance(faults, FaultInjector) else FaultInjector(faults, seed)
+        self.axes = axes
+        self.wrench_fn = wrench_fn
+        self.temperature = temperature
+        self.status = status
+        self.tick_count = 0
+        self.stats: Counter[str] = Counter()
+        self._last: bytes | None = None
+        self._held: bytes | None = None
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)  # no line discipline: bytes pass unchanged
+        os.set_blocking(self._master, False)
+        self.path = os.ttyname(self._slave)
+        self._closed = False
+
+    def wrench(self) -> np.ndarray:
+        if self.wrench_fn is not None:
+            return np.asarray(self.wrench_fn(self.joints), dtype=float).reshape(6)
+        w = np.zeros(6)
+        f = np.asarray(self.joints.measured_force(), dtype=float).reshape(-1)
+        for k, axis in enumerate(self.axes):
+            w[axis] = f[k]
+        return w
+
+    def _write(self, data: bytes) -> None:
+        try:
+            n = os.write(self._master, data)
+            if n < len(data):
+                self.stats["overflow_bytes"] += len(data) - n
+        except BlockingIOError:  # nobody reads: the pty buffer is full -> frame lost
+            self.stats["overflow_frames"] += 1
+        except OSError as exc:
+            log.debug("pty write failed: %s", exc)
+
+    def emit(self) -> None:
+        """Build and write one frame (lockstep). Advances the device tick / timestamp."""
+        with self._lock:
+            if self._closed:
+                return
+            self.tick_count += 1
+            t = self.tick_count
+            inj = self.injector
+            if inj.is_disconnected(t):
+                return
+            status = self.status | inj.error_code(t)
+            frame = encode_frame(status, self.wrench(), t * self.period_us, self.temperature)
+            if inj.should_drop(t):
+                self.stats["dropped"] += 1
+                return
+            if self._last is not None and inj.should_repeat_stale():
+                frame = self._last
+                self.stats["stale"] += 1
+            self._last = frame
+            if inj.should_corrupt(t):
+                frame = inj.corrupt(frame, start=1)
+                self.stats["corrupted"] += 1
+            data = inj.garbage() + frame
+            if inj.is_late() and self._held is None:
+                self._held = data
+                self.stats["late"] += 1
+                return
+            if self._held is not None:
+                data, self._held = data + self._held, None
+            self._write(data)
+            self.stats["frames"] += 1
+
+    def write_raw(self, data: bytes) -> None:
+        """Write arbitrary bytes to the stream (tests)."""
+        self._write(data)
+
+    def start(self, rate_hz: float | None = None) -> None:
+        """Emit frames from a thread at ``rate_hz`` (default: 1/period_s)."""
+        if self._thread is not None:
+            return
+        period = 1.0 / rate_hz if rate_hz else self.period_s
+        self._stop.clear()
+
+        def run() -> None:
+            next_t = time.monotonic()
+            while not self._stop.is_set():
+                self.emit()
+                next_t += period
+                delay = next_t - time.monotonic()
+                if delay > 0:
+                    self._stop.wait(delay)
+                elif delay < -10 * period:
+                    next_t = time.monotonic()
+
+        self._thread = threading.Thread(target=run, name="sim-bota", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        if self._thread is not None:
+            self._stop.set()
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+    def hangup(self) -> None:
+        """Close both pty ends (like unplugging the USB adapter)."""
+        self.stop()
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            for fd in (self._master, self._slave):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+
+    def close(self) -> None:
+        self.hangup()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+__all__ = ["SimBota"]

@@ -1,0 +1,256 @@
+"""Bota Systems serial force/torque sensors (binary streaming mode) as a :class:`ForceSensor`.
+
+Frame format (source: Bota Systems' ``bota_serial_example.py`` from their python_interface
+repository, as vendored in ``tud-phi/bota_ft_sensors``, and the ArduPilot BotaSys driver's
+``AppOutput`` struct, consulted through the search tool)::
+
+    0xAA | status u16 | Fx Fy Fz Tx Ty Tz f32 | timestamp u32 | temperature f32 | CRC16 u16
+    1      2            24                      4               4                 2   = 37 bytes
+
+* All fields little-endian. The CRC is CRC-16/X-25 over the 34 payload bytes (header excluded),
+  sent low byte first.
+* Forces in N, torques in N.m, in the sensor frame (calibrated output, ``use_calibration=1``).
+* ``status`` bits: 0 app_took_too_long, 1 overrange, 2 invalid_measurements, 3 raw_measurements.
+* ``timestamp``: a free-running u32 counter. **Assumption**: microseconds (the example code does
+  not state the unit); only differences are used (gap detection), modulo 2**32.
+* ``temperature`` in deg C.
+
+The sensor must already be in RUN mode with binary output (its power-up state once configured;
+the ASCII configuration commands ``C``/``c,...``/``f,...``/``R`` are not sent by this adapter).
+
+Error handling (documented behaviour):
+
+* Garbage bytes: the parser resynchronises on the next 0xAA whose 37-byte frame has a valid CRC;
+  skipped bytes are counted in ``stats["resync_bytes"]``.
+* CRC failure: the frame is dropped and counted in ``stats["crc_errors"]`` (a gap in the data);
+  :meth:`BotaSerial.read` raises :class:`hil.errors.ChecksumError` only with
+  ``on_crc_error="raise"``.
+* Missing samples: detected from timestamp jumps larger than the sample period (``period_s``
+  given, or learned from the first two frames); counted in ``stats["gaps"]`` (events) and
+  ``stats["missed_samples"]``.
+* Stale data (a frame repeating the previous timestamp) is not a fresh sample: counted in
+  ``stats["stale"]``; if no fresh frame arrives within the timeout -> DeviceTimeout.
+* ``status & fault_mask`` (default overrange | invalid_measurements) raises
+  :class:`hil.errors.DeviceFault` with ``code = status``.
+* A closed / lost port raises :class:`hil.errors.DeviceDisconnected`. Nothing blocks longer than
+  the call's timeout.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import serial
+from hil.protocols.base import DeviceInfo, ForceSensor, WrenchSample
+from hil.protocols.crc import crc16_x25
+
+from hil.errors import ChecksumError, DeviceDisconnected, DeviceFault, DeviceTimeout
+
+log = logging.getLogger(__name__)
+
+HEADER = 0xAA
+PAYLOAD = struct.Struct("<H6fIf")  # 34 bytes
+FRAME_LEN = 1 + PAYLOAD.size + 2  # 37
+
+STATUS_APP_TOOK_TOO_LONG = 0x1
+STATUS_OVERRANGE = 0x2
+STATUS_INVALID = 0x4
+STATUS_RAW = 0x8
+
+
+@dataclass(frozen=True)
+class BotaFrame:
+    status: int
+    wrench: tuple[float, float, float, float, float, float]
+    timestamp: int
+    temperature: float
+
+
+def encode_frame(status: int, wrench, timestamp: int, temperature: float) -> bytes:
+    """One binary frame (header, payload, CRC-16/X-25 little endian)."""
+    payload = PAYLOAD.pack(status & 0xFFFF, *(float(w) for w in wrench), timestamp & 0xFFFFFFFF, temperature)
+    return bytes((HEADER,)) + payload + struct.pack("<H", crc16_x25(payload))
+
+
+def decode_payload(payload: bytes) -> BotaFrame:
+    status, fx, fy, fz, tx, ty, tz, ts, temp = PAYLOAD.unpack(payload)
+    return BotaFrame(status, (fx, fy, fz, tx, ty, tz), ts, temp)
+
+
+class FrameParser:
+    """Incremental parser: :meth:`feed` bytes, get the valid frames; never raises on bad data."""
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+        self.stats: Counter[str] = Counter()
+
+    def feed(self, data: bytes) -> list[BotaFrame]:
+        buf = self._buf
+        buf += data
+        out: list[BotaFrame] = []
+        i = 0
+        n = len(buf)
+        while True:
+            j = buf.find(HEADER, i)
+            if j < 0:
+                self.stats["resync_bytes"] += n - i
+                i = n
+                break
+            if j > i:
+                self.stats["resync_bytes"] += j - i
+            i = j
+            if n - i < FRAME_LEN:
+                break
+            payload = bytes(buf[i + 1 : i + 1 + PAYLOAD.size])
+            (crc,) = struct.unpack_from("<H", buf, i + 1 + PAYLOAD.size)
+            if crc16_x25(payload) == crc:
+                out.append(decode_payload(payload))
+                self.stats["frames"] += 1
+                i += FRAME_LEN
+            else:
+                self.stats["crc_errors"] += 1
+                self.stats["resync_bytes"] += 1
+                i += 1  # resynchronise: look for the next header after this one
+        del buf[:i]
+        return out
+
+
+class BotaSerial(ForceSensor):
+    """A Bota serial F/T sensor streaming binary frames; 6 axes (Fx, Fy, Fz, Tx, Ty, Tz).
+
+    Parameters
+    ----------
+    url: anything :func:`serial.serial_for_url` opens: ``/dev/ttyUSB0``, a pty path,
+        ``socket://host:port``, ``loop://``.
+    baudrate: 460800 is the sensor's default fast rate.
+    period_s: nominal sample period for gap detection (``None``: learned from the stream).
+    fault_mask: status bits that raise DeviceFault.
+    on_crc_error: ``"count"`` (default, a recorded gap) or ``"raise"`` (ChecksumError).
+    clock: time source for ``WrenchSample.t``.
+    poll_s: granularity of blocking reads (never exceeds the call's timeout).
+    """
+
+    axes = 6
+
+    def __init__(
+        self,
+        url: str,
+        baudrate: int = 460800,
+        *,
+        period_s: float | None = None,
+        fault_mask: int = STATUS_OVERRANGE | STATUS_INVALID,
+        on_crc_error: Literal["count", "raise"] = "count",
+        clock: Callable[[], float] = time.monotonic,
+        poll_s: float = 0.002,
+        timeout: float = 0.1,
+    ) -> None:
+        if on_crc_error not in ("count", "raise"):
+            raise ValueError("on_crc_error must be 'count' or 'raise'")
+        self.url = url
+        self.period_s = period_s
+        self._learned_period = False
+        self.fault_mask = fault_mask
+        self.on_crc_error = on_crc_error
+        self.clock = clock
+        self.timeout = timeout
+        self.parser = FrameParser()
+        self._closed = False
+        self._seq = 0
+        self._last_ts: int | None = None
+        self._offset = np.zeros(6)
+        self._crc_seen = 0
+        self.last_frame: BotaFrame | None = None
+        try:
+            self._ser = serial.serial_for_url(url, baudrate=baudrate, timeout=poll_s, write_timeout=timeout)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise DeviceDisconnected(f"cannot open {url!r}: {exc}") from exc
+        self.info = DeviceInfo(driver="bota_serial", transport=f"serial:{url}", vendor="Bota Systems")
+
+    @property
+    def stats(self) -> Counter[str]:
+        """Counters: frames, crc_errors, resync_bytes, gaps, missed_samples, stale, skipped."""
+        return self.parser.stats
+
+    def _read_bytes(self, block: bool) -> bytes:
+        if self._closed:
+            raise DeviceDisconnected("BotaSerial is closed")
+        try:
+            n = self._ser.in_waiting
+            if n:
+                return self._ser.read(n)
+            return self._ser.read(1) if block else b""
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceDisconnected(f"{self.url}: port lost: {exc}") from exc
+
+    def _accept(self, frames: list[BotaFrame]) -> BotaFrame | None:
+        """Newest fresh frame among ``frames`` (updates gap / stale counters)."""
+        newest = None
+        st = self.parser.stats
+        for f in frames:
+            if self._last_ts is not None:
+                dt = (f.timestamp - self._last_ts) & 0xFFFFFFFF
+                if dt == 0:
+                    st["stale"] += 1
+                    continue
+                if self._learned_period and dt * 1e-6 < self.period_s:
+                    self.period_s = dt * 1e-6  # learned period: keep the smallest step seen
+                if self.period_s is None:
+                    self.period_s = dt * 1e-6
+                    self._learned_period = True
+                else:
+                    missing = round(dt * 1e-6 / self.period_s) - 1
+                    if missing > 0:
+                        st["gaps"] += 1
+                        st["missed_samples"] += missing
+            self._last_ts = f.timestamp
+            if newest is not None:
+                st["skipped"] += 1
+            newest = f
+        return newest
+
+    def _check_crc(self) -> None:
+        n = self.parser.stats["crc_errors"]
+        if n != self._crc_seen:
+            new = n - self._crc_seen
+            self._crc_seen = n
+            if self.on_crc_error == "raise":
+                raise ChecksumError(f"{self.url}: {new} frame(s) failed CRC-16/X-25")
+
+    def read(self, timeout: float = 0.1) -> WrenchSample:
+        """Newest fresh wrench (N, N.m) received; waits at most ``timeout`` for one."""
+        deadline = time.monotonic() + timeout
+        frame = self._accept(self.parser.feed(self._read_bytes(block=False)))
+        self._check_crc()
+        while frame is None:
+            if time.monotonic() >= deadline:
+                raise DeviceTimeout(f"{self.url}: no fresh frame within {timeout:.3f} s")
+            frame = self._accept(self.parser.feed(self._read_bytes(block=True)))
+            self._check_crc()
+        self.last_frame = frame
+        if frame.status & self.fault_mask:
+            raise DeviceFault(f"{self.url}: sensor status 0x{frame.status:04X}", code=frame.status)
+        self._seq += 1
+        return WrenchSample(
+            t=self.clock(), seq=self._seq, wrench=np.asarray(frame.wrench) - self._offset, status=frame.status
+        )
+
+    def tare(self, timeout: float = 0.5) -> None:
+        """Software tare: subtract the current reading from all later readings."""
+        self._offset = np.zeros(6)
+        self._offset = self.read(timeout).wrench.copy()
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._ser.close()
+        except (serial.SerialException, OSError) as exc:  # pragma: no cover
+            log.debug("close failed: %s", exc)
