@@ -80,3 +80,28 @@ def test_open_bota_via_registry():
     with SimBota(FreeJoints()) as sim, open_device("bota_serial", url=sim.path) as dev:
         sim.emit()
         assert dev.read().seq == 1
+
+
+def test_mock_serve_endpoints_open_through_registry():
+    import numpy as np
+    from hil.mocks.serve import main, serve, shutdown
+
+    eps = serve(
+        [
+            {"kind": "odrive", "channel": "serve-test", "node_id": 2, "faults": {"drop_prob": 0.0}},
+            {"kind": "cubemars", "channel": "serve-test", "motor_id": 1},
+            {"kind": "bota", "rate_hz": 500},
+        ]
+    )
+    try:
+        for ep in eps:
+            with open_device(ep.driver, **ep.params) as dev:
+                if hasattr(dev, "command_effort"):
+                    dev.command_effort(np.array([0.1]))
+                assert dev.read(timeout=1.0).seq == 1
+    finally:
+        shutdown(eps)
+        shutdown(eps)
+    with pytest.raises(ValueError, match="unknown mock kind"):
+        serve([{"kind": "nope"}])
+    assert main(["--duration", "0.05", "--spec", '[{"kind": "bota"}]']) == 0
