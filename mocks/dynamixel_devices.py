@@ -232,7 +232,7 @@ class ServoModel:
     model_number: int = 1020
     firmware_version: int = 45
     current_limit: int = 1193  # Current Limit(38) initial value, units of 2.69 mA
-    torque_constant: float = 1.78  # N.m per A at the output, ~ stall torque / stall current
+    torque_constant: float = 4.1 / 2.3  # N.m per A at the output: stall 4.1 N.m at 2.3 A (12 V)
 
 
 class SimulatedServo:

@@ -1,0 +1,252 @@
+"""DynamixelX adapter against the simulated servo chain over a real pty."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from hil.mocks.dynamixel_devices import (
+    ADDR_GOAL_CURRENT,
+    ADDR_OPERATING_MODE,
+    ADDR_TORQUE_ENABLE,
+    DynamixelChain,
+)
+from hil.mocks.faults import FaultPlan
+from hil.mocks.interfaces import FreeJoints
+from hil.protocols.base import Actuator
+from hil.protocols.dynamixel_x import (
+    CURRENT_UNIT_A,
+    MODELS,
+    DynamixelX,
+    decode_present_block,
+    effort_to_current_raw,
+    to_signed,
+    to_unsigned,
+)
+
+from hil.errors import ChecksumError, DeviceDisconnected, DeviceFault, DeviceTimeout
+
+pytestmark = pytest.mark.timeout(20)
+
+KT = MODELS["XM430-W350"].torque_constant
+
+SIGNED = [
+    # (unsigned, bytes, signed)
+    (0x0000, 2, 0),
+    (0x7FFF, 2, 32767),
+    (0x8000, 2, -32768),
+    (0xFF38, 2, -200),
+    (0xFFFFFFFF, 4, -1),
+    (0x80000000, 4, -(2**31)),
+    (4095, 4, 4095),
+]
+
+
+@pytest.mark.parametrize(("unsigned", "nbytes", "signed"), SIGNED)
+def test_twos_complement(unsigned: int, nbytes: int, signed: int) -> None:
+    assert to_signed(unsigned, nbytes) == signed
+    assert to_unsigned(signed, nbytes) == unsigned
+
+
+def test_to_unsigned_overflow() -> None:
+    with pytest.raises(OverflowError):
+        to_unsigned(70000, 2)
+
+
+CURRENTS = [
+    # effort N.m, direction, expected raw (kt = 4.1/2.3, unit 2.69 mA, limit 1193)
+    (0.0, 1, 0),
+    (KT * 200 * CURRENT_UNIT_A, 1, 200),
+    (-KT * 200 * CURRENT_UNIT_A, 1, -200),
+    (KT * 200 * CURRENT_UNIT_A, -1, -200),
+    (1.0, 1, round(1.0 / KT / CURRENT_UNIT_A)),  # 1 N.m ~ 209 counts
+    (100.0, 1, 1193),  # clamped to Current Limit
+    (-100.0, 1, -1193),
+]
+
+
+@pytest.mark.parametrize(("effort", "direction", "raw"), CURRENTS)
+def test_effort_to_current(effort: float, direction: int, raw: int) -> None:
+    out = effort_to_current_raw(np.array([effort]), np.array([KT]), np.array([1193]), np.array([direction]))
+    assert out.tolist() == [raw]
+
+
+def test_decode_present_block() -> None:
+    # current -200, velocity -3, position 2079 (e-manual sync read example value)
+    block = (0xFF38).to_bytes(2, "little") + (2**32 - 3).to_bytes(4, "little") + (2079).to_bytes(4, "little")
+    assert decode_present_block(block) == (-200, -3, 2079)
+
+
+# ---- adapter against the simulated chain ------------------------------------------------------
+def _tick(dx: DynamixelX, chain: DynamixelChain, plant: FreeJoints, effort, dt: float = 0.01):
+    """One lockstep tick: command, wait until the chain processed it, step physics, read."""
+    dx.command_effort(np.asarray(effort, dtype=float))
+    chain.sync(dx.tx_bytes)
+    plant.step(dt)
+    return dx.read()
+
+
+def test_open_configures_current_mode_and_torque() -> None:
+    plant = FreeJoints(dof=3)
+    with DynamixelChain(plant, ids=[3, 5, 7]) as chain, DynamixelX(chain.port, ids=[3, 5, 7]) as dx:
+        assert isinstance(dx, Actuator) and dx.dof == 3 and dx.units == "rotary"
+        assert dx.info.model == "XM430-W350" and dx.info.firmware == "45"
+        assert dx.current_limit.tolist() == [1193] * 3
+        for servo in chain.servos.values():
+            assert servo.table[ADDR_OPERATING_MODE] == 0 and servo.table[ADDR_TORQUE_ENABLE] == 1
+    for servo in chain.servos.values():  # close(): zero current, torque off
+        assert servo.table[ADDR_TORQUE_ENABLE] == 0
+        assert servo.get(ADDR_GOAL_CURRENT, 2, signed=True) == 0
+
+
+def test_commands_arrive_with_the_right_scaling() -> None:
+    plant = FreeJoints(dof=3)
+    with (
+        DynamixelChain(plant, ids=[1, 2, 3]) as chain,
+        DynamixelX(chain.port, ids=[1, 2, 3], directions=[1, -1, 1], current_limit=1000) as dx,
+    ):
+        effort = np.array([0.5, 0.5, -50.0])
+        dx.command_effort(effort)
+        chain.sync(dx.tx_bytes)
+        raw = [chain.servos[i].get(ADDR_GOAL_CURRENT, 2, signed=True) for i in (1, 2, 3)]
+        expected = round(0.5 / KT / CURRENT_UNIT_A)
+        assert raw == [expected, -expected, -1000]  # direction flip; clamp to the user limit
+        np.testing.assert_allclose(plant.measured_force(), np.array(raw) * CURRENT_UNIT_A * KT)
+
+
+def test_feedback_decodes_signed_si_values() -> None:
+    plant = FreeJoints(dof=2, mass=0.01)
+    with DynamixelChain(plant, ids=[1, 2]) as chain, DynamixelX(chain.port, ids=[1, 2]) as dx:
+        s = _tick(dx, chain, plant, [0.2, -0.3], dt=0.05)
+        q_true, v_true = plant.position(), plant.velocity()
+        assert q_true[1] < 0 and v_true[1] < 0
+        np.testing.assert_allclose(s.position, q_true, atol=2 * math.pi / 4096)
+        np.testing.assert_allclose(s.velocity, v_true, atol=0.229 * 2 * math.pi / 60)
+        raw = dx.current_command(np.array([0.2, -0.3]))
+        np.testing.assert_allclose(s.effort, raw * CURRENT_UNIT_A * KT)
+        assert s.seq == 1 and s.fault == 0
+
+
+def test_directions_and_zero_offset() -> None:
+    plant = FreeJoints(dof=1, mass=0.01)
+    with (
+        DynamixelChain(plant, ids=[4]) as chain,
+        DynamixelX(chain.port, ids=[4], directions=[-1], zero_ticks=[100]) as dx,
+    ):
+        s = _tick(dx, chain, plant, [0.1], dt=0.05)
+        # a positive command drives the servo negative; position reported relative to tick 100
+        assert plant.position()[0] < 0 and s.position[0] > 0 and s.velocity[0] > 0
+        ticks = round(plant.position()[0] * 4096 / (2 * math.pi))
+        assert s.position[0] == pytest.approx(-(ticks - 100) * 2 * math.pi / 4096)
+
+
+def _trajectory(seed: int) -> np.ndarray:
+    plant = FreeJoints(dof=2, mass=0.05)
+    rng = np.random.default_rng(seed)
+    out = []
+    with DynamixelChain(plant, ids=[1, 2]) as chain, DynamixelX(chain.port, ids=[1, 2]) as dx:
+        for _ in range(20):
+            s = _tick(dx, chain, plant, rng.normal(0, 0.3, 2), dt=0.002)
+            out.append(np.concatenate([s.position, s.velocity, s.effort]))
+    return np.array(out)
+
+
+def test_lockstep_run_is_deterministic() -> None:
+    a, b = _trajectory(5), _trajectory(5)
+    assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize(
+    ("plan", "exc"),
+    [
+        (FaultPlan(drop_ticks=[0]), DeviceTimeout),
+        (FaultPlan(disconnect_at_tick=0), DeviceTimeout),
+        (FaultPlan(corrupt_ticks=[0]), ChecksumError),
+    ],
+)
+def test_faults_during_open_surface_as_exceptions(plan: FaultPlan, exc: type[Exception]) -> None:
+    with DynamixelChain(FreeJoints(1), ids=[1], faults=plan) as chain:
+        t0 = time.monotonic()
+        with pytest.raises(exc):
+            DynamixelX(chain.port, ids=[1], timeout=0.05)
+        assert time.monotonic() - t0 < 2.0
+
+
+def _opened(plan: FaultPlan, ids=(1, 2)):
+    plant = FreeJoints(dof=len(ids))
+    chain = DynamixelChain(plant, ids=list(ids), faults=plan)
+    dx = DynamixelX(chain.port, ids=list(ids), timeout=0.05)
+    return plant, chain, dx
+
+
+# open(): ping, read limit, read firmware, torque off, mode, zero goal, torque on = 7 packets per servo
+OPEN_TICKS = 14
+
+
+def test_read_faults_surface_as_exceptions_and_recover() -> None:
+    t = OPEN_TICKS
+    plan = FaultPlan(
+        drop_ticks=[t], corrupt_ticks=[t + 1], error_code=0x20, error_at_tick=t + 2, error_until_tick=t + 4
+    )
+    _, chain, dx = _opened(plan)
+    try:
+        assert chain.tick == t - 1
+        with pytest.raises(DeviceTimeout):
+            dx.read()
+        with pytest.raises(ChecksumError):
+            dx.read()
+        with pytest.raises(DeviceFault) as info:
+            dx.read()  # alert bit -> the adapter reads Hardware Error Status(70)
+        assert info.value.code == 0x20  # overload error bit
+        sample = dx.read()  # recovered
+        assert sample.seq == 1
+    finally:
+        dx.close()
+        chain.close()
+
+
+def test_disconnected_chain_times_out_without_hanging() -> None:
+    plan = FaultPlan(disconnect_at_tick=OPEN_TICKS)
+    _, chain, dx = _opened(plan)
+    try:
+        dx.command_effort(np.array([0.1, 0.1]))  # a sync write never waits: no error
+        t0 = time.monotonic()
+        with pytest.raises(DeviceTimeout):
+            dx.read(timeout=0.03)
+        assert time.monotonic() - t0 < 0.5
+    finally:
+        dx.close()
+        chain.close()
+
+
+def test_stale_feedback_repeats_previous_values() -> None:
+    plant, chain, dx = _opened(FaultPlan(stale_prob=1.0), ids=(1,))
+    try:
+        first = _tick(dx, chain, plant, [0.5])
+        second = _tick(dx, chain, plant, [0.5])
+        assert np.array_equal(first.position, second.position) and chain.stale_replies >= 1
+        assert second.seq == first.seq + 1
+    finally:
+        dx.close()
+        chain.close()
+
+
+def test_close_is_idempotent_and_blocks_further_use() -> None:
+    with DynamixelChain(FreeJoints(1), ids=[1]) as chain:
+        dx = DynamixelX(chain.port, ids=[1])
+        dx.close()
+        dx.close()
+        with pytest.raises(DeviceDisconnected):
+            dx.read()
+
+
+def test_bad_port_raises() -> None:
+    with pytest.raises(DeviceDisconnected):
+        DynamixelX("/dev/does-not-exist-hil", ids=[1])
+
+
+def test_invalid_ids() -> None:
+    with pytest.raises(ValueError):
+        DynamixelX("/dev/null", ids=[1, 1])
