@@ -30,8 +30,8 @@ time. The wrench source is ``SimulatedJoints.measured_force()`` or any callable 
 values (N, N.m); shorter vectors fill Fx, Fy, ... in order, the rest reads 0. Values are clipped to
 the int16 range (+-327.67 N, +-32.767 N.m) like a saturated sensor.
 
-**Faults** (:mod:`hil.mocks.faults`); the device's *tick* is the index of the Modbus request it
-received (0, 1, 2, ...):
+**Faults** (:mod:`hil.mocks.faults`); the device's *tick* is the index of the Modbus request
+addressed to its slave id (0, 1, 2, ...; requests for other ids are ignored, as on an RS-485 bus):
 
 * drop / disconnect: no reply at all -> the client times out;
 * corrupt: one byte of the reply is flipped; with RTU framing the CRC catches it, with Modbus/TCP

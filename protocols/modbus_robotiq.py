@@ -55,7 +55,6 @@ from hil.protocols.crc import crc16_modbus
 from hil.errors import (
     ChecksumError,
     DeviceDisconnected,
-    DeviceError,
     DeviceFault,
     DeviceTimeout,
     ProtocolError,
@@ -348,7 +347,6 @@ class RobotiqFT300(ForceSensor):
 
 
 __all__ = [
-    "DeviceError",
     "ModbusEndpoint",
     "RobotiqFT300",
     "StreamParser",

@@ -152,7 +152,7 @@ def _drop_pattern(seed: int) -> list[bool]:
 
     out = []
     with SimulatedFT300(faults=FaultPlan(drop_prob=0.3), seed=seed) as sim:
-        client = _plain_client(sim, timeout=0.05)
+        client = _plain_client(sim, timeout=0.2)
         try:
             for _ in range(8):
                 try:

@@ -216,7 +216,7 @@ def test_device_error_raises_device_fault(framing: str) -> None:
 def test_disconnected_device_times_out() -> None:
     with (
         SimulatedFT300(faults=FaultPlan(disconnect_at_tick=1)) as sim,
-        RobotiqFT300(sim.url, read_info=False, timeout=0.05) as ft,
+        RobotiqFT300(sim.url, read_info=False, timeout=0.1) as ft,
     ):
         ft.read()
         for _ in range(2):
