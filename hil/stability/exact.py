@@ -29,6 +29,7 @@ violation (a band 1e-4 wide relative to its centre frequency already has depth ~
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 from dataclasses import dataclass, field
@@ -118,7 +119,7 @@ def _eval_sign(p: list[int], t: Fraction) -> int:
 
 def _variations(signs: list[int]) -> int:
     s = [x for x in signs if x != 0]
-    return sum(1 for a, b in zip(s, s[1:], strict=False) if a != b)
+    return sum(1 for a, b in itertools.pairwise(s) if a != b)
 
 
 def _var_at(seq: list[list[int]], t: Fraction | None) -> int:
@@ -251,13 +252,14 @@ def _positive_real_roots(c_asc: np.ndarray) -> np.ndarray:
     if c.size <= 1:
         return np.zeros(0)
     n = c.size - 1
-    x0 = (abs(c[0]) / abs(c[-1])) ** (1.0 / n) if c[0] != 0 else 1.0
-    if not np.isfinite(x0) or x0 <= 0:
-        x0 = 1.0
-    cs = c * x0 ** np.arange(c.size)
-    cs = cs / np.max(np.abs(cs))
+    # balance the coefficient range by x -> x0·y (computed in log space: no overflow)
+    lx0 = (math.log(abs(c[0])) - math.log(abs(c[-1]))) / n if c[0] != 0 else 0.0
+    with np.errstate(divide="ignore"):
+        lg = np.log(np.abs(c)) + lx0 * np.arange(c.size)
+    lg = np.where(np.isfinite(lg), lg, -np.inf)
+    cs = np.sign(c) * np.exp(lg - np.max(lg))
     with np.errstate(all="ignore"):
-        r = np.roots(cs[::-1]) * x0
+        r = np.roots(cs[::-1]) * math.exp(lx0)
     r = r[np.isfinite(r)]
     keep = (r.real > 0) & (np.abs(r.imag) <= 0.2 * np.abs(r.real))
     return np.sort(r.real[keep])
@@ -318,7 +320,7 @@ def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL) -> SignDecision:
     depths = [_band_min(ratio, a, b, cc, m)[1] for a, b in bands]
     crit_x, crit_v = _global_min(ratio, cc, m, extra=[x for x, _, _ in roots_info])
     margin, worst_x = crit_v, crit_x
-    for (a, b), dep in zip(bands, depths, strict=True):
+    for (a, b), _dep in zip(bands, depths, strict=True):
         bx, bv = _band_min(ratio, a, b, cc, m)
         if bv < margin:
             margin, worst_x = bv, bx
@@ -328,9 +330,7 @@ def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL) -> SignDecision:
             margin, worst_x = v, x
     if any(d < -tol for d in depths):
         status: Status = "violated"
-    elif bands or touching:
-        status = "marginal"
-    elif _interior_min(ratio, cc, m) <= tol:
+    elif bands or touching or _interior_min(ratio, cc, m) <= tol:
         status = "marginal"
     else:
         status = "satisfied"
@@ -344,7 +344,7 @@ def _isolate(ip: list[int], seq: list[list[int]], q: np.ndarray, n_roots: int) -
     # candidate breakpoints: geometric midpoints between sorted candidates, plus 0 and an upper bound
     ub = Fraction(_cauchy_bound(q) * 2.0)
     pts: list[Fraction] = [Fraction(0)]
-    for a, b in zip(cand, cand[1:], strict=False):
+    for a, b in itertools.pairwise(cand):
         if b > a * (1 + 1e-15):
             pts.append(Fraction(float(math.sqrt(a * b))))
     pts.append(ub)
@@ -454,6 +454,8 @@ def _band_min(ratio: _Ratio, a: float, b: float, cc: np.ndarray, m: np.ndarray) 
 
 def _critical_points(cc: np.ndarray, m: np.ndarray) -> np.ndarray:
     """Positive real roots of p'm - pm' (interior extrema of ρ = p/m)."""
+    cc = cc / np.max(np.abs(cc))
+    m = m / np.max(np.abs(m))
     d = P.polysub(P.polymul(P.polyder(cc), m), P.polymul(cc, P.polyder(m)))
     if d.size == 0 or not np.any(d):
         return np.zeros(0)

@@ -1,0 +1,493 @@
+"""Rational transfer functions and transfer matrices of LTI networks.
+
+Conventions
+-----------
+* Coefficients are real, SI units. Public constructors take coefficients in **descending**
+  powers of s (as in the network file format and MATLAB/scipy); internally they are stored
+  ascending (numpy.polynomial convention).
+* An *immittance matrix* relates port efforts (forces/torques) and flows (velocities):
+
+  - ``impedance``  z:  F = Z V
+  - ``admittance`` y:  V = Y F
+  - ``hybrid``     h:  [F1; V2] = H [V1; F2]
+  - ``inverse_hybrid`` g: [V1; F2] = G [F1; V2]
+
+  with velocities oriented *into* the ports so that power into the network is Re(F^H V)
+  (the papers' convention). For an n-port with m DOFs per port, entries are ordered port by
+  port (block (i, j) is m×m), as in paper 000 eq. (11)-(12).
+* Common factors of numerator and denominator: powers of s are cancelled exactly; other
+  common roots are cancelled when they agree to a relative tolerance of 1e-7 (documented in
+  :func:`Rational.minreal`), which keeps conversions between immittance types from creating
+  spurious pole/zero pairs.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.polynomial import polynomial as P
+
+from hil.errors import ConversionError, ModelError
+
+log = logging.getLogger(__name__)
+
+ImmittanceKind = Literal["impedance", "admittance", "hybrid", "inverse_hybrid"]
+KINDS: tuple[str, ...] = ("impedance", "admittance", "hybrid", "inverse_hybrid")
+
+__all__ = ["KINDS", "ImmittanceKind", "Rational", "S", "TransferMatrix"]
+
+
+def _clean(c: Sequence[float] | np.ndarray) -> np.ndarray:
+    a = np.atleast_1d(np.asarray(c, dtype=float))
+    if a.ndim != 1:
+        raise ModelError("polynomial coefficients must be a flat list of numbers")
+    if not np.all(np.isfinite(a)):
+        raise ModelError("polynomial coefficients must be finite numbers")
+    nz = np.nonzero(a)[0]
+    return a[: nz[-1] + 1] if nz.size else np.zeros(1)
+
+
+@dataclass(frozen=True)
+class Rational:
+    """A real rational function n(s)/d(s); ``num`` and ``den`` ascending, ``den`` not zero."""
+
+    num: np.ndarray
+    den: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "num", _clean(self.num))
+        object.__setattr__(self, "den", _clean(self.den))
+        if not np.any(self.den):
+            raise ModelError("denominator is identically zero")
+
+    # -- constructors ---------------------------------------------------------------------
+    @staticmethod
+    def from_desc(num: Sequence[float], den: Sequence[float] = (1.0,)) -> Rational:
+        """From coefficients in descending powers of s, e.g. ``[m, b, k], [1, 0]`` = (ms²+bs+k)/s."""
+        return Rational(np.asarray(num, float)[::-1], np.asarray(den, float)[::-1]).cancel_s()
+
+    @staticmethod
+    def const(v: float) -> Rational:
+        return Rational(np.array([float(v)]), np.array([1.0]))
+
+    @staticmethod
+    def from_zpk(zeros: Sequence[complex], poles: Sequence[complex], gain: float) -> Rational:
+        """From zeros, poles (conjugate pairs complete) and gain."""
+        n = np.real_if_close(P.polyfromroots(list(zeros)) if len(zeros) else np.array([1.0]), tol=1e6)
+        d = np.real_if_close(P.polyfromroots(list(poles)) if len(poles) else np.array([1.0]), tol=1e6)
+        if np.iscomplexobj(n) or np.iscomplexobj(d):
+            raise ModelError("zeros and poles must come in complex-conjugate pairs")
+        return Rational(gain * np.asarray(n, float), np.asarray(d, float))
+
+    # -- algebra ----------------------------------------------------------------------------
+    def _combine(self, o: Rational, sign: float) -> Rational:
+        """self + sign·o over the smallest common denominator found without root finding:
+        equal denominators (up to scale), or one dividing the other; else their product."""
+        if o.is_zero:
+            return self
+        if self.is_zero:
+            return Rational(sign * o.num, o.den)
+        q = _exact_quotient(o.den, self.den)  # o.den = self.den · q ?
+        if q is not None:
+            return Rational(P.polyadd(P.polymul(self.num, q), sign * o.num), o.den).cancel_s()
+        q = _exact_quotient(self.den, o.den)
+        if q is not None:
+            return Rational(P.polyadd(self.num, sign * P.polymul(o.num, q)), self.den).cancel_s()
+        num = P.polyadd(P.polymul(self.num, o.den), sign * P.polymul(o.num, self.den))
+        return Rational(num, P.polymul(self.den, o.den)).cancel_s()
+
+    def __add__(self, o: Rational | float) -> Rational:
+        return self._combine(_as_rational(o), 1.0)
+
+    __radd__ = __add__
+
+    def __sub__(self, o: Rational | float) -> Rational:
+        return self._combine(_as_rational(o), -1.0)
+
+    def __rsub__(self, o: Rational | float) -> Rational:
+        return _as_rational(o)._combine(self, -1.0)
+
+    def __neg__(self) -> Rational:
+        return Rational(-self.num, self.den)
+
+    def __mul__(self, o: Rational | float) -> Rational:
+        o = _as_rational(o)
+        if self.is_zero or o.is_zero:
+            return Rational(np.zeros(1), np.array([1.0]))
+        # cancel a numerator that equals the other factor's denominator (common in conversions)
+        num1, den2 = self.num, o.den
+        q = _exact_quotient(num1, den2)
+        if q is not None and q.size == 1:
+            return Rational(P.polymul(q, o.num), self.den).cancel_s()
+        q = _exact_quotient(o.num, self.den)
+        if q is not None and q.size == 1:
+            return Rational(P.polymul(q, self.num), o.den).cancel_s()
+        return Rational(P.polymul(self.num, o.num), P.polymul(self.den, o.den)).cancel_s()
+
+    def scaled(self, w0: float) -> Rational:
+        """The function of the normalized variable s̃ = s/w0: coefficients c_k·w0^k, renormalized."""
+        num = self.num * w0 ** np.arange(self.num.size)
+        den = self.den * w0 ** np.arange(self.den.size)
+        sc = float(np.max(np.abs(den)))
+        return Rational(num / sc, den / sc)
+
+    __rmul__ = __mul__
+
+    def __pow__(self, n: int) -> Rational:
+        if not isinstance(n, int) or n < 0:
+            raise ModelError("only non-negative integer powers of a transfer function are supported")
+        out = Rational.const(1.0)
+        for _ in range(n):
+            out = out * self
+        return out
+
+    def inv(self) -> Rational:
+        if not np.any(self.num):
+            raise ConversionError("cannot invert an identically zero transfer function")
+        return Rational(self.den, self.num)
+
+    def __truediv__(self, o: Rational | float) -> Rational:
+        return self * _as_rational(o).inv()
+
+    def __rtruediv__(self, o: Rational | float) -> Rational:
+        return _as_rational(o) * self.inv()
+
+    # -- properties ---------------------------------------------------------------------------
+    @property
+    def is_zero(self) -> bool:
+        return not np.any(self.num)
+
+    def is_proper(self) -> bool:
+        return self.num.size <= self.den.size
+
+    def poles(self) -> np.ndarray:
+        return _roots_asc(self.den)
+
+    def zeros(self) -> np.ndarray:
+        return _roots_asc(self.num)
+
+    def cancel_s(self) -> Rational:
+        """Cancel common powers of s exactly (zero constant coefficients of both polynomials)."""
+        num, den = self.num, self.den
+        if not np.any(num):
+            return Rational(np.zeros(1), np.array([1.0]))
+        k = 0
+        while k < min(num.size, den.size) - 1 and num[k] == 0 and den[k] == 0:
+            k += 1
+        return self if k == 0 else Rational(num[k:], den[k:])
+
+    def minreal(self, rtol: float = 1e-7) -> Rational:
+        """Cancel common factors: powers of s exactly, other common roots within ``rtol``."""
+        num, den = self.num, self.den
+        if not np.any(num):
+            return Rational(np.zeros(1), np.array([1.0]))
+        k = 0
+        while k < min(num.size, den.size) - 1 and num[k] == 0 and den[k] == 0:
+            k += 1
+        num, den = num[k:], den[k:]
+        if num.size > 1 and den.size > 1:
+            zn, zd = _roots_asc(num), _roots_asc(den)
+            used = np.zeros(zd.size, bool)
+            keep_n = []
+            for z in zn:
+                d = np.abs(zd - z)
+                d[used] = np.inf
+                j = int(np.argmin(d)) if d.size else -1
+                if j >= 0 and d[j] <= rtol * max(1.0, abs(z)):
+                    used[j] = True
+                else:
+                    keep_n.append(z)
+            if used.any():
+                kept_d = zd[~used]
+                gain = num[-1] / den[-1]
+                n2 = np.real(P.polyfromroots(keep_n)) if keep_n else np.array([1.0])
+                d2 = np.real(P.polyfromroots(kept_d)) if kept_d.size else np.array([1.0])
+                num, den = gain * n2, d2
+        # normalize: monic-ish denominator by its largest coefficient for conditioning
+        sc = np.max(np.abs(den))
+        return Rational(num / sc, den / sc)
+
+    # -- evaluation ---------------------------------------------------------------------------
+    def __call__(self, s: np.ndarray | complex) -> np.ndarray:
+        s = np.asarray(s, dtype=complex)
+        return P.polyval(s, self.num) / P.polyval(s, self.den)
+
+    def freq(self, w: np.ndarray | float) -> np.ndarray:
+        """Frequency response at s = jω (ω in rad/s), vectorized."""
+        return self(1j * np.asarray(w, dtype=float))
+
+    def to_dict(self) -> dict:
+        return {"num": self.num[::-1].tolist(), "den": self.den[::-1].tolist()}
+
+    def __repr__(self) -> str:
+        return f"Rational(num={self.num[::-1].tolist()}, den={self.den[::-1].tolist()})"
+
+
+def _as_rational(o: Rational | float | int) -> Rational:
+    return o if isinstance(o, Rational) else Rational.const(float(o))
+
+
+def _exact_quotient(a: np.ndarray, b: np.ndarray, rtol: float = 1e-12) -> np.ndarray | None:
+    """q with a = b·q when b divides a to within rtol, else None.
+
+    The division is carried out in a balanced variable s = σ·t (σ from b's extreme coefficients),
+    which keeps long division well conditioned when coefficients span many decades.
+    """
+    a = np.trim_zeros(np.asarray(a, float), "b")
+    b = np.trim_zeros(np.asarray(b, float), "b")
+    if a.size < b.size or not np.any(b):
+        return None
+    if b.size == 1:
+        return a / b[0]
+    nz = np.nonzero(b)[0]
+    lo = nz[0]
+    if lo and np.any(a[:lo]):
+        return None
+    n = b.size - 1 - lo
+    sig = (abs(b[lo]) / abs(b[-1])) ** (1.0 / n) if n > 0 else 1.0
+    if not (np.isfinite(sig) and sig > 0):
+        sig = 1.0
+    pa = sig ** np.arange(a.size)
+    pb = sig ** np.arange(b.size)
+    A, B = a * pa, b * pb
+    q, r = P.polydiv(A, B)
+    scale = float(np.max(np.abs(A)))
+    resid = P.polysub(P.polymul(B, q), A)
+    if np.max(np.abs(resid)) > rtol * scale:
+        return None
+    return q / sig ** np.arange(q.size)
+
+
+def _roots_asc(c: np.ndarray) -> np.ndarray:
+    c = np.trim_zeros(np.asarray(c, float), "b")
+    if c.size <= 1:
+        return np.zeros(0, complex)
+    return np.roots(c[::-1]).astype(complex)
+
+
+#: the Laplace variable s as a Rational, for building models by formula: ``m*S**2 + b*S + k``
+S = Rational(np.array([0.0, 1.0]), np.array([1.0]))
+
+
+@dataclass
+class TransferMatrix:
+    """A square matrix of :class:`Rational` entries with its immittance type and port structure.
+
+    ``port_dofs`` gives the number of DOFs of each port, in order; ``sum(port_dofs) == n``.
+    """
+
+    entries: list[list[Rational]]
+    kind: ImmittanceKind = "impedance"
+    port_dofs: tuple[int, ...] = field(default_factory=tuple)
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        n = len(self.entries)
+        if n == 0 or any(len(r) != n for r in self.entries):
+            raise ModelError("a transfer matrix must be square and non-empty")
+        self.entries = [[_as_rational(e) for e in row] for row in self.entries]
+        if self.kind not in KINDS:
+            raise ModelError(f"unknown immittance type {self.kind!r}; expected one of {', '.join(KINDS)}")
+        if not self.port_dofs:
+            self.port_dofs = (1,) * n
+        self.port_dofs = tuple(int(d) for d in self.port_dofs)
+        if sum(self.port_dofs) != n or any(d < 1 for d in self.port_dofs):
+            raise ModelError(f"port DOFs {list(self.port_dofs)} do not add up to the matrix size {n}")
+        if self.kind in ("hybrid", "inverse_hybrid") and len(self.port_dofs) != 2:
+            raise ModelError("hybrid and inverse-hybrid matrices are defined for two-ports only")
+        for i, row in enumerate(self.entries):
+            for j, e in enumerate(row):
+                if not e.is_proper():
+                    log.debug("entry (%d, %d) is improper (degree num > den)", i, j)
+
+    # -- constructors ---------------------------------------------------------------------------
+    @staticmethod
+    def from_coefficients(rows: Sequence[Sequence[dict]], kind: ImmittanceKind = "impedance",
+                          port_dofs: Sequence[int] | None = None, name: str = "") -> TransferMatrix:
+        """From rows of ``{"num": [...], "den": [...]}`` (descending powers of s)."""
+        ent = [[Rational.from_desc(e["num"], e.get("den", [1.0])) for e in row] for row in rows]
+        return TransferMatrix(ent, kind, tuple(port_dofs or ()), name)
+
+    @staticmethod
+    def from_state_space(A, B, C, D, kind: ImmittanceKind = "impedance",
+                         port_dofs: Sequence[int] | None = None, name: str = "") -> TransferMatrix:
+        """From a state-space realization (inputs = flows for an impedance, etc.)."""
+        from scipy.signal import ss2tf
+
+        A, B, C, D = (np.atleast_2d(np.asarray(x, float)) for x in (A, B, C, D))
+        n_in = B.shape[1]
+        if C.shape[0] != n_in:
+            raise ModelError("an immittance matrix needs as many outputs as inputs")
+        rows: list[list[Rational]] = [[Rational.const(0.0)] * n_in for _ in range(n_in)]
+        for j in range(n_in):
+            num, den = ss2tf(A, B, C, D, input=j)
+            for i in range(n_in):
+                rows[i][j] = Rational.from_desc(np.atleast_2d(num)[i], den)
+        return TransferMatrix(rows, kind, tuple(port_dofs or ()), name)
+
+    @staticmethod
+    def from_zpk(zpk_rows: Sequence[Sequence[tuple]], kind: ImmittanceKind = "impedance",
+                 port_dofs: Sequence[int] | None = None, name: str = "") -> TransferMatrix:
+        ent = [[Rational.from_zpk(*e) for e in row] for row in zpk_rows]
+        return TransferMatrix(ent, kind, tuple(port_dofs or ()), name)
+
+    # -- basic properties -------------------------------------------------------------------------
+    @property
+    def n(self) -> int:
+        return len(self.entries)
+
+    @property
+    def n_ports(self) -> int:
+        return len(self.port_dofs)
+
+    def __getitem__(self, ij: tuple[int, int]) -> Rational:
+        return self.entries[ij[0]][ij[1]]
+
+    def freq(self, w: np.ndarray | float) -> np.ndarray:
+        """Vectorized frequency response, shape (len(w), n, n), at s = jω."""
+        w = np.atleast_1d(np.asarray(w, dtype=float))
+        out = np.empty((w.size, self.n, self.n), dtype=complex)
+        for i, row in enumerate(self.entries):
+            for j, e in enumerate(row):
+                out[:, i, j] = e.freq(w)
+        return out
+
+    def poles(self) -> np.ndarray:
+        """Union of the poles of all entries (with repetitions across entries removed)."""
+        ps: list[complex] = []
+        for row in self.entries:
+            for e in row:
+                for p in e.poles():
+                    if not any(abs(p - q) <= 1e-9 * max(1.0, abs(p)) for q in ps):
+                        ps.append(p)
+        return np.array(ps, dtype=complex)
+
+    def is_symmetric(self, rtol: float = 1e-12) -> bool:
+        return all(_rational_equal(self[i, j], self[j, i], rtol) for i in range(self.n) for j in range(i))
+
+    def to_dict(self) -> dict:
+        return {"type": self.kind, "ports": list(self.port_dofs),
+                "matrix": [[e.to_dict() for e in row] for row in self.entries]}
+
+    # -- immittance conversions --------------------------------------------------------------------
+    def to(self, kind: ImmittanceKind) -> TransferMatrix:
+        """Convert to another immittance type.
+
+        Impedance ↔ admittance exist for any n-port (matrix inverse). Hybrid and inverse hybrid
+        are two-port forms (each port may have m DOFs: then the formulas hold blockwise):
+
+        * z → h:  h11 = z11 - z12 z22⁻¹ z21,  h12 = z12 z22⁻¹,  h21 = -z22⁻¹ z21,  h22 = z22⁻¹
+        * g = h⁻¹
+
+        Raises :class:`ConversionError` when the needed inverse does not exist (identically
+        singular block).
+        """
+        if kind not in KINDS:
+            raise ModelError(f"unknown immittance type {kind!r}")
+        if kind == self.kind:
+            return self
+        z = self._to_impedance()
+        if kind == "impedance":
+            return z
+        if kind == "admittance":
+            return TransferMatrix(_inv(z.entries), "admittance", z.port_dofs, self.name)
+        if len(self.port_dofs) != 2:
+            raise ConversionError("hybrid forms exist for two-ports only")
+        h = _z_to_h(z.entries, z.port_dofs[0])
+        if kind == "hybrid":
+            return TransferMatrix(h, "hybrid", z.port_dofs, self.name)
+        return TransferMatrix(_inv(h), "inverse_hybrid", z.port_dofs, self.name)
+
+    def _to_impedance(self) -> TransferMatrix:
+        if self.kind == "impedance":
+            return self
+        if self.kind == "admittance":
+            return TransferMatrix(_inv(self.entries), "impedance", self.port_dofs, self.name)
+        m1 = self.port_dofs[0]
+        h = self.entries if self.kind == "hybrid" else _inv(self.entries)
+        # h -> z is the same map as z -> h with the roles of the ports swapped:
+        # z11 = h11 - h12 h22^-1 h21, z12 = h12 h22^-1, z21 = -h22^-1 h21, z22 = h22^-1
+        return TransferMatrix(_z_to_h(h, m1), "impedance", self.port_dofs, self.name)
+
+
+def _rational_equal(a: Rational, b: Rational, rtol: float) -> bool:
+    lhs = P.polymul(a.num, b.den)
+    rhs = P.polymul(b.num, a.den)
+    n = max(lhs.size, rhs.size)
+    lhs = np.pad(lhs, (0, n - lhs.size))
+    rhs = np.pad(rhs, (0, n - rhs.size))
+    scale = np.abs(P.polymul(np.abs(a.num), np.abs(b.den)))
+    scale = np.pad(scale, (0, n - scale.size)) + np.pad(np.abs(P.polymul(np.abs(b.num), np.abs(a.den))),
+                                                         (0, n - P.polymul(b.num, a.den).size))
+    return bool(np.all(np.abs(lhs - rhs) <= rtol * np.maximum(scale, 1e-300)))
+
+
+# ---------------------------------------------------------------------------------------------
+# conversions in exact rational arithmetic
+#
+# Float coefficients are exact binary rationals, so the conversion formulas can be evaluated
+# exactly (sympy, imported lazily: conversions are rare and not on any hot path). Factors shared
+# by the entries (e.g. the characteristic polynomial of an SDEA) then cancel exactly instead of
+# leaving near-cancelling pole/zero pairs; the results are rounded back to floats once.
+
+
+def _sym(M: list[list[Rational]]):
+    import sympy as sp
+
+    s = sp.Symbol("s")
+
+    def poly(c: np.ndarray):
+        return sum(sp.Rational(float(v)) * s**k for k, v in enumerate(c) if v != 0) or sp.Integer(0)
+
+    return sp.Matrix([[poly(e.num) / poly(e.den) for e in row] for row in M]), s
+
+
+def _from_sym(Ms, s) -> list[list[Rational]]:
+    import sympy as sp
+
+    out = []
+    for i in range(Ms.rows):
+        row = []
+        for j in range(Ms.cols):
+            num, den = sp.fraction(sp.cancel(sp.together(Ms[i, j])))
+            pn = sp.Poly(num, s).all_coeffs()[::-1]
+            pd = sp.Poly(den, s).all_coeffs()[::-1]
+            n_, d_ = np.array([float(v) for v in pn]), np.array([float(v) for v in pd])
+            sc = float(np.max(np.abs(d_)))
+            row.append(Rational(n_ / sc, d_ / sc).cancel_s())
+        out.append(row)
+    return out
+
+
+def _inv(M: list[list[Rational]]) -> list[list[Rational]]:
+    Ms, s = _sym(M)
+    import sympy as sp
+
+    det = sp.cancel(Ms.det(method="berkowitz"))
+    if det == 0:
+        raise ConversionError("the matrix is identically singular: this immittance form does not exist")
+    return _from_sym(Ms.adjugate().applyfunc(lambda e: sp.cancel(e / det)), s)
+
+
+def _z_to_h(Z: list[list[Rational]], m1: int) -> list[list[Rational]]:
+    """Block hybrid conversion (the same map also takes h to z):
+    h11 = Z11 - Z12 Z22⁻¹ Z21, h12 = Z12 Z22⁻¹, h21 = -Z22⁻¹ Z21, h22 = Z22⁻¹."""
+    import sympy as sp
+
+    Ms, s = _sym(Z)
+    n = Ms.rows
+    Z11, Z12, Z21, Z22 = Ms[:m1, :m1], Ms[:m1, m1:], Ms[m1:, :m1], Ms[m1:, m1:]
+    det = sp.cancel(Z22.det(method="berkowitz"))
+    if det == 0:
+        raise ConversionError("Z22 is identically singular: the hybrid form does not exist")
+    Z22i = Z22.adjugate().applyfunc(lambda e: sp.cancel(e / det))
+    H = sp.zeros(n, n)
+    H[:m1, :m1] = Z11 - Z12 * Z22i * Z21
+    H[:m1, m1:] = Z12 * Z22i
+    H[m1:, :m1] = -Z22i * Z21
+    H[m1:, m1:] = Z22i
+    return _from_sym(H, s)
