@@ -275,6 +275,11 @@ class SdeaLockedOutput(GreyBoxModel):
                 "B and B_f are not separable from motor velocity alone (only B + B_f enters v/tau): "
                 "also measure the spring force, or run the free-output experiment"
             )
+        if self.channels == ("force",) and {"K_f", "M"} <= names:
+            return (
+                "the spring-force response F/tau has unit static gain and depends only on ratios to K_f: "
+                "the absolute scale of K_f, M, B is not observable; also measure the motor velocity"
+            )
         return super().identifiability_hint(names)
 
 
