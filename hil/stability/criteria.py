@@ -186,7 +186,8 @@ def _permanent_abs(K: np.ndarray) -> float:
     return float(sum(np.prod([A[i, p[i]] for i in range(n)]) for p in itertools.permutations(range(n))))
 
 
-def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: Tolerances = TOL) -> list[Condition]:
+def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: Tolerances = TOL,
+                    w0: float = 1.0) -> list[Condition]:
     """Conditions on poles of every entry: (C) none in the open RHP; (D) imaginary-axis poles are
     simple with an admissible residue matrix.
 
@@ -234,8 +235,9 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
             conds.append(Condition(name, label, "violated", -1.0, w, f"pole at s = j{w:.6g} has multiplicity {rec['mult']}",
                                    {"multiplicity": rec["mult"]}))
             continue
-        K = np.array([[_residue(tm[i, j], w) if not tm[i, j].is_zero else 0.0 for j in range(n)] for i in range(n)],
-                     dtype=complex)
+        # residues of the frequency-normalized entries are the physical ones divided by w0
+        K = w0 * np.array([[_residue(tm[i, j], w) if not tm[i, j].is_zero else 0.0 for j in range(n)]
+                           for i in range(n)], dtype=complex)
         scale = float(np.max(np.abs(K))) or 1.0
         ev: dict = {"pole": complex(0, w), "residues": K, "exact_on_axis": rec["exact"]}
         if residue_test == "hermitian":
@@ -411,7 +413,7 @@ def positive_real(g: TransferMatrix | Rational, tol: Tolerances = TOL) -> Stabil
     """Positive realness of a one-port Z(s) or an n×n transfer matrix G(s) (passivity)."""
     tm0 = _as_tm(g)
     tm, w0 = _normalized(tm0)
-    conds = pole_conditions(tm, "hermitian", tol)
+    conds = pole_conditions(tm, "hermitian", tol, w0)
     conds += _hermitian_minors(tm.entries, list(range(tm.n)), tol, "E",
                                "G(jω)+G(jω)ᴴ ⪰ 0" if tm.n > 1 else "Re Z(jω) ≥ 0")
     crit = "positive_real" if tm.n > 1 else "positive_real (one-port)"
@@ -432,12 +434,28 @@ def two_port_passivity(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
     return r
 
 
-def _llewellyn_eta(entries: list[list[Rational]], i: int, j: int, tol: Tolerances) -> Condition:
-    """η_ij = 2 Re p_ii Re p_jj - Re(p_ij p_ji) - |p_ij p_ji| ≥ 0, exactly.
+def hermitian_minor_poly(entries: list[list[Rational]], idx: tuple[int, ...]) -> XPoly:
+    """The principal minor ``idx`` of G(jω)+G(jω)ᴴ times |d(jω)|^(2k), as a polynomial in x = ω²."""
+    sub = [[entries[i][j] for j in idx] for i in idx]
+    n = len(sub)
+    cd = _CommonDen(sub)
+    jdc = jpoly_from_s(cd.d).conj()
+    A = [[jpoly_from_s(cd.numerator(sub[i][j])) * jdc for j in range(n)] for i in range(n)]
+    Pm = [[A[i][j] + A[j][i].conj() for j in range(n)] for i in range(n)]
+    if n == 1:
+        return Pm[0][0].real()
+    if n == 2:
+        return (Pm[0][0] * Pm[1][1] - Pm[0][1] * Pm[1][0]).real()
+    raise ModelError("hermitian_minor_poly supports 1x1 and 2x2 minors; use _hermitian_minors for larger ones")
 
-    With a common denominator d (p = u/d): a = Re(u_ii d*) Re(u_jj d*), c = u_ij u_ji d*², all
-    over |d|⁴ > 0. η ≥ 0 ⟺ L1 = 2a - Re c ≥ 0 and L2 = (2a - Re c)² - |c|² = 4a(a - Re c) - x·(Im c/ω)² ≥ 0
-    (L2 alone suffices where a > 0; L1 matters only where a = 0).
+
+def llewellyn_polys(entries: list[list[Rational]], i: int = 0, j: int = 1) -> tuple[XPoly, XPoly]:
+    """(L1, L2) with η_ij ≥ 0 ⟺ L1 ≥ 0 and L2 ≥ 0.
+
+    η_ij = 2 Re p_ii Re p_jj - Re(p_ij p_ji) - |p_ij p_ji|. With a common denominator d (p = u/d):
+    a = Re(u_ii d*) Re(u_jj d*), c = u_ij u_ji d*², all over |d|⁴ > 0. Then η ≥ 0 ⟺
+    L1 = 2a - Re c ≥ 0 and L2 = (2a - Re c)² - |c|² = 4a(a - Re c) - x·(Im c/ω)² ≥ 0
+    (L2 alone decides where a > 0; L1 matters only where a = 0).
     """
     sub = [[entries[a][b] for b in (i, j)] for a in (i, j)]
     cd = _CommonDen(sub)
@@ -448,8 +466,12 @@ def _llewellyn_eta(entries: list[list[Rational]], i: int, j: int, tol: Tolerance
     C = u[0][1] * u[1][0] * jdc * jdc
     a = A1 * A2
     cr, ci = C.real(), C.imag_over_omega()
-    L1 = a * 2.0 - cr
-    L2 = a * (a - cr) * 4.0 - (ci * ci).mulx()
+    return a * 2.0 - cr, a * (a - cr) * 4.0 - (ci * ci).mulx()
+
+
+def _llewellyn_eta(entries: list[list[Rational]], i: int, j: int, tol: Tolerances) -> Condition:
+    """Llewellyn's η_ij ≥ 0 for all ω as an exact condition (see :func:`llewellyn_polys`)."""
+    L1, L2 = llewellyn_polys(entries, i, j)
     d1 = decide_nonnegative(L1, tol.poly)
     d2 = decide_nonnegative(L2, tol.poly)
     name = f"E{_lbl((i, j))}"
@@ -457,11 +479,8 @@ def _llewellyn_eta(entries: list[list[Rational]], i: int, j: int, tol: Tolerance
     label = f"Llewellyn η{a_}{b_} = 2Re p{a_}{a_} Re p{b_}{b_} - Re(p{a_}{b_}p{b_}{a_}) - |p{a_}{b_}p{b_}{a_}| ≥ 0"
     rank = {"violated": 3, "marginal": 2, "equality": 1, "satisfied": 0}
     worst = d2 if rank[d2.status] >= rank[d1.status] else d1
-    if d2.status == "equality" and d1.status == "satisfied":
-        worst = d2
-    c = _cond_from_decision(name, label, worst, {"L1_x_desc": _desc(d1.coefficients), "L1_status": d1.status,
-                                                 "L2_x_desc": _desc(d2.coefficients), "L2_status": d2.status})
-    return c
+    return _cond_from_decision(name, label, worst, {"L1_x_desc": _desc(d1.coefficients), "L1_status": d1.status,
+                                                    "L2_x_desc": _desc(d2.coefficients), "L2_status": d2.status})
 
 
 def llewellyn(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityResult:
@@ -474,7 +493,7 @@ def llewellyn(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityResult:
         raise ModelError("Llewellyn's criterion applies to 1-DOF two-ports (2×2 immittance matrices)")
     tm0 = tm
     tm, w0 = _normalized(tm0)
-    conds = pole_conditions(tm, "minors", tol)
+    conds = pole_conditions(tm, "minors", tol, w0)
     for k in range(2):
         conds += _hermitian_minors(tm.entries, [k], tol, "E", "Re p(jω) ≥ 0")
     conds.append(_llewellyn_eta(tm.entries, 0, 1, tol))
@@ -739,7 +758,7 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
                 irrational.add((i, j))
             else:
                 W[(i, j)] = r
-    conds += pole_conditions(tm, "minors", tol)
+    conds += pole_conditions(tm, "minors", tol, w0)
     for comp in _components(nz):
         if len(comp) == 1:
             conds += _hermitian_minors(tm.entries, comp, tol, "E", "Re z_ii(jω) ≥ 0")

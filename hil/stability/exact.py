@@ -285,7 +285,14 @@ def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL) -> SignDecision:
     cc[np.abs(cc) <= tol * m] = 0.0
     if not np.any(cc):
         return SignDecision("equality", 0.0, 0.0, method="identically zero", coefficients=cc)
-    ratio = _Ratio(cc, m)
+    ratio = _Ratio(cc, m)  # classification: value over its full round-off bound
+    # Reporting: the bound restricted to p's own degree range, so structural zeros at x -> 0 or
+    # x -> inf (e.g. Re Z ∝ ω² for a mass-spring at DC) do not pin the reported margin to 0.
+    nzc = np.nonzero(cc)[0]
+    m_rep = m.copy()
+    m_rep[: nzc[0]] = 0.0
+    m_rep[nzc[-1] + 1:] = 0.0
+    rep = _Ratio(cc, m_rep)
 
     # 2. exact root structure on (0, inf)
     k = int(np.nonzero(cc)[0][0])
@@ -318,14 +325,14 @@ def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL) -> SignDecision:
 
     # 3. depth of each band and interior minima of the normalized margin
     depths = [_band_min(ratio, a, b, cc, m)[1] for a, b in bands]
-    crit_x, crit_v = _global_min(ratio, cc, m, extra=[x for x, _, _ in roots_info])
+    crit_x, crit_v = _global_min(rep, cc, m_rep, extra=[x for x, _, _ in roots_info])
     margin, worst_x = crit_v, crit_x
-    for (a, b), _dep in zip(bands, depths, strict=True):
-        bx, bv = _band_min(ratio, a, b, cc, m)
+    for a, b in bands:
+        bx, bv = _band_min(rep, a, b, cc, m_rep)
         if bv < margin:
             margin, worst_x = bv, bx
     for x in touching:
-        v = float(ratio(x)[0])
+        v = float(rep(x)[0])
         if v < margin:
             margin, worst_x = v, x
     if any(d < -tol for d in depths):

@@ -175,7 +175,10 @@ def combine(criterion: str, conditions: list[Condition], network: dict[str, Any]
         verdict = Verdict.MARGINAL
         failed = worst.name
     else:
-        worst = min(conditions, key=lambda c: c.margin) if conditions else None
+        # the overall margin of a stable network ignores conditions that hold with exact
+        # equality (reported through ``weak``): they are structural, not a distance to instability
+        strict = [c for c in conditions if c.status != "equality"] or conditions
+        worst = min(strict, key=lambda c: c.margin) if strict else None
         verdict = Verdict.STABLE
         failed = None
     weak = verdict == Verdict.STABLE and any(c.status == "equality" for c in conditions)

@@ -1,0 +1,241 @@
+"""The ``hil`` command line.
+
+Subcommands import what they need when they run, so ``hil stability`` never imports device
+libraries and ``hil mock serve`` never imports the stability core.
+
+Exit codes (documented in README.md):
+
+====  ==============================================================
+0     stable (GO)
+2     usage or input error (bad arguments, malformed file, unknown model): one-line message
+10    marginal (MARGINAL)
+11    potentially unstable (NO-GO)
+12    criterion not applicable (e.g. Theorem 1's symmetrization fails)
+13    evidence missing or broken (ERROR)
+1     unexpected internal error (a bug: please report it with the traceback from --debug)
+====  ==============================================================
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import json
+import logging
+import math
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from hil.errors import HilError
+
+EXIT_OK = 0
+EXIT_INTERNAL = 1
+EXIT_USAGE = 2
+EXIT_MARGINAL = 10
+EXIT_UNSTABLE = 11
+EXIT_NOT_APPLICABLE = 12
+EXIT_ERROR = 13
+
+VERDICT_EXIT = {"stable": EXIT_OK, "marginal": EXIT_MARGINAL, "potentially_unstable": EXIT_UNSTABLE,
+                "not_applicable": EXIT_NOT_APPLICABLE}
+
+log = logging.getLogger("hil")
+
+
+class UsageError(HilError):
+    """A command-line mistake; reported in one line with exit code 2."""
+
+
+def _parse_set(items: Sequence[str]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for it in items:
+        if "=" not in it:
+            raise UsageError(f"--set expects NAME=VALUE, got {it!r}")
+        k, v = it.split("=", 1)
+        k = k.strip()
+        try:
+            out[k] = float(v)
+        except ValueError:
+            out[k] = v.strip()
+    return out
+
+
+def _suggest(name: str, known: Sequence[str]) -> str:
+    close = difflib.get_close_matches(name, known, n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+# ---------------------------------------------------------------------------------------------
+# hil stability
+
+
+def _cmd_stability(args: argparse.Namespace) -> int:
+    from hil.stability.criteria import check
+
+    if args.list_models:
+        from hil.models import get_model, model_names
+
+        for n in model_names():
+            m = get_model(n)
+            print(f"{n:18s} {m.description}  [criterion: {m.criterion}]")
+        return EXIT_OK
+    if bool(args.file) == bool(args.model):
+        raise UsageError("give either a network FILE or --model NAME (see --list-models)")
+    if args.file:
+        from hil.netfile import load_network
+
+        if args.set:
+            raise UsageError("--set applies to built-in models (--model), not to files")
+        tm, crit = load_network(args.file)
+        criterion = args.criterion or crit
+    else:
+        from hil.models import get_model, model_names
+
+        try:
+            m = get_model(args.model)
+        except KeyError:
+            raise UsageError(f"unknown model {args.model!r}{_suggest(args.model, model_names())}; "
+                             f"known: {', '.join(model_names())}") from None
+        params = _parse_set(args.set or [])
+        for k in params:
+            if k not in m.defaults:
+                raise UsageError(f"model {m.name} has no parameter {k!r}{_suggest(k, list(m.defaults))}")
+        try:
+            tm = m.build(**params)
+        except TypeError as exc:
+            raise UsageError(f"bad parameter for {m.name}: {exc}") from None
+        criterion = args.criterion or m.criterion
+    result = check(tm, criterion)
+    if args.json:
+        print(json.dumps(result.to_dict(), indent=2, ensure_ascii=False))
+    else:
+        _print_result(result, args.verbose)
+    return VERDICT_EXIT[str(result.verdict)]
+
+
+def _print_result(result: Any, verbose: bool) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console()
+    colour = {"stable": "green", "marginal": "yellow", "potentially_unstable": "red", "not_applicable": "magenta"}
+    v = str(result.verdict)
+    title = f"{result.network.get('name') or 'network'} — {result.criterion}"
+    con.print(f"[bold]{title}[/bold]")
+    weak = " (weak: some conditions hold with equality)" if result.weak else ""
+    con.print(f"verdict: [bold {colour[v]}]{v}[/]{weak}")
+    if result.failed_condition:
+        con.print(f"decided by: {result.failed_condition}")
+    if result.reason:
+        con.print(f"reason: {result.reason}")
+    if not (isinstance(result.margin, float) and math.isnan(result.margin)):
+        wf = result.worst_frequency
+        wtxt = "" if wf is None else (" at ω → ∞" if math.isinf(wf) else f" at ω = {wf:.5g} rad/s")
+        con.print(f"margin (normalized): {result.margin:.4g}{wtxt}")
+    tab = Table(show_header=True, header_style="bold")
+    for col in ("condition", "status", "margin", "ω [rad/s]", "detail"):
+        tab.add_column(col)
+    shown = 0
+    for c in result.conditions:
+        if not verbose and c.status == "satisfied":
+            continue
+        shown += 1
+        wf = "" if c.worst_frequency is None else ("∞" if math.isinf(c.worst_frequency) else f"{c.worst_frequency:.4g}")
+        m = "" if isinstance(c.margin, float) and math.isnan(c.margin) else f"{c.margin:.3g}"
+        st = c.status
+        tab.add_row(c.name, f"[{colour.get({'violated': 'potentially_unstable', 'satisfied': 'stable'}.get(st, st), 'white')}]{st}[/]",
+                    m, wf, c.detail)
+    n_ok = sum(1 for c in result.conditions if c.status == "satisfied")
+    if shown:
+        con.print(tab)
+    if not verbose:
+        con.print(f"[dim]{n_ok} further condition(s) satisfied (use -v to list all)[/dim]")
+
+
+# ---------------------------------------------------------------------------------------------
+# hil design
+
+
+def _cmd_design(args: argparse.Namespace) -> int:
+    from hil.stability.design import k22_max, optimize_coupler
+
+    params = _parse_set(args.set or [])
+    if args.b22 is not None:
+        r = k22_max(args.b22, args.alpha if args.alpha is not None else 1.0, args.criterion, params)
+    else:
+        alpha = None if args.optimize_alpha else (args.alpha if args.alpha is not None else 1.0)
+        r = optimize_coupler(args.criterion, alpha, params)
+    if args.json:
+        print(json.dumps(r.to_dict(), indent=2))
+    else:
+        print(f"{args.criterion}: k22_max = {r.k22_max:.6g} N.m/rad at b22 = {r.b22:.6g} N.m.s/rad, "
+              f"alpha = {r.alpha:.4g} ({r.evaluations} exact verdicts)")
+    return EXIT_OK
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def _cmd_mock(args: argparse.Namespace) -> int:
+    from hil.mocks.serve import main as serve_main
+
+    return int(serve_main(args.rest) or 0)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="hil", description="Hardware-in-the-loop identification and stability "
+                                "certification of haptic devices, teleoperators and series elastic actuators.")
+    p.add_argument("--debug", action="store_true", help="show tracebacks and debug logs")
+    sub = p.add_subparsers(dest="cmd", metavar="COMMAND")
+
+    s = sub.add_parser("stability", help="check passivity / absolute stability of a network (file or built-in model)")
+    s.add_argument("file", nargs="?", help="network file (YAML or JSON): type, ports, matrix of {num, den}")
+    s.add_argument("--model", help="built-in model name (see --list-models)")
+    s.add_argument("--set", action="append", metavar="PARAM=VALUE", help="override a model parameter (repeatable)")
+    s.add_argument("--criterion", choices=["auto", "positive_real", "passivity", "llewellyn", "absolute_stability"],
+                   help="criterion to apply (default: the file's, or the model's, or auto)")
+    s.add_argument("--json", action="store_true", help="print one JSON object")
+    s.add_argument("-v", "--verbose", action="store_true", help="list every condition")
+    s.add_argument("--list-models", action="store_true", help="list the built-in models and exit")
+    s.set_defaults(func=_cmd_stability)
+
+    d = sub.add_parser("design", help="largest virtual-coupler stiffness k22 of the SDEA (002 Table II)")
+    d.add_argument("--criterion", choices=["passivity", "absolute_stability"], default="passivity")
+    d.add_argument("--alpha", type=float, help="feed-forward ratio alpha in [0, 1] (default 1)")
+    d.add_argument("--optimize-alpha", action="store_true", help="also maximize over alpha")
+    d.add_argument("--b22", type=float, help="fix the coupler damping instead of optimizing it")
+    d.add_argument("--set", action="append", metavar="PARAM=VALUE", help="override an SDEA parameter")
+    d.add_argument("--json", action="store_true")
+    d.set_defaults(func=_cmd_design)
+
+    m = sub.add_parser("mock", help="simulated devices: 'hil mock serve SPEC' starts them and prints endpoints")
+    m.add_argument("rest", nargs=argparse.REMAINDER)
+    m.set_defaults(func=_cmd_mock)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.debug else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return EXIT_USAGE
+    try:
+        return args.func(args)
+    except (UsageError, HilError) as exc:
+        if args.debug:
+            raise
+        print(f"hil {args.cmd}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # e.g. `hil stability ... --json | head`
+        sys.stderr.close()
+        return EXIT_OK
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
