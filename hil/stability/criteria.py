@@ -299,75 +299,169 @@ def _lbl(idx: Iterable[int]) -> str:
 
 
 # ------------------------------------------------------------------------------------------
+# physical margins: dimensionless ratios evaluated on the transfer functions themselves
+
+
+def _freq_range(entries: list[list[Rational]]) -> tuple[float, float]:
+    """The band over which physical margins are reported: the non-zero pole and zero magnitudes
+    of the entries, widened by two decades on each side. (The exact decision covers all ω; the
+    limits ω → 0 and ω → ∞, where ratios of positive-real functions typically vanish by structure,
+    are not used as margins.)"""
+    mags = [abs(r) for row in entries for e in row if not e.is_zero for r in (*e.poles(), *e.zeros())
+            if abs(r) > 0 and np.isfinite(abs(r))]
+    if not mags:
+        return 1e-2, 1e2
+    return min(mags) * 1e-2, max(mags) * 1e2
+
+
+def _freq_values(sub: list[list[Rational]], w: np.ndarray) -> np.ndarray:
+    k = len(sub)
+    G = np.empty((w.size, k, k), complex)
+    for i in range(k):
+        for j in range(k):
+            G[:, i, j] = 0.0 if sub[i][j].is_zero else sub[i][j].freq(w)
+    return G
+
+
+def _perm_batch(A: np.ndarray) -> np.ndarray:
+    k = A.shape[-1]
+    out = np.zeros(A.shape[0])
+    for p in itertools.permutations(range(k)):
+        term = np.ones(A.shape[0])
+        for i in range(k):
+            term = term * A[:, i, p[i]]
+        out += term
+    return out
+
+
+def _hermitian_ratio(sub: list[list[Rational]]):
+    """ω ↦ det(H)/perm(|G|+|Gᵀ|) with H = G + Gᴴ on the index set: in [-1, 1], scale invariant,
+    identical for every immittance form that describes the same passive quantity."""
+
+    def f(w: np.ndarray) -> np.ndarray:
+        G = _freq_values(sub, w)
+        H = G + np.conj(np.swapaxes(G, 1, 2))
+        S_ = np.abs(G) + np.abs(np.swapaxes(G, 1, 2))
+        det = np.linalg.det(H).real if H.shape[1] > 1 else H[:, 0, 0].real
+        sc = _perm_batch(S_)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(sc > 0, det / np.where(sc > 0, sc, 1.0), 0.0)
+
+    return f
+
+
+def _eta_ratio(sub: list[list[Rational]]):
+    """ω ↦ η/(2|p11||p22| + 2|p12 p21|), Llewellyn's η normalized to [-1, 1]."""
+
+    def f(w: np.ndarray) -> np.ndarray:
+        G = _freq_values(sub, w)
+        c = G[:, 0, 1] * G[:, 1, 0]
+        eta = 2 * G[:, 0, 0].real * G[:, 1, 1].real - c.real - np.abs(c)
+        sc = 2 * np.abs(G[:, 0, 0]) * np.abs(G[:, 1, 1]) + 2 * np.abs(c)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(sc > 0, eta / np.where(sc > 0, sc, 1.0), 0.0)
+
+    return f
+
+
+def _physical_min(fn, lo: float, hi: float, band: tuple[float, float] | None = None) -> tuple[float, float, bool]:
+    """Minimum of a ratio over ω: (value, ω, found at an interior local minimum)."""
+    from scipy.optimize import minimize_scalar
+
+    if band is not None:
+        a, b = band
+        a = max(a, lo * 1e-3) if a > 0 else lo * 1e-3
+        b = min(b, hi * 1e3) if math.isfinite(b) else hi * 1e3
+        w = np.geomspace(a, b, 201) if b > a else np.array([a])
+    else:
+        w = np.geomspace(lo, hi, 801)
+    v = fn(w)
+    i = int(np.argmin(v))
+    interior = 0 < i < w.size - 1
+    bw, bv = float(w[i]), float(v[i])
+    if interior:
+        res = minimize_scalar(lambda u: float(fn(np.array([math.exp(u)]))[0]),
+                              bounds=(math.log(w[i - 1]), math.log(w[i + 1])), method="bounded",
+                              options={"xatol": 1e-10})
+        if res.fun < bv:
+            bw, bv = float(math.exp(res.x)), float(res.fun)
+    return bv, bw, interior or band is not None
+
+
+# ------------------------------------------------------------------------------------------
 # polynomial conditions
 
 
 class _CommonDen:
-    """Common denominator d (ascending) of a set of entries: the product of their distinct
-    denominators. Denominators equal to within ``rtol`` (relative, coefficient-wise) count as one,
-    which absorbs the ~1e-8 relative noise that immittance conversions leave in shared factors.
-    For each entry e = n/den the numerator over d is n·(product of the other representatives),
-    formed by multiplication only (no polynomial division)."""
+    """Common denominator d (ascending) of a set of entries, close to their least common multiple:
+    a denominator that divides the running d (or that d divides) is not multiplied in again, which
+    catches the shared factors immittance conversions produce (e.g. A(s) and s·A(s)). For each
+    entry e = n/den the numerator over d is n·(d/den), the quotient checked to be exact."""
 
-    def __init__(self, entries: list[list[Rational]], rtol: float = 1e-6) -> None:
-        self.reps: list[np.ndarray] = []
+    def __init__(self, entries: list[list[Rational]]) -> None:
+        from hil.stability.rational import _exact_quotient
+
+        self._q = _exact_quotient
+        d = np.array([1.0])
         for row in entries:
             for e in row:
-                if not e.is_zero and self._match(e.den, rtol) is None:
-                    self.reps.append(self._norm(e.den))
-        self.rtol = rtol
-        self.d = np.array([1.0])
-        for r in self.reps:
-            self.d = P.polymul(self.d, r)
-
-    @staticmethod
-    def _norm(den: np.ndarray) -> np.ndarray:
-        return den / den[np.nonzero(den)[0][-1]]
-
-    def _match(self, den: np.ndarray, rtol: float) -> int | None:
-        d = self._norm(den)
-        for k, r in enumerate(self.reps):
-            if r.size == d.size and np.all(np.abs(r - d) <= rtol * np.maximum(np.abs(r), np.abs(d))):
-                return k
-        return None
+                if e.is_zero or e.den.size <= 1 or _exact_quotient(d, e.den, 1e-9) is not None:
+                    continue
+                d = e.den / np.max(np.abs(e.den)) if _exact_quotient(e.den, d, 1e-9) is not None \
+                    else P.polymul(d, e.den / np.max(np.abs(e.den)))
+        self.d = d
 
     def numerator(self, e: Rational) -> np.ndarray:
         if e.is_zero:
             return np.zeros(1)
-        k = self._match(e.den, self.rtol)
-        if k is None:  # pragma: no cover - every entry was registered
-            raise ModelError("internal: entry denominator not in the common denominator")
-        scale = e.den[np.nonzero(e.den)[0][-1]]
-        u = e.num / scale
-        for j, r in enumerate(self.reps):
-            if j != k:
-                u = P.polymul(u, r)
-        return u
+        q = self._q(self.d, e.den, 1e-9)
+        if q is None:  # pragma: no cover - every entry divides d by construction
+            raise ModelError("internal: entry denominator does not divide the common denominator")
+        return P.polymul(e.num, q)
 
 
-def _decision_condition(name: str, label: str, p: XPoly, tol: Tolerances, extra: dict | None = None) -> Condition:
+def _decision_condition(name: str, label: str, p: XPoly, tol: Tolerances, extra: dict | None = None,
+                        physical=None) -> Condition:
     d = decide_nonnegative(p, tol.poly)
-    return _cond_from_decision(name, label, d, extra)
+    return _cond_from_decision(name, label, d, extra, physical, tol)
 
 
-def _cond_from_decision(name: str, label: str, d: SignDecision, extra: dict | None = None) -> Condition:
+def _cond_from_decision(name: str, label: str, d: SignDecision, extra: dict | None = None,
+                        physical=None, tol: Tolerances = TOL) -> Condition:
+    """Condition record from an exact decision. ``physical = (ratio_fn, lo, hi)`` supplies the
+    reported margin: the minimum over ω of a dimensionless ratio of the actual transfer functions
+    (inside the worst negative band when violated). A non-negative condition whose physical
+    margin has an interior minimum within ``tol`` of zero is reported marginal."""
     bands_w = [(math.sqrt(a), math.sqrt(b) if math.isfinite(b) else math.inf) for a, b in d.negative_bands]
     ev = {"polynomial_x_desc": _desc(d.coefficients), "method": d.method, "distinct_positive_roots": d.n_roots,
           "negative_bands_rad_s": bands_w, "band_depths": d.band_depths,
           "touching_rad_s": [math.sqrt(x) for x in d.touching]}
     if extra:
         ev.update(extra)
-    if d.status == "violated":
+    status, margin, wf = d.status, d.margin, d.worst_omega
+    if physical is not None and status != "equality":
+        fn, lo, hi = physical
+        band = None
+        if status == "violated":
+            band = bands_w[int(np.argmin(d.band_depths))]
+        pv, pw, interior = _physical_min(fn, lo, hi, band)
+        ev["margin_kind"] = "physical"
+        if status == "violated":
+            margin, wf = min(pv, -abs(pv) if pv >= 0 else pv), pw
+        else:
+            margin, wf = pv, pw
+            if status == "satisfied" and interior and pv <= tol.poly:
+                status = "marginal"
+    if status == "violated":
         b = bands_w[int(np.argmin(d.band_depths))]
         detail = f"negative for ω in [{b[0]:.6g}, {b[1]:.6g}] rad/s"
-    elif d.status == "marginal":
+    elif status == "marginal":
         detail = "within tolerance of zero (touches or dips by less than round-off)"
-    elif d.status == "equality":
+    elif status == "equality":
         detail = "identically zero: holds with equality at all frequencies"
     else:
         detail = "positive for all ω"
-    wf = d.worst_omega
-    return Condition(name, label, d.status, d.margin, wf, detail, ev)
+    return Condition(name, label, status, margin, wf, detail, ev)
 
 
 def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: Tolerances, prefix: str,
@@ -396,12 +490,14 @@ def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: To
         return acc
 
     conds = []
+    lo, hi = _freq_range(sub)
     for k in range(1, n + 1):
         for idx in itertools.combinations(range(n), k):
             mnr = det(idx, idx).real()
             glob = tuple(idx_all[i] for i in idx)
+            subsub = [[sub[a][b] for b in idx] for a in idx]
             conds.append(_decision_condition(f"{prefix}{_lbl(glob)}", f"{label}, principal minor {_lbl(glob)}",
-                                             mnr, tol))
+                                             mnr, tol, physical=(_hermitian_ratio(subsub), lo, hi)))
     return conds
 
 
@@ -479,8 +575,11 @@ def _llewellyn_eta(entries: list[list[Rational]], i: int, j: int, tol: Tolerance
     label = f"Llewellyn η{a_}{b_} = 2Re p{a_}{a_} Re p{b_}{b_} - Re(p{a_}{b_}p{b_}{a_}) - |p{a_}{b_}p{b_}{a_}| ≥ 0"
     rank = {"violated": 3, "marginal": 2, "equality": 1, "satisfied": 0}
     worst = d2 if rank[d2.status] >= rank[d1.status] else d1
+    sub = [[entries[a][b] for b in (i, j)] for a in (i, j)]
+    lo, hi = _freq_range(sub)
     return _cond_from_decision(name, label, worst, {"L1_x_desc": _desc(d1.coefficients), "L1_status": d1.status,
-                                                    "L2_x_desc": _desc(d2.coefficients), "L2_status": d2.status})
+                                                    "L2_x_desc": _desc(d2.coefficients), "L2_status": d2.status},
+                               (_eta_ratio(sub), lo, hi), tol)
 
 
 def llewellyn(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityResult:

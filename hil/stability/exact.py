@@ -15,11 +15,13 @@ sampling:
    evaluated exactly at rational points. The existence of a negative band is therefore decided
    exactly, however narrow it is.
 3. **Tolerance on depth (boundary cases).** Round-off in *forming* ``p`` can create or destroy a
-   dip of relative depth ~1e-15. Each negative band's depth is measured as the minimum of the
-   normalized margin ``ρ(x) = p(x)/m(x)``; a band shallower than ``tol`` is reported as
-   **marginal**, as is a root touching zero (even multiplicity) and an interior minimum of ρ
-   within ``tol`` of zero. Deeper bands are **violated**; everything else is **satisfied**.
-   An identically-zero polynomial is an **equality** (the condition holds with ``=`` for all ω).
+   dip of relative depth ~1e-15. Each negative band's depth is measured as the minimum of
+   ``ρ(x) = p(x)/m(x)`` (value over its round-off bound); a band shallower than ``tol`` is
+   reported as **marginal**, as is a root touching zero (even multiplicity). Deeper bands are
+   **violated**; everything else is **satisfied**. An identically-zero polynomial is an
+   **equality** (the condition holds with ``=`` for all ω). The *physical* margin of a condition
+   (how far the network is from the boundary) is computed by the criteria from the transfer
+   functions themselves, not from ``m``, which is a pessimistic coefficient-wise bound.
 
 The default ``tol = 1e-10`` is about 5e5 times the double-precision unit round-off: above the
 error growth of the products that form the condition polynomials (degree ≲ 40, a few hundred
@@ -281,8 +283,12 @@ def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL) -> SignDecision:
     cc[: c.size] = c
     if not np.all(np.isfinite(cc)) or not np.all(np.isfinite(m)):
         raise FloatingPointError("non-finite coefficient in a condition polynomial")
-    # 1. cleaning: coefficients below tol x their own round-off bound are zero
+    # 1. cleaning: coefficients below tol x their own round-off bound are zero; so are
+    #    coefficients 1e-250 below the largest (they cannot matter at any physical frequency
+    #    and would overflow the balancing of the root finder)
     cc[np.abs(cc) <= tol * m] = 0.0
+    big = float(np.max(m)) if m.size else 0.0
+    cc[np.abs(cc) < 1e-250 * big] = 0.0
     if not np.any(cc):
         return SignDecision("equality", 0.0, 0.0, method="identically zero", coefficients=cc)
     ratio = _Ratio(cc, m)  # classification: value over its full round-off bound
@@ -337,7 +343,7 @@ def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL) -> SignDecision:
             margin, worst_x = v, x
     if any(d < -tol for d in depths):
         status: Status = "violated"
-    elif bands or touching or _interior_min(ratio, cc, m) <= tol:
+    elif bands or touching:
         status = "marginal"
     else:
         status = "satisfied"
@@ -467,21 +473,6 @@ def _critical_points(cc: np.ndarray, m: np.ndarray) -> np.ndarray:
     if d.size == 0 or not np.any(d):
         return np.zeros(0)
     return _positive_real_roots(d)
-
-
-def _interior_min(ratio: _Ratio, cc: np.ndarray, m: np.ndarray) -> float:
-    xs = _critical_points(cc, m)
-    if xs.size == 0:
-        return math.inf
-    v = ratio(xs)
-    # keep only local minima (not the monotone tails)
-    out = []
-    for x, val in zip(xs, v, strict=True):
-        left = float(ratio(x * (1 - 1e-6))[0])
-        right = float(ratio(x * (1 + 1e-6))[0])
-        if val <= left and val <= right:
-            out.append(val)
-    return float(min(out)) if out else math.inf
 
 
 def _global_min(ratio: _Ratio, cc: np.ndarray, m: np.ndarray, extra: list[float]) -> tuple[float, float]:

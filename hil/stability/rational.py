@@ -259,6 +259,9 @@ def _exact_quotient(a: np.ndarray, b: np.ndarray, rtol: float = 1e-12) -> np.nda
     resid = P.polysub(P.polymul(B, q), A)
     if np.max(np.abs(resid)) > rtol * scale:
         return None
+    # an exact quotient has no round-off-sized coefficients in the balanced variable: snap them
+    # to zero (e.g. (s·A)/A must be s, not s + 1e-17)
+    q = np.where(np.abs(q) <= 64 * np.finfo(float).eps * q.size * np.max(np.abs(q)), 0.0, q)
     return q / sig ** np.arange(q.size)
 
 
