@@ -35,7 +35,7 @@ import numpy as np
 from numpy.polynomial import polynomial as P
 
 from hil.errors import ModelError
-from hil.stability.exact import DEFAULT_TOL, SignDecision, decide_nonnegative
+from hil.stability.exact import DEFAULT_TOL, SignDecision, decide_nonnegative, on_imaginary_axis_exact
 from hil.stability.jpoly import JPoly, XPoly, jpoly_from_s
 from hil.stability.rational import Rational, TransferMatrix
 from hil.stability.results import Condition, StabilityResult, combine
@@ -166,7 +166,7 @@ def _entry_axis_poles(e: Rational, tol: Tolerances) -> tuple[list[complex], list
                     axis[idx] = (w0, mult + 1, ex)
                     break
             else:
-                axis.append((w, 1, False))
+                axis.append((w, 1, on_imaginary_axis_exact(rest, w)))
     return rhp, axis
 
 
