@@ -31,7 +31,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from hil.identify.diagnostics import DataReport, Diagnosis, check_excitation, run_checks
-from hil.identify.errors import ConvergenceError, DataQualityError, IdentificationError, ModelSpecError
+from hil.identify.errors import (
+    ConvergenceError,
+    DataQualityError,
+    IdentificationError,
+    ModelSpecError,
+    NotIdentifiableError,
+)
 from hil.identify.fisher import IdentifiabilityReport, check_identifiability, crb, fisher_information
 from hil.identify.fit import LsResult, fit_least_squares
 from hil.identify.frf import FrfEstimate, estimate_frf
@@ -326,7 +332,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except IdentificationError as exc:
         print(f"identification failed: {exc}", file=sys.stderr)
-        return 4 if exc.__class__.__name__ == "NotIdentifiableError" else 1
+        return 4 if isinstance(exc, NotIdentifiableError) else 1
     if a.json:
         print(res.to_json())
     else:

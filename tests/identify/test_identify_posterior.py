@@ -154,3 +154,24 @@ def test_plots_smoke(sdea_result, tmp_path) -> None:
         fig = fn(sdea_result, path=str(tmp_path / f"{fn.__name__}.png"))
         assert (tmp_path / f"{fn.__name__}.png").stat().st_size > 1000
         fig.clf()
+
+
+def test_vectorized_log_posterior_matches_rowwise_and_bounds(sdea_result) -> None:
+    from hil.identify.posterior import LogPosterior
+
+    lp = LogPosterior(sdea_result.model, sdea_result.frf)
+    rng = np.random.default_rng(0)
+    Z = sdea_result.ls.z + 1e-3 * rng.standard_normal((7, 4))
+    np.testing.assert_allclose(lp(Z), [lp(z)[0] for z in Z], rtol=1e-12)
+    out = Z.copy()
+    out[0, 0] = lp.hi[0] + 1.0  # outside the prior support
+    assert lp(out)[0] == -np.inf and np.isfinite(lp(out)[1])
+
+
+def test_fitted_noise_scale_is_near_one_for_correct_variances(sdea_record) -> None:
+    res = _sdea(sdea_record, seed=4, noise="scaled")
+    assert res.converged and res.names[-1] == "log_noise_scale"
+    row = res.summary()["log_noise_scale"]
+    # ~800 residual components with Student-t(30) errors: E[r^2]/sigma^2 = nu/(nu-2) ~ 1.07, log-scale ~ +0.035;
+    # the scale's posterior sd is ~1/sqrt(2*800) = 0.025: accept |median| < 0.15.
+    assert abs(row["median"]) < 0.15
