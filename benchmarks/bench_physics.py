@@ -23,6 +23,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+
 from hil.mocks.lti import StateSpace
 from hil.mocks.physics import mbk_plant
 from hil.mocks.simulator import Simulator

@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+
 from hil.mocks.can_devices import SimODrive
 from hil.mocks.interfaces import FreeJoints
 from hil.mocks.serial_devices import SimBota

@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+
 from hil.mocks.dynamixel_devices import DynamixelChain
 from hil.mocks.interfaces import FreeJoints
 from hil.mocks.modbus_devices import SimulatedFT300, wrench_to_registers

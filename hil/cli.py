@@ -144,8 +144,8 @@ def _print_result(result: Any, verbose: bool) -> None:
         wf = "" if c.worst_frequency is None else ("∞" if math.isinf(c.worst_frequency) else f"{c.worst_frequency:.4g}")
         m = "" if isinstance(c.margin, float) and math.isnan(c.margin) else f"{c.margin:.3g}"
         st = c.status
-        tab.add_row(c.name, f"[{colour.get({'violated': 'potentially_unstable', 'satisfied': 'stable'}.get(st, st), 'white')}]{st}[/]",
-                    m, wf, c.detail)
+        col = colour.get({"violated": "potentially_unstable", "satisfied": "stable"}.get(st, st), "white")
+        tab.add_row(c.name, f"[{col}]{st}[/]", m, wf, c.detail)
     n_ok = sum(1 for c in result.conditions if c.status == "satisfied")
     if shown:
         con.print(tab)
@@ -218,7 +218,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.debug else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=logging.DEBUG if args.debug else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_USAGE

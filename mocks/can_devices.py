@@ -38,6 +38,7 @@ from typing import Any
 
 import can
 import numpy as np
+
 from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 from hil.protocols import can_cubemars as cm

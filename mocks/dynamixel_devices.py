@@ -59,6 +59,7 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+
 from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 from hil.protocols.crc import crc16_dynamixel

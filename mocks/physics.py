@@ -38,10 +38,10 @@ from typing import Literal
 
 import numpy as np
 import scipy.linalg as sla
-from hil.mocks.lti import ArrayLike, StateSpace
-from hil.mocks.terminations import ForceProfile, Human, Impedance, Termination, WallSpring, _psd_matrix
 
 from hil.errors import ModelError
+from hil.mocks.lti import ArrayLike, StateSpace
+from hil.mocks.terminations import ForceProfile, Human, Impedance, Termination, WallSpring, _psd_matrix
 
 logger = logging.getLogger(__name__)
 

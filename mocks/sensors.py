@@ -19,10 +19,10 @@ from collections import deque
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from hil.mocks.interfaces import SimulatedJoints
-from hil.mocks.lti import ArrayLike
 
 from hil.errors import ModelError
+from hil.mocks.interfaces import SimulatedJoints
+from hil.mocks.lti import ArrayLike
 
 logger = logging.getLogger(__name__)
 

@@ -27,11 +27,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+
+from hil.errors import ModelError
 from hil.mocks.lti import ArrayLike
 from hil.mocks.physics import JointMap, Plant
 from hil.mocks.terminations import profile_value
-
-from hil.errors import ModelError
 
 logger = logging.getLogger(__name__)
 

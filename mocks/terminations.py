@@ -25,9 +25,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from hil.mocks.lti import ArrayLike, StateSpace, TFEntry, tf_matrix
 
 from hil.errors import ModelError
+from hil.mocks.lti import ArrayLike, StateSpace, TFEntry, tf_matrix
 
 logger = logging.getLogger(__name__)
 

@@ -16,6 +16,7 @@ when it expires. Adapters are context managers; ``close()`` is idempotent.
 from __future__ import annotations
 
 import abc
+import contextlib
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -92,10 +93,8 @@ class Actuator(Device):
 
     def safe_stop(self) -> None:
         """Command zero effort (and disable if the device supports it). Never raises."""
-        try:
+        with contextlib.suppress(Exception):
             self.command_effort(np.zeros(self.dof), timeout=0.05)
-        except Exception:  # noqa: BLE001 - a safe stop must not raise
-            pass
 
 
 class ForceSensor(Device):

@@ -43,10 +43,10 @@ from typing import Any
 
 import can
 import numpy as np
-from hil.protocols.base import Actuator, DeviceInfo, JointSample
-from hil.protocols.can_odrive import open_can_bus
 
 from hil.errors import DeviceDisconnected, DeviceFault, DeviceTimeout, ProtocolError
+from hil.protocols.base import Actuator, DeviceInfo, JointSample
+from hil.protocols.can_odrive import open_can_bus
 
 log = logging.getLogger(__name__)
 

@@ -54,9 +54,9 @@ from typing import Any, Literal
 
 import can
 import numpy as np
-from hil.protocols.base import Actuator, DeviceInfo, JointSample
 
 from hil.errors import DeviceDisconnected, DeviceFault, DeviceTimeout, ProtocolError
+from hil.protocols.base import Actuator, DeviceInfo, JointSample
 
 log = logging.getLogger(__name__)
 

@@ -58,9 +58,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from hil.protocols.base import Actuator, DeviceInfo, JointSample
 
 from hil.errors import ChecksumError, DeviceDisconnected, DeviceError, DeviceFault, DeviceTimeout, ProtocolError
+from hil.protocols.base import Actuator, DeviceInfo, JointSample
 
 log = logging.getLogger(__name__)
 

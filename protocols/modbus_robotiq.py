@@ -49,8 +49,6 @@ from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
-from hil.protocols.base import DeviceInfo, ForceSensor, WrenchSample
-from hil.protocols.crc import crc16_modbus
 
 from hil.errors import (
     ChecksumError,
@@ -59,6 +57,8 @@ from hil.errors import (
     DeviceTimeout,
     ProtocolError,
 )
+from hil.protocols.base import DeviceInfo, ForceSensor, WrenchSample
+from hil.protocols.crc import crc16_modbus
 
 log = logging.getLogger(__name__)
 

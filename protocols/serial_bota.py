@@ -48,10 +48,10 @@ from typing import Literal
 
 import numpy as np
 import serial
-from hil.protocols.base import DeviceInfo, ForceSensor, WrenchSample
-from hil.protocols.crc import crc16_x25
 
 from hil.errors import ChecksumError, DeviceDisconnected, DeviceFault, DeviceTimeout
+from hil.protocols.base import DeviceInfo, ForceSensor, WrenchSample
+from hil.protocols.crc import crc16_x25
 
 log = logging.getLogger(__name__)
 

@@ -23,7 +23,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from hil.errors import ModelError
-from hil.stability.rational import S, Rational, TransferMatrix
+from hil.stability.rational import Rational, S, TransferMatrix
 from hil.stability.results import Condition, StabilityResult, combine
 
 __all__ = [

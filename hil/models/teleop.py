@@ -15,7 +15,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from hil.errors import ModelError
-from hil.stability.rational import S, Rational, TransferMatrix
+from hil.stability.rational import Rational, S, TransferMatrix
 
 __all__ = [
     "DUAL_MASTER_TABLE1",

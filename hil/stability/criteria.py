@@ -232,7 +232,8 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
         name = f"D[ω={w:.6g}]"
         label = "imaginary-axis pole simple with admissible residues"
         if rec["mult"] > 1:
-            conds.append(Condition(name, label, "violated", -1.0, w, f"pole at s = j{w:.6g} has multiplicity {rec['mult']}",
+            conds.append(Condition(name, label, "violated", -1.0, w,
+                                   f"pole at s = j{w:.6g} has multiplicity {rec['mult']}",
                                    {"multiplicity": rec["mult"]}))
             continue
         # residues of the frequency-normalized entries are the physical ones divided by w0
@@ -283,11 +284,13 @@ def _residue_minors(K: np.ndarray, tol: Tolerances) -> tuple[str, float, str]:
                 continue
             rel = mnr.real / perm
             if abs(mnr.imag) > 1e-6 * perm:
-                return "violated", -abs(mnr.imag) / perm, f"principal minor {_lbl(idx)} of the residue matrix is complex"
+                return ("violated", -abs(mnr.imag) / perm,
+                        f"principal minor {_lbl(idx)} of the residue matrix is complex")
             if rel < worst:
                 worst = rel
             if rel < -tol.residue:
-                return "violated", rel, f"principal minor {_lbl(idx)} of the residue matrix is negative ({mnr.real:.4g})"
+                return ("violated", rel,
+                        f"principal minor {_lbl(idx)} of the residue matrix is negative ({mnr.real:.4g})")
             if rel <= tol.residue:
                 status = "equality"
                 detail = f"principal minor {_lbl(idx)} of the residue matrix is zero"

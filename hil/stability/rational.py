@@ -254,7 +254,7 @@ def _exact_quotient(a: np.ndarray, b: np.ndarray, rtol: float = 1e-12) -> np.nda
     pa = sig ** np.arange(a.size)
     pb = sig ** np.arange(b.size)
     A, B = a * pa, b * pb
-    q, r = P.polydiv(A, B)
+    q, _r = P.polydiv(A, B)
     scale = float(np.max(np.abs(A)))
     resid = P.polysub(P.polymul(B, q), A)
     if np.max(np.abs(resid)) > rtol * scale:

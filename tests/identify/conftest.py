@@ -17,7 +17,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -200,17 +199,6 @@ def make_mbk_records(seed: int, **override: float) -> list[SimRecord]:
         )
         for i in range(2)
     ]
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Skip this folder's ``slow`` tests unless the ``-m`` expression mentions ``slow``."""
-    if "slow" in (config.getoption("-m") or ""):
-        return
-    skip = pytest.mark.skip(reason="slow: run with -m slow")
-    here = Path(__file__).parent
-    for item in items:
-        if "slow" in item.keywords and Path(str(item.fspath)).is_relative_to(here):
-            item.add_marker(skip)
 
 
 @pytest.fixture(scope="session")

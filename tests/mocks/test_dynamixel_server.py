@@ -5,6 +5,7 @@ from __future__ import annotations
 import dynamixel_sdk as sdk
 import numpy as np
 import pytest
+
 from hil.mocks.dynamixel_devices import (
     DynamixelChain,
     PacketDecodeError,

@@ -12,6 +12,8 @@ import math
 import numpy as np
 import pytest
 import scipy.linalg as sla
+
+from hil.errors import ModelError
 from hil.mocks.lti import (
     StateSpace,
     append,
@@ -23,8 +25,6 @@ from hil.mocks.lti import (
     tf_matrix,
     zoh_matrices,
 )
-
-from hil.errors import ModelError
 
 
 def msd(m: float, b: float, k: float) -> StateSpace:

@@ -7,6 +7,9 @@ import pytest
 
 pytest.importorskip("pymodbus")
 
+from pymodbus import FramerType
+from pymodbus.client import ModbusTcpClient
+
 from hil.mocks.faults import FaultPlan
 from hil.mocks.interfaces import FreeJoints
 from hil.mocks.modbus_devices import (
@@ -15,8 +18,6 @@ from hil.mocks.modbus_devices import (
     serial_registers,
     wrench_to_registers,
 )
-from pymodbus import FramerType
-from pymodbus.client import ModbusTcpClient
 
 pytestmark = pytest.mark.timeout(20)
 

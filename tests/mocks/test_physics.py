@@ -11,6 +11,10 @@ import math
 
 import numpy as np
 import pytest
+from scipy.integrate import solve_ivp
+from scipy.linalg import eigh
+
+from hil.errors import ModelError
 from hil.mocks.lti import StateSpace, tf
 from hil.mocks.physics import Scene, mbk_plant, sdea_plant
 from hil.mocks.simulator import simulate
@@ -23,10 +27,6 @@ from hil.mocks.terminations import (
     spring_array_wall,
     t2_termination,
 )
-from scipy.integrate import solve_ivp
-from scipy.linalg import eigh
-
-from hil.errors import ModelError
 
 
 def msd_step(m: float, b: float, k: float, F: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
+from hil.errors import ModelError
 from hil.mocks.physics import mbk_plant
 from hil.mocks.sensors import (
     Bias,
@@ -16,8 +18,6 @@ from hil.mocks.sensors import (
     SensorModel,
 )
 from hil.mocks.simulator import Simulator
-
-from hil.errors import ModelError
 
 
 def test_bias_quantizer_saturation() -> None:

@@ -6,12 +6,12 @@ import math
 
 import numpy as np
 import pytest
-from hil.mocks.physics import Scene, mbk_plant, sdea_plant
-from hil.mocks.simulator import ActuatorModel, Simulator, simulate
-from hil.mocks.terminations import Human, t2_termination
 from scipy.signal import cont2discrete
 
 from hil.errors import ModelError
+from hil.mocks.physics import Scene, mbk_plant, sdea_plant
+from hil.mocks.simulator import ActuatorModel, Simulator, simulate
+from hil.mocks.terminations import Human, t2_termination
 
 
 def undamped_or_underdamped_step(m: float, b: float, k: float, F: float, t: np.ndarray) -> np.ndarray:

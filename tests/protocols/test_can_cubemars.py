@@ -7,13 +7,13 @@ import itertools
 import can
 import numpy as np
 import pytest
+
+from hil.errors import DeviceFault, DeviceTimeout
 from hil.mocks.can_devices import SimCubeMars
 from hil.mocks.faults import FaultPlan
 from hil.mocks.interfaces import FreeJoints
 from hil.protocols import can_cubemars as cm
 from hil.protocols.can_cubemars import CubeMarsMIT, MitCommand, MitReply
-
-from hil.errors import DeviceFault, DeviceTimeout
 
 pytestmark = pytest.mark.timeout(20)
 _chan = itertools.count()

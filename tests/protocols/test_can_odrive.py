@@ -9,13 +9,13 @@ import struct
 import can
 import numpy as np
 import pytest
+
+from hil.errors import DeviceDisconnected, DeviceFault, DeviceTimeout
 from hil.mocks.can_devices import SimODrive
 from hil.mocks.faults import FaultPlan
 from hil.mocks.interfaces import FreeJoints
 from hil.protocols import can_odrive as od
 from hil.protocols.can_odrive import ODriveCAN
-
-from hil.errors import DeviceDisconnected, DeviceFault, DeviceTimeout
 
 pytestmark = pytest.mark.timeout(20)
 _chan = itertools.count()

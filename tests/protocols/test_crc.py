@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+
 from hil.protocols.crc import crc16_dynamixel, crc16_modbus, crc16_x25, crc_bytes_le
 
 # (function, data, expected) -- check values from the reveng CRC catalogue (CRC of b"123456789")

@@ -7,6 +7,8 @@ import time
 
 import numpy as np
 import pytest
+
+from hil.errors import ChecksumError, DeviceDisconnected, DeviceFault, DeviceTimeout
 from hil.mocks.dynamixel_devices import (
     ADDR_GOAL_CURRENT,
     ADDR_OPERATING_MODE,
@@ -25,8 +27,6 @@ from hil.protocols.dynamixel_x import (
     to_signed,
     to_unsigned,
 )
-
-from hil.errors import ChecksumError, DeviceDisconnected, DeviceFault, DeviceTimeout
 
 pytestmark = pytest.mark.timeout(20)
 

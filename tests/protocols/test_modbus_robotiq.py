@@ -10,6 +10,13 @@ import pytest
 
 pytest.importorskip("pymodbus")
 
+from hil.errors import (
+    ChecksumError,
+    DeviceDisconnected,
+    DeviceFault,
+    DeviceTimeout,
+    ProtocolError,
+)
 from hil.mocks.faults import FaultPlan
 from hil.mocks.interfaces import FreeJoints
 from hil.mocks.modbus_devices import SimulatedFT300
@@ -24,14 +31,6 @@ from hil.protocols.modbus_robotiq import (
     decode_stream_frame,
     encode_stream_frame,
     registers_to_wrench,
-)
-
-from hil.errors import (
-    ChecksumError,
-    DeviceDisconnected,
-    DeviceFault,
-    DeviceTimeout,
-    ProtocolError,
 )
 
 pytestmark = pytest.mark.timeout(20)

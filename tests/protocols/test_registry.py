@@ -7,10 +7,10 @@ import sys
 import textwrap
 
 import pytest
-from hil.protocols import registry
-from hil.protocols.registry import UnknownDriverError, available_drivers, open_device
 
 from hil.errors import DeviceError, HilError
+from hil.protocols import registry
+from hil.protocols.registry import UnknownDriverError, available_drivers, open_device
 
 pytestmark = pytest.mark.timeout(20)
 
@@ -84,6 +84,7 @@ def test_open_bota_via_registry():
 
 def test_mock_serve_endpoints_open_through_registry():
     import numpy as np
+
     from hil.mocks.serve import main, serve, shutdown
 
     eps = serve(

@@ -6,13 +6,13 @@ import struct
 
 import numpy as np
 import pytest
+
+from hil.errors import ChecksumError, DeviceDisconnected, DeviceFault, DeviceTimeout
 from hil.mocks.faults import FaultPlan
 from hil.mocks.interfaces import FreeJoints
 from hil.mocks.serial_devices import SimBota
 from hil.protocols.crc import crc16_x25
 from hil.protocols.serial_bota import FRAME_LEN, BotaSerial, FrameParser, encode_frame
-
-from hil.errors import ChecksumError, DeviceDisconnected, DeviceFault, DeviceTimeout
 
 pytestmark = pytest.mark.timeout(20)
 

@@ -43,7 +43,7 @@ def test_not_applicable_exit_code(tmp_path, capsys):
                  "  - [{num: [1, 2], den: [1, 1]}, {num: [1]}, {num: [2]}]\n"
                  "  - [{num: [3]}, {num: [1, 2], den: [1, 1]}, {num: [1]}]\n"
                  "  - [{num: [1]}, {num: [5]}, {num: [1, 2], den: [1, 1]}]\n")
-    code, out, _ = run(["stability", str(f)], capsys)
+    code, _out, _ = run(["stability", str(f)], capsys)
     assert code == EXIT_NOT_APPLICABLE
 
 
@@ -77,7 +77,7 @@ def test_touching_real_part_is_marginal(tmp_path, capsys):
 def test_malformed_file_one_line_error(tmp_path, capsys, content, field):
     f = tmp_path / "bad.yaml"
     f.write_text(content)
-    code, out, err = run(["stability", str(f)], capsys)
+    code, _out, err = run(["stability", str(f)], capsys)
     assert code == EXIT_USAGE
     assert err.count("\n") == 1 and "Traceback" not in err
     assert field in err and "bad.yaml" in err

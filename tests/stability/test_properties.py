@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 
 from hil.errors import ConversionError
 from hil.stability.criteria import absolute_stability, llewellyn, positive_real, two_port_passivity
-from hil.stability.rational import S, Rational, TransferMatrix
+from hil.stability.rational import Rational, S, TransferMatrix
 
 
 def _psd(rng, n, rank=None, scale=1.0):

@@ -18,7 +18,7 @@ from hil.models.sdea import (
 from hil.stability.criteria import llewellyn, two_port_passivity
 from hil.stability.exact import decide_nonnegative
 from hil.stability.jpoly import XPoly
-from hil.stability.rational import S, Rational
+from hil.stability.rational import Rational, S
 
 
 def _eq10_h(q):
