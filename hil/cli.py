@@ -177,12 +177,6 @@ def _cmd_design(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------------------------
 
 
-def _cmd_mock(args: argparse.Namespace) -> int:
-    from hil.mocks.serve import main as serve_main
-
-    return int(serve_main(args.rest) or 0)
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="hil", description="Hardware-in-the-loop identification and stability "
                                 "certification of haptic devices, teleoperators and series elastic actuators.")
@@ -209,13 +203,34 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--json", action="store_true")
     d.set_defaults(func=_cmd_design)
 
+    i = sub.add_parser("identify", help="identify a grey-box model (M, B, K_f, B_f, ...) from a chirp record",
+                       add_help=False)
+    i.add_argument("rest", nargs=argparse.REMAINDER)
+
     m = sub.add_parser("mock", help="simulated devices: 'hil mock serve SPEC' starts them and prints endpoints")
     m.add_argument("rest", nargs=argparse.REMAINDER)
-    m.set_defaults(func=_cmd_mock)
     return p
 
 
+_PASSTHROUGH = {"identify": "hil.identify.api", "mock": "hil.mocks.serve"}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in _PASSTHROUGH:  # these subcommands own their argument parsing (and --help)
+        import importlib
+
+        rest = argv[1:]
+        if argv[0] == "mock":
+            if not rest or rest[0] != "serve":
+                print("usage: hil mock serve [--spec SPEC] [--duration SECONDS]", file=sys.stderr)
+                return EXIT_USAGE
+            rest = rest[1:]
+        try:
+            return int(importlib.import_module(_PASSTHROUGH[argv[0]]).main(rest) or 0)
+        except HilError as exc:
+            print(f"hil {argv[0]}: error: {exc}", file=sys.stderr)
+            return EXIT_USAGE
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.debug else logging.WARNING,
