@@ -87,9 +87,9 @@ def sdea_coefficients(p: Mapping[str, float] | None = None, **kw: float) -> SDEA
     P_m or P_f need not divide)."""
     q = _params(p, kw)
     K, Bf, M, B = q["K_f"], q["B_f"], q["M"], q["B"]
-    Pm, Im, Pf, If, al = q["P_m"], q["I_m"], q["P_f"], q["I_f"], q["alpha"]
+    Pm, Im, Pf, If = q["P_m"], q["I_m"], q["P_f"], q["I_f"]
     mn = Pm * If + Im * Pf  # = P_m P_f (μ + ν)
-    a = (M, B + Pm + Bf * (al + Pm * Pf), Im + K * (al + Pm * Pf) + Bf * mn, Bf * Im * If + K * mn, K * Im * If)
+    a = sdea_polynomials(q)["a"]
     n11 = (Bf * M, Bf * (B + Pm) + K * M, Bf * Im + K * (B + Pm), K * Im, 0.0)
     n12 = (Bf * Pm * Pf, Pm * Pf * K + Bf * mn, Bf * Im * If + K * mn, K * Im * If)
     return SDEACoefficients(a, n11, n12)
@@ -153,16 +153,19 @@ def lemma5_nonnegative_cubic(p3: float, p2: float, p1: float, p0: float) -> bool
     return bool(sig > 0 and s3 < 0 and 4 * p2 * s3 < 4 * p1 * sig + 3 * p3 * s3 * s3 / sig)
 
 
-def theorem5_polynomials(p: Mapping[str, float] | None = None, **kw: float) -> dict[str, tuple[float, ...]]:
-    """The cubic factors of (c-i) r(x) (eq. 34, ascending r0..r3) and (c-ii) t(x) (eq. 36, t0..t3)."""
-    q = _params(p, kw)
+def sdea_polynomials(q: Mapping) -> dict:
+    """Coefficients of eq. (12)'s a(s), and of the (c-i) cubic r(x) (eq. 34) and (c-ii) cubic t(x)
+    (eq. 36), for a mapping of scalars **or numpy arrays** (vectorized over draws; no validation).
+
+    Returns ``{"a": (a4, a3, a2, a1, a0), "r": (r0, r1, r2, r3), "t": (t0, t1, t2, t3)}``.
+    """
     K, Bf, M, B = q["K_f"], q["B_f"], q["M"], q["B"]
     Pm, Im, Pf, If, al = q["P_m"], q["I_m"], q["P_f"], q["I_f"], q["alpha"]
     b22, k22 = q["b22"], q["k22"]
-    mu_nu_PmPf = Pm * If + Im * Pf
+    mn = Pm * If + Im * Pf  # = P_m P_f (μ + ν)
+    a = (M, B + Pm + Bf * (al + Pm * Pf), Im + K * (al + Pm * Pf) + Bf * mn, Bf * Im * If + K * mn, K * Im * If)
     k1 = Pf * Im - B * If
-    k2PmPf = (B + Pm) * Pm * Pf - M * mu_nu_PmPf  # P_m P_f κ2
-    k3 = al * (B + Pm) + k2PmPf
+    k3 = al * (B + Pm) + (B + Pm) * Pm * Pf - M * mn  # α(B+P_m) + P_m P_f κ2
     r3 = Bf * M * M
     r2 = Bf * (Bf * k3 + (B + Pm) ** 2 - 2 * Im * M)
     r1 = K * K * k3 + Bf * Im * Im + Bf * Bf * Im * k1
@@ -173,7 +176,13 @@ def theorem5_polynomials(p: Mapping[str, float] | None = None, **kw: float) -> d
     t2 = 4 * b22 * r2 + b22 * b22 * tau2 - k22 * k22 * M * M
     t1 = 4 * b22 * r1 + k22 * k22 * tau2 - b22 * b22 * (Im + al * K) ** 2
     t0 = 4 * b22 * K * K * Im * k1 - k22 * k22 * (Im + al * K) ** 2
-    return {"r": (r0, r1, r2, r3), "t": (t0, t1, t2, t3)}
+    return {"a": a, "r": (r0, r1, r2, r3), "t": (t0, t1, t2, t3)}
+
+
+def theorem5_polynomials(p: Mapping[str, float] | None = None, **kw: float) -> dict[str, tuple[float, ...]]:
+    """The cubic factors of (c-i) r(x) (eq. 34, ascending r0..r3) and (c-ii) t(x) (eq. 36, t0..t3)."""
+    polys = sdea_polynomials(_params(p, kw))
+    return {"r": polys["r"], "t": polys["t"]}
 
 
 def theorem5(p: Mapping[str, float] | None = None, **kw: float) -> StabilityResult:

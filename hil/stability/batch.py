@@ -21,7 +21,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from hil.models.sdea import SDEA_TABLE1
+from hil.models.sdea import SDEA_TABLE1, sdea_polynomials
 
 __all__ = ["sdea_passivity_batch"]
 
@@ -72,29 +72,14 @@ def sdea_passivity_batch(draws: Mapping[str, np.ndarray] | np.ndarray, tol: floa
     d = dict(draws)
     n = len(next(iter(d.values())))
     q = {k: np.asarray(d.get(k, np.full(n, base[k])), dtype=float) for k in _KEYS}
-    K, Bf, M, B = q["K_f"], q["B_f"], q["M"], q["B"]
-    Pm, Im, Pf, If, al = q["P_m"], q["I_m"], q["P_f"], q["I_f"], q["alpha"]
-    b22, k22 = q["b22"], q["k22"]
-    mn = Pm * If + Im * Pf
-    a4, a3 = M, B + Pm + Bf * (al + Pm * Pf)
-    a2 = Im + K * (al + Pm * Pf) + Bf * mn
-    a1 = Bf * Im * If + K * mn
-    a0 = K * Im * If
+    polys = sdea_polynomials(q)
+    a4, a3, a2, a1, a0 = polys["a"]
+    r0, r1, r2, r3 = polys["r"]
+    t0, t1, t2, t3 = polys["t"]
+    Bf, b22 = q["B_f"], q["b22"]
     hur = a1 * (a2 * a3 - a1 * a4) - a0 * a3 * a3
     hur_s = np.abs(a1 * a2 * a3) + np.abs(a1 * a1 * a4) + np.abs(a0 * a3 * a3)
     pos = (a4 > 0) & (a3 > 0) & (a2 > 0) & (a1 > 0) & (a0 > 0)
-    k1 = Pf * Im - B * If
-    k3 = al * (B + Pm) + (B + Pm) * Pm * Pf - M * mn
-    r3 = Bf * M * M
-    r2 = Bf * (Bf * k3 + (B + Pm) ** 2 - 2 * Im * M)
-    r1 = K * K * k3 + Bf * Im * Im + Bf * Bf * Im * k1
-    r0 = Im * K * K * k1
-    tau1 = 4 * Bf - b22
-    tau2 = 2 * M * (Im + al * K) - (B + Pm + al * Bf) ** 2
-    t3 = tau1 * b22 * M * M
-    t2 = 4 * b22 * r2 + b22 * b22 * tau2 - k22 * k22 * M * M
-    t1 = 4 * b22 * r1 + k22 * k22 * tau2 - b22 * b22 * (Im + al * K) ** 2
-    t0 = 4 * b22 * K * K * Im * k1 - k22 * k22 * (Im + al * K) ** 2
     rmin, rs = _cubic_min(r3, r2, r1, r0)
     tmin, ts = _cubic_min(t3, t2, t1, t0)
     with np.errstate(invalid="ignore", divide="ignore"):

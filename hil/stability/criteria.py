@@ -377,7 +377,7 @@ def _physical_min(fn, lo: float, hi: float, band: tuple[float, float] | None = N
         b = min(b, hi * 1e3) if math.isfinite(b) else hi * 1e3
         w = np.geomspace(a, b, 201) if b > a else np.array([a])
     else:
-        w = np.geomspace(lo, hi, 801)
+        w = np.geomspace(lo, hi, 241)
     v = fn(w)
     i = int(np.argmin(v))
     interior = 0 < i < w.size - 1
@@ -472,10 +472,7 @@ def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: To
     """All principal minors of G(jω) + G(jω)ᴴ over the index set, as exact polynomial conditions."""
     sub = [[entries[i][j] for j in idx_all] for i in idx_all]
     n = len(sub)
-    cd = _CommonDen(sub)
-    jdc = jpoly_from_s(cd.d).conj()
-    A = [[jpoly_from_s(cd.numerator(sub[i][j])) * jdc for j in range(n)] for i in range(n)]
-    Pm = [[A[i][j] + A[j][i].conj() for j in range(n)] for i in range(n)]
+    Pm = _hermitian_jpoly(sub)
     memo: dict[tuple[tuple[int, ...], tuple[int, ...]], JPoly] = {}
 
     def det(rows: tuple[int, ...], cols: tuple[int, ...]) -> JPoly:
@@ -533,14 +530,20 @@ def two_port_passivity(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
     return r
 
 
-def hermitian_minor_poly(entries: list[list[Rational]], idx: tuple[int, ...]) -> XPoly:
-    """The principal minor ``idx`` of G(jω)+G(jω)ᴴ times |d(jω)|^(2k), as a polynomial in x = ω²."""
-    sub = [[entries[i][j] for j in idx] for i in idx]
+def _hermitian_jpoly(sub: list[list[Rational]]) -> list[list[JPoly]]:
+    """P = (G(jω) + G(jω)ᴴ)·|d(jω)|² as a matrix of JPolys, d a common denominator of ``sub``."""
     n = len(sub)
     cd = _CommonDen(sub)
     jdc = jpoly_from_s(cd.d).conj()
     A = [[jpoly_from_s(cd.numerator(sub[i][j])) * jdc for j in range(n)] for i in range(n)]
-    Pm = [[A[i][j] + A[j][i].conj() for j in range(n)] for i in range(n)]
+    return [[A[i][j] + A[j][i].conj() for j in range(n)] for i in range(n)]
+
+
+def hermitian_minor_poly(entries: list[list[Rational]], idx: tuple[int, ...]) -> XPoly:
+    """The principal minor ``idx`` of G(jω)+G(jω)ᴴ times |d(jω)|^(2k), as a polynomial in x = ω²."""
+    sub = [[entries[i][j] for j in idx] for i in idx]
+    n = len(sub)
+    Pm = _hermitian_jpoly(sub)
     if n == 1:
         return Pm[0][0].real()
     if n == 2:

@@ -23,6 +23,7 @@ Conventions
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -165,9 +166,17 @@ class Rational:
         return self.num.size <= self.den.size
 
     def poles(self) -> np.ndarray:
-        return _roots_asc(self.den)
+        return self._poles
 
     def zeros(self) -> np.ndarray:
+        return self._zeros
+
+    @functools.cached_property
+    def _poles(self) -> np.ndarray:
+        return _roots_asc(self.den)
+
+    @functools.cached_property
+    def _zeros(self) -> np.ndarray:
         return _roots_asc(self.num)
 
     def cancel_s(self) -> Rational:
