@@ -125,6 +125,32 @@ def table_throughput(n: int = 10_000, n_exact: int = 200) -> None:
           f" agreement with the general criterion on {n_exact} draws: {agree}/{n_exact}")
 
 
+def table_single_verdict(n: int = 200) -> None:
+    """Time per single two-port verdict (SDEA, Table I) by path."""
+    tm = sdea_vsic()
+
+    def per_call(f) -> float:
+        f()
+        t0 = time.perf_counter()
+        for _ in range(n):
+            f()
+        return (time.perf_counter() - t0) / n
+
+    base = per_call(lambda: two_port_passivity(tm))
+    rows = [
+        ("general exact, with margins", base),
+        ("general exact, verdict only (margins=False)", per_call(lambda: two_port_passivity(tm, margins=False))),
+        ("general exact, verdict only, fresh model", per_call(lambda: two_port_passivity(sdea_vsic(k22=350),
+                                                                                        margins=False))),
+        ("SDEA closed form (batch path, 1 draw)", per_call(lambda: sdea_passivity_batch({"k22": np.array([350.0])}))),
+    ]
+    print("\nSingle two-port passivity verdict (SDEA, Table I)")
+    print(f"{'path':46s} {'time':>10s} {'ratio':>8s}")
+    for name, t in rows:
+        print(f"{name:46s} {t * 1e3:8.3f}ms {t / base:8.2f}")
+
+
 if __name__ == "__main__":
     table_hard_cases()
+    table_single_verdict()
     table_throughput()

@@ -81,19 +81,31 @@ def _netinfo(tm: TransferMatrix, w0: float = 1.0) -> dict:
 
 
 def _normalized(tm: TransferMatrix) -> tuple[TransferMatrix, float]:
+    cached = getattr(tm, "_normalized_cache", None)
+    if cached is not None:
+        return cached
+    out = _normalize(tm)
+    tm._normalized_cache = out  # type: ignore[attr-defined]  # entries are never mutated in place
+    return out
+
+
+def _normalize(tm: TransferMatrix) -> tuple[TransferMatrix, float]:
     """Rescale frequency s = w0·s̃ so the condition polynomials stay well inside double range.
 
     w0 is the geometric mean of the smallest and largest non-zero pole/zero magnitudes. Verdicts
     are invariant (x̃ = x/w0² is a positive rescaling); reported frequencies are multiplied back.
     """
+    # characteristic frequencies from the coefficients (|c_0/c_n|^(1/n) per polynomial): the
+    # geometric mean of the root magnitudes, without root finding
     mags = []
     for row in tm.entries:
         for e in row:
             if e.is_zero:
                 continue
-            for r in (*e.poles(), *e.zeros()):
-                if abs(r) > 0 and np.isfinite(abs(r)):
-                    mags.append(abs(r))
+            for c in (e.num, e.den):
+                nz = np.nonzero(c)[0]
+                if nz.size >= 2 and nz[-1] > nz[0]:
+                    mags.append((abs(c[nz[0]]) / abs(c[nz[-1]])) ** (1.0 / (nz[-1] - nz[0])))
     if not mags:
         return tm, 1.0
     w0 = float(math.sqrt(min(mags) * max(mags)))
@@ -408,7 +420,11 @@ class _CommonDen:
         d = np.array([1.0])
         for row in entries:
             for e in row:
-                if e.is_zero or e.den.size <= 1 or _exact_quotient(d, e.den, 1e-9) is not None:
+                if e.is_zero or e.den.size <= 1:
+                    continue
+                if d.size == e.den.size and np.array_equal(d, e.den / np.max(np.abs(e.den))):
+                    continue
+                if _exact_quotient(d, e.den, 1e-9) is not None:
                     continue
                 d = e.den / np.max(np.abs(e.den)) if _exact_quotient(e.den, d, 1e-9) is not None \
                     else P.polymul(d, e.den / np.max(np.abs(e.den)))
@@ -417,6 +433,11 @@ class _CommonDen:
     def numerator(self, e: Rational) -> np.ndarray:
         if e.is_zero:
             return np.zeros(1)
+        if e.den.size == 1:
+            return P.polymul(e.num / e.den[0], self.d)
+        sc = np.max(np.abs(e.den))
+        if self.d.size == e.den.size and np.array_equal(self.d, e.den / sc):
+            return e.num / sc
         q = self._q(self.d, e.den, 1e-9)
         if q is None:  # pragma: no cover - every entry divides d by construction
             raise ModelError("internal: entry denominator does not divide the common denominator")
@@ -424,8 +445,8 @@ class _CommonDen:
 
 
 def _decision_condition(name: str, label: str, p: XPoly, tol: Tolerances, extra: dict | None = None,
-                        physical=None) -> Condition:
-    d = decide_nonnegative(p, tol.poly)
+                        physical=None, margins: bool = True) -> Condition:
+    d = decide_nonnegative(p, tol.poly, margin=margins)
     return _cond_from_decision(name, label, d, extra, physical, tol)
 
 
@@ -468,7 +489,7 @@ def _cond_from_decision(name: str, label: str, d: SignDecision, extra: dict | No
 
 
 def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: Tolerances, prefix: str,
-                      label: str) -> list[Condition]:
+                      label: str, margins: bool = True) -> list[Condition]:
     """All principal minors of G(jω) + G(jω)ᴴ over the index set, as exact polynomial conditions."""
     sub = [[entries[i][j] for j in idx_all] for i in idx_all]
     n = len(sub)
@@ -490,14 +511,15 @@ def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: To
         return acc
 
     conds = []
-    lo, hi = _freq_range(sub)
+    lo, hi = _freq_range(sub) if margins else (1.0, 1.0)
     for k in range(1, n + 1):
         for idx in itertools.combinations(range(n), k):
             mnr = det(idx, idx).real()
             glob = tuple(idx_all[i] for i in idx)
             subsub = [[sub[a][b] for b in idx] for a in idx]
+            phys = (_hermitian_ratio(subsub), lo, hi) if margins else None
             conds.append(_decision_condition(f"{prefix}{_lbl(glob)}", f"{label}, principal minor {_lbl(glob)}",
-                                             mnr, tol, physical=(_hermitian_ratio(subsub), lo, hi)))
+                                             mnr, tol, physical=phys, margins=margins))
     return conds
 
 
@@ -505,18 +527,20 @@ def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: To
 # criteria
 
 
-def positive_real(g: TransferMatrix | Rational, tol: Tolerances = TOL) -> StabilityResult:
-    """Positive realness of a one-port Z(s) or an n×n transfer matrix G(s) (passivity)."""
+def positive_real(g: TransferMatrix | Rational, tol: Tolerances = TOL, margins: bool = True) -> StabilityResult:
+    """Positive realness of a one-port Z(s) or an n×n transfer matrix G(s) (passivity).
+
+    ``margins=False`` returns the same verdict without computing margins (faster)."""
     tm0 = _as_tm(g)
     tm, w0 = _normalized(tm0)
     conds = pole_conditions(tm, "hermitian", tol, w0)
     conds += _hermitian_minors(tm.entries, list(range(tm.n)), tol, "E",
-                               "G(jω)+G(jω)ᴴ ⪰ 0" if tm.n > 1 else "Re Z(jω) ≥ 0")
+                               "G(jω)+G(jω)ᴴ ⪰ 0" if tm.n > 1 else "Re Z(jω) ≥ 0", margins)
     crit = "positive_real" if tm.n > 1 else "positive_real (one-port)"
     return combine(crit, _rescale(conds, w0), _netinfo(tm0, w0))
 
 
-def two_port_passivity(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityResult:
+def two_port_passivity(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -> StabilityResult:
     """Two-port passivity (Theorem 2 of paper 002) in whatever immittance form ``tm`` is given.
 
     For the hybrid form this is exactly (a) no RHP poles, (b) simple imaginary poles with
@@ -525,7 +549,7 @@ def two_port_passivity(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
     """
     if tm.n_ports != 2:
         raise ModelError(f"two-port passivity needs a two-port, got {tm.n_ports} ports")
-    r = positive_real(tm, tol)
+    r = positive_real(tm, tol, margins)
     r.criterion = "two_port_passivity"
     return r
 
@@ -571,24 +595,25 @@ def llewellyn_polys(entries: list[list[Rational]], i: int = 0, j: int = 1) -> tu
     return a * 2.0 - cr, a * (a - cr) * 4.0 - (ci * ci).mulx()
 
 
-def _llewellyn_eta(entries: list[list[Rational]], i: int, j: int, tol: Tolerances) -> Condition:
+def _llewellyn_eta(entries: list[list[Rational]], i: int, j: int, tol: Tolerances,
+                   margins: bool = True) -> Condition:
     """Llewellyn's η_ij ≥ 0 for all ω as an exact condition (see :func:`llewellyn_polys`)."""
     L1, L2 = llewellyn_polys(entries, i, j)
-    d1 = decide_nonnegative(L1, tol.poly)
-    d2 = decide_nonnegative(L2, tol.poly)
+    d1 = decide_nonnegative(L1, tol.poly, margin=margins)
+    d2 = decide_nonnegative(L2, tol.poly, margin=margins)
     name = f"E{_lbl((i, j))}"
     a_, b_ = i + 1, j + 1
     label = f"Llewellyn η{a_}{b_} = 2Re p{a_}{a_} Re p{b_}{b_} - Re(p{a_}{b_}p{b_}{a_}) - |p{a_}{b_}p{b_}{a_}| ≥ 0"
     rank = {"violated": 3, "marginal": 2, "equality": 1, "satisfied": 0}
     worst = d2 if rank[d2.status] >= rank[d1.status] else d1
     sub = [[entries[a][b] for b in (i, j)] for a in (i, j)]
-    lo, hi = _freq_range(sub)
+    phys = (_eta_ratio(sub), *_freq_range(sub)) if margins else None
     return _cond_from_decision(name, label, worst, {"L1_x_desc": _desc(d1.coefficients), "L1_status": d1.status,
                                                     "L2_x_desc": _desc(d2.coefficients), "L2_status": d2.status},
-                               (_eta_ratio(sub), lo, hi), tol)
+                               phys, tol)
 
 
-def llewellyn(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityResult:
+def llewellyn(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -> StabilityResult:
     """Llewellyn's absolute stability criterion for a 1-DOF two-port (any immittance form).
 
     (a) no RHP poles, (b) imaginary poles simple with k11, k22 ≥ 0 and k11k22 - k12k21 ≥ 0,
@@ -600,8 +625,8 @@ def llewellyn(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityResult:
     tm, w0 = _normalized(tm0)
     conds = pole_conditions(tm, "minors", tol, w0)
     for k in range(2):
-        conds += _hermitian_minors(tm.entries, [k], tol, "E", "Re p(jω) ≥ 0")
-    conds.append(_llewellyn_eta(tm.entries, 0, 1, tol))
+        conds += _hermitian_minors(tm.entries, [k], tol, "E", "Re p(jω) ≥ 0", margins)
+    conds.append(_llewellyn_eta(tm.entries, 0, 1, tol, margins))
     return combine("llewellyn", _rescale(conds, w0), _netinfo(tm0, w0))
 
 

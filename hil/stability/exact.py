@@ -274,8 +274,12 @@ def _cauchy_bound(c_asc: np.ndarray) -> float:
     return 1.0 + float(np.max(np.abs(c[:-1] / c[-1])))
 
 
-def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL) -> SignDecision:
-    """Decide ``p(x) ≥ 0`` for all x ≥ 0 exactly (up to the documented tolerance policy)."""
+def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL, margin: bool = True) -> SignDecision:
+    """Decide ``p(x) ≥ 0`` for all x ≥ 0 exactly (up to the documented tolerance policy).
+
+    ``margin=False`` skips the (numerical) search for the minimum of the normalized margin when the
+    polynomial has no positive root; the decision itself is unchanged.
+    """
     c = np.asarray(p.c, dtype=float).copy()
     m = np.zeros(max(c.size, p.m.size))
     m[: p.m.size] = np.abs(p.m)
@@ -304,9 +308,15 @@ def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL) -> SignDecision:
     k = int(np.nonzero(cc)[0][0])
     q = np.trim_zeros(cc[k:], "b")
     sign0 = 1 if q[0] > 0 else -1
-    ip = _to_int_poly(q)
     roots_info: list[tuple[float, int, int]] = []  # (x, sign_left, sign_right)
     n_roots = 0
+    if np.all(q >= 0) or np.all(q <= 0):
+        # Descartes: no sign change among the coefficients -> no positive root; sign is sign(q0)
+        if sign0 > 0 and not margin:
+            return SignDecision("satisfied", math.nan, math.nan, n_roots=0, method="descartes", coefficients=cc)
+        ip = [0]
+    else:
+        ip = _to_int_poly(q)
     if len(ip) > 1:
         seq = _sturm_sequence(ip)
         n_roots = _var_at(seq, Fraction(0)) - _var_at(seq, None)
@@ -331,23 +341,24 @@ def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL) -> SignDecision:
 
     # 3. depth of each band and interior minima of the normalized margin
     depths = [_band_min(ratio, a, b, cc, m)[1] for a, b in bands]
-    crit_x, crit_v = _global_min(rep, cc, m_rep, extra=[x for x, _, _ in roots_info])
-    margin, worst_x = crit_v, crit_x
-    for a, b in bands:
-        bx, bv = _band_min(rep, a, b, cc, m_rep)
-        if bv < margin:
-            margin, worst_x = bv, bx
-    for x in touching:
-        v = float(rep(x)[0])
-        if v < margin:
-            margin, worst_x = v, x
+    margin_v, worst_x = math.nan, math.nan
+    if margin:
+        margin_v, worst_x = _global_min(rep, cc, m_rep, extra=[x for x, _, _ in roots_info])
+        for a, b in bands:
+            bx, bv = _band_min(rep, a, b, cc, m_rep)
+            if bv < margin_v:
+                margin_v, worst_x = bv, bx
+        for x in touching:
+            v = float(rep(x)[0])
+            if v < margin_v:
+                margin_v, worst_x = v, x
     if any(d < -tol for d in depths):
         status: Status = "violated"
     elif bands or touching:
         status = "marginal"
     else:
         status = "satisfied"
-    return SignDecision(status, float(margin), float(worst_x), bands, [float(d) for d in depths],
+    return SignDecision(status, float(margin_v), float(worst_x), bands, [float(d) for d in depths],
                         touching, n_roots, "sturm", cc)
 
 
