@@ -12,6 +12,8 @@ Exit codes (documented in README.md):
 11    potentially unstable (NO-GO)
 12    criterion not applicable (e.g. Theorem 1's symmetrization fails)
 13    evidence missing or broken (ERROR)
+20    ``hil run``: an experiment ended in a safe stop (limit breach, watchdog, SIGTERM)
+130   interrupted (Ctrl-C); the records keep every sample taken
 1     unexpected internal error (a bug: please report it with the traceback from --debug)
 ====  ==============================================================
 """
@@ -36,6 +38,8 @@ EXIT_MARGINAL = 10
 EXIT_UNSTABLE = 11
 EXIT_NOT_APPLICABLE = 12
 EXIT_ERROR = 13
+EXIT_SAFETY_STOP = 20
+EXIT_INTERRUPTED = 130
 
 VERDICT_EXIT = {"stable": EXIT_OK, "marginal": EXIT_MARGINAL, "potentially_unstable": EXIT_UNSTABLE,
                 "not_applicable": EXIT_NOT_APPLICABLE}
@@ -175,6 +179,104 @@ def _cmd_design(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------------------------
+# hil scenes / hil run / hil replay
+
+
+def _cmd_scenes(args: argparse.Namespace) -> int:
+    from hil.scene import builtin_scenes
+
+    rows = builtin_scenes()
+    if args.json:
+        print(json.dumps([{"name": n, "description": d} for n, d in rows], indent=2))
+        return EXIT_OK
+    from rich.console import Console
+    from rich.table import Table
+
+    tab = Table("scene", "description", title="built-in scenes (usable by name: hil run NAME)")
+    for n, d in rows:
+        tab.add_row(n, d)
+    Console().print(tab)
+    return EXIT_OK
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    import datetime as dt
+
+    from hil.bench import Bench
+    from hil.runner import Runner
+    from hil.scene import load_scene
+
+    scene = load_scene(args.scene)
+    if args.seed is not None:
+        scene.seed = args.seed
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+    out = args.out or f"runs/{scene.name}-{stamp}"
+    select = None
+    if args.experiment:
+        select = []
+        for item in args.experiment:
+            try:
+                select.append(int(item))
+            except ValueError:
+                idx = [i for i, e in enumerate(scene.experiments) if getattr(e, "type", None) == item]
+                if not idx:
+                    raise UsageError(f"no experiment {item!r} in scene {scene.name}") from None
+                select += idx
+    realtime = True if args.realtime else (False if args.lockstep else None)
+    progress_cb = None
+    prog = None
+    if not args.json and sys.stderr.isatty():
+        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+        prog = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                        TimeRemainingColumn(), transient=True)
+        tasks: dict[str, Any] = {}
+
+        def progress_cb(name: str, k: int, n: int) -> None:
+            if name not in tasks:
+                tasks[name] = prog.add_task(name, total=n)
+            prog.update(tasks[name], completed=k)
+
+    with Bench(scene, seed=scene.seed) as bench:
+        runner = Runner(scene, bench, out, realtime=realtime, progress=progress_cb)
+        if prog is not None:
+            with prog:
+                outcomes = runner.run(select)
+        else:
+            outcomes = runner.run(select)
+    if args.json:
+        print(json.dumps({"scene": scene.name, "out": str(out), "experiments": [o.to_dict() for o in outcomes]},
+                         indent=2, default=str))
+    else:
+        from rich.console import Console
+        from rich.table import Table
+
+        tab = Table("experiment", "status", "stop reason", "record", "key results", title=f"hil run {scene.name}")
+        for o in outcomes:
+            scalars = [(k, v) for k, v in o.results.items() if not isinstance(v, dict | list)][:4]
+            keys = ", ".join(f"{k}={_short(v)}" for k, v in scalars)
+            tab.add_row(o.name, o.status, o.stop_reason if o.status != "completed" else "", str(o.record), keys)
+        Console().print(tab)
+    if any(o.status == "interrupted" for o in outcomes):
+        return EXIT_INTERRUPTED
+    if any(o.status in ("safety_stop", "error") for o in outcomes):
+        return EXIT_SAFETY_STOP
+    return EXIT_OK
+
+
+def _short(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)[:24]
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from hil.record import replay_main
+
+    return int(replay_main([args.record] + (["--json"] if args.json else [])) or 0)
+
+
+# ---------------------------------------------------------------------------------------------
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -202,6 +304,27 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--set", action="append", metavar="PARAM=VALUE", help="override an SDEA parameter")
     d.add_argument("--json", action="store_true")
     d.set_defaults(func=_cmd_design)
+
+    sc = sub.add_parser("scenes", help="list the built-in scenes")
+    sc.add_argument("--json", action="store_true")
+    sc.set_defaults(func=_cmd_scenes)
+
+    r = sub.add_parser("run", help="run a scene's experiments (chirp, energy injection, static hold) and record them")
+    r.add_argument("scene", help="scene YAML file or built-in scene name (see hil scenes)")
+    r.add_argument("--out", help="output folder for the records (default runs/<scene>-<UTC time>)")
+    r.add_argument("--seed", type=int, help="override the scene's seed")
+    r.add_argument("--experiment", action="append", help="run only this experiment (index or type; repeatable)")
+    mode = r.add_mutually_exclusive_group()
+    mode.add_argument("--realtime", action="store_true", help="fixed-rate loop on the wall clock")
+    mode.add_argument("--lockstep", action="store_true",
+                      help="as fast as possible; the plant advances one period per tick")
+    r.add_argument("--json", action="store_true", help="print one JSON object")
+    r.set_defaults(func=_cmd_run)
+
+    rp = sub.add_parser("replay", help="inspect a run record (summary of channels, timing, stop reason)")
+    rp.add_argument("record")
+    rp.add_argument("--json", action="store_true")
+    rp.set_defaults(func=_cmd_replay)
 
     i = sub.add_parser("identify", help="identify a grey-box model (M, B, K_f, B_f, ...) from a chirp record",
                        add_help=False)
