@@ -1,0 +1,748 @@
+"""Run records: every sample streamed to HDF5 as it is taken, readable even after ``kill -9``.
+
+Writer: :class:`RecordWriter` (context manager). Reader: :class:`RunRecord`. CLI: :func:`replay_main`
+(``hil replay RECORD [--json]``). Importers of other tools' runs: :mod:`hil.importers`.
+
+File layout (format ``hil-record``, ``format_version`` 1; all values SI, time in seconds)::
+
+    /                         root attributes:
+        format                "hil-record"
+        format_version        1
+        created_utc           ISO 8601 UTC time the file was created
+        software.hil|numpy|scipy|h5py|hdf5|python   versions (strings)
+        seed                  meta["seed"] when it is an integer (absent otherwise)
+        rate_hz               nominal sample rate [Hz]
+        scene_sha256          SHA-256 of the scene as given by the scene loader ("" for imports)
+        flush_every_s         flush period in run time [s]; flush_samples = round(rate_hz * flush_every_s)
+        meta                  JSON object: the run's meta (device identities, experiment list, ...)
+    /scene                    scalar UTF-8 string dataset: the exact scene YAML text
+    /t                        float64 (n,), resizable, chunked, fill NaN: sample times [s], strictly increasing
+    /channels/<name>          float64 (n, *shape), resizable along axis 0, fill NaN; attrs unit, description
+    /events                   uint8 (m,), resizable: UTF-8 JSON lines {"t": s, "kind": str, "message": str}
+    /results/<experiment>     group, attr ``json`` (the results with numpy arrays replaced by
+                              {"__dataset__": "a/b"}) and the arrays as datasets at those relative paths
+    /status                   group written at close, attrs stop_reason, status, closed_utc, samples;
+                              ABSENT => the run never closed (killed, power loss): the samples up to the
+                              last flush are still there
+
+Crash safety: the file is created with ``libver="latest"``; ``/scene``, ``/t``, every channel and
+``/events`` are created first, then SWMR mode is switched on (``f.swmr_mode = True``). Samples are
+buffered in memory and written in blocks of ``flush_samples`` samples (or when ``flush_every_s`` of run
+time ``t`` has passed since the first buffered sample, whichever comes first), each block followed by
+``f.flush()``; so a SIGKILL loses at most the samples after the last flush. Channels are written before
+``/t``, and the reader keeps ``min(len)`` over all of them with trailing non-finite times trimmed, so a
+kill in the middle of a flush never yields a half-written sample. SWMR forbids creating objects or
+attributes, so ``/results`` and ``/status`` are written at :meth:`RecordWriter.close` after reopening the
+file in normal ``r+`` mode (results set during a run are kept in memory until then). A killed file keeps
+its "open for SWMR write" flag: :meth:`RunRecord.open` then reads it in SWMR-read mode (no ``h5clear``
+needed).
+
+All channel values are stored as float64 (booleans and counters too), so a channel missing from one
+:meth:`RecordWriter.append` call is NaN in that sample.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import hashlib
+import json
+import logging
+import math
+import platform
+import re
+import sys
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from importlib import metadata as _metadata
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import h5py
+import numpy as np
+
+from hil.errors import HilError
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "FORMAT",
+    "FORMAT_VERSION",
+    "ChannelSpec",
+    "RecordError",
+    "RecordWriter",
+    "RunRecord",
+    "replay_main",
+]
+
+FORMAT = "hil-record"
+FORMAT_VERSION = 1
+_DATASET_KEY = "__dataset__"
+_MAX_CHUNK_BYTES = 1 << 20  # 1 MiB per HDF5 chunk at most
+_MIN_CHUNK_ROWS = 1024
+
+
+class RecordError(HilError):
+    """A run record cannot be written or read (bad channel, shape, time, file, ...)."""
+
+
+@dataclass(frozen=True)
+class ChannelSpec:
+    """One recorded channel: per-sample ``shape`` (``()`` for a scalar), SI ``unit``, free ``description``."""
+
+    shape: tuple[int, ...]
+    unit: str
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        shape = tuple(int(d) for d in self.shape)
+        if any(d < 1 for d in shape):
+            raise RecordError(f"channel shape {self.shape} must have positive dimensions")
+        object.__setattr__(self, "shape", shape)
+
+
+# --------------------------------------------------------------------------------------------- helpers
+
+
+def _utc_now() -> str:
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
+
+
+def _software_versions() -> dict[str, str]:
+    """Versions of the packages that shape a record's numbers (no heavy imports: read from metadata)."""
+    import hil
+
+    out = {"hil": hil.__version__, "numpy": np.__version__, "h5py": h5py.version.version,
+           "hdf5": h5py.version.hdf5_version, "python": platform.python_version()}
+    try:
+        out["scipy"] = _metadata.version("scipy")
+    except _metadata.PackageNotFoundError:  # pragma: no cover - scipy is a dependency
+        out["scipy"] = "not installed"
+    return out
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, set | frozenset):
+        return sorted(obj)
+    raise TypeError(f"{type(obj).__name__} is not JSON serializable")
+
+
+def _to_json(obj: Any, what: str) -> str:
+    try:
+        return json.dumps(obj, default=_json_default, ensure_ascii=False)
+    except (TypeError, ValueError) as exc:
+        raise RecordError(f"{what} is not JSON-serializable: {exc}") from None
+
+
+def _check_name(name: str, what: str) -> str:
+    if not isinstance(name, str) or not name or "/" in name or name in (".", ".."):
+        raise RecordError(f"{what} name {name!r} must be a non-empty string without '/'")
+    return name
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _jsonable(obj: Any) -> Any:
+    """Replace non-finite floats by None (strict JSON for ``--json``)."""
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, float):
+        return _finite_or_none(obj)
+    return obj
+
+
+def _split_arrays(obj: Any, path: tuple[str, ...], arrays: dict[str, np.ndarray]) -> Any:
+    """JSON-able copy of ``obj``; numeric numpy arrays (and complex numbers) go to ``arrays`` by path."""
+    if isinstance(obj, Mapping):
+        return {str(k): _split_arrays(v, (*path, str(k)), arrays) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_split_arrays(v, (*path, str(i)), arrays) for i, v in enumerate(obj)]
+    if isinstance(obj, complex | np.complexfloating) or (
+        isinstance(obj, np.ndarray) and obj.dtype.kind in "biufc" and (obj.ndim > 0 or obj.dtype.kind == "c")
+    ):
+        parts = [re.sub(r"[/.]", "_", p) or "_" for p in path] or ["_"]
+        key = "/".join(parts)
+        base, i = key, 1
+        while key in arrays or any(k.startswith(key + "/") or key.startswith(k + "/") for k in arrays):
+            key, i = f"{base}~{i}", i + 1
+        arrays[key] = np.asarray(obj)
+        return {_DATASET_KEY: key}
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if obj is None or isinstance(obj, bool | int | float | str):
+        return obj
+    if isinstance(obj, Path):
+        return str(obj)
+    raise RecordError(f"result {'/'.join(path) or '<root>'}: {type(obj).__name__} cannot be stored")
+
+
+def _join_arrays(obj: Any, group: h5py.Group) -> Any:
+    if isinstance(obj, dict):
+        if set(obj) == {_DATASET_KEY}:
+            return group[obj[_DATASET_KEY]][()]
+        return {k: _join_arrays(v, group) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_join_arrays(v, group) for v in obj]
+    return obj
+
+
+# ---------------------------------------------------------------------------------------------- writer
+
+
+class RecordWriter:
+    """Stream one run to an HDF5 file (layout and crash-safety guarantees in the module docstring).
+
+    ``path``: output file (overwritten unless ``overwrite=False``). ``scene_text``: the exact scene
+    YAML; ``scene_sha256``: its hash as computed by the scene loader. ``meta``: JSON-serializable run
+    metadata (device identities, seed, ...). ``channels``: name -> :class:`ChannelSpec`. ``rate_hz``:
+    nominal sample rate [Hz]. ``flush_every_s``: flush period in run time [s].
+
+    Use as a context manager; an exception inside the ``with`` closes the record with
+    ``status="error"`` and the exception's message as stop reason, then propagates.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        scene_text: str,
+        scene_sha256: str,
+        meta: Mapping[str, Any],
+        channels: Mapping[str, ChannelSpec],
+        rate_hz: float,
+        flush_every_s: float = 0.1,
+        overwrite: bool = True,
+    ) -> None:
+        self.path = Path(path)
+        if not (math.isfinite(rate_hz) and rate_hz > 0):
+            raise RecordError(f"rate_hz must be positive and finite, got {rate_hz!r}")
+        if not (math.isfinite(flush_every_s) and flush_every_s > 0):
+            raise RecordError(f"flush_every_s must be positive and finite, got {flush_every_s!r}")
+        self.rate_hz = float(rate_hz)
+        self.flush_every_s = float(flush_every_s)
+        #: samples per flush (the buffer size)
+        self.flush_samples = max(1, round(self.rate_hz * self.flush_every_s))
+        self.specs: dict[str, ChannelSpec] = {}
+        for name, spec in channels.items():
+            _check_name(name, "channel")
+            if not isinstance(spec, ChannelSpec):
+                raise RecordError(f"channel {name!r}: expected a ChannelSpec, got {type(spec).__name__}")
+            self.specs[name] = spec
+        self.meta = dict(meta)
+        meta_json = _to_json(self.meta, "meta")
+        if hashlib.sha256(scene_text.encode()).hexdigest() != scene_sha256 and scene_text:
+            logger.info("scene_sha256 %s is not the SHA-256 of scene_text (stored as given)", scene_sha256[:12])
+
+        n = self.flush_samples
+        self._t_buf = np.full(n, np.nan)
+        self._buf = {k: np.full((n, *s.shape), np.nan) for k, s in self.specs.items()}
+        self._nbuf = 0
+        self._events: list[bytes] = []
+        self._results: dict[str, tuple[str, dict[str, np.ndarray]]] = {}
+        self._t_last = -math.inf
+        self._t_first_buffered = math.nan
+        #: samples appended so far / samples written and flushed to the file
+        self.samples = 0
+        self.samples_flushed = 0
+        self.flushes = 0
+        self.closed = False
+        self.stop_reason: str | None = None
+        self.status: str | None = None
+
+        if self.path.exists() and not overwrite:
+            raise RecordError(f"{self.path}: exists (overwrite=False)")
+        try:
+            self._f = h5py.File(self.path, "w", libver="latest")
+        except OSError as exc:
+            raise RecordError(f"{self.path}: cannot create record: {exc}") from None
+        try:
+            self._create_layout(scene_text, scene_sha256, meta_json)
+            self._f.swmr_mode = True
+        except BaseException:
+            self._f.close()
+            raise
+        logger.debug("record %s: %d channels, %d samples per flush", self.path, len(self.specs), n)
+
+    def _create_layout(self, scene_text: str, scene_sha256: str, meta_json: str) -> None:
+        f = self._f
+        a = f.attrs
+        a["format"] = FORMAT
+        a["format_version"] = FORMAT_VERSION
+        a["created_utc"] = _utc_now()
+        for k, v in _software_versions().items():
+            a[f"software.{k}"] = v
+        seed = self.meta.get("seed")
+        if isinstance(seed, int | np.integer) and not isinstance(seed, bool):
+            a["seed"] = int(seed)
+        a["rate_hz"] = self.rate_hz
+        a["scene_sha256"] = scene_sha256
+        a["flush_every_s"] = self.flush_every_s
+        a["flush_samples"] = self.flush_samples
+        a["meta"] = meta_json
+        f.create_dataset("scene", data=scene_text, dtype=h5py.string_dtype("utf-8"))
+        rows = self.flush_samples
+        chunk = max(rows, _MIN_CHUNK_ROWS)
+        t = f.create_dataset("t", shape=(0,), maxshape=(None,), chunks=(chunk,), dtype="f8", fillvalue=np.nan)
+        t.attrs["unit"] = "s"
+        g = f.create_group("channels", track_order=True)
+        for name, spec in self.specs.items():
+            width = int(np.prod(spec.shape)) if spec.shape else 1
+            crows = max(1, min(chunk, _MAX_CHUNK_BYTES // (8 * width)))
+            ds = g.create_dataset(name, shape=(0, *spec.shape), maxshape=(None, *spec.shape),
+                                  chunks=(crows, *spec.shape), dtype="f8", fillvalue=np.nan)
+            ds.attrs["unit"] = spec.unit
+            ds.attrs["description"] = spec.description
+        ev = f.create_dataset("events", shape=(0,), maxshape=(None,), chunks=(4096,), dtype="u1")
+        ev.attrs["encoding"] = "utf-8 JSON lines"
+
+    # -- context manager
+    def __enter__(self) -> RecordWriter:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        if self.closed:
+            return
+        if exc is None:
+            self.close()
+        else:
+            reason = str(exc) or type(exc).__name__
+            try:
+                self.close(stop_reason=reason, status="error")
+            except Exception:  # never mask the original exception
+                logger.exception("record %s: close after %s failed", self.path, exc_type)
+
+    # -- writing
+    def _check_open(self) -> None:
+        if self.closed:
+            raise RecordError(f"{self.path}: record is closed")
+
+    def _coerce(self, name: str, value: Any, lead: tuple[int, ...] = ()) -> np.ndarray:
+        spec = self.specs.get(name)
+        if spec is None:
+            raise RecordError(f"unknown channel {name!r} (declared: {', '.join(self.specs) or 'none'})")
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise RecordError(f"channel {name!r}: value is not numeric ({exc})") from None
+        want = (*lead, *spec.shape)
+        if arr.shape != want:
+            # Accept differences in singleton dimensions only (a float for a (1,) channel, (1, 2) for (2,)).
+            core = arr.shape[len(lead):] if arr.shape[: len(lead)] == lead else None
+            if core is None or arr.size != math.prod(want) or \
+                    tuple(d for d in core if d != 1) != tuple(d for d in spec.shape if d != 1):
+                raise RecordError(f"channel {name!r}: expected shape {spec.shape}, got {arr.shape[len(lead):]}"
+                                  if lead else f"channel {name!r}: expected shape {spec.shape}, got {arr.shape}")
+            arr = arr.reshape(want)
+        return arr
+
+    def append(self, t: float, values: Mapping[str, np.ndarray | float]) -> None:
+        """Append one sample at run time ``t`` [s] (strictly increasing). Channels missing from ``values``
+        are NaN; an undeclared channel or a wrong shape raises :class:`RecordError` naming the channel."""
+        self._check_open()
+        t = float(t)
+        if not (math.isfinite(t) and t > self._t_last):
+            raise RecordError(f"sample time {t!r} s is not finite or not after the previous one ({self._t_last} s)")
+        coerced = [(name, self._coerce(name, v)) for name, v in values.items()]
+        i = self._nbuf
+        if len(coerced) != len(self._buf):
+            given = {name for name, _ in coerced}
+            for name, buf in self._buf.items():
+                if name not in given:
+                    buf[i] = np.nan
+        for name, arr in coerced:
+            self._buf[name][i] = arr
+        self._t_buf[i] = t
+        if i == 0:
+            self._t_first_buffered = t
+        self._nbuf = i + 1
+        self._t_last = t
+        self.samples += 1
+        if self._nbuf >= self.flush_samples or t - self._t_first_buffered >= self.flush_every_s:
+            self.flush()
+
+    def append_block(self, t: np.ndarray, values: Mapping[str, np.ndarray]) -> None:
+        """Append many samples at once: ``t`` (m,) [s] strictly increasing, ``values[name]`` (m, *shape).
+
+        Written (and flushed) directly, after any buffered samples. Used by the importers."""
+        self._check_open()
+        t = np.asarray(t, dtype=np.float64).reshape(-1)
+        m = t.size
+        if m == 0:
+            return
+        if not np.all(np.isfinite(t)):
+            raise RecordError("sample times must be finite")
+        if t[0] <= self._t_last or np.any(np.diff(t) <= 0):
+            raise RecordError("sample times must be strictly increasing")
+        coerced = {name: self._coerce(name, v, (m,)) for name, v in values.items()}
+        self.flush()
+        block = {name: coerced.get(name, np.full((m, *spec.shape), np.nan)) for name, spec in self.specs.items()}
+        self._write(t, block)
+        self._t_last = float(t[-1])
+        self.samples += m
+        self._f.flush()
+        self.samples_flushed = self.samples
+        self.flushes += 1
+
+    def event(self, t: float, kind: str, message: str) -> None:
+        """Record an event at run time ``t`` [s] (written with the next flush)."""
+        self._check_open()
+        line = _to_json({"t": float(t), "kind": str(kind), "message": str(message)}, "event") + "\n"
+        self._events.append(line.encode())
+        logger.debug("record event t=%.6f %s: %s", t, kind, message)
+
+    def set_results(self, experiment: str, results: Mapping[str, Any]) -> None:
+        """Store an experiment's results (JSON-serializable; numpy arrays become datasets).
+
+        Validated now, written at :meth:`close` (SWMR cannot create groups). Setting the same
+        experiment twice replaces the earlier results."""
+        self._check_open()
+        _check_name(experiment, "experiment")
+        if not isinstance(results, Mapping):
+            raise RecordError(f"results of {experiment!r} must be a mapping, got {type(results).__name__}")
+        arrays: dict[str, np.ndarray] = {}
+        doc = _split_arrays(results, (), arrays)
+        text = _to_json(doc, f"results of {experiment!r}")
+        if experiment in self._results:
+            logger.warning("record %s: results of %r replaced", self.path, experiment)
+        self._results[experiment] = (text, {k: np.array(v, copy=True) for k, v in arrays.items()})
+
+    def _write(self, t: np.ndarray, block: Mapping[str, np.ndarray]) -> None:
+        f = self._f
+        n0 = f["t"].shape[0]
+        m = t.shape[0]
+        g = f["channels"]
+        for name, data in block.items():  # channels first, /t last: t's length commits the samples
+            ds = g[name]
+            ds.resize(n0 + m, axis=0)
+            ds[n0:] = data
+        f["t"].resize((n0 + m,))
+        f["t"][n0:] = t
+        self._write_events()
+
+    def _write_events(self) -> None:
+        if not self._events:
+            return
+        data = np.frombuffer(b"".join(self._events), dtype=np.uint8)
+        ev = self._f["events"]
+        n0 = ev.shape[0]
+        ev.resize((n0 + data.size,))
+        ev[n0:] = data
+        self._events.clear()
+
+    def flush(self) -> None:
+        """Write the buffered samples and events to the file and flush it (readers see them)."""
+        if self.closed:
+            return
+        k = self._nbuf
+        if k:
+            self._write(self._t_buf[:k], {name: buf[:k] for name, buf in self._buf.items()})
+        else:
+            self._write_events()
+        self._f.flush()
+        self._nbuf = 0
+        self.samples_flushed = self.samples
+        self.flushes += 1
+
+    def close(self, stop_reason: str = "completed", status: str = "ok") -> None:
+        """Flush, then write ``/results`` and ``/status`` (stop reason, status). Idempotent."""
+        if self.closed:
+            return
+        try:
+            self.flush()
+        finally:
+            self._f.close()
+            self.closed = True
+        self.stop_reason, self.status = str(stop_reason), str(status)
+        try:
+            with h5py.File(self.path, "r+") as f:
+                if self._results:
+                    rg = f.require_group("results")
+                    for exp, (text, arrays) in self._results.items():
+                        g = rg.create_group(exp)
+                        g.attrs["json"] = text
+                        for key, arr in arrays.items():
+                            g.create_dataset(key, data=arr)
+                st = f.create_group("status")
+                st.attrs["stop_reason"] = self.stop_reason
+                st.attrs["status"] = self.status
+                st.attrs["closed_utc"] = _utc_now()
+                st.attrs["samples"] = self.samples
+        except OSError as exc:
+            raise RecordError(f"{self.path}: cannot write results/status at close: {exc}") from None
+        logger.info("record %s closed: %d samples, %s (%s)", self.path, self.samples, self.status, self.stop_reason)
+
+
+# ---------------------------------------------------------------------------------------------- reader
+
+
+def _attr_str(v: Any) -> str:
+    return v.decode() if isinstance(v, bytes) else str(v)
+
+
+@dataclass
+class RunRecord:
+    """A run record loaded into memory. ``stop_reason``/``status`` are None when the run never closed."""
+
+    path: Path
+    meta: dict[str, Any]
+    scene_text: str
+    scene_sha256: str
+    stop_reason: str | None
+    status: str | None
+    t: np.ndarray
+    channels: dict[str, np.ndarray]
+    units: dict[str, str]
+    events: list[dict[str, Any]]
+    results: dict[str, Any]
+    descriptions: dict[str, str] = field(default_factory=dict)
+    rate_hz: float = math.nan
+    attrs: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def closed(self) -> bool:
+        """True when the writer closed the record (False: killed / still running)."""
+        return self.status is not None
+
+    @classmethod
+    def open(cls, path: str | Path) -> RunRecord:
+        """Read a record (also one whose writer was killed, or is still writing: SWMR read)."""
+        p = Path(path)
+        if not p.is_file():
+            raise RecordError(f"{p}: no such file")
+        try:
+            f = h5py.File(p, "r")
+        except OSError:
+            try:  # a file left "open for SWMR write" (killed or live writer)
+                f = h5py.File(p, "r", libver="latest", swmr=True)
+            except OSError as exc:
+                raise RecordError(f"{p}: not a readable HDF5 file ({exc})") from None
+        try:
+            with f:
+                return cls._load(p, f)
+        except (KeyError, ValueError, TypeError, json.JSONDecodeError) as exc:
+            raise RecordError(f"{p}: malformed run record ({exc})") from None
+
+    @classmethod
+    def _load(cls, p: Path, f: h5py.File) -> RunRecord:
+        attrs = {k: (_attr_str(v) if isinstance(v, bytes | str) else v) for k, v in f.attrs.items()}
+        if attrs.get("format") != FORMAT:
+            raise RecordError(f"{p}: not a {FORMAT} file (format attribute {attrs.get('format')!r})")
+        if int(attrs.get("format_version", 0)) > FORMAT_VERSION:
+            raise RecordError(f"{p}: format_version {attrs['format_version']} is newer than this reader")
+        for name in ("t", "events"):
+            if f.swmr_mode:
+                f[name].refresh()
+        g = f["channels"]
+        names = list(g)
+        if f.swmr_mode:
+            for name in names:
+                g[name].refresh()
+        n = min([f["t"].shape[0], *(g[k].shape[0] for k in names)])
+        t = f["t"][:n]
+        while n and not math.isfinite(t[n - 1]):  # a flush interrupted between resize and write
+            n -= 1
+        t = np.array(t[:n])
+        channels = {k: np.array(g[k][:n]) for k in names}
+        units = {k: _attr_str(g[k].attrs.get("unit", "")) for k in names}
+        descr = {k: _attr_str(g[k].attrs.get("description", "")) for k in names}
+        events = []
+        raw = bytes(f["events"][:])
+        for line in raw.decode("utf-8", errors="replace").splitlines():
+            try:
+                events.append(json.loads(line))
+            except json.JSONDecodeError:  # an incomplete last line of a killed run
+                logger.warning("%s: skipped an unreadable event line %r", p, line[:80])
+        results: dict[str, Any] = {}
+        if "results" in f:
+            for exp, rg in f["results"].items():
+                results[exp] = _join_arrays(json.loads(_attr_str(rg.attrs["json"])), rg)
+        stop_reason = status = None
+        if "status" in f:
+            stop_reason = _attr_str(f["status"].attrs["stop_reason"])
+            status = _attr_str(f["status"].attrs["status"])
+        scene = f["scene"][()]
+        return cls(
+            path=p,
+            meta=json.loads(attrs.get("meta", "{}")),
+            scene_text=_attr_str(scene),
+            scene_sha256=str(attrs.get("scene_sha256", "")),
+            stop_reason=stop_reason,
+            status=status,
+            t=t,
+            channels=channels,
+            units=units,
+            events=events,
+            results=results,
+            descriptions=descr,
+            rate_hz=float(attrs.get("rate_hz", math.nan)),
+            attrs=attrs,
+        )
+
+    # -- derived views
+    def summary(self) -> dict[str, Any]:
+        """Duration [s], samples, measured rate [Hz], per-channel unit/shape/min/max/mean (NaN-aware;
+        per column for vector channels), stop reason/status, events, experiments and, when the
+        ``loop.overrun`` / ``loop.latency`` channels exist, loop timing statistics."""
+        n = self.t.size
+        duration = float(self.t[-1] - self.t[0]) if n > 1 else 0.0
+        chans: dict[str, Any] = {}
+        for name, a in self.channels.items():
+            flat = a.reshape(n, int(np.prod(a.shape[1:], dtype=int)))
+            if n:
+                with np.errstate(all="ignore"), warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns
+                    mn, mx, mean = np.nanmin(flat, axis=0), np.nanmax(flat, axis=0), np.nanmean(flat, axis=0)
+            else:
+                mn = mx = mean = np.full(flat.shape[1], np.nan)
+            scalar = a.ndim == 1
+            conv = (lambda v: float(v[0])) if scalar else (lambda v: [float(x) for x in v])
+            chans[name] = {
+                "unit": self.units.get(name, ""),
+                "shape": list(a.shape[1:]),
+                "min": conv(mn), "max": conv(mx), "mean": conv(mean),
+                "nan": int(np.count_nonzero(np.isnan(a))),
+            }
+        out: dict[str, Any] = {
+            "path": str(self.path),
+            "closed": self.closed,
+            "status": self.status,
+            "stop_reason": self.stop_reason,
+            "samples": int(n),
+            "duration_s": duration,
+            "t_start_s": float(self.t[0]) if n else None,
+            "t_end_s": float(self.t[-1]) if n else None,
+            "rate_hz": self.rate_hz,
+            "measured_rate_hz": (n - 1) / duration if duration > 0 else None,
+            "scene_sha256": self.scene_sha256,
+            "created_utc": self.attrs.get("created_utc"),
+            "channels": chans,
+            "events": len(self.events),
+            "event_kinds": dict(sorted(_count(e.get("kind", "") for e in self.events).items())),
+            "experiments": sorted(self.results),
+        }
+        loop: dict[str, Any] = {}
+        if "loop.overrun" in self.channels:
+            ov = self.channels["loop.overrun"].reshape(n, -1)[:, 0] if n else np.zeros(0)
+            hit = np.nan_to_num(ov) > 0
+            loop["overrun_samples"] = int(np.count_nonzero(hit))
+            loop["overrun_total"] = float(np.nansum(ov)) if n else 0.0
+            loop["overrun_fraction"] = float(np.count_nonzero(hit) / n) if n else 0.0
+        if "loop.latency" in self.channels and n:
+            lat = self.channels["loop.latency"].reshape(n, -1)[:, 0]
+            lat = lat[np.isfinite(lat)]
+            if lat.size:
+                loop["latency_unit"] = self.units.get("loop.latency", "")
+                loop["latency_mean"] = float(np.mean(lat))
+                loop["latency_p50"] = float(np.percentile(lat, 50))
+                loop["latency_p99"] = float(np.percentile(lat, 99))
+                loop["latency_max"] = float(np.max(lat))
+        if loop:
+            out["loop"] = loop
+        return out
+
+    def to_identify_dict(self, *, meta: Mapping[str, Any] | None = None,
+                         t_range: tuple[float, float] | None = None) -> dict[str, Any]:
+        """``{"t", "signals", "meta"}`` for :func:`hil.identify.api.identify_record`.
+
+        Vector channels are split into 1-D signals ``name[0]``, ``name[1]``, ... (``name[i,j]`` for
+        matrices). ``meta`` entries override the record's meta; ``t_range`` = (t0, t1) [s] keeps
+        t0 <= t <= t1 (e.g. one experiment of a multi-experiment run)."""
+        keep = slice(None) if t_range is None else (self.t >= t_range[0]) & (self.t <= t_range[1])
+        signals: dict[str, np.ndarray] = {}
+        for name, a in self.channels.items():
+            a = a[keep]
+            if a.ndim == 1:
+                signals[name] = a
+                continue
+            for idx in np.ndindex(*a.shape[1:]):
+                signals[f"{name}[{','.join(map(str, idx))}]"] = np.ascontiguousarray(a[(slice(None), *idx)])
+        m = dict(self.meta)
+        m.setdefault("rate_hz", self.rate_hz)
+        m["units"] = dict(self.units)
+        if meta:
+            m.update(meta)
+        return {"t": self.t[keep], "signals": signals, "meta": m}
+
+
+def _count(items: Any) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for k in items:
+        out[k] = out.get(k, 0) + 1
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- replay
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "—"
+    if isinstance(v, list):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else f"{v:.5g}"
+    return str(v)
+
+
+def _print_summary(s: Mapping[str, Any]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console()
+    con.print(f"[bold]{s['path']}[/bold]")
+    if s["closed"]:
+        colour = "green" if s["status"] == "ok" else "red"
+        con.print(f"status: [bold {colour}]{s['status']}[/] — stop reason: {s['stop_reason']}")
+    else:
+        con.print("status: [bold yellow]not closed[/] (killed or still running; samples up to the last flush)")
+    rate = s["measured_rate_hz"]
+    con.print(f"samples: {s['samples']}  duration: {s['duration_s']:.6g} s  rate: {_fmt(s['rate_hz'])} Hz "
+              f"(measured {_fmt(rate)} Hz)")
+    if s["experiments"]:
+        con.print("results: " + ", ".join(s["experiments"]))
+    kinds = ", ".join(f"{k} x{n}" for k, n in s["event_kinds"].items())
+    con.print(f"events: {s['events']}" + (f" ({kinds})" if kinds else ""))
+    if "loop" in s:
+        con.print("loop: " + "  ".join(f"{k}={_fmt(v)}" for k, v in s["loop"].items()))
+    tab = Table(show_header=True, header_style="bold")
+    for col in ("channel", "unit", "shape", "min", "max", "mean", "NaN"):
+        tab.add_column(col, justify="left" if col in ("channel", "unit") else "right", no_wrap=col == "channel")
+    for name, c in s["channels"].items():
+        tab.add_row(name, c["unit"], "x".join(map(str, c["shape"])) or "scalar", _fmt(c["min"]), _fmt(c["max"]),
+                    _fmt(c["mean"]), str(c["nan"]))
+    con.print(tab)
+
+
+def replay_main(argv: Sequence[str] | None = None) -> int:
+    """``hil replay RECORD [--json]``: print a record's summary. Exit 0, or 2 (one-line error on
+    stderr) when the file is missing or is not a readable run record."""
+    p = argparse.ArgumentParser(prog="hil replay", description="Summarize a run record (HDF5)")
+    p.add_argument("record", help="run record (.h5) written by hil run or hil.importers")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    a = p.parse_args(argv)
+    try:
+        rec = RunRecord.open(a.record)
+    except RecordError as exc:
+        print(f"hil replay: error: {exc}", file=sys.stderr)
+        return 2
+    s = rec.summary()
+    if a.json:
+        print(json.dumps(_jsonable(s), ensure_ascii=False))
+    else:
+        _print_summary(s)
+    return 0
