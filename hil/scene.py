@@ -1,0 +1,1150 @@
+"""Scene files: what a run talks to (devices), what it simulates, how it is controlled and excited.
+
+A scene is pure data (YAML), never code. See docs/RUNNER_SPEC.md for the format; this module is
+its single source of truth (pydantic models, ``extra="forbid"`` everywhere).
+
+* :func:`load_scene` takes a YAML path or the name of a built-in scene (``hil/scenes/<name>.yaml``,
+  shipped as package data) and returns a validated :class:`Scene` with ``source_text`` (the exact
+  YAML text) and ``sha256`` (of that text, UTF-8) set.
+* :func:`builtin_scenes` lists ``(name, description)`` of the built-in scenes.
+* Every mistake raises :class:`hil.errors.SceneError` with ONE line ``file: field.path: message``
+  (e.g. ``sdea.yaml: devices[0].driver: unknown driver 'odrive_cna' (did you mean 'odrive_can'?)``).
+
+Units are SI and never written in numeric fields: ``max_effort: 5.0`` (N or N.m, per
+``units``), not ``"5 Nm"``. Matrices are lists of rows; where a gain or parameter matrix is
+expected, a plain number means that number times the identity, and a flat list a diagonal.
+
+Sign conventions: those of :mod:`hil.protocols.base` (positive effort accelerates the joint in its
+positive direction) and :mod:`hil.mocks.physics` (a termination exerts ``-Z(s) v`` on the device;
+velocities into the ports).
+
+Controller and experiment blocks are validated here but executed elsewhere:
+``hil.controllers.make_controller(scene.controller.model_dump(), units=scene.units)`` and
+``hil.experiments.make_experiment(exp.model_dump(), rate_hz=scene.rate_hz)`` consume plain dicts.
+
+Additions to the spec (documented in each model): ``devices[].axes`` (wrench components of a
+force sensor that correspond to the body DOFs), ``devices[].sim`` options, ``experiments[].controller``
+(``none`` runs that experiment open loop, e.g. identification chirps), ``variant`` on static holds
+and multisines, ``human`` may be a list (one per port).
+"""
+
+from __future__ import annotations
+
+import difflib
+import hashlib
+import logging
+import math
+import re
+from collections.abc import Sequence
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
+
+from hil.errors import SceneError
+
+__all__ = [
+    "ChirpExperiment",
+    "Device",
+    "EnergyInjectionExperiment",
+    "MultisineExperiment",
+    "Scene",
+    "Simulation",
+    "StaticHoldExperiment",
+    "builtin_scenes",
+    "load_scene",
+    "scene_from_dict",
+]
+
+logger = logging.getLogger(__name__)
+
+_BUILTIN_PACKAGE = "hil"
+_BUILTIN_DIR = "scenes"
+
+# ---------------------------------------------------------------------------------------------
+# numbers and matrices
+# ---------------------------------------------------------------------------------------------
+
+_LEADING_NUMBER = re.compile(r"\s*([-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)")
+
+
+def _number(value: Any, unit: str) -> float:
+    """A finite real number. Strings holding only a number are accepted (YAML 1.1 reads ``1e-3``
+    as a string); strings with units are rejected with a hint."""
+    what = f"a number{(' in ' + unit) if unit else ''}"
+    if isinstance(value, bool) or value is None:
+        raise PydanticCustomError("number", "expected {what}, got {got}", {"what": what, "got": repr(value)})
+    if isinstance(value, int | float):
+        x = float(value)
+    elif isinstance(value, str):
+        try:
+            x = float(value)
+        except ValueError:
+            m = _LEADING_NUMBER.match(value)
+            hint = f" (numbers are SI: write {float(m.group(1))!r})" if m else ""
+            raise PydanticCustomError(
+                "number", "expected {what}, got {got}{hint}", {"what": what, "got": repr(value), "hint": hint}
+            ) from None
+    else:
+        raise PydanticCustomError("number", "expected {what}, got {got}",
+                                  {"what": what, "got": type(value).__name__})
+    if not math.isfinite(x):
+        raise PydanticCustomError("number", "expected {what}, got {got}", {"what": what, "got": repr(value)})
+    return x
+
+
+def _num_type(unit: str = "", **constraints: Any) -> Any:
+    """A float field type that rejects unit strings; ``unit`` appears in the error message;
+    ``constraints`` go to :func:`pydantic.Field` (gt, ge, le, ...)."""
+    if constraints:
+        return Annotated[float, BeforeValidator(lambda v: _number(v, unit)), Field(**constraints)]
+    return Annotated[float, BeforeValidator(lambda v: _number(v, unit))]
+
+
+def _matrix(value: Any, unit: str) -> list[list[float]]:
+    """A matrix as a list of rows; a number is a 1x1 matrix or (later) ``x * I``; a flat list a
+    diagonal. Shapes are checked against the referenced devices by the scene."""
+    if isinstance(value, int | float | str) and not isinstance(value, bool):
+        return [[_number(value, unit)]]
+    if isinstance(value, Sequence) and not isinstance(value, str):
+        if all(not isinstance(r, Sequence) or isinstance(r, str) for r in value):
+            diag = [_number(v, unit) for v in value]
+            n = len(diag)
+            if n == 0:
+                raise PydanticCustomError("matrix", "expected a matrix (list of rows), got an empty list")
+            return [[diag[i] if i == j else 0.0 for j in range(n)] for i in range(n)]
+        rows = []
+        for r in value:
+            if not isinstance(r, Sequence) or isinstance(r, str):
+                raise PydanticCustomError("matrix", "expected a matrix (list of rows of numbers), got a mix")
+            rows.append([_number(v, unit) for v in r])
+        if not rows or any(len(r) != len(rows[0]) for r in rows) or not rows[0]:
+            raise PydanticCustomError("matrix", "expected a rectangular matrix (rows of equal length)")
+        return rows
+    raise PydanticCustomError("matrix", "expected a number or a matrix (list of rows), got {got}",
+                              {"got": type(value).__name__})
+
+
+def _matrix_or_scalar(value: Any, unit: str) -> Any:
+    if isinstance(value, int | float | str) and not isinstance(value, bool):
+        return _number(value, unit)
+    return _matrix(value, unit)
+
+
+def _mat_type(unit: str = "") -> Any:
+    """A matrix field type (list of rows); a number is kept as a scalar meaning ``x * I``."""
+    return Annotated[float | list[list[float]], BeforeValidator(lambda v: _matrix_or_scalar(v, unit))]
+
+
+Number = _num_type()
+MassMat = _mat_type("kg or kg.m^2")
+DampMat = _mat_type("N.s/m or N.m.s/rad")
+StiffMat = _mat_type("N/m or N.m/rad")
+PGain = _num_type("N/m or N.m/rad")
+VGain = _num_type("N.s/m or N.m.s/rad")
+MassPos = _num_type("kg or kg.m^2", gt=0)
+DampNonneg = _num_type("N.s/m or N.m.s/rad", ge=0)
+StiffPos = _num_type("N/m or N.m/rad", gt=0)
+StiffNonneg = _num_type("N/m or N.m/rad", ge=0)
+Fraction = _num_type("[0, 1]", ge=0, le=1)
+Hz = _num_type("Hz", gt=0)
+Seconds = _num_type("s", gt=0)
+SecondsOrZero = _num_type("s", ge=0)
+Effort = _num_type("N or N.m")
+Position = _num_type("m or rad")
+
+
+def as_matrix(value: float | list[list[float]], n: int) -> np.ndarray:
+    """A matrix field as an ``n x n`` array (scalars become ``x * I``)."""
+    if isinstance(value, int | float):
+        return float(value) * np.eye(n)
+    return np.asarray(value, dtype=float)
+
+
+def _shape(value: float | list[list[float]]) -> tuple[int, int] | None:
+    if isinstance(value, int | float):
+        return None
+    return (len(value), len(value[0]) if value else 0)
+
+
+# ---------------------------------------------------------------------------------------------
+# base model: unknown keys with did-you-mean
+# ---------------------------------------------------------------------------------------------
+
+
+class _Strict(BaseModel):
+    """``extra="forbid"`` with a did-you-mean message naming the offending key."""
+
+    model_config = ConfigDict(extra="forbid", frozen=False, populate_by_name=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _unknown_keys(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            known = set(cls.model_fields) | {f.alias for f in cls.model_fields.values() if f.alias}
+            for key in data:
+                if key not in known:
+                    close = difflib.get_close_matches(str(key), sorted(known), n=1, cutoff=0.6)
+                    hint = (f" (did you mean {close[0]!r}?)" if close
+                            else f"; expected one of: {', '.join(sorted(known))}")
+                    raise PydanticCustomError("unknown_key", "unknown key{hint}", {"key": str(key), "hint": hint})
+        return data
+
+
+Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", max_length=64)]
+DofList = Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=1)]
+
+# ---------------------------------------------------------------------------------------------
+# devices
+# ---------------------------------------------------------------------------------------------
+
+
+class DeviceSim(_Strict):
+    """Options of a device's simulated counterpart (ignored on real hardware).
+
+    ``seed``: seed of its fault injector and noise (default: derived from the bench seed and the
+    device index). ``faults``: a :class:`hil.mocks.faults.FaultPlan` mapping. ``noise_std``:
+    Gaussian noise on the device's measurement (force in N/N.m for sensors, position in m/rad for
+    actuators), on top of ``simulation.sensor_noise``. ``measure`` (force sensors): ``body`` = the
+    force the body exerts on everything attached (SDEA: the spring force), ``human`` = the force
+    the operator's hand exerts on the device (F_h, positive along the port velocity), ``auto`` =
+    ``human`` when a human holds that body, else ``body``. ``framing`` (FT-300): Modbus/TCP or RTU
+    over TCP.
+    """
+
+    seed: int | None = None
+    faults: dict[str, Any] | None = None
+    noise_std: Annotated[float, BeforeValidator(lambda v: _number(v, "N, N.m, m or rad")), Field(ge=0)] = 0.0
+    measure: Literal["auto", "body", "human"] = "auto"
+    framing: Literal["tcp", "rtu"] = "tcp"
+
+    @field_validator("faults")
+    @classmethod
+    def _faults(cls, v: dict[str, Any] | None) -> dict[str, Any] | None:
+        if v is None:
+            return v
+        from hil.mocks.faults import FaultPlan  # stdlib + numpy only
+
+        try:
+            FaultPlan.from_dict(v)
+        except (TypeError, ValueError) as exc:
+            raise PydanticCustomError("faults", "{msg}", {"msg": str(exc)}) from None
+        return v
+
+
+class Device(_Strict):
+    """One device the runner talks to, opened with ``open_device(driver, **params)``.
+
+    ``body``/``dofs``: the simulated body (and its DOF indices, default all) the device acts on or
+    measures; required when the scene is simulated. ``axes`` (force sensors): indices into the
+    wrench ``(Fx, Fy, Fz, Tx, Ty, Tz)`` that correspond, in order, to the ``dof`` measured DOFs
+    (default ``[0, 1, ..., dof-1]``).
+    """
+
+    name: Name
+    role: Literal["actuator", "force_sensor"]
+    driver: str
+    params: dict[str, Any] = Field(default_factory=dict)
+    dof: int = Field(default=1, ge=1, le=6)
+    body: Name | None = None
+    dofs: DofList | None = None
+    axes: Annotated[list[Annotated[int, Field(ge=0, le=5)]], Field(min_length=1)] | None = None
+    sim: DeviceSim = Field(default_factory=DeviceSim)
+
+    @field_validator("driver")
+    @classmethod
+    def _driver(cls, v: str) -> str:
+        from hil.protocols.registry import available_drivers  # registry only: imports no driver
+
+        known = available_drivers()
+        if v not in known:
+            close = difflib.get_close_matches(v, known, n=1, cutoff=0.5)
+            hint = f" (did you mean {close[0]!r}?)" if close else f"; known drivers: {', '.join(known)}"
+            raise PydanticCustomError("driver", "unknown driver {name}{hint}", {"name": repr(v), "hint": hint})
+        return v
+
+    @model_validator(mode="after")
+    def _sizes(self) -> Device:
+        if self.dofs is not None and len(self.dofs) != self.dof:
+            raise PydanticCustomError("dofs", "dofs lists {n} indices but dof is {dof}",
+                                      {"n": len(self.dofs), "dof": self.dof, "key": "dofs"})
+        if self.axes is not None:
+            if self.role != "force_sensor":
+                raise PydanticCustomError("axes", "axes applies to force sensors only", {"key": "axes"})
+            if len(self.axes) != self.dof:
+                raise PydanticCustomError("axes", "axes lists {n} wrench components but dof is {dof}",
+                                          {"n": len(self.axes), "dof": self.dof, "key": "axes"})
+        return self
+
+    @property
+    def wrench_axes(self) -> list[int]:
+        """Wrench components measuring the device's DOFs (force sensors)."""
+        return list(self.axes) if self.axes is not None else list(range(self.dof))
+
+
+# ---------------------------------------------------------------------------------------------
+# simulation
+# ---------------------------------------------------------------------------------------------
+
+
+class BodyCfg(_Strict):
+    """An m-DOF body ``M a + B v + K q = f`` (kg or kg.m^2, N.s/m or N.m.s/rad, N/m or N.m/rad).
+    A number means a 1-DOF body (or ``x * I`` for B/K of a larger body), a flat list a diagonal."""
+
+    name: Name
+    M: MassMat
+    B: DampMat = 0.0
+    K: StiffMat = 0.0
+
+    @property
+    def dof(self) -> int:
+        s = _shape(self.M)
+        return 1 if s is None else s[0]
+
+
+class SdeaCfg(_Strict):
+    """A series damped elastic actuator (paper 002): motor body ``name`` (inertia ``M``, damping
+    ``B``), series spring ``K_f`` with parallel damper ``B_f`` to the output body ``<name>_out``
+    (``m_out``, ``b_out``), or to ground when ``m_out`` is null (locked output). Rotary units:
+    kg.m^2, N.m.s/rad, N.m/rad."""
+
+    name: Name = "motor"
+    M: MassPos
+    B: DampNonneg
+    K_f: StiffPos
+    B_f: DampNonneg = 0.0
+    m_out: MassPos | None = None
+    b_out: DampNonneg = 0.0
+
+
+class SpringCfg(_Strict):
+    """Spring + parallel damper between body ``a`` (DOFs ``a_dofs``) and body ``b`` (``b_dofs``) or
+    ground (``b`` null). Force ``K (x_a - x_b) + B (v_a - v_b)``."""
+
+    name: Name | None = None
+    a: Name
+    a_dofs: DofList | None = None
+    b: Name | None = None
+    b_dofs: DofList | None = None
+    stiffness: StiffMat = 0.0
+    damping: DampMat = 0.0
+
+
+class TfEntry(_Strict):
+    """One transfer function ``num(s)/den(s)``, coefficients in descending powers of s."""
+
+    num: Annotated[list[Number], Field(min_length=1)]
+    den: Annotated[list[Number], Field(min_length=1)] = Field(default_factory=lambda: [1.0])
+
+    @field_validator("den")
+    @classmethod
+    def _den(cls, v: list[float]) -> list[float]:
+        if not any(v):
+            raise PydanticCustomError("den", "denominator must not be identically zero")
+        return v
+
+
+class _TermBase(_Strict):
+    port: Name
+    dofs: DofList | None = None
+    name: Name | None = None
+
+
+class ImpedanceTermination(_TermBase):
+    """LTI impedance ``Z(s)`` (velocity -> force on the termination), a square transfer matrix."""
+
+    type: Literal["impedance"]
+    tf: Annotated[list[Annotated[list[TfEntry], Field(min_length=1)]], Field(min_length=1)]
+
+    @field_validator("tf")
+    @classmethod
+    def _square(cls, m: list[list[TfEntry]]) -> list[list[TfEntry]]:
+        for i, row in enumerate(m):
+            if len(row) != len(m):
+                raise PydanticCustomError("tf", "row {i} has {k} entries; the transfer matrix must be square "
+                                          "({n}x{n})", {"i": i, "k": len(row), "n": len(m)})
+        return m
+
+
+class WallTermination(_TermBase):
+    """Springs/dampers to a fixed wall at port displacement 0 (``Z = K/s + B``)."""
+
+    type: Literal["wall"]
+    stiffness: StiffMat
+    damping: DampMat = 0.0
+
+
+class NamedTermination(_TermBase):
+    """A built-in termination: ``T2`` (3x3, paper 001 sec. VI-A), ``T1`` (2x2, paper 000 eq. 1,
+    not passive)."""
+
+    type: Literal["named"]
+    name: Literal["T1", "T2"]  # type: ignore[assignment]
+
+
+Termination = Annotated[ImpedanceTermination | WallTermination | NamedTermination, Field(discriminator="type")]
+NAMED_TERMINATION_DOF = {"T1": 2, "T2": 3}
+
+
+class HumanCfg(_Strict):
+    """Human arm at a body port: passive mass/damping/stiffness (numbers or matrices) plus an active
+    force set by the experiment through ``Bench.set_human_force``."""
+
+    port: Name
+    dofs: DofList | None = None
+    name: Name | None = None
+    mass: MassMat = 0.0
+    damping: DampMat = 0.0
+    stiffness: StiffMat = 0.0
+
+
+class SensorNoise(_Strict):
+    """Gaussian noise added to every simulated measurement (seeded from the bench seed)."""
+
+    force_std: Annotated[float, BeforeValidator(lambda v: _number(v, "N or N.m")), Field(ge=0)] = 0.0
+    velocity_std: Annotated[float, BeforeValidator(lambda v: _number(v, "m/s or rad/s")), Field(ge=0)] = 0.0
+    position_std: Annotated[float, BeforeValidator(lambda v: _number(v, "m or rad")), Field(ge=0)] = 0.0
+
+
+class Simulation(_Strict):
+    """The simulated plant (present => mocked bench). See :mod:`hil.mocks.physics`."""
+
+    bodies: list[BodyCfg] = Field(default_factory=list)
+    sdea: SdeaCfg | None = None
+    springs: list[SpringCfg] = Field(default_factory=list)
+    terminations: list[Termination] = Field(default_factory=list)
+    human: HumanCfg | list[HumanCfg] | None = None
+    sensor_noise: SensorNoise = Field(default_factory=SensorNoise)
+
+    @property
+    def humans(self) -> list[HumanCfg]:
+        """The humans as a list (``human`` may be one mapping or a list)."""
+        if self.human is None:
+            return []
+        return [self.human] if isinstance(self.human, HumanCfg) else list(self.human)
+
+    def body_dofs(self, variant: str | None = None) -> dict[str, int]:
+        """Body name -> DOF count, including the SDEA motor and (free variant) output bodies."""
+        out = {b.name: b.dof for b in self.bodies}
+        if self.sdea is not None:
+            out[self.sdea.name] = 1
+            if self.sdea.m_out is not None and variant != "locked":
+                out[f"{self.sdea.name}_out"] = 1
+        return out
+
+
+# ---------------------------------------------------------------------------------------------
+# network, controller, safety
+# ---------------------------------------------------------------------------------------------
+
+
+class PortCfg(_Strict):
+    """A port of the network: the actuator driving it, the force sensor measuring the
+    interaction force (optional), and its DOF count."""
+
+    name: Name
+    actuator: Name
+    force_sensor: Name | None = None
+    dofs: int = Field(default=1, ge=1, le=6)
+
+
+class NetworkCfg(_Strict):
+    ports: list[PortCfg] = Field(default_factory=list)
+
+
+class NoController(_Strict):
+    """No controller: the experiment's excitation is the only effort."""
+
+    type: Literal["none"]
+
+
+class PdPositionPosition(_Strict):
+    """Bilateral position-position PD (paper 000 eq. 43/44): master effort
+    ``Kp_m (q_s - q_m) + Kv_m (v_s - v_m)``, slave effort ``Kp_s (q_m - q_s) + Kv_s (v_m - v_s)``.
+    Gains are dof x dof (N/m, N.s/m or N.m/rad, N.m.s/rad); a number means ``k * I``."""
+
+    type: Literal["pd_position_position"]
+    master: Name
+    slave: Name
+    Kp_m: StiffMat
+    Kv_m: DampMat
+    Kp_s: StiffMat
+    Kv_s: DampMat
+
+
+class Mcet(_Strict):
+    """Dual-user MCET position-position (paper 000 eq. 25), 1-DOF robots: master i follows the
+    slave with (k_pmi, k_vmi); the slave follows ``alpha q_m1 + (1 - alpha) q_m2`` with
+    (k_ps, k_vs)."""
+
+    type: Literal["mcet"]
+    masters: Annotated[list[Name], Field(min_length=2, max_length=2)]
+    slave: Name
+    alpha: Fraction
+    k_pm1: PGain
+    k_vm1: VGain
+    k_pm2: PGain
+    k_vm2: VGain
+    k_ps: PGain
+    k_vs: VGain
+
+
+class PdGain(_Strict):
+    """A PD gain matrix pair, i.e. the PI velocity controller ``(kp + kv s)/s`` of the papers."""
+
+    kp: StiffMat
+    kv: DampMat
+
+
+class MasterMap(_Strict):
+    """A master device and the slave DOFs it commands (paper 001: master 1 -> x, master 2 -> y, z)."""
+
+    device: Name
+    slave_dofs: DofList
+
+
+class DualMaster(_Strict):
+    """Dual-master / single-slave cooperative teleoperation (paper 001 eq. 17). The masters' DOFs,
+    concatenated in order, map onto ``slave_dofs``; ``C_m`` (master local), ``C_4`` (slave ->
+    masters), ``C_s`` (slave local), ``C_1`` (masters -> slave) are n x n PD gain pairs with n the
+    slave DOF count: master effort ``C_4 x_s - C_m x_m``, slave effort ``C_1 x_m - C_s x_s``
+    (x in the slave DOF order)."""
+
+    type: Literal["dual_master"]
+    masters: Annotated[list[MasterMap], Field(min_length=1)]
+    slave: Name
+    C_m: PdGain
+    C_4: PdGain
+    C_s: PdGain
+    C_1: PdGain
+
+
+class VsicEnvironment(_Strict):
+    """Virtual environment rendered by the VSIC: a spring ``k`` (N.m/rad) with damping ``b``."""
+
+    type: Literal["spring"] = "spring"
+    k: StiffNonneg = 0.0
+    b: DampNonneg = 0.0
+
+
+class Vsic(_Strict):
+    """Velocity-sourced impedance control of an SDEA (paper 002): inner motor velocity PI
+    (P_m, I_m), force PI (P_f, I_f) on the spring-force error, feed-forward ``1 - alpha`` and a
+    virtual coupler (k22, b22) to the environment."""
+
+    type: Literal["vsic"]
+    actuator: Name
+    force_sensor: Name
+    P_m: Annotated[float, BeforeValidator(lambda v: _number(v, "N.m.s/rad")), Field(gt=0)]
+    I_m: Annotated[float, BeforeValidator(lambda v: _number(v, "N.m/rad")), Field(ge=0)]
+    P_f: Annotated[float, BeforeValidator(lambda v: _number(v, "rad/(N.m.s)")), Field(gt=0)]
+    I_f: Annotated[float, BeforeValidator(lambda v: _number(v, "rad/(N.m.s^2)")), Field(ge=0)]
+    alpha: Fraction = 1.0
+    k22: Annotated[float, BeforeValidator(lambda v: _number(v, "N.m/rad")), Field(ge=0)]
+    b22: Annotated[float, BeforeValidator(lambda v: _number(v, "N.m.s/rad")), Field(ge=0)]
+    environment: VsicEnvironment = Field(default_factory=VsicEnvironment)
+
+
+Controller = Annotated[NoController | PdPositionPosition | Mcet | DualMaster | Vsic, Field(discriminator="type")]
+
+
+class Safety(_Strict):
+    """Limits checked every tick (per DOF, SI): effort N or N.m, velocity m/s or rad/s, position
+    m or rad, energy J (|E_s| at any port), watchdog ms."""
+
+    max_effort: Annotated[float, BeforeValidator(lambda v: _number(v, "N or N.m")), Field(gt=0)] = 5.0
+    max_velocity: Annotated[float, BeforeValidator(lambda v: _number(v, "m/s or rad/s")), Field(gt=0)] = 20.0
+    position_limits: tuple[Position, Position] | None = None
+    max_energy: Annotated[float, BeforeValidator(lambda v: _number(v, "J")), Field(gt=0)] = 50.0
+    watchdog_ms: Annotated[float, BeforeValidator(lambda v: _number(v, "ms")), Field(gt=0)] = 50.0
+
+    @field_validator("position_limits")
+    @classmethod
+    def _ordered(cls, v: tuple[float, float] | None) -> tuple[float, float] | None:
+        if v is not None and not v[0] < v[1]:
+            raise PydanticCustomError("limits", "expected [low, high] with low < high, got {v}", {"v": list(v)})
+        return v
+
+
+# ---------------------------------------------------------------------------------------------
+# experiments
+# ---------------------------------------------------------------------------------------------
+
+
+class _ExpBase(_Strict):
+    """Common experiment fields. ``controller``: ``scene`` runs the scene's controller during the
+    experiment, ``none`` runs it open loop (identification). ``name`` defaults to the type."""
+
+    name: Name | None = None
+    controller: Literal["scene", "none"] = "scene"
+
+
+
+
+class ChirpExperiment(_ExpBase):
+    """Swept sine from ``f0`` to ``f1`` (Hz) of ``amplitude`` (N or N.m) on ``target``'s ``dofs``,
+    ``sweep`` log or linear, cosine fade in/out of ``fade`` s. ``periodic``: ``periods`` identical
+    sweeps of ``duration / periods`` s each (one period per Welch segment). ``variant``: plant
+    configuration of a simulated SDEA (``locked`` output or ``free`` output)."""
+
+    type: Literal["chirp"]
+    f0: Hz
+    f1: Hz
+    duration: Seconds
+    amplitude: Effort
+    sweep: Literal["log", "linear"] = "log"
+    fade: SecondsOrZero = 0.0
+    target: Name
+    dofs: DofList | None = None
+    excite: Literal["effort"] = "effort"
+    periodic: bool = False
+    periods: int = Field(default=1, ge=1)
+    variant: Literal["locked", "free"] | None = None
+
+    @model_validator(mode="after")
+    def _band(self) -> ChirpExperiment:
+        if not self.f0 < self.f1:
+            raise PydanticCustomError("band", "f1 ({f1} Hz) must exceed f0 ({f0} Hz)",
+                                      {"f0": self.f0, "f1": self.f1, "key": "f1"})
+        return self
+
+
+class MultisineExperiment(_ExpBase):
+    """Sum of ``n_lines`` sines between ``f0`` and ``f1`` (Hz), total ``amplitude`` (N or N.m) on
+    ``target``'s ``dofs``; ``simultaneous``: all DOFs at once with orthogonal phases, else one DOF
+    after the other."""
+
+    type: Literal["multisine"]
+    f0: Hz
+    f1: Hz
+    n_lines: int = Field(default=64, ge=1)
+    duration: Seconds
+    amplitude: Effort
+    target: Name
+    dofs: DofList | None = None
+    simultaneous: bool = True
+    periods: int = Field(default=1, ge=1)
+    seed: int | None = None
+    variant: Literal["locked", "free"] | None = None
+
+    @model_validator(mode="after")
+    def _band(self) -> MultisineExperiment:
+        if not self.f0 < self.f1:
+            raise PydanticCustomError("band", "f1 ({f1} Hz) must exceed f0 ({f0} Hz)",
+                                      {"f0": self.f0, "f1": self.f1, "key": "f1"})
+        return self
+
+
+class ForceProfileCfg(_Strict):
+    """Active operator force: ``sine`` (amplitude N, freq Hz), ``square``, ``step`` (amplitude from
+    t = 0), ``noise`` (band-limited Gaussian, std = amplitude, seeded). ``direction``: unit weights
+    per port DOF (default all ones)."""
+
+    kind: Literal["sine", "square", "step", "noise"] = "sine"
+    amplitude: Annotated[float, BeforeValidator(lambda v: _number(v, "N or N.m"))]
+    freq: Annotated[float, BeforeValidator(lambda v: _number(v, "Hz")), Field(ge=0)] = 1.0
+    phase: Annotated[float, BeforeValidator(lambda v: _number(v, "rad"))] = 0.0
+    direction: list[Number] | None = None
+    seed: int | None = None
+
+
+class EnergyInjectionExperiment(_ExpBase):
+    """Active force at a network ``port`` (simulated human) for ``duration`` s while the energy
+    ``E_s = int F^T V dt`` at the port is tracked; ``noise_bound``: ``auto`` (from the sensor noise)
+    or a number in J."""
+
+    type: Literal["energy_injection"]
+    port: Name
+    duration: Seconds
+    profile: ForceProfileCfg
+    noise_bound: Literal["auto"] | Annotated[float, BeforeValidator(lambda v: _number(v, "J")), Field(ge=0)] = "auto"
+
+
+class StaticHoldExperiment(_ExpBase):
+    """Constant ``effort`` (N or N.m) on ``target``'s ``dofs`` for ``duration`` s; the statistics
+    are taken after ``settle`` s."""
+
+    type: Literal["static_hold"]
+    target: Name
+    dofs: DofList | None = None
+    effort: Effort
+    duration: Seconds
+    settle: SecondsOrZero = 0.0
+    variant: Literal["locked", "free"] | None = None
+
+    @model_validator(mode="after")
+    def _settle(self) -> StaticHoldExperiment:
+        if self.settle >= self.duration:
+            raise PydanticCustomError("settle", "settle ({s} s) must be shorter than duration ({d} s)",
+                                      {"s": self.settle, "d": self.duration, "key": "settle"})
+        return self
+
+
+Experiment = Annotated[
+    ChirpExperiment | MultisineExperiment | EnergyInjectionExperiment | StaticHoldExperiment,
+    Field(discriminator="type"),
+]
+
+# ---------------------------------------------------------------------------------------------
+# the scene
+# ---------------------------------------------------------------------------------------------
+
+
+class Scene(_Strict):
+    """A validated scene. ``source_text`` / ``sha256`` / ``path`` are set by :func:`load_scene`."""
+
+    name: Name
+    description: str = ""
+    seed: int = 0
+    rate_hz: Annotated[float, BeforeValidator(lambda v: _number(v, "Hz")), Field(gt=0, le=100_000)] = 1000.0
+    mode: Literal["lockstep", "realtime"] | None = None
+    units: Literal["rotary", "linear"] = "linear"
+    devices: Annotated[list[Device], Field(min_length=1)]
+    simulation: Simulation | None = None
+    network: NetworkCfg = Field(default_factory=NetworkCfg)
+    controller: Controller = Field(default_factory=lambda: NoController(type="none"))
+    safety: Safety = Field(default_factory=Safety)
+    experiments: list[Experiment] = Field(default_factory=list)
+
+    _source_text: str = PrivateAttr(default="")
+    _sha256: str = PrivateAttr(default="")
+    _path: str = PrivateAttr(default="")
+
+    @property
+    def source_text(self) -> str:
+        """The exact YAML text the scene was loaded from ('' when built from a dict)."""
+        return self._source_text
+
+    @property
+    def sha256(self) -> str:
+        """Hex SHA-256 of ``source_text`` encoded as UTF-8."""
+        return self._sha256
+
+    @property
+    def path(self) -> str:
+        """Where the scene came from (file path or ``builtin:<name>``)."""
+        return self._path
+
+    @property
+    def run_mode(self) -> str:
+        """``mode``, defaulting to lockstep when simulated and realtime otherwise."""
+        return self.mode or ("lockstep" if self.simulation is not None else "realtime")
+
+    @property
+    def dt(self) -> float:
+        """Control period 1/rate_hz (s)."""
+        return 1.0 / self.rate_hz
+
+    def device(self, name: str) -> Device:
+        """The device called ``name`` (KeyError if absent)."""
+        for d in self.devices:
+            if d.name == name:
+                return d
+        raise KeyError(name)
+
+    @property
+    def actuators(self) -> list[Device]:
+        return [d for d in self.devices if d.role == "actuator"]
+
+    @property
+    def force_sensors(self) -> list[Device]:
+        return [d for d in self.devices if d.role == "force_sensor"]
+
+    def port(self, name: str) -> PortCfg:
+        """The network port called ``name`` (KeyError if absent)."""
+        for p in self.network.ports:
+            if p.name == name:
+                return p
+        raise KeyError(name)
+
+    def controller_config(self) -> dict[str, Any]:
+        """``controller`` as a plain dict for ``hil.controllers.make_controller``."""
+        return self.controller.model_dump()
+
+    def experiment_configs(self) -> list[dict[str, Any]]:
+        """``experiments`` as plain dicts for ``hil.experiments.make_experiment`` (``name`` filled)."""
+        out = []
+        for i, e in enumerate(self.experiments):
+            d = e.model_dump()
+            d["name"] = e.name or _default_exp_name(self.experiments, i)
+            out.append(d)
+        return out
+
+
+def _default_exp_name(exps: Sequence[Any], i: int) -> str:
+    t = exps[i].type
+    same = [k for k, e in enumerate(exps) if e.type == t and e.name is None]
+    return t if len(same) == 1 else f"{t}_{same.index(i) + 1}"
+
+
+# ---------------------------------------------------------------------------------------------
+# cross-references (after the per-field validation)
+# ---------------------------------------------------------------------------------------------
+
+
+def _near(name: str, known: Sequence[str]) -> str:
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.5)
+    if close:
+        return f" (did you mean {close[0]!r}?)"
+    return f"; known: {', '.join(known) if known else '(none)'}"
+
+
+def _cross_check(sc: Scene) -> None:
+    """Raise ``_Where(path, message)`` for the first broken reference or shape."""
+    names = [d.name for d in sc.devices]
+    seen: set[str] = set()
+    for i, d in enumerate(sc.devices):
+        if d.name in seen:
+            raise _Where(f"devices[{i}].name", f"duplicate device name {d.name!r}")
+        seen.add(d.name)
+    dev = {d.name: d for d in sc.devices}
+
+    def need(path: str, name: str, role: str | None = None) -> Device:
+        if name not in dev:
+            raise _Where(path, f"unknown device {name!r}{_near(name, names)}")
+        d = dev[name]
+        if role is not None and d.role != role:
+            raise _Where(path, f"device {name!r} is a {d.role}, expected a {role}")
+        return d
+
+    def check_gain(path: str, value: Any, rows: int, cols: int, what: str) -> None:
+        s = _shape(value)
+        if s is None:
+            if rows != cols:
+                raise _Where(path, f"a number means k*I, which needs a square gain; expected a {rows}x{cols} "
+                                   f"matrix ({what})")
+            return
+        if s != (rows, cols):
+            raise _Where(path, f"expected a {rows}x{cols} matrix ({what}), got {s[0]}x{s[1]}")
+
+    # network
+    pnames: set[str] = set()
+    for i, p in enumerate(sc.network.ports):
+        if p.name in pnames:
+            raise _Where(f"network.ports[{i}].name", f"duplicate port name {p.name!r}")
+        pnames.add(p.name)
+        a = need(f"network.ports[{i}].actuator", p.actuator, "actuator")
+        if a.dof != p.dofs:
+            raise _Where(f"network.ports[{i}].dofs", f"port has {p.dofs} DOF but actuator {a.name!r} has {a.dof}")
+        if p.force_sensor is not None:
+            s = need(f"network.ports[{i}].force_sensor", p.force_sensor, "force_sensor")
+            if s.dof != p.dofs:
+                raise _Where(f"network.ports[{i}].force_sensor",
+                             f"sensor {s.name!r} measures {s.dof} DOF, the port has {p.dofs}")
+    # controller
+    c = sc.controller
+    if isinstance(c, PdPositionPosition):
+        m = need("controller.master", c.master, "actuator")
+        s = need("controller.slave", c.slave, "actuator")
+        if m.dof != s.dof:
+            raise _Where("controller.slave", f"master {m.name!r} has {m.dof} DOF, slave {s.name!r} has {s.dof}")
+        for key in ("Kp_m", "Kv_m", "Kp_s", "Kv_s"):
+            check_gain(f"controller.{key}", getattr(c, key), m.dof, m.dof, f"dof x dof of {m.name!r}/{s.name!r}")
+    elif isinstance(c, Mcet):
+        for k, mname in enumerate(c.masters):
+            d = need(f"controller.masters[{k}]", mname, "actuator")
+            if d.dof != 1:
+                raise _Where(f"controller.masters[{k}]", f"mcet needs 1-DOF robots; {mname!r} has {d.dof} DOF")
+        d = need("controller.slave", c.slave, "actuator")
+        if d.dof != 1:
+            raise _Where("controller.slave", f"mcet needs 1-DOF robots; {c.slave!r} has {d.dof} DOF")
+    elif isinstance(c, DualMaster):
+        s = need("controller.slave", c.slave, "actuator")
+        covered: list[int] = []
+        for k, mm in enumerate(c.masters):
+            d = need(f"controller.masters[{k}].device", mm.device, "actuator")
+            if len(mm.slave_dofs) != d.dof:
+                raise _Where(f"controller.masters[{k}].slave_dofs",
+                             f"master {d.name!r} has {d.dof} DOF but maps {len(mm.slave_dofs)} slave DOF")
+            bad = [j for j in mm.slave_dofs if j >= s.dof]
+            if bad:
+                raise _Where(f"controller.masters[{k}].slave_dofs",
+                             f"slave {s.name!r} has {s.dof} DOF; index {bad[0]} is out of range")
+            covered += mm.slave_dofs
+        if sorted(covered) != list(range(s.dof)):
+            raise _Where("controller.masters", f"the masters' slave_dofs must cover each of the slave's {s.dof} "
+                                               f"DOF exactly once, got {covered}")
+        for key in ("C_m", "C_4", "C_s", "C_1"):
+            g = getattr(c, key)
+            check_gain(f"controller.{key}.kp", g.kp, s.dof, s.dof, "n x n, n = slave DOF")
+            check_gain(f"controller.{key}.kv", g.kv, s.dof, s.dof, "n x n, n = slave DOF")
+    elif isinstance(c, Vsic):
+        a = need("controller.actuator", c.actuator, "actuator")
+        f = need("controller.force_sensor", c.force_sensor, "force_sensor")
+        if a.dof != 1 or f.dof != 1:
+            raise _Where("controller.actuator", "vsic controls a 1-DOF SDEA (actuator and sensor with dof 1)")
+        if c.k22 == 0 and c.b22 == 0:
+            raise _Where("controller.k22", "the virtual coupler needs k22 > 0 or b22 > 0")
+    # experiments
+    for i, e in enumerate(sc.experiments):
+        if isinstance(e, EnergyInjectionExperiment):
+            if e.port not in pnames:
+                raise _Where(f"experiments[{i}].port", f"unknown port {e.port!r}{_near(e.port, sorted(pnames))}")
+            port = sc.port(e.port)
+            if e.profile.direction is not None and len(e.profile.direction) != port.dofs:
+                raise _Where(f"experiments[{i}].profile.direction",
+                             f"port {port.name!r} has {port.dofs} DOF, direction has {len(e.profile.direction)}")
+            continue
+        d = need(f"experiments[{i}].target", e.target, "actuator")
+        if e.dofs is not None and max(e.dofs) >= d.dof:
+            raise _Where(f"experiments[{i}].dofs", f"device {d.name!r} has {d.dof} DOF")
+        if getattr(e, "variant", None) is not None:
+            sim = sc.simulation
+            if sim is not None and (sim.sdea is None or sim.sdea.m_out is None) and e.variant == "free":
+                raise _Where(f"experiments[{i}].variant",
+                             "variant 'free' needs simulation.sdea.m_out (the output inertia)")
+    for i, d in enumerate(sc.devices):
+        if d.role == "actuator" and d.axes is not None:
+            raise _Where(f"devices[{i}].axes", "axes applies to force sensors only")
+    if sc.simulation is not None:
+        _check_simulation(sc, sc.simulation)
+
+
+def _check_simulation(sc: Scene, sim: Simulation) -> None:
+    bodies: dict[str, int] = {}
+    for i, b in enumerate(sim.bodies):
+        if b.name in bodies:
+            raise _Where(f"simulation.bodies[{i}].name", f"duplicate body name {b.name!r}")
+        s = _shape(b.M)
+        if s is not None and s[0] != s[1]:
+            raise _Where(f"simulation.bodies[{i}].M", f"mass matrix must be square, got {s[0]}x{s[1]}")
+        for key in ("B", "K"):
+            t = _shape(getattr(b, key))
+            if t is not None and t != (b.dof, b.dof):
+                raise _Where(f"simulation.bodies[{i}].{key}", f"expected a {b.dof}x{b.dof} matrix, got {t[0]}x{t[1]}")
+        bodies[b.name] = b.dof
+    if sim.sdea is not None:
+        for nm in (sim.sdea.name, f"{sim.sdea.name}_out"):
+            if nm in bodies:
+                raise _Where("simulation.sdea.name", f"body name {nm!r} is already used")
+    all_bodies = sim.body_dofs()
+    if not all_bodies:
+        raise _Where("simulation", "a simulation needs at least one body (bodies or sdea)")
+    known = sorted(all_bodies)
+
+    def body(path: str, name: str, dofs: list[int] | None) -> int:
+        if name not in all_bodies:
+            raise _Where(path, f"unknown body {name!r}{_near(name, known)}")
+        n = all_bodies[name]
+        if dofs is not None:
+            bad = [j for j in dofs if j >= n]
+            if bad:
+                raise _Where(path, f"body {name!r} has {n} DOF; DOF index {bad[0]} is out of range")
+            return len(dofs)
+        return n
+
+    def square(path: str, value: Any, n: int) -> None:
+        t = _shape(value)
+        if t is not None and t != (n, n):
+            raise _Where(path, f"expected a {n}x{n} matrix (the port has {n} DOF), got {t[0]}x{t[1]}")
+
+    for i, sp in enumerate(sim.springs):
+        na = body(f"simulation.springs[{i}].a", sp.a, sp.a_dofs)
+        if sp.b is not None:
+            nb = body(f"simulation.springs[{i}].b", sp.b, sp.b_dofs)
+            if nb != na:
+                raise _Where(f"simulation.springs[{i}].b", f"ports have {na} and {nb} DOF")
+        square(f"simulation.springs[{i}].stiffness", sp.stiffness, na)
+        square(f"simulation.springs[{i}].damping", sp.damping, na)
+    for i, t in enumerate(sim.terminations):
+        n = body(f"simulation.terminations[{i}].port", t.port, t.dofs)
+        if isinstance(t, ImpedanceTermination) and len(t.tf) != n:
+            raise _Where(f"simulation.terminations[{i}].tf", f"expected a {n}x{n} transfer matrix (port DOF), "
+                                                             f"got {len(t.tf)}x{len(t.tf)}")
+        if isinstance(t, WallTermination):
+            square(f"simulation.terminations[{i}].stiffness", t.stiffness, n)
+            square(f"simulation.terminations[{i}].damping", t.damping, n)
+        if isinstance(t, NamedTermination) and NAMED_TERMINATION_DOF[t.name] != n:
+            raise _Where(f"simulation.terminations[{i}].name",
+                         f"{t.name} has {NAMED_TERMINATION_DOF[t.name]} ports, the port has {n} DOF")
+    hnames: set[str] = set()
+    for i, h in enumerate(sim.humans):
+        path = "simulation.human" if isinstance(sim.human, HumanCfg) else f"simulation.human[{i}]"
+        n = body(f"{path}.port", h.port, h.dofs)
+        for key in ("mass", "damping", "stiffness"):
+            square(f"{path}.{key}", getattr(h, key), n)
+        nm = h.name or ("human" if len(sim.humans) == 1 else f"human_{h.port}")
+        if nm in hnames or nm in all_bodies:
+            raise _Where(f"{path}.name", f"name {nm!r} is already used")
+        hnames.add(nm)
+    for i, d in enumerate(sc.devices):
+        if d.body is None:
+            raise _Where(f"devices[{i}].body", "required when the scene has a simulation (the simulated body "
+                                               "the device is attached to)")
+        n = body(f"devices[{i}].body", d.body, d.dofs)
+        if n != d.dof:
+            raise _Where(f"devices[{i}].dof", f"device has {d.dof} DOF but is attached to {n} DOF of body {d.body!r}")
+        sel = d.dofs if d.dofs is not None else list(range(all_bodies[d.body]))
+        if d.role == "actuator":
+            for j, other in enumerate(sc.devices[:i]):
+                if other.role == "actuator" and other.body == d.body:
+                    osel = other.dofs if other.dofs is not None else list(range(all_bodies[d.body]))
+                    if set(osel) & set(sel):
+                        raise _Where(f"devices[{i}].dofs", f"DOF already driven by actuator {sc.devices[j].name!r}")
+
+
+class _Where(Exception):
+    def __init__(self, path: str, message: str) -> None:
+        super().__init__(f"{path}: {message}")
+        self.path = path
+        self.message = message
+
+
+# ---------------------------------------------------------------------------------------------
+# loading and error formatting
+# ---------------------------------------------------------------------------------------------
+
+
+def _strip_tags(loc: Sequence[Any], data: Any) -> list[Any]:
+    """Drop discriminator tags and union-member names that pydantic inserts in error locations."""
+    out: list[Any] = []
+    cur = data
+    for part in loc:
+        if isinstance(part, int):
+            out.append(part)
+            cur = cur[part] if isinstance(cur, list) and 0 <= part < len(cur) else None
+            continue
+        if isinstance(cur, dict) and part in cur:
+            out.append(part)
+            cur = cur[part]
+            continue
+        if isinstance(cur, dict) and cur.get("type") == part:
+            continue  # discriminator tag
+        if part in ("list[list[float]]", "float", "HumanCfg", "list[HumanCfg]", "literal['auto']") or (
+            isinstance(part, str) and (part.startswith(("function-", "list[", "literal[", "tuple[")) or part in (
+                "constrained-float", "function-after", "function-before"))):
+            continue  # union member names
+        out.append(part)
+        cur = None
+    return out
+
+
+def _fmt_loc(loc: Sequence[Any]) -> str:
+    s = ""
+    for part in loc:
+        s += f"[{part}]" if isinstance(part, int) else ("." if s else "") + str(part)
+    return s or "(top level)"
+
+
+def _format_error(exc: ValidationError, data: Any) -> str:
+    errs = exc.errors(include_url=False)
+    # prefer errors that are not "missing" of a union member that failed for another reason
+    err = errs[0]
+    loc = _strip_tags(err["loc"], data)
+    ctx = err.get("ctx") or {}
+    typ = err["type"]
+    msg = str(err["msg"]).removeprefix("Value error, ")
+    if typ == "unknown_key" or ("key" in ctx and typ in ("dofs", "axes", "band", "settle")):
+        loc = [*loc, ctx["key"]]
+    if typ == "union_tag_invalid":
+        tag = ctx.get("tag")
+        expected = str(ctx.get("expected_tags", "")).replace("'", "").split(", ")
+        loc = [*loc, ctx.get("discriminator", "type").strip("'")]
+        msg = f"unknown type {tag!r}{_near(str(tag), expected)}; expected one of: {', '.join(expected)}"
+    elif typ == "union_tag_not_found":
+        loc = [*loc, "type"]
+        msg = "missing 'type'"
+    elif typ == "missing":
+        msg = "required field is missing"
+    elif typ == "literal_error":
+        msg = f"expected {ctx.get('expected', msg)}, got {err.get('input')!r}"
+    elif typ in ("int_type", "int_parsing", "int_from_float", "bool_type", "bool_parsing", "string_type",
+                 "dict_type", "list_type", "model_type", "model_attributes_type", "tuple_type"):
+        msg = f"{msg} (got {err.get('input')!r})"
+    elif typ in ("greater_than", "greater_than_equal", "less_than", "less_than_equal", "too_short", "too_long",
+                 "string_pattern_mismatch"):
+        inp = err.get("input")
+        if not isinstance(inp, dict | list):
+            msg = f"{msg} (got {inp!r})"
+    return f"{_fmt_loc(loc)}: {msg}"
+
+
+def _builtin_dir() -> Path:
+    return Path(str(resources.files(_BUILTIN_PACKAGE).joinpath(_BUILTIN_DIR)))
+
+
+def builtin_scenes() -> list[tuple[str, str]]:
+    """``(name, description)`` of every built-in scene, sorted by name."""
+    import yaml
+
+    out = []
+    for p in sorted(_builtin_dir().glob("*.yaml")):
+        try:
+            data = yaml.safe_load(p.read_text(encoding="utf-8"))
+            desc = str(data.get("description", "")) if isinstance(data, dict) else ""
+        except yaml.YAMLError:
+            desc = "(invalid YAML)"
+        out.append((p.stem, " ".join(desc.split())))
+    return out
+
+
+def _resolve(src: str | Path) -> tuple[Path, str]:
+    p = Path(src)
+    if p.exists():
+        return p, p.name
+    s = str(src)
+    if "/" not in s and "\\" not in s and not s.endswith((".yaml", ".yml")):
+        cand = _builtin_dir() / f"{s}.yaml"
+        if cand.exists():
+            return cand, f"{s}.yaml"
+        known = [n for n, _ in builtin_scenes()]
+        raise SceneError(f"{s}: no such file or built-in scene{_near(s, known)}")
+    raise SceneError(f"{p}: no such file")
+
+
+def scene_from_dict(data: Any, *, label: str = "<scene>", source_text: str = "", path: str = "") -> Scene:
+    """Validate a scene mapping (already parsed). Errors are one-line :class:`SceneError`s
+    prefixed with ``label``."""
+    if not isinstance(data, dict):
+        got = "an empty file" if data is None else type(data).__name__
+        raise SceneError(f"{label}: expected a mapping with 'name' and 'devices' at the top level, got {got}")
+    try:
+        sc = Scene.model_validate(data)
+    except ValidationError as exc:
+        raise SceneError(f"{label}: {_format_error(exc, data)}") from None
+    try:
+        _cross_check(sc)
+    except _Where as w:
+        raise SceneError(f"{label}: {w.path}: {w.message}") from None
+    sc._source_text = source_text
+    sc._sha256 = hashlib.sha256(source_text.encode("utf-8")).hexdigest()
+    sc._path = path
+    return sc
+
+
+def load_scene(src: str | Path) -> Scene:
+    """Load and validate a scene from a YAML path or a built-in scene name.
+
+    Raises :class:`SceneError` with one line ``file: field: message`` on any problem.
+    """
+    import yaml
+
+    path, label = _resolve(src)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(f"{label}: cannot read: {exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).strip().splitlines()[0]
+        raise SceneError(f"{label}: not valid YAML{where}: {problem}") from None
+    is_builtin = path.parent.resolve() == _builtin_dir().resolve()
+    sc = scene_from_dict(data, label=label, source_text=text,
+                         path=f"builtin:{path.stem}" if is_builtin else str(path))
+    logger.debug("loaded scene %r from %s (sha256 %s)", sc.name, sc.path, sc.sha256[:12])
+    return sc
