@@ -1,0 +1,642 @@
+"""The bench: the devices of a scene behind their protocol adapters, real or simulated.
+
+``Bench(scene, seed=None)`` opens every device of the scene through
+:func:`hil.protocols.registry.open_device`. When the scene has a ``simulation`` block it first
+
+1. builds the physics (:class:`hil.mocks.physics.Scene` -> :class:`~hil.mocks.physics.Plant`:
+   bodies, the SDEA, springs, terminations, humans) and a lockstep
+   :class:`hil.mocks.simulator.Simulator` at the scene's control period ``1 / rate_hz``;
+2. starts each device's simulated counterpart on a real transport, attached to the DOFs of its body
+   (``devices[].body`` / ``dofs``): ODrive and CubeMars nodes on a python-can *virtual* bus (one
+   private channel per scene channel and bench, synchronous replies), a Bota sensor streaming into
+   a pty, a Robotiq FT-300 behind a pymodbus server on a free loopback port, a DYNAMIXEL chain on a
+   pty;
+3. opens the real adapters with the endpoint parameters filled in (pty path, URL, private CAN
+   channel) and the simulated clock as their ``clock``, so sample times are ``k * dt``.
+
+Lockstep tick (what the runner does once per control period)::
+
+    meas = bench.read()            # every device; a second read in the same tick returns the same samples
+    bench.command({"motor": u})    # efforts (N or N.m) per actuator
+    bench.set_human_force("master", f)
+    bench.advance()                # devices process pending frames, the plant steps exactly dt,
+                                   # simulated sensors publish the new state
+
+Nothing depends on the wall clock: with one seed, the measurements are bit-identical from run to
+run (noise and fault injection use seeded generators; ``math.fsum`` state updates).
+
+Simulated force sensors report, on the wrench components ``devices[].axes``, either the force the
+body exerts on everything attached to it (``sim.measure: body``; for an SDEA motor this is the
+series spring-damper torque ``F = K_f (x_m - x_e) + B_f (v_m - v_e)``) or the force the simulated
+operator's hand exerts on the device (``human``: ``F_h = f_act - Z_h(s) v``, positive along the port
+velocity, so ``F_h^T v`` is the power the operator injects).
+
+Without ``simulation`` the adapters are opened with the scene's params as they are (real bench) and
+:meth:`Bench.advance` is a no-op.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import itertools
+import logging
+import threading
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+
+from hil.errors import HilError, ModelError, SceneError
+from hil.protocols.base import JointSample, WrenchSample
+from hil.scene import (
+    HumanCfg,
+    ImpedanceTermination,
+    NamedTermination,
+    Scene,
+    WallTermination,
+)
+
+__all__ = ["SIMULATED_DRIVERS", "Bench", "Measurements"]
+
+logger = logging.getLogger(__name__)
+
+#: Device name -> latest sample (JointSample for actuators, WrenchSample for force sensors).
+Measurements = dict[str, JointSample | WrenchSample]
+
+#: Drivers for which the bench has a simulated counterpart.
+SIMULATED_DRIVERS = ("odrive_can", "cubemars_mit", "bota_serial", "robotiq_ft300", "dynamixel_x")
+
+_BENCH_IDS = itertools.count(1)
+_BENCH_IDS_LOCK = threading.Lock()
+
+
+def _seed_for(seed: int, *path: int) -> int:
+    """A 32-bit seed derived from the bench seed and a path of integers (stable across runs)."""
+    return int(np.random.SeedSequence([seed & 0xFFFFFFFF, *path]).generate_state(1)[0])
+
+
+class _Noise:
+    """Seeded additive Gaussian noise, drawn at most once per simulator tick (cached)."""
+
+    def __init__(self, std: float, seed: int) -> None:
+        self.std = float(std)
+        self.rng = np.random.default_rng(seed)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return x + self.std * self.rng.standard_normal(x.shape) if self.std > 0 else x
+
+
+class _BodyDrive:
+    """Assembles the efforts several devices apply to DOF subsets of one body into the body's
+    :class:`hil.mocks.simulator.Joints` handle (zero-order hold until changed)."""
+
+    def __init__(self, handle: Any) -> None:
+        self.handle = handle
+        self.effort = np.zeros(handle.dof)
+        self._lock = threading.Lock()
+
+    def set(self, sel: list[int], effort: np.ndarray) -> None:
+        with self._lock:
+            self.effort[sel] = np.asarray(effort, dtype=float).reshape(len(sel))
+            self.handle.apply_effort(self.effort)
+
+    def reset(self) -> None:
+        with self._lock:
+            self.effort[:] = 0.0
+            self.handle.apply_effort(self.effort)
+
+
+class SimPoint:
+    """The :class:`hil.mocks.interfaces.SimulatedJoints` a simulated device sees: DOFs ``sel`` of one
+    body, with seeded measurement noise drawn once per simulator tick (repeated reads within a tick
+    return the same values, as a sampled sensor would)."""
+
+    def __init__(self, sim: Any, drive: _BodyDrive, sel: list[int], force_fn: Callable[[], np.ndarray], *,
+                 position_std: float = 0.0, velocity_std: float = 0.0, force_std: float = 0.0,
+                 seed: int = 0) -> None:
+        self._sim = sim
+        self._drive = drive
+        self.sel = list(sel)
+        self.dof = len(self.sel)
+        self._force_fn = force_fn
+        self._noise = {
+            "position": _Noise(position_std, _seed_for(seed, 1)),
+            "velocity": _Noise(velocity_std, _seed_for(seed, 2)),
+            "force": _Noise(force_std, _seed_for(seed, 3)),
+        }
+        self._cache: dict[str, tuple[int, np.ndarray]] = {}
+        self._lock = threading.Lock()
+
+    @property
+    def sample_index(self) -> int:
+        return int(self._sim.step_count)
+
+    def _read(self, key: str, raw: Callable[[], np.ndarray]) -> np.ndarray:
+        with self._lock:
+            k = self._sim.step_count
+            hit = self._cache.get(key)
+            if hit is not None and hit[0] == k:
+                return hit[1].copy()
+            value = self._noise[key](np.asarray(raw(), dtype=float).reshape(self.dof))
+            self._cache[key] = (k, value.copy())
+            return value
+
+    def apply_effort(self, effort: np.ndarray) -> None:
+        """Effort (N or N.m) on the selected DOFs, held from the next tick on."""
+        self._drive.set(self.sel, effort)
+
+    def position(self) -> np.ndarray:
+        return self._read("position", lambda: self._drive.handle.position()[self.sel])
+
+    def velocity(self) -> np.ndarray:
+        return self._read("velocity", lambda: self._drive.handle.velocity()[self.sel])
+
+    def measured_force(self) -> np.ndarray:
+        return self._read("force", self._force_fn)
+
+
+@dataclasses.dataclass
+class _Dev:
+    """One opened device: scene config, adapter and (simulated bench) its counterpart."""
+
+    name: str
+    cfg: Any
+    adapter: Any = None
+    sim: Any = None  # simulated device object (node / SimBota / SimulatedFT300 / DynamixelChain)
+    point: SimPoint | None = None
+
+
+class Bench:
+    """All devices of a scene, opened; simulated behind real transports when the scene says so.
+
+    Parameters
+    ----------
+    scene: a validated :class:`hil.scene.Scene`.
+    seed: seed of every simulated noise/fault generator (default: ``scene.seed``).
+    variant: plant configuration of a simulated SDEA: ``"locked"`` (output fixed), ``"free"``
+        (output inertia ``m_out``) or ``None`` (as the scene says: free iff ``m_out`` is set).
+        Experiments with a different ``variant`` need their own bench.
+    timeout: per-call device timeout (s) for reads and commands.
+
+    Attributes: ``actuators`` / ``sensors`` (name -> adapter), ``simulated`` (bool), ``simulator``
+    (the :class:`hil.mocks.simulator.Simulator` or None), ``plant``, ``dt``, ``time``.
+    """
+
+    def __init__(self, scene: Scene, *, seed: int | None = None, variant: str | None = None,
+                 timeout: float = 0.1) -> None:
+        self.scene = scene
+        self.seed = int(scene.seed if seed is None else seed)
+        self.dt = scene.dt
+        self.timeout = float(timeout)
+        self.simulated = scene.simulation is not None
+        self.variant = variant
+        self.simulator: Any = None
+        self.plant: Any = None
+        self._devs: list[_Dev] = []
+        self._drives: dict[str, _BodyDrive] = {}
+        self._humans: dict[str, tuple[str, list[int], int]] = {}  # human name -> (body, sel, body dof)
+        self._closed = False
+        self._ticks = 0
+        self._cache: tuple[int, Measurements] | None = None
+        with _BENCH_IDS_LOCK:
+            self._bench_id = next(_BENCH_IDS)
+        if variant not in (None, "locked", "free"):
+            raise SceneError(f"{scene.name}: variant must be 'locked', 'free' or None, got {variant!r}")
+        try:
+            if self.simulated:
+                self._build_simulation()
+            self._open_devices()
+        except BaseException:
+            self.close()
+            raise
+        logger.info("bench for scene %r opened (%s, %d devices, seed %d)", scene.name,
+                    "simulated" if self.simulated else "hardware", len(self._devs), self.seed)
+
+    # -- public API -----------------------------------------------------------------------------
+
+    @property
+    def actuators(self) -> dict[str, Any]:
+        """Actuator adapters by device name."""
+        return {d.name: d.adapter for d in self._devs if d.cfg.role == "actuator" and d.adapter is not None}
+
+    @property
+    def sensors(self) -> dict[str, Any]:
+        """Force-sensor adapters by device name."""
+        return {d.name: d.adapter for d in self._devs if d.cfg.role == "force_sensor" and d.adapter is not None}
+
+    @property
+    def time(self) -> float:
+        """Simulated time ``k * dt`` (s) in a simulated bench; ticks advanced * dt otherwise."""
+        return self.simulator.time if self.simulator is not None else self._ticks * self.dt
+
+    @property
+    def ticks(self) -> int:
+        """Number of :meth:`advance` calls so far."""
+        return self._ticks
+
+    @property
+    def lockstep(self) -> bool:
+        """True when the plant is simulated (the runner must call :meth:`advance` once per tick)."""
+        return self.simulated
+
+    def read(self, timeout: float | None = None) -> Measurements:
+        """Latest sample of every device (raises the adapter's DeviceTimeout / DeviceFault / ...).
+
+        In a simulated bench a second call within the same tick returns the cached samples: the
+        devices publish one sample per control period.
+        """
+        self._check_open()
+        if self.simulated and self._cache is not None and self._cache[0] == self._ticks:
+            return dict(self._cache[1])
+        t = self.timeout if timeout is None else float(timeout)
+        out: Measurements = {}
+        for d in self._devs:
+            out[d.name] = d.adapter.read(timeout=t)
+        if self.simulated:
+            self._cache = (self._ticks, dict(out))
+        return out
+
+    def force(self, meas: Mapping[str, Any], sensor: str) -> np.ndarray:
+        """The components of ``sensor``'s wrench that measure its DOFs (``devices[].axes``), (dof,)."""
+        cfg = self.scene.device(sensor)
+        return np.asarray(meas[sensor].wrench, dtype=float)[cfg.wrench_axes]
+
+    def command(self, efforts: Mapping[str, Any], timeout: float | None = None) -> None:
+        """Command efforts (N or N.m; arrays of the actuator's ``dof``) on the named actuators.
+
+        Actuators not named keep their previous command. Unknown names or wrong sizes raise
+        ValueError before anything is sent.
+        """
+        self._check_open()
+        acts = self.actuators
+        t = self.timeout if timeout is None else float(timeout)
+        checked: list[tuple[Any, np.ndarray]] = []
+        for name, e in efforts.items():
+            if name not in acts:
+                raise ValueError(f"command: {name!r} is not an actuator of scene {self.scene.name!r}; "
+                                 f"actuators: {sorted(acts)}")
+            arr = np.asarray(e, dtype=float).reshape(-1)
+            dof = self.scene.device(name).dof
+            if arr.size != dof:
+                raise ValueError(f"command: {name!r} has {dof} DOF, got {arr.size} efforts")
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"command: non-finite effort for {name!r}: {arr}")
+            checked.append((acts[name], arr))
+        for adapter, arr in checked:
+            adapter.command_effort(arr, timeout=t)
+
+    def set_human_force(self, port_or_body: str | Mapping[str, Any], force: Any = None) -> None:
+        """Set the active force (N or N.m) of the simulated human at a port, held until changed.
+
+        ``port_or_body``: the human's name, the body it holds, or a network port whose actuator is
+        attached to that body. A mapping ``{port: force, ...}`` sets several at once (the
+        ``Excitation.human`` of an experiment). No-op on a real bench (logged once).
+        """
+        if isinstance(port_or_body, Mapping):
+            for k, v in port_or_body.items():
+                self.set_human_force(k, v)
+            return
+        self._check_open()
+        if not self.simulated:
+            if not getattr(self, "_warned_human", False):
+                logger.warning("set_human_force ignored: the bench is not simulated")
+                self._warned_human = True
+            return
+        name = self._human_name(port_or_body)
+        sl = self.plant.inputs[f"{name}.active"]
+        f = np.asarray(force, dtype=float).reshape(-1)
+        n = sl.stop - sl.start
+        if f.size == 1 and n > 1:
+            f = np.full(n, float(f[0]))
+        if f.size != n:
+            raise ValueError(f"human {name!r} has {n} DOF, got {f.size} force values")
+        self.simulator.set_input(f"{name}.active", f)
+
+    def advance(self) -> None:
+        """One lockstep period: devices process pending frames, the plant steps exactly ``dt``,
+        simulated devices publish the new state. No-op on a real bench (only counts ticks)."""
+        self._check_open()
+        self._ticks += 1
+        if not self.simulated:
+            return
+        self._flush_devices()
+        self.simulator.tick()
+        for d in self._devs:
+            kind = type(d.sim).__name__
+            if kind in ("SimODrive", "SimCubeMars"):
+                d.sim.tick()
+            elif kind == "SimBota":
+                d.sim.emit()
+            elif kind == "SimulatedFT300":
+                d.sim.update()
+
+    def safe_stop(self) -> None:
+        """Zero effort on every actuator (and disable where the adapter does so). Never raises."""
+        for d in self._devs:
+            if d.cfg.role == "actuator" and d.adapter is not None:
+                try:
+                    d.adapter.safe_stop()
+                except Exception:  # pragma: no cover - adapters already swallow
+                    logger.exception("safe_stop of %s failed", d.name)
+        with contextlib.suppress(Exception):
+            self._flush_devices()
+
+    def device_identities(self) -> dict[str, dict[str, Any]]:
+        """Per device: driver, transport, vendor, model, serial, firmware, extra, role, simulated."""
+        out: dict[str, dict[str, Any]] = {}
+        for d in self._devs:
+            info = getattr(d.adapter, "info", None)
+            rec = dataclasses.asdict(info) if dataclasses.is_dataclass(info) else {"driver": d.cfg.driver}
+            rec["role"] = d.cfg.role
+            rec["simulated"] = self.simulated
+            out[d.name] = _jsonable(rec)
+        return out
+
+    def close(self) -> None:
+        """Close the adapters, then the simulated devices. Idempotent, never raises."""
+        if self._closed:
+            return
+        self._closed = True
+        for d in self._devs:
+            if d.adapter is not None:
+                try:
+                    d.adapter.close()
+                except Exception:
+                    logger.warning("closing adapter %s failed", d.name, exc_info=True)
+        for d in self._devs:
+            if d.sim is not None:
+                try:
+                    d.sim.close()
+                except Exception:
+                    logger.warning("closing simulated device %s failed", d.name, exc_info=True)
+        logger.debug("bench for scene %r closed after %d ticks", self.scene.name, self._ticks)
+
+    def __enter__(self) -> Bench:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:  # pragma: no cover - best effort
+        with contextlib.suppress(Exception):
+            if not self._closed:
+                self.close()
+
+    # -- internals: physics ---------------------------------------------------------------------
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise HilError(f"bench for scene {self.scene.name!r} is closed")
+
+    def _human_name(self, key: str) -> str:
+        if key in self._humans:
+            return key
+        for name, (body, _, _) in self._humans.items():
+            if body == key:
+                return name
+        with contextlib.suppress(KeyError):
+            port = self.scene.port(key)
+            body = self.scene.device(port.actuator).body
+            for name, (b, _, _) in self._humans.items():
+                if b == body:
+                    return name
+        raise ValueError(f"no simulated human at {key!r}; humans: "
+                         f"{ {n: b for n, (b, _, _) in self._humans.items()} }")
+
+    def _build_simulation(self) -> None:
+        from hil.mocks import physics, terminations
+        from hil.mocks.lti import tf_matrix
+        from hil.mocks.simulator import Simulator
+
+        sc = self.scene
+        sim = sc.simulation
+        assert sim is not None
+        label = sc.path or sc.name
+        ps = physics.Scene(sc.units)
+        try:
+            for b in sim.bodies:
+                ps.add_body(b.name, _arr(b.M), _arr(b.B), _arr(b.K))
+            if sim.sdea is not None:
+                s = sim.sdea
+                m_out = None if self.variant == "locked" else s.m_out
+                if self.variant == "free" and m_out is None:
+                    raise SceneError(f"{label}: simulation.sdea.m_out: variant 'free' needs the output inertia")
+                ps.add_sdea(s.name, s.M, s.B, s.K_f, s.B_f, m_out, s.b_out)
+            bodies = set(ps.bodies)
+
+            def port(body: str, dofs: list[int] | None, where: str) -> Any:
+                if body not in bodies:
+                    raise SceneError(f"{label}: {where}: body {body!r} does not exist in this configuration"
+                                     f" (variant {self.variant!r})")
+                return body if dofs is None else (body, list(dofs))
+
+            for i, sp in enumerate(sim.springs):
+                a = port(sp.a, sp.a_dofs, f"simulation.springs[{i}].a")
+                b = None if sp.b is None else port(sp.b, sp.b_dofs, f"simulation.springs[{i}].b")
+                ps.add_spring(a, b, _arr(sp.stiffness), _arr(sp.damping), name=sp.name or f"spring{i}")
+            for i, t in enumerate(sim.terminations):
+                p = port(t.port, t.dofs, f"simulation.terminations[{i}].port")
+                tname = t.name if not isinstance(t, NamedTermination) else f"{t.name}_{t.port}"
+                tname = tname or f"{t.type}_{t.port}_{i}"
+                if isinstance(t, ImpedanceTermination):
+                    entries = [[(e.num, e.den) for e in row] for row in t.tf]
+                    ps.add_termination(p, terminations.Impedance(tf_matrix(entries), tname), tname)
+                elif isinstance(t, WallTermination):
+                    ps.add_termination(p, terminations.WallSpring(_arr(t.stiffness), _arr(t.damping), name=tname),
+                                       tname)
+                else:
+                    term = terminations.t2_termination() if t.name == "T2" else _t1_termination()
+                    ps.add_termination(p, term, tname)
+            humans = sim.humans
+            for i, h in enumerate(humans):
+                hname = h.name or ("human" if len(humans) == 1 else f"human_{h.port}")
+                where = "simulation.human" if isinstance(sim.human, HumanCfg) else f"simulation.human[{i}]"
+                p = port(h.port, h.dofs, f"{where}.port")
+                ps.add_human(p, terminations.Human(_arr(h.mass), _arr(h.damping), _arr(h.stiffness), None, hname),
+                             hname)
+                body_dof = ps.bodies[h.port].dof
+                self._humans[hname] = (h.port, list(h.dofs) if h.dofs is not None else list(range(body_dof)),
+                                       body_dof)
+            self.plant = ps.build()
+            self.simulator = Simulator(self.plant, self.dt)
+        except ModelError as exc:
+            raise SceneError(f"{label}: simulation: {exc}") from None
+        self._drives = {name: _BodyDrive(h) for name, h in self.simulator.handles.items()}
+        logger.debug("simulation built: %d bodies, %d states, dt = %g s", len(ps.bodies), self.plant.system.n,
+                     self.dt)
+
+    def _point(self, index: int, cfg: Any) -> SimPoint:
+        sc = self.scene
+        sim = sc.simulation
+        label = sc.path or sc.name
+        if cfg.body not in self._drives:
+            raise SceneError(f"{label}: devices[{index}].body: body {cfg.body!r} does not exist in this "
+                             f"configuration (variant {self.variant!r})")
+        drive = self._drives[cfg.body]
+        sel = list(cfg.dofs) if cfg.dofs is not None else list(range(drive.handle.dof))
+        noise = sim.sensor_noise
+        dev_seed = cfg.sim.seed if cfg.sim.seed is not None else _seed_for(self.seed, 100 + index)
+        if cfg.role == "force_sensor":
+            measure = cfg.sim.measure
+            human = next((n for n, (b, _, _) in self._humans.items() if b == cfg.body), None)
+            if measure == "auto":
+                measure = "human" if human is not None else "body"
+            if measure == "human":
+                if human is None:
+                    raise SceneError(f"{label}: devices[{index}].sim.measure: no human holds body {cfg.body!r}")
+                force_fn = self._human_force_fn(human, sel)
+            else:
+                handle = drive.handle
+                force_fn = lambda: handle.measured_force()[sel]  # noqa: E731
+            f_std = float(np.hypot(noise.force_std, cfg.sim.noise_std))
+            return SimPoint(self.simulator, drive, sel, force_fn, force_std=f_std, seed=dev_seed)
+        p_std = float(np.hypot(noise.position_std, cfg.sim.noise_std))
+        return SimPoint(self.simulator, drive, sel, lambda: np.zeros(len(sel)), position_std=p_std,
+                        velocity_std=noise.velocity_std, seed=dev_seed)
+
+    def _human_force_fn(self, human: str, sel: list[int]) -> Callable[[], np.ndarray]:
+        _, hsel, body_dof = self._humans[human]
+        simulator = self.simulator
+
+        def f() -> np.ndarray:
+            full = np.zeros(body_dof)
+            # the element force is what the device exerts on the hand; the hand exerts its negative
+            full[hsel] = -simulator.output(f"{human}.force")
+            return full[sel]
+
+        return f
+
+    # -- internals: devices ---------------------------------------------------------------------
+
+    def _open_devices(self) -> None:
+        from hil.protocols.registry import open_device
+
+        sc = self.scene
+        channels: dict[tuple[str, str], str] = {}
+        for i, cfg in enumerate(sc.devices):
+            d = _Dev(cfg.name, cfg)
+            self._devs.append(d)
+            params = dict(cfg.params)
+            if self.simulated:
+                d.point = self._point(i, cfg)
+                params = self._start_sim(i, d, params, channels)
+            try:
+                d.adapter = open_device(cfg.driver, **params)
+            except HilError:
+                raise
+            except (TypeError, ValueError) as exc:
+                raise SceneError(f"{sc.path or sc.name}: devices[{i}].params: {exc}") from None
+            if self.simulated:
+                self._flush_devices()
+        if self.simulated:
+            # first samples: publish the state at t = 0
+            for d in self._devs:
+                kind = type(d.sim).__name__
+                if kind == "SimBota":
+                    d.sim.emit()
+                elif kind == "SimulatedFT300":
+                    d.sim.update()
+
+    def _start_sim(self, index: int, d: _Dev, params: dict[str, Any],
+                   channels: dict[tuple[str, str], str]) -> dict[str, Any]:
+        """Start the simulated counterpart of device ``d``; return the adapter params."""
+        from hil.mocks.faults import FaultPlan
+
+        cfg = d.cfg
+        label = self.scene.path or self.scene.name
+        seed = cfg.sim.seed if cfg.sim.seed is not None else _seed_for(self.seed, 200 + index)
+        faults = FaultPlan.from_dict(cfg.sim.faults)
+        point = d.point
+        assert point is not None
+        clock = self._clock
+        drv = cfg.driver
+        if drv in ("odrive_can", "cubemars_mit"):
+            from hil.mocks.can_devices import SimCubeMars, SimODrive
+
+            scene_ch = str(params.get("channel", "hil0"))
+            iface = str(params.get("interface", "virtual"))
+            ch = channels.setdefault((iface, scene_ch), f"{scene_ch}.bench{self._bench_id}")
+            params.update(interface="virtual", channel=ch, clock=clock, timeout=self.timeout)
+            params.pop("bus", None)
+            if drv == "odrive_can":
+                d.sim = SimODrive(point, ch, int(params.get("node_id", 0)), "virtual",
+                                  gear_ratio=float(params.get("gear_ratio", 1.0)),
+                                  linear_scale=params.get("linear_scale"), faults=faults, seed=seed, sync=True)
+                if params.get("feedback") == "cyclic":
+                    d.sim.encoder_every = 1
+            else:
+                d.sim = SimCubeMars(point, ch, int(params.get("motor_id", 1)), "virtual",
+                                    model=params.get("model", "AK80-9"), faults=faults, seed=seed, sync=True)
+        elif drv == "bota_serial":
+            from hil.mocks.serial_devices import SimBota
+
+            d.sim = SimBota(point, period_s=self.dt, faults=faults, seed=seed, axes=tuple(cfg.wrench_axes))
+            params.update(url=d.sim.path, period_s=self.dt, clock=clock, timeout=self.timeout)
+        elif drv == "robotiq_ft300":
+            from hil.mocks.modbus_devices import SimulatedFT300
+
+            axes = cfg.wrench_axes
+
+            def wrench() -> np.ndarray:
+                w = np.zeros(6)
+                w[axes] = point.measured_force()
+                return w
+
+            d.sim = SimulatedFT300(wrench, framing=cfg.sim.framing, port=0, faults=faults, seed=seed,
+                                   auto_update=False, slave=int(params.get("slave", 9)))
+            params.update(url=d.sim.url, clock=clock, timeout=self.timeout)
+        elif drv == "dynamixel_x":
+            from hil.mocks.dynamixel_devices import DynamixelChain
+
+            ids = list(params.get("ids", [1]))
+            if len(ids) != cfg.dof:
+                raise SceneError(f"{label}: devices[{index}].params.ids: {len(ids)} servo ids for dof {cfg.dof}")
+            d.sim = DynamixelChain(point, ids, faults=faults, seed=seed)
+            params.update(port=d.sim.port, ids=ids, clock=clock, timeout=self.timeout)
+        else:
+            raise SceneError(f"{label}: devices[{index}].driver: no simulated counterpart for driver {drv!r} "
+                             f"(simulated: {', '.join(SIMULATED_DRIVERS)})")
+        logger.debug("simulated %s for device %s (seed %d)", type(d.sim).__name__, cfg.name, seed)
+        return params
+
+    def _clock(self) -> float:
+        return self.simulator.time if self.simulator is not None else 0.0
+
+    def _flush_devices(self) -> None:
+        """Let simulated devices process what the host has sent (DYNAMIXEL sync writes get no
+        reply: wait until the chain has consumed every byte the adapter wrote)."""
+        for d in self._devs:
+            if d.sim is None or d.adapter is None:
+                continue
+            kind = type(d.sim).__name__
+            if kind == "DynamixelChain":
+                d.sim.sync(d.adapter.tx_bytes, timeout=max(1.0, 10 * self.timeout))
+            elif kind in ("SimODrive", "SimCubeMars"):
+                d.sim.process_pending()
+
+
+def _arr(value: Any) -> Any:
+    """A scene matrix/number as something :mod:`hil.mocks.physics` accepts."""
+    return value if isinstance(value, int | float) else np.asarray(value, dtype=float)
+
+
+def _t1_termination() -> Any:
+    """Paper 000 eq. (1): the 2x2 termination T1 (not passive), velocity -> force."""
+    from hil.mocks.terminations import Impedance
+
+    entries = [[([8.0], [1.0, 3.0]), ([-5.0], [1.0, 1.0])], [([-5.0], [1.0, 1.0]), ([1.0], [1.0, 3.0])]]
+    return Impedance.from_tf(entries, name="T1")
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    return obj
+
