@@ -44,6 +44,7 @@ All channel values are stored as float64 (booleans and counters too), so a chann
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime as _dt
 import hashlib
 import json
@@ -165,6 +166,10 @@ def _jsonable(obj: Any) -> Any:
 
 def _split_arrays(obj: Any, path: tuple[str, ...], arrays: dict[str, np.ndarray]) -> Any:
     """JSON-able copy of ``obj``; numeric numpy arrays (and complex numbers) go to ``arrays`` by path."""
+    if not isinstance(obj, Mapping | np.ndarray) and callable(getattr(obj, "to_dict", None)):
+        obj = obj.to_dict()  # result objects that know their dict form
+    elif dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        obj = {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
     if isinstance(obj, Mapping):
         return {str(k): _split_arrays(v, (*path, str(k)), arrays) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
@@ -187,7 +192,7 @@ def _split_arrays(obj: Any, path: tuple[str, ...], arrays: dict[str, np.ndarray]
         return obj
     if isinstance(obj, Path):
         return str(obj)
-    raise RecordError(f"result {'/'.join(path) or '<root>'}: {type(obj).__name__} cannot be stored")
+    raise RecordError(f"result {'/'.join(path) or '<root>'}: {type(obj).__name__} is not JSON-serializable")
 
 
 def _join_arrays(obj: Any, group: h5py.Group) -> Any:
@@ -597,7 +602,9 @@ class RunRecord:
     def summary(self) -> dict[str, Any]:
         """Duration [s], samples, measured rate [Hz], per-channel unit/shape/min/max/mean (NaN-aware;
         per column for vector channels), stop reason/status, events, experiments and, when the
-        ``loop.overrun`` / ``loop.latency`` channels exist, loop timing statistics."""
+        ``loop.overrun`` / ``loop.latency`` / ``loop.late`` channels exist, loop timing statistics
+        (``loop.late``: tick start after its deadline [s]; ``late_over_period`` counts ticks later than
+        one period)."""
         n = self.t.size
         duration = float(self.t[-1] - self.t[0]) if n > 1 else 0.0
         chans: dict[str, Any] = {}
@@ -651,6 +658,15 @@ class RunRecord:
                 loop["latency_p50"] = float(np.percentile(lat, 50))
                 loop["latency_p99"] = float(np.percentile(lat, 99))
                 loop["latency_max"] = float(np.max(lat))
+        if "loop.late" in self.channels and n:  # the runner's tick lateness [s] (realtime mode)
+            late = self.channels["loop.late"].reshape(n, -1)[:, 0]
+            late = late[np.isfinite(late)]
+            if late.size:
+                dt = 1.0 / self.rate_hz if self.rate_hz > 0 else math.inf
+                loop["late_mean_s"] = float(np.mean(late))
+                loop["late_p99_s"] = float(np.percentile(late, 99))
+                loop["late_max_s"] = float(np.max(late))
+                loop["late_over_period"] = int(np.count_nonzero(late > dt))
         if loop:
             out["loop"] = loop
         return out
@@ -673,7 +689,7 @@ class RunRecord:
                 signals[f"{name}[{','.join(map(str, idx))}]"] = np.ascontiguousarray(a[(slice(None), *idx)])
         m = dict(self.meta)
         m.setdefault("rate_hz", self.rate_hz)
-        m["units"] = dict(self.units)
+        m["channel_units"] = dict(self.units)
         if meta:
             m.update(meta)
         return {"t": self.t[keep], "signals": signals, "meta": m}
