@@ -156,6 +156,29 @@ class SimPoint:
         return self._read("force", self._force_fn)
 
 
+class _Concat:
+    """Several :class:`SimPoint` s seen as one SimulatedJoints (a bus serving several devices)."""
+
+    def __init__(self, points: list[SimPoint]) -> None:
+        self.points = points
+        self.dof = sum(p.dof for p in points)
+        self._split = np.cumsum([p.dof for p in points])[:-1]
+
+    def apply_effort(self, effort: np.ndarray) -> None:
+        for p, e in zip(self.points, np.split(np.asarray(effort, dtype=float).reshape(self.dof), self._split),
+                        strict=True):
+            p.apply_effort(e)
+
+    def position(self) -> np.ndarray:
+        return np.concatenate([p.position() for p in self.points])
+
+    def velocity(self) -> np.ndarray:
+        return np.concatenate([p.velocity() for p in self.points])
+
+    def measured_force(self) -> np.ndarray:
+        return np.concatenate([p.measured_force() for p in self.points])
+
+
 @dataclasses.dataclass
 class _Dev:
     """One opened device: scene config, adapter and (simulated bench) its counterpart."""
@@ -165,6 +188,7 @@ class _Dev:
     adapter: Any = None
     sim: Any = None  # simulated device object (node / SimBota / SimulatedFT300 / DynamixelChain)
     point: SimPoint | None = None
+    chain: Any = None  # DYNAMIXEL chain serving this device (possibly shared with others)
 
 
 class Bench:
@@ -514,12 +538,14 @@ class Bench:
 
         sc = self.scene
         channels: dict[tuple[str, str], str] = {}
-        for i, cfg in enumerate(sc.devices):
-            d = _Dev(cfg.name, cfg)
-            self._devs.append(d)
+        self._devs = [_Dev(cfg.name, cfg) for cfg in sc.devices]
+        if self.simulated:
+            for i, d in enumerate(self._devs):
+                d.point = self._point(i, d.cfg)
+        for i, d in enumerate(self._devs):
+            cfg = d.cfg
             params = dict(cfg.params)
             if self.simulated:
-                d.point = self._point(i, cfg)
                 params = self._start_sim(i, d, params, channels)
             try:
                 d.adapter = open_device(cfg.driver, **params)
@@ -587,33 +613,57 @@ class Bench:
                                    auto_update=False, slave=int(params.get("slave", 9)))
             params.update(url=d.sim.url, clock=clock, timeout=self.timeout)
         elif drv == "dynamixel_x":
-            from hil.mocks.dynamixel_devices import DynamixelChain
-
-            ids = list(params.get("ids", [1]))
-            if len(ids) != cfg.dof:
-                raise SceneError(f"{label}: devices[{index}].params.ids: {len(ids)} servo ids for dof {cfg.dof}")
-            d.sim = DynamixelChain(point, ids, faults=faults, seed=seed)
-            params.update(port=d.sim.port, ids=ids, clock=clock, timeout=self.timeout)
+            d.chain = self._dynamixel_chain(index, d, faults, seed)
+            params.update(port=d.chain.port, clock=clock, timeout=self.timeout)
         else:
             raise SceneError(f"{label}: devices[{index}].driver: no simulated counterpart for driver {drv!r} "
                              f"(simulated: {', '.join(SIMULATED_DRIVERS)})")
         logger.debug("simulated %s for device %s (seed %d)", type(d.sim).__name__, cfg.name, seed)
         return params
 
+    def _dynamixel_chain(self, index: int, d: _Dev, faults: Any, seed: int) -> Any:
+        """The simulated chain serving device ``d``: devices whose scene ``params.port`` is the same
+        share one chain (one bus), each servo id driving its device's DOFs."""
+        from hil.mocks.dynamixel_devices import DynamixelChain
+
+        label = self.scene.path or self.scene.name
+        key = str(d.cfg.params.get("port", f"#{index}"))
+        group = [x for x in self._devs if x.cfg.driver == "dynamixel_x" and
+                 str(x.cfg.params.get("port", "")) == key] or [d]
+        for x in group:
+            if x.chain is not None:
+                return x.chain
+        ids: list[int] = []
+        for x in group:
+            xi = [int(v) for v in x.cfg.params.get("ids", [1])]
+            if len(xi) != x.cfg.dof:
+                j = self._devs.index(x)
+                raise SceneError(f"{label}: devices[{j}].params.ids: {len(xi)} servo ids for dof {x.cfg.dof}")
+            ids += xi
+        if len(set(ids)) != len(ids):
+            raise SceneError(f"{label}: devices[{index}].params.ids: servo ids on port {key!r} must be unique, "
+                             f"got {ids}")
+        points = [x.point for x in group]
+        joints = points[0] if len(points) == 1 else _Concat(points)
+        chain = DynamixelChain(joints, ids, faults=faults, seed=seed)
+        d.sim = chain  # owned (closed) by the first device of the group
+        return chain
+
     def _clock(self) -> float:
         return self.simulator.time if self.simulator is not None else 0.0
 
     def _flush_devices(self) -> None:
         """Let simulated devices process what the host has sent (DYNAMIXEL sync writes get no
-        reply: wait until the chain has consumed every byte the adapter wrote)."""
+        reply: wait until the chain has consumed every byte the adapters on it wrote)."""
+        chains: dict[int, tuple[Any, int]] = {}
         for d in self._devs:
-            if d.sim is None or d.adapter is None:
-                continue
-            kind = type(d.sim).__name__
-            if kind == "DynamixelChain":
-                d.sim.sync(d.adapter.tx_bytes, timeout=max(1.0, 10 * self.timeout))
-            elif kind in ("SimODrive", "SimCubeMars"):
+            if d.chain is not None and d.adapter is not None:
+                c, n = chains.get(id(d.chain), (d.chain, 0))
+                chains[id(d.chain)] = (c, n + d.adapter.tx_bytes)
+            elif d.sim is not None and type(d.sim).__name__ in ("SimODrive", "SimCubeMars"):
                 d.sim.process_pending()
+        for chain, n in chains.values():
+            chain.sync(n, timeout=max(1.0, 10 * self.timeout))
 
 
 def _arr(value: Any) -> Any:
