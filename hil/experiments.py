@@ -1,0 +1,900 @@
+"""Experiments the runner plays on the bench (``docs/RUNNER_SPEC.md``): chirp, multisine, energy
+injection, static hold.
+
+Each experiment is built from one scene entry by :func:`make_experiment` and then
+
+* ``check(scene)`` -- before anything moves: band below Nyquist/5 (``f1 <= rate_hz / 10``; the
+  zero-order hold costs ``ω T/2`` of phase, 18° at that limit), amplitude within
+  ``safety.max_effort``, ``duration > 0``, target device and DOFs exist. Raises
+  :class:`hil.errors.SceneError` naming the field (``experiments[<name>].<field>: ...``). It also
+  resolves scene-dependent details (port devices, force-sensor axes and sign, noise levels);
+* ``excitation(k, t, meas) -> Excitation`` -- once per tick ``k`` (``t = k / rate_hz``): efforts
+  added to the controller output (held over the tick) and active forces of simulated humans;
+* ``finish(data, meta) -> dict`` -- analysis of the recorded channels (``"t"``,
+  ``"<device>.position"``, ``"<device>.velocity"``, ``"<sensor>.wrench"``, ...; arrays with time on
+  axis 0), stored in the run record.
+
+Signals are computed from the tick index ``k`` (not from accumulated time), so periodic
+excitations are *exactly* periodic in samples: ``u[k + N_p] == u[k]`` bit for bit.
+
+Units SI: efforts N or N.m, positions m or rad, frequencies Hz, times s, energies J.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+from scipy import signal as sps
+
+from hil.errors import SceneError
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "Chirp",
+    "EnergyInjection",
+    "EnergyResult",
+    "Excitation",
+    "Experiment",
+    "Multisine",
+    "StaticHold",
+    "chirp_signal",
+    "force_profile",
+    "make_experiment",
+    "multisine_lines",
+    "port_energy",
+    "raised_cosine_fade",
+    "schroeder_phases",
+]
+
+#: Highest excitation frequency as a fraction of the sampling rate (Nyquist/5).
+BAND_LIMIT_FRACTION = 0.1
+
+
+@dataclass
+class Excitation:
+    """One tick of excitation: ``effort`` per actuator (added to the controller output, N or
+    N.m, shape (dof,)) and ``human`` active force per network port (simulated operator)."""
+
+    effort: dict[str, np.ndarray] = field(default_factory=dict)
+    human: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+class Experiment(Protocol):
+    name: str
+    duration: float
+
+    def check(self, scene: Any) -> None: ...
+    def excitation(self, k: int, t: float, meas: Mapping[str, Any]) -> Excitation: ...
+    def finish(self, data: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> dict: ...
+
+
+# ---------------------------------------------------------------------------------------------
+# scene access (works on the pydantic Scene of hil.scene and on plain mappings)
+
+
+def _get(obj: Any, key: str, default: Any = None) -> Any:
+    if obj is None:
+        return default
+    if isinstance(obj, Mapping):
+        return obj.get(key, default)
+    return getattr(obj, key, default)
+
+
+def _devices(scene: Any) -> dict[str, Any]:
+    return {str(_get(d, "name")): d for d in (_get(scene, "devices") or [])}
+
+
+def _wrench_axes(dev: Any) -> list[int]:
+    axes = _get(dev, "axes")
+    return [int(a) for a in axes] if axes is not None else list(range(int(_get(dev, "dof", 1))))
+
+
+# ---------------------------------------------------------------------------------------------
+# signal building blocks
+
+
+def raised_cosine_fade(n: int, n_fade: int) -> np.ndarray:
+    """Window of ``n`` samples rising as ``(1 - cos(π i / n_fade))/2`` over the first ``n_fade``
+    samples, 1 in the middle, mirrored at the end. ``n_fade = 0`` gives ones."""
+    w = np.ones(n)
+    if n_fade <= 0:
+        return w
+    n_fade = min(n_fade, n // 2)
+    ramp = 0.5 * (1.0 - np.cos(np.pi * np.arange(n_fade) / n_fade))
+    w[:n_fade] = ramp
+    w[n - n_fade:] = ramp[::-1]
+    return w
+
+
+def chirp_signal(n: int, fs: float, f0: float, f1: float, sweep: str = "log") -> tuple[np.ndarray, np.ndarray]:
+    """One sweep of ``n`` samples at ``fs`` Hz from ``f0`` to ``f1`` Hz, unit amplitude.
+
+    Phase ``φ(τ)`` (``τ = i/fs``, sweep length ``P = n/fs``): linear
+    ``2π (f0 τ + (f1 - f0) τ²/(2P))``, instantaneous frequency ``f0 + (f1 - f0) τ/P``; log
+    ``2π f0 P (r^{τ/P} - 1)/ln r`` with ``r = f1/f0``, instantaneous frequency ``f0 r^{τ/P}``.
+    Returns ``(sin φ, f_inst)``.
+    """
+    tau = np.arange(n) / fs
+    P = n / fs
+    if sweep == "linear":
+        phase = 2 * np.pi * (f0 * tau + (f1 - f0) * tau**2 / (2 * P))
+        finst = f0 + (f1 - f0) * tau / P
+    elif sweep == "log":
+        r = f1 / f0
+        phase = 2 * np.pi * f0 * P * (np.power(r, tau / P) - 1.0) / math.log(r)
+        finst = f0 * np.power(r, tau / P)
+    else:
+        raise SceneError(f"sweep: 'log' or 'linear', got {sweep!r}")
+    return np.sin(phase), finst
+
+
+def schroeder_phases(n_lines: int) -> np.ndarray:
+    """Schroeder's low-crest-factor phases for ``n_lines`` equal-amplitude, equally spaced lines:
+    ``φ_l = -π l (l - 1)/L``, ``l = 1..L`` (Schroeder 1970)."""
+    ell = np.arange(1, n_lines + 1)
+    return -np.pi * ell * (ell - 1) / n_lines
+
+
+def multisine_lines(kmin: int, kmax: int, n_total: int, spacing: str = "linear") -> np.ndarray:
+    """``n_total`` distinct harmonic indices spread over ``[kmin, kmax]`` (linear or log).
+    Raises ValueError when they cannot be distinct."""
+    if kmax < kmin or kmax - kmin + 1 < n_total:
+        raise ValueError(f"only {max(kmax - kmin + 1, 0)} harmonics available, {n_total} needed")
+    if spacing == "linear":
+        idx = np.round(np.linspace(kmin, kmax, n_total)).astype(int)
+    elif spacing == "log":
+        idx = np.round(np.geomspace(max(kmin, 1), kmax, n_total)).astype(int)
+    else:
+        raise ValueError(f"spacing must be 'linear' or 'log', got {spacing!r}")
+    if np.unique(idx).size != n_total:
+        raise ValueError(f"{n_total} {spacing} lines collide on the harmonic grid [{kmin}, {kmax}]")
+    return idx
+
+
+def crest_factor(x: np.ndarray) -> float:
+    """Peak over RMS."""
+    x = np.asarray(x, dtype=float)
+    return float(np.max(np.abs(x)) / np.sqrt(np.mean(x**2)))
+
+
+# ---------------------------------------------------------------------------------------------
+# energy
+
+
+@dataclass(frozen=True)
+class EnergyResult:
+    """``E_s(t) = ∫_0^t F^T V dt`` (J) at the sample times, the noise ``bound(t)`` (J, >= 0), and
+    whether/when/how much ``E_s`` went below ``-bound``."""
+
+    t: np.ndarray
+    energy: np.ndarray
+    bound: np.ndarray
+    went_negative: bool
+    first_time: float | None
+    min_energy: float
+    min_margin: float  # min over t of E_s(t) + bound(t) (negative iff went_negative)
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-friendly scalars."""
+        i = int(np.argmin(self.energy)) if self.energy.size else 0
+        return {"went_negative": bool(self.went_negative), "first_time": self.first_time,
+                "min_energy": float(self.min_energy), "time_of_min": float(self.t[i]) if self.t.size else None,
+                "bound_at_min": float(self.bound[i]) if self.bound.size else 0.0,
+                "final_energy": float(self.energy[-1]) if self.energy.size else 0.0,
+                "final_bound": float(self.bound[-1]) if self.bound.size else 0.0,
+                "min_margin": float(self.min_margin)}
+
+
+def port_energy(t: Any, force: Any, velocity: Any, noise_force_std: float = 0.0, noise_velocity_std: float = 0.0,
+                *, k_sigma: float = 4.0, fixed_bound: float | None = None) -> EnergyResult:
+    """Energy flowing into a port, ``E_s(t) = ∫ F^T V dt`` (paper 000 eq. 6, 001 eq. 30), by the
+    trapezoidal rule on the samples (``force``, ``velocity``: (N,) or (N, d); F applied TO the
+    device, V into the port, so E_s > 0 is energy absorbed by the device).
+
+    Noise bound. With white, independent measurement noise ``n_F`` (std σ_F per DOF) and ``n_V``
+    (σ_V), the measured power is ``F^T V + n_F^T V + F^T n_V + n_F^T n_V``; its error has zero mean and
+    the accumulated error ``Σ w_j dt e_j`` (trapezoid weights ``w_j``) has variance
+    ``dt² Σ w_j² (σ_F² |V_j|² + σ_V² |F_j|² + d σ_F² σ_V²)`` (terms independent across samples).
+    ``bound(t) = k_sigma`` times its square root, evaluated with the measured ``|V_j|``, ``|F_j|``
+    (which include the noise: slightly conservative). ``k_sigma = 4`` keeps the false-alarm
+    probability of a passive system small even though the minimum over the whole record is
+    tested (by the reflection principle a random walk dips below ``-k σ(t_end)`` before ``t_end``
+    with probability ``2 Φ(-k)`` = 6e-5 for k = 4). ``fixed_bound`` (J) replaces it by a constant.
+    A round-off floor of ``1e-12 ∫|F^T V| dt`` is always added.
+    """
+    t = np.asarray(t, dtype=float).reshape(-1)
+    F = np.asarray(force, dtype=float)
+    V = np.asarray(velocity, dtype=float)
+    F = F.reshape(t.size, -1)
+    V = V.reshape(t.size, -1)
+    if F.shape != V.shape:
+        raise ValueError(f"force {F.shape} and velocity {V.shape} must have the same shape")
+    n, d = F.shape
+    if n == 0:
+        z = np.zeros(0)
+        return EnergyResult(t, z, z, False, None, 0.0, 0.0)
+    p = np.sum(F * V, axis=1)
+    dt = np.diff(t)
+    energy = np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * dt)])
+    absint = np.concatenate([[0.0], np.cumsum(0.5 * (np.abs(p[1:]) + np.abs(p[:-1])) * dt)])
+    if fixed_bound is not None:
+        bound = np.full(n, float(fixed_bound))
+    else:
+        var_p = (noise_force_std**2 * np.sum(V**2, axis=1) + noise_velocity_std**2 * np.sum(F**2, axis=1)
+                 + d * noise_force_std**2 * noise_velocity_std**2)
+        # sample j enters E(t_k) with weight dt_{j-1}/2 + dt_j/2 (interior) and dt/2 at both ends;
+        # use the interior weight ((dt_prev + dt_next)/2)² for every sample up to k: an upper
+        # bound on the variance (end weights are half as large)
+        dts = np.concatenate([[dt[0] if dt.size else 0.0], dt])
+        dts_next = np.concatenate([dt, [dt[-1] if dt.size else 0.0]])
+        w2 = (0.5 * (dts + dts_next)) ** 2
+        bound = k_sigma * np.sqrt(np.cumsum(w2 * var_p))
+    bound = bound + 1e-12 * absint
+    margin = energy + bound
+    neg = margin < 0
+    first = float(t[int(np.argmax(neg))]) if np.any(neg) else None
+    return EnergyResult(t, energy, bound, bool(np.any(neg)), first, float(np.min(energy)), float(np.min(margin)))
+
+
+def noise_std_from_differences(x: np.ndarray) -> float:
+    """White-noise std estimate from first differences: ``std(Δx)/√2`` (the smooth signal's own
+    increment over one sample is negligible at the control rate; conservative otherwise)."""
+    x = np.asarray(x, dtype=float)
+    if x.shape[0] < 3:
+        return 0.0
+    dx = np.diff(x, axis=0)
+    return float(np.sqrt(np.mean(dx**2) / 2.0))
+
+
+# ---------------------------------------------------------------------------------------------
+# base class
+
+
+_COMMON = {"type", "name", "controller"}
+
+
+class _Base:
+    """Common configuration handling (unknown keys and bad values raise SceneError)."""
+
+    kind = "experiment"
+    allowed: frozenset[str] = frozenset()
+
+    def __init__(self, cfg: Mapping[str, Any], rate_hz: float) -> None:
+        if not (isinstance(rate_hz, int | float) and rate_hz > 0 and math.isfinite(rate_hz)):
+            raise SceneError(f"rate_hz: must be positive, got {rate_hz!r}")
+        self.cfg = dict(cfg)
+        self.rate_hz = float(rate_hz)
+        self.dt = 1.0 / self.rate_hz
+        self.name = str(cfg.get("name") or self.kind)
+        self.where = f"experiments[{self.name}]"
+        unknown = sorted(set(cfg) - self.allowed - _COMMON)
+        if unknown:
+            raise SceneError(f"{self.where}: unknown field(s) {', '.join(unknown)}; allowed: "
+                             f"{', '.join(sorted(self.allowed))}")
+
+    def f(self, key: str) -> str:
+        """Field path for messages."""
+        return f"{self.where}.{key}"
+
+    def num(self, key: str, default: Any = None, *, positive: bool = False, nonneg: bool = False) -> float:
+        val = self.cfg.get(key, default)
+        if val is None:
+            raise SceneError(f"{self.f(key)}: required")
+        try:
+            x = float(val)
+        except (TypeError, ValueError) as exc:
+            raise SceneError(f"{self.f(key)}: not a number ({val!r})") from exc
+        if not math.isfinite(x):
+            raise SceneError(f"{self.f(key)}: must be finite")
+        if positive and x <= 0:
+            raise SceneError(f"{self.f(key)}: must be > 0, got {x}")
+        if nonneg and x < 0:
+            raise SceneError(f"{self.f(key)}: must be >= 0, got {x}")
+        return x
+
+    def _check_target(self, scene: Any, target: str, dofs: Sequence[int] | None) -> tuple[Any, list[int]]:
+        devs = _devices(scene)
+        if target not in devs:
+            raise SceneError(f"{self.f('target')}: no device {target!r} in the scene (have {sorted(devs)})")
+        dev = devs[target]
+        if _get(dev, "role", "actuator") != "actuator":
+            raise SceneError(f"{self.f('target')}: device {target!r} is not an actuator")
+        n = int(_get(dev, "dof", 1))
+        sel = list(range(n)) if dofs is None else [int(i) for i in dofs]
+        if not sel or any(i < 0 or i >= n for i in sel) or len(set(sel)) != len(sel):
+            raise SceneError(f"{self.f('dofs')}: {sel} not distinct DOF indices of {target!r} ({n} DOF)")
+        return dev, sel
+
+    def _check_band(self, f0: float, f1: float) -> None:
+        lim = BAND_LIMIT_FRACTION * self.rate_hz
+        if f1 > lim:
+            raise SceneError(f"{self.f('f1')}: {f1} Hz exceeds Nyquist/5 = {lim:g} Hz at rate_hz {self.rate_hz:g} "
+                             "(zero-order hold phase lag ωT/2 > 18°); lower f1 or raise rate_hz")
+
+    def _check_effort(self, scene: Any, peak: float, field_name: str) -> None:
+        max_effort = _get(_get(scene, "safety"), "max_effort")
+        if max_effort is not None and peak > float(max_effort):
+            raise SceneError(f"{self.f(field_name)}: peak effort {peak:g} exceeds safety.max_effort "
+                             f"{float(max_effort):g}")
+
+
+# ---------------------------------------------------------------------------------------------
+# periodic effort signals on one actuator (chirp, multisine)
+
+
+class _PeriodicEffort(_Base):
+    """Shared machinery: per-DOF periodic sample arrays played on ``target``, sequentially (one
+    DOF after the other, each for ``block`` samples) or simultaneously."""
+
+    def _setup_periods(self, duration: float, periodic: bool, periods: int) -> None:
+        if duration <= 0:
+            raise SceneError(f"{self.f('duration')}: must be > 0, got {duration}")
+        if periods < 1:
+            raise SceneError(f"{self.f('periods')}: must be >= 1, got {periods}")
+        self.periods = periods if periodic else 1
+        n_block = round(duration * self.rate_hz)
+        self.n_period = max(1, n_block // self.periods)
+        if self.n_period * self.periods != n_block:
+            logger.info("%s: duration %.6g s rounded to %d periods of %d samples", self.name, duration,
+                        self.periods, self.n_period)
+        self.n_block = self.n_period * self.periods
+        self.period = self.n_period / self.rate_hz
+
+    def _layout(self, n_dofs: int, simultaneous: bool) -> None:
+        self.simultaneous = simultaneous
+        self.n_blocks = 1 if simultaneous or n_dofs == 1 else n_dofs
+        self.duration = self.n_blocks * self.n_block / self.rate_hz
+
+    def _value(self, k: int) -> np.ndarray:
+        """Effort per selected DOF at tick k (zeros after the end)."""
+        out = np.zeros(len(self.sel))
+        block, i = divmod(k, self.n_block)
+        if k < 0 or block >= self.n_blocks:
+            return out
+        j = i % self.n_period
+        if self.n_blocks == 1:
+            out[:] = self.wave[:, j]
+        else:
+            out[block] = self.wave[block, j]
+        return out
+
+    def segments(self) -> list[dict[str, Any]]:
+        """Time windows of the blocks: which DOFs are excited when (s)."""
+        if self.n_blocks == 1:
+            return [{"dofs": list(self.sel), "t_start": 0.0, "t_end": self.duration}]
+        T = self.n_block / self.rate_hz
+        return [{"dofs": [d], "t_start": b * T, "t_end": (b + 1) * T} for b, d in enumerate(self.sel)]
+
+    def excitation(self, k: int, t: float, meas: Mapping[str, Any]) -> Excitation:
+        u = self._value(k)
+        if self.excite == "motion":
+            s = meas.get(self.target) if meas is not None else None
+            if s is None:
+                return Excitation()
+            pos = np.asarray(s.position, dtype=float).reshape(-1)[self.sel]
+            vel = np.asarray(s.velocity, dtype=float).reshape(-1)[self.sel]
+            if self._x_start is None or k == 0:
+                self._x_start = pos.copy()
+            rd = self._value_rate(k)
+            u = self.kp * (self._x_start + u - pos) + self.kv * (rd - vel)
+        eff = np.zeros(self.target_dof)
+        eff[self.sel] = u
+        return Excitation(effort={self.target: eff})
+
+    def _value_rate(self, k: int) -> np.ndarray:
+        out = np.zeros(len(self.sel))
+        block, i = divmod(k, self.n_block)
+        if k < 0 or block >= self.n_blocks:
+            return out
+        j = i % self.n_period
+        if self.n_blocks == 1:
+            out[:] = self.wave_rate[:, j]
+        else:
+            out[block] = self.wave_rate[block, j]
+        return out
+
+    def _init_motion(self) -> None:
+        self.excite = str(self.cfg.get("excite", "effort"))
+        if self.excite not in ("effort", "motion"):
+            raise SceneError(f"{self.f('excite')}: 'effort' or 'motion', got {self.excite!r}")
+        self.kp = self.kv = 0.0
+        self._x_start: np.ndarray | None = None
+        if self.excite == "motion":
+            servo = self.cfg.get("servo")
+            if not isinstance(servo, Mapping):
+                raise SceneError(f"{self.f('servo')}: required for excite: motion ({{kp: N/m, kv: N.s/m}})")
+            self.kp = float(servo.get("kp", 0.0))
+            self.kv = float(servo.get("kv", 0.0))
+            if self.kp <= 0 or self.kv < 0:
+                raise SceneError(f"{self.f('servo')}: kp > 0 and kv >= 0 required")
+
+    def _finish_rate(self) -> None:
+        """Derivative of the periodic waves (for motion references), central differences."""
+        w = self.wave
+        self.wave_rate = (np.roll(w, -1, axis=1) - np.roll(w, 1, axis=1)) * (0.5 * self.rate_hz)
+        if self.periods == 1:  # not periodic: one-sided at the ends
+            self.wave_rate[:, 0] = (w[:, 1] - w[:, 0]) * self.rate_hz if w.shape[1] > 1 else 0.0
+            self.wave_rate[:, -1] = (w[:, -1] - w[:, -2]) * self.rate_hz if w.shape[1] > 1 else 0.0
+
+    def _check_common(self, scene: Any) -> None:
+        self._check_band(self.f0, self.f1)
+        dev, sel = self._check_target(scene, self.target, self.dofs_cfg)
+        if sel != self.sel:
+            raise SceneError(f"{self.f('dofs')}: resolved {sel}, built for {self.sel}")
+        if int(_get(dev, "dof", 1)) != self.target_dof:
+            self.target_dof = int(_get(dev, "dof", 1))
+        peak = float(np.max(np.abs(self.wave))) if self.wave.size else 0.0
+        if self.excite == "motion":
+            stalled = self.kp * peak + self.kv * float(np.max(np.abs(self.wave_rate)))
+            self._check_effort(scene, stalled, "amplitude")
+            lims = _get(_get(scene, "safety"), "position_limits")
+            if lims is not None and peak > 0.5 * (float(lims[1]) - float(lims[0])):
+                raise SceneError(f"{self.f('amplitude')}: motion amplitude {peak:g} exceeds half the position range")
+        else:
+            self._check_effort(scene, peak, "amplitude")
+        self.checked = True
+
+    def _resolve_target(self, scene: Any | None = None) -> None:
+        self.target = str(self.cfg.get("target") or "")
+        if not self.target:
+            raise SceneError(f"{self.f('target')}: required")
+        self.dofs_cfg = self.cfg.get("dofs")
+        self.sel = list(range(1)) if self.dofs_cfg is None else [int(i) for i in self.dofs_cfg]
+        self.target_dof = (max(self.sel) + 1) if self.sel else 1
+
+    def check(self, scene: Any) -> None:
+        """Validate against the scene (module doc). When ``dofs`` is omitted, all of the
+        target's DOFs are excited: the signals are rebuilt for the scene's DOF count."""
+        devs = _devices(scene)
+        dev = devs.get(self.target)
+        if self.dofs_cfg is None and dev is not None and int(_get(dev, "dof", 1)) != len(self.sel):
+            self.sel = list(range(int(_get(dev, "dof", 1))))
+            self.target_dof = len(self.sel)
+            self._build()
+        self._check_common(scene)
+
+    def _build(self) -> None:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+
+class Chirp(_PeriodicEffort):
+    """Swept sine on ``target``'s ``dofs``.
+
+    Fields: ``f0``, ``f1`` (Hz), ``duration`` (s, per DOF block), ``amplitude`` (N or N.m; m or rad
+    with ``excite: motion``), ``sweep`` (log | linear), ``fade`` (s, raised cosine in and out),
+    ``periodic`` + ``periods`` (``periods`` identical sweeps of ``duration/periods`` s, rounded to
+    whole samples), ``simultaneous`` (all DOFs at once with the same sweep; default false: one DOF
+    after the other, each for ``duration``), ``excite`` (effort | motion: a position reference
+    ``x(0) + r(t)`` tracked by the experiment's own servo ``servo: {kp, kv}`` added to the
+    controller effort), ``variant`` (locked | free; recorded, the scene decides the physics).
+
+    Fade and periodicity: the fade is applied to *every period* (each period starts and ends at
+    zero), so all periods are identical sample for sample and a Welch segment of exactly one
+    period (rectangular window, no overlap) after the first (transient) period gives an unbiased
+    H1 estimate. Without fade a periodic sweep jumps back from its end phase to 0 at each period
+    boundary (broadband but periodic; harmless for H1).
+    """
+
+    kind = "chirp"
+    allowed = frozenset({"f0", "f1", "duration", "amplitude", "sweep", "fade", "target", "dofs", "excite",
+                         "periodic", "periods", "variant", "simultaneous", "servo"})
+
+    def __init__(self, cfg: Mapping[str, Any], rate_hz: float) -> None:
+        super().__init__(cfg, rate_hz)
+        self.f0 = self.num("f0", positive=True)
+        self.f1 = self.num("f1", positive=True)
+        if not self.f0 < self.f1:
+            raise SceneError(f"{self.f('f1')}: must exceed f0 ({self.f0} Hz), got {self.f1}")
+        self.amplitude = self.num("amplitude", nonneg=True)
+        self.fade = self.num("fade", 0.0, nonneg=True)
+        self.sweep = str(cfg.get("sweep", "log"))
+        if self.sweep not in ("log", "linear"):
+            raise SceneError(f"{self.f('sweep')}: 'log' or 'linear', got {self.sweep!r}")
+        self.variant = cfg.get("variant")
+        if self.variant not in (None, "locked", "free"):
+            raise SceneError(f"{self.f('variant')}: 'locked' or 'free', got {self.variant!r}")
+        duration = self.num("duration", positive=True)
+        self.periodic = bool(cfg.get("periodic", False))
+        self._setup_periods(duration, self.periodic, int(cfg.get("periods", 1) or 1))
+        if 2 * round(self.fade * self.rate_hz) > self.n_period:
+            raise SceneError(f"{self.f('fade')}: {self.fade} s in and out exceeds the period {self.period:g} s")
+        self._init_motion()
+        self._resolve_target()
+        self._build()
+        self.checked = False
+        if self.periodic and self.f0 < 1.0 / self.period:
+            logger.warning("%s: f0 = %g Hz is below the frequency resolution 1/period = %g Hz", self.name, self.f0,
+                           1.0 / self.period)
+
+    def _build(self) -> None:
+        x, self.f_inst = chirp_signal(self.n_period, self.rate_hz, self.f0, self.f1, self.sweep)
+        win = raised_cosine_fade(self.n_period, round(self.fade * self.rate_hz))
+        one = self.amplitude * win * x
+        self.wave = np.tile(one, (len(self.sel), 1))
+        self._layout(len(self.sel), bool(self.cfg.get("simultaneous", False)))
+        self._finish_rate()
+
+    def finish(self, data: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> dict:
+        """Identification hints: band, period (Welch segment), ``skip`` (one period of transient),
+        blocks per DOF, and the RMS of the recorded excitation per DOF."""
+        res: dict[str, Any] = {
+            "type": "chirp", "band": [self.f0, self.f1], "sweep": self.sweep, "fs": self.rate_hz,
+            "period": self.period, "periods": self.periods, "nperseg": self.n_period,
+            "skip": self.period if self.periods > 1 else 0.0, "fade": self.fade, "target": self.target,
+            "dofs": list(self.sel), "simultaneous": self.simultaneous, "excite": self.excite,
+            "variant": self.variant, "segments": self.segments(), "periodic": self.periodic,
+        }
+        exc = data.get(f"{self.target}.excitation")
+        if exc is not None and np.asarray(exc).size:
+            arr = np.asarray(exc, dtype=float).reshape(np.asarray(exc).shape[0], -1)
+            res["excitation_rms"] = [float(np.sqrt(np.mean(arr[:, i] ** 2))) for i in self.sel if i < arr.shape[1]]
+        return res
+
+
+class Multisine(_PeriodicEffort):
+    """Periodic multisine with Schroeder phases, for MIMO identification in one experiment.
+
+    Fields: ``f0``, ``f1`` (Hz), ``n_lines`` (lines per DOF), ``duration`` (s), ``periods``,
+    ``amplitude`` (peak per DOF, N or N.m), ``target``, ``dofs``, ``simultaneous`` (default true:
+    all DOFs at once on *zippered* lines -- DOF j gets every n-th line of one grid, so every line
+    carries exactly one input and the MIMO FRF separates line by line; false: one DOF after the
+    other on the same lines), ``spacing`` (linear | log), ``seed`` (recorded; phases are
+    deterministic), ``variant``, ``excite``/``servo`` as for :class:`Chirp`.
+
+    Lines are harmonics ``h / P`` of the period ``P = duration/periods`` in ``[f0, f1]``; each
+    DOF's lines get Schroeder phases (low crest factor for equally spaced lines) and the sum is
+    scaled so that its peak over a period equals ``amplitude``.
+    """
+
+    kind = "multisine"
+    allowed = frozenset({"f0", "f1", "n_lines", "duration", "amplitude", "target", "dofs", "simultaneous",
+                         "periods", "seed", "variant", "spacing", "excite", "servo", "periodic"})
+
+    def __init__(self, cfg: Mapping[str, Any], rate_hz: float) -> None:
+        super().__init__(cfg, rate_hz)
+        self.f0 = self.num("f0", positive=True)
+        self.f1 = self.num("f1", positive=True)
+        if not self.f0 < self.f1:
+            raise SceneError(f"{self.f('f1')}: must exceed f0 ({self.f0} Hz), got {self.f1}")
+        self.n_lines = int(cfg.get("n_lines", 64))
+        if self.n_lines < 1:
+            raise SceneError(f"{self.f('n_lines')}: must be >= 1")
+        self.amplitude = self.num("amplitude", nonneg=True)
+        self.spacing = str(cfg.get("spacing", "linear"))
+        self.variant = cfg.get("variant")
+        self.seed = cfg.get("seed")
+        duration = self.num("duration", positive=True)
+        self._setup_periods(duration, True, int(cfg.get("periods", 1) or 1))
+        self._init_motion()
+        self._resolve_target()
+        self._build()
+        self.checked = False
+
+    def _build(self) -> None:
+        simultaneous = bool(self.cfg.get("simultaneous", True))
+        n_in = len(self.sel) if simultaneous else 1
+        df = 1.0 / self.period
+        kmin, kmax = math.ceil(self.f0 / df - 1e-9), math.floor(self.f1 / df + 1e-9)
+        try:
+            grid = multisine_lines(kmin, kmax, self.n_lines * n_in, self.spacing)
+        except ValueError as exc:
+            raise SceneError(f"{self.f('n_lines')}: {self.n_lines} lines x {n_in} DOF on the {df:g} Hz grid of "
+                             f"[{self.f0}, {self.f1}] Hz: {exc}; lengthen the period or reduce n_lines") from exc
+        if kmax >= self.n_period / 2:
+            raise SceneError(f"{self.f('f1')}: above Nyquist")
+        self.lines = [grid[j::n_in] for j in range(n_in)]  # harmonic indices per input (zipper)
+        ph = schroeder_phases(self.n_lines)
+        i = np.arange(self.n_period)
+        waves = []
+        for h in self.lines:
+            x = np.sum(np.cos(2 * np.pi * np.outer(h, i) / self.n_period + ph[: h.size, None]), axis=0)
+            peak = float(np.max(np.abs(x)))
+            waves.append(self.amplitude * x / peak if peak > 0 else x)
+        self.wave = np.array(waves if simultaneous else waves * len(self.sel))
+        self._layout(len(self.sel), simultaneous)
+        self._finish_rate()
+
+    def line_frequencies(self) -> list[list[float]]:
+        """Excited frequencies (Hz) per input (per DOF when simultaneous)."""
+        return [list(np.asarray(h, dtype=float) / self.period) for h in self.lines]
+
+    def finish(self, data: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> dict:
+        return {"type": "multisine", "band": [self.f0, self.f1], "fs": self.rate_hz, "period": self.period,
+                "periods": self.periods, "nperseg": self.n_period, "skip": self.period if self.periods > 1 else 0.0,
+                "target": self.target, "dofs": list(self.sel), "simultaneous": self.simultaneous,
+                "lines_hz": self.line_frequencies(), "crest_factor": [crest_factor(w) for w in self.wave],
+                "segments": self.segments(), "variant": self.variant, "seed": self.seed, "excite": self.excite}
+
+
+# ---------------------------------------------------------------------------------------------
+# energy injection
+
+
+def force_profile(profile: Mapping[str, Any], n: int, fs: float, dim: int, where: str = "profile") -> np.ndarray:
+    """Active force samples ``(n, dim)`` (N or N.m) of a profile mapping:
+
+    * ``sine``: ``amplitude sin(2π freq t + phase)``;
+    * ``multisine``: sum over ``freqs`` (Hz, list) of ``amplitude/len(freqs) sin(2π f t + φ_i)``
+      with Schroeder phases;
+    * ``square``: ``amplitude sign(sin(2π freq t + phase))``;
+    * ``step``: ``amplitude`` from t = 0;
+    * ``noise``: smoothed random: seeded white Gaussian through a 2nd-order Butterworth low-pass at
+      ``freq`` Hz (forward-backward, zero phase), rescaled to std ``amplitude``.
+
+    ``direction`` (per port DOF weights, default ones) multiplies the scalar profile.
+    """
+    kind = str(profile.get("kind", "sine"))
+    amp = float(profile.get("amplitude", 0.0))
+    freq = float(profile.get("freq", 1.0))
+    phase = float(profile.get("phase", 0.0))
+    t = np.arange(n) / fs
+    if kind == "sine":
+        x = amp * np.sin(2 * np.pi * freq * t + phase)
+    elif kind == "multisine":
+        freqs = np.atleast_1d(np.asarray(profile.get("freqs", [freq]), dtype=float))
+        ph = schroeder_phases(freqs.size)
+        x = amp / freqs.size * np.sum(np.sin(2 * np.pi * np.outer(freqs, t) + ph[:, None] + phase), axis=0)
+    elif kind == "square":
+        x = amp * np.sign(np.sin(2 * np.pi * freq * t + phase))
+    elif kind == "step":
+        x = np.full(n, amp)
+    elif kind == "noise":
+        if not 0 < freq < fs / 2:
+            raise SceneError(f"{where}.freq: noise cutoff must lie in (0, {fs / 2:g}) Hz, got {freq}")
+        rng = np.random.default_rng(int(profile.get("seed") or 0))
+        w = rng.standard_normal(n + 2000)
+        b, a = sps.butter(2, freq / (fs / 2))
+        y = sps.filtfilt(b, a, w)[1000:1000 + n]
+        x = amp * y / (np.std(y) or 1.0)
+    else:
+        raise SceneError(f"{where}.kind: one of sine, multisine, square, step, noise; got {kind!r}")
+    direction = profile.get("direction")
+    dvec = np.ones(dim) if direction is None else np.asarray(direction, dtype=float).reshape(-1)
+    if dvec.size != dim:
+        raise SceneError(f"{where}.direction: {dvec.size} weights for a {dim}-DOF port")
+    return x[:, None] * dvec[None, :]
+
+
+class EnergyInjection(_Base):
+    """Drive a network ``port`` with an active force profile and track ``E_s(t) = ∫ F_h^T V_h dt``
+    at the port (paper 000 eq. 6, 001 eq. 30).
+
+    Fields: ``port``, ``duration`` (s), ``profile`` (see :func:`force_profile`), ``noise_bound``
+    (``auto``: from the scene's sensor noise, or estimated from the data by first differences on a
+    real bench; or a number in J), ``via`` (``human``: the simulated operator's active force,
+    ``Excitation.human[port]``; ``actuator``: effort on the port's actuator. Default: human when
+    the scene is simulated and has a human, else actuator), ``force_sign`` (F_h = sign x sensor
+    reading; default from the scene: +1 when the simulated sensor reports the hand's force
+    (``sim.measure: human``, the bench's ``auto`` with a human), else -1: the sensor reads the
+    force the device exerts on what it touches), ``k_sigma`` (default 4).
+
+    ``finish`` reports whether ``E_s`` went below ``-bound`` (the port generated energy beyond
+    what noise explains: an active, potentially unstable teleoperator), when first, and by how much.
+    """
+
+    kind = "energy_injection"
+    allowed = frozenset({"port", "duration", "profile", "noise_bound", "via", "force_sign", "k_sigma"})
+
+    def __init__(self, cfg: Mapping[str, Any], rate_hz: float) -> None:
+        super().__init__(cfg, rate_hz)
+        self.port = str(cfg.get("port") or "")
+        if not self.port:
+            raise SceneError(f"{self.f('port')}: required")
+        self.duration = self.num("duration", positive=True)
+        prof = cfg.get("profile")
+        if not isinstance(prof, Mapping):
+            raise SceneError(f"{self.f('profile')}: required mapping {{kind, amplitude, freq, ...}}")
+        self.profile = dict(prof)
+        self.via = cfg.get("via")
+        if self.via not in (None, "human", "actuator"):
+            raise SceneError(f"{self.f('via')}: 'human' or 'actuator', got {self.via!r}")
+        nb = cfg.get("noise_bound", "auto")
+        if nb != "auto":
+            try:
+                nb = float(nb)
+            except (TypeError, ValueError) as exc:
+                raise SceneError(f"{self.f('noise_bound')}: 'auto' or a number of J") from exc
+            if nb < 0:
+                raise SceneError(f"{self.f('noise_bound')}: must be >= 0")
+        self.noise_bound = nb
+        self.k_sigma = self.num("k_sigma", 4.0, positive=True)
+        self.force_sign: float | None = None if cfg.get("force_sign") is None else float(cfg["force_sign"])
+        self.n = round(self.duration * self.rate_hz)
+        # defaults until check() resolves the port against the scene
+        self.actuator = self.port
+        self.sensor: str | None = None
+        direction = self.profile.get("direction")
+        self.dofs = 1 if direction is None else int(np.asarray(direction).size)
+        self.axes: list[int] | None = None
+        self.noise = (0.0, 0.0)
+        self.simulated = False
+        self._samples = force_profile(self.profile, self.n, self.rate_hz, self.dofs, self.f("profile"))
+
+    def check(self, scene: Any) -> None:
+        ports = {str(_get(p, "name")): p for p in (_get(_get(scene, "network"), "ports") or [])}
+        if self.port not in ports:
+            raise SceneError(f"{self.f('port')}: no network port {self.port!r} (have {sorted(ports)})")
+        p = ports[self.port]
+        devs = _devices(scene)
+        self.actuator = str(_get(p, "actuator"))
+        self.sensor = _get(p, "force_sensor")
+        self.dofs = int(_get(p, "dofs", 1))
+        if self.actuator not in devs:
+            raise SceneError(f"{self.f('port')}: port actuator {self.actuator!r} is not a device")
+        if self.sensor is None or self.sensor not in devs:
+            raise SceneError(f"{self.f('port')}: port {self.port!r} needs a force_sensor device to measure F_h")
+        sdev = devs[self.sensor]
+        self.axes = _wrench_axes(sdev)[: self.dofs]
+        sim = _get(scene, "simulation")
+        self.simulated = sim is not None
+        humans = []
+        if sim is not None:
+            h = _get(sim, "human")
+            humans = [] if h is None else (list(h) if isinstance(h, list | tuple) else [h])
+        act_body = _get(devs[self.actuator], "body", self.actuator)
+        has_human = any(str(_get(h, "port")) == str(act_body) for h in humans)
+        if self.via is None:
+            self.via = "human" if (self.simulated and has_human) else "actuator"
+        if self.via == "human" and not (self.simulated and has_human):
+            raise SceneError(f"{self.f('via')}: 'human' needs a simulated human holding body {act_body!r}")
+        if self.force_sign is None:
+            measure = str(_get(_get(sdev, "sim"), "measure", "auto") or "auto")
+            if measure == "auto":
+                measure = "human" if (self.simulated and has_human) else "body"
+            self.force_sign = 1.0 if measure == "human" else -1.0
+        if self.noise_bound == "auto" and sim is not None:
+            sn = _get(sim, "sensor_noise")
+            self.noise = (float(_get(sn, "force_std", 0.0) or 0.0), float(_get(sn, "velocity_std", 0.0) or 0.0))
+        self._samples = force_profile(self.profile, self.n, self.rate_hz, self.dofs, self.f("profile"))
+        peak = float(np.max(np.abs(self._samples))) if self._samples.size else 0.0
+        if self.via == "actuator":
+            self._check_effort(scene, peak, "profile.amplitude")
+        logger.info("%s: port %s via %s, F_h = %+g x %s%s", self.name, self.port, self.via, self.force_sign,
+                    self.sensor, self.axes)
+
+    def excitation(self, k: int, t: float, meas: Mapping[str, Any]) -> Excitation:
+        f = self._samples[k] if 0 <= k < self.n else np.zeros(self.dofs)
+        if self.via == "human":
+            return Excitation(human={self.port: f.copy()})
+        return Excitation(effort={self.actuator: f.copy()})
+
+    def port_signals(self, data: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(t, F_h, V_h)`` at the port from the recorded channels."""
+        try:
+            t = np.asarray(data["t"], dtype=float)
+            w = np.asarray(data[f"{self.sensor}.wrench"], dtype=float)
+            v = np.asarray(data[f"{self.actuator}.velocity"], dtype=float)
+        except KeyError as exc:
+            raise SceneError(f"{self.where}: record lacks channel {exc.args[0]!r}") from exc
+        w = w.reshape(t.size, -1)
+        v = v.reshape(t.size, -1)[:, : self.dofs]
+        if w.shape[1] > self.dofs and self.axes is not None:
+            w = w[:, self.axes]
+        F = (self.force_sign if self.force_sign is not None else -1.0) * w[:, : self.dofs]
+        return t, F, v
+
+    def finish(self, data: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> dict:
+        t, F, V = self.port_signals(data)
+        sf, sv = self.noise
+        how = "scene"
+        if self.noise_bound == "auto" and not self.simulated:
+            sf, sv = noise_std_from_differences(F), noise_std_from_differences(V)
+            how = "first differences"
+        fixed = None if self.noise_bound == "auto" else float(self.noise_bound)
+        res = port_energy(t, F, V, sf, sv, k_sigma=self.k_sigma, fixed_bound=fixed)
+        out = {"type": "energy_injection", "port": self.port, "via": self.via, "force_sign": self.force_sign,
+               "noise": {"force_std": sf, "velocity_std": sv, "source": how if fixed is None else "fixed",
+                         "k_sigma": self.k_sigma},
+               "profile": self.profile, **res.summary()}
+        if res.went_negative:
+            logger.warning("%s: E_s at port %s went to %.4g J (bound %.3g J) at t = %.3f s: energy generated",
+                           self.name, self.port, res.min_energy, out["bound_at_min"], res.first_time)
+        return out
+
+
+# ---------------------------------------------------------------------------------------------
+# static hold
+
+
+class StaticHold(_Base):
+    """Step ``effort`` (N or N.m; scalar or per DOF) on ``target``'s ``dofs``, hold for
+    ``duration`` s; after ``settle`` s report the static stiffness ``K = ΔF/Δx`` per DOF (ΔF the
+    effort step, Δx the mean position after settling minus the position at the start, i.e. what
+    the device + its controller + its environment oppose to a constant force)."""
+
+    kind = "static_hold"
+    allowed = frozenset({"target", "dofs", "effort", "duration", "settle", "variant"})
+
+    def __init__(self, cfg: Mapping[str, Any], rate_hz: float) -> None:
+        super().__init__(cfg, rate_hz)
+        self.target = str(cfg.get("target") or "")
+        if not self.target:
+            raise SceneError(f"{self.f('target')}: required")
+        self.duration = self.num("duration", positive=True)
+        self.settle = self.num("settle", 0.0, nonneg=True)
+        if self.settle >= self.duration:
+            raise SceneError(f"{self.f('settle')}: ({self.settle} s) must be shorter than duration ({self.duration} s)")
+        eff = cfg.get("effort")
+        if eff is None:
+            raise SceneError(f"{self.f('effort')}: required")
+        self.effort_cfg = np.atleast_1d(np.asarray(eff, dtype=float))
+        self.dofs_cfg = cfg.get("dofs")
+        self.sel = [0] if self.dofs_cfg is None else [int(i) for i in self.dofs_cfg]
+        self.target_dof = max(self.sel) + 1
+        self.variant = cfg.get("variant")
+        self._resolve_effort()
+
+    def _resolve_effort(self) -> None:
+        e = self.effort_cfg
+        if e.size == 1:
+            e = np.full(len(self.sel), float(e[0]))
+        if e.size != len(self.sel):
+            raise SceneError(f"{self.f('effort')}: {e.size} values for {len(self.sel)} DOF")
+        self.effort = e
+
+    def check(self, scene: Any) -> None:
+        dev, sel = self._check_target(scene, self.target, self.dofs_cfg)
+        self.sel = sel
+        self.target_dof = int(_get(dev, "dof", 1))
+        self._resolve_effort()
+        self._check_effort(scene, float(np.max(np.abs(self.effort))), "effort")
+
+    def excitation(self, k: int, t: float, meas: Mapping[str, Any]) -> Excitation:
+        e = np.zeros(self.target_dof)
+        if 0 <= k < round(self.duration * self.rate_hz):
+            e[self.sel] = self.effort
+        return Excitation(effort={self.target: e})
+
+    def finish(self, data: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> dict:
+        try:
+            t = np.asarray(data["t"], dtype=float)
+            x = np.asarray(data[f"{self.target}.position"], dtype=float)
+        except KeyError as exc:
+            raise SceneError(f"{self.where}: record lacks channel {exc.args[0]!r}") from exc
+        x = x.reshape(t.size, -1)[:, self.sel]
+        win = t >= self.settle
+        if not np.any(win) or t.size < 2:
+            raise SceneError(f"{self.where}: no samples after settle = {self.settle} s")
+        x0 = x[0]
+        xm = np.mean(x[win], axis=0)
+        dx = xm - x0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            K = np.where(np.abs(dx) > 0, self.effort / dx, np.inf)
+        res: dict[str, Any] = {"type": "static_hold", "target": self.target, "dofs": list(self.sel),
+                               "effort": self.effort.tolist(), "x0": x0.tolist(), "x_mean": xm.tolist(),
+                               "dx": dx.tolist(), "x_std": np.std(x[win], axis=0).tolist(),
+                               "stiffness": [float(k) for k in K], "settle": self.settle, "variant": self.variant,
+                               "n_samples": int(np.sum(win))}
+        # drift over the averaging window: a still-moving position means settle was too short
+        tw, xw = t[win], x[win]
+        if tw.size > 2 and np.ptp(tw) > 0:
+            slope = np.polyfit(tw - tw[0], xw, 1)[0]
+            res["drift_per_s"] = np.atleast_1d(slope).tolist()
+        return res
+
+
+# ---------------------------------------------------------------------------------------------
+# factory
+
+_TYPES: dict[str, type[_Base]] = {"chirp": Chirp, "multisine": Multisine, "energy_injection": EnergyInjection,
+                                  "static_hold": StaticHold}
+
+
+def make_experiment(cfg: Mapping[str, Any], *, rate_hz: float) -> Experiment:
+    """Build one scene ``experiments`` entry (a mapping or a pydantic model) at the control rate."""
+    if hasattr(cfg, "model_dump"):
+        cfg = cfg.model_dump()
+    cfg = {k: v for k, v in dict(cfg).items() if v is not None}
+    etype = str(cfg.get("type", ""))
+    if etype not in _TYPES:
+        raise SceneError(f"experiments[{cfg.get('name', '?')}].type: unknown experiment {etype!r}; "
+                         f"one of {sorted(_TYPES)}")
+    exp = _TYPES[etype](cfg, rate_hz)
+    logger.debug("experiment %s (%s), %.3f s", exp.name, etype, exp.duration)
+    return exp  # type: ignore[return-value]
