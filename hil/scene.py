@@ -660,6 +660,15 @@ class ForceProfileCfg(_Strict):
     seed: int | None = None
 
 
+def _auto_or_joules(value: Any) -> Any:
+    if value == "auto":
+        return value
+    x = _number(value, "J (or 'auto')")
+    if x < 0:
+        raise PydanticCustomError("number", "expected 'auto' or a number >= 0 in J, got {got}", {"got": x})
+    return x
+
+
 class EnergyInjectionExperiment(_ExpBase):
     """Active force at a network ``port`` (simulated human) for ``duration`` s while the energy
     ``E_s = int F^T V dt`` at the port is tracked; ``noise_bound``: ``auto`` (from the sensor noise)
@@ -669,7 +678,7 @@ class EnergyInjectionExperiment(_ExpBase):
     port: Name
     duration: Seconds
     profile: ForceProfileCfg
-    noise_bound: Literal["auto"] | Annotated[float, BeforeValidator(lambda v: _number(v, "J")), Field(ge=0)] = "auto"
+    noise_bound: Annotated[Literal["auto"] | float, BeforeValidator(_auto_or_joules)] = "auto"
 
 
 class StaticHoldExperiment(_ExpBase):
@@ -1022,13 +1031,21 @@ def _strip_tags(loc: Sequence[Any], data: Any) -> list[Any]:
             continue
         if isinstance(cur, dict) and cur.get("type") == part:
             continue  # discriminator tag
-        if part in ("list[list[float]]", "float", "HumanCfg", "list[HumanCfg]", "literal['auto']") or (
-            isinstance(part, str) and (part.startswith(("function-", "list[", "literal[", "tuple[")) or part in (
-                "constrained-float", "function-after", "function-before"))):
-            continue  # union member names
+        if isinstance(part, str) and ("[" in part or part in ("float", "int", "str") or part in _model_names()):
+            continue  # union member names ("float", "list[list[float]]", "HumanCfg", ...)
         out.append(part)
         cur = None
     return out
+
+
+def _model_names() -> set[str]:
+    names: set[str] = set()
+    todo: list[type] = [_Strict]
+    while todo:
+        cls = todo.pop()
+        names.add(cls.__name__)
+        todo += cls.__subclasses__()
+    return names
 
 
 def _fmt_loc(loc: Sequence[Any]) -> str:
@@ -1040,8 +1057,9 @@ def _fmt_loc(loc: Sequence[Any]) -> str:
 
 def _format_error(exc: ValidationError, data: Any) -> str:
     errs = exc.errors(include_url=False)
-    # prefer errors that are not "missing" of a union member that failed for another reason
-    err = errs[0]
+    # the deepest location is the most specific (for unions such as ``human: X | list[X]`` the
+    # member whose shape matches the input fails deeper than the one that does not)
+    err = max(errs, key=lambda e: len(_strip_tags(e["loc"], data)))
     loc = _strip_tags(err["loc"], data)
     ctx = err.get("ctx") or {}
     typ = err["type"]
