@@ -861,6 +861,7 @@ def _cross_check(sc: Scene) -> None:
             raise _Where("controller.slave", f"master {m.name!r} has {m.dof} DOF, slave {s.name!r} has {s.dof}")
         for key in ("Kp_m", "Kv_m", "Kp_s", "Kv_s"):
             check_gain(f"controller.{key}", getattr(c, key), m.dof, m.dof, f"dof x dof of {m.name!r}/{s.name!r}")
+            setattr(c, key, as_matrix(getattr(c, key), m.dof).tolist())  # dumps always hold full matrices
     elif isinstance(c, Mcet):
         for k, mname in enumerate(c.masters):
             d = need(f"controller.masters[{k}]", mname, "actuator")
@@ -889,6 +890,8 @@ def _cross_check(sc: Scene) -> None:
             g = getattr(c, key)
             check_gain(f"controller.{key}.kp", g.kp, s.dof, s.dof, "n x n, n = slave DOF")
             check_gain(f"controller.{key}.kv", g.kv, s.dof, s.dof, "n x n, n = slave DOF")
+            g.kp = as_matrix(g.kp, s.dof).tolist()
+            g.kv = as_matrix(g.kv, s.dof).tolist()
     elif isinstance(c, Vsic):
         a = need("controller.actuator", c.actuator, "actuator")
         f = need("controller.force_sensor", c.force_sensor, "force_sensor")

@@ -239,4 +239,5 @@ def test_scalar_gain_means_identity_and_flat_list_diagonal(tmp_path: Path) -> No
     p.write_text(yaml.safe_dump(d))
     c = load_scene(p).controller
     assert as_matrix(c.Kp_m, 2).tolist() == [[500.0, 0.0], [0.0, 500.0]]
+    assert c.model_dump()["Kp_m"] == [[500.0, 0.0], [0.0, 500.0]]  # consumers always get full matrices
     assert c.Kv_m == [[300.0, 0.0], [0.0, 200.0]]
