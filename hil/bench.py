@@ -277,6 +277,8 @@ class Bench:
         out: Measurements = {}
         for d in self._devs:
             out[d.name] = d.adapter.read(timeout=t)
+        for g in self.scene.groups:
+            out[g.name] = _group_sample([out[m] for m in g.devices])
         if self.simulated:
             self._cache = (self._ticks, dict(out))
         return out
@@ -296,7 +298,19 @@ class Bench:
         acts = self.actuators
         t = self.timeout if timeout is None else float(timeout)
         checked: list[tuple[Any, np.ndarray]] = []
-        for name, e in efforts.items():
+        expanded: dict[str, Any] = {}
+        for name, e in efforts.items():  # a group's effort is split over its members, in order
+            g = self.scene.group(name)
+            if g is None:
+                expanded[name] = e
+                continue
+            arr = np.asarray(e, dtype=float).reshape(-1)
+            dofs = [self.scene.device(m).dof for m in g.devices]
+            if arr.size != sum(dofs):
+                raise ValueError(f"command: group {name!r} has {sum(dofs)} DOF, got {arr.size} efforts")
+            for m, part in zip(g.devices, np.split(arr, np.cumsum(dofs)[:-1]), strict=True):
+                expanded[m] = part
+        for name, e in expanded.items():
             if name not in acts:
                 raise ValueError(f"command: {name!r} is not an actuator of scene {self.scene.name!r}; "
                                  f"actuators: {sorted(acts)}")
@@ -690,3 +704,15 @@ def _jsonable(obj: Any) -> Any:
         return obj.tolist()
     return obj
 
+
+def _group_sample(samples: list[Any]) -> Any:
+    """One JointSample for a group: members' positions/velocities/efforts concatenated in order;
+    ``seq`` is the smallest member sequence number, so one stale member stalls the group (the
+    runner's watchdog sees it), ``fault`` the first non-zero member fault."""
+    from hil.protocols.base import JointSample
+
+    eff = None if any(s.effort is None for s in samples) else np.concatenate([s.effort for s in samples])
+    return JointSample(t=samples[0].t, seq=min(int(s.seq) for s in samples),
+                       position=np.concatenate([s.position for s in samples]),
+                       velocity=np.concatenate([s.velocity for s in samples]), effort=eff,
+                       fault=next((s.fault for s in samples if s.fault), 0))

@@ -202,7 +202,6 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
 def _cmd_run(args: argparse.Namespace) -> int:
     import datetime as dt
 
-    from hil.bench import Bench
     from hil.runner import Runner
     from hil.scene import load_scene
 
@@ -237,13 +236,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 tasks[name] = prog.add_task(name, total=n)
             prog.update(tasks[name], completed=k)
 
-    with Bench(scene, seed=scene.seed) as bench:
-        runner = Runner(scene, bench, out, realtime=realtime, progress=progress_cb)
-        if prog is not None:
-            with prog:
-                outcomes = runner.run(select)
-        else:
+    runner = Runner(scene, out, realtime=realtime, progress=progress_cb)
+    if prog is not None:
+        with prog:
             outcomes = runner.run(select)
+    else:
+        outcomes = runner.run(select)
     if args.json:
         print(json.dumps({"scene": scene.name, "out": str(out), "experiments": [o.to_dict() for o in outcomes]},
                          indent=2, default=str))

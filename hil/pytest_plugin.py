@@ -48,7 +48,6 @@ def hil_run(tmp_path: Path) -> Callable[..., HilRun]:
 
     def run(scene: str | Path, seed: int | None = None, experiments: list[int] | None = None,
             max_ticks: int | None = None) -> HilRun:
-        from hil.bench import Bench
         from hil.runner import Runner
         from hil.scene import load_scene
 
@@ -56,8 +55,7 @@ def hil_run(tmp_path: Path) -> Callable[..., HilRun]:
         if seed is not None:
             sc.seed = seed
         out = tmp_path / f"run-{sc.name}"
-        with Bench(sc, seed=sc.seed) as bench:
-            outcomes = Runner(sc, bench, out, realtime=False, max_ticks=max_ticks).run(experiments)
+        outcomes = Runner(sc, out, realtime=False, max_ticks=max_ticks).run(experiments)
         return HilRun(sc, outcomes, out)
 
     return run

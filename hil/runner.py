@@ -15,11 +15,13 @@ Everything runs inside :func:`safe_stop_context`: on any exception, limit breach
 Ctrl-C or SIGTERM every actuator is commanded zero effort, the reason is recorded, and the record
 is closed with every sample taken so far.
 
-Port energy. For each network port with a force sensor, the power into the device is
-F_port · V with F_port = ``force_sign`` × (sensor reading), default ``force_sign = -1``: force
-sensors report the force the device exerts on what it touches (the physics engine's convention and
-the usual mounting), so the force applied *to* the device is its negative. E_s(t) = ∫ F_port · V dt
-(paper 000 eq. 6) is integrated with the trapezoid rule and recorded as ``<port>.energy``.
+Port energy. For each network port with a force sensor, the power into the device is F_port · V
+with F_port = ``force_sign`` × (the sensor's port axes): the force applied *to* the device,
+positive along the port velocity (see ``hil.scene.PortCfg``). E_s(t) = ∫ F_port · V dt (paper 000
+eq. 6) is integrated with the trapezoid rule and recorded as ``<port>.energy``.
+
+Each experiment opens its own bench (``bench_factory(variant)``): an SDEA experiment may need the
+locked- or free-output plant, and a fresh bench makes every experiment reproducible on its own.
 """
 
 from __future__ import annotations
@@ -211,11 +213,18 @@ class Runner:
     callable ``(name, k, n)`` called every ~0.1 s of run time (the CLI draws a progress bar).
     """
 
-    def __init__(self, scene: Any, bench: Any, out_dir: str | Path, *, realtime: bool | None = None,
-                 progress: Callable[[str, int, int], None] | None = None,
+    def __init__(self, scene: Any, out_dir: str | Path, *, bench_factory: Callable[[str | None], Any] | None = None,
+                 realtime: bool | None = None, progress: Callable[[str, int, int], None] | None = None,
                  max_ticks: int | None = None) -> None:
         self.scene = scene
-        self.bench = bench
+        if bench_factory is None:
+            from hil.bench import Bench
+
+            def bench_factory(variant: str | None) -> Any:
+                return Bench(scene, seed=scene.seed, variant=variant)
+
+        self.bench_factory = bench_factory
+        self.bench: Any = None
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.rate_hz = float(scene.rate_hz)
@@ -253,16 +262,25 @@ class Runner:
 
     # -- one experiment --------------------------------------------------------------------------
     def run_experiment(self, index: int, cfg: Any) -> ExperimentOutcome:
+        """Run one experiment on a fresh bench; see the module docstring."""
+        ecfg = _dump(cfg)
+        with self.bench_factory(ecfg.get("variant")) as bench:
+            self.bench = bench
+            try:
+                return self._run(index, ecfg)
+            finally:
+                self.bench = None
+
+    def _run(self, index: int, ecfg: dict[str, Any]) -> ExperimentOutcome:
         from hil.controllers import make_controller
         from hil.experiments import make_experiment
         from hil.record import RecordWriter
 
-        ecfg = _dump(cfg)
-        name = f"{index:02d}_{ecfg.get('type', 'experiment')}"
+        name = f"{index:02d}_{ecfg.get('name') or ecfg.get('type', 'experiment')}"
         exp = make_experiment(ecfg, rate_hz=self.rate_hz)
         exp.check(self.scene)
-        ctrl = make_controller(_dump(getattr(self.scene, "controller", None)),
-                               units=getattr(self.scene, "units", "rotary"))
+        ccfg = {"type": "none"} if ecfg.get("controller") == "none" else _dump(getattr(self.scene, "controller", None))
+        ctrl = make_controller(ccfg, units=getattr(self.scene, "units", "rotary"))
         ctrl.reset()
         n = round(exp.duration * self.rate_hz)
         if self.max_ticks is not None:
@@ -328,8 +346,7 @@ class Runner:
                     stats.ticks = k + 1
                     if self.progress and k % max(1, int(self.rate_hz / 10)) == 0:
                         self.progress(name, k, n)
-                    if not self.realtime:
-                        self.bench.advance()
+                    self.bench.advance()  # lockstep plant step (no-op on hardware)
             if state["status"] == "completed":
                 self.bench.safe_stop()
             results: dict[str, Any] = {}
@@ -352,7 +369,9 @@ class Runner:
         """The record row of one tick (device channels; ports are added by :meth:`_port_energy`)."""
         values: dict[str, Any] = {"loop.late": late}
         for dname, s in meas.items():
-            d = self.devices[dname]
+            d = self.devices.get(dname)
+            if d is None:  # a device group: its members are recorded
+                continue
             n = int(d.dof)
             if d.role == "actuator":
                 values[f"{dname}.position"] = s.position
@@ -371,7 +390,7 @@ class Runner:
             if p.name not in energy:
                 continue
             dofs = int(p.dofs)
-            f_port = float(getattr(p, "force_sign", -1.0)) * np.asarray(meas[p.force_sensor].wrench)[:dofs]
+            f_port = float(getattr(p, "force_sign", 1)) * np.asarray(self.bench.force(meas, p.force_sensor))[:dofs]
             v_port = np.asarray(meas[p.actuator].velocity)[:dofs]
             power = float(f_port @ v_port)
             if k > 0:
@@ -383,7 +402,8 @@ class Runner:
 
     def run(self, select: list[int] | None = None) -> list[ExperimentOutcome]:
         outcomes = []
-        for i, cfg in enumerate(self.scene.experiments):
+        cfgs = self.scene.experiment_configs() if hasattr(self.scene, "experiment_configs") else self.scene.experiments
+        for i, cfg in enumerate(cfgs):
             if select is not None and i not in select:
                 continue
             out = self.run_experiment(i, cfg)

@@ -452,16 +452,29 @@ class Simulation(_Strict):
 
 class PortCfg(_Strict):
     """A port of the network: the actuator driving it, the force sensor measuring the
-    interaction force (optional), and its DOF count."""
+    interaction force (optional), and its DOF count. The port force is ``force_sign`` times the
+    sensor's port axes and must be the force applied *to* the device, positive along the port
+    velocity, so that F·V is the power flowing into the device (simulated sensors with
+    ``sim.measure: human``/``auto`` report exactly that)."""
 
     name: Name
     actuator: Name
     force_sensor: Name | None = None
     dofs: int = Field(default=1, ge=1, le=6)
+    force_sign: Literal[1, -1] = 1  # -1 for a sensor that reports the force the device exerts
 
 
 class NetworkCfg(_Strict):
     ports: list[PortCfg] = Field(default_factory=list)
+
+
+class GroupCfg(_Strict):
+    """Several actuators driven as one multi-DOF actuator (e.g. a 2-DOF master made of two 1-DOF
+    drives on the y and z axes of one coupled body). Controllers, ports and experiments may name
+    the group; its DOFs are the members' DOFs in order."""
+
+    name: Name
+    devices: Annotated[list[Name], Field(min_length=2)]
 
 
 class NoController(_Strict):
@@ -721,6 +734,7 @@ class Scene(_Strict):
     mode: Literal["lockstep", "realtime"] | None = None
     units: Literal["rotary", "linear"] = "linear"
     devices: Annotated[list[Device], Field(min_length=1)]
+    groups: list[GroupCfg] = Field(default_factory=list)
     simulation: Simulation | None = None
     network: NetworkCfg = Field(default_factory=NetworkCfg)
     controller: Controller = Field(default_factory=lambda: NoController(type="none"))
@@ -757,11 +771,22 @@ class Scene(_Strict):
         return 1.0 / self.rate_hz
 
     def device(self, name: str) -> Device:
-        """The device called ``name`` (KeyError if absent)."""
+        """The device called ``name`` (KeyError if absent). A group is returned as an actuator
+        ``Device`` whose ``dof`` is the sum of its members'."""
         for d in self.devices:
             if d.name == name:
                 return d
+        for g in self.groups:
+            if g.name == name:
+                members = [self.device(m) for m in g.devices]
+                return Device.model_construct(name=g.name, role="actuator", driver="(group)", params={},
+                                              dof=sum(m.dof for m in members), body=None, dofs=None, axes=None,
+                                              sim=None)
         raise KeyError(name)
+
+    def group(self, name: str) -> GroupCfg | None:
+        """The group called ``name``, or None."""
+        return next((g for g in self.groups if g.name == name), None)
 
     @property
     def actuators(self) -> list[Device]:
@@ -819,6 +844,20 @@ def _cross_check(sc: Scene) -> None:
             raise _Where(f"devices[{i}].name", f"duplicate device name {d.name!r}")
         seen.add(d.name)
     dev = {d.name: d for d in sc.devices}
+    grouped: set[str] = set()
+    for i, g in enumerate(sc.groups):
+        if g.name in dev:
+            raise _Where(f"groups[{i}].name", f"group name {g.name!r} is already a device name")
+        for k, m in enumerate(g.devices):
+            if m not in dev:
+                raise _Where(f"groups[{i}].devices[{k}]", f"unknown device {m!r}{_near(m, names)}")
+            if dev[m].role != "actuator":
+                raise _Where(f"groups[{i}].devices[{k}]", f"device {m!r} is a {dev[m].role}; groups hold actuators")
+            if m in grouped:
+                raise _Where(f"groups[{i}].devices[{k}]", f"device {m!r} is already in another group")
+            grouped.add(m)
+        dev[g.name] = sc.device(g.name)
+    names = names + [g.name for g in sc.groups]
 
     def need(path: str, name: str, role: str | None = None) -> Device:
         if name not in dev:

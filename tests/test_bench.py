@@ -48,7 +48,7 @@ def test_builtin_scene_bench_runs_and_closes(name: str) -> None:
         n = 200
         for k in range(n):
             meas = bench.read()
-            assert set(meas) == {d.name for d in sc.devices}
+            assert set(meas) == {d.name for d in sc.devices} | {g.name for g in sc.groups}
             for d in sc.devices:
                 s = meas[d.name]
                 assert isinstance(s, JointSample if d.role == "actuator" else WrenchSample)
@@ -227,3 +227,21 @@ def test_hardware_bench_opens_adapters_with_scene_params(tmp_path: Path) -> None
             bench.advance()  # no-op apart from counting
             assert bench.ticks == 1
             assert bench.device_identities()["ft"]["simulated"] is False
+
+
+def test_device_group_reads_and_commands_as_one_actuator() -> None:
+    sc = load_scene("bilateral_2dof_A1")
+    with Bench(sc) as bench:
+        for _ in range(50):
+            meas = bench.read()
+            g = meas["master"]
+            np.testing.assert_array_equal(g.position, np.r_[meas["master_y"].position, meas["master_z"].position])
+            np.testing.assert_array_equal(g.velocity, np.r_[meas["master_y"].velocity, meas["master_z"].velocity])
+            assert g.seq == min(meas["master_y"].seq, meas["master_z"].seq)
+            bench.command({"master": np.array([1.0, -2.0])})
+            bench.advance()
+        meas = bench.read()
+        # a +y / -z effort on the free (human-held) coupled master moves it +y and -z
+        assert meas["master"].velocity[0] > 0 > meas["master"].velocity[1]
+        with pytest.raises(ValueError, match="group 'master' has 2 DOF"):
+            bench.command({"master": np.array([1.0])})
