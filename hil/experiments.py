@@ -192,7 +192,8 @@ class EnergyResult:
 
 
 def port_energy(t: Any, force: Any, velocity: Any, noise_force_std: float = 0.0, noise_velocity_std: float = 0.0,
-                *, k_sigma: float = 4.0, fixed_bound: float | None = None) -> EnergyResult:
+                *, k_sigma: float = 4.0, fixed_bound: float | None = None,
+                bound_mode: str = "final") -> EnergyResult:
     """Energy flowing into a port, ``E_s(t) = ∫ F^T V dt`` (paper 000 eq. 6, 001 eq. 30), by the
     trapezoidal rule on the samples (``force``, ``velocity``: (N,) or (N, d); F applied TO the
     device, V into the port, so E_s > 0 is energy absorbed by the device).
@@ -201,11 +202,17 @@ def port_energy(t: Any, force: Any, velocity: Any, noise_force_std: float = 0.0,
     (σ_V), the measured power is ``F^T V + n_F^T V + F^T n_V + n_F^T n_V``; its error has zero mean and
     the accumulated error ``Σ w_j dt e_j`` (trapezoid weights ``w_j``) has variance
     ``dt² Σ w_j² (σ_F² |V_j|² + σ_V² |F_j|² + d σ_F² σ_V²)`` (terms independent across samples).
-    ``bound(t) = k_sigma`` times its square root, evaluated with the measured ``|V_j|``, ``|F_j|``
-    (which include the noise: slightly conservative). ``k_sigma = 4`` keeps the false-alarm
-    probability of a passive system small even though the minimum over the whole record is
-    tested (by the reflection principle a random walk dips below ``-k σ(t_end)`` before ``t_end``
-    with probability ``2 Φ(-k)`` = 6e-5 for k = 4). ``fixed_bound`` (J) replaces it by a constant.
+    The variance is evaluated with ``|V_j|² ≈ |V_meas,j|² - d σ_V²`` and ``|F_j|² ≈ |F_meas,j|² - d σ_F²``
+    (unbiased: the measured magnitudes include the noise); its running sum ``σ²(t)`` is kept
+    non-decreasing and at least its noise-only part.
+
+    ``bound_mode="final"`` (default): a constant ``bound = k_sigma σ(t_end)``. The accumulated
+    error is a sum of independent symmetric terms, so by Lévy's (reflection) inequality its minimum
+    over the whole record is below ``-k σ(t_end)`` with probability at most ``2 Φ(-k)`` (6e-5 for
+    ``k_sigma = 4``): a rigorous false-alarm bound for "E_s ever went negative". ``"running"``:
+    ``bound(t) = k_sigma σ(t)``, tighter early in the record but the crossing of a ``√t``-shaped
+    curve is more likely than ``2 Φ(-k)`` (it grows like ``k φ(k) ln N`` for N samples).
+    ``fixed_bound`` (J) replaces both by a constant.
     A round-off floor of ``1e-12 ∫|F^T V| dt`` is always added.
     """
     t = np.asarray(t, dtype=float).reshape(-1)
@@ -226,15 +233,27 @@ def port_energy(t: Any, force: Any, velocity: Any, noise_force_std: float = 0.0,
     if fixed_bound is not None:
         bound = np.full(n, float(fixed_bound))
     else:
-        var_p = (noise_force_std**2 * np.sum(V**2, axis=1) + noise_velocity_std**2 * np.sum(F**2, axis=1)
-                 + d * noise_force_std**2 * noise_velocity_std**2)
+        sf2, sv2 = noise_force_std**2, noise_velocity_std**2
+        # |V|², |F|² of the true signals estimated from the measured ones: E|V_meas|² = |V|² + d σ_V²,
+        # so the running sum below is an unbiased estimate of the variance; it is kept
+        # non-decreasing and never below the noise-only part Σ w² d σ_F² σ_V²
+        v2 = np.sum(V**2, axis=1) - d * sv2
+        f2 = np.sum(F**2, axis=1) - d * sf2
+        var_p = sf2 * v2 + sv2 * f2 + d * sf2 * sv2
         # sample j enters E(t_k) with weight dt_{j-1}/2 + dt_j/2 (interior) and dt/2 at both ends;
         # use the interior weight ((dt_prev + dt_next)/2)² for every sample up to k: an upper
         # bound on the variance (end weights are half as large)
         dts = np.concatenate([[dt[0] if dt.size else 0.0], dt])
         dts_next = np.concatenate([dt, [dt[-1] if dt.size else 0.0]])
         w2 = (0.5 * (dts + dts_next)) ** 2
-        bound = k_sigma * np.sqrt(np.cumsum(w2 * var_p))
+        floor = np.cumsum(w2 * d * sf2 * sv2)
+        var_e = np.maximum.accumulate(np.maximum(np.cumsum(w2 * var_p), floor))
+        if bound_mode == "final":
+            bound = np.full(n, k_sigma * math.sqrt(var_e[-1]))
+        elif bound_mode == "running":
+            bound = k_sigma * np.sqrt(var_e)
+        else:
+            raise ValueError(f"bound_mode must be 'final' or 'running', got {bound_mode!r}")
     bound = bound + 1e-12 * absint
     margin = energy + bound
     neg = margin < 0
@@ -668,18 +687,20 @@ class EnergyInjection(_Base):
     Fields: ``port``, ``duration`` (s), ``profile`` (see :func:`force_profile`), ``noise_bound``
     (``auto``: from the scene's sensor noise, or estimated from the data by first differences on a
     real bench; or a number in J), ``via`` (``human``: the simulated operator's active force,
-    ``Excitation.human[port]``; ``actuator``: effort on the port's actuator. Default: human when
-    the scene is simulated and has a human, else actuator), ``force_sign`` (F_h = sign x sensor
+    ``Excitation.human[port]``; ``actuator``: effort on the port's actuator, which then plays the
+    operator's active force: F_h = excitation + force_sign x sensor (if any). Default: human when
+    the scene is simulated and a human holds the port's body, else actuator), ``force_sign`` (sensor
     reading; default from the scene: +1 when the simulated sensor reports the hand's force
     (``sim.measure: human``, the bench's ``auto`` with a human), else -1: the sensor reads the
-    force the device exerts on what it touches), ``k_sigma`` (default 4).
+    force the device exerts on what it touches), ``k_sigma`` (default 4), ``bound_mode`` (final |
+    running, see :func:`port_energy`).
 
     ``finish`` reports whether ``E_s`` went below ``-bound`` (the port generated energy beyond
     what noise explains: an active, potentially unstable teleoperator), when first, and by how much.
     """
 
     kind = "energy_injection"
-    allowed = frozenset({"port", "duration", "profile", "noise_bound", "via", "force_sign", "k_sigma"})
+    allowed = frozenset({"port", "duration", "profile", "noise_bound", "via", "force_sign", "k_sigma", "bound_mode"})
 
     def __init__(self, cfg: Mapping[str, Any], rate_hz: float) -> None:
         super().__init__(cfg, rate_hz)
@@ -704,7 +725,12 @@ class EnergyInjection(_Base):
                 raise SceneError(f"{self.f('noise_bound')}: must be >= 0")
         self.noise_bound = nb
         self.k_sigma = self.num("k_sigma", 4.0, positive=True)
-        self.force_sign: float | None = None if cfg.get("force_sign") is None else float(cfg["force_sign"])
+        self.bound_mode = str(cfg.get("bound_mode", "final"))
+        if self.bound_mode not in ("final", "running"):
+            raise SceneError(f"{self.f('bound_mode')}: 'final' or 'running', got {self.bound_mode!r}")
+        self._force_sign_cfg: float | None = None if cfg.get("force_sign") is None else float(cfg["force_sign"])
+        self.force_sign: float | None = self._force_sign_cfg
+        self._via_cfg = self.via
         self.n = round(self.duration * self.rate_hz)
         # defaults until check() resolves the port against the scene
         self.actuator = self.port
@@ -727,10 +753,6 @@ class EnergyInjection(_Base):
         self.dofs = int(_get(p, "dofs", 1))
         if self.actuator not in devs:
             raise SceneError(f"{self.f('port')}: port actuator {self.actuator!r} is not a device")
-        if self.sensor is None or self.sensor not in devs:
-            raise SceneError(f"{self.f('port')}: port {self.port!r} needs a force_sensor device to measure F_h")
-        sdev = devs[self.sensor]
-        self.axes = _wrench_axes(sdev)[: self.dofs]
         sim = _get(scene, "simulation")
         self.simulated = sim is not None
         humans = []
@@ -739,10 +761,18 @@ class EnergyInjection(_Base):
             humans = [] if h is None else (list(h) if isinstance(h, list | tuple) else [h])
         act_body = _get(devs[self.actuator], "body", self.actuator)
         has_human = any(str(_get(h, "port")) == str(act_body) for h in humans)
+        self.via = self._via_cfg
         if self.via is None:
             self.via = "human" if (self.simulated and has_human) else "actuator"
         if self.via == "human" and not (self.simulated and has_human):
             raise SceneError(f"{self.f('via')}: 'human' needs a simulated human holding body {act_body!r}")
+        if self.sensor is not None and self.sensor not in devs:
+            raise SceneError(f"{self.f('port')}: force sensor {self.sensor!r} of port {self.port!r} is not a device")
+        if self.sensor is None and self.via == "human":
+            raise SceneError(f"{self.f('port')}: port {self.port!r} needs a force_sensor to measure F_h")
+        sdev = devs.get(self.sensor) if self.sensor is not None else None
+        self.axes = _wrench_axes(sdev)[: self.dofs] if sdev is not None else None
+        self.force_sign = self._force_sign_cfg
         if self.force_sign is None:
             measure = str(_get(_get(sdev, "sim"), "measure", "auto") or "auto")
             if measure == "auto":
@@ -765,18 +795,29 @@ class EnergyInjection(_Base):
         return Excitation(effort={self.actuator: f.copy()})
 
     def port_signals(self, data: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(t, F_h, V_h)`` at the port from the recorded channels."""
+        """``(t, F_h, V_h)`` at the port from the recorded channels.
+
+        ``via: human``: ``F_h = force_sign x wrench[axes]`` (the hand's force on the device).
+        ``via: actuator``: the actuator plays the operator's active force, so the force applied to
+        the device from outside its controller is the recorded excitation ``<actuator>.excitation``
+        plus, when the port has a force sensor, ``force_sign x wrench`` (e.g. a passive dummy hand).
+        """
         try:
             t = np.asarray(data["t"], dtype=float)
-            w = np.asarray(data[f"{self.sensor}.wrench"], dtype=float)
             v = np.asarray(data[f"{self.actuator}.velocity"], dtype=float)
+            w = None if self.sensor is None else np.asarray(data[f"{self.sensor}.wrench"], dtype=float)
+            u = np.asarray(data[f"{self.actuator}.excitation"], dtype=float) if self.via == "actuator" else None
         except KeyError as exc:
             raise SceneError(f"{self.where}: record lacks channel {exc.args[0]!r}") from exc
-        w = w.reshape(t.size, -1)
         v = v.reshape(t.size, -1)[:, : self.dofs]
-        if w.shape[1] > self.dofs and self.axes is not None:
-            w = w[:, self.axes]
-        F = (self.force_sign if self.force_sign is not None else -1.0) * w[:, : self.dofs]
+        F = np.zeros_like(v)
+        if w is not None:
+            w = w.reshape(t.size, -1)
+            if w.shape[1] > self.dofs and self.axes is not None:
+                w = w[:, self.axes]
+            F = F + (self.force_sign if self.force_sign is not None else -1.0) * w[:, : self.dofs]
+        if u is not None:
+            F = F + u.reshape(t.size, -1)[:, : self.dofs]
         return t, F, v
 
     def finish(self, data: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> dict:
@@ -787,10 +828,10 @@ class EnergyInjection(_Base):
             sf, sv = noise_std_from_differences(F), noise_std_from_differences(V)
             how = "first differences"
         fixed = None if self.noise_bound == "auto" else float(self.noise_bound)
-        res = port_energy(t, F, V, sf, sv, k_sigma=self.k_sigma, fixed_bound=fixed)
+        res = port_energy(t, F, V, sf, sv, k_sigma=self.k_sigma, fixed_bound=fixed, bound_mode=self.bound_mode)
         out = {"type": "energy_injection", "port": self.port, "via": self.via, "force_sign": self.force_sign,
                "noise": {"force_std": sf, "velocity_std": sv, "source": how if fixed is None else "fixed",
-                         "k_sigma": self.k_sigma},
+                         "k_sigma": self.k_sigma, "bound_mode": self.bound_mode},
                "profile": self.profile, **res.summary()}
         if res.went_negative:
             logger.warning("%s: E_s at port %s went to %.4g J (bound %.3g J) at t = %.3f s: energy generated",
