@@ -280,7 +280,8 @@ def _pair(cfg: Mapping[str, Any], tag: str, n: int, where: str) -> tuple[np.ndar
 def dual_master_controller(cfg: Mapping[str, Any], where: str = "controller") -> PositionPD:
     """Paper 001 eq. (15) with matrix PD gains (module doc).
 
-    ``masters``: ``[{name: m1, dofs: [0]}, {name: m2, dofs: [1, 2]}]`` (slave DOF indices each
+    ``masters``: ``[{device: m1, slave_dofs: [0]}, {device: m2, slave_dofs: [1, 2]}]`` (as in
+    :mod:`hil.scene`; ``{name, dofs}`` is accepted too) (slave DOF indices each
     master's DOFs map to; together they must cover the slave's DOFs exactly once), or names with
     ``master_dofs: [[0], [1, 2]]``. Gains ``C_m, C_4, C_s, C_1`` as ``{kp, kv}`` mappings or flat
     ``Kp_m, Kv_m, Kp_4, ...``, all ``n x n`` with ``n`` the slave's DOF count (default 3).
@@ -296,8 +297,11 @@ def dual_master_controller(cfg: Mapping[str, Any], where: str = "controller") ->
         raise SceneError(f"{_field(where, 'masters')}: a list of master devices required")
     for i, m in enumerate(masters):
         if isinstance(m, Mapping):
-            names.append(str(_require(m, "name", _field(where, f"masters[{i}]"))))
-            maps.append([int(j) for j in _require(m, "dofs", _field(where, f"masters[{i}]"))])
+            fm = _field(where, f"masters[{i}]")
+            name_key = "device" if "device" in m else "name"  # hil.scene: {device, slave_dofs}
+            dofs_key = "slave_dofs" if "slave_dofs" in m else "dofs"
+            names.append(str(_require(m, name_key, fm)))
+            maps.append([int(j) for j in _require(m, dofs_key, fm)])
         else:
             names.append(str(m))
     if not maps:
@@ -492,7 +496,11 @@ class VSIC:
             s = meas.get(self.force_sensor)
             if not isinstance(s, WrenchSample):
                 raise SceneError(f"{_field(self.where, 'force_sensor')}: no wrench from {self.force_sensor!r}")
-            return self.force_sign * float(np.asarray(s.wrench, dtype=float).reshape(-1)[self.force_axis])
+            w = np.asarray(s.wrench, dtype=float).reshape(-1)
+            if w.size <= self.force_axis and w.size != 1:
+                raise SceneError(f"{_field(self.where, 'force_axis')}: {self.force_axis} out of range for the "
+                                 f"{w.size}-component wrench of {self.force_sensor!r}")
+            return self.force_sign * float(w[self.force_axis if w.size > self.force_axis else 0])
         j = _joint(meas, self.actuator, _field(self.where, "actuator"))
         if j.effort is None:
             raise SceneError(f"{_field(self.where, 'force_sensor')}: required: actuator {self.actuator!r} "
@@ -546,10 +554,14 @@ _BUILDERS: dict[str, Callable[[Mapping[str, Any], str], Controller]] = {
 }
 
 
-def make_controller(cfg: Mapping[str, Any] | None, *, units: str = "linear") -> Controller:
+def make_controller(cfg: Mapping[str, Any] | None, *, units: str = "linear", scene: Any = None) -> Controller:
     """Build the scene's ``controller`` mapping (``type``: none | pd_position_position | mcet |
     dual_master | vsic). ``units`` (``linear`` | ``rotary``) is validated and logged; the laws
-    are unit-agnostic. Raises :class:`SceneError` naming the offending field."""
+    are unit-agnostic. Raises :class:`SceneError` naming the offending field.
+
+    ``scene`` (optional, a :class:`hil.scene.Scene` or mapping): used to resolve the VSIC force
+    sensor's wrench component (``devices[].axes``) when ``force_axis`` is not given. Without it the
+    VSIC reads wrench component 0 (or the only component)."""
     if units not in ("linear", "rotary"):
         raise SceneError(f"units: must be 'linear' or 'rotary', got {units!r}")
     if cfg is None:
@@ -565,6 +577,12 @@ def make_controller(cfg: Mapping[str, Any] | None, *, units: str = "linear") -> 
     except KeyError as exc:
         raise SceneError(f"controller.type: unknown controller {ctype!r}; one of "
                          f"{['none', *_BUILDERS]}") from exc
-    ctrl = builder({k: v for k, v in cfg.items() if v is not None or k == "type"}, "controller")
+    clean = {k: v for k, v in cfg.items() if v is not None or k == "type"}
+    if ctype == "vsic" and "force_axis" not in clean and clean.get("force_sensor") and scene is not None:
+        for dev in (scene.get("devices") if isinstance(scene, Mapping) else getattr(scene, "devices", None)) or []:
+            get = dev.get if isinstance(dev, Mapping) else (lambda k, d=None, _o=dev: getattr(_o, k, d))
+            if get("name") == clean["force_sensor"] and get("axes") is not None:
+                clean["force_axis"] = int(next(iter(get("axes"))))
+    ctrl = builder(clean, "controller")
     logger.info("controller %s (%s units)", ctype, units)
     return ctrl

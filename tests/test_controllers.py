@@ -556,3 +556,23 @@ def test_position_pd_is_stateless_and_reports_layout():
     c.reset()
     u = c.update(0.0, DT, {"a": _js(1.0), "b": _js(0.0)})
     assert u["a"][0] == -1.0 and u["b"][0] == 1.0
+
+
+def test_builtin_scenes_build_their_controllers():
+    """The controllers of the shipped scenes (hil.scene schema: dual_master ``{device,
+    slave_dofs}``, VSIC force sensor ``axes: [5]`` resolved from the scene)."""
+    from hil.scene import builtin_scenes, load_scene
+
+    for name, _ in builtin_scenes():
+        sc = load_scene(name)
+        ctrl = make_controller(sc.controller_config(), units=sc.units, scene=sc)
+        if isinstance(ctrl, PositionPD):
+            assert ctrl.n == sum(idx.size for _, idx in ctrl.layout)
+        if name == "sdea_bench":
+            assert isinstance(ctrl, VSIC) and ctrl.force_axis == 5
+            meas = {"motor": JointSample(0, 0, np.zeros(1), np.zeros(1)),
+                    "spring_ft": WrenchSample(0, 0, np.r_[0, 0, 0, 0, 0, 0.25])}
+            assert ctrl.spring_force(meas) == 0.25
+        if name == "dual_master_3dof":
+            assert [(d, idx.tolist()) for d, idx in ctrl.layout] == [("master1", [0]), ("master2", [1, 2]),
+                                                                     ("slave", [3, 4, 5])]
