@@ -87,7 +87,12 @@ def _get(obj: Any, key: str, default: Any = None) -> Any:
 
 
 def _devices(scene: Any) -> dict[str, Any]:
-    return {str(_get(d, "name")): d for d in (_get(scene, "devices") or [])}
+    """Devices by name, plus device groups (as the scene's group actuator) when the scene has them."""
+    out = {str(_get(d, "name")): d for d in (_get(scene, "devices") or [])}
+    for g in _get(scene, "groups") or []:
+        name = str(_get(g, "name"))
+        out[name] = scene.device(name) if hasattr(scene, "device") else g
+    return out
 
 
 def _wrench_axes(dev: Any) -> list[int]:

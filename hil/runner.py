@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.errors import HilError, SafetyStop
+from hil.errors import DeviceDisconnected, DeviceTimeout, HilError, SafetyStop
 
 log = logging.getLogger(__name__)
 
@@ -234,16 +234,23 @@ class Runner:
         self.progress = progress
         self.max_ticks = max_ticks
         self.devices = {d.name: d for d in scene.devices}
+        self.devices.update({g.name: scene.device(g.name) for g in getattr(scene, "groups", [])})
         self.ports = list(getattr(getattr(scene, "network", None), "ports", None) or [])
 
     # -- channels ---------------------------------------------------------------------------------
-    def _channels(self, exp_name: str) -> dict[str, Any]:
+    def _actuator_like(self) -> list[Any]:
+        """Actuators plus device groups (recorded under the group name too)."""
+        groups = [self.scene.device(g.name) for g in getattr(self.scene, "groups", [])]
+        return [d for d in self.scene.devices if d.role == "actuator"] + groups
+
+    def _channels(self, meas0: Mapping[str, Any]) -> dict[str, Any]:
+        """Channel specs; sensor wrench sizes come from a first reading ``meas0``."""
         from hil.record import ChannelSpec
 
         lin = getattr(self.scene, "units", "rotary") == "linear"
         pu, vu, fu = ("m", "m/s", "N") if lin else ("rad", "rad/s", "N.m")
         ch: dict[str, Any] = {}
-        for d in self.scene.devices:
+        for d in self._actuator_like() + [d for d in self.scene.devices if d.role != "actuator"]:
             n = int(d.dof)
             if d.role == "actuator":
                 ch[f"{d.name}.position"] = ChannelSpec((n,), pu, "measured position")
@@ -252,7 +259,8 @@ class Runner:
                 ch[f"{d.name}.effort_cmd"] = ChannelSpec((n,), fu, "commanded effort (controller + excitation)")
                 ch[f"{d.name}.excitation"] = ChannelSpec((n,), fu, "experiment part of the commanded effort")
             else:
-                ch[f"{d.name}.wrench"] = ChannelSpec((n,), "N, N.m", "measured wrench")
+                nw = int(np.asarray(meas0[d.name].wrench).size)
+                ch[f"{d.name}.wrench"] = ChannelSpec((nw,), "N, N.m", "measured wrench (all axes)")
         for p in self.ports:
             if getattr(p, "force_sensor", None):
                 ch[f"{p.name}.energy"] = ChannelSpec((1,), "J", "E_s(t) = ∫ F_port·V dt into the device at the port")
@@ -280,7 +288,7 @@ class Runner:
         exp = make_experiment(ecfg, rate_hz=self.rate_hz)
         exp.check(self.scene)
         ccfg = {"type": "none"} if ecfg.get("controller") == "none" else _dump(getattr(self.scene, "controller", None))
-        ctrl = make_controller(ccfg, units=getattr(self.scene, "units", "rotary"))
+        ctrl = make_controller(ccfg, units=getattr(self.scene, "units", "rotary"), scene=self.scene)
         ctrl.reset()
         n = round(exp.duration * self.rate_hz)
         if self.max_ticks is not None:
@@ -293,7 +301,7 @@ class Runner:
                 "network": [p.model_dump() if hasattr(p, "model_dump") else dict(p) for p in self.ports],
                 "units": getattr(self.scene, "units", "rotary")}
         writer = RecordWriter(path, scene_text=self.scene.source_text, scene_sha256=self.scene.sha256, meta=meta,
-                              channels=self._channels(name), rate_hz=self.rate_hz)
+                              channels=self._channels(self.bench.read()), rate_hz=self.rate_hz)
         state = {"status": "completed", "reason": "completed"}
         stats = LoopStats()
         buf: dict[str, list[Any]] = {"t": []}  # the same samples, kept for the experiment's analysis
@@ -305,6 +313,7 @@ class Runner:
             log.warning("%s: safe stop: %s", name, reason)
             with contextlib.suppress(Exception):
                 writer.event(stats.ticks * self.dt, status, reason)
+                writer.event(stats.ticks * self.dt, "safe_stop", "zero effort commanded on every actuator")
 
         try:
             with safe_stop_context(self.bench.safe_stop, on_stop):
@@ -326,7 +335,10 @@ class Runner:
                         if late > self.dt:
                             stats.overruns += 1
                         safety.check_overrun(late)
-                    meas = self.bench.read()
+                    try:
+                        meas = self.bench.read()
+                    except (DeviceTimeout, DeviceDisconnected) as exc:  # feedback missed: a watchdog stop
+                        raise SafetyStop(f"watchdog: {exc}") from exc
                     safety.check_feedback(t, meas)
                     u = {key: np.asarray(v, float).copy() for key, v in ctrl.update(t, self.dt, meas).items()}
                     exc = exp.excitation(k, t, meas)
@@ -369,9 +381,7 @@ class Runner:
         """The record row of one tick (device channels; ports are added by :meth:`_port_energy`)."""
         values: dict[str, Any] = {"loop.late": late}
         for dname, s in meas.items():
-            d = self.devices.get(dname)
-            if d is None:  # a device group: its members are recorded
-                continue
+            d = self.devices[dname]
             n = int(d.dof)
             if d.role == "actuator":
                 values[f"{dname}.position"] = s.position

@@ -779,9 +779,11 @@ class Scene(_Strict):
         for g in self.groups:
             if g.name == name:
                 members = [self.device(m) for m in g.devices]
+                bodies = {m.body for m in members}
                 return Device.model_construct(name=g.name, role="actuator", driver="(group)", params={},
-                                              dof=sum(m.dof for m in members), body=None, dofs=None, axes=None,
-                                              sim=None)
+                                              dof=sum(m.dof for m in members),
+                                              body=bodies.pop() if len(bodies) == 1 else None, dofs=None,
+                                              axes=None, sim=None)
         raise KeyError(name)
 
     def group(self, name: str) -> GroupCfg | None:

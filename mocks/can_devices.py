@@ -239,6 +239,9 @@ class SimODrive(SimCanNode):
     in CLOSED_LOOP_CONTROL with TORQUE_CONTROL and no (injected or latched) axis error.
     ``heartbeat_every`` / ``encoder_every``: period of the cyclic frames in ticks (0 = off).
     Injected error codes are OR-ed into ``axis_error`` and disarm the axis while active.
+    ``watchdog_ticks``: the drive's own CAN watchdog (ODrive ``axis.config.watchdog_timeout``):
+    when no Set_Input_Torque arrives for that many ticks while armed, the axis drops to IDLE with
+    zero torque -- what keeps a real rig safe when the host or the bus dies (0 = off).
     """
 
     kind = "odrive"
@@ -254,9 +257,12 @@ class SimODrive(SimCanNode):
         linear_scale: float | None = None,
         heartbeat_every: int = 1,
         encoder_every: int = 0,
+        watchdog_ticks: int = 20,
         **kw: Any,
     ) -> None:
         self.node_id = node_id
+        self.watchdog_ticks = int(watchdog_ticks)
+        self._last_torque_tick = 0
         self.gear_ratio = gear_ratio
         self.linear_scale = linear_scale
         self.heartbeat_every = heartbeat_every
@@ -317,9 +323,11 @@ class SimODrive(SimCanNode):
         if cmd == od.CMD_SET_INPUT_TORQUE and len(data) >= 4:
             self.input_torque = od.struct.unpack_from("<f", data)[0]
             self.commands.append((self.tick_count, self.input_torque))
+            self._last_torque_tick = self.tick_count
             self._apply()
         elif cmd == od.CMD_SET_AXIS_STATE and len(data) >= 4:
             req = od.struct.unpack_from("<I", data)[0]
+            self._last_torque_tick = self.tick_count  # arming feeds the watchdog
             if req == od.AxisState.CLOSED_LOOP_CONTROL and self.axis_error:
                 req = od.AxisState.IDLE  # refuses to arm while in error
             self.axis_state = int(req)
@@ -343,6 +351,11 @@ class SimODrive(SimCanNode):
     def on_tick(self) -> None:
         if self.axis_error and self.axis_state != od.AxisState.IDLE:
             self.axis_state = int(od.AxisState.IDLE)  # a fault disarms the axis
+        if (self.watchdog_ticks and self.axis_state == od.AxisState.CLOSED_LOOP_CONTROL
+                and self.tick_count - self._last_torque_tick > self.watchdog_ticks):
+            log.warning("odrive node %d: CAN watchdog expired, axis idle", self.node_id)
+            self.axis_state = int(od.AxisState.IDLE)  # the drive's own watchdog
+            self.input_torque = 0.0
         self._apply()
         t = self.tick_count
         if self.heartbeat_every and t % self.heartbeat_every == 0:
