@@ -30,9 +30,21 @@ URL                                    transport
 ``/dev/ttyUSB0`` or ``COM3``           same as ``rtu://`` with the sensor's default 19200 8N1
 ====================================== ===============================================================
 
-Polling is fully implemented through pymodbus. The stream format is implemented as pure
-functions (:func:`encode_stream_frame`, :class:`StreamParser`); see also the simulated devices
-in :mod:`hil.mocks.modbus_devices`.
+Polling (:class:`RobotiqFT300`, driver ``robotiq_ft300``) goes through pymodbus. Stream mode
+(:class:`RobotiqFT300Stream`, driver ``robotiq_ft300_stream``) needs a byte stream to the sensor's
+serial line, opened with :func:`serial.serial_for_url`: ``/dev/ttyUSB0``, a pty path,
+``socket://HOST:PORT`` (a serial device server in transparent mode), ``rtu:///dev/ttyUSB0`` (same
+as the path). The frame codec is the pure :func:`encode_stream_frame` / :class:`StreamParser`.
+Simulated devices: :mod:`hil.mocks.modbus_devices` (pymodbus server, polling) and
+:mod:`hil.mocks.ft300_stream` (the streaming sensor on a pty).
+
+Stream start/stop sequence (manual, "Data stream"; Robotiq's ``rq_sensor_com.c``, which writes
+register 410 with function 16 *Preset Multiple Registers*, one register, and sends 50 x 0xFF)::
+
+    host -> 09 10 01 9A 00 01 02 02 00 CRC   write 0x0200 to register 410 (FC16)
+    host <- 09 10 01 9A 00 01 CRC            echo; the 16-byte frames follow at 100 Hz
+    ...
+    host -> FF x 50                          "jam": the sensor stops streaming, Modbus again
 
 Assumptions (documented, not in the manual): ``tare()`` is a software offset (subtract the
 current reading), as Robotiq's own driver does; the sensor frame is reported unchanged.
@@ -346,13 +358,349 @@ class RobotiqFT300(ForceSensor):
         self._call(self._client.write_register, timeout, address, value)
 
 
+
+# ------------------------------------------------------------------------------------------------
+# Modbus RTU on a raw byte stream (what stream mode needs: the same serial line carries both)
+# ------------------------------------------------------------------------------------------------
+FC_READ_HOLDING = 0x03
+FC_READ_INPUT = 0x04
+FC_WRITE_SINGLE = 0x06
+FC_WRITE_MULTIPLE = 0x10
+
+
+def rtu_frame(slave: int, pdu: bytes) -> bytes:
+    """``slave | pdu | CRC-16/MODBUS`` (CRC low byte first): one Modbus RTU frame."""
+    body = bytes([slave & 0xFF]) + bytes(pdu)
+    return body + struct.pack("<H", crc16_modbus(body))
+
+
+def stream_start_request(slave: int = DEFAULT_SLAVE_ID) -> bytes:
+    """The RTU request that starts the data stream: FC16, register 410, one register, 0x0200
+    (as Robotiq's ``rq_com_start_stream`` sends it)."""
+    pdu = struct.pack(">BHHBH", FC_WRITE_MULTIPLE, REG_OUTPUT_SELECT, 1, 2, STREAM_START_VALUE)
+    return rtu_frame(slave, pdu)
+
+
+def _rtu_reply_length(buf: bytes | bytearray, i: int, fc: int) -> int | None:
+    """Expected length of the RTU reply to function ``fc`` starting at ``buf[i]`` (None: need more
+    bytes to tell)."""
+    if len(buf) - i < 3:
+        return None
+    if buf[i + 1] == (fc | 0x80):
+        return 5  # slave, fc | 0x80, exception code, CRC
+    if fc in (FC_READ_HOLDING, FC_READ_INPUT):
+        return 5 + buf[i + 2]
+    return 8  # FC06 / FC16 echo: slave, fc, address, value or count, CRC
+
+
+def _parse_rtu_reply(buf: bytearray, slave: int, fc: int) -> tuple[bytes | None, int, bool]:
+    """Find the reply of ``slave`` to ``fc`` in ``buf``: (frame or None, end index, bad CRC seen).
+
+    Bytes before a candidate (line noise, the tail of a stream) are skipped; a candidate whose CRC
+    fails is skipped too (a real master would discard it) but reported.
+    """
+    bad_crc = False
+    start = 0
+    while True:
+        i = buf.find(bytes([slave & 0xFF]), start)
+        if i < 0 or len(buf) - i < 2:
+            return None, 0, bad_crc
+        if buf[i + 1] not in (fc, fc | 0x80):
+            start = i + 1
+            continue
+        n = _rtu_reply_length(buf, i, fc)
+        if n is None or len(buf) - i < n:
+            return None, 0, bad_crc
+        frame = bytes(buf[i : i + n])
+        if _modbus_crc_ok(frame):
+            return frame, i + n, bad_crc
+        bad_crc = True
+        start = i + 1
+
+
+class RobotiqFT300Stream(ForceSensor):
+    """Robotiq FT-300 in data-stream mode on a serial line (see the module docstring).
+
+    On open: the port is opened with :func:`serial.serial_for_url` (19200 8N1 by default) and its
+    input flushed; if valid stream frames arrive within ``probe_s`` the sensor is already streaming
+    (left so by a previous program) and is used as it is (``info.extra["start"] ==
+    "already-streaming"``); otherwise, optionally, firmware / serial number / production year are
+    read with FC03 (``read_info``), then 0x0200 is written to register 410 with FC16 and the echo
+    awaited (``"handshake"``). If no echo but valid stream frames arrive, the stream is accepted
+    (Robotiq's driver does the same). No echo and no stream -> :class:`DeviceTimeout`; a Modbus
+    exception reply -> :class:`DeviceFault` (``code`` = exception code); only garbled replies ->
+    :class:`ChecksumError`.
+
+    :meth:`read` returns the newest frame received since the previous read and waits at most
+    ``timeout`` for one (:class:`DeviceTimeout` otherwise; the sensor streams at 100 Hz, so a faster
+    loop either waits or passes ``max_age``: a previous sample at most that old (s, host clock) is
+    then returned again, same ``seq``). Garbage is skipped (the parser resynchronises on the
+    0x20 0x4E header); frames failing their CRC are dropped and counted in ``stats["crc_errors"]``
+    and ``stats["gaps"]`` (each is a missing sample), or raise :class:`ChecksumError` with
+    ``on_crc_error="raise"``. Frames carry no sequence number or timestamp: a dropped frame shows
+    only as a longer wait, a repeated (stale) one cannot be told from a constant force.
+
+    :meth:`close` (idempotent, never raises) stops the stream with the 0xFF jam, waiting up to
+    ``stop_timeout`` for the line to go quiet (``stream_stopped`` tells whether it did), then
+    closes the port.
+    """
+
+    axes = 6
+
+    def __init__(
+        self,
+        url: str = "/dev/ttyUSB0",
+        slave: int = DEFAULT_SLAVE_ID,
+        timeout: float = 0.1,
+        *,
+        baudrate: int = DEFAULT_BAUDRATE,
+        read_info: bool = True,
+        probe_s: float = 0.02,
+        max_age: float = 0.0,
+        on_crc_error: str = "count",
+        clock: Callable[[], float] = time.monotonic,
+        poll_s: float = 0.002,
+        stop_timeout: float = 0.3,
+        quiet_s: float = 0.05,
+    ) -> None:
+        import serial  # optional dependency (extra "serial")
+
+        if on_crc_error not in ("count", "raise"):
+            raise ValueError("on_crc_error must be 'count' or 'raise'")
+        self.url = url
+        self.slave = int(slave)
+        self.timeout = float(timeout)
+        self.max_age = float(max_age)
+        self.on_crc_error = on_crc_error
+        self.stop_timeout = float(stop_timeout)
+        self.quiet_s = float(quiet_s)
+        self._clock = clock
+        self._serial_errors = (serial.SerialException, OSError)
+        self.parser = StreamParser()
+        self._seq = 0
+        self._offset = np.zeros(6)
+        self._pending: np.ndarray | None = None
+        self._last: WrenchSample | None = None
+        self._last_rx = -np.inf
+        self._crc_seen = 0
+        self._skipped = 0
+        self._closed = False
+        self.streaming = False
+        self.stream_stopped: bool | None = None
+        port_url, baud = self._port_url(url, baudrate)
+        self.info = DeviceInfo(
+            driver="robotiq_ft300_stream", transport="serial-stream", vendor="Robotiq", model="FT-300",
+            extra={"url": url, "slave": self.slave},
+        )
+        try:
+            self._ser = serial.serial_for_url(
+                port_url, baudrate=baud, bytesize=8, parity="N", stopbits=1, timeout=poll_s,
+                write_timeout=max(self.timeout, 0.05),
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            self._closed = True
+            raise DeviceDisconnected(f"FT-300: cannot open {url!r}: {exc}") from exc
+        try:
+            self._start(read_info, probe_s)
+        except BaseException:
+            self.close()
+            raise
+        log.info("FT-300 stream on %s (%s, %s)", url, self.info.extra["start"], self.info.firmware or "fw ?")
+
+    # -- ForceSensor ------------------------------------------------------------------------------
+    @property
+    def stats(self) -> dict[str, int]:
+        """frames (valid), crc_errors, gaps (= samples lost to CRC failures), skipped_bytes
+        (resynchronisation), skipped_frames (decoded but superseded by a newer one before a read)."""
+        p = self.parser
+        return {"frames": p.frames, "crc_errors": p.crc_errors, "gaps": p.crc_errors,
+                "skipped_bytes": p.skipped_bytes, "skipped_frames": self._skipped}
+
+    def read(self, timeout: float | None = None) -> WrenchSample:
+        """Newest stream sample (N, N.m); waits at most ``timeout`` (default: the adapter's)."""
+        t = self.timeout if timeout is None else float(timeout)
+        deadline = time.monotonic() + t
+        self._pump(block=False)
+        while self._pending is None:
+            if self._last is not None and self.max_age > 0 and time.monotonic() - self._last_rx <= self.max_age:
+                return self._last
+            if time.monotonic() >= deadline:
+                raise DeviceTimeout(f"FT-300 stream on {self.url}: no frame within {t:.3f} s")
+            self._pump(block=True)
+        wrench, self._pending = self._pending, None
+        self._seq += 1
+        self._last = WrenchSample(t=self._clock(), seq=self._seq, wrench=wrench - self._offset)
+        return self._last
+
+    def tare(self, timeout: float = 0.5) -> None:
+        """Software zero: later readings are relative to the next streamed one."""
+        self._offset = np.zeros(6)
+        self._offset = self.read(timeout).wrench.copy()
+
+    def stop_stream(self, timeout: float | None = None) -> bool:
+        """Send the 0xFF jam (again every 0.1 s) until no byte arrives for ``quiet_s``; True if the
+        line went quiet within ``timeout`` (default ``stop_timeout``). Never raises."""
+        limit = self.stop_timeout if timeout is None else float(timeout)
+        deadline = time.monotonic() + limit
+        stopped = False
+        try:
+            next_jam = 0.0
+            quiet_since = time.monotonic()
+            while True:
+                now = time.monotonic()
+                if now >= next_jam:
+                    self._ser.write(STREAM_STOP_JAM)
+                    self._ser.flush()
+                    next_jam = now + 0.1
+                data = self._ser.read(self._ser.in_waiting or 1)
+                now = time.monotonic()
+                if data:
+                    quiet_since = now
+                elif now - quiet_since >= self.quiet_s:
+                    stopped = True
+                    break
+                if now >= deadline:
+                    break
+        except Exception as exc:  # a lost port cannot be stopped; close anyway
+            log.debug("FT-300: stopping the stream failed: %s", exc)
+        self.streaming = False
+        self.stream_stopped = stopped
+        return stopped
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        ser = getattr(self, "_ser", None)
+        if ser is None:
+            return
+        if self.streaming or self.info.extra.get("start") is None:
+            self.stop_stream()  # also after a failed start: the sensor may have switched anyway
+        try:
+            ser.close()
+        except Exception:  # pragma: no cover
+            log.debug("FT-300: error closing %s", self.url, exc_info=True)
+
+    # -- internals --------------------------------------------------------------------------------
+    @staticmethod
+    def _port_url(url: str, baudrate: int) -> tuple[str, int]:
+        scheme = url.split("://", 1)[0].lower() if "://" in url else ""
+        if scheme == "rtu":
+            ep = ModbusEndpoint.parse(url)
+            return ep.device, ep.baudrate if "baudrate=" in url else baudrate
+        if scheme in ("tcp", "modbus+tcp", "rtu-over-tcp"):
+            raise ValueError(f"{url!r}: stream mode needs a byte stream to the sensor's serial line "
+                             "(a device path, or socket://HOST:PORT for a transparent serial server)")
+        return url, baudrate
+
+    def _io_error(self, exc: BaseException) -> DeviceDisconnected:
+        return DeviceDisconnected(f"FT-300 on {self.url}: port lost: {exc}")
+
+    def _recv(self, block: bool) -> bytes:
+        if self._closed:
+            raise DeviceDisconnected("FT-300 stream adapter is closed")
+        try:
+            n = self._ser.in_waiting
+            if n:
+                return self._ser.read(n)
+            return self._ser.read(1) if block else b""
+        except self._serial_errors as exc:
+            raise self._io_error(exc) from exc
+
+    def _send(self, data: bytes) -> None:
+        try:
+            self._ser.write(data)
+            self._ser.flush()
+        except self._serial_errors as exc:
+            raise self._io_error(exc) from exc
+
+    def _feed(self, data: bytes) -> None:
+        if not data:
+            return
+        frames = self.parser.feed(data)
+        if frames:
+            self._skipped += len(frames) - 1 + (self._pending is not None)
+            self._pending = frames[-1]
+            self._last_rx = time.monotonic()
+        n = self.parser.crc_errors
+        if n != self._crc_seen:
+            new, self._crc_seen = n - self._crc_seen, n
+            if self.on_crc_error == "raise":
+                raise ChecksumError(f"FT-300 stream on {self.url}: {new} frame(s) failed CRC-16/MODBUS")
+
+    def _pump(self, block: bool) -> None:
+        self._feed(self._recv(block))
+
+    def _start(self, read_info: bool, probe_s: float) -> None:
+        try:
+            self._ser.reset_input_buffer()
+        except self._serial_errors as exc:
+            raise self._io_error(exc) from exc
+        if probe_s > 0:
+            end = time.monotonic() + probe_s
+            while time.monotonic() < end and self._pending is None:
+                self._pump(block=True)
+            if self._pending is not None:
+                self.streaming = True
+                self.info.extra["start"] = "already-streaming"
+                return
+            self.parser = StreamParser()  # forget noise seen while probing
+            self._crc_seen = 0
+        if read_info:
+            self.info.firmware = decode_firmware(self._read_registers(REG_FIRMWARE, 3))
+            self.info.serial = decode_serial(self._read_registers(REG_SERIAL, 4))
+            self.info.extra["production_year"] = self._read_registers(REG_PRODUCTION_YEAR, 1)[0]
+        try:
+            echo, rest = self._transact(stream_start_request(self.slave), FC_WRITE_MULTIPLE)
+        except (DeviceTimeout, ChecksumError):
+            if StreamParser().feed(bytes(self._rx_buf)):  # no echo, but the stream is there
+                self._feed(bytes(self._rx_buf))
+                self.streaming = True
+                self.info.extra["start"] = "stream-without-echo"
+                return
+            raise
+        if echo[2:6] != struct.pack(">HH", REG_OUTPUT_SELECT, 1):
+            raise ProtocolError(f"FT-300: unexpected echo to the stream start request ({echo.hex(' ')})")
+        self.streaming = True
+        self.info.extra["start"] = "handshake"
+        self._feed(rest)
+
+    def _transact(self, request: bytes, fc: int) -> tuple[bytes, bytes]:
+        """Send one RTU request; return (reply frame, bytes received after it)."""
+        self._rx_buf = bytearray()
+        self._send(request)
+        deadline = time.monotonic() + self.timeout
+        bad_crc = False
+        while True:
+            self._rx_buf += self._recv(block=True)
+            frame, end, bad = _parse_rtu_reply(self._rx_buf, self.slave, fc)
+            bad_crc |= bad
+            if frame is not None:
+                if frame[1] & 0x80:
+                    raise DeviceFault(f"FT-300 answered with Modbus exception {frame[2]}", code=frame[2])
+                return frame, bytes(self._rx_buf[end:])
+            if time.monotonic() >= deadline:
+                if bad_crc:
+                    raise ChecksumError(f"FT-300: reply with bad CRC ({bytes(self._rx_buf).hex(' ')})")
+                raise DeviceTimeout(f"FT-300 on {self.url}: no reply within {self.timeout:.3f} s")
+
+    def _read_registers(self, address: int, count: int) -> list[int]:
+        frame, _ = self._transact(rtu_frame(self.slave, struct.pack(">BHH", FC_READ_HOLDING, address, count)),
+                                  FC_READ_HOLDING)
+        if frame[2] != 2 * count:
+            raise ProtocolError(f"FT-300: asked {count} registers at {address}, got {frame[2]} bytes")
+        return list(struct.unpack(f">{count}H", frame[3 : 3 + 2 * count]))
+
 __all__ = [
     "ModbusEndpoint",
     "RobotiqFT300",
+    "RobotiqFT300Stream",
     "StreamParser",
     "decode_firmware",
     "decode_serial",
     "decode_stream_frame",
     "encode_stream_frame",
     "registers_to_wrench",
+    "rtu_frame",
+    "stream_start_request",
 ]

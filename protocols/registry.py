@@ -33,6 +33,7 @@ _DRIVERS: dict[str, str] = {
     "bota_serial": "hil.protocols.serial_bota:BotaSerial",
     # implemented by another engineer (same registry, lazily imported as well)
     "robotiq_ft300": "hil.protocols.modbus_robotiq:RobotiqFT300",
+    "robotiq_ft300_stream": "hil.protocols.modbus_robotiq:RobotiqFT300Stream",
     "dynamixel_x": "hil.protocols.dynamixel_x:DynamixelX",
 }
 

@@ -1,0 +1,375 @@
+"""Simulated Robotiq FT-300 on a serial line (pty): Modbus RTU until told to stream, then frames.
+
+The simulator owns the *master* side of a pseudo terminal; an adapter opens the slave path
+(:attr:`SimFT300Stream.path`) exactly as it would open ``/dev/ttyUSB0``
+(:class:`hil.protocols.modbus_robotiq.RobotiqFT300Stream` for stream mode, or the polled
+:class:`~hil.protocols.modbus_robotiq.RobotiqFT300` with ``rtu://PATH``).
+
+Behaviour (FT-300 manual, "Serial communication": Modbus RTU, slave 9, then "Data stream"):
+
+* **Modbus mode** (at power-up): a background thread answers RTU requests addressed to the slave
+  id: FC03/FC04 reads of the register map of :mod:`hil.mocks.modbus_devices` (180-185 wrench,
+  190-192 acceleration = 0, 410, 500-502 firmware, 510-513 serial number, 514 production year;
+  other addresses -> exception 2), FC06/FC16 writes of register 410 (echo; other addresses ->
+  exception 2). Requests with a bad CRC or for another id get no reply, as on an RS-485 bus.
+  Writing 0x0200 to register 410 switches to stream mode right after the echo.
+* **Stream mode**: 16-byte frames ``20 4E Fx..Mz CRC`` (:func:`encode_stream_frame`), either one
+  per :meth:`emit` call (lockstep: the byte stream is a pure function of the plant state, the
+  fault plan and the seed) or at ``rate_hz`` from a thread (:meth:`start`; 100 Hz like the
+  sensor). The device ignores everything it receives except 0xFF: ``jam_bytes`` consecutive 0xFF
+  (the manual: about 50) stop the stream and it answers Modbus again.
+
+The wrench source is a :class:`SimulatedJoints` (``measured_force()``) or a callable returning up
+to 6 values (N, N.m); shorter vectors fill Fx, Fy, ... in order. Values saturate at the int16
+range like the real sensor.
+
+Faults (:mod:`hil.mocks.faults`), decided per emitted frame; the *tick* is the index of the frame
+(1, 2, ... counted while streaming): drop (nothing written), corrupt (one byte after the header
+flipped -> CRC failure), garbage (random bytes before the frame -> resynchronisation), stale (the
+previous frame re-sent byte for byte), late (held and written after the next frame), disconnect
+(silent from tick N to M). ``error_code`` has no place in the stream format and is ignored; Modbus
+replies are never faulted. :meth:`hangup` closes the pty (the adapter gets an I/O error).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import select
+import struct
+import threading
+import time
+import tty
+from collections import Counter
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from hil.mocks.faults import FaultInjector, FaultPlan
+from hil.mocks.interfaces import SimulatedJoints
+from hil.mocks.modbus_devices import firmware_registers, serial_registers, wrench_to_registers
+from hil.protocols.crc import crc16_modbus
+from hil.protocols.modbus_robotiq import (
+    DEFAULT_SLAVE_ID,
+    REG_OUTPUT_SELECT,
+    REG_WRENCH,
+    STREAM_START_VALUE,
+    encode_stream_frame,
+    rtu_frame,
+)
+
+log = logging.getLogger(__name__)
+
+WrenchSource = Callable[[], Any]
+
+REG_ACCEL = 190
+REG_FIRMWARE = 500
+REG_SERIAL = 510
+REG_PRODUCTION_YEAR = 514
+EXC_ILLEGAL_FUNCTION = 1
+EXC_ILLEGAL_ADDRESS = 2
+EXC_ILLEGAL_VALUE = 3
+
+
+class SimFT300Stream:
+    """Simulated FT-300 on a pty (see the module docstring). Use as a context manager or call
+    :meth:`close` (idempotent)."""
+
+    kind = "ft300_stream"
+
+    def __init__(
+        self,
+        source: SimulatedJoints | WrenchSource | None = None,
+        *,
+        rate_hz: float = 100.0,
+        slave: int = DEFAULT_SLAVE_ID,
+        faults: FaultPlan | FaultInjector | None = None,
+        seed: int | None = 0,
+        jam_bytes: int = 50,
+        firmware: tuple[int, int, int] = (1, 0, 3),
+        serial: tuple[str, int] = ("SIM", 1),
+        production_year: int = 2024,
+        streaming: bool = False,
+    ) -> None:
+        self.rate_hz = float(rate_hz)
+        self.slave = int(slave)
+        self.injector = faults if isinstance(faults, FaultInjector) else FaultInjector(faults, seed)
+        self.jam_bytes = int(jam_bytes)
+        self._source = self._make_source(source)
+        self._static: dict[int, int] = {REG_OUTPUT_SELECT: 0, REG_PRODUCTION_YEAR: production_year & 0xFFFF}
+        for k in range(3):
+            self._static[REG_ACCEL + k] = 0
+        for k, v in enumerate(firmware_registers(firmware)):
+            self._static[REG_FIRMWARE + k] = v
+        for k, v in enumerate(serial_registers(*serial)):
+            self._static[REG_SERIAL + k] = v
+        self.tick_count = 0
+        self.stats: Counter[str] = Counter()
+        self.written: list[tuple[int, int, list[int]]] = []  # (function, address, values)
+        self._streaming = bool(streaming)
+        self._ff_run = 0
+        self._rx = bytearray()
+        self._rx_t = 0.0
+        self._last: bytes | None = None
+        self._held: bytes | None = None
+        self._lock = threading.RLock()
+        self._state = threading.Condition(self._lock)
+        self._stop = threading.Event()
+        self._stream_stop = threading.Event()
+        self._stream_thread: threading.Thread | None = None
+        self._closed = False
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)  # no line discipline: bytes pass unchanged
+        os.set_blocking(self._master, False)
+        self.path = os.ttyname(self._slave)
+        self._rx_thread = threading.Thread(target=self._serve, name="sim-ft300-stream-rx", daemon=True)
+        self._rx_thread.start()
+        log.debug("simulated FT-300 (stream) on %s", self.path)
+
+    # -- public -----------------------------------------------------------------------------------
+    @property
+    def streaming(self) -> bool:
+        """True while the device is in stream mode."""
+        return self._streaming
+
+    def wait_streaming(self, state: bool = True, timeout: float = 1.0) -> bool:
+        """Wait until :attr:`streaming` equals ``state``; returns whether it does."""
+        with self._state:
+            return self._state.wait_for(lambda: self._streaming == state, timeout)
+
+    def wrench(self) -> np.ndarray:
+        """The current wrench (6,) from the source (N, N.m)."""
+        w = np.zeros(6)
+        src = np.asarray(self._source(), dtype=float).reshape(-1)[:6]
+        w[: src.size] = src
+        return w
+
+    def emit(self) -> bool:
+        """Write one stream frame now (lockstep). False (and no tick) when not streaming."""
+        with self._lock:
+            if self._closed or not self._streaming:
+                return False
+            self.tick_count += 1
+            t = self.tick_count
+            inj = self.injector
+            if inj.is_disconnected(t):
+                self.stats["silent"] += 1
+                return True
+            frame = encode_stream_frame(self.wrench())
+            if inj.should_drop(t):
+                self.stats["dropped"] += 1
+                return True
+            if self._last is not None and inj.should_repeat_stale():
+                frame = self._last
+                self.stats["stale"] += 1
+            self._last = frame
+            if inj.should_corrupt(t):
+                frame = inj.corrupt(frame, start=2)
+                self.stats["corrupted"] += 1
+            junk = inj.garbage()
+            if junk:
+                self.stats["garbage"] += 1
+            data = junk + frame
+            if inj.is_late() and self._held is None:
+                self._held = data
+                self.stats["late"] += 1
+                return True
+            if self._held is not None:
+                data, self._held = data + self._held, None
+            self._write(data)
+            self.stats["frames"] += 1
+            return True
+
+    def start(self, rate_hz: float | None = None) -> None:
+        """Emit frames from a thread at ``rate_hz`` (default :attr:`rate_hz`) while streaming."""
+        if self._stream_thread is not None:
+            return
+        period = 1.0 / (rate_hz or self.rate_hz)
+        self._stream_stop.clear()
+
+        def run() -> None:
+            next_t = time.monotonic()
+            while not self._stream_stop.is_set():
+                self.emit()
+                next_t += period
+                delay = next_t - time.monotonic()
+                if delay > 0:
+                    self._stream_stop.wait(delay)
+                elif delay < -10 * period:
+                    next_t = time.monotonic()
+
+        self._stream_thread = threading.Thread(target=run, name="sim-ft300-stream", daemon=True)
+        self._stream_thread.start()
+
+    def stop(self) -> None:
+        """Stop the emitting thread (the device stays in its mode)."""
+        if self._stream_thread is not None:
+            self._stream_stop.set()
+            self._stream_thread.join(timeout=2.0)
+            self._stream_thread = None
+
+    def write_raw(self, data: bytes) -> None:
+        """Write arbitrary bytes to the line (tests)."""
+        with self._lock:
+            self._write(data)
+
+    def hangup(self) -> None:
+        """Stop every thread and close both pty ends (like unplugging the USB adapter)."""
+        self.stop()
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        self._stop.set()
+        self._rx_thread.join(timeout=2.0)
+        for fd in (self._master, self._slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+    def close(self) -> None:
+        self.hangup()
+
+    def __enter__(self) -> SimFT300Stream:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- internals --------------------------------------------------------------------------------
+    @staticmethod
+    def _make_source(source: SimulatedJoints | WrenchSource | None) -> WrenchSource:
+        if source is None:
+            return lambda: np.zeros(6)
+        if hasattr(source, "measured_force"):
+            return source.measured_force  # type: ignore[union-attr]
+        if callable(source):
+            return source
+        raise TypeError("source must be a SimulatedJoints, a callable or None")
+
+    def _write(self, data: bytes) -> None:
+        try:
+            n = os.write(self._master, data)
+            if n < len(data):
+                self.stats["overflow_bytes"] += len(data) - n
+        except BlockingIOError:  # nobody reads: the pty buffer is full -> data lost
+            self.stats["overflow_frames"] += 1
+        except OSError as exc:
+            log.debug("pty write failed: %s", exc)
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            try:
+                ready, _, _ = select.select([self._master], [], [], 0.05)
+            except (OSError, ValueError):
+                return
+            if not ready:
+                continue
+            try:
+                data = os.read(self._master, 4096)
+            except BlockingIOError:
+                continue
+            except OSError:  # EIO while no slave is open
+                time.sleep(0.01)
+                continue
+            if data:
+                self._receive(data)
+
+    def _receive(self, data: bytes) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            if self._streaming:
+                for b in data:
+                    self._ff_run = self._ff_run + 1 if b == 0xFF else 0
+                    if self._ff_run >= self.jam_bytes:
+                        self._set_streaming(False)
+                        self.stats["jams"] += 1
+                        self._ff_run = 0
+                        self._rx.clear()
+                        break
+                return
+            now = time.monotonic()
+            if self._rx and now - self._rx_t > 0.05:  # RTU: a long silence ends any partial frame
+                self._rx.clear()
+            self._rx_t = now
+            self._rx += data
+            self._process_requests()
+
+    def _set_streaming(self, on: bool) -> None:
+        self._streaming = on
+        self._state.notify_all()
+
+    def _process_requests(self) -> None:
+        buf = self._rx
+        while buf:
+            n = self._request_length(buf)
+            if n == 0:  # cannot be a request start: drop one byte
+                del buf[:1]
+                continue
+            if n < 0 or len(buf) < n:
+                return  # need more bytes
+            frame = bytes(buf[:n])
+            if crc16_modbus(frame[:-2]) != int.from_bytes(frame[-2:], "little"):
+                self.stats["bad_requests"] += 1
+                del buf[:1]
+                continue
+            del buf[:n]
+            if frame[0] != self.slave:
+                continue  # another slave's request: stay silent
+            self.stats["requests"] += 1
+            reply, start = self._handle(frame[1:-2])
+            self._write(rtu_frame(self.slave, reply))
+            if start:
+                self._set_streaming(True)  # frames follow the echo (same lock as emit())
+                self._ff_run = 0
+                return
+
+    @staticmethod
+    def _request_length(buf: bytearray) -> int:
+        """Length of the request at ``buf[0]``; -1 = need more bytes, 0 = not a request start."""
+        if len(buf) < 2:
+            return -1
+        fc = buf[1]
+        if fc in (3, 4, 6):
+            return 8
+        if fc == 16:
+            if len(buf) < 7:
+                return -1
+            count = int.from_bytes(buf[4:6], "big")
+            return 9 + buf[6] if 1 <= count <= 123 and buf[6] == 2 * count else 0
+        return 0
+
+    def _register(self, addr: int, wrench_regs: list[int]) -> int | None:
+        if REG_WRENCH <= addr < REG_WRENCH + 6:
+            return wrench_regs[addr - REG_WRENCH]
+        return self._static.get(addr)
+
+    def _handle(self, pdu: bytes) -> tuple[bytes, bool]:
+        """Reply PDU to a request PDU, and whether the stream starts after it."""
+        fc = pdu[0]
+        if fc in (3, 4):
+            addr, count = struct.unpack_from(">HH", pdu, 1)
+            if not 1 <= count <= 125:
+                return bytes([fc | 0x80, EXC_ILLEGAL_VALUE]), False
+            regs = wrench_to_registers(self.wrench())
+            values = [self._register(a, regs) for a in range(addr, addr + count)]
+            if any(v is None for v in values):
+                return bytes([fc | 0x80, EXC_ILLEGAL_ADDRESS]), False
+            return bytes([fc, 2 * count]) + struct.pack(f">{count}H", *values), False
+        if fc == 6:
+            addr, value = struct.unpack_from(">HH", pdu, 1)
+            values = [value]
+        else:  # 16
+            addr, count = struct.unpack_from(">HH", pdu, 1)
+            values = list(struct.unpack_from(f">{count}H", pdu, 6))
+        if addr != REG_OUTPUT_SELECT or len(values) != 1:
+            return bytes([fc | 0x80, EXC_ILLEGAL_ADDRESS]), False
+        self.written.append((fc, addr, values))
+        self._static[REG_OUTPUT_SELECT] = values[0]
+        echo = pdu[:5]  # FC06: address + value; FC16: address + count
+        return echo, values[0] == STREAM_START_VALUE
+
+
+__all__ = ["SimFT300Stream"]
