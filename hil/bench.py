@@ -600,9 +600,12 @@ class Bench:
             params.update(interface="virtual", channel=ch, clock=clock, timeout=self.timeout)
             params.pop("bus", None)
             if drv == "odrive_can":
+                # heartbeat every 10 ms (a real ODrive sends one every 100 ms by default): on the
+                # simulated bus every frame is copied to every node, so fewer frames = faster runs
                 d.sim = SimODrive(point, ch, int(params.get("node_id", 0)), "virtual",
                                   gear_ratio=float(params.get("gear_ratio", 1.0)),
-                                  linear_scale=params.get("linear_scale"), faults=faults, seed=seed, sync=True)
+                                  linear_scale=params.get("linear_scale"), faults=faults, seed=seed, sync=True,
+                                  heartbeat_every=max(1, round(0.01 * self.scene.rate_hz)))
                 if params.get("feedback") == "cyclic":
                     d.sim.encoder_every = 1
             else:

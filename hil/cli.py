@@ -27,6 +27,7 @@ import logging
 import math
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 from hil.errors import HilError
@@ -268,6 +269,35 @@ def _short(v: Any) -> str:
     return str(v)[:24]
 
 
+def _cmd_import(args: argparse.Namespace) -> int:
+    from hil.importers import import_csv, import_mat
+
+    src = Path(args.file)
+    out = Path(args.out) if args.out else src.with_suffix(".h5")
+    mapping: dict[str, Any] | None = None
+    if args.map or args.time:
+        mapping = {}
+        if args.time:
+            mapping["t"] = args.time
+        for item in args.map or []:
+            if "=" not in item:
+                raise UsageError(f"--map expects CHANNEL=COLUMN[,COLUMN...], got {item!r}")
+            ch, cols = item.split("=", 1)
+            parts = [c.strip() for c in cols.split(",") if c.strip()]
+            mapping[ch.strip()] = parts[0] if len(parts) == 1 else parts
+    suffix = src.suffix.lower()
+    if suffix == ".mat":
+        if args.sidecar:
+            raise UsageError("--sidecar applies to CSV files; for .mat give --map/--time or a sidecar next to the file")
+        path = import_mat(src, out, mapping=mapping)
+    elif suffix in (".csv", ".txt", ".tsv"):
+        path = import_csv(src, out, mapping=mapping, sidecar=args.sidecar)
+    else:
+        raise UsageError(f"{src}: expected a .csv or .mat file")
+    print(str(path))
+    return EXIT_OK
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
     from hil.record import replay_main
 
@@ -323,6 +353,15 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("record")
     rp.add_argument("--json", action="store_true")
     rp.set_defaults(func=_cmd_replay)
+
+    im = sub.add_parser("import", help="convert a CSV or MATLAB .mat run into a run record (HDF5)")
+    im.add_argument("file", help="CSV (header row) or .mat file")
+    im.add_argument("--out", help="record path (default: FILE with .h5)")
+    im.add_argument("--time", help="time column / variable (s); default t or time")
+    im.add_argument("--map", action="append", metavar="CHANNEL=COL[,COL...]",
+                    help="channel from one column or a vector from several (repeatable)")
+    im.add_argument("--sidecar", help="YAML/JSON mapping file (default: found next to the CSV)")
+    im.set_defaults(func=_cmd_import)
 
     i = sub.add_parser("identify", help="identify a grey-box model (M, B, K_f, B_f, ...) from a chirp record",
                        add_help=False)

@@ -29,9 +29,14 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
-from scipy import signal as sps
 
 from hil.errors import SceneError
+
+
+def _sps():  # scipy.signal takes seconds to import: only chirps need it
+    from scipy import signal
+
+    return signal
 
 logger = logging.getLogger(__name__)
 
@@ -673,8 +678,8 @@ def force_profile(profile: Mapping[str, Any], n: int, fs: float, dim: int, where
             raise SceneError(f"{where}.freq: noise cutoff must lie in (0, {fs / 2:g}) Hz, got {freq}")
         rng = np.random.default_rng(int(profile.get("seed") or 0))
         w = rng.standard_normal(n + 2000)
-        b, a = sps.butter(2, freq / (fs / 2))
-        y = sps.filtfilt(b, a, w)[1000:1000 + n]
+        b, a = _sps().butter(2, freq / (fs / 2))
+        y = _sps().filtfilt(b, a, w)[1000:1000 + n]
         x = amp * y / (np.std(y) or 1.0)
     else:
         raise SceneError(f"{where}.kind: one of sine, multisine, square, step, noise; got {kind!r}")

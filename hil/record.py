@@ -762,3 +762,43 @@ def replay_main(argv: Sequence[str] | None = None) -> int:
     else:
         _print_summary(s)
     return 0
+
+
+# ---------------------------------------------------------------------------------------- identification
+
+
+def store_identification(path: str | Path, name: str, samples: Any, summary: Mapping[str, Any]) -> None:
+    """Write an identification result into a closed record as ``/identification/<name>`` (replacing
+    an earlier one of that name); the run's own groups are not touched.
+
+    Layout: group attrs ``format`` ("hil-identification"), ``format_version`` 1, ``created_utc``;
+    dataset ``samples`` float64 (n_samples, n_params) -- posterior draws in physical units, with the
+    attr ``columns`` (JSON list, from ``summary["sample_names"]`` when given); dataset ``summary`` --
+    a UTF-8 JSON string of ``summary`` (per-parameter summary, convergence diagnostics, ...).
+    Raises :class:`RecordError` when the file cannot be opened for writing (e.g. a record whose
+    writer is still running).
+    """
+    _check_name(name, "identification")
+    arr = np.asarray(samples, dtype=np.float64)
+    if arr.ndim == 1:
+        arr = arr[:, None]
+    if arr.ndim != 2:
+        raise RecordError(f"identification {name!r}: samples must be (n, p), got shape {arr.shape}")
+    text = _to_json(dict(summary), f"identification {name!r} summary")
+    try:
+        with h5py.File(path, "r+") as f:
+            if f.attrs.get("format") not in (FORMAT, FORMAT.encode()):
+                raise RecordError(f"{path}: not a {FORMAT} file")
+            root = f.require_group("identification")
+            if name in root:
+                del root[name]
+            g = root.create_group(name)
+            g.attrs["format"] = "hil-identification"
+            g.attrs["format_version"] = 1
+            g.attrs["created_utc"] = _utc_now()
+            ds = g.create_dataset("samples", data=arr, chunks=True, compression="gzip", shuffle=True)
+            cols = summary.get("sample_names")
+            ds.attrs["columns"] = _to_json(list(cols) if cols is not None else [], "columns")
+            g.create_dataset("summary", data=text, dtype=h5py.string_dtype("utf-8"))
+    except OSError as exc:
+        raise RecordError(f"{path}: cannot write the identification: {exc}") from None

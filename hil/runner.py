@@ -82,14 +82,19 @@ class SafetyMonitor:
                 raise SafetyStop(f"watchdog: feedback of {name!r} stale for {1e3 * (t - prev[1]):.0f} ms "
                                  f"(limit {1e3 * self.watchdog_s:.0f} ms)")
             pos = getattr(sample, "position", None)
-            vel = getattr(sample, "velocity", None)
-            if vel is not None and np.any(np.abs(vel) > self.max_velocity):
-                raise SafetyStop(f"limit: |velocity| of {name!r} = {np.max(np.abs(vel)):.4g} > {self.max_velocity:.4g}")
-            if pos is not None and (np.any(pos < self.pos_lo) or np.any(pos > self.pos_hi)):
+            if pos is None:
+                continue
+            vel = sample.velocity
+            # one reduction per array (this runs for every device on every tick)
+            vmax = float(np.max(np.abs(vel))) if vel.size else 0.0
+            pmin, pmax = (float(pos.min()), float(pos.max())) if pos.size else (0.0, 0.0)
+            if not (math.isfinite(vmax) and math.isfinite(pmin) and math.isfinite(pmax)):
+                raise SafetyStop(f"fault: non-finite feedback from {name!r}")
+            if vmax > self.max_velocity:
+                raise SafetyStop(f"limit: |velocity| of {name!r} = {vmax:.4g} > {self.max_velocity:.4g}")
+            if pmin < self.pos_lo or pmax > self.pos_hi:
                 raise SafetyStop(f"limit: position of {name!r} = {np.array2string(np.asarray(pos), precision=4)} "
                                  f"outside [{self.pos_lo:.4g}, {self.pos_hi:.4g}]")
-            if not (np.all(np.isfinite(pos)) if pos is not None else True):
-                raise SafetyStop(f"fault: non-finite feedback from {name!r}")
 
     def check_command(self, efforts: Mapping[str, np.ndarray]) -> None:
         for name, u in efforts.items():

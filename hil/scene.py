@@ -772,7 +772,16 @@ class Scene(_Strict):
 
     def device(self, name: str) -> Device:
         """The device called ``name`` (KeyError if absent). A group is returned as an actuator
-        ``Device`` whose ``dof`` is the sum of its members'."""
+        ``Device`` whose ``dof`` is the sum of its members'. Cached: scenes are not edited after
+        loading (the runner looks devices up on every tick)."""
+        cache = self.__dict__.setdefault("_device_cache", {})
+        hit = cache.get(name)
+        if hit is not None:
+            return hit
+        cache[name] = dev = self._find_device(name)
+        return dev
+
+    def _find_device(self, name: str) -> Device:
         for d in self.devices:
             if d.name == name:
                 return d
