@@ -237,14 +237,68 @@ def pd_position_position(cfg: Mapping[str, Any], where: str = "controller") -> P
     return PositionPD("pd_position_position", [(master, range(d)), (slave, range(d, 2 * d))], Kp, Kv, where)
 
 
-def mcet_controller(cfg: Mapping[str, Any], where: str = "controller") -> PositionPD:
-    """Paper 000 eq. (21)-(25), position-position special case (module doc for the derivation).
+class FourChannelMCET:
+    """Dual-user MCET four-channel law of paper 000, eq. (22)-(23), in the time domain.
+
+    With the position controllers ``c = (k_p + k_v s)/s`` acting on velocities (PD on positions,
+    written ``c[q]`` = k_p q + k_v v) and static force gains::
+
+        f_cm1 = -c_m1[q_1] - c_4m1[q_2] + c_6m1 f_h1 - c_2m1 f_e / 2
+        f_cm2 = -c_m2[q_2] - c_4m2[q_1] + c_6m2 f_h2 - c_2m2 f_e / 2
+        f_cs  = -c_s[q_e] + c_1[α q_1 + (1-α) q_2] - c_5 f_e + c_3 (α f_h1 + (1-α) f_h2)
+
+    (v_h1d = v_h2, v_h2d = v_h1, v_ed = α v_h1 + (1-α) v_h2, f_hid = f_e/2, f_ed = α f_h1 + (1-α) f_h2).
+    ``f_hi``: force of user i on master i (positive along its velocity); ``f_e``: force of the
+    environment on the slave. The position part is a :class:`PositionPD` on the stacked
+    coordinates; the force part needs force sensors (``force_sensors``) when any force gain is
+    non-zero. Position-position control is the special case c_4mi = -c_mi, c_1 = c_s, force gains 0
+    (eq. 25).
+    """
+
+    def __init__(self, pd: PositionPD, force_gain: np.ndarray, sensors: Sequence[str | None],
+                 signs: Sequence[float], axes: Sequence[Sequence[int] | None], d: int) -> None:
+        self.name = "mcet"
+        self.pd = pd
+        self.G = force_gain  # (3d, 3d): u_force = G @ [f_h1; f_h2; f_e]
+        self.sensors, self.signs, self.axes, self.d = list(sensors), list(signs), list(axes), d
+        self.uses_force = bool(np.any(self.G))
+
+    def reset(self) -> None:
+        self.pd.reset()
+
+    def update(self, t: float, dt: float, meas: Measurements) -> dict[str, np.ndarray]:
+        out = self.pd.update(t, dt, meas)
+        if not self.uses_force:
+            return out
+        f = np.zeros(3 * self.d)
+        for k, (sensor, sign, axes) in enumerate(zip(self.sensors, self.signs, self.axes, strict=True)):
+            if sensor is None:
+                continue
+            w = np.asarray(meas[sensor].wrench, dtype=float).reshape(-1)
+            w = w[list(axes)] if axes is not None else w[: self.d]
+            f[k * self.d:(k + 1) * self.d] = sign * w
+        uf = self.G @ f
+        for dev, idx in self.pd.layout:
+            out[dev] = out[dev] + uf[idx]
+        return out
+
+
+def mcet_controller(cfg: Mapping[str, Any], where: str = "controller") -> FourChannelMCET:
+    """Paper 000 eq. (21)-(25): the dual-user MCET four-channel controller (:class:`FourChannelMCET`).
 
     Fields: ``masters: [m1, m2]``, ``slave``, ``alpha`` ∈ [0, 1] (user 1's authority),
-    ``k_pm1, k_vm1, k_pm2, k_vm2, k_ps, k_vs`` (scalars or ``dof x dof`` matrices), ``dof``.
+    ``k_pm1, k_vm1, k_pm2, k_vm2, k_ps, k_vs`` (local PD gains); optional channels
+    ``k_p4m1, k_v4m1, k_p4m2, k_v4m2`` (default -k_pm1, -k_vm1, ...: position-position),
+    ``k_p1, k_v1`` (default k_ps, k_vs), force gains ``c2m1, c2m2, c3, c5, c6m1, c6m2`` (default 0),
+    ``force_sensors: {master1, master2, slave}`` (device names; required with force gains),
+    ``force_axes`` (same keys, wrench components), ``slave_force_sign`` (default -1: the slave
+    sensor reports the force the slave exerts on the environment, f_e is its negative), ``dof``.
     """
     keys = ["k_pm1", "k_vm1", "k_pm2", "k_vm2", "k_ps", "k_vs"]
-    _check_keys(cfg, {"masters", "slave", "alpha", "dof", *keys}, where)
+    opt = ["k_p4m1", "k_v4m1", "k_p4m2", "k_v4m2", "k_p1", "k_v1"]
+    forces = ["c2m1", "c2m2", "c3", "c5", "c6m1", "c6m2"]
+    _check_keys(cfg, {"masters", "slave", "alpha", "dof", "force_sensors", "force_axes", "slave_force_sign",
+                      *keys, *opt, *forces}, where)
     masters = _require(cfg, "masters", where)
     if isinstance(masters, str) or len(masters) != 2:
         raise SceneError(f"{_field(where, 'masters')}: exactly two master device names required")
@@ -255,13 +309,38 @@ def mcet_controller(cfg: Mapping[str, Any], where: str = "controller") -> Positi
         raise SceneError(f"{_field(where, 'alpha')}: must lie in [0, 1], got {a}")
     d = _infer_dof(cfg, keys)
     kp1, kv1, kp2, kv2, kps, kvs = (gain_matrix(_require(cfg, k, where), d, _field(where, k)) for k in keys)
+
+    def opt_gain(key: str, default: np.ndarray) -> np.ndarray:
+        return default if cfg.get(key) is None else gain_matrix(cfg[key], d, _field(where, key))
+
+    kp4m1, kv4m1 = opt_gain("k_p4m1", -kp1), opt_gain("k_v4m1", -kv1)
+    kp4m2, kv4m2 = opt_gain("k_p4m2", -kp2), opt_gain("k_v4m2", -kv2)
+    kpc1, kvc1 = opt_gain("k_p1", kps), opt_gain("k_v1", kvs)
     Z = np.zeros((d, d))
 
-    def block(c1: np.ndarray, c2: np.ndarray, cs: np.ndarray) -> np.ndarray:
-        return np.block([[c1, -c1, Z], [-c2, c2, Z], [-a * cs, -(1 - a) * cs, cs]])
+    def block(cm1: np.ndarray, c4m1: np.ndarray, cm2: np.ndarray, c4m2: np.ndarray, c1: np.ndarray,
+              cs: np.ndarray) -> np.ndarray:
+        # u = -(K q): row i of K holds the channels acting on master i / the slave
+        return np.block([[cm1, c4m1, Z], [c4m2, cm2, Z], [-a * c1, -(1 - a) * c1, cs]])
 
     layout = [(m1, range(d)), (m2, range(d, 2 * d)), (slave, range(2 * d, 3 * d))]
-    return PositionPD("mcet", layout, block(kp1, kp2, kps), block(kv1, kv2, kvs), where)
+    pd = PositionPD("mcet", layout, block(kp1, kp4m1, kp2, kp4m2, kpc1, kps),
+                    block(kv1, kv4m1, kv2, kv4m2, kvc1, kvs), where)
+    g = {k: float(cfg.get(k) or 0.0) for k in forces}
+    I_ = np.eye(d)
+    G = np.block([[g["c6m1"] * I_, Z, -0.5 * g["c2m1"] * I_],
+                  [Z, g["c6m2"] * I_, -0.5 * g["c2m2"] * I_],
+                  [a * g["c3"] * I_, (1 - a) * g["c3"] * I_, -g["c5"] * I_]])
+    fs = cfg.get("force_sensors") or {}
+    fa = cfg.get("force_axes") or {}
+    sensors = [fs.get("master1"), fs.get("master2"), fs.get("slave")]
+    needs = [bool(g["c6m1"] or g["c3"]), bool(g["c6m2"] or g["c3"]), bool(g["c2m1"] or g["c2m2"] or g["c5"])]
+    for name, s_, need in zip(("master1", "master2", "slave"), sensors, needs, strict=True):
+        if need and not s_:
+            raise SceneError(f"{_field(where, 'force_sensors')}: the force gains need a {name!r} force sensor")
+    signs = [1.0, 1.0, float(cfg.get("slave_force_sign", -1.0))]
+    axes = [fa.get("master1"), fa.get("master2"), fa.get("slave")]
+    return FourChannelMCET(pd, G, sensors, signs, axes, d)
 
 
 def _pair(cfg: Mapping[str, Any], tag: str, n: int, where: str) -> tuple[np.ndarray, np.ndarray]:

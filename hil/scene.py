@@ -498,9 +498,10 @@ class PdPositionPosition(_Strict):
 
 
 class Mcet(_Strict):
-    """Dual-user MCET position-position (paper 000 eq. 25), 1-DOF robots: master i follows the
-    slave with (k_pmi, k_vmi); the slave follows ``alpha q_m1 + (1 - alpha) q_m2`` with
-    (k_ps, k_vs)."""
+    """Dual-user MCET four-channel controller (paper 000 eq. 22-23), 1-DOF robots. Local PD gains
+    (k_pmi, k_vmi), (k_ps, k_vs); optional coordinating channels c_4mi (default -c_mi) and c_1
+    (default c_s) and force gains c2m1, c2m2, c3, c5, c6m1, c6m2 (default 0: position-position,
+    eq. 25); ``force_sensors`` {master1, master2, slave} when force gains are used."""
 
     type: Literal["mcet"]
     masters: Annotated[list[Name], Field(min_length=2, max_length=2)]
@@ -512,6 +513,20 @@ class Mcet(_Strict):
     k_vm2: VGain
     k_ps: PGain
     k_vs: VGain
+    k_p4m1: float | None = None
+    k_v4m1: float | None = None
+    k_p4m2: float | None = None
+    k_v4m2: float | None = None
+    k_p1: float | None = None
+    k_v1: float | None = None
+    c2m1: float = 0.0
+    c2m2: float = 0.0
+    c3: float = 0.0
+    c5: float = 0.0
+    c6m1: float = 0.0
+    c6m2: float = 0.0
+    force_sensors: dict[str, Name] | None = None
+    slave_force_sign: Literal[1, -1] = -1
 
 
 class PdGain(_Strict):

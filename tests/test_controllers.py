@@ -576,3 +576,43 @@ def test_builtin_scenes_build_their_controllers():
         if name == "dual_master_3dof":
             assert [(d, idx.tolist()) for d, idx in ctrl.layout] == [("master1", [0]), ("master2", [1, 2]),
                                                                      ("slave", [3, 4, 5])]
+
+
+def test_mcet_four_channel_law_matches_eq22_eq23():
+    """Independent evaluation of paper 000 eq. (22)-(23) with every channel active."""
+    from hil.controllers import make_controller
+    from hil.protocols.base import JointSample, WrenchSample
+
+    rng = np.random.default_rng(5)
+    g = {k: float(rng.uniform(1, 9)) for k in ("k_pm1", "k_vm1", "k_pm2", "k_vm2", "k_ps", "k_vs", "k_p4m1",
+                                                "k_v4m1", "k_p4m2", "k_v4m2", "k_p1", "k_v1")}
+    f = {k: float(rng.uniform(0.1, 0.9)) for k in ("c2m1", "c2m2", "c3", "c5", "c6m1", "c6m2")}
+    a = 0.3
+    cfg = {"type": "mcet", "masters": ["m1", "m2"], "slave": "s", "alpha": a, **g, **f,
+           "force_sensors": {"master1": "f1", "master2": "f2", "slave": "fe"}, "slave_force_sign": -1}
+    ctrl = make_controller(cfg)
+    q = rng.normal(size=3)
+    v = rng.normal(size=3)
+    fh1, fh2, fe_reading = rng.normal(size=3)
+    meas = {n: JointSample(0.0, 0, np.array([q[i]]), np.array([v[i]])) for i, n in enumerate(("m1", "m2", "s"))}
+    meas.update({"f1": WrenchSample(0.0, 0, np.array([fh1])), "f2": WrenchSample(0.0, 0, np.array([fh2])),
+                 "fe": WrenchSample(0.0, 0, np.array([fe_reading]))})
+    u = ctrl.update(0.0, 1e-3, meas)
+
+    def c(kp, kv, i):  # c[v_i] with c = (kp + kv s)/s acting on a velocity = PD on the position
+        return g[kp] * q[i] + g[kv] * v[i]
+
+    fe = -fe_reading  # the slave sensor reports the force on the environment
+    cm1 = -c("k_pm1", "k_vm1", 0) - c("k_p4m1", "k_v4m1", 1) + f["c6m1"] * fh1 - f["c2m1"] * fe / 2
+    cm2 = -c("k_pm2", "k_vm2", 1) - c("k_p4m2", "k_v4m2", 0) + f["c6m2"] * fh2 - f["c2m2"] * fe / 2
+    ved = (a * g["k_p1"] * q[0] + a * g["k_v1"] * v[0] + (1 - a) * g["k_p1"] * q[1] + (1 - a) * g["k_v1"] * v[1])
+    cs = -c("k_ps", "k_vs", 2) + ved - f["c5"] * fe + f["c3"] * (a * fh1 + (1 - a) * fh2)
+    np.testing.assert_allclose([u["m1"][0], u["m2"][0], u["s"][0]], [cm1, cm2, cs], rtol=1e-12)
+
+
+def test_mcet_force_gains_need_sensors():
+    from hil.controllers import make_controller
+
+    with pytest.raises(SceneError, match="force_sensors"):
+        make_controller({"type": "mcet", "masters": ["a", "b"], "slave": "s", "alpha": 0.5, "k_pm1": 1, "k_vm1": 1,
+                         "k_pm2": 1, "k_vm2": 1, "k_ps": 1, "k_vs": 1, "c3": 0.5})
