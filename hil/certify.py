@@ -93,7 +93,8 @@ def probability_of_stability(stable: np.ndarray, confidence: float = 0.95) -> tu
 
 
 def worst_case_margin(margin_fn: Callable[[np.ndarray], np.ndarray], draws: np.ndarray, credible: float = 0.90,
-                      n_starts: int = 8, seed: int = 0) -> tuple[float, np.ndarray]:
+                      n_starts: int = 8, seed: int = 0, maxiter: int = 80,
+                      axis_starts: bool = True) -> tuple[float, np.ndarray]:
     """Minimum of ``margin_fn`` over the credible ellipsoid {θ: (θ-μ)ᵀΣ⁻¹(θ-μ) ≤ χ²_d(credible)}.
 
     ``margin_fn`` maps an (n, d) array of parameter vectors to n margins (vectorized). The search
@@ -120,19 +121,20 @@ def worst_case_margin(margin_fn: Callable[[np.ndarray], np.ndarray], draws: np.n
     m_in = margin_fn(X[inside]) if inside.any() else np.zeros(0)
     starts = list(Z_in[np.argsort(m_in)[: n_starts // 2]]) if m_in.size else []
     d = X.shape[1]
-    for i in range(d):
-        for sgn in (1.0, -1.0):
-            e = np.zeros(d)
-            e[i] = 0.95 * sgn
-            starts.append(e)
+    if axis_starts:
+        for i in range(d):
+            for sgn in (1.0, -1.0):
+                e = np.zeros(d)
+                e[i] = 0.95 * sgn
+                starts.append(e)
     rng = np.random.default_rng(seed)
-    while len(starts) < n_starts + 2 * d:
+    while len(starts) < n_starts + (2 * d if axis_starts else 0):
         v = rng.normal(size=d)
         starts.append(0.9 * v / np.linalg.norm(v))
     best_v, best_t = math.inf, mu
     for z0 in starts:
         res = minimize(lambda z: float(margin_fn(to_theta(z[None, :]))[0]), np.asarray(z0, float), method="SLSQP",
-                       constraints=[{"type": "ineq", "fun": lambda z: 1.0 - z @ z}], options={"maxiter": 80})
+                       constraints=[{"type": "ineq", "fun": lambda z: 1.0 - z @ z}], options={"maxiter": maxiter})
         z = res.x / max(1.0, np.linalg.norm(res.x))
         v = float(margin_fn(to_theta(z[None, :]))[0])
         if v < best_v:

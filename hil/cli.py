@@ -298,6 +298,60 @@ def _cmd_import(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+DECISION_EXIT = {"GO": EXIT_OK, "MARGINAL": EXIT_MARGINAL, "NO-GO": EXIT_UNSTABLE, "ERROR": EXIT_ERROR}
+
+
+def _cmd_certify(args: argparse.Namespace) -> int:
+    import datetime as dt
+
+    from hil.pipeline import certify_scene
+    from hil.scene import load_scene
+
+    scene = load_scene(args.scene or "sdea_bench")
+    if args.seed is not None:
+        scene.seed = args.seed
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+    out = Path(args.out or f"reports/{scene.name}-{stamp}")
+
+    def say(msg: str) -> None:
+        if not args.json:
+            print(msg, file=sys.stderr)
+
+    cert = certify_scene(scene, out, progress=say, run_experiments=not args.no_experiments)
+    from hil.report import build_reports
+
+    files = build_reports(cert, out)
+    if args.json:
+        print(json.dumps({"decision": cert.decision, "reasons": cert.reasons, "scene": scene.name,
+                          "files": {k: str(v) for k, v in files.items()},
+                          "measurements": [m.model_dump() for m in cert.measurements]}, indent=2, default=str))
+    else:
+        from rich.console import Console
+        from rich.table import Table
+
+        con = Console()
+        colour = {"GO": "green", "MARGINAL": "yellow", "NO-GO": "red", "ERROR": "magenta"}[cert.decision]
+        con.print(f"[bold]{scene.name}[/bold]: [bold {colour}]{cert.decision}[/]")
+        for r in cert.reasons:
+            con.print(f"  - {r}")
+        tab = Table("measurement", "value", "limits", "outcome")
+        for m in cert.measurements:
+            lim = " ".join(x for x in (f"≥ {m.lower:g}" if m.lower is not None else "",
+                                       f"≤ {m.upper:g}" if m.upper is not None else "") if x)
+            v = f"{m.value:.4g}" if isinstance(m.value, float) else str(m.value)
+            tab.add_row(m.name, f"{v} {m.unit}".strip(), lim, m.outcome)
+        con.print(tab)
+        for k, v in files.items():
+            con.print(f"{k}: {v}")
+    return DECISION_EXIT[cert.decision]
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from hil.report import report_main
+
+    return int(report_main([args.path] + (["--out", args.out] if args.out else [])) or 0)
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
     from hil.record import replay_main
 
@@ -348,6 +402,20 @@ def build_parser() -> argparse.ArgumentParser:
                       help="as fast as possible; the plant advances one period per tick")
     r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=_cmd_run)
+
+    ce = sub.add_parser("certify", help="experiments -> identification -> criteria over the posterior -> "
+                                         "GO / MARGINAL / NO-GO report (default: the mocked SDEA bench)")
+    ce.add_argument("scene", nargs="?", help="scene file or built-in name (default sdea_bench)")
+    ce.add_argument("--out", help="output folder (default reports/<scene>-<UTC time>)")
+    ce.add_argument("--seed", type=int)
+    ce.add_argument("--no-experiments", action="store_true", help="skip the runs (certify from the scene's priors)")
+    ce.add_argument("--json", action="store_true")
+    ce.set_defaults(func=_cmd_certify)
+
+    rep = sub.add_parser("report", help="rebuild the HTML and PDF reports from a stored certificate.json")
+    rep.add_argument("path", help="certificate.json or the folder holding it")
+    rep.add_argument("--out", help="output folder (default: next to the certificate)")
+    rep.set_defaults(func=_cmd_report)
 
     rp = sub.add_parser("replay", help="inspect a run record (summary of channels, timing, stop reason)")
     rp.add_argument("record")

@@ -735,6 +735,57 @@ Experiment = Annotated[
 ]
 
 # ---------------------------------------------------------------------------------------------
+# certification
+# ---------------------------------------------------------------------------------------------
+
+
+class IdentifyCfg(_Strict):
+    """Identify plant parameters from an experiment's record: ``map`` renames identified
+    parameters to the network model's (e.g. ``{M: M, B: B, K_f: K_f, B_f: B_f}``)."""
+
+    experiment: Name
+    model: str | None = None
+    map: dict[str, str] = Field(default_factory=dict)
+
+
+class UncertainCfg(_Strict):
+    """A parameter known only to a relative standard deviation (log-normal around ``value``)."""
+
+    value: float
+    rel_std: Annotated[float, Field(ge=0, le=1)] = 0.05
+
+
+class DesignCfg(_Strict):
+    """A free design parameter of the model and the range to search (largest value that keeps the
+    required probability of stability)."""
+
+    parameter: str
+    range: tuple[float, float]
+
+
+class PolicyCfg(_Strict):
+    required_probability: Annotated[float, Field(gt=0, lt=1)] = 0.95
+    confidence: Annotated[float, Field(gt=0, lt=1)] = 0.95
+    credible: Annotated[float, Field(gt=0, lt=1)] = 0.90
+
+
+class CertificationCfg(_Strict):
+    """What ``hil certify`` checks: the network model (a built-in model of ``hil.models``), its
+    fixed parameters (controller gains, ...), the parameters identified from experiments or known
+    only with an uncertainty, the criterion, a design parameter and the verdict policy."""
+
+    model: str
+    criterion: Literal["auto", "passivity", "absolute_stability", "llewellyn", "positive_real"] = "auto"
+    parameters: dict[str, Any] = Field(default_factory=dict)
+    identify: list[IdentifyCfg] = Field(default_factory=list)
+    uncertain: dict[str, UncertainCfg] = Field(default_factory=dict)
+    design: DesignCfg | None = None
+    policy: PolicyCfg = Field(default_factory=PolicyCfg)
+    draws: Annotated[int, Field(ge=20, le=100_000)] = 2000
+    witness: bool = True
+
+
+# ---------------------------------------------------------------------------------------------
 # the scene
 # ---------------------------------------------------------------------------------------------
 
@@ -755,6 +806,7 @@ class Scene(_Strict):
     controller: Controller = Field(default_factory=lambda: NoController(type="none"))
     safety: Safety = Field(default_factory=Safety)
     experiments: list[Experiment] = Field(default_factory=list)
+    certification: CertificationCfg | None = None
 
     _source_text: str = PrivateAttr(default="")
     _sha256: str = PrivateAttr(default="")

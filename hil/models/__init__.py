@@ -46,6 +46,12 @@ def _bilateral(gains: str = "A1", **p: Any) -> TransferMatrix:
     return bilateral_2dof(gains, **p)
 
 
+def _bilateral1(**p: Any) -> TransferMatrix:
+    from hil.models.teleop import bilateral_1dof
+
+    return bilateral_1dof(p)
+
+
 def _dual(**p: Any) -> TransferMatrix:
     from hil.models.teleop import dual_master_3dof
 
@@ -66,7 +72,7 @@ def _t2(**_: Any) -> TransferMatrix:
 
 def _defaults() -> dict[str, BuiltinModel]:
     from hil.models.sdea import SDEA_TABLE1
-    from hil.models.teleop import DUAL_MASTER_TABLE1, MCET_TABLE1, TWO_DOF_ROBOT
+    from hil.models.teleop import BILATERAL_1DOF, DUAL_MASTER_TABLE1, MCET_TABLE1, TWO_DOF_ROBOT
 
     return {
         "sdea": BuiltinModel("sdea", "SDEA under VSIC with virtual coupler (002 eq. 12, Table I)", "passivity",
@@ -77,6 +83,8 @@ def _defaults() -> dict[str, BuiltinModel]:
                                        "absolute_stability",
                                        {"gains": "A1", **{f"k_{p}{a}": None for p in "pv" for a in ("yy", "zz", "yz")},
                                         **TWO_DOF_ROBOT}, _bilateral),
+        "bilateral_1dof": BuiltinModel("bilateral_1dof", "1-DOF bilateral position-position (eq. 44, m = 1)",
+                                       "llewellyn", dict(BILATERAL_1DOF), _bilateral1),
         "dual_master_3dof": BuiltinModel("dual_master_3dof", "dual-master/single-slave 3-DOF (001 eq. 17, Table I)",
                                          "absolute_stability", dict(DUAL_MASTER_TABLE1), _dual),
         "T1": BuiltinModel("T1", "2-DOF termination T1 of 000 eq. (1) (not passive)", "positive_real", {}, _t1),

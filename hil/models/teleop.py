@@ -18,9 +18,11 @@ from hil.errors import ModelError
 from hil.stability.rational import Rational, S, TransferMatrix
 
 __all__ = [
+    "BILATERAL_1DOF",
     "DUAL_MASTER_TABLE1",
     "MCET_TABLE1",
     "TWO_DOF_TABLE2",
+    "bilateral_1dof",
     "bilateral_2dof",
     "dual_master_3dof",
     "example_Z_000_eq5",
@@ -72,6 +74,22 @@ def mcet_trilateral(p: Mapping[str, float] | None = None, **kw: float) -> Transf
         [-a * cs, -(1 - a) * cs, cs + zs],
     ]
     return TransferMatrix(rows, "impedance", (1, 1, 1), "mcet_trilateral (000 eq. 25)")
+
+
+# ---------------------------------------------------------------------------------------------
+# 1-DOF bilateral position-position (the m = 1 case of eq. 44)
+
+BILATERAL_1DOF: dict[str, float] = {"k_pm": 2.0, "k_vm": 0.1, "k_ps": 2.0, "k_vs": 0.1,
+                                    "m_m": 0.02, "b_m": 0.01, "m_s": 0.02, "b_s": 0.01}
+
+
+def bilateral_1dof(p: Mapping[str, float] | None = None, **kw: float) -> TransferMatrix:
+    """1-DOF bilateral position-position teleoperator (eq. 44 with m = 1):
+    [[c_m + z_m, -c_m], [-c_s, c_s + z_s]], c = (k_p + k_v s)/s, z = (m s² + b s)/s."""
+    q = {**BILATERAL_1DOF, **(p or {}), **kw}
+    cm, cs = _pi(q["k_pm"], q["k_vm"]), _pi(q["k_ps"], q["k_vs"])
+    zm, zs = _mbk(q["m_m"], q["b_m"]), _mbk(q["m_s"], q["b_s"])
+    return TransferMatrix([[cm + zm, -cm], [-cs, cs + zs]], "impedance", (1, 1), "bilateral_1dof")
 
 
 # ---------------------------------------------------------------------------------------------

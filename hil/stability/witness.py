@@ -154,7 +154,7 @@ def _drive_point(z_in: TransferMatrix, res: StabilityResult) -> tuple[float, np.
 
 
 def find_witness(Z: TransferMatrix, port: int = 0, candidates: Sequence[Termination] | None = None,
-                 max_candidates: int | None = None) -> Witness | None:
+                 max_candidates: int | None = None, first: bool = False) -> Witness | None:
     """Search passive terminations of the non-operator ports (the same candidate at every one)
     for the most non-passive operator-port impedance. Returns ``None`` if every candidate leaves
     Z_in positive real (which a potentially unstable network need not contradict: the family is
@@ -176,4 +176,6 @@ def find_witness(Z: TransferMatrix, port: int = 0, candidates: Sequence[Terminat
         if best is None or res.margin < best.result.margin:
             w, d, band = _drive_point(zin, res)
             best = Witness(port, dict.fromkeys(others, cand), zin, res, band, w, d)
+            if first:
+                break
     return best

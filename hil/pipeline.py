@@ -1,0 +1,646 @@
+"""``hil certify``: experiments -> identification -> network model over the posterior -> stability
+criteria -> GO / MARGINAL / NO-GO (or ERROR) -> certificate record (and reports).
+
+Stages (timed; ``Certificate.measurements`` records what each produced):
+
+1. **run** the scene's experiments on its bench (mocked or real) -- records, energy evidence;
+2. **identify** the parameters named in ``certification.identify`` from their records (emcee
+   posterior); parameters listed in ``certification.uncertain`` are drawn log-normally instead;
+3. **nominal**: the network model at the posterior means (plus the scene's fixed parameters,
+   e.g. controller gains) through the criterion, with margins and evidence;
+4. **robust**: the criterion on every posterior draw (vectorized for the SDEA; per draw,
+   verdict-only, for other networks), P(stable) with a Clopper-Pearson interval, the worst-case
+   margin over the credible ellipsoid (optimized), the frequency band where margins are smallest;
+5. **design** guidance for a free parameter (the largest value keeping the required probability);
+6. **witness**: when the nominal network is potentially unstable, a passive termination set that
+   makes the operator-port impedance non-positive-real, simulated with the exact-ZOH engine (the
+   coupled system diverges, or E_s(t) = ∫ F·V dt goes negative under a sinusoidal force);
+7. **decide** with the policy; NaN or missing evidence gives ERROR, never GO.
+
+Only what the scene uses is computed and reported: no identification section without identify
+entries, no energy section without energy-injection experiments, no multi-port section for a
+two-port with 1-DOF ports, no design section without a design parameter.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import logging
+import math
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hil.certificate import (
+    Certificate,
+    ConditionRow,
+    Design,
+    EnergyEvidence,
+    Identification,
+    Measurement,
+    MultiPort,
+    Nominal,
+    ParameterSummary,
+    Robust,
+    SceneInfo,
+    Series,
+    Witness,
+)
+from hil.certify import Decision, Policy, decide, max_safe_parameter, probability_of_stability, worst_case_margin
+from hil.errors import HilError, SceneError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["certify_scene", "model_params_from_scene"]
+
+Progress = Callable[[str], None]
+
+
+# ---------------------------------------------------------------------------------------------
+# model parameters
+
+
+def model_params_from_scene(scene: Any) -> dict[str, Any]:
+    """The network model's fixed parameters implied by the scene's controller and simulation,
+    overridden by ``certification.parameters``."""
+    cert = scene.certification
+    c = scene.controller_config()
+    p: dict[str, Any] = {}
+    if cert.model == "sdea" and c.get("type") == "vsic":
+        for k in ("P_m", "I_m", "P_f", "I_f", "alpha", "k22", "b22"):
+            if c.get(k) is not None:
+                p[k] = float(c[k])
+        sd = scene.simulation.sdea if scene.simulation is not None else None
+        if sd is not None:
+            p.update({"M": float(sd.M), "B": float(sd.B), "K_f": float(sd.K_f), "B_f": float(sd.B_f)})
+    elif cert.model == "bilateral_2dof" and c.get("type") == "pd_position_position":
+        km, kvm = np.asarray(c["Kp_m"], float), np.asarray(c["Kv_m"], float)
+        ks, kvs = np.asarray(c["Kp_s"], float), np.asarray(c["Kv_s"], float)
+        gains = {}
+        for tag, K, V in (("m", km, kvm), ("s", ks, kvs)):
+            for (i, j), ax in (((0, 0), "yy"), ((1, 1), "zz"), ((0, 1), "yz"), ((1, 0), "zy")):
+                gains[f"k_p{tag}{ax}"] = float(K[i, j])
+                gains[f"k_v{tag}{ax}"] = float(V[i, j])
+        p["gains"] = gains
+        if scene.simulation is not None:
+            bodies = {b.name: b for b in scene.simulation.bodies}
+            for side, body in (("m", c["master"]), ("s", c["slave"])):
+                b = bodies.get(scene.device(body).body or body)
+                if b is None:
+                    continue
+                for key, mat in (("m", b.M), ("b", b.B), ("k", b.K)):
+                    from hil.scene import as_matrix
+
+                    A = as_matrix(mat, 2)
+                    for (i, j), ax in (((0, 0), "yy"), ((1, 1), "zz"), ((0, 1), "yz")):
+                        p[f"{key}{side}_{ax}"] = float(A[i, j])
+    elif cert.model == "bilateral_1dof" and c.get("type") == "pd_position_position":
+        for tag in ("m", "s"):
+            p[f"k_p{tag}"] = float(np.asarray(c[f"Kp_{tag}"], float).reshape(-1)[0])
+            p[f"k_v{tag}"] = float(np.asarray(c[f"Kv_{tag}"], float).reshape(-1)[0])
+    elif cert.model == "dual_master_3dof" and c.get("type") == "dual_master":
+        ax = ("x", "y", "z")
+        for tag, key in (("m", "C_m"), ("4", "C_4"), ("s", "C_s"), ("1", "C_1")):
+            kp, kv = np.asarray(c[key]["kp"], float), np.asarray(c[key]["kv"], float)
+            for i in range(3):
+                for j in range(i, 3):
+                    p[f"k_p{tag}{ax[i]}{ax[j]}"] = float(kp[i, j])
+                    p[f"k_v{tag}{ax[i]}{ax[j]}"] = float(kv[i, j])
+        from hil.models.teleop import DUAL_MASTER_TABLE1
+
+        p = {k: v for k, v in p.items() if k in DUAL_MASTER_TABLE1}
+    elif cert.model == "mcet_trilateral" and c.get("type") == "mcet":
+        for k in ("k_pm1", "k_vm1", "k_pm2", "k_vm2", "k_ps", "k_vs", "alpha"):
+            p[k] = float(c[k])
+        if scene.simulation is not None:
+            bodies = {b.name: b for b in scene.simulation.bodies}
+            for key, dev in (("m_m1", c["masters"][0]), ("m_m2", c["masters"][1]), ("m_s", c["slave"])):
+                b = bodies.get(scene.device(dev).body or dev)
+                if b is not None:
+                    from hil.scene import as_matrix
+
+                    p[key] = float(as_matrix(b.M, 1)[0, 0])
+    p.update(cert.parameters)
+    return p
+
+
+def _build(model: str, params: Mapping[str, Any]) -> Any:
+    from hil.models import get_model
+
+    m = get_model(model)
+    q = dict(params)
+    if model == "bilateral_2dof":
+        gains = q.pop("gains", "A1")
+        from hil.models.teleop import bilateral_2dof
+
+        return bilateral_2dof(gains, q)
+    return m.build(**q)
+
+
+def _criterion(model: str, cfg: str) -> str:
+    from hil.models import get_model
+
+    if cfg != "auto":
+        return cfg
+    return get_model(model).criterion
+
+
+def _check(tm: Any, criterion: str, margins: bool = True) -> Any:
+    from hil.stability.criteria import check
+
+    if margins:
+        return check(tm, criterion)
+    from hil.stability import criteria as C
+
+    if criterion == "passivity":
+        return C.two_port_passivity(tm, margins=False) if tm.n_ports == 2 else C.positive_real(tm, margins=False)
+    if criterion == "llewellyn":
+        return C.llewellyn(tm, margins=False)
+    return check(tm, criterion)
+
+
+# ---------------------------------------------------------------------------------------------
+# the pipeline
+
+
+def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, progress: Progress | None = None,
+                  run_experiments: bool = True, max_ticks: int | None = None) -> Certificate:
+    """Run the whole pipeline for ``scene`` (see the module docstring). Never raises for bad
+    evidence: problems become ERROR with their reasons; only a scene without a ``certification``
+    section raises :class:`SceneError`."""
+    if scene.certification is None:
+        raise SceneError(f"{scene.name}: no 'certification' section: nothing to certify")
+    cert = scene.certification
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    say = progress or (lambda msg: log.info(msg))
+    seed = int(scene.seed if seed is None else seed)
+    policy = Policy(cert.policy.required_probability, cert.policy.confidence, cert.policy.credible)
+    timings: dict[str, float] = {}
+    errors: list[str] = []
+    measurements: list[Measurement] = []
+    plots: dict[str, Series] = {}
+
+    def stage(name: str) -> Any:
+        class _T:
+            def __enter__(self) -> None:
+                self.t0 = time.perf_counter()
+                say(f"{scene.name}: {name} ...")
+
+            def __exit__(self, *exc: Any) -> None:
+                timings[name] = time.perf_counter() - self.t0
+
+        return _T()
+
+    from hil.models import get_model
+
+    try:
+        get_model(cert.model)
+    except KeyError:
+        from hil.models import model_names
+
+        raise SceneError(f"{scene.name}: certification.model: unknown model {cert.model!r}; known: "
+                         f"{', '.join(model_names())}") from None
+    params = model_params_from_scene(scene)
+    criterion = _criterion(cert.model, cert.criterion)
+
+    # 1. experiments -------------------------------------------------------------------------
+    outcomes: dict[str, Any] = {}
+    energy: list[EnergyEvidence] = []
+    if run_experiments and scene.experiments:
+        from hil.runner import Runner
+
+        with stage("run"):
+            runner = Runner(scene, out / "records", max_ticks=max_ticks)
+            names = [e["name"] for e in scene.experiment_configs()]
+            for i, o in enumerate(runner.run()):
+                outcomes[names[i]] = o
+                ok = o.status == "completed"
+                measurements.append(Measurement(name=f"experiment {names[i]}", value=o.status, outcome=(
+                    "PASS" if ok else ("FAIL" if o.status == "safety_stop" else "ERROR")),
+                    description=o.stop_reason if not ok else f"record {o.record.name}"))
+                if o.status == "error":
+                    errors.append(f"experiment {names[i]}: {o.stop_reason}")
+                r = o.results
+                if r.get("type") == "energy_injection" and "went_negative" in r:
+                    energy.append(EnergyEvidence(experiment=names[i], port=str(r.get("port")), record=str(o.record),
+                                                 went_negative=bool(r["went_negative"]),
+                                                 min_energy=float(r["min_energy"]),
+                                                 bound=float(r.get("bound_at_min", 0.0)),
+                                                 first_time=r.get("first_time")))
+                    measurements.append(Measurement(
+                        name=f"E_s(t) ≥ -bound ({names[i]})", value=float(r["min_energy"]), unit="J",
+                        lower=-float(r.get("bound_at_min", 0.0)), outcome="FAIL" if r["went_negative"] else "PASS",
+                        description="minimum port energy over the run against its noise bound"))
+                    _energy_plot(plots, names[i], o)
+
+    # 2. identification ----------------------------------------------------------------------
+    draws: dict[str, np.ndarray] = {}
+    idents: list[Identification] = []
+    converged = True
+    if cert.identify:
+        with stage("identify"):
+            for spec in cert.identify:
+                o = outcomes.get(spec.experiment)
+                if o is None or o.record is None:
+                    errors.append(f"identification: experiment {spec.experiment!r} has no record")
+                    continue
+                try:
+                    from hil.identify.api import identify_record, store_result
+
+                    kw = {"model": spec.model} if spec.model else {}
+                    res = identify_record(o.record, seed=seed, **kw)
+                    store_result(o.record, res)
+                except HilError as exc:
+                    errors.append(f"identification from {spec.experiment}: {exc}")
+                    continue
+                converged = converged and res.converged
+                summ = res.summary()
+                units = dict(zip(res.model.names, res.model.units, strict=True))
+                truth = _truth(scene)
+                idents.append(Identification(
+                    model=res.model.name, record=str(o.record), converged=res.converged,
+                    reason="; ".join(res.posterior.diagnostics.reasons) if not res.converged else "",
+                    parameters=[ParameterSummary(name=k, unit=units.get(k, ""), truth=truth.get(k),
+                                                 mean=v["mean"], median=v["median"], q05=v["q05"], q95=v["q95"],
+                                                 std=v["std"], ls_std=v.get("ls_std"), crb_std=v.get("crb_std"))
+                                for k, v in summ.items()],
+                    diagnostics=res.posterior.diagnostics.to_dict(res.names)))
+                samples = np.asarray(res.posterior.samples)[:, : len(res.names)]
+                mapping = spec.map or {n: n for n in res.names}
+                for src, dst in mapping.items():
+                    if src not in res.names:
+                        errors.append(f"identification: parameter {src!r} not in model {res.model.name}")
+                        continue
+                    draws[dst] = samples[:, res.names.index(src)]
+                measurements.append(Measurement(name=f"posterior converged ({res.model.name})", value=res.converged,
+                                                outcome="PASS" if res.converged else "MARGINAL",
+                                                description="integrated autocorrelation time, ≥ 50 τ, acceptance, "
+                                                            "split-R̂"))
+    rng = np.random.default_rng(seed)
+    n_draws = cert.draws
+    if draws:
+        n_avail = min(len(v) for v in draws.values())
+        idx = rng.choice(n_avail, size=min(n_draws, n_avail), replace=n_avail < n_draws)
+        draws = {k: np.asarray(v)[idx] for k, v in draws.items()}
+        n_draws = idx.size
+    for k, u in cert.uncertain.items():
+        draws[k] = u.value * np.exp(u.rel_std * rng.standard_normal(n_draws))
+    for k, v in draws.items():
+        if not np.all(np.isfinite(v)):
+            errors.append(f"parameter {k}: non-finite posterior draws")
+
+    # 3. nominal --------------------------------------------------------------------------------
+    nominal_params = dict(params)
+    nominal_params.update({k: float(np.mean(v)) for k, v in draws.items()})
+    nominal = None
+    nominal_res = None
+    with stage("nominal"):
+        try:
+            tm = _build(cert.model, nominal_params)
+            nominal_res = _check(tm, criterion)
+            nominal = _nominal_section(cert.model, nominal_res, nominal_params)
+            measurements.append(Measurement(
+                name=f"nominal {nominal_res.criterion}", value=str(nominal_res.verdict),
+                outcome={"stable": "PASS", "marginal": "MARGINAL", "potentially_unstable": "FAIL"}.get(
+                    str(nominal_res.verdict), "ERROR"), description=nominal_res.summary()))
+            measurements.append(Measurement(name="nominal margin", value=_f(nominal_res.margin), lower=0.0,
+                                            outcome="PASS" if (nominal_res.margin or 0) > 0 else "MARGINAL",
+                                            description="normalized margin of the decisive condition"))
+            _decided_plot(plots, tm, nominal_res)
+        except HilError as exc:
+            errors.append(f"nominal model: {exc}")
+            tm = None
+
+    # 4. robust ---------------------------------------------------------------------------------
+    robust = None
+    stable_draws: np.ndarray | None = None
+    if draws and not errors:
+        with stage("robust"):
+            stable_draws, margin_fn, method = _robust_eval(cert.model, criterion, params, draws)
+            fast = method.startswith("vectorized")
+            p, lo, hi = probability_of_stability(stable_draws, policy.confidence)
+            names = sorted(draws)
+            X = np.column_stack([draws[k] for k in names])
+            wc, theta = (None, None)
+            if margin_fn is not None and X.shape[0] > X.shape[1] + 2:
+                try:
+                    # the general criterion costs ~0.1 s per point: fewer, shorter local searches there
+                    wc_v, th = worst_case_margin(lambda T: margin_fn(dict(zip(names, T.T, strict=True))), X,
+                                                 credible=policy.credible, n_starts=6 if fast else 2, seed=seed,
+                                                 maxiter=80 if fast else 8, axis_starts=fast)
+                    wc, theta = float(wc_v), {k: float(v) for k, v in zip(names, th, strict=True)}
+                except HilError as exc:
+                    log.warning("worst-case search skipped: %s", exc)
+            band = None
+            if nominal_res is not None and nominal_res.worst_frequency not in (None, 0.0) and \
+                    math.isfinite(float(nominal_res.worst_frequency)):
+                w = float(nominal_res.worst_frequency)
+                band = (w / 2.0, w * 2.0)
+            robust = Robust(n_draws=int(stable_draws.size), p_stable=p, lower=lo, upper=hi,
+                            confidence=policy.confidence, required=policy.required_probability,
+                            credible=policy.credible, worst_case_margin=wc, worst_case_parameters=theta,
+                            critical_band_rad_s=band, method=method)
+            measurements.append(Measurement(name="P(stable), lower confidence bound", value=lo,
+                                            lower=policy.required_probability,
+                                            outcome="PASS" if lo >= policy.required_probability else (
+                                                "MARGINAL" if p >= policy.required_probability else "FAIL"),
+                                            description=f"P̂ = {p:.4f} over {stable_draws.size} draws "
+                                                        f"({policy.confidence:.0%} Clopper-Pearson)"))
+            if wc is not None:
+                measurements.append(Measurement(name=f"worst-case margin over the {policy.credible:.0%} credible "
+                                                     "region", value=wc, lower=0.0,
+                                                outcome="PASS" if wc > 0 else "MARGINAL",
+                                                description="minimum of the margin by optimization"))
+            _bode_plot(plots, cert.model, params, draws, seed)
+
+    # 5. design -----------------------------------------------------------------------------------
+    design = None
+    if cert.design is not None and draws and not errors:
+        with stage("design"):
+            design = _design(cert, params, draws, policy)
+            if design is not None:
+                measurements.append(Measurement(name=f"largest {design.parameter} at P ≥ {policy.required_probability}",
+                                                value=design.max_value, outcome="INFO", unit=design.unit,
+                                                description=design.note))
+
+    # 7. decision ---------------------------------------------------------------------------------
+    dec, reasons, _prob = decide(None if nominal_res is None else str(nominal_res.verdict),
+                                 None if nominal_res is None else nominal_res.margin,
+                                 stable_draws if draws else (np.array([nominal_res.verdict == "stable"])
+                                                             if nominal_res is not None else None),
+                                 policy, converged=converged, evidence_errors=errors or None)
+    if any(e.went_negative for e in energy) and dec == Decision.GO:
+        dec = Decision.MARGINAL
+        reasons.append("energy injection: E_s(t) went below its noise bound although the criterion passed")
+
+    # 6. witness ----------------------------------------------------------------------------------
+    witness = None
+    unstable = nominal_res is not None and str(nominal_res.verdict) == "potentially_unstable"
+    if cert.witness and unstable and tm is not None:
+        with stage("witness"):
+            witness = _witness(tm, plots)
+
+    multiport = None
+    if tm is not None and (tm.n_ports > 2 or max(tm.port_dofs) > 1):
+        multiport = MultiPort(ports=list(tm.port_dofs), dof_total=tm.n,
+                              symmetrization="Theorem 1 of paper 000 (conditions A, B checked)")
+    measurements.append(Measurement(name="run time", value=sum(timings.values()), unit="s", outcome="INFO",
+                                    description=", ".join(f"{k} {v:.1f} s" for k, v in timings.items())))
+    return Certificate(
+        created_utc=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), software=_versions(),
+        scene=SceneInfo(name=scene.name, sha256=scene.sha256, description=scene.description, source=scene.path),
+        decision=str(dec), reasons=reasons, policy={"required_probability": policy.required_probability,
+                                                    "confidence": policy.confidence, "credible": policy.credible},
+        measurements=measurements, nominal=nominal, robust=robust, identification=idents or None, design=design,
+        witness=witness, energy=energy or None, multiport=multiport, plots=plots, errors=errors)
+
+
+# ---------------------------------------------------------------------------------------------
+# helpers
+
+
+def _f(v: Any) -> float | None:
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        return None
+    return x if math.isfinite(x) else None
+
+
+def _truth(scene: Any) -> dict[str, float]:
+    """Parameters of the simulated plant (known on a mocked bench; shown next to the estimates)."""
+    sim = scene.simulation
+    if sim is None or sim.sdea is None:
+        return {}
+    sd = sim.sdea
+    return {"M": float(sd.M), "B": float(sd.B), "K_f": float(sd.K_f), "B_f": float(sd.B_f)}
+
+
+def _versions() -> dict[str, str]:
+    import platform
+
+    import scipy
+
+    import hil
+
+    return {"hil": hil.__version__, "numpy": np.__version__, "scipy": scipy.__version__,
+            "python": platform.python_version()}
+
+
+def _nominal_section(model: str, r: Any, params: Mapping[str, Any]) -> Nominal:
+    rows = [ConditionRow(name=c.name, label=c.label, status=c.status, margin=_f(c.margin),
+                         worst_frequency=None if c.worst_frequency is None else (
+                             "inf" if math.isinf(c.worst_frequency) else float(c.worst_frequency)), detail=c.detail)
+            for c in r.conditions]
+    wf = r.worst_frequency
+    wf_out = None if wf is None else ("inf" if math.isinf(wf) else float(wf))
+    return Nominal(network=r.network.get("name", model), criterion=r.criterion, verdict=str(r.verdict),
+                   margin=_f(r.margin), worst_frequency=wf_out,
+                   failed_condition=r.failed_condition, weak=bool(r.weak),
+                   parameters={k: float(v) for k, v in params.items() if isinstance(v, int | float)}, conditions=rows)
+
+
+def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray]
+                 ) -> tuple[np.ndarray, Callable[[Mapping[str, np.ndarray]], np.ndarray] | None, str]:
+    """Stability of every draw, and a vectorized margin function for the worst-case search."""
+    n = len(next(iter(draws.values())))
+    if model == "sdea" and criterion == "passivity":
+        from hil.stability.batch import sdea_passivity_batch
+
+        fixed = {k: float(v) for k, v in params.items() if isinstance(v, int | float)}
+
+        def margin(d: Mapping[str, np.ndarray]) -> np.ndarray:
+            return sdea_passivity_batch(d, fixed=fixed)["margin"]
+
+        res = sdea_passivity_batch(draws, fixed=fixed)
+        return res["passive"], margin, "vectorized closed form (Theorem 5), exact fallback near the boundary"
+    stable = np.zeros(n, bool)
+    for i in range(n):
+        q = dict(params)
+        q.update({k: float(v[i]) for k, v in draws.items()})
+        try:
+            stable[i] = str(_check(_build(model, q), criterion, margins=False).verdict) == "stable"
+        except HilError:
+            stable[i] = False
+
+    def margin_general(d: Mapping[str, np.ndarray]) -> np.ndarray:
+        m = len(next(iter(d.values())))
+        out = np.empty(m)
+        for i in range(m):
+            q = dict(params)
+            q.update({k: float(v[i]) for k, v in d.items()})
+            r = _check(_build(model, q), criterion)
+            out[i] = r.margin if math.isfinite(r.margin) else -1.0
+        return out
+
+    return stable, margin_general, "general exact criterion per draw"
+
+
+def _design(cert: Any, params: Mapping[str, Any], draws: Mapping[str, np.ndarray], policy: Policy) -> Design | None:
+    d = cert.design
+    if cert.model != "sdea" or d.parameter not in ("k22", "b22"):
+        return Design(parameter=d.parameter, max_value=None, probability_at_max=None,
+                      required=policy.required_probability,
+                      note="design search is implemented for the SDEA coupler (k22, b22)")
+    from hil.stability.batch import sdea_passivity_batch
+
+    fixed = {k: float(v) for k, v in params.items() if isinstance(v, int | float)}
+
+    def stable(x: float) -> np.ndarray:
+        dd = dict(draws)
+        dd[d.parameter] = np.full(len(next(iter(draws.values()))), x)
+        return sdea_passivity_batch(dd, fixed=fixed)["passive"]
+
+    x, p = max_safe_parameter(stable, d.range[0], d.range[1], policy.required_probability, policy.confidence)
+    unit = "N.m/rad" if d.parameter == "k22" else "N.m.s/rad"
+    return Design(parameter=d.parameter, unit=unit, current=fixed.get(d.parameter), max_value=_f(x),
+                  probability_at_max=_f(p), required=policy.required_probability,
+                  note=f"largest {d.parameter} in [{d.range[0]:g}, {d.range[1]:g}] whose lower "
+                       f"{policy.confidence:.0%} bound of P(stable) stays ≥ {policy.required_probability}")
+
+
+def _witness(tm: Any, plots: dict[str, Series]) -> Witness | None:
+    """Search a passive termination set and simulate the driven, terminated one-port exactly."""
+    from hil.stability.witness import find_witness, termination_family
+
+    port = 0
+    cands = termination_family(max(tm.port_dofs))[::2]
+    w = find_witness(tm, port, cands, first=True)
+    if w is None:
+        return None
+    sim = _simulate_witness(w, plots)
+    band = None if w.band_rad_s is None else (float(w.band_rad_s[0]),
+                                             "inf" if math.isinf(w.band_rad_s[1]) else float(w.band_rad_s[1]))
+    return Witness(terminations={str(k): v.to_dict() for k, v in w.terminations.items()},
+                   drive_frequency_rad_s=w.drive_frequency, band_rad_s=band, margin=float(w.result.margin),
+                   simulation=sim)
+
+
+def _simulate_witness(w: Any, plots: dict[str, Series]) -> dict[str, Any]:
+    """Drive the terminated network's operator port with F(t) = F0 d sin(ωt) (d = the most
+    non-passive direction) and integrate E_s(t) = ∫ Fᵀ V dt, V = Y_in(s) F, with the exact-ZOH
+    engine of hil.mocks (admittance state space from the exact rational Y_in = Z_in⁻¹)."""
+    from hil.mocks.lti import StateSpace, tf_matrix
+
+    y = w.z_in.to("admittance")
+    m = y.n
+    try:
+        ss: StateSpace = tf_matrix([[None if e.is_zero else (e.num[::-1].tolist(), e.den[::-1].tolist())
+                                     for e in row] for row in y.entries])
+    except HilError as exc:  # an improper admittance cannot be simulated as given
+        return {"simulated": False, "reason": f"admittance not realizable: {exc}"}
+    wd = float(w.drive_frequency)
+    period = 2 * math.pi / wd
+    dt = min(1e-3, period / 200)
+    n = int(min(40 * period, 60.0) / dt)
+    t = np.arange(n) * dt
+    d = np.asarray(w.direction, float).reshape(-1)[:m]
+    d = d / (np.linalg.norm(d) or 1.0)
+    F = np.outer(np.sin(wd * t), d)
+    with np.errstate(all="ignore"):
+        _, V = ss.discretize(dt).simulate(F)
+    V = np.asarray(V).reshape(n, -1)[:, :m]
+    finite = np.all(np.isfinite(V), axis=1)
+    n_ok = int(np.argmin(finite)) if not finite.all() else n
+    ref = float(np.max(np.abs(V[: max(1, n_ok // 10)])))
+    grew = np.abs(V[:n_ok]).max(axis=1) > 1e3 * max(ref, 1e-12)
+    diverged = bool(n_ok < n or grew.any())
+    n_keep = int(np.argmax(grew)) + 1 if grew.any() else n_ok  # up to where it blew up
+    t, F, V = t[:n_keep], F[:n_keep], V[:n_keep]
+    n = n_keep
+    power = np.einsum("ij,ij->i", F, V)
+    E = np.concatenate([[0.0], np.cumsum(0.5 * (power[1:] + power[:-1]) * dt)])
+    step = max(1, n // 800)
+    plots["witness_energy"] = Series(title="Witness: port energy E_s(t) under the destabilizing terminations",
+                                     x=t[::step].tolist(), x_label="t [s]", y_label="E_s [J]",
+                                     lines={"E_s": E[::step].tolist()}, hline=0.0)
+    return {"simulated": True, "duration_s": float(t[-1]), "drive_frequency_rad_s": wd,
+            "min_energy": float(np.min(E)), "final_energy": float(E[-1]),
+            "went_negative": bool(np.min(E) < 0), "diverged": diverged,
+            "method": "exact-ZOH simulation (hil.mocks.lti) of V = Y_in F"}
+
+
+# ---------------------------------------------------------------------------------------------
+# plots (as data series; rendered by hil.report)
+
+
+def _energy_plot(plots: dict[str, Series], name: str, outcome: Any) -> None:
+    from hil.record import RunRecord
+
+    try:
+        rec = RunRecord.open(outcome.record)
+    except HilError:
+        return
+    port = outcome.results.get("port")
+    key = f"{port}.energy"
+    if key not in rec.channels:
+        return
+    e = rec.channels[key].reshape(-1)
+    step = max(1, e.size // 1500)
+    plots[f"energy_{name}"] = Series(title=f"Port energy E_s(t) at {port} ({name})", x=rec.t[::step].tolist(),
+                                     x_label="t [s]", y_label="E_s [J]", lines={"E_s": e[::step].tolist()}, hline=0.0)
+
+
+def _decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
+    """The decisive frequency condition's physical ratio against frequency, worst point marked."""
+    from hil.stability.criteria import _eta_ratio, _freq_range, _hermitian_ratio, _normalized
+
+    tmn, w0 = _normalized(tm)
+    lo, hi = _freq_range(tmn.entries)
+    w = np.geomspace(lo, hi, 600)
+    lines: dict[str, list[float | None]] = {}
+    n = tm.n
+    idxs = [(i,) for i in range(n)] + ([tuple(range(n))] if n > 1 else [])
+    for idx in idxs[:6]:
+        sub = [[tmn.entries[a][b] for b in idx] for a in idx]
+        lines[f"minor {{{','.join(str(i + 1) for i in idx)}}}"] = _clean(_hermitian_ratio(sub)(w))
+    if n == 2 and "llewellyn" in r.criterion:
+        sub = [[tmn.entries[a][b] for b in (0, 1)] for a in (0, 1)]
+        lines["Llewellyn η (normalized)"] = _clean(_eta_ratio(sub)(w))
+    pts = {}
+    if r.worst_frequency is not None and math.isfinite(r.worst_frequency) and r.worst_frequency > 0 and \
+            math.isfinite(r.margin):
+        pts["worst"] = (float(r.worst_frequency), float(r.margin))
+    plots["decided"] = Series(title=f"Decided quantities ({r.criterion}) against frequency", x=(w * w0).tolist(),
+                              x_label="ω [rad/s]", y_label="normalized margin", log_x=True, lines=lines,
+                              points=pts, hline=0.0)
+
+
+def _clean(a: np.ndarray) -> list[float | None]:
+    return [float(x) if math.isfinite(x) else None for x in np.asarray(a, float)]
+
+
+def _bode_plot(plots: dict[str, Series], model: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray],
+               seed: int) -> None:
+    """|entry (1,1)| of the network over the posterior: median and 90 % band."""
+    rng = np.random.default_rng(seed + 1)
+    n = len(next(iter(draws.values())))
+    pick = rng.choice(n, size=min(60, n), replace=False)
+    try:
+        tm0 = _build(model, {**params, **{k: float(np.mean(v)) for k, v in draws.items()}})
+    except HilError:
+        return
+    from hil.stability.criteria import _freq_range
+
+    lo, hi = _freq_range(tm0.entries)
+    w = np.geomspace(lo, hi, 300)
+    mags = []
+    for i in pick:
+        q = dict(params)
+        q.update({k: float(v[i]) for k, v in draws.items()})
+        try:
+            mags.append(np.abs(_build(model, q)[0, 0].freq(w)))
+        except HilError:
+            continue
+    if not mags:
+        return
+    M = np.array(mags)
+    q05, q50, q95 = np.quantile(M, [0.05, 0.5, 0.95], axis=0)
+    db = lambda a: (20 * np.log10(np.maximum(a, 1e-300))).tolist()  # noqa: E731
+    plots["bode"] = Series(title=f"|{tm0.kind} entry (1,1)| over the posterior", x=w.tolist(), x_label="ω [rad/s]",
+                           y_label="magnitude [dB]", log_x=True, lines={"median": db(q50)},
+                           bands={"90 % credible": (db(q05), db(q95))})
