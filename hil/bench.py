@@ -42,6 +42,7 @@ import dataclasses
 import itertools
 import logging
 import threading
+import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -57,7 +58,7 @@ from hil.scene import (
     WallTermination,
 )
 
-__all__ = ["SIMULATED_DRIVERS", "Bench", "Measurements"]
+__all__ = ["SIMULATED_DRIVERS", "Bench", "Measurements", "SimEndpoint", "SimulatedScene"]
 
 logger = logging.getLogger(__name__)
 
@@ -65,7 +66,8 @@ logger = logging.getLogger(__name__)
 Measurements = dict[str, JointSample | WrenchSample]
 
 #: Drivers for which the bench has a simulated counterpart.
-SIMULATED_DRIVERS = ("odrive_can", "cubemars_mit", "bota_serial", "robotiq_ft300", "dynamixel_x")
+SIMULATED_DRIVERS = ("odrive_can", "cubemars_mit", "bota_serial", "robotiq_ft300", "robotiq_ft300_stream",
+                     "dynamixel_x")
 
 _BENCH_IDS = itertools.count(1)
 _BENCH_IDS_LOCK = threading.Lock()
@@ -364,7 +366,7 @@ class Bench:
             kind = type(d.sim).__name__
             if kind in ("SimODrive", "SimCubeMars"):
                 d.sim.tick()
-            elif kind == "SimBota":
+            elif kind in ("SimBota", "SimFT300Stream"):
                 d.sim.emit()
             elif kind == "SimulatedFT300":
                 d.sim.update()
@@ -573,7 +575,7 @@ class Bench:
             # first samples: publish the state at t = 0
             for d in self._devs:
                 kind = type(d.sim).__name__
-                if kind == "SimBota":
+                if kind in ("SimBota", "SimFT300Stream"):
                     d.sim.emit()
                 elif kind == "SimulatedFT300":
                     d.sim.update()
@@ -581,12 +583,9 @@ class Bench:
     def _start_sim(self, index: int, d: _Dev, params: dict[str, Any],
                    channels: dict[tuple[str, str], str]) -> dict[str, Any]:
         """Start the simulated counterpart of device ``d``; return the adapter params."""
-        from hil.mocks.faults import FaultPlan
-
         cfg = d.cfg
         label = self.scene.path or self.scene.name
-        seed = cfg.sim.seed if cfg.sim.seed is not None else _seed_for(self.seed, 200 + index)
-        faults = FaultPlan.from_dict(cfg.sim.faults)
+        seed, faults = self._sim_seed_faults(index, cfg)
         point = d.point
         assert point is not None
         clock = self._clock
@@ -616,9 +615,7 @@ class Bench:
 
             d.sim = SimBota(point, period_s=self.dt, faults=faults, seed=seed, axes=tuple(cfg.wrench_axes))
             params.update(url=d.sim.path, period_s=self.dt, clock=clock, timeout=self.timeout)
-        elif drv == "robotiq_ft300":
-            from hil.mocks.modbus_devices import SimulatedFT300
-
+        elif drv in ("robotiq_ft300", "robotiq_ft300_stream"):
             axes = cfg.wrench_axes
 
             def wrench() -> np.ndarray:
@@ -626,9 +623,17 @@ class Bench:
                 w[axes] = point.measured_force()
                 return w
 
-            d.sim = SimulatedFT300(wrench, framing=cfg.sim.framing, port=0, faults=faults, seed=seed,
-                                   auto_update=False, slave=int(params.get("slave", 9)))
-            params.update(url=d.sim.url, clock=clock, timeout=self.timeout)
+            if drv == "robotiq_ft300":
+                from hil.mocks.modbus_devices import SimulatedFT300
+
+                d.sim = SimulatedFT300(wrench, framing=cfg.sim.framing, port=0, faults=faults, seed=seed,
+                                       auto_update=False, slave=int(params.get("slave", 9)))
+                params.update(url=d.sim.url, clock=clock, timeout=self.timeout)
+            else:  # serial line on a pty; lockstep: one frame per control period (emit())
+                from hil.mocks.ft300_stream import SimFT300Stream
+
+                d.sim = SimFT300Stream(wrench, faults=faults, seed=seed, slave=int(params.get("slave", 9)))
+                params.update(url=d.sim.path, clock=clock, timeout=self.timeout)
         elif drv == "dynamixel_x":
             d.chain = self._dynamixel_chain(index, d, faults, seed)
             params.update(port=d.chain.port, clock=clock, timeout=self.timeout)
@@ -637,6 +642,14 @@ class Bench:
                              f"(simulated: {', '.join(SIMULATED_DRIVERS)})")
         logger.debug("simulated %s for device %s (seed %d)", type(d.sim).__name__, cfg.name, seed)
         return params
+
+    def _sim_seed_faults(self, index: int, cfg: Any) -> tuple[int, Any]:
+        """Seed and :class:`hil.mocks.faults.FaultPlan` of the simulated counterpart of device
+        ``index``."""
+        from hil.mocks.faults import FaultPlan
+
+        seed = cfg.sim.seed if cfg.sim.seed is not None else _seed_for(self.seed, 200 + index)
+        return seed, FaultPlan.from_dict(cfg.sim.faults)
 
     def _dynamixel_chain(self, index: int, d: _Dev, faults: Any, seed: int) -> Any:
         """The simulated chain serving device ``d``: devices whose scene ``params.port`` is the same
@@ -681,6 +694,179 @@ class Bench:
                 d.sim.process_pending()
         for chain, n in chains.values():
             chain.sync(n, timeout=max(1.0, 10 * self.timeout))
+
+
+@dataclasses.dataclass(frozen=True)
+class SimEndpoint:
+    """Where one simulated device of a :class:`SimulatedScene` listens.
+
+    ``open_device(driver, **params)`` (:mod:`hil.protocols.registry`) connects an adapter to it;
+    ``address`` is the same for humans; ``cross_process`` is False when only the serving process
+    can reach it (python-can's ``virtual`` interface).
+    """
+
+    name: str
+    driver: str
+    role: str
+    params: dict[str, Any]
+    address: str
+    cross_process: bool = True
+
+
+#: python-can's default UDP multicast group; served CAN channels use 239.74.163.2, .3, ...
+_UDP_MULTICAST_BASE = "239.74.163."
+
+
+class SimulatedScene(Bench):
+    """A scene's simulated devices on their own, free-running in real time, without adapters.
+
+    What ``hil mock serve SCENE`` runs so that another program (a bench GUI, a third-party client)
+    can talk to the devices: the physics, the measurement points and the simulated devices are built
+    by the same code as :class:`Bench` (same seeds, noise and fault plans), but
+
+    * no adapter is opened: :attr:`endpoints` says where each device listens (pty path, TCP URL,
+      CAN interface + channel) with the exact ``open_device`` parameters a client needs;
+    * after :meth:`start`, a thread steps the plant at the scene's rate against the wall clock and
+      the devices run on their own threads: CAN nodes tick at the scene rate (cyclic frames, requests
+      answered as they arrive) on ``can_interface`` (``virtual``: this process only;
+      ``udp_multicast``: any process on the host, one multicast group per scene channel unless
+      ``can_channels`` maps scene channel -> channel), the Bota sensor streams at the scene rate,
+      the streaming FT-300 at ``stream_rate_hz`` once a client starts its stream, the Modbus FT-300
+      refreshes its registers on every request, DYNAMIXEL chains answer as before.
+
+    :meth:`read`, :meth:`command` and :meth:`advance` are not available (there are no adapters);
+    :meth:`set_human_force` works. :meth:`close` stops every thread and closes every transport.
+    """
+
+    def __init__(self, scene: Scene, *, seed: int | None = None, variant: str | None = None,
+                 can_interface: str = "virtual", can_channels: Mapping[str, str] | None = None,
+                 stream_rate_hz: float = 100.0) -> None:
+        if scene.simulation is None:
+            raise SceneError(f"{scene.path or scene.name}: no 'simulation' block: nothing to simulate")
+        self.can_interface = str(can_interface)
+        self._can_map = {str(k): str(v) for k, v in (can_channels or {}).items()}
+        self.stream_rate_hz = float(stream_rate_hz)
+        self.endpoints: list[SimEndpoint] = []
+        self.overruns = 0
+        self._run_stop = threading.Event()
+        self._stepper: threading.Thread | None = None
+        super().__init__(scene, seed=seed, variant=variant)
+
+    # -- public ---------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Start the device threads and the real-time plant stepper (idempotent)."""
+        self._check_open()
+        if self._stepper is not None:
+            return
+        rate = float(self.scene.rate_hz)
+        for d in self._devs:
+            kind = type(d.sim).__name__
+            if kind in ("SimODrive", "SimCubeMars", "SimBota"):
+                d.sim.start(rate)
+            elif kind == "SimFT300Stream":
+                d.sim.start(self.stream_rate_hz)
+        self._stepper = threading.Thread(target=self._run, name=f"sim-scene-{self.scene.name}", daemon=True)
+        self._stepper.start()
+
+    def stop(self) -> None:
+        """Stop the plant stepper (devices keep their transports open until :meth:`close`)."""
+        self._run_stop.set()
+        if self._stepper is not None and self._stepper is not threading.current_thread():
+            self._stepper.join(timeout=2.0)
+
+    def close(self) -> None:
+        """Stop every thread, close every simulated device and transport. Idempotent."""
+        self.stop()
+        super().close()
+
+    def read(self, timeout: float | None = None) -> Measurements:
+        raise HilError("a SimulatedScene has no adapters: open them on .endpoints")
+
+    def command(self, efforts: Mapping[str, Any], timeout: float | None = None) -> None:
+        raise HilError("a SimulatedScene has no adapters: open them on .endpoints")
+
+    def advance(self) -> None:
+        raise HilError("a SimulatedScene runs in real time once started: there is no lockstep advance")
+
+    # -- internals ------------------------------------------------------------------------------
+    def _run(self) -> None:
+        period = self.dt
+        next_t = time.monotonic()
+        while not self._run_stop.is_set():
+            try:
+                self.simulator.tick()
+            except Exception:
+                logger.exception("scene %r: simulation stopped", self.scene.name)
+                return
+            self._ticks += 1
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay > 0:
+                self._run_stop.wait(delay)
+            elif delay < -10 * period:  # fell far behind (loaded machine): skip, do not burst
+                self.overruns += 1
+                next_t = time.monotonic()
+
+    def _open_devices(self) -> None:
+        sc = self.scene
+        channels: dict[tuple[str, str], str] = {}
+        self._devs = [_Dev(cfg.name, cfg) for cfg in sc.devices]
+        for i, d in enumerate(self._devs):
+            d.point = self._point(i, d.cfg)
+        for i, d in enumerate(self._devs):
+            params = self._start_sim(i, d, dict(d.cfg.params), channels)
+            for host_side in ("clock", "timeout"):  # the client's own choice
+                params.pop(host_side, None)
+            self.endpoints.append(self._endpoint(d, params))
+
+    def _start_sim(self, index: int, d: _Dev, params: dict[str, Any],
+                   channels: dict[tuple[str, str], str]) -> dict[str, Any]:
+        drv = d.cfg.driver
+        if drv not in ("odrive_can", "cubemars_mit"):
+            params = super()._start_sim(index, d, params, channels)
+            if type(d.sim).__name__ == "SimulatedFT300":
+                d.sim.auto_update = True  # free-running: registers refreshed on every request
+            return params
+        from hil.mocks.can_devices import SimCubeMars, SimODrive
+
+        seed, faults = self._sim_seed_faults(index, d.cfg)
+        scene_ch = str(params.get("channel", "hil0"))
+        key = (str(params.get("interface", "virtual")), scene_ch)
+        if key not in channels:
+            channels[key] = self._can_channel(scene_ch, len(channels))
+        ch, iface = channels[key], self.can_interface
+        params.update(interface=iface, channel=ch)
+        params.pop("bus", None)
+        if drv == "odrive_can":
+            d.sim = SimODrive(d.point, ch, int(params.get("node_id", 0)), iface,
+                              gear_ratio=float(params.get("gear_ratio", 1.0)),
+                              linear_scale=params.get("linear_scale"), faults=faults, seed=seed)
+            if params.get("feedback") == "cyclic":
+                d.sim.encoder_every = 1
+        else:
+            d.sim = SimCubeMars(d.point, ch, int(params.get("motor_id", 1)), iface,
+                                model=params.get("model", "AK80-9"), faults=faults, seed=seed)
+        return params
+
+    def _can_channel(self, scene_ch: str, k: int) -> str:
+        if scene_ch in self._can_map:
+            return self._can_map[scene_ch]
+        if self.can_interface == "udp_multicast":
+            return f"{_UDP_MULTICAST_BASE}{2 + k}"
+        return scene_ch
+
+    def _endpoint(self, d: _Dev, params: dict[str, Any]) -> SimEndpoint:
+        drv = d.cfg.driver
+        cross = True
+        if drv in ("odrive_can", "cubemars_mit"):
+            ident = f"node {params.get('node_id', 0)}" if drv == "odrive_can" else f"motor {params.get('motor_id', 1)}"
+            address = f"can {params['interface']}:{params['channel']} {ident}"
+            cross = params["interface"] != "virtual"
+        elif drv == "dynamixel_x":
+            address = f"{params['port']} ids {list(params.get('ids', [1]))}"
+        else:
+            address = str(params.get("url", ""))
+        return SimEndpoint(d.name, drv, d.cfg.role, _jsonable(params), address, cross)
 
 
 def _arr(value: Any) -> Any:

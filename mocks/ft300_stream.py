@@ -320,10 +320,11 @@ class SimFT300Stream:
                 continue  # another slave's request: stay silent
             self.stats["requests"] += 1
             reply, start = self._handle(frame[1:-2])
+            if start:  # in stream mode from the echo on; emit() takes the same lock: no frame before it
+                self._set_streaming(True)
+                self._ff_run = 0
             self._write(rtu_frame(self.slave, reply))
             if start:
-                self._set_streaming(True)  # frames follow the echo (same lock as emit())
-                self._ff_run = 0
                 return
 
     @staticmethod

@@ -1,6 +1,21 @@
 """Start simulated devices on their own and report where each one listens (``hil mock serve``).
 
-Until the scene format exists, a spec is a list of dicts (JSON/YAML file or Python objects)::
+``hil mock serve SCENE`` (a scene file or a built-in scene name) builds the scene's physics and
+simulated devices exactly as :class:`hil.bench.Bench` does (:class:`hil.bench.SimulatedScene`), steps
+the plant in real time at the scene's rate, and prints one line per device: its name, driver and the
+``open_device(...)`` call that connects an adapter to it (pty path, TCP URL, CAN interface +
+channel); ``--json`` prints the same as one JSON line. It runs for ``--duration`` seconds or until
+Ctrl-C / SIGTERM, then stops every thread and closes every pty, socket and bus.
+
+CAN: python-can's ``virtual`` interface exists only inside one process, so CAN devices served on
+it are reachable from the serving process only (the output says so). ``--can-interface
+udp_multicast`` puts them on python-can's UDP multicast bus (one group per scene channel,
+239.74.163.2, .3, ...; needs ``msgpack``: ``pip install 'python-can[multicast]'``), which every
+process on the host can join; ``--can-channel hil0=vcan0 --can-interface socketcan`` maps a scene
+channel onto a real (virtual) SocketCAN interface.
+
+Without a scene, a *spec* (the interface that predates scenes) is a list of dicts (JSON/YAML file or
+Python objects)::
 
     [
       {"kind": "odrive",   "channel": "hil0", "node_id": 3, "gear_ratio": 1.0,
@@ -28,6 +43,8 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
+import signal
 import sys
 import threading
 import time
@@ -180,23 +197,152 @@ def load_spec(text_or_path: str) -> list[dict[str, Any]]:
     return data
 
 
+def serve_scene(scene: Any, *, seed: int | None = None, variant: str | None = None,
+                can_interface: str = "virtual", can_channels: dict[str, str] | None = None,
+                stream_rate_hz: float = 100.0) -> Any:
+    """Build and start a scene's simulated devices (a :class:`hil.bench.SimulatedScene`; a
+    :class:`hil.scene.Scene`, a path or a built-in name). Stop it with ``.close()``."""
+    from hil.bench import SimulatedScene
+    from hil.scene import load_scene
+
+    sc = scene if hasattr(scene, "devices") else load_scene(scene)
+    sim = SimulatedScene(sc, seed=seed, variant=variant, can_interface=can_interface,
+                         can_channels=can_channels, stream_rate_hz=stream_rate_hz)
+    try:
+        sim.start()
+    except BaseException:
+        sim.close()
+        raise
+    return sim
+
+
+def open_device_call(driver: str, params: dict[str, Any]) -> str:
+    """``open_device("driver", key=value, ...)`` as Python source (values as ``repr``)."""
+    args = "".join(f", {k}={v!r}" for k, v in params.items())
+    return f"open_device({driver!r}{args})"
+
+
+VIRTUAL_CAN_NOTE = ("python-can's 'virtual' CAN interface is reachable from the serving process only; "
+                    "serve with --can-interface udp_multicast (pip install 'python-can[multicast]') "
+                    "to reach the CAN devices from another process")
+
+
+def _parse_can_channels(items: list[str]) -> dict[str, str]:
+    out = {}
+    for item in items:
+        scene_ch, sep, ch = item.partition("=")
+        if not sep or not scene_ch or not ch:
+            raise SystemExit(f"hil mock serve: --can-channel expects SCENE_CHANNEL=CHANNEL, got {item!r}")
+        out[scene_ch] = ch
+    return out
+
+
+def _scene_report(sim: Any) -> dict[str, Any]:
+    sc = sim.scene
+    eps = sim.endpoints
+    notes = [VIRTUAL_CAN_NOTE] if any(not ep.cross_process for ep in eps) else []
+    return {
+        "scene": sc.name, "source": sc.path, "rate_hz": sc.rate_hz, "seed": sim.seed, "pid": os.getpid(),
+        "devices": [{"name": ep.name, "driver": ep.driver, "role": ep.role, "address": ep.address,
+                     "params": ep.params, "cross_process": ep.cross_process} for ep in eps],
+        "notes": notes,
+    }
+
+
+def _wait(duration: float | None, stop: threading.Event) -> None:
+    t_end = None if duration is None else time.monotonic() + duration
+    while not stop.is_set():
+        left = 0.2 if t_end is None else t_end - time.monotonic()
+        if left <= 0:
+            return
+        stop.wait(min(0.2, left))
+
+
 def main(argv: list[str] | None = None) -> int:
-    """``hil mock serve [--spec SPEC] [--duration S]``: serve mocks and print their endpoints."""
+    """``hil mock serve [SCENE | --spec SPEC] [--duration S] [--json] ...``: serve simulated devices
+    and print their endpoints (see the module docstring)."""
     ap = argparse.ArgumentParser(prog="hil mock serve", description=__doc__.split("\n", 1)[0])
-    ap.add_argument("--spec", help="JSON string or .json/.yaml file (see module doc); default: odrive + bota")
-    ap.add_argument("--duration", type=float, default=None, help="seconds to run (default: until Ctrl-C)")
-    ap.add_argument("--plant-rate", type=float, default=1000.0, help="FreeJoints step rate [Hz]")
+    ap.add_argument("scene", nargs="?", help="scene file or built-in scene name (see 'hil scenes')")
+    ap.add_argument("--spec", help="instead of a scene: JSON string or .json/.yaml file (see module doc)")
+    ap.add_argument("--duration", type=float, default=None, help="seconds to run (default: until Ctrl-C/SIGTERM)")
+    ap.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
+    ap.add_argument("--seed", type=int, default=None, help="scene: seed of noise and faults (default: the scene's)")
+    ap.add_argument("--variant", choices=["locked", "free"], default=None, help="scene: SDEA plant variant")
+    ap.add_argument("--can-interface", default="virtual",
+                    help="scene: python-can interface of the CAN devices (virtual | udp_multicast | socketcan ...)")
+    ap.add_argument("--can-channel", action="append", default=[], metavar="SCENE_CH=CH",
+                    help="scene: serve scene CAN channel SCENE_CH on channel CH (repeatable)")
+    ap.add_argument("--stream-rate", type=float, default=100.0,
+                    help="scene: frame rate of streaming FT-300 sensors [Hz] (the sensor's is 100)")
+    ap.add_argument("--plant-rate", type=float, default=1000.0, help="spec: FreeJoints step rate [Hz]")
     args = ap.parse_args(argv)
+    if args.scene and args.spec:
+        ap.error("give a SCENE or --spec, not both")
+
+    stop = threading.Event()
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        if args.scene:
+            return _serve_scene_main(args, stop)
+        return _serve_spec_main(args, stop)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _serve_scene_main(args: argparse.Namespace, stop: threading.Event) -> int:
+    from hil.errors import HilError
+
+    try:
+        sim = serve_scene(args.scene, seed=args.seed, variant=args.variant, can_interface=args.can_interface,
+                          can_channels=_parse_can_channels(args.can_channel), stream_rate_hz=args.stream_rate)
+    except HilError:
+        raise
+    except Exception as exc:  # e.g. a CAN interface python-can cannot open here
+        print(f"hil mock serve: error: cannot start the devices of {args.scene!r}: {exc}", file=sys.stderr)
+        return 2
+    t0 = time.monotonic()
+    try:
+        report = _scene_report(sim)
+        if args.json:
+            print(json.dumps(report, separators=(",", ":")), flush=True)
+        else:
+            print(f"scene {report['scene']} ({report['source']}): {len(report['devices'])} simulated devices, "
+                  f"plant at {report['rate_hz']:g} Hz, seed {report['seed']}, pid {report['pid']}", flush=True)
+            width = max((len(ep.name) for ep in sim.endpoints), default=0)
+            for ep in sim.endpoints:
+                where = "" if ep.cross_process else "   # this process only"
+                print(f"{ep.name:{width}s}  {ep.driver:20s}  {open_device_call(ep.driver, ep.params)}{where}",
+                      flush=True)
+            for note in report["notes"]:
+                print(f"note: {note}", file=sys.stderr, flush=True)
+        _wait(args.duration, stop)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        sim.close()
+    print(f"hil mock serve: stopped after {time.monotonic() - t0:.1f} s ({sim.ticks} plant ticks, "
+          f"{sim.overruns} overruns)", file=sys.stderr, flush=True)
+    return 0
+
+
+def _serve_spec_main(args: argparse.Namespace, stop: threading.Event) -> int:
     specs = load_spec(args.spec) if args.spec else None
     endpoints = serve(specs, plant_rate_hz=args.plant_rate)
     try:
-        for ep in endpoints:
-            print(f"{ep.kind:9s} {ep.address:32s} driver={ep.driver} params={json.dumps(ep.params)}", flush=True)
+        if args.json:
+            print(json.dumps({"pid": os.getpid(), "devices": [
+                {"name": ep.kind, "driver": ep.driver, "address": ep.address, "params": ep.params,
+                 "cross_process": ep.params.get("interface") != "virtual"} for ep in endpoints]},
+                separators=(",", ":")), flush=True)
+        else:
+            for ep in endpoints:
+                print(f"{ep.kind:9s} {ep.address:32s} driver={ep.driver} params={json.dumps(ep.params)}", flush=True)
         if any(ep.params.get("interface") == "virtual" for ep in endpoints):
             print("note: interface 'virtual' is reachable from this process only", file=sys.stderr)
-        t_end = None if args.duration is None else time.monotonic() + args.duration
-        while t_end is None or time.monotonic() < t_end:
-            time.sleep(0.1 if t_end is None else max(0.0, min(0.1, t_end - time.monotonic())))
+        _wait(args.duration, stop)
     except KeyboardInterrupt:
         pass
     finally:

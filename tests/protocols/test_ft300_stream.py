@@ -264,7 +264,7 @@ def test_close_stops_stream_and_is_idempotent():
         assert dev.read().seq == 1  # free-running frames arrive
         dev.close()
         assert dev.stream_stopped is True
-        assert not sim.streaming and sim.stats["jams"] == 1
+        assert sim.wait_streaming(False, 1.0) and sim.stats["jams"] == 1
         n = sim.tick_count
         time.sleep(0.05)
         assert sim.tick_count == n  # silent after the jam
@@ -289,7 +289,7 @@ def test_already_streaming_sensor_is_used_as_is():
             assert dev.read().wrench[2] == pytest.approx(9.81)
         finally:
             dev.close()
-        assert not sim.streaming
+        assert sim.wait_streaming(False, 1.0)
 
 
 def test_silent_port_times_out_on_open():
@@ -438,3 +438,32 @@ def test_stream_frame_struct_matches_manual_table():
     """data1..data6 = Fx*100, Fy*100, Fz*100, Mx*1000, My*1000, Mz*1000 (int16 little-endian)."""
     f = encode_stream_frame(np.array([1.0, 2.0, 3.0, 0.004, 0.005, 0.006]))
     assert struct.unpack_from("<6h", f, 2) == (100, 200, 300, 4, 5, 6)
+
+
+def test_lockstep_bench_with_streaming_ft300_is_deterministic():
+    """A simulated bench with the stream driver: one frame per control period, reproducible."""
+    import yaml
+
+    from hil.bench import Bench
+    from hil.scene import load_scene, scene_from_dict
+
+    data = yaml.safe_load(load_scene("sdea_bench").source_text)
+    data["devices"][1].update(driver="robotiq_ft300_stream", params={"url": "/dev/ttyUSB0"})
+    scene = scene_from_dict(data, label="sdea_ft300_stream")
+
+    def run() -> list[tuple[float, int, float]]:
+        out = []
+        with Bench(scene, variant="locked") as bench:
+            for _ in range(30):
+                m = bench.read()
+                bench.command({"motor": [0.2]})
+                s = m["spring_ft"]
+                out.append((s.t, s.seq, float(s.wrench[5])))
+                bench.advance()
+        return out
+
+    a = run()
+    assert a == run()
+    assert [x[1] for x in a] == list(range(1, 31))
+    assert a[5][0] == pytest.approx(5 * scene.dt)
+    assert a[-1][2] > 0.01  # the spring torque builds up under the 0.2 N.m step
