@@ -9,8 +9,9 @@
 2. starts each device's simulated counterpart on a real transport, attached to the DOFs of its body
    (``devices[].body`` / ``dofs``): ODrive and CubeMars nodes on a python-can *virtual* bus (one
    private channel per scene channel and bench, synchronous replies), a Bota sensor streaming into
-   a pty, a Robotiq FT-300 behind a pymodbus server on a free loopback port, a DYNAMIXEL chain on a
-   pty;
+   a pty, a Robotiq FT-300 behind a pymodbus server on a free loopback port (``robotiq_ft300``) or
+   streaming on a pty (``robotiq_ft300_stream``: one frame per control period), a DYNAMIXEL chain on
+   a pty;
 3. opens the real adapters with the endpoint parameters filled in (pty path, URL, private CAN
    channel) and the simulated clock as their ``clock``, so sample times are ``k * dt``.
 
@@ -33,6 +34,10 @@ velocity, so ``F_h^T v`` is the power the operator injects).
 
 Without ``simulation`` the adapters are opened with the scene's params as they are (real bench) and
 :meth:`Bench.advance` is a no-op.
+
+:class:`SimulatedScene` (what ``hil mock serve SCENE`` runs) builds the same physics and simulated
+devices with the same code but opens no adapter: the devices run free (own threads, plant stepped
+against the wall clock) and :attr:`SimulatedScene.endpoints` says where each one listens.
 """
 
 from __future__ import annotations
