@@ -451,7 +451,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         rest = argv[1:]
         if argv[0] == "mock":
             if not rest or rest[0] != "serve":
-                print("usage: hil mock serve [--spec SPEC] [--duration SECONDS]", file=sys.stderr)
+                print("usage: hil mock serve SCENE [--duration SECONDS] [--json] [--can-interface udp_multicast] "
+                      "| hil mock serve --spec SPEC", file=sys.stderr)
                 return EXIT_USAGE
             rest = rest[1:]
         try:
