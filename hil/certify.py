@@ -18,11 +18,13 @@ Verdict policy (defaults in :class:`Policy`, overridable per scene):
 * **ERROR** when the evidence is missing or broken: no draws, NaN/inf in draws or margins, a
   failed identification. NaN never yields GO.
 * **GO** when the nominal verdict is stable with a positive margin, the posterior converged, and
-  the lower confidence bound of P(stable) clears ``required_probability``.
-* **MARGINAL** when the point estimate clears the requirement but the lower bound does not, when
-  the nominal verdict is marginal, or when the posterior did not converge (the numbers may be
-  right, the evidence is not sufficient).
-* **NO-GO** otherwise.
+  the confidence interval of P(stable) lies above ``required_probability`` (its lower bound clears it).
+* **NO-GO** when the nominal network is potentially unstable, or the interval lies below the
+  requirement (its upper bound does not reach it).
+* **MARGINAL** otherwise: the interval straddles the requirement (near the boundary: more draws or
+  better identification may settle it), the nominal verdict is marginal, the nominal margin is not
+  positive, or the posterior did not converge (the numbers may be right; the evidence is not
+  sufficient).
 """
 
 from __future__ import annotations
@@ -205,23 +207,24 @@ def decide(nominal_verdict: str | None, nominal_margin: float | None, stable_dra
         return Decision.NO_GO, reasons, prob
     if nominal_verdict in ("not_applicable",):
         return Decision.ERROR, ["the criterion does not apply to the nominal network"], prob
-    if lo >= policy.required_probability and nominal_verdict == "stable" and nominal_margin > 0 and converged:
-        reasons.append(f"P(stable) ≥ {lo:.4f} (lower {policy.confidence:.0%} bound) clears "
-                       f"{policy.required_probability:.2f}; nominal margin {nominal_margin:.3g} > 0")
+    req = policy.required_probability
+    if lo >= req and nominal_verdict == "stable" and nominal_margin > 0 and converged:
+        reasons.append(f"P(stable) ≥ {lo:.4f} (lower {policy.confidence:.0%} bound) clears {req:.2f}; "
+                       f"nominal margin {nominal_margin:.3g} > 0")
         return Decision.GO, reasons, prob
-    if p >= policy.required_probability or nominal_verdict == "marginal" or not converged:
-        if not converged:
-            reasons.append("the posterior did not converge: evidence insufficient")
-        if nominal_verdict == "marginal":
-            reasons.append("the nominal network sits within tolerance of the stability boundary")
-        if lo < policy.required_probability <= p:
-            reasons.append(f"P(stable) = {p:.4f} clears {policy.required_probability:.2f} but its lower "
-                           f"{policy.confidence:.0%} bound {lo:.4f} does not (more draws may settle it)")
-        if nominal_margin <= 0 and nominal_verdict == "stable":
-            reasons.append("the nominal margin is not positive")
-        return Decision.MARGINAL, reasons or ["near the boundary"], prob
-    reasons.append(f"P(stable) = {p:.4f} (upper bound {hi:.4f}) is below {policy.required_probability:.2f}")
-    return Decision.NO_GO, reasons, prob
+    if hi < req:
+        reasons.append(f"P(stable) = {p:.4f}: its upper {policy.confidence:.0%} bound {hi:.4f} is below {req:.2f}")
+        return Decision.NO_GO, reasons, prob
+    if not converged:
+        reasons.append("the posterior did not converge: evidence insufficient")
+    if nominal_verdict == "marginal":
+        reasons.append("the nominal network sits within tolerance of the stability boundary")
+    if lo < req <= hi:
+        reasons.append(f"P(stable) = {p:.4f} with {policy.confidence:.0%} interval [{lo:.4f}, {hi:.4f}] "
+                       f"straddles {req:.2f}: near the boundary (more draws or data may settle it)")
+    if nominal_margin <= 0 and nominal_verdict == "stable":
+        reasons.append("the nominal margin is not positive")
+    return Decision.MARGINAL, reasons or ["near the boundary"], prob
 
 
 def _finite_draws(draws: Mapping[str, np.ndarray]) -> list[str]:

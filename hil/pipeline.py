@@ -167,12 +167,18 @@ def _check(tm: Any, criterion: str, margins: bool = True) -> Any:
 
 
 def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, progress: Progress | None = None,
-                  run_experiments: bool = True, max_ticks: int | None = None) -> Certificate:
+                  run_experiments: bool = True, max_ticks: int | None = None,
+                  outcomes: Mapping[str, Any] | None = None) -> Certificate:
     """Run the whole pipeline for ``scene`` (see the module docstring). Never raises for bad
-    evidence: problems become ERROR with their reasons; only a scene without a ``certification``
-    section raises :class:`SceneError`."""
+    evidence: problems become an ERROR certificate with their reasons (a scene without a
+    ``certification`` section too). ``outcomes`` (experiment name -> ExperimentOutcome) reuses
+    runs already made instead of running the experiments again."""
     if scene.certification is None:
-        raise SceneError(f"{scene.name}: no 'certification' section: nothing to certify")
+        return Certificate(created_utc=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), software=_versions(),
+                           scene=SceneInfo(name=scene.name, sha256=scene.sha256, description=scene.description,
+                                           source=scene.path),
+                           decision="ERROR", reasons=["the scene has no 'certification' section: nothing to certify"],
+                           policy={}, measurements=[], errors=["no certification section"])
     cert = scene.certification
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -208,9 +214,14 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
     criterion = _criterion(cert.model, cert.criterion)
 
     # 1. experiments -------------------------------------------------------------------------
-    outcomes: dict[str, Any] = {}
     energy: list[EnergyEvidence] = []
-    if run_experiments and scene.experiments:
+    given = dict(outcomes or {})
+    outcomes = {}
+    if given:
+        for i_name, o in given.items():
+            outcomes[i_name] = o
+            _energy_evidence(i_name, o, energy, measurements, plots)
+    elif run_experiments and scene.experiments:
         from hil.runner import Runner
 
         with stage("run"):
@@ -224,18 +235,7 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
                     description=o.stop_reason if not ok else f"record {o.record.name}"))
                 if o.status == "error":
                     errors.append(f"experiment {names[i]}: {o.stop_reason}")
-                r = o.results
-                if r.get("type") == "energy_injection" and "went_negative" in r:
-                    energy.append(EnergyEvidence(experiment=names[i], port=str(r.get("port")), record=str(o.record),
-                                                 went_negative=bool(r["went_negative"]),
-                                                 min_energy=float(r["min_energy"]),
-                                                 bound=float(r.get("bound_at_min", 0.0)),
-                                                 first_time=r.get("first_time")))
-                    measurements.append(Measurement(
-                        name=f"E_s(t) ≥ -bound ({names[i]})", value=float(r["min_energy"]), unit="J",
-                        lower=-float(r.get("bound_at_min", 0.0)), outcome="FAIL" if r["went_negative"] else "PASS",
-                        description="minimum port energy over the run against its noise bound"))
-                    _energy_plot(plots, names[i], o)
+                _energy_evidence(names[i], o, energy, measurements, plots)
 
     # 2. identification ----------------------------------------------------------------------
     draws: dict[str, np.ndarray] = {}
@@ -566,6 +566,22 @@ def _simulate_witness(w: Any, plots: dict[str, Series]) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------------------------
 # plots (as data series; rendered by hil.report)
+
+
+def _energy_evidence(name: str, o: Any, energy: list[EnergyEvidence], measurements: list[Measurement],
+                     plots: dict[str, Series]) -> None:
+    """Energy-injection results of an experiment as evidence, a measurement and a plot."""
+    r = o.results
+    if r.get("type") != "energy_injection" or "went_negative" not in r:
+        return
+    bound = float(r.get("bound_at_min", 0.0))
+    energy.append(EnergyEvidence(experiment=name, port=str(r.get("port")), record=str(o.record),
+                                 went_negative=bool(r["went_negative"]), min_energy=float(r["min_energy"]),
+                                 bound=bound, first_time=r.get("first_time")))
+    measurements.append(Measurement(name=f"E_s(t) ≥ -bound ({name})", value=float(r["min_energy"]), unit="J",
+                                    lower=-bound, outcome="FAIL" if r["went_negative"] else "PASS",
+                                    description="minimum port energy over the run against its noise bound"))
+    _energy_plot(plots, name, o)
 
 
 def _energy_plot(plots: dict[str, Series], name: str, outcome: Any) -> None:

@@ -60,7 +60,8 @@ def test_max_safe_parameter_bisection():
 @pytest.mark.parametrize("args,kw,expected", [
     (("stable", 0.1, np.ones(500, bool)), {}, Decision.GO),
     (("stable", 0.1, np.r_[np.ones(480, bool), np.zeros(20, bool)]), {}, Decision.MARGINAL),  # p=.96, lower<.95
-    (("stable", 0.1, np.r_[np.ones(400, bool), np.zeros(100, bool)]), {}, Decision.NO_GO),
+    (("stable", 0.1, np.r_[np.ones(400, bool), np.zeros(100, bool)]), {}, Decision.NO_GO),  # CI below .95
+    (("stable", 0.1, np.r_[np.ones(470, bool), np.zeros(30, bool)]), {}, Decision.MARGINAL),  # p=.94, CI straddles
     (("potentially_unstable", -0.1, np.ones(500, bool)), {}, Decision.NO_GO),
     (("stable", 0.1, np.ones(500, bool)), {"converged": False}, Decision.MARGINAL),
     (("marginal", 0.0, np.ones(500, bool)), {}, Decision.MARGINAL),
