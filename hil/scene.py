@@ -1244,7 +1244,8 @@ def _resolve(src: str | Path) -> tuple[Path, str]:
 
 def scene_from_dict(data: Any, *, label: str = "<scene>", source_text: str = "", path: str = "") -> Scene:
     """Validate a scene mapping (already parsed). Errors are one-line :class:`SceneError`s
-    prefixed with ``label``."""
+    prefixed with ``label``. Without ``source_text`` the mapping's YAML dump becomes the scene's
+    text, so records always carry the exact scene they ran."""
     if not isinstance(data, dict):
         got = "an empty file" if data is None else type(data).__name__
         raise SceneError(f"{label}: expected a mapping with 'name' and 'devices' at the top level, got {got}")
@@ -1256,6 +1257,10 @@ def scene_from_dict(data: Any, *, label: str = "<scene>", source_text: str = "",
         _cross_check(sc)
     except _Where as w:
         raise SceneError(f"{label}: {w.path}: {w.message}") from None
+    if not source_text:
+        import yaml
+
+        source_text = yaml.safe_dump(data, sort_keys=False)
     sc._source_text = source_text
     sc._sha256 = hashlib.sha256(source_text.encode("utf-8")).hexdigest()
     sc._path = path

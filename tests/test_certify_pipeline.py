@@ -1,0 +1,111 @@
+"""End to end on the mocks: experiments -> identification -> criteria over the posterior ->
+GO / MARGINAL / NO-GO, with a witness for NO-GO, and the exit codes of `hil certify`."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from hil.certificate import Certificate
+from hil.cli import main
+from hil.models.sdea import SDEA_TABLE1
+from hil.pipeline import certify_scene
+from hil.runner import Runner
+from hil.scene import load_scene, scene_from_dict
+from hil.stability.batch import sdea_passivity_batch
+
+
+def _sdea_scene(k22: float | None = None):
+    d = yaml.safe_load(load_scene("sdea_bench").source_text)
+    d["experiments"] = [e for e in d["experiments"] if e.get("name") == "chirp_locked"]
+    if k22 is not None:
+        d["controller"]["k22"] = k22
+    return scene_from_dict(d, label=f"sdea_bench-k22-{k22}")
+
+
+@pytest.fixture(scope="module")
+def sdea_run(tmp_path_factory):
+    """One locked-output chirp on the mocked SDEA bench, shared by the certification variants."""
+    sc = _sdea_scene()
+    out = tmp_path_factory.mktemp("sdea_run")
+    o = Runner(sc, out).run()[0]
+    assert o.status == "completed"
+    return {"chirp_locked": o}
+
+
+@pytest.mark.timeout(600)
+def test_sdea_inside_passive_region_is_GO(sdea_run, tmp_path):
+    c = certify_scene(_sdea_scene(300.0), tmp_path, outcomes=sdea_run)
+    assert c.decision == "GO", c.reasons
+    ident = c.identification[0]
+    assert ident.converged
+    for p in ident.parameters:  # the simulated plant's truth lies in the 90 % interval
+        assert p.q05 <= SDEA_TABLE1[p.name] <= p.q95, p
+    assert c.robust.lower >= 0.95 and c.robust.worst_case_margin > 0
+    assert 400 < c.design.max_value < 420  # the exact design limit at Table I is 408.05
+    Certificate.model_validate_json(c.model_dump_json())  # the record validates against its schema
+
+
+@pytest.mark.timeout(600)
+def test_sdea_above_the_passive_limit_is_NO_GO_with_a_witness(sdea_run, tmp_path):
+    c = certify_scene(_sdea_scene(450.0), tmp_path, outcomes=sdea_run)
+    assert c.decision == "NO-GO", c.reasons
+    assert c.nominal.verdict == "potentially_unstable"
+    w = c.witness
+    assert w is not None and w.margin < 0
+    sim = w.simulation
+    assert sim["simulated"] and (sim["went_negative"] or sim["diverged"])
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_sdea_near_the_limit_is_MARGINAL(sdea_run, tmp_path):
+    """k22 at the 5 % quantile of the posterior's passive limit: P(stable) ≈ 0.95, so its
+    confidence interval straddles the required 0.95."""
+    certify_scene(_sdea_scene(300.0), tmp_path / "base", outcomes=sdea_run)  # stores the posterior
+    from hil.identify.api import load_identification
+
+    stored = load_identification(sdea_run["chirp_locked"].record)
+    names = stored["summary"]["sample_names"]
+    S = np.asarray(stored["samples"])[:, : len(names)]
+    draws = {n: S[:, names.index(n)] for n in ("M", "B", "K_f", "B_f")}
+    # each draw's passive limit by bisection on the vectorized path
+    lo, hi = np.full(S.shape[0], 300.0), np.full(S.shape[0], 600.0)
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        ok = sdea_passivity_batch({**draws, "k22": mid})["passive"]
+        lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
+    k22 = float(np.quantile(lo, 0.05))
+    c = certify_scene(_sdea_scene(k22), tmp_path / "near", outcomes=sdea_run)
+    assert c.decision == "MARGINAL", (k22, c.reasons, c.robust)
+    assert c.robust.lower < 0.95 <= c.robust.upper
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+@pytest.mark.parametrize("gains,expected", [("A1", "GO"), ("A2", "GO"), ("B", "NO-GO")])
+def test_bilateral_2dof_table2(gains, expected, tmp_path):
+    c = certify_scene(load_scene(f"bilateral_2dof_{gains}"), tmp_path, run_experiments=False)
+    assert c.decision == expected, c.reasons
+    assert c.multiport is not None and c.multiport.ports == [2, 2]
+    if expected == "NO-GO":
+        assert c.witness is not None and c.witness.simulation["diverged"] in (True, False)
+
+
+@pytest.mark.timeout(600)
+def test_certify_cli_exit_codes_and_json(tmp_path, capsys):
+    code = main(["certify", "bilateral_2dof_B", "--no-experiments", "--out", str(tmp_path), "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 11 and out["decision"] == "NO-GO"
+    cert = Certificate.model_validate_json((tmp_path / "certificate.json").read_text())
+    assert cert.decision == "NO-GO"
+
+
+def test_scene_without_certification_is_an_ERROR_certificate(tmp_path):
+    d = yaml.safe_load(load_scene("mcet_trilateral").source_text)
+    d.pop("certification")
+    c = certify_scene(scene_from_dict(d, label="x"), tmp_path)
+    assert c.decision == "ERROR" and c.errors
