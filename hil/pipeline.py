@@ -320,7 +320,7 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
     stable_draws: np.ndarray | None = None
     if draws and not errors:
         with stage("robust"):
-            stable_draws, margin_fn, method = _robust_eval(cert.model, criterion, params, draws)
+            stable_draws, margin_fn, method, band = _robust_eval(cert.model, criterion, params, draws)
             fast = method.startswith("vectorized")
             p, lo, hi = probability_of_stability(stable_draws, policy.confidence)
             names = sorted(draws)
@@ -335,8 +335,7 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
                     wc, theta = float(wc_v), {k: float(v) for k, v in zip(names, th, strict=True)}
                 except HilError as exc:
                     log.warning("worst-case search skipped: %s", exc)
-            band = None
-            if nominal_res is not None and nominal_res.worst_frequency not in (None, 0.0) and \
+            if band is None and nominal_res is not None and nominal_res.worst_frequency not in (None, 0.0) and \
                     math.isfinite(float(nominal_res.worst_frequency)):
                 w = float(nominal_res.worst_frequency)
                 band = (w / 2.0, w * 2.0)
@@ -445,8 +444,11 @@ def _nominal_section(model: str, r: Any, params: Mapping[str, Any]) -> Nominal:
 
 
 def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray]
-                 ) -> tuple[np.ndarray, Callable[[Mapping[str, np.ndarray]], np.ndarray] | None, str]:
-    """Stability of every draw, and a vectorized margin function for the worst-case search."""
+                 ) -> tuple[np.ndarray, Callable[[Mapping[str, np.ndarray]], np.ndarray] | None, str,
+                            tuple[float, float] | None]:
+    """Stability of every draw, a vectorized margin function for the worst-case search, the method,
+    and the band (5-95 % over the draws) of the frequency where the deciding condition is smallest
+    (None when the path does not provide it)."""
     n = len(next(iter(draws.values())))
     if model == "sdea" and criterion == "passivity":
         from hil.stability.batch import sdea_passivity_batch
@@ -457,7 +459,9 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
             return sdea_passivity_batch(d, fixed=fixed)["margin"]
 
         res = sdea_passivity_batch(draws, fixed=fixed)
-        return res["passive"], margin, "vectorized closed form (Theorem 5), exact fallback near the boundary"
+        w = res["worst_omega"][res["worst_omega"] > 0]
+        band = (float(np.quantile(w, 0.05)), float(np.quantile(w, 0.95))) if w.size else None
+        return res["passive"], margin, "vectorized closed form (Theorem 5), exact fallback near the boundary", band
     stable = np.zeros(n, bool)
     for i in range(n):
         q = dict(params)
@@ -477,7 +481,7 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
             out[i] = r.margin if math.isfinite(r.margin) else -1.0
         return out
 
-    return stable, margin_general, "general exact criterion per draw"
+    return stable, margin_general, "general exact criterion per draw", None
 
 
 def _design(cert: Any, params: Mapping[str, Any], draws: Mapping[str, np.ndarray], policy: Policy) -> Design | None:

@@ -28,13 +28,15 @@ __all__ = ["sdea_passivity_batch"]
 _KEYS = tuple(SDEA_TABLE1)
 
 
-def _cubic_min(p3: np.ndarray, p2: np.ndarray, p1: np.ndarray, p0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(min over x ≥ 0 of the cubic, the magnitude scale at that point), vectorized.
+def _cubic_min(p3: np.ndarray, p2: np.ndarray, p1: np.ndarray,
+               p0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(min over x ≥ 0 of the cubic, the magnitude scale there, the minimizing x), vectorized.
 
     Returns -inf where p3 < 0 (unbounded below)."""
     n = p3.shape[0]
     best = p0.copy()
     scale = np.abs(p0).copy()
+    xbest = np.zeros(n)
     A, B, C = 3 * p3, 2 * p2, p1
     disc = B * B - 4 * A * C
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -51,12 +53,13 @@ def _cubic_min(p3: np.ndarray, p2: np.ndarray, p1: np.ndarray, p0: np.ndarray) -
         better = ok & (v < best)
         best = np.where(better, v, best)
         scale = np.where(better, s, scale)
+        xbest = np.where(better, x, xbest)
     # linear/quadratic degenerate cases (p3 == 0): fall back to the exact path via tiny scale
     deg = p3 == 0
     best = np.where(p3 < 0, -np.inf, best)
     scale = np.where(deg, 0.0, scale)
     assert best.shape == (n,)
-    return best, scale
+    return best, scale, xbest
 
 
 def sdea_passivity_batch(draws: Mapping[str, np.ndarray] | np.ndarray, tol: float = 1e-9,
@@ -66,7 +69,8 @@ def sdea_passivity_batch(draws: Mapping[str, np.ndarray] | np.ndarray, tol: floa
     ``draws`` maps parameter names (those of :data:`SDEA_TABLE1`) to arrays of length N; missing
     parameters take ``fixed`` values or the Table I defaults. Returns ``passive`` (bool, N),
     ``margin`` (the smallest normalized deciding value: t_min / scale etc.), ``exact_rechecked``
-    (bool, N: decided by the exact criterion because the closed form was within ``tol``).
+    (bool, N: decided by the exact criterion because the closed form was within ``tol``),
+    ``worst_omega`` (rad/s, N: where the coupler condition (c-ii) is smallest).
     """
     base = {**SDEA_TABLE1, **(fixed or {})}
     d = dict(draws)
@@ -80,8 +84,8 @@ def sdea_passivity_batch(draws: Mapping[str, np.ndarray] | np.ndarray, tol: floa
     hur = a1 * (a2 * a3 - a1 * a4) - a0 * a3 * a3
     hur_s = np.abs(a1 * a2 * a3) + np.abs(a1 * a1 * a4) + np.abs(a0 * a3 * a3)
     pos = (a4 > 0) & (a3 > 0) & (a2 > 0) & (a1 > 0) & (a0 > 0)
-    rmin, rs = _cubic_min(r3, r2, r1, r0)
-    tmin, ts = _cubic_min(t3, t2, t1, t0)
+    rmin, rs, _ = _cubic_min(r3, r2, r1, r0)
+    tmin, ts, _ = _cubic_min(t3, t2, t1, t0)
     with np.errstate(invalid="ignore", divide="ignore"):
         m_a = np.where(hur_s > 0, hur / hur_s, -1.0)
         m_r = np.where(rs > 0, rmin / rs, np.where(np.isneginf(rmin), -1.0, 0.0))
@@ -97,4 +101,12 @@ def sdea_passivity_batch(draws: Mapping[str, np.ndarray] | np.ndarray, tol: floa
         for i in np.nonzero(ambiguous)[0]:
             r = two_port_passivity(sdea_vsic({k: float(q[k][i]) for k in _KEYS}))
             passive[i] = r.verdict == "stable"
-    return {"passive": passive, "margin": margin, "exact_rechecked": ambiguous}
+    # where the coupler-dependent passivity condition (c-ii) is closest to failing: the minimum over
+    # a log grid of ω of t(x)/|t|(x) (value over its magnitude), x = ω²
+    x = np.geomspace(1.0, 1e12, 241)[:, None]
+    tv = ((t3 * x + t2) * x + t1) * x + t0
+    tm = ((np.abs(t3) * x + np.abs(t2)) * x + np.abs(t1)) * x + np.abs(t0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        k = np.argmin(np.where(tm > 0, tv / tm, np.inf), axis=0)
+    worst = np.sqrt(x[k, 0])
+    return {"passive": passive, "margin": margin, "exact_rechecked": ambiguous, "worst_omega": worst}
