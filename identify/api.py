@@ -2,12 +2,20 @@
 
 * :func:`identify_arrays` -- one experiment given as arrays.
 * :func:`identify_experiments` -- several experiments (e.g. one chirp per input of an m-DOF device).
-* :func:`identify_record` -- ``{"t": ..., "signals": {name: array}, "meta": {...}}`` (the future run
-  record). ``meta`` keys: ``model`` (name), ``inputs`` / ``outputs`` (mapping model channel ->
-  signal name, or list of signal names in model order), ``channels`` (measured model outputs),
-  ``band`` [Hz], ``period`` [s] of the periodic chirp (sets the Welch segment), ``nperseg``,
-  ``skip`` [s], ``seed``, ``model_options``, ``noise``.
-* :func:`main` -- ``hil identify RECORD.npz [--model NAME] [--json]`` (to be wired into the CLI).
+* :func:`identify_record` -- a run record (:class:`hil.record.RunRecord`, or its path: ``.h5``
+  written by ``hil run`` or ``hil import``; ``.csv``/``.mat`` imported on the fly; ``.npz``), or the
+  dict ``{"t": ..., "signals": {name: array}, "meta": {...}}``. For run records the model,
+  channels, windows, Welch segment and band are inferred from the record's meta, results and scene
+  (:mod:`hil.identify.records`); dict ``meta`` keys: ``model`` (name), ``inputs`` / ``outputs``
+  (mapping model channel -> signal name, or list of signal names in model order), ``channels``
+  (measured model outputs), ``band`` [Hz], ``period`` [s] of the periodic chirp (sets the Welch
+  segment), ``nperseg``, ``skip`` [s], ``seed``, ``model_options``, ``noise``.
+* :func:`store_result` -- posterior samples, summary and convergence diagnostics into the record
+  (``/identification/<model>``, :func:`hil.record.store_identification`); :func:`load_identification`.
+* :func:`main` -- ``hil identify RECORD [--model NAME] [--json] ...``. Exit codes (the CLI's): 0 ok;
+  2 usage or input error (unreadable file, unknown model, missing channel); 13 the data cannot
+  give a trustworthy estimate (data quality, not identifiable, posterior not converged), with a
+  one-line message; 1 only for bugs.
 
 Pipeline order matters: the identifiability (Fisher rank) check runs BEFORE any fitting, at the
 model's nominal parameters with the data's own FRF variance, and raises
@@ -22,31 +30,44 @@ import argparse
 import json
 import logging
 import sys
+import tempfile
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from hil.errors import HilError
 from hil.identify.diagnostics import DataReport, Diagnosis, check_excitation, run_checks
 from hil.identify.errors import (
     ConvergenceError,
     DataQualityError,
-    IdentificationError,
     ModelSpecError,
     NotIdentifiableError,
 )
 from hil.identify.fisher import IdentifiabilityReport, check_identifiability, crb, fisher_information
 from hil.identify.fit import LsResult, fit_least_squares
-from hil.identify.frf import FrfEstimate, estimate_frf
+from hil.identify.frf import FrfEstimate, Resolution, estimate_frf
 from hil.identify.models import GreyBoxModel, make_model
 from hil.identify.posterior import LogPosterior, PosteriorResult, sample_posterior
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["IdentificationResult", "identify_arrays", "identify_experiments", "identify_record", "main"]
+__all__ = [
+    "IdentificationResult",
+    "identify_arrays",
+    "identify_experiments",
+    "identify_record",
+    "load_identification",
+    "main",
+    "store_result",
+]
+
+#: exit codes, as documented by ``hil --help`` (hil.cli)
+EXIT_OK, EXIT_USAGE, EXIT_ERROR = 0, 2, 13
 
 
 @dataclass
@@ -61,6 +82,7 @@ class IdentificationResult:
     posterior: PosteriorResult
     data_report: DataReport
     timings: dict[str, float] = field(default_factory=dict)
+    record: dict[str, Any] = field(default_factory=dict)  # where the data came from (records: channel mapping)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -73,6 +95,15 @@ class IdentificationResult:
     def summary(self) -> dict[str, dict[str, float]]:
         """Per parameter: mean, median, q05, q95, std, ls, ls_std, crb_std (physical units)."""
         return self.posterior.summary(self.ls.std, self.crb_std, self.ls.theta)
+
+    def derived_summary(self) -> dict[str, dict[str, float | str]]:
+        """Model-specific derived quantities (e.g. the entries of M, B, K): mean, median, q05, q95, std, unit."""
+        out: dict[str, dict[str, float | str]] = {}
+        for name, (vals, unit) in self.model.derived(self.posterior.samples[:, : self.model.n_params]).items():
+            q05, med, q95 = np.quantile(vals, [0.05, 0.5, 0.95])
+            out[name] = {"mean": float(np.mean(vals)), "median": float(med), "q05": float(q05), "q95": float(q95),
+                         "std": float(np.std(vals, ddof=1)), "unit": unit}
+        return out
 
     def estimate(self, *, allow_unconverged: bool = False) -> dict[str, float]:
         """Posterior medians; raises :class:`ConvergenceError` if the sampler did not converge."""
@@ -93,6 +124,9 @@ class IdentificationResult:
             "outputs": list(self.model.output_names),
             "converged": self.converged,
             "parameters": summ,
+            "derived": self.derived_summary(),
+            "sample_names": list(self.posterior.names),
+            "sampling": "continuous" if self.model.zoh_fs is None else {"zoh_fs": self.model.zoh_fs},
             "convergence": self.posterior.diagnostics.to_dict(self.names),
             "noise_model": self.posterior.noise,
             "seed": self.posterior.seed,
@@ -105,9 +139,11 @@ class IdentificationResult:
                 "n_bins": self.frf.n_bins,
                 "n_averages": self.frf.n_avg,
                 "median_coherence": [float(c) for c in np.median(self.frf.coherence, axis=0)],
+                "rounding_variance": self.frf.meta.get("rounding_variance"),
             },
             "data_checks": [d.to_dict() for d in self.data_report.diagnoses],
             "timings_s": self.timings,
+            "record": self.record,
         }
 
     def to_json(self, **kw: Any) -> str:
@@ -153,6 +189,9 @@ def identify_experiments(
     max_steps: int = 20000,
     max_seconds: float | None = None,
     n_starts: int = 4,
+    resolution: Resolution | Sequence[Resolution] = "float32",
+    input_resolution: Resolution | Sequence[Resolution] = "float32",
+    sampling: str = "continuous",
 ) -> IdentificationResult:
     """Identify ``model`` from experiments ``[{"t": t, "inputs": ..., "outputs": ...}, ...]``.
 
@@ -160,11 +199,29 @@ def identify_experiments(
     ``band`` [Hz]; ``period`` [s] of a periodic chirp sets ``nperseg = period * fs`` (recommended:
     leakage-free segments); otherwise ``nperseg`` defaults to 1/16 of the shortest record.
     ``skip`` [s] drops the start of each record (transient). ``seed`` drives LS restarts and the
-    whole emcee run. Returns an :class:`IdentificationResult` (raise on data/identifiability errors).
+    whole emcee run. ``resolution``/``input_resolution``: rounding of the recorded outputs/inputs
+    (default float32, what device buses carry), a noise floor that periodic averaging does not
+    remove (:mod:`hil.identify.frf`). ``sampling``: ``continuous`` (H(jw)) or ``zoh`` (the exact
+    response of the plant behind a zero-order hold at the data's rate: digital benches; a model
+    instance must then have been built with ``zoh_fs``). ``theta0`` (default: the model's
+    data-derived :meth:`~hil.identify.models.GreyBoxModel.initial_guess`, else its nominal values)
+    is where the identifiability check runs and the LS fit starts.
+    Returns an :class:`IdentificationResult` (raise on data/identifiability errors).
     """
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    mdl = model if isinstance(model, GreyBoxModel) else make_model(model, channels, **dict(model_options or {}))
+    if sampling not in ("continuous", "zoh"):
+        raise ModelSpecError(f"sampling must be 'continuous' or 'zoh', got {sampling!r}")
+    fs_first = 1.0 / float(np.median(np.diff(np.asarray(experiments[0]["t"], float)))) if experiments else 1.0
+    if isinstance(model, GreyBoxModel):
+        mdl = model
+        if sampling == "zoh" and (mdl.zoh_fs is None or abs(mdl.zoh_fs / fs_first - 1) > 1e-6):
+            raise ModelSpecError(f"sampling 'zoh': build the model with zoh_fs={fs_first:g} (the data's rate)")
+    else:
+        opts = dict(model_options or {})
+        if sampling == "zoh":
+            opts.setdefault("zoh_fs", fs_first)
+        mdl = make_model(model, channels, **opts)
     diags: list[Diagnosis] = []
     pairs = []
     fs_all = []
@@ -198,7 +255,14 @@ def identify_experiments(
     n_min = min(p[0].shape[0] for p in pairs)
     nps = int(nperseg) if nperseg else (round(period * fs) if period else max(n_min // 16, 16))
     est = estimate_frf(
-        pairs, fs, nperseg=nps, window=window, input_names=mdl.input_names, output_names=mdl.output_names
+        pairs,
+        fs,
+        nperseg=nps,
+        window=window,
+        input_names=mdl.input_names,
+        output_names=mdl.output_names,
+        resolution=resolution,
+        input_resolution=input_resolution,
     )
     est = est.band(*(band or (fs / nps, 0.45 * fs)))
     exc = check_excitation(est)
@@ -209,8 +273,11 @@ def identify_experiments(
     # --- identifiability BEFORE fitting: nominal parameters, data-derived FRF variance
     if isinstance(theta0, Mapping):
         th0 = mdl.vector(dict(theta0))
+    elif theta0 is not None:
+        th0 = np.asarray(theta0, float)
     else:
-        th0 = mdl.nominal if theta0 is None else np.asarray(theta0, float)
+        guess = mdl.initial_guess(est)
+        th0 = mdl.nominal if guess is None else guess
     pre = check_identifiability(mdl, th0, w=est.w, sigma=est.sigma)
     pre.raise_if_not_identifiable()
     t1 = time.perf_counter()
@@ -263,15 +330,90 @@ _META_KW = (
     "max_steps",
     "max_seconds",
     "n_starts",
+    "resolution",
+    "input_resolution",
+    "sampling",
 )
 
 
-def identify_record(record: Mapping[str, Any], **overrides: Any) -> IdentificationResult:
-    """Identify from ``{"t": ..., "signals": {name: array}, "meta": {...}}`` (see module docstring).
+def identify_record(record: Any, **overrides: Any) -> IdentificationResult:
+    """Identify from a run record or a record dict (module docstring).
 
-    ``meta["inputs"]``/``meta["outputs"]``: mapping model channel -> signal name (or a list of signal
-    names in model order). ``overrides`` take precedence over ``meta``.
+    ``record``: a :class:`hil.record.RunRecord`, a path (``.h5`` run record, ``.csv``/``.mat``
+    imported with :mod:`hil.importers` defaults, ``.npz``), or ``{"t", "signals", "meta"}``.
+    Run records: everything is inferred (:func:`hil.identify.records.plan_from_record`) and
+    ``overrides`` (``model``, ``inputs``, ``outputs``, ``target``, ``experiment``, ``period``,
+    ``skip``, ``band``, ``sampling``, ... and any keyword of :func:`identify_experiments`) win.
+    Dicts: ``meta["inputs"]``/``meta["outputs"]`` map model channels to signal names (or list signal
+    names in model order); ``overrides`` take precedence over ``meta``.
     """
+    from hil.record import RunRecord
+
+    if isinstance(record, str | Path):
+        record = load_record(record)
+    if isinstance(record, RunRecord):
+        return _identify_run_record(record, overrides)
+    return _identify_dict(record, **overrides)
+
+
+def load_record(path: str | Path) -> Any:
+    """A :class:`hil.record.RunRecord` (``.h5``; ``.csv``/``.mat`` imported into a temporary record
+    with the importers' defaults) or a record dict (``.npz``). Raises RecordError / ModelSpecError."""
+    from hil.record import RunRecord
+
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix == ".npz":
+        if not p.is_file():
+            raise ModelSpecError(f"{p}: no such file")
+        return load_npz_record(str(p))
+    if suffix in (".csv", ".mat"):
+        from hil.importers import import_csv, import_mat
+
+        with tempfile.TemporaryDirectory(prefix="hil-identify-") as tmp:
+            out = Path(tmp) / (p.stem + ".h5")
+            (import_csv if suffix == ".csv" else import_mat)(p, out)
+            return RunRecord.open(out)
+    return RunRecord.open(p)
+
+
+def _identify_run_record(rec: Any, overrides: Mapping[str, Any]) -> IdentificationResult:
+    from hil.identify.records import plan_from_record, signal, window_mask
+
+    data = rec.to_identify_dict()
+    sig = data["signals"]
+    plan = plan_from_record(rec, sig, overrides)
+    mdl = make_model(plan.model, plan.channels, **plan.model_options)
+    if len(plan.inputs) != len(mdl.input_names):
+        raise ModelSpecError(f"{len(plan.inputs)} inputs {plan.inputs} for model inputs {list(mdl.input_names)}")
+    missing = [c for c in mdl.output_names if c not in plan.outputs]
+    if missing:
+        raise ModelSpecError(f"no signal for model outputs {missing}: pass --output {missing[0]}=SIGNAL")
+    t = np.asarray(data["t"], float)
+    exps = []
+    for w in plan.windows:
+        m = window_mask(t, w)
+        if not np.any(m):
+            continue
+        ins = {c: signal(sig, n)[m] for c, n in zip(mdl.input_names, plan.inputs, strict=True)}
+        outs = {c: signal(sig, plan.outputs[c])[m] for c in mdl.output_names}
+        exps.append({"t": t[m], "inputs": ins, "outputs": outs})
+    if not exps:
+        raise DataQualityError(f"no samples in the experiment windows {plan.windows}")
+    kw = dict(plan.kwargs)
+    unknown = sorted(set(kw) - set(_META_KW))
+    if unknown:
+        raise ModelSpecError(f"unknown identification settings {unknown}")
+    if "band" in kw:
+        kw["band"] = tuple(kw["band"])
+    kw.setdefault("sampling", "zoh" if mdl.zoh_fs is not None else "continuous")
+    res = identify_experiments(exps, model=mdl, **kw)
+    res.record = {"path": str(rec.path), "scene_sha256": rec.scene_sha256, "mapping": plan.to_dict()}
+    return res
+
+
+def _identify_dict(record: Mapping[str, Any], **overrides: Any) -> IdentificationResult:
+    """Identify from ``{"t": ..., "signals": {name: array}, "meta": {...}}`` (see module docstring)."""
     try:
         t = record["t"]
         sig = record["signals"]
@@ -281,7 +423,15 @@ def identify_record(record: Mapping[str, Any], **overrides: Any) -> Identificati
     meta.update({k: v for k, v in overrides.items() if v is not None})
     model_name = meta.get("model", "sdea_locked")
     channels = meta.get("channels")
-    mdl = make_model(model_name, channels, **dict(meta.get("model_options") or {}))
+    opts = dict(meta.get("model_options") or {})
+    if meta.get("sampling") == "zoh":
+        tt = np.asarray(t, float)
+        if tt.size < 2:
+            raise ModelSpecError("record needs at least 2 samples")
+        from hil.identify.records import nominal_rate
+
+        opts.setdefault("zoh_fs", nominal_rate(1.0 / float(np.median(np.diff(tt)))))
+    mdl = make_model(model_name, channels, **opts)
 
     def pick(spec: Any, names: Sequence[str], what: str) -> dict[str, Any]:
         if spec is None:
@@ -313,37 +463,155 @@ def load_npz_record(path: str) -> dict[str, Any]:
         return {"t": z["t"], "signals": signals, "meta": meta}
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``hil identify RECORD.npz [--model NAME] [--json]``. Exit codes: 0 ok, 2 data quality,
-    3 posterior not converged, 4 not identifiable, 1 other identification error."""
-    p = argparse.ArgumentParser(prog="hil identify", description="Identify a grey-box model from a chirp record")
-    p.add_argument("record", help=".npz with arrays t, <signals>..., optional JSON string 'meta'")
-    p.add_argument("--model", default=None, help="sdea_locked | sdea_free | mbk (default: meta or sdea_locked)")
-    p.add_argument("--band", nargs=2, type=float, metavar=("F_MIN", "F_MAX"), default=None)
-    p.add_argument("--period", type=float, default=None, help="chirp period [s] (Welch segment length)")
-    p.add_argument("--seed", type=int, default=None)
-    p.add_argument("--json", action="store_true", help="print the full result as JSON")
-    a = p.parse_args(argv)
-    rec = load_npz_record(a.record)
+def store_result(path: str | Path, res: IdentificationResult, name: str | None = None) -> str:
+    """Write ``res`` into the run record at ``path`` as ``/identification/<name>`` (default: the
+    model name): the posterior samples (physical units, columns ``sample_names``) and the full
+    summary (:meth:`IdentificationResult.to_dict`: per-parameter summary, convergence diagnostics,
+    noise model, LS, CRB, data checks, channel mapping). Returns the group name."""
+    from hil.record import store_identification
+
+    key = name or res.model.name
+    store_identification(path, key, res.posterior.samples, res.to_dict())
+    return key
+
+
+def load_identification(path: str | Path, name: str | None = None) -> dict[str, Any]:
+    """``{"samples": (n, p) array, "summary": dict}`` of ``/identification/<name>`` in a record (the
+    only one when ``name`` is None). Raises RecordError."""
+    import h5py
+
+    from hil.record import RecordError
+
     try:
-        res = identify_record(rec, model=a.model, band=a.band, period=a.period, seed=a.seed)
-    except DataQualityError as exc:
-        print(f"data quality: {exc}", file=sys.stderr)
-        return 2
-    except IdentificationError as exc:
-        print(f"identification failed: {exc}", file=sys.stderr)
-        return 4 if isinstance(exc, NotIdentifiableError) else 1
+        with h5py.File(path, "r") as f:
+            g = f.get("identification")
+            names = sorted(g) if g is not None else []
+            if name is None and len(names) == 1:
+                name = names[0]
+            if name not in names:
+                raise RecordError(f"{path}: no identification {name!r} (have {names})")
+            grp = g[name]
+            return {"samples": np.array(grp["samples"]), "summary": json.loads(grp["summary"][()])}
+    except OSError as exc:
+        raise RecordError(f"{path}: cannot read: {exc}") from None
+
+
+def _kv(items: Sequence[str] | None, what: str) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for it in items or []:
+        if "=" not in it:
+            raise ModelSpecError(f"{what} expects NAME=VALUE, got {it!r}")
+        k, v = it.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out
+
+
+def _resolution_arg(v: str | None) -> Resolution | None:
+    if v is None:
+        return None
+    if v in ("none", "0"):
+        return None if v == "none" else 0.0
+    if v.startswith("float"):
+        return v
+    try:
+        return float(v)
+    except ValueError:
+        raise ModelSpecError(f"--resolution: float16/32/64, none, or a quantization step; got {v!r}") from None
+
+
+def _print_table(res: IdentificationResult) -> None:
+    units = dict(zip(res.model.names, res.model.units, strict=True))
+    print(f"model {res.model.name}; converged: {res.converged}")
+    for note in res.record.get("mapping", {}).get("notes", []):
+        print(f"  {note}")
+    print(f"{'param':>10} {'median':>12} {'q05':>12} {'q95':>12} {'std':>10} {'ls_std':>10} {'crb_std':>10}  unit")
+    for n, r in res.summary().items():
+        print(
+            f"{n:>10} {r['median']:12.5g} {r['q05']:12.5g} {r['q95']:12.5g} {r['std']:10.3g} "
+            f"{r.get('ls_std', float('nan')):10.3g} {r.get('crb_std', float('nan')):10.3g}  {units.get(n, '')}"
+        )
+    for n, r in res.derived_summary().items():
+        print(f"{n:>10} {r['median']:12.5g} {r['q05']:12.5g} {r['q95']:12.5g} {r['std']:10.3g}  (derived)  {r['unit']}")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``hil identify RECORD [--model NAME] [--json] ...``. Exit codes: 0 ok; 2 usage or input error
+    (file, record, model, channel); 13 no trustworthy estimate (data quality, not identifiable,
+    posterior not converged; one-line message on stderr). 1 is left to bugs."""
+    p = argparse.ArgumentParser(
+        prog="hil identify",
+        description="Identify a grey-box model (SDEA: K_f, B_f, M, B; m-DOF: M, B, K) from a chirp/multisine run. "
+        "The model, channels, period and band are inferred from the record; flags override them.",
+    )
+    p.add_argument("record", help="run record .h5 (hil run / hil import), .csv/.mat (imported on the fly), or .npz")
+    p.add_argument("--model", default=None, help="sdea_locked | sdea_free | mbk (default: inferred)")
+    p.add_argument("--experiment", default=None, help="experiment name in the record (when it holds several)")
+    p.add_argument("--target", default=None, help="actuator (device or group) whose effort command is the input")
+    p.add_argument("--input", action="append", metavar="SIGNAL", help="input signal, repeatable (model order)")
+    p.add_argument("--output", action="append", metavar="CHANNEL=SIGNAL",
+                   help="model output from a signal, e.g. force=spring_ft.wrench[5] (a leading - negates)")
+    p.add_argument("--band", nargs=2, type=float, metavar=("F_MIN", "F_MAX"), default=None)
+    p.add_argument("--period", type=float, default=None, help="excitation period [s] (Welch segment length)")
+    p.add_argument("--skip", type=float, default=None, help="start-up transient to drop [s]")
+    p.add_argument("--sampling", choices=["zoh", "continuous"], default=None,
+                   help="plant behind a zero-order hold at the record's rate (default for records) or continuous")
+    p.add_argument("--resolution", default=None,
+                   help="rounding of the recorded signals: float32 (default), float64, none, or a step")
+    p.add_argument("--noise", choices=["student", "gaussian", "scaled"], default=None)
+    p.add_argument("--set", action="append", metavar="PARAM=VALUE", help="starting value of a parameter (theta0)")
+    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--max-seconds", type=float, default=None, help="time budget of the sampler [s]")
+    p.add_argument("--json", action="store_true", help="print the full result as JSON")
+    p.add_argument("--no-store", action="store_true", help="do not write the posterior into the record")
+    p.add_argument("--out", default=None, help="for .csv/.mat input: keep the imported record (with the result) here")
+    a = p.parse_args(argv)
+    try:
+        outputs = _kv(a.output, "--output") or None
+        theta0 = {k: float(v) for k, v in _kv(a.set, "--set").items()} or None
+        res_spec = _resolution_arg(a.resolution)
+        target_path: Path | None = Path(a.record)
+        suffix = target_path.suffix.lower()
+        if suffix in (".csv", ".mat"):
+            from hil.importers import import_csv, import_mat
+
+            if a.out:
+                target_path = (import_csv if suffix == ".csv" else import_mat)(a.record, a.out)
+                rec: Any = load_record(target_path)
+            else:
+                rec, target_path = load_record(a.record), None
+        else:
+            rec = load_record(a.record)
+            if suffix == ".npz":
+                target_path = None
+        kw = {"model": a.model, "band": a.band, "period": a.period, "seed": a.seed, "skip": a.skip,
+              "noise": a.noise, "max_seconds": a.max_seconds, "theta0": theta0, "sampling": a.sampling}
+        if a.resolution is not None:
+            kw["resolution"] = kw["input_resolution"] = res_spec
+        if isinstance(rec, Mapping):  # .npz record dict
+            if a.input or outputs:
+                kw["inputs"], kw["outputs"] = a.input, outputs
+            res = identify_record(rec, **kw)
+        else:
+            kw.update(experiment=a.experiment, target=a.target, inputs=a.input, outputs=outputs)
+            res = identify_record(rec, **{k: v for k, v in kw.items() if v is not None})
+    except (DataQualityError, NotIdentifiableError, ConvergenceError) as exc:
+        print(f"hil identify: {type(exc).__name__}: {' '.join(str(exc).split())}", file=sys.stderr)
+        return EXIT_ERROR
+    except (HilError, OSError) as exc:  # ModelSpecError, RecordError, SceneError: usage or input
+        print(f"hil identify: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return EXIT_USAGE
+    if target_path is not None and not a.no_store:
+        try:
+            key = store_result(target_path, res)
+            res.record["stored"] = f"{target_path}:/identification/{key}"
+        except HilError as exc:
+            print(f"hil identify: warning: result not stored: {exc}", file=sys.stderr)
     if a.json:
         print(res.to_json())
     else:
-        units = dict(zip(res.model.names, res.model.units, strict=True))
-        print(f"model {res.model.name}; converged: {res.converged}")
-        print(f"{'param':>10} {'median':>12} {'q05':>12} {'q95':>12} {'std':>10} {'ls_std':>10} {'crb_std':>10}  unit")
-        for n, r in res.summary().items():
-            print(
-                f"{n:>10} {r['median']:12.5g} {r['q05']:12.5g} {r['q95']:12.5g} {r['std']:10.3g} "
-                f"{r.get('ls_std', float('nan')):10.3g} {r.get('crb_std', float('nan')):10.3g}  {units.get(n, '')}"
-            )
-        if not res.converged:
-            print("NOT CONVERGED: " + "; ".join(res.posterior.diagnostics.reasons))
-    return 0 if res.converged else 3
+        _print_table(res)
+    if not res.converged:
+        reasons = "; ".join(res.posterior.diagnostics.reasons)
+        print(f"hil identify: ConvergenceError: posterior not converged: {reasons}", file=sys.stderr)
+        return EXIT_ERROR
+    return EXIT_OK

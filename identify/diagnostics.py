@@ -241,15 +241,17 @@ def check_excitation(est: FrfEstimate, *, min_fraction: float = 0.2) -> list[Dia
     """Noise-only data: coherence indistinguishable from its no-relation distribution across the band.
 
     With ``n`` effective averages and ``q`` inputs the null distribution of the multiple coherence is
-    Beta(q, n - q). If fewer than ``min_fraction`` of the band's bins exceed its 99 % quantile for an
-    output, that output carries no response to the inputs.
+    Beta(q, n - q). If fewer than ``min_fraction`` of the band's excited bins (where some input
+    carries power, e.g. the lines of a multisine) exceed its 99 % quantile for an output, that output
+    carries no response to the inputs.
     """
     q = est.H.shape[2]
     n = max(est.n_avg, q + 1.0)
     thr = float(stats.beta.ppf(0.99, q, n - q))
     out = []
     for o, name in enumerate(est.output_names):
-        coh = est.coherence[:, o]
+        measured = np.any(np.isfinite(est.H[:, o, :]), axis=-1)  # bins where some input is excited
+        coh = est.coherence[measured, o] if np.any(measured) else np.zeros(1)
         frac = float(np.mean(coh > thr))
         if frac < min_fraction:
             out.append(

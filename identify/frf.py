@@ -17,7 +17,28 @@ Conventions
   expression for one input; the real and imaginary parts each carry half of it:
   ``sigma[k, o, i]`` is that per-component standard deviation. ``Gvv`` is corrected for the
   ``n_inputs`` complex degrees of freedom spent on ``H`` and its own uncertainty is summarized by
-  ``dof = 2 (n_d - n_inputs)`` (used by a Student-t likelihood in :mod:`posterior`).
+  ``dof = 2 (n_d - n_inputs)`` (used by a Student-t likelihood in :mod:`posterior`); per bin
+  (``dof_map``) only the inputs excited at that bin count.
+
+Per-bin excited inputs: a bin where an input carries no power (below ``1e-12`` of that input's
+peak) does not take part in the solve there: only the columns of the excited inputs are estimated
+(the others are NaN, "not measured"). A zippered multisine -- every line driven by exactly one
+input -- thus gives one column per line and the full MIMO FRF over the lines in ONE experiment.
+
+Rounding floor (``resolution``). Recorded values are rounded (float32 on the device buses: ODrive
+CANSimple, Bota; integer counts on others). On an exactly periodic excitation the simulated (or a
+very quiet real) response repeats sample for sample, so its rounding errors repeat too: they do
+NOT average out over the periods and the period-to-period residual ``Gvv`` misses them (it can be
+exactly zero). They are added as a known floor with the variance of uniform rounding,
+``q = mean(step^2)/12`` per sample (step = the float's spacing at each value, or a fixed
+quantization step), on the outputs AND on the inputs (errors in variables: the drive applies a
+rounded command, which reaches the output through ``H``)::
+
+    Gvv_floor[k, o] = (2 / fs) (q_o + sum_i |H_oi|^2 q_i)      (white, one-sided density)
+    var H_oi  =  (Gvv_o / n_avg + Gvv_floor_o / n_exp) [Gxx^-1]_ii   (n_exp: number of experiments)
+
+and the per-bin degrees of freedom of that variance follow Welch-Satterthwaite
+(``dof_map = dof * var^2 / var_random^2``: a known floor has infinitely many).
 
 Default window: rectangular segments without overlap. With a burst/chirp input and segments much
 longer than the impulse-response decay, the DFT bins of different segments and frequencies then
@@ -46,6 +67,7 @@ __all__ = [
     "compare_frfs",
     "estimate_frf",
     "harmonic_distortion",
+    "rounding_variance",
     "welch_effective_averages",
 ]
 
@@ -75,6 +97,7 @@ class FrfEstimate:
     input_names: tuple[str, ...] = ()
     output_names: tuple[str, ...] = ()
     meta: dict[str, object] = field(default_factory=dict)
+    dof_map: NDArray[np.float64] | None = None  # per-entry dof of sigma^2 (n_f, n_out, n_in); None: ``dof``
 
     @property
     def w(self) -> NDArray[np.float64]:
@@ -107,6 +130,7 @@ class FrfEstimate:
             Gyy=self.Gyy[:, idx],
             Gvv=self.Gvv[:, idx],
             output_names=tuple(outputs),
+            dof_map=None if self.dof_map is None else self.dof_map[:, idx],
         )
 
     def _mask(self, m: NDArray[np.bool_]) -> FrfEstimate:
@@ -119,7 +143,47 @@ class FrfEstimate:
             Gxx=self.Gxx[m],
             Gyy=self.Gyy[m],
             Gvv=self.Gvv[m],
+            dof_map=None if self.dof_map is None else self.dof_map[m],
         )
+
+    @property
+    def nu(self) -> NDArray[np.float64]:
+        """Degrees of freedom of ``sigma^2`` per entry (n_f, n_out, n_in)."""
+        if self.dof_map is not None:
+            return self.dof_map
+        return np.full(self.H.shape, float(self.dof))
+
+
+#: spacing of the float formats, relative: variance of rounding computed from np.spacing
+_FLOAT_FORMATS = {"float16": np.float16, "float32": np.float32, "float64": np.float64}
+
+Resolution = str | float | None
+
+
+def rounding_variance(x: ArrayLike, resolution: Resolution) -> float:
+    """Mean per-sample variance of the rounding error of ``x`` at ``resolution``.
+
+    ``"float32"`` (or ``float16``/``float64``): round to nearest in that format, error uniform over
+    one spacing ``np.spacing(x)`` -> ``mean(spacing^2)/12``; a number: a fixed quantization step
+    ``q`` -> ``q^2/12``; None/0: no rounding.
+    """
+    if resolution is None:
+        return 0.0
+    a = np.asarray(x, dtype=float)
+    a = a[np.isfinite(a)]
+    if isinstance(resolution, str):
+        fmt = _FLOAT_FORMATS.get(resolution)
+        if fmt is None:
+            raise DataQualityError(f"unknown resolution {resolution!r}: use float16/float32/float64 or a step")
+        if a.size == 0:
+            return 0.0
+        with np.errstate(over="ignore"):
+            sp = np.spacing(np.abs(a).astype(fmt)).astype(float)
+        return float(np.mean(sp**2) / 12.0)
+    step = float(resolution)
+    if not np.isfinite(step) or step < 0:
+        raise DataQualityError(f"quantization step must be >= 0, got {resolution!r}")
+    return step**2 / 12.0
 
 
 def welch_effective_averages(
@@ -166,16 +230,23 @@ def estimate_frf(
     detrend: str | bool = "constant",
     input_names: Sequence[str] | None = None,
     output_names: Sequence[str] | None = None,
+    resolution: Resolution | Sequence[Resolution] = None,
+    input_resolution: Resolution | Sequence[Resolution] = None,
+    excited_tol: float = 1e-12,
 ) -> FrfEstimate:
     """MIMO H1 FRF from one or several experiments sharing the same inputs/outputs.
 
     ``experiments``: sequence of ``(u, y)`` with ``u`` (n, n_in) inputs and ``y`` (n, n_out) outputs
     sampled uniformly at ``fs`` [Hz] (1-D arrays mean one channel). Spectral matrices of each
-    experiment are weighted by its number of Welch segments and summed, then ``H = Gyx Gxx^-1``.
+    experiment are weighted by its number of Welch segments and summed, then ``H = Gyx Gxx^-1``
+    per bin over the inputs excited there (module docstring). ``resolution`` / ``input_resolution``:
+    rounding of the outputs / inputs (one spec for all or one per channel, see
+    :func:`rounding_variance`) added to the FRF variance as a floor that periods do not average.
     """
     if noverlap is None:
         noverlap = nperseg // 2 if window != "boxcar" else 0
     acc_xx = acc_yx = acc_yy = None
+    data: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
     K_tot = 0
     K_eff = 0.0
     f = np.empty(0)
@@ -188,6 +259,7 @@ def estimate_frf(
             raise DataQualityError(f"record of {u.shape[0]} samples is shorter than nperseg={nperseg}")
         if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
             raise DataQualityError("non-finite samples in the record: run the diagnostics first")
+        data.append((u, y))
         uT, yT = u.T, y.T
         kw = dict(fs=fs, window=window, nperseg=nperseg, noverlap=noverlap, detrend=detrend, axis=-1)
         f, Gxx = signal.csd(uT[None, :, :], uT[:, None, :], **kw)  # [i, j] = E[X_i conj(X_j)]
@@ -212,21 +284,54 @@ def estimate_frf(
         raise DataQualityError(
             f"only {K_eff:.1f} effective averages for {ni} inputs: use a smaller nperseg or a longer record"
         )
-    # Solve H Gxx = Gyx per frequency; guard bins where the input matrix is singular (DC, unexcited).
-    scale = np.maximum(np.abs(np.trace(Gxx, axis1=1, axis2=2)), np.finfo(float).tiny)
-    cond_ok = np.linalg.cond(Gxx / scale[:, None, None]) < 1e10
+    # Solve H Gxx = Gyx per frequency over the inputs excited there; guard singular input matrices.
+    pw = np.real(np.diagonal(Gxx, axis1=1, axis2=2))  # (nf, ni) input power
+    excited = pw > excited_tol * np.maximum(np.max(pw, axis=0), np.finfo(float).tiny)
     H = np.full(Gyx.shape, np.nan + 1j * np.nan)
     Ginv = np.full(Gxx.shape, np.nan + 1j * np.nan)
-    if np.any(cond_ok):
-        Ginv[cond_ok] = np.linalg.inv(Gxx[cond_ok])
-        H[cond_ok] = Gyx[cond_ok] @ Ginv[cond_ok]
-    explained = np.einsum("koi,kij,koj->ko", H, Gxx, H.conj()).real
+    explained = np.zeros(Gyy.shape)  # unexcited bins: nothing explained (coherence 0, H NaN)
+    patterns = {tuple(row) for row in excited}
+    for pat in patterns:
+        sel = np.flatnonzero(pat)
+        if sel.size == 0:
+            continue
+        rows = np.flatnonzero(np.all(excited == np.asarray(pat), axis=1))
+        G = Gxx[np.ix_(rows, sel, sel)]
+        scale = np.maximum(np.abs(np.trace(G, axis1=1, axis2=2)), np.finfo(float).tiny)
+        good = rows[np.linalg.cond(G / scale[:, None, None]) < 1e10]
+        if good.size == 0:
+            continue
+        Gi = np.linalg.inv(Gxx[np.ix_(good, sel, sel)])
+        Hs = Gyx[np.ix_(good, np.arange(no), sel)] @ Gi
+        H[np.ix_(good, np.arange(no), sel)] = Hs
+        Ginv[np.ix_(good, sel, sel)] = Gi
+        explained[good] = np.einsum("koi,kij,koj->ko", Hs, Gxx[np.ix_(good, sel, sel)], Hs.conj()).real
     Gvv = np.clip(Gyy - explained, 0.0, None) * K_eff / (K_eff - ni)
     with np.errstate(invalid="ignore", divide="ignore"):
         coh = np.clip(1.0 - (Gyy - explained) / Gyy, 0.0, 1.0)
-    inv_diag = np.real(np.diagonal(Ginv, axis1=1, axis2=2))  # (nf, ni)
-    var_complex = Gvv[:, :, None] * inv_diag[:, None, :] / K_eff
+    inv_diag = np.real(np.diagonal(Ginv, axis1=1, axis2=2))  # (nf, ni), NaN where not excited
+    var_rand = Gvv[:, :, None] * inv_diag[:, None, :] / K_eff
+    # rounding floor (module docstring): white, repeated in every period -> not averaged
+    q_out = _per_channel(resolution, no, "resolution")
+    q_in = _per_channel(input_resolution, ni, "input_resolution")
+    qo = np.array([np.mean([rounding_variance(yy[:, o], q_out[o]) for _, yy in data]) for o in range(no)])
+    qi = np.array([np.mean([rounding_variance(uu[:, i], q_in[i]) for uu, _ in data]) for i in range(ni)])
+    floor = None
+    if np.any(qo > 0) or np.any(qi > 0):
+        Hz = np.nan_to_num(H)
+        g_floor = (2.0 / fs) * (qo[None, :] + np.einsum("koi,i->ko", np.abs(Hz) ** 2, qi))  # (nf, no)
+        floor = g_floor[:, :, None] * inv_diag[:, None, :] / len(data)
+    var_complex = var_rand if floor is None else var_rand + floor
     sigma = np.sqrt(np.clip(var_complex / 2.0, 0.0, None))
+    dof = 2.0 * (K_eff - ni)
+    # per bin: the residual spends one complex dof per input EXCITED there (zippered lines: one)
+    n_exc = np.maximum(np.sum(excited, axis=1), 1)
+    dof_bins = np.broadcast_to((2.0 * (K_eff - n_exc))[:, None, None], H.shape).copy()
+    if floor is not None:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = np.minimum(var_complex / np.maximum(var_rand, 1e-300), 1e6)
+            dof_bins = np.minimum(dof_bins * ratio**2, 1e6)
+    dof_map = None if np.all(dof_bins == dof) else dof_bins
     ins = tuple(input_names) if input_names is not None else tuple(f"u{i}" for i in range(ni))
     outs = tuple(output_names) if output_names is not None else tuple(f"y{o}" for o in range(no))
     logger.debug("H1 estimate: %d bins, K=%d segments, K_eff=%.1f, %d inputs, %d outputs", f.size, K_tot, K_eff, ni, no)
@@ -239,13 +344,29 @@ def estimate_frf(
         Gyy=Gyy,
         Gvv=Gvv,
         n_avg=K_eff,
-        dof=2.0 * (K_eff - ni),
+        dof=dof,
         fs=float(fs),
         nperseg=int(nperseg),
         input_names=ins,
         output_names=outs,
-        meta={"window": window, "noverlap": noverlap, "n_segments": K_tot, "n_experiments": len(experiments)},
+        meta={
+            "window": window,
+            "noverlap": noverlap,
+            "n_segments": K_tot,
+            "n_experiments": len(experiments),
+            "rounding_variance": {"outputs": qo.tolist(), "inputs": qi.tolist()},
+        },
+        dof_map=dof_map,
     )
+
+
+def _per_channel(spec: Resolution | Sequence[Resolution], n: int, what: str) -> list[Resolution]:
+    if spec is None or isinstance(spec, str | int | float):
+        return [spec] * n
+    out = list(spec)
+    if len(out) != n:
+        raise DataQualityError(f"{what}: {len(out)} entries for {n} channels")
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- linearity

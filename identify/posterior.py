@@ -7,7 +7,9 @@ rectangular, non-overlapping, period-aligned segments make that true). With the 
 * ``noise="student"`` (default): ``s^2`` is itself estimated from the coherence with ``nu = dof``
   degrees of freedom; integrating the unknown true variance under a Jeffreys prior gives the
   bivariate Student-t ``log L = -sum (nu + 2)/2 log(1 + |r|^2 / (nu s^2))``. This keeps the
-  intervals calibrated when only a few Welch averages are available.
+  intervals calibrated when only a few Welch averages are available. ``nu`` is per entry when the
+  estimate carries a ``dof_map`` (a known rounding floor in ``s^2`` has infinitely many degrees of
+  freedom: Gaussian in the limit).
 * ``noise="gaussian"``: ``log L = -sum |r|^2 / (2 s^2)`` (variance taken as known).
 * ``noise="scaled"``: Gaussian with a fitted common scale ``lambda = exp(eta)`` on ``s``
   (parameter ``log_noise_scale``, uniform on [-3, 3]) for data whose coherence-based variance
@@ -17,7 +19,10 @@ Prior: uniform in z-space within the model bounds (log-uniform for positive phys
 optionally times a broad normal in z around a centre (``prior="normal"``, e.g. around the LS
 estimate with ``prior_sd`` in z, i.e. in log units).
 
-Sampling: :class:`emcee.EnsembleSampler` with ``vectorize=True`` (one model call per half-ensemble).
+Sampling: :class:`emcee.EnsembleSampler` with ``vectorize=True`` (one model call per half-ensemble),
+in the model's sampling coordinates ``u = model.to_sampling(z)`` when it defines them (the density
+then carries ``log |det dz/du|``, so the posterior over z is unchanged; see
+:meth:`hil.identify.models.GreyBoxModel.to_sampling`).
 ONE seed drives everything: ``np.random.default_rng(seed)`` draws the initial walkers and the seed
 of the sampler's own ``RandomState`` (set through ``sampler.random_state``), so two runs with the
 same seed give bit-identical chains.
@@ -78,7 +83,7 @@ class LogPosterior:
         self.w = est.w
         self.H = est.H[ok]
         self.s2 = est.sigma[ok] ** 2
-        self.nu = float(est.dof)
+        self.nu = est.nu[ok].astype(float) if est.dof_map is not None else float(est.dof)
         self.n_obs = int(ok.sum())
         lo, hi = model.z_bounds()
         if noise == "scaled":
@@ -107,7 +112,7 @@ class LogPosterior:
         d = Hm - self.H
         r2 = d.real**2 + d.imag**2  # |r|^2
         if self.noise == "student":
-            return -0.5 * (self.nu + 2.0) * np.sum(np.log1p(r2 / (self.nu * self.s2)), axis=-1)
+            return -0.5 * np.sum((self.nu + 2.0) * np.log1p(r2 / (self.nu * self.s2)), axis=-1)
         if self.noise == "gaussian":
             return -0.5 * np.sum(r2 / self.s2, axis=-1)
         eta = z[..., -1]
@@ -228,8 +233,45 @@ class PosteriorResult:
         return out
 
 
+class _SamplingSpace:
+    """``logpost`` seen in the model's sampling coordinates u (extra dimensions, e.g. the noise scale,
+    pass through): ``__call__(u) = logpost(z(u)) + log |det dz/du|``."""
+
+    def __init__(self, logpost: LogPosterior) -> None:
+        self.logpost = logpost
+        self.model = logpost.model
+        self.p = self.model.n_params
+        self.ndim = logpost.ndim
+        a, b = self.to_u(logpost.lo), self.to_u(logpost.hi)
+        self.lo, self.hi = np.minimum(a, b), np.maximum(a, b)  # a box around the support (for clipping)
+
+    def to_u(self, z: NDArray[np.float64]) -> NDArray[np.float64]:
+        zz = np.asarray(z, float)
+        return np.concatenate([self.model.to_sampling(zz[..., : self.p]), zz[..., self.p :]], axis=-1)
+
+    def to_z(self, u: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        uu = np.asarray(u, float)
+        z, lj = self.model.from_sampling(uu[..., : self.p])
+        return np.concatenate([z, uu[..., self.p :]], axis=-1), lj
+
+    def jacobian(self, z: NDArray[np.float64]) -> NDArray[np.float64]:
+        """du/dz at z (central differences)."""
+        h = 1e-6
+        E = np.eye(self.ndim) * h
+        return ((self.to_u(z + E) - self.to_u(z - E)) / (2 * h)).T
+
+    def __call__(self, u: ArrayLike) -> NDArray[np.float64]:
+        uu = np.atleast_2d(np.asarray(u, float))
+        z, lj = self.to_z(uu)
+        good = np.all(np.isfinite(z), axis=-1) & np.isfinite(lj)
+        out = np.full(uu.shape[0], -np.inf)
+        if np.any(good):
+            out[good] = self.logpost(z[good]) + lj[good]
+        return out
+
+
 def _initial_walkers(
-    logpost: LogPosterior,
+    logpost: LogPosterior | _SamplingSpace,
     z0: NDArray[np.float64],
     cov0: NDArray[np.float64] | None,
     n_walkers: int,
@@ -251,7 +293,9 @@ def _initial_walkers(
             cov = c
     if cov is None:
         cov = np.diag((1e-3 * np.minimum(span, 10.0)) ** 2)
-    L = np.linalg.cholesky(cov + 1e-14 * np.eye(d) * np.max(np.diag(cov)))
+    # Cholesky in correlation form: the scales may differ by many orders of magnitude
+    sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+    L = sd[:, None] * np.linalg.cholesky(cov / np.outer(sd, sd) + 1e-10 * np.eye(d))
     p0 = z0 + rng.standard_normal((n_walkers, d)) @ L.T
     p0 = np.clip(p0, logpost.lo + 1e-9 * span, logpost.hi - 1e-9 * span)
     for _ in range(50):
@@ -293,12 +337,24 @@ def sample_posterior(
     nw = n_walkers or max(32, 4 * d)
     nw += nw % 2
     rng = np.random.default_rng(seed)
-    p0 = _initial_walkers(logpost, np.asarray(z0, float), None if cov0 is None else np.asarray(cov0, float), nw, rng)
+    z0 = np.asarray(z0, float)
+    cov = None if cov0 is None else np.asarray(cov0, float)
+    space: LogPosterior | _SamplingSpace = logpost
+    if logpost.model.has_sampling_transform:
+        space = _SamplingSpace(logpost)
+        zz0 = np.append(z0, np.zeros(d - z0.size)) if z0.size < d else z0
+        if cov is not None:
+            c = np.eye(d) * 1e-4
+            c[: cov.shape[0], : cov.shape[0]] = cov
+            Ju = space.jacobian(zz0)
+            cov = Ju @ c @ Ju.T
+        z0 = space.to_u(zz0)
+    p0 = _initial_walkers(space, z0, cov, nw, rng)
     if moves is None:
         # Differential-evolution moves: on these near-Gaussian, correlated posteriors they give about half the
         # autocorrelation time of the default stretch move (measured: tau ~16 vs ~34 steps, 4-parameter SDEA).
         moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
-    sampler = emcee.EnsembleSampler(nw, d, logpost, vectorize=True, moves=moves)
+    sampler = emcee.EnsembleSampler(nw, d, space, vectorize=True, moves=moves)
     sampler.random_state = np.random.RandomState(int(rng.integers(0, 2**32 - 1))).get_state()
     state: Any = p0
     n_done = 0
@@ -360,6 +416,9 @@ def sample_posterior(
     chain = sampler.get_chain()
     kept = chain[burn:] if burn < chain.shape[0] else chain[-1:]
     lp = sampler.get_log_prob()[burn:] if burn < chain.shape[0] else sampler.get_log_prob()[-1:]
+    if isinstance(space, _SamplingSpace):  # back to z; log_prob then is the density over z
+        kept, lj = space.to_z(kept)
+        lp = lp - lj
     flat = kept.reshape(-1, d)
     n_model = logpost.model.n_params
     samples = logpost.model.from_z(flat[:, :n_model])
