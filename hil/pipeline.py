@@ -270,12 +270,17 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
                                 for k, v in summ.items()],
                     diagnostics=res.posterior.diagnostics.to_dict(res.names)))
                 samples = np.asarray(res.posterior.samples)[:, : len(res.names)]
+                # sampled parameters plus the model's derived quantities (e.g. the entries of M, B, K
+                # of an MBK model sampled as Cholesky factors)
+                available = {n: samples[:, i] for i, n in enumerate(res.names)}
+                available.update({k: np.asarray(v) for k, (v, _u) in res.model.derived(samples).items()})
                 mapping = spec.map or {n: n for n in res.names}
                 for src, dst in mapping.items():
-                    if src not in res.names:
-                        errors.append(f"identification: parameter {src!r} not in model {res.model.name}")
+                    if src not in available:
+                        errors.append(f"identification: parameter {src!r} not in model {res.model.name} "
+                                      f"(have {sorted(available)})")
                         continue
-                    draws[dst] = samples[:, res.names.index(src)]
+                    draws[dst] = available[src]
                 measurements.append(Measurement(name=f"posterior converged ({res.model.name})", value=res.converged,
                                                 outcome="PASS" if res.converged else "MARGINAL",
                                                 description="integrated autocorrelation time, ≥ 50 τ, acceptance, "
@@ -385,8 +390,9 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
 
     multiport = None
     if tm is not None and (tm.n_ports > 2 or max(tm.port_dofs) > 1):
-        multiport = MultiPort(ports=list(tm.port_dofs), dof_total=tm.n,
-                              symmetrization="Theorem 1 of paper 000 (conditions A, B checked)")
+        how = ("Theorem 1 of paper 000 (symmetrization conditions A, B checked)"
+               if criterion == "absolute_stability" else f"{criterion} of the full {tm.n}x{tm.n} immittance matrix")
+        multiport = MultiPort(ports=list(tm.port_dofs), dof_total=tm.n, symmetrization=how)
     measurements.append(Measurement(name="run time", value=sum(timings.values()), unit="s", outcome="INFO",
                                     description=", ".join(f"{k} {v:.1f} s" for k, v in timings.items())))
     return Certificate(

@@ -52,6 +52,12 @@ def _bilateral1(**p: Any) -> TransferMatrix:
     return bilateral_1dof(p)
 
 
+def _mbk(**p: Any) -> TransferMatrix:
+    from hil.models.teleop import mbk_impedance
+
+    return mbk_impedance(p)
+
+
 def _dual(**p: Any) -> TransferMatrix:
     from hil.models.teleop import dual_master_3dof
 
@@ -72,7 +78,7 @@ def _t2(**_: Any) -> TransferMatrix:
 
 def _defaults() -> dict[str, BuiltinModel]:
     from hil.models.sdea import SDEA_TABLE1
-    from hil.models.teleop import BILATERAL_1DOF, DUAL_MASTER_TABLE1, MCET_TABLE1, TWO_DOF_ROBOT
+    from hil.models.teleop import BILATERAL_1DOF, DUAL_MASTER_TABLE1, MBK_2DOF, MCET_TABLE1, TWO_DOF_ROBOT
 
     return {
         "sdea": BuiltinModel("sdea", "SDEA under VSIC with virtual coupler (002 eq. 12, Table I)", "passivity",
@@ -87,6 +93,8 @@ def _defaults() -> dict[str, BuiltinModel]:
                                        "llewellyn", dict(BILATERAL_1DOF), _bilateral1),
         "dual_master_3dof": BuiltinModel("dual_master_3dof", "dual-master/single-slave 3-DOF (001 eq. 17, Table I)",
                                          "absolute_stability", dict(DUAL_MASTER_TABLE1), _dual),
+        "mbk_impedance": BuiltinModel("mbk_impedance", "m-DOF mass-damper-spring device, Z = (M s² + B s + K)/s",
+                                      "positive_real", dict(MBK_2DOF), _mbk),
         "T1": BuiltinModel("T1", "2-DOF termination T1 of 000 eq. (1) (not passive)", "positive_real", {}, _t1),
         "T2": BuiltinModel("T2", "3-DOF termination T2 of 001 (passive)", "positive_real", {}, _t2),
     }

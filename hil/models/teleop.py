@@ -20,12 +20,14 @@ from hil.stability.rational import Rational, S, TransferMatrix
 __all__ = [
     "BILATERAL_1DOF",
     "DUAL_MASTER_TABLE1",
+    "MBK_2DOF",
     "MCET_TABLE1",
     "TWO_DOF_TABLE2",
     "bilateral_1dof",
     "bilateral_2dof",
     "dual_master_3dof",
     "example_Z_000_eq5",
+    "mbk_impedance",
     "mcet_trilateral",
     "termination_T1",
     "termination_T2",
@@ -74,6 +76,30 @@ def mcet_trilateral(p: Mapping[str, float] | None = None, **kw: float) -> Transf
         [-a * cs, -(1 - a) * cs, cs + zs],
     ]
     return TransferMatrix(rows, "impedance", (1, 1, 1), "mcet_trilateral (000 eq. 25)")
+
+
+# ---------------------------------------------------------------------------------------------
+# an m-DOF mass-damper-spring device as a one-port impedance
+
+MBK_2DOF: dict[str, float] = {"M_00": 1.0, "M_01": 0.2, "M_11": 0.6, "B_00": 8.0, "B_01": -2.0, "B_11": 6.0,
+                              "K_00": 6000.0, "K_01": -2500.0, "K_11": 9000.0}
+
+
+def mbk_impedance(p: Mapping[str, float] | None = None, **kw: float) -> TransferMatrix:
+    """Z(s) = (M s² + B s + K)/s of an m-DOF body (F = Z V, one m-DOF port). Parameters ``M_ij``,
+    ``B_ij``, ``K_ij`` (i ≤ j, symmetric; the names the identification's ``mbk`` model derives).
+    Positive real exactly when M, B, K are symmetric positive semidefinite (Re Z = B, residue K)."""
+    q = {**MBK_2DOF, **(p or {}), **kw}
+    n = 1 + max(int(k[-1]) for k in q if k[:2] in ("M_", "B_", "K_"))
+    mats = {}
+    for key in ("M", "B", "K"):
+        A = np.zeros((n, n))
+        for i in range(n):
+            for j in range(i, n):
+                A[i, j] = A[j, i] = float(q.get(f"{key}_{i}{j}", 0.0))
+        mats[key] = A
+    rows = [[_mbk(mats["M"][i, j], mats["B"][i, j], mats["K"][i, j]) for j in range(n)] for i in range(n)]
+    return TransferMatrix(rows, "impedance", (n,), f"mbk_impedance ({n}-DOF)")
 
 
 # ---------------------------------------------------------------------------------------------
