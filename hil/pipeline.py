@@ -281,6 +281,7 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
                                       f"(have {sorted(available)})")
                         continue
                     draws[dst] = available[src]
+                _identification_plots(plots, spec.experiment, res, seed)
                 measurements.append(Measurement(name=f"posterior converged ({res.model.name})", value=res.converged,
                                                 outcome="PASS" if res.converged else "MARGINAL",
                                                 description="integrated autocorrelation time, ≥ 50 τ, acceptance, "
@@ -576,6 +577,36 @@ def _simulate_witness(w: Any, plots: dict[str, Series]) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------------------------
 # plots (as data series; rendered by hil.report)
+
+
+def _identification_plots(plots: dict[str, Series], name: str, res: Any, seed: int) -> None:
+    """FRF fit (measured H1 against the posterior median and its 90 % band, first channels) and a
+    scatter of the two most correlated posterior parameters (a corner-plot panel)."""
+    est, mdl = res.frf, res.model
+    samp = np.asarray(res.posterior.samples)[:, : mdl.n_params]
+    rng = np.random.default_rng(seed + 2)
+    pick = samp[rng.choice(samp.shape[0], size=min(150, samp.shape[0]), replace=False)]
+    Hd = np.abs(mdl.frf(pick, est.w))
+    Hm = np.abs(mdl.frf(np.median(samp, axis=0), est.w))
+    no = est.H.shape[1]
+    for o in range(min(no, 2)):
+        i = 0  # the first input column
+        lo, hi = np.quantile(Hd[:, :, o, i], [0.05, 0.95], axis=0)
+        db = lambda a: (20 * np.log10(np.maximum(np.asarray(a, float), 1e-300))).tolist()  # noqa: E731
+        label = f"{est.input_names[i]} -> {est.output_names[o]}" if est.input_names else f"output {o}"
+        plots[f"frf_{name}_{o}"] = Series(
+            title=f"FRF fit ({name}): {label}", x=est.f.tolist(), x_label="f [Hz]", y_label="|H| [dB]", log_x=True,
+            lines={"measured H1": db(np.abs(est.H[:, o, i])), "posterior median": db(Hm[:, o, i])},
+            bands={"posterior median": (db(lo), db(hi))})
+    names = list(res.names)[: samp.shape[1]]
+    if samp.shape[1] >= 2:
+        C = np.corrcoef(samp.T)
+        np.fill_diagonal(C, 0.0)
+        a, b = np.unravel_index(int(np.argmax(np.abs(C))), C.shape)
+        sub = samp[:: max(1, samp.shape[0] // 800)]
+        plots[f"corner_{name}"] = Series(
+            title=f"Posterior draws ({name}): {names[a]} against {names[b]} (correlation {C[a, b]:+.2f})",
+            x=sub[:, a].tolist(), x_label=names[a], y_label=names[b], lines={"draws": sub[:, b].tolist()})
 
 
 def _energy_evidence(name: str, o: Any, energy: list[EnergyEvidence], measurements: list[Measurement],
