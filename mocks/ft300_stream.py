@@ -50,6 +50,7 @@ import numpy as np
 from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 from hil.mocks.modbus_devices import firmware_registers, serial_registers, wrench_to_registers
+from hil.mocks.periodic import PeriodicThread
 from hil.protocols.crc import crc16_modbus
 from hil.protocols.modbus_robotiq import (
     DEFAULT_SLAVE_ID,
@@ -117,8 +118,7 @@ class SimFT300Stream:
         self._lock = threading.RLock()
         self._state = threading.Condition(self._lock)
         self._stop = threading.Event()
-        self._stream_stop = threading.Event()
-        self._stream_thread: threading.Thread | None = None
+        self._emitter = PeriodicThread(self.emit, 1.0 / self.rate_hz, "sim-ft300-stream")
         self._closed = False
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no line discipline: bytes pass unchanged
@@ -184,31 +184,14 @@ class SimFT300Stream:
 
     def start(self, rate_hz: float | None = None) -> None:
         """Emit frames from a thread at ``rate_hz`` (default :attr:`rate_hz`) while streaming."""
-        if self._stream_thread is not None:
+        if self._emitter.running:
             return
-        period = 1.0 / (rate_hz or self.rate_hz)
-        self._stream_stop.clear()
-
-        def run() -> None:
-            next_t = time.monotonic()
-            while not self._stream_stop.is_set():
-                self.emit()
-                next_t += period
-                delay = next_t - time.monotonic()
-                if delay > 0:
-                    self._stream_stop.wait(delay)
-                elif delay < -10 * period:
-                    next_t = time.monotonic()
-
-        self._stream_thread = threading.Thread(target=run, name="sim-ft300-stream", daemon=True)
-        self._stream_thread.start()
+        self._emitter.period = 1.0 / (rate_hz or self.rate_hz)
+        self._emitter.start()
 
     def stop(self) -> None:
         """Stop the emitting thread (the device stays in its mode)."""
-        if self._stream_thread is not None:
-            self._stream_stop.set()
-            self._stream_thread.join(timeout=2.0)
-            self._stream_thread = None
+        self._emitter.stop()
 
     def write_raw(self, data: bytes) -> None:
         """Write arbitrary bytes to the line (tests)."""

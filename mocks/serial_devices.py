@@ -25,7 +25,6 @@ import contextlib
 import logging
 import os
 import threading
-import time
 import tty
 from collections import Counter
 from collections.abc import Callable
@@ -35,6 +34,7 @@ import numpy as np
 
 from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
+from hil.mocks.periodic import PeriodicThread
 from hil.protocols.serial_bota import encode_frame
 
 log = logging.getLogger(__name__)
@@ -75,8 +75,7 @@ class SimBota:
         self._last: bytes | None = None
         self._held: bytes | None = None
         self._lock = threading.Lock()
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._emitter = PeriodicThread(self.emit, self.period_s, "sim-bota")
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no line discipline: bytes pass unchanged
         os.set_blocking(self._master, False)
@@ -140,30 +139,13 @@ class SimBota:
 
     def start(self, rate_hz: float | None = None) -> None:
         """Emit frames from a thread at ``rate_hz`` (default: 1/period_s)."""
-        if self._thread is not None:
+        if self._emitter.running:
             return
-        period = 1.0 / rate_hz if rate_hz else self.period_s
-        self._stop.clear()
-
-        def run() -> None:
-            next_t = time.monotonic()
-            while not self._stop.is_set():
-                self.emit()
-                next_t += period
-                delay = next_t - time.monotonic()
-                if delay > 0:
-                    self._stop.wait(delay)
-                elif delay < -10 * period:
-                    next_t = time.monotonic()
-
-        self._thread = threading.Thread(target=run, name="sim-bota", daemon=True)
-        self._thread.start()
+        self._emitter.period = 1.0 / rate_hz if rate_hz else self.period_s
+        self._emitter.start()
 
     def stop(self) -> None:
-        if self._thread is not None:
-            self._stop.set()
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        self._emitter.stop()
 
     def hangup(self) -> None:
         """Close both pty ends (like unplugging the USB adapter)."""

@@ -45,6 +45,7 @@ import can
 import numpy as np
 
 from hil.errors import DeviceDisconnected, DeviceFault, DeviceTimeout, ProtocolError
+from hil.protocols import can_common
 from hil.protocols.base import Actuator, DeviceInfo, JointSample
 from hil.protocols.can_odrive import open_can_bus
 
@@ -269,20 +270,12 @@ class CubeMarsMIT(Actuator):
         if self._closed:
             raise DeviceDisconnected("CubeMarsMIT is closed")
         msg = can.Message(arbitration_id=self.motor_id, data=data, is_extended_id=False)
-        try:
-            self._bus.send(msg, timeout=timeout)
-        except can.CanOperationError as exc:
-            raise DeviceTimeout(f"CubeMars {self.motor_id}: send failed: {exc}") from exc
-        except can.CanError as exc:
-            raise DeviceDisconnected(f"CubeMars {self.motor_id}: bus error: {exc}") from exc
+        can_common.send(self._bus, msg, timeout, f"CubeMars {self.motor_id}")
 
     def _recv(self, timeout: float) -> can.Message | None:
         if self._closed:
             raise DeviceDisconnected("CubeMarsMIT is closed")
-        try:
-            return self._bus.recv(timeout=max(0.0, timeout))
-        except can.CanError as exc:
-            raise DeviceDisconnected(f"CubeMars {self.motor_id}: bus error: {exc}") from exc
+        return can_common.recv(self._bus, timeout, f"CubeMars {self.motor_id}")
 
     def _handle(self, msg: can.Message) -> bool:
         if msg.is_error_frame:

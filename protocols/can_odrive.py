@@ -56,6 +56,7 @@ import can
 import numpy as np
 
 from hil.errors import DeviceDisconnected, DeviceFault, DeviceTimeout, ProtocolError
+from hil.protocols import can_common
 from hil.protocols.base import Actuator, DeviceInfo, JointSample
 
 log = logging.getLogger(__name__)
@@ -299,20 +300,13 @@ class ODriveCAN(Actuator):
             is_remote_frame=remote,
             dlc=8 if remote else len(data),
         )
-        try:
-            self._bus.send(msg, timeout=self.timeout if timeout is None else timeout)
-        except can.CanOperationError as exc:
-            raise DeviceTimeout(f"ODrive node {self.node_id}: send of cmd 0x{cmd:02X} failed: {exc}") from exc
-        except can.CanError as exc:
-            raise DeviceDisconnected(f"ODrive node {self.node_id}: bus error: {exc}") from exc
+        can_common.send(self._bus, msg, self.timeout if timeout is None else timeout, f"ODrive node {self.node_id}",
+                        f"send of cmd 0x{cmd:02X}")
 
     def _recv(self, timeout: float) -> can.Message | None:
         if self._closed:
             raise DeviceDisconnected("ODriveCAN is closed")
-        try:
-            return self._bus.recv(timeout=max(0.0, timeout))
-        except can.CanError as exc:
-            raise DeviceDisconnected(f"ODrive node {self.node_id}: bus error: {exc}") from exc
+        return can_common.recv(self._bus, timeout, f"ODrive node {self.node_id}")
 
     def _handle(self, msg: can.Message) -> int | None:
         """Digest one received frame; return its cmd id (None if not ours / a request)."""
