@@ -91,8 +91,9 @@ def test_bilateral_2dof_table2(gains, expected, tmp_path):
     c = certify_scene(load_scene(f"bilateral_2dof_{gains}"), tmp_path, run_experiments=False)
     assert c.decision == expected, c.reasons
     assert c.multiport is not None and c.multiport.ports == [2, 2]
-    if expected == "NO-GO":
-        assert c.witness is not None and c.witness.simulation["diverged"] in (True, False)
+    if expected == "NO-GO":  # a passive termination whose exact simulation shows the instability
+        sim = c.witness.simulation
+        assert sim["simulated"] and (sim["diverged"] or sim["went_negative"])
 
 
 @pytest.mark.timeout(600)
