@@ -93,3 +93,21 @@ def test_theorem1_not_applicable_when_symmetrization_fails():
                                            "k_pszz": 500, "k_vszz": 300, "k_psyz": 40, "k_vsyz": 50}))
     assert r.verdict == "not_applicable"
     assert "symmetrization" in r.reason
+
+
+@pytest.mark.parametrize("make,expected", [
+    (lambda: bilateral_2dof("A1"), "stable"),
+    (lambda: bilateral_2dof("B"), "potentially_unstable"),
+    (lambda: dual_master_3dof(k_pmyz=300, k_psxz=0, k_vsxz=0), "potentially_unstable"),
+])
+def test_theorem1_numerical_fallback_agrees_with_the_exact_path(make, expected, monkeypatch):
+    """Blocks of Z' whose entries √(z_ij z_ji) are irrational are decided by a flagged dense sweep.
+    Forcing that path on networks whose Z' is rational must give the exact path's verdict."""
+    from hil.stability import criteria
+
+    exact = absolute_stability(make())
+    assert exact.verdict == expected
+    monkeypatch.setattr(criteria, "_rational_sqrt", lambda a, b: None)
+    swept = absolute_stability(make())
+    assert any(c.evidence.get("method") == "sweep" for c in swept.conditions)
+    assert swept.verdict == expected
