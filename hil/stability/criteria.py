@@ -36,7 +36,7 @@ from numpy.polynomial import polynomial as P
 
 from hil.errors import ModelError
 from hil.stability.exact import DEFAULT_TOL, SignDecision, decide_nonnegative, on_imaginary_axis_exact
-from hil.stability.jpoly import JPoly, XPoly, jpoly_from_s
+from hil.stability.jpoly import JPoly, XPoly, jpoly_from_s, trim_back
 from hil.stability.rational import Rational, TransferMatrix
 from hil.stability.results import Condition, StabilityResult, combine
 
@@ -646,7 +646,7 @@ def _rat_equal(a: Rational, b: Rational, rtol: float = 1e-9) -> bool:
 
 def _poly_sqrt(c: np.ndarray, rtol: float = 1e-9) -> tuple[np.ndarray, float] | None:
     """If c(s) = κ·r(s)² with r monic-led real polynomial, return (r, κ); else None."""
-    c = np.trim_zeros(np.asarray(c, float), "b")
+    c = trim_back(np.asarray(c, float))
     n = c.size - 1
     if n % 2:
         return None

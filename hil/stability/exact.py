@@ -41,7 +41,7 @@ from typing import Literal
 import numpy as np
 from numpy.polynomial import polynomial as P
 
-from hil.stability.jpoly import XPoly
+from hil.stability.jpoly import XPoly, trim_back
 
 log = logging.getLogger(__name__)
 
@@ -144,7 +144,7 @@ def _to_int_poly(c_asc: np.ndarray) -> list[int]:
 
 def sturm_count_positive(c_asc: np.ndarray) -> int:
     """Number of distinct real roots of a float-coefficient polynomial in (0, ∞), exactly."""
-    c = np.trim_zeros(np.asarray(c_asc, dtype=float), "b")
+    c = trim_back(np.asarray(c_asc, dtype=float))
     if c.size <= 1:
         return 0
     k = 0
@@ -244,7 +244,7 @@ def _safe_div(num: np.ndarray, den: np.ndarray, fallback: float) -> np.ndarray:
 
 def _positive_real_roots(c_asc: np.ndarray) -> np.ndarray:
     """Numerical positive (near-)real roots, with x-scaling for coefficient ranges of many decades."""
-    c = np.trim_zeros(np.asarray(c_asc, float), "b")
+    c = trim_back(np.asarray(c_asc, float))
     if c.size <= 1:
         return np.zeros(0)
     k = 0
@@ -268,7 +268,7 @@ def _positive_real_roots(c_asc: np.ndarray) -> np.ndarray:
 
 
 def _cauchy_bound(c_asc: np.ndarray) -> float:
-    c = np.trim_zeros(np.asarray(c_asc, float), "b")
+    c = trim_back(np.asarray(c_asc, float))
     if c.size <= 1 or c[-1] == 0:
         return 1.0
     return 1.0 + float(np.max(np.abs(c[:-1] / c[-1])))
@@ -306,7 +306,7 @@ def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL, margin: bool = True) 
 
     # 2. exact root structure on (0, inf)
     k = int(np.nonzero(cc)[0][0])
-    q = np.trim_zeros(cc[k:], "b")
+    q = trim_back(cc[k:])
     sign0 = 1 if q[0] > 0 else -1
     roots_info: list[tuple[float, int, int]] = []  # (x, sign_left, sign_right)
     n_roots = 0
@@ -525,7 +525,7 @@ def on_imaginary_axis_exact(den_asc: np.ndarray, w0: float, rel: float = 1e-6) -
     from hil.stability.jpoly import jpoly_from_s
 
     jp = jpoly_from_s(np.asarray(den_asc, float))
-    E, O = np.trim_zeros(jp.re, "b"), np.trim_zeros(jp.im, "b")
+    E, O = trim_back(jp.re), trim_back(jp.im)
     if E.size == 0 or not np.any(E):
         return False
     ie = _to_int_poly(E) if E.size else [0]

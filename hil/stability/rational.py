@@ -33,6 +33,7 @@ import numpy as np
 from numpy.polynomial import polynomial as P
 
 from hil.errors import ConversionError, ModelError
+from hil.stability.jpoly import trim_back
 
 log = logging.getLogger(__name__)
 
@@ -246,8 +247,8 @@ def _exact_quotient(a: np.ndarray, b: np.ndarray, rtol: float = 1e-12) -> np.nda
     The division is carried out in a balanced variable s = σ·t (σ from b's extreme coefficients),
     which keeps long division well conditioned when coefficients span many decades.
     """
-    a = np.trim_zeros(np.asarray(a, float), "b")
-    b = np.trim_zeros(np.asarray(b, float), "b")
+    a = trim_back(np.asarray(a, float))
+    b = trim_back(np.asarray(b, float))
     if a.size < b.size or not np.any(b):
         return None
     if b.size == 1:
@@ -275,7 +276,7 @@ def _exact_quotient(a: np.ndarray, b: np.ndarray, rtol: float = 1e-12) -> np.nda
 
 
 def _roots_asc(c: np.ndarray) -> np.ndarray:
-    c = np.trim_zeros(np.asarray(c, float), "b")
+    c = trim_back(np.asarray(c, float))
     if c.size <= 1:
         return np.zeros(0, complex)
     return np.roots(c[::-1]).astype(complex)
