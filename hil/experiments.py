@@ -382,15 +382,23 @@ class _PeriodicEffort(_Base):
 
     def _value(self, k: int) -> np.ndarray:
         """Effort per selected DOF at tick k (zeros after the end)."""
+        return self._sample(self.wave, k)
+
+    def _value_rate(self, k: int) -> np.ndarray:
+        """Time derivative of the excitation per selected DOF at tick k (units/s)."""
+        return self._sample(self.wave_rate, k)
+
+    def _sample(self, table: np.ndarray, k: int) -> np.ndarray:
+        """Row of a per-DOF periodic table at tick k, laid out in blocks; zeros outside."""
         out = np.zeros(len(self.sel))
         block, i = divmod(k, self.n_block)
         if k < 0 or block >= self.n_blocks:
             return out
         j = i % self.n_period
         if self.n_blocks == 1:
-            out[:] = self.wave[:, j]
+            out[:] = table[:, j]
         else:
-            out[block] = self.wave[block, j]
+            out[block] = table[block, j]
         return out
 
     def segments(self) -> list[dict[str, Any]]:
@@ -415,18 +423,6 @@ class _PeriodicEffort(_Base):
         eff = np.zeros(self.target_dof)
         eff[self.sel] = u
         return Excitation(effort={self.target: eff})
-
-    def _value_rate(self, k: int) -> np.ndarray:
-        out = np.zeros(len(self.sel))
-        block, i = divmod(k, self.n_block)
-        if k < 0 or block >= self.n_blocks:
-            return out
-        j = i % self.n_period
-        if self.n_blocks == 1:
-            out[:] = self.wave_rate[:, j]
-        else:
-            out[block] = self.wave_rate[block, j]
-        return out
 
     def _init_motion(self) -> None:
         self.excite = str(self.cfg.get("excite", "effort"))
