@@ -49,7 +49,12 @@ import numpy as np
 
 from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
-from hil.mocks.modbus_devices import firmware_registers, serial_registers, wrench_to_registers
+from hil.mocks.modbus_devices import (
+    firmware_registers,
+    serial_registers,
+    wrench_source,
+    wrench_to_registers,
+)
 from hil.mocks.periodic import PeriodicThread
 from hil.protocols.crc import crc16_modbus
 from hil.protocols.modbus_robotiq import (
@@ -98,7 +103,7 @@ class SimFT300Stream:
         self.slave = int(slave)
         self.injector = faults if isinstance(faults, FaultInjector) else FaultInjector(faults, seed)
         self.jam_bytes = int(jam_bytes)
-        self._source = self._make_source(source)
+        self._source = wrench_source(source)
         self._static: dict[int, int] = {REG_OUTPUT_SELECT: 0, REG_PRODUCTION_YEAR: production_year & 0xFFFF}
         for k in range(3):
             self._static[REG_ACCEL + k] = 0
@@ -221,16 +226,6 @@ class SimFT300Stream:
         self.close()
 
     # -- internals --------------------------------------------------------------------------------
-    @staticmethod
-    def _make_source(source: SimulatedJoints | WrenchSource | None) -> WrenchSource:
-        if source is None:
-            return lambda: np.zeros(6)
-        if hasattr(source, "measured_force"):
-            return source.measured_force  # type: ignore[union-attr]
-        if callable(source):
-            return source
-        raise TypeError("source must be a SimulatedJoints, a callable or None")
-
     def _write(self, data: bytes) -> None:
         try:
             n = os.write(self._master, data)

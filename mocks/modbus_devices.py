@@ -60,6 +60,21 @@ log = logging.getLogger(__name__)
 
 WrenchSource = Callable[[], np.ndarray]
 
+
+def wrench_source(source: SimulatedJoints | WrenchSource | None) -> WrenchSource:
+    """Callable returning the simulated wrench [Fx, Fy, Fz, Mx, My, Mz] (N, N·m).
+
+    ``None`` gives zeros; a :class:`SimulatedJoints` gives its measured force.
+    """
+    if source is None:
+        return lambda: np.zeros(6)
+    if hasattr(source, "measured_force"):
+        return source.measured_force  # type: ignore[union-attr]
+    if callable(source):
+        return source
+    raise TypeError("source must be a SimulatedJoints, a callable or None")
+
+
 REG_WRENCH = 180
 REG_ACCEL = 190
 REG_OUTPUT_SELECT = 410
@@ -131,7 +146,7 @@ class SimulatedFT300:
         self.slave = slave
         self.auto_update = auto_update
         self.injector = faults if isinstance(faults, FaultInjector) else FaultInjector(faults, seed)
-        self._source = self._make_source(source)
+        self._source = wrench_source(source)
         self._lock = threading.Lock()
         self._tick = -1  # index of the request being served
         self._registers: list[int] | None = None  # live register list inside the pymodbus runtime
@@ -219,16 +234,6 @@ class SimulatedFT300:
         self.close()
 
     # -- internals ----------------------------------------------------------------------------
-    @staticmethod
-    def _make_source(source: SimulatedJoints | WrenchSource | None) -> WrenchSource:
-        if source is None:
-            return lambda: np.zeros(6)
-        if hasattr(source, "measured_force"):
-            return source.measured_force  # type: ignore[union-attr]
-        if callable(source):
-            return source
-        raise TypeError("source must be a SimulatedJoints, a callable or None")
-
     def _run(self, port: int) -> None:
         from pymodbus.server import ModbusTcpServer
 
