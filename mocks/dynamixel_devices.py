@@ -47,7 +47,6 @@ being processed (0, 1, ...); decisions are drawn per status packet:
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import os
@@ -62,6 +61,7 @@ import numpy as np
 
 from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
+from hil.mocks.pty import close_fds
 from hil.protocols.crc import crc16_dynamixel
 
 log = logging.getLogger(__name__)
@@ -355,9 +355,7 @@ class DynamixelChain:
         self._closed = True
         self._stop.set()
         self._thread.join(timeout=2.0)
-        for fd in (self._master, self._slave):
-            with contextlib.suppress(OSError):
-                os.close(fd)
+        close_fds(self._master, self._slave)
 
     def __enter__(self) -> DynamixelChain:
         return self

@@ -33,14 +33,12 @@ replies are never faulted. :meth:`hangup` closes the pty (the adapter gets an I/
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
 import select
 import struct
 import threading
 import time
-import tty
 from collections import Counter
 from collections.abc import Callable
 from typing import Any
@@ -56,6 +54,7 @@ from hil.mocks.modbus_devices import (
     wrench_to_registers,
 )
 from hil.mocks.periodic import PeriodicThread
+from hil.mocks.pty import close_fds, open_raw_pty, write_dropping
 from hil.protocols.crc import crc16_modbus
 from hil.protocols.modbus_robotiq import (
     DEFAULT_SLAVE_ID,
@@ -125,10 +124,7 @@ class SimFT300Stream:
         self._stop = threading.Event()
         self._emitter = PeriodicThread(self.emit, 1.0 / self.rate_hz, "sim-ft300-stream")
         self._closed = False
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)  # no line discipline: bytes pass unchanged
-        os.set_blocking(self._master, False)
-        self.path = os.ttyname(self._slave)
+        self._master, self._slave, self.path = open_raw_pty()
         self._rx_thread = threading.Thread(target=self._serve, name="sim-ft300-stream-rx", daemon=True)
         self._rx_thread.start()
         log.debug("simulated FT-300 (stream) on %s", self.path)
@@ -212,9 +208,7 @@ class SimFT300Stream:
             self._closed = True
         self._stop.set()
         self._rx_thread.join(timeout=2.0)
-        for fd in (self._master, self._slave):
-            with contextlib.suppress(OSError):
-                os.close(fd)
+        close_fds(self._master, self._slave)
 
     def close(self) -> None:
         self.hangup()
@@ -227,14 +221,7 @@ class SimFT300Stream:
 
     # -- internals --------------------------------------------------------------------------------
     def _write(self, data: bytes) -> None:
-        try:
-            n = os.write(self._master, data)
-            if n < len(data):
-                self.stats["overflow_bytes"] += len(data) - n
-        except BlockingIOError:  # nobody reads: the pty buffer is full -> data lost
-            self.stats["overflow_frames"] += 1
-        except OSError as exc:
-            log.debug("pty write failed: %s", exc)
+        write_dropping(self._master, data, self.stats)
 
     def _serve(self) -> None:
         while not self._stop.is_set():

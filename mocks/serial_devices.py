@@ -21,11 +21,8 @@ the master side: the adapter then gets an I/O error -> DeviceDisconnected.
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import os
 import threading
-import tty
 from collections import Counter
 from collections.abc import Callable
 from typing import Any
@@ -35,6 +32,7 @@ import numpy as np
 from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 from hil.mocks.periodic import PeriodicThread
+from hil.mocks.pty import close_fds, open_raw_pty, write_dropping
 from hil.protocols.serial_bota import encode_frame
 
 log = logging.getLogger(__name__)
@@ -76,10 +74,7 @@ class SimBota:
         self._held: bytes | None = None
         self._lock = threading.Lock()
         self._emitter = PeriodicThread(self.emit, self.period_s, "sim-bota")
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)  # no line discipline: bytes pass unchanged
-        os.set_blocking(self._master, False)
-        self.path = os.ttyname(self._slave)
+        self._master, self._slave, self.path = open_raw_pty()
         self._closed = False
 
     def wrench(self) -> np.ndarray:
@@ -92,14 +87,7 @@ class SimBota:
         return w
 
     def _write(self, data: bytes) -> None:
-        try:
-            n = os.write(self._master, data)
-            if n < len(data):
-                self.stats["overflow_bytes"] += len(data) - n
-        except BlockingIOError:  # nobody reads: the pty buffer is full -> frame lost
-            self.stats["overflow_frames"] += 1
-        except OSError as exc:
-            log.debug("pty write failed: %s", exc)
+        write_dropping(self._master, data, self.stats)
 
     def emit(self) -> None:
         """Build and write one frame (lockstep). Advances the device tick / timestamp."""
@@ -154,9 +142,7 @@ class SimBota:
             if self._closed:
                 return
             self._closed = True
-            for fd in (self._master, self._slave):
-                with contextlib.suppress(OSError):
-                    os.close(fd)
+            close_fds(self._master, self._slave)
 
     def close(self) -> None:
         self.hangup()

@@ -1,0 +1,48 @@
+"""Pseudo-terminal plumbing shared by the serial-line simulators (Bota, FT-300 stream, Dynamixel).
+
+The simulator owns the *master* end; the adapter under test opens the *slave* path like a real
+USB-serial port. The slave is put in raw mode so bytes pass unchanged (no line discipline).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import tty
+from collections import Counter
+from collections.abc import MutableMapping
+
+log = logging.getLogger(__name__)
+
+
+def open_raw_pty(*, nonblocking_master: bool = True) -> tuple[int, int, str]:
+    """Open a pty pair; return ``(master_fd, slave_fd, slave_path)`` with the slave in raw mode."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    if nonblocking_master:
+        os.set_blocking(master, False)
+    return master, slave, os.ttyname(slave)
+
+
+def write_dropping(fd: int, data: bytes, stats: MutableMapping[str, int] | Counter) -> None:
+    """Write to a non-blocking master like a device UART: what does not fit is lost, and counted.
+
+    ``stats["overflow_bytes"]`` counts bytes of partial writes, ``stats["overflow_frames"]``
+    frames dropped whole because nobody reads the port.
+    """
+    try:
+        n = os.write(fd, data)
+        if n < len(data):
+            stats["overflow_bytes"] += len(data) - n
+    except BlockingIOError:  # nobody reads: the pty buffer is full -> frame lost
+        stats["overflow_frames"] += 1
+    except OSError as exc:
+        log.debug("pty write failed: %s", exc)
+
+
+def close_fds(*fds: int) -> None:
+    """Close file descriptors, ignoring those already closed (like unplugging the adapter)."""
+    for fd in fds:
+        with contextlib.suppress(OSError):
+            os.close(fd)
