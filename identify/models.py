@@ -282,6 +282,29 @@ def _split(theta: NDArray[np.float64], n: int) -> list[NDArray[np.float64]]:
     return [theta[..., i][..., None] for i in range(n)]
 
 
+_SDEA_PARAMETERS = {  # name -> (unit, description); rotary SDEA of paper 002
+    "K_f": ("N.m/rad", "series spring stiffness"),
+    "B_f": ("N.m.s/rad", "series (parallel-to-spring) damping"),
+    "M": ("kg.m^2", "actuator inertia"),
+    "B": ("N.m.s/rad", "actuator viscous damping"),
+    "m_h": ("kg.m^2", "output-side (handle) inertia"),
+}
+
+
+def _sdea_parameters(names: Sequence[str], nominal: dict[str, float], span: float) -> list[Parameter]:
+    """Log-scaled SDEA parameters with bounds ``nominal / span .. nominal * span``."""
+    return [Parameter(n, _SDEA_PARAMETERS[n][0], nominal[n] / span, nominal[n] * span, nominal[n], True,
+                      _SDEA_PARAMETERS[n][1]) for n in names]
+
+
+def _select_channels(model: str, channels: Sequence[str], allowed: tuple[str, ...]) -> tuple[str, ...]:
+    """The measured outputs as a tuple; a clear error unless a non-empty subset of ``allowed``."""
+    chans = tuple(channels)
+    if not chans or any(c not in allowed for c in chans):
+        raise ModelSpecError(f"{model}: channels must be a non-empty subset of {allowed}")
+    return chans
+
+
 class SdeaLockedOutput(GreyBoxModel):
     r"""1-DOF series damped elastic actuator with its end-effector locked (fixed).
 
@@ -315,22 +338,9 @@ class SdeaLockedOutput(GreyBoxModel):
         span: float = 100.0,
         zoh_fs: float | None = None,
     ) -> None:
-        chans = tuple(channels)
-        bad = [c for c in chans if c not in self.CHANNELS]
-        if bad or not chans:
-            raise ModelSpecError(f"{self.name}: channels must be a non-empty subset of {self.CHANNELS}")
+        chans = _select_channels(self.name, channels, self.CHANNELS)
         nom = {**SDEA_NOMINAL, **(nominal or {})}
-        units = {"K_f": "N.m/rad", "B_f": "N.m.s/rad", "M": "kg.m^2", "B": "N.m.s/rad"}
-        desc = {
-            "K_f": "series spring stiffness",
-            "B_f": "series (parallel-to-spring) damping",
-            "M": "actuator inertia",
-            "B": "actuator viscous damping",
-        }
-        core = [
-            Parameter(n, units[n], nom[n] / span, nom[n] * span, nom[n], True, desc[n])
-            for n in ("K_f", "B_f", "M", "B")
-        ]
+        core = _sdea_parameters(("K_f", "B_f", "M", "B"), nom, span)
         self.channels = chans
         super().__init__(core, ("torque",), chans, gain=gain, delay=delay, zoh_fs=zoh_fs)
 
@@ -435,14 +445,10 @@ class SdeaFreeOutput(GreyBoxModel):
         span: float = 100.0,
         zoh_fs: float | None = None,
     ) -> None:
-        chans = tuple(channels)
-        bad = [c for c in chans if c not in self.CHANNELS]
-        if bad or not chans:
-            raise ModelSpecError(f"{self.name}: channels must be a non-empty subset of {self.CHANNELS}")
+        chans = _select_channels(self.name, channels, self.CHANNELS)
         nom = {**SDEA_NOMINAL, "m_h": m_h if m_h is not None else 2e-3, **(nominal or {})}
-        units = {"K_f": "N.m/rad", "B_f": "N.m.s/rad", "M": "kg.m^2", "B": "N.m.s/rad", "m_h": "kg.m^2"}
-        names = ["K_f", "B_f", "M", "B"] + (["m_h"] if m_h is None else [])
-        core = [Parameter(n, units[n], nom[n] / span, nom[n] * span, nom[n], True) for n in names]
+        names = ("K_f", "B_f", "M", "B") + (("m_h",) if m_h is None else ())
+        core = _sdea_parameters(names, nom, span)
         self.channels = chans
         self.m_h_fixed = m_h
         super().__init__(core, ("torque",), chans, gain=gain, delay=delay, zoh_fs=zoh_fs)
