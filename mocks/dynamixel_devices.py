@@ -50,10 +50,8 @@ from __future__ import annotations
 import logging
 import math
 import os
-import select
 import threading
 import time
-import tty
 from collections import deque
 from dataclasses import dataclass
 
@@ -61,7 +59,7 @@ import numpy as np
 
 from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
-from hil.mocks.pty import close_fds
+from hil.mocks.pty import close_fds, host_writes, open_raw_pty
 from hil.protocols.crc import crc16_dynamixel
 
 log = logging.getLogger(__name__)
@@ -314,9 +312,7 @@ class DynamixelChain:
         self.servos = {i: SimulatedServo(i, self.model) for i in ids}
         self.ids = list(ids)
         self.injector = faults if isinstance(faults, FaultInjector) else FaultInjector(faults, seed)
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)
-        self.port = os.ttyname(self._slave)
+        self._master, self._slave, self.port = open_raw_pty(nonblocking_master=False)
         self._buf = bytearray()
         self._cond = threading.Condition()
         self._stop = threading.Event()
@@ -365,20 +361,7 @@ class DynamixelChain:
 
     # -- bus thread ---------------------------------------------------------------------------
     def _serve(self) -> None:
-        while not self._stop.is_set():
-            try:
-                ready, _, _ = select.select([self._master], [], [], 0.05)
-            except (OSError, ValueError):
-                return
-            if not ready:
-                continue
-            try:
-                data = os.read(self._master, 4096)
-            except OSError:  # EIO when no slave is open: wait for the host to (re)open
-                time.sleep(0.01)
-                continue
-            if not data:
-                continue
+        for data in host_writes(self._master, self._stop):
             with self._cond:
                 self._buf += data
                 replies = self._process_buffer()

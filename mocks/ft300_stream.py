@@ -34,8 +34,6 @@ replies are never faulted. :meth:`hangup` closes the pty (the adapter gets an I/
 from __future__ import annotations
 
 import logging
-import os
-import select
 import struct
 import threading
 import time
@@ -54,7 +52,7 @@ from hil.mocks.modbus_devices import (
     wrench_to_registers,
 )
 from hil.mocks.periodic import PeriodicThread
-from hil.mocks.pty import close_fds, open_raw_pty, write_dropping
+from hil.mocks.pty import close_fds, host_writes, open_raw_pty, write_dropping
 from hil.protocols.crc import crc16_modbus
 from hil.protocols.modbus_robotiq import (
     DEFAULT_SLAVE_ID,
@@ -224,22 +222,8 @@ class SimFT300Stream:
         write_dropping(self._master, data, self.stats)
 
     def _serve(self) -> None:
-        while not self._stop.is_set():
-            try:
-                ready, _, _ = select.select([self._master], [], [], 0.05)
-            except (OSError, ValueError):
-                return
-            if not ready:
-                continue
-            try:
-                data = os.read(self._master, 4096)
-            except BlockingIOError:
-                continue
-            except OSError:  # EIO while no slave is open
-                time.sleep(0.01)
-                continue
-            if data:
-                self._receive(data)
+        for data in host_writes(self._master, self._stop):
+            self._receive(data)
 
     def _receive(self, data: bytes) -> None:
         with self._lock:

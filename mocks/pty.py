@@ -9,9 +9,12 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import select
+import threading
+import time
 import tty
 from collections import Counter
-from collections.abc import MutableMapping
+from collections.abc import Iterator, MutableMapping
 
 log = logging.getLogger(__name__)
 
@@ -46,3 +49,25 @@ def close_fds(*fds: int) -> None:
     for fd in fds:
         with contextlib.suppress(OSError):
             os.close(fd)
+
+
+def host_writes(fd: int, stop: threading.Event, poll_s: float = 0.05) -> Iterator[bytes]:
+    """Yield the bytes the host writes to the pty, chunk by chunk, until ``stop`` is set or the
+    master is closed. EIO while no slave end is open (host not yet connected, or reconnecting)
+    is waited out, as a device waits for its cable to be plugged back in."""
+    while not stop.is_set():
+        try:
+            ready, _, _ = select.select([fd], [], [], poll_s)
+        except (OSError, ValueError):  # master closed under us
+            return
+        if not ready:
+            continue
+        try:
+            data = os.read(fd, 4096)
+        except BlockingIOError:
+            continue
+        except OSError:  # EIO while no slave is open
+            time.sleep(0.01)
+            continue
+        if data:
+            yield data
