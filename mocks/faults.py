@@ -194,4 +194,46 @@ class FaultInjector:
         return p.reconnect_at_tick is None or tick < p.reconnect_at_tick
 
 
+
+class ByteStreamFaults:
+    """Per-frame faults of a device that streams frames on a byte line (serial, pty).
+
+    In order, as a real device would show them: the frame is dropped; or the previous frame is
+    repeated (stale); one byte at or after ``corrupt_start`` (past the sync bytes) is corrupted;
+    garbage bytes are put in front; the frame is held back and sent after the next one (late).
+    Counts go to ``stats`` (keys ``dropped``, ``stale``, ``corrupted``, ``garbage``, ``late``).
+    """
+
+    def __init__(self, injector: FaultInjector, stats: Counter[str], corrupt_start: int = 0) -> None:
+        self.injector = injector
+        self.stats = stats
+        self.corrupt_start = corrupt_start
+        self._last: bytes | None = None
+        self._held: bytes | None = None
+
+    def bytes_to_send(self, frame: bytes, tick: int) -> bytes | None:
+        """The bytes to write for ``frame`` at ``tick``, or None if nothing goes out now."""
+        inj = self.injector
+        if inj.should_drop(tick):
+            self.stats["dropped"] += 1
+            return None
+        if self._last is not None and inj.should_repeat_stale():
+            frame = self._last
+            self.stats["stale"] += 1
+        self._last = frame
+        if inj.should_corrupt(tick):
+            frame = inj.corrupt(frame, start=self.corrupt_start)
+            self.stats["corrupted"] += 1
+        junk = inj.garbage()
+        if junk:
+            self.stats["garbage"] += 1
+        data = junk + frame
+        if inj.is_late() and self._held is None:
+            self._held = data
+            self.stats["late"] += 1
+            return None
+        if self._held is not None:
+            data, self._held = data + self._held, None
+        return data
+
 NO_FAULTS = FaultPlan()

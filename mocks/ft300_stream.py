@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.mocks.faults import FaultInjector, FaultPlan
+from hil.mocks.faults import ByteStreamFaults, FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 from hil.mocks.modbus_devices import (
     firmware_registers,
@@ -110,13 +110,12 @@ class SimFT300Stream:
             self._static[REG_SERIAL + k] = v
         self.tick_count = 0
         self.stats: Counter[str] = Counter()
+        self._frame_faults = ByteStreamFaults(self.injector, self.stats, corrupt_start=2)  # after 0x20 0x4E
         self.written: list[tuple[int, int, list[int]]] = []  # (function, address, values)
         self._streaming = bool(streaming)
         self._ff_run = 0
         self._rx = bytearray()
         self._rx_t = 0.0
-        self._last: bytes | None = None
-        self._held: bytes | None = None
         self._lock = threading.RLock()
         self._state = threading.Condition(self._lock)
         self._stop = threading.Event()
@@ -156,27 +155,9 @@ class SimFT300Stream:
             if inj.is_disconnected(t):
                 self.stats["silent"] += 1
                 return True
-            frame = encode_stream_frame(self.wrench())
-            if inj.should_drop(t):
-                self.stats["dropped"] += 1
+            data = self._frame_faults.bytes_to_send(encode_stream_frame(self.wrench()), t)
+            if data is None:
                 return True
-            if self._last is not None and inj.should_repeat_stale():
-                frame = self._last
-                self.stats["stale"] += 1
-            self._last = frame
-            if inj.should_corrupt(t):
-                frame = inj.corrupt(frame, start=2)
-                self.stats["corrupted"] += 1
-            junk = inj.garbage()
-            if junk:
-                self.stats["garbage"] += 1
-            data = junk + frame
-            if inj.is_late() and self._held is None:
-                self._held = data
-                self.stats["late"] += 1
-                return True
-            if self._held is not None:
-                data, self._held = data + self._held, None
             self._write(data)
             self.stats["frames"] += 1
             return True

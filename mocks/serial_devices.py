@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.mocks.faults import FaultInjector, FaultPlan
+from hil.mocks.faults import ByteStreamFaults, FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 from hil.mocks.periodic import PeriodicThread
 from hil.mocks.pty import close_fds, open_raw_pty, write_dropping
@@ -70,8 +70,7 @@ class SimBota:
         self.status = status
         self.tick_count = 0
         self.stats: Counter[str] = Counter()
-        self._last: bytes | None = None
-        self._held: bytes | None = None
+        self._frame_faults = ByteStreamFaults(self.injector, self.stats, corrupt_start=1)  # after the 0xAA header
         self._lock = threading.Lock()
         self._emitter = PeriodicThread(self.emit, self.period_s, "sim-bota")
         self._master, self._slave, self.path = open_raw_pty()
@@ -101,23 +100,9 @@ class SimBota:
                 return
             status = self.status | inj.error_code(t)
             frame = encode_frame(status, self.wrench(), t * self.period_us, self.temperature)
-            if inj.should_drop(t):
-                self.stats["dropped"] += 1
+            data = self._frame_faults.bytes_to_send(frame, t)
+            if data is None:
                 return
-            if self._last is not None and inj.should_repeat_stale():
-                frame = self._last
-                self.stats["stale"] += 1
-            self._last = frame
-            if inj.should_corrupt(t):
-                frame = inj.corrupt(frame, start=1)
-                self.stats["corrupted"] += 1
-            data = inj.garbage() + frame
-            if inj.is_late() and self._held is None:
-                self._held = data
-                self.stats["late"] += 1
-                return
-            if self._held is not None:
-                data, self._held = data + self._held, None
             self._write(data)
             self.stats["frames"] += 1
 

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from collections import Counter
+
 import pytest
 
-from hil.mocks.faults import FaultInjector, FaultPlan
+from hil.mocks.faults import ByteStreamFaults, FaultInjector, FaultPlan
 
 
 def _decisions(inj: FaultInjector, n: int = 200) -> list:
@@ -92,3 +94,27 @@ def test_plan_validation_and_from_dict():
     p = FaultPlan.from_dict({"drop_prob": 0.1, "drop_ticks": [1, 2]})
     assert p.drop_ticks == frozenset({1, 2})
     assert FaultPlan.from_dict(None) == FaultPlan()
+
+
+def test_byte_stream_faults_order_and_counts():
+    """Drop, late (held and sent after the next frame), stale repeat and corruption past the header."""
+    stats: Counter[str] = Counter()
+    sent = ByteStreamFaults(FaultInjector(FaultPlan(drop_ticks=frozenset({2}))), stats)
+    assert sent.bytes_to_send(b"A", 1) == b"A"
+    assert sent.bytes_to_send(b"B", 2) is None and stats["dropped"] == 1
+    assert sent.bytes_to_send(b"C", 3) == b"C"
+
+    late = ByteStreamFaults(FaultInjector(FaultPlan(late_prob=1.0)), Counter())
+    assert late.bytes_to_send(b"A", 1) is None  # held back
+    assert late.bytes_to_send(b"B", 2) == b"BA"  # sent after the next frame, which is not held
+    assert late.stats["late"] == 1
+
+    stale = ByteStreamFaults(FaultInjector(FaultPlan(stale_prob=1.0)), Counter())
+    assert stale.bytes_to_send(b"A", 1) == b"A"  # nothing to repeat yet
+    assert stale.bytes_to_send(b"B", 2) == b"A" and stale.stats["stale"] == 1
+
+    frame = bytes(range(10))
+    bad = ByteStreamFaults(FaultInjector(FaultPlan(corrupt_ticks=frozenset({1}))), Counter(), corrupt_start=2)
+    out = bad.bytes_to_send(frame, 1)
+    diff = [i for i in range(10) if out[i] != frame[i]]
+    assert len(diff) == 1 and diff[0] >= 2 and bad.stats["corrupted"] == 1
