@@ -192,13 +192,8 @@ class Rational:
 
     def minreal(self, rtol: float = 1e-7) -> Rational:
         """Cancel common factors: powers of s exactly, other common roots within ``rtol``."""
-        num, den = self.num, self.den
-        if not np.any(num):
-            return Rational(np.zeros(1), np.array([1.0]))
-        k = 0
-        while k < min(num.size, den.size) - 1 and num[k] == 0 and den[k] == 0:
-            k += 1
-        num, den = num[k:], den[k:]
+        r = self.cancel_s()
+        num, den = r.num, r.den
         if num.size > 1 and den.size > 1:
             zn, zd = _roots_asc(num), _roots_asc(den)
             used = np.zeros(zd.size, bool)
