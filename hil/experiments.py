@@ -327,6 +327,14 @@ class _Base:
             raise SceneError(f"{self.f(key)}: must be >= 0, got {x}")
         return x
 
+    def band(self) -> tuple[float, float]:
+        """The excitation band ``(f0, f1)`` in Hz, 0 < f0 < f1."""
+        f0 = self.num("f0", positive=True)
+        f1 = self.num("f1", positive=True)
+        if not f0 < f1:
+            raise SceneError(f"{self.f('f1')}: must exceed f0 ({f0} Hz), got {f1}")
+        return f0, f1
+
     def _check_target(self, scene: Any, target: str, dofs: Sequence[int] | None) -> tuple[Any, list[int]]:
         devs = _devices(scene)
         if target not in devs:
@@ -512,10 +520,7 @@ class Chirp(_PeriodicEffort):
 
     def __init__(self, cfg: Mapping[str, Any], rate_hz: float) -> None:
         super().__init__(cfg, rate_hz)
-        self.f0 = self.num("f0", positive=True)
-        self.f1 = self.num("f1", positive=True)
-        if not self.f0 < self.f1:
-            raise SceneError(f"{self.f('f1')}: must exceed f0 ({self.f0} Hz), got {self.f1}")
+        self.f0, self.f1 = self.band()
         self.amplitude = self.num("amplitude", nonneg=True)
         self.fade = self.num("fade", 0.0, nonneg=True)
         self.sweep = str(cfg.get("sweep", "log"))
@@ -583,10 +588,7 @@ class Multisine(_PeriodicEffort):
 
     def __init__(self, cfg: Mapping[str, Any], rate_hz: float) -> None:
         super().__init__(cfg, rate_hz)
-        self.f0 = self.num("f0", positive=True)
-        self.f1 = self.num("f1", positive=True)
-        if not self.f0 < self.f1:
-            raise SceneError(f"{self.f('f1')}: must exceed f0 ({self.f0} Hz), got {self.f1}")
+        self.f0, self.f1 = self.band()
         self.n_lines = int(cfg.get("n_lines", 64))
         if self.n_lines < 1:
             raise SceneError(f"{self.f('n_lines')}: must be >= 1")
