@@ -47,11 +47,14 @@ import argparse
 import contextlib
 import dataclasses
 import datetime as _dt
+import errno
+import functools
 import hashlib
 import io
 import json
 import logging
 import math
+import os
 import platform
 import re
 import shutil
@@ -106,8 +109,11 @@ _BYTE_LOGS: dict[str, tuple[int, str]] = {
     "results": (4096, "utf-8 JSON lines {experiment, results, arrays}"),
     "results_npy": (8192, "concatenated .npy arrays; offsets in /results"),
     "device_counters": (1024, "utf-8 JSON lines {t, counters}"),
-    "status": (256, "utf-8 JSON lines {stop_reason, status, closed_utc, samples}"),
 }
+#: size of the fixed ``/status`` dataset [bytes]: written in place at close, so closing never grows the file
+_STATUS_BYTES = 1024
+#: extra file space reserved before every block [bytes] (HDF5 metadata: chunk index, object headers)
+_RESERVE_MARGIN = 1 << 16
 
 #: asynchronous signals held (blocked) while a block is written: their handlers run after the write
 _HELD_SIGNALS = frozenset(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGUSR1",
@@ -155,9 +161,10 @@ def _fsize_limit() -> int | None:
     return None if soft == resource.RLIM_INFINITY else int(soft)
 
 
-def _probe_hdf5(p: Path) -> bool:
-    """Check that ``p`` looks like a complete HDF5 file before HDF5 sees it; True when its superblock
-    says it is (or was, for a killed writer) open for SWMR writing.
+def _probe_hdf5(p: Path) -> tuple[bool, int | None]:
+    """Check that ``p`` looks like a complete HDF5 file before HDF5 sees it. Returns (swmr, end):
+    ``swmr`` True when its superblock says it is (or was, for a killed writer) open for SWMR
+    writing; ``end`` the end-of-file address it stores [bytes] (None when undefined).
 
     Why: HDF5 refuses a truncated file in normal read mode, but in SWMR-read mode (needed for a
     record whose writer was killed) it skips that check and retries every metadata read that fails
@@ -192,9 +199,58 @@ def _probe_hdf5(p: Path) -> bool:
     base = int.from_bytes(head[base_at:base_at + osize], "little")
     eof = int.from_bytes(head[eof_at:eof_at + osize], "little")
     undefined = (1 << (8 * osize)) - 1
-    if eof != undefined and base != undefined and size < base + eof:
-        raise RecordError(f"{p}: truncated HDF5 file ({size} bytes, its superblock says {base + eof})")
-    return flags_at is not None and version == 3 and bool(head[flags_at] & 0b101)
+    end = None if undefined in (eof, base) else base + eof
+    if end is not None and size < end:
+        raise RecordError(f"{p}: truncated HDF5 file ({size} bytes, its superblock says {end})")
+    return flags_at is not None and version == 3 and bool(head[flags_at] & 0b101), end
+
+
+#: metadata read attempts in SWMR-read mode (HDF5's default is 100, each failed checksum retried with a
+#: back-off, so a damaged killed file takes minutes per object; a live writer needs only a few)
+_SWMR_READ_ATTEMPTS = 8
+
+
+@functools.cache
+def _hdf5_library() -> Any:
+    """The libhdf5 that h5py is linked to (ctypes handle), or None when it cannot be located."""
+    import ctypes
+    import ctypes.util
+
+    candidates: list[str] = []
+    with contextlib.suppress(OSError):  # Linux: the copy already mapped into this process (h5py wheels)
+        for line in Path("/proc/self/maps").read_text().splitlines():
+            name = line.rsplit(" ", 1)[-1]
+            if re.search(r"/libhdf5(-[0-9a-f]+)?\.so", name) and name not in candidates:
+                candidates.append(name)
+    found = ctypes.util.find_library("hdf5")
+    if found:
+        candidates.append(found)
+    for name in candidates:
+        try:
+            lib = ctypes.CDLL(name)
+            fn = lib.H5Pset_metadata_read_attempts
+        except (OSError, AttributeError):
+            continue
+        fn.argtypes = [ctypes.c_int64, ctypes.c_uint]
+        fn.restype = ctypes.c_int
+        return lib
+    return None
+
+
+def _open_h5_read(p: Path, swmr: bool) -> h5py.File:
+    """Open ``p`` read-only without file locking (a reader never waits for, nor blocks, a writer);
+    in SWMR-read mode with at most :data:`_SWMR_READ_ATTEMPTS` metadata read attempts."""
+    if not swmr:
+        return h5py.File(p, "r", locking=False)
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_libver_bounds(h5py.h5f.LIBVER_LATEST, h5py.h5f.LIBVER_LATEST)
+    fapl.set_file_locking(False, True)
+    fapl.set_fclose_degree(h5py.h5f.CLOSE_STRONG)
+    lib = _hdf5_library()
+    if lib is None or lib.H5Pset_metadata_read_attempts(fapl.id, _SWMR_READ_ATTEMPTS) < 0:
+        logger.debug("cannot limit HDF5 metadata read attempts (libhdf5 not found)")
+    fid = h5py.h5f.open(os.fsencode(p), h5py.h5f.ACC_RDONLY | h5py.h5f.ACC_SWMR_READ, fapl=fapl)
+    return h5py.File(fid)
 
 
 def _json_lines(raw: bytes, p: Path, what: str) -> list[dict[str, Any]]:
@@ -409,6 +465,7 @@ class RecordWriter:
         self.closed = False
         #: the write error that made this writer fail (None while healthy)
         self.failure: RecordWriteError | None = None
+        self._hdf5_broken = False
         self.stop_reason: str | None = None
         self.status: str | None = None
 
@@ -500,6 +557,11 @@ class RecordWriter:
         for name, (chunk_bytes, encoding) in _BYTE_LOGS.items():
             ds = f.create_dataset(name, shape=(0,), maxshape=(None,), chunks=(chunk_bytes,), dtype="u1")
             ds.attrs["encoding"] = encoding
+        # written (all zeros = "not closed") now, overwritten in place by close(): no allocation later
+        st = f.create_dataset("status", data=np.zeros(_STATUS_BYTES, dtype=np.uint8))
+        st.attrs["encoding"] = "utf-8 JSON line {stop_reason, status, closed_utc, samples}, zero padded"
+        self._chunk_bytes = 8 * max(rows, _MIN_CHUNK_ROWS) + sum(
+            8 * math.prod(ds.chunks) for ds in g.values()) + sum(c for c, _ in _BYTE_LOGS.values())
 
     # -- context manager
     def __enter__(self) -> RecordWriter:
@@ -586,10 +648,13 @@ class RecordWriter:
         coerced = {name: self._coerce(name, v, (m,)) for name, v in values.items()}
         self.flush()
         block = {name: coerced.get(name, np.full((m, *spec.shape), np.nan)) for name, spec in self.specs.items()}
-        self._commit(t, block)
-        self._t_last = float(t[-1])
-        self.samples += m
-        self.samples_flushed = self.samples
+
+        def done() -> None:
+            self._t_last = float(t[-1])
+            self.samples += m
+            self.samples_flushed = self.samples
+
+        self._commit(t, block, done)
 
     def event(self, t: float, kind: str, message: str) -> None:
         """Record an event at run time ``t`` [s] (written with the next flush)."""
@@ -650,27 +715,51 @@ class RecordWriter:
                         "device counters") + "\n"
         self._pending.setdefault("device_counters", []).append(line.encode())
 
+    def _reserve(self, nbytes: int) -> None:
+        """Make sure the file can grow by ``nbytes`` before HDF5 writes anything (``posix_fallocate``
+        past HDF5's end of file): a full disk or a file-size limit then fails *here*, with the file
+        untouched and consistent, instead of in the middle of a block (HDF5 would have updated its
+        superblock to point past what it could write, making even the earlier samples unreadable).
+        HDF5 trims the unused reserve when it flushes or closes."""
+        if not hasattr(os, "posix_fallocate"):  # pragma: no cover - not POSIX
+            return
+        try:
+            fid = self._f.id
+            os.posix_fallocate(fid.get_vfd_handle(), fid.get_filesize(), int(nbytes))
+        except OSError as exc:
+            if exc.errno in (errno.EINVAL, errno.EOPNOTSUPP):  # pragma: no cover - e.g. some network file systems
+                return
+            raise self._fail(exc, f"reserving {_mib(nbytes)} of disk") from None
+
     def _fail(self, exc: BaseException, what: str) -> RecordWriteError:
-        err = RecordWriteError(f"{self.path}: {what} failed: {_one_line(exc)} "
-                               f"({self.samples_flushed} samples flushed before are kept)")
+        reason = (f"{exc.strerror or exc} (errno {exc.errno})" if isinstance(exc, OSError) and exc.errno
+                  else _one_line(exc))
+        err = RecordWriteError(f"{self.path}: {what} failed: {reason}; the {self.samples_flushed} samples "
+                               "flushed before are kept")
         self.failure = err
         logger.error("%s", err)
         return err
 
-    def _commit(self, t: np.ndarray | None, block: Mapping[str, np.ndarray] | None) -> None:
+    def _commit(self, t: np.ndarray | None, block: Mapping[str, np.ndarray] | None,
+                on_commit: Callable[[], None] | None = None) -> None:
         """Write one block (samples, then every byte log) at the positions the file is known to hold,
-        then flush the file. Signals are held meanwhile, so no handler runs between a resize and its
-        write. Any failure makes the writer failed (a failed write is never re-applied)."""
+        flush the file, then update the writer's state (and run ``on_commit``). Signals are held for
+        all of it, so a handler (which may raise) runs only after the block and the state that says
+        it is written are both done: a block is never written twice nor half. Any write failure makes
+        the writer failed (a failed write is never re-applied)."""
         f = self._f
         logs = {k: v for k, v in ((k, self._pending.get(k)) for k in _BYTE_LOGS) if v}
         if self._events:
             logs["events"] = [*logs.get("events", []), *self._events]
         rows = self._rows
         sizes = dict(self._bytes)
-        try:
-            with _signals_held():
-                if t is not None and block is not None and t.shape[0]:
-                    m = t.shape[0]
+        m = 0 if t is None else t.shape[0]
+        need = 2 * (m * self.bytes_per_sample() + sum(len(c) for cs in logs.values() for c in cs))
+        self._reserve(need + self._chunk_bytes + _RESERVE_MARGIN)
+        err: RecordWriteError | None = None
+        with _signals_held():
+            try:
+                if t is not None and block is not None and m:
                     g = f["channels"]
                     for name, data in block.items():  # channels first, /t last: t's length commits samples
                         ds = g[name]
@@ -687,14 +776,20 @@ class RecordWriter:
                     ds[n0:] = data
                     sizes[name] = n0 + data.size
                 f.flush()
-        except Exception as exc:  # OSError (EFBIG, ENOSPC, EIO), RuntimeError from HDF5
-            raise self._fail(exc, "write") from None
-        self._rows = rows
-        self._bytes = sizes
-        self._events.clear()
-        for name in logs:
-            self._pending.pop(name, None)
-        self.flushes += 1
+            except Exception as exc:  # OSError (EFBIG, ENOSPC, EIO), RuntimeError from HDF5
+                self._hdf5_broken = True  # HDF5 may have written part of the block: write nothing more
+                err = self._fail(exc, "write")
+            else:
+                self._rows = rows
+                self._bytes = sizes
+                self._events.clear()
+                for name in logs:
+                    self._pending.pop(name, None)
+                self.flushes += 1
+                if on_commit is not None:
+                    on_commit()
+        if err is not None:
+            raise err
         if _TEST_HOOK is not None:
             _TEST_HOOK("flushed", self)
 
@@ -706,14 +801,21 @@ class RecordWriter:
         if self.failure is not None:
             raise self.failure
         k = self._nbuf
-        self._commit(self._t_buf[:k], {name: buf[:k] for name, buf in self._buf.items()})
-        self._nbuf = 0
-        self.samples_flushed = self.samples
+
+        def done() -> None:
+            self._nbuf = 0
+            self.samples_flushed = self.samples
+
+        self._commit(self._t_buf[:k], {name: buf[:k] for name, buf in self._buf.items()}, done)
 
     def close(self, stop_reason: str = "completed", status: str = "ok") -> None:
-        """Flush, append the final ``/status`` line (stop reason, status) and flush again, then close
-        the file. Idempotent. After a write failure, only releases the file and raises the failure
-        again (:class:`RecordWriteError`)."""
+        """Flush, write the final ``/status`` (stop reason, status) in place and flush again, then
+        close the file. Idempotent.
+
+        After a write failure (or when this last flush fails) the status records ``"error"`` with the
+        failure as stop reason when the file is still consistent (the failure was caught before HDF5
+        wrote anything, e.g. a full disk), the file is released, and the failure is raised
+        (:class:`RecordWriteError`, once: a second close is a no-op)."""
         if self.closed:
             return
         if _TEST_HOOK is not None:
@@ -721,18 +823,20 @@ class RecordWriter:
         failure = self.failure
         try:
             if failure is None:
-                self.flush()
-                if _TEST_HOOK is not None:
-                    _TEST_HOOK("close:flushed", self)
-                line = _to_json({"stop_reason": str(stop_reason), "status": str(status), "closed_utc": _utc_now(),
-                                 "samples": self.samples}, "status") + "\n"
-                self._pending.setdefault("status", []).append(line.encode())
-                self._commit(None, None)
-                self.stop_reason, self.status = str(stop_reason), str(status)
+                try:
+                    self.flush()
+                except RecordWriteError as exc:
+                    failure = exc
+            if _TEST_HOOK is not None:
+                _TEST_HOOK("close:flushed", self)
+            if not self._hdf5_broken:
+                if failure is not None and status == "ok":
+                    stop_reason, status = str(failure), "error"
+                self._write_status(str(stop_reason), str(status))
                 if _TEST_HOOK is not None:
                     _TEST_HOOK("close:status", self)
         except RecordWriteError as exc:
-            failure = exc
+            failure = failure or exc
         finally:
             self.closed = True
             try:
@@ -743,7 +847,38 @@ class RecordWriter:
                     failure = self._fail(exc, "close")
         if failure is not None:
             raise failure
+        self._trim()
         logger.info("record %s closed: %d samples, %s (%s)", self.path, self.samples, self.status, self.stop_reason)
+
+    def _trim(self) -> None:
+        """Cut the unused disk reserve (zeros past HDF5's end of file) off the closed file."""
+        with contextlib.suppress(OSError, RecordError):
+            swmr, end = _probe_hdf5(self.path)
+            if not swmr and end is not None and self.path.stat().st_size > end:
+                os.truncate(self.path, end)
+
+    def _write_status(self, stop_reason: str, status: str) -> None:
+        """Overwrite the fixed ``/status`` bytes with one JSON line (zero padded) and flush. The space
+        was allocated at creation, so this cannot run out of disk."""
+        doc = {"stop_reason": stop_reason, "status": status, "closed_utc": _utc_now(), "samples": self.samples}
+        raw = (_to_json(doc, "status") + "\n").encode()
+        if len(raw) > _STATUS_BYTES:  # a very long reason: shorten it, keep the line valid JSON
+            doc["stop_reason"] = stop_reason[: max(0, len(stop_reason) - (len(raw) - _STATUS_BYTES) - 8)] + "..."
+            raw = (_to_json(doc, "status") + "\n").encode()
+        buf = np.zeros(_STATUS_BYTES, dtype=np.uint8)
+        buf[: len(raw)] = np.frombuffer(raw[:_STATUS_BYTES], dtype=np.uint8)
+        err: RecordWriteError | None = None
+        with _signals_held():
+            try:
+                self._f["status"][:] = buf
+                self._f.flush()
+            except Exception as exc:
+                self._hdf5_broken = True
+                err = self._fail(exc, "writing the status")
+            else:
+                self.stop_reason, self.status = doc["stop_reason"], status
+        if err is not None:
+            raise err
 
 
 # ---------------------------------------------------------------------------------------------- reader
@@ -790,12 +925,9 @@ class RunRecord:
             raise RecordError(f"{p}: is a directory, not a run record")
         if not p.is_file():
             raise RecordError(f"{p}: no such file")
-        swmr = _probe_hdf5(p)
+        swmr, _ = _probe_hdf5(p)
         try:
-            if swmr:  # a file left "open for SWMR write" (killed or live writer)
-                f = h5py.File(p, "r", libver="latest", swmr=True, locking=False)
-            else:
-                f = h5py.File(p, "r", locking=False)
+            f = _open_h5_read(p, swmr)  # swmr: a file left "open for SWMR write" (killed or live writer)
         except (OSError, RuntimeError, ValueError) as exc:
             raise RecordError(f"{p}: not a readable HDF5 file ({_one_line(exc)})") from None
         try:
@@ -889,7 +1021,8 @@ class RunRecord:
         per column for vector channels), stop reason/status, events, experiments and, when the
         ``loop.overrun`` / ``loop.latency`` / ``loop.late`` channels exist, loop timing statistics
         (``loop.late``: tick start after its deadline [s]; ``late_over_period`` counts ticks later than
-        one period)."""
+        one period); ``device_counters``: the per-device fault counters (see
+        :meth:`RecordWriter.set_device_counters`)."""
         n = self.t.size
         duration = float(self.t[-1] - self.t[0]) if n > 1 else 0.0
         chans: dict[str, Any] = {}
@@ -926,6 +1059,7 @@ class RunRecord:
             "events": len(self.events),
             "event_kinds": dict(sorted(_count(e.get("kind", "") for e in self.events).items())),
             "experiments": sorted(self.results),
+            "device_counters": {d: dict(c) for d, c in self.device_counters.items()},
         }
         loop: dict[str, Any] = {}
         if "loop.overrun" in self.channels:
@@ -1002,6 +1136,7 @@ def _fmt(v: Any) -> str:
 
 def _print_summary(s: Mapping[str, Any]) -> None:
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     con = Console()
@@ -1020,6 +1155,13 @@ def _print_summary(s: Mapping[str, Any]) -> None:
     con.print(f"events: {s['events']}" + (f" ({kinds})" if kinds else ""))
     if "loop" in s:
         con.print("loop: " + "  ".join(f"{k}={_fmt(v)}" for k, v in s["loop"].items()))
+    counters = s.get("device_counters") or {}
+    if counters:
+        con.print("device counters:")
+        for dev, cs in counters.items():
+            text = "  ".join((f"[bold red]{escape(k)}={v}[/]" if v else f"{escape(k)}={v}")
+                             for k, v in cs.items()) or "(none)"
+            con.print(f"  {escape(dev)}: {text}", highlight=False)
     tab = Table(show_header=True, header_style="bold")
     for col in ("channel", "unit", "shape", "min", "max", "mean", "NaN"):
         tab.add_column(col, justify="left" if col in ("channel", "unit") else "right", no_wrap=col == "channel")
