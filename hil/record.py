@@ -60,6 +60,7 @@ import re
 import shutil
 import signal
 import sys
+import threading
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -115,9 +116,9 @@ _STATUS_BYTES = 1024
 #: extra file space reserved before every block [bytes] (HDF5 metadata: chunk index, object headers)
 _RESERVE_MARGIN = 1 << 16
 
-#: asynchronous signals held (blocked) while a block is written: their handlers run after the write
-_HELD_SIGNALS = frozenset(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGUSR1",
-                                                          "SIGUSR2", "SIGALRM", "SIGCHLD") if hasattr(signal, n))
+#: asynchronous signals held while a block is written: their handlers run after the write
+_HELD_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGUSR1", "SIGUSR2",
+                                                      "SIGALRM") if hasattr(signal, n))
 
 #: tests only: called as ``hook(point, writer)`` at "flushed", "close", "close:flushed", "close:status"
 _TEST_HOOK: Callable[[str, RecordWriter], None] | None = None
@@ -127,17 +128,39 @@ _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 @contextlib.contextmanager
 def _signals_held() -> Iterator[None]:
-    """Block the asynchronous signals for the calling thread; pending ones are delivered on exit."""
-    if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - not POSIX
+    """Defer the asynchronous signals' Python handlers until the block is done.
+
+    Python runs signal handlers in the main thread between two bytecodes, whichever thread the
+    signal hit (bus threads do not block it), so ``pthread_sigmask`` alone cannot keep a handler out
+    of a write. In the main thread, each held signal's handler is swapped for one that only notes
+    the signal; on exit the handlers are restored and every noted signal is re-delivered to its own
+    handler (``SIG_DFL``: the signal is re-raised, so e.g. a SIGTERM still ends the process, after
+    the block). In other threads nothing is needed: no handler runs there."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old: set[signal.Signals] | None = None
+    caught: list[int] = []
+    saved: dict[int, Any] = {}
+
+    def note(signum: int, frame: Any) -> None:
+        caught.append(signum)
+
     try:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD_SIGNALS)
+        for sig in _HELD_SIGNALS:
+            current = signal.getsignal(sig)
+            if current is None or current == signal.SIG_IGN:  # installed outside Python / ignored: leave it
+                continue
+            saved[sig] = signal.signal(sig, note)
         yield
     finally:
-        if old is not None:
-            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+        for signum in caught:
+            handler = saved.get(signum)
+            if callable(handler):
+                handler(signum, None)
+            elif handler == signal.SIG_DFL:
+                os.kill(os.getpid(), signum)
 
 
 def _one_line(exc: BaseException | str) -> str:
@@ -820,6 +843,10 @@ class RecordWriter:
             return
         if _TEST_HOOK is not None:
             _TEST_HOOK("close", self)
+        with _signals_held():  # a handler runs once the file is closed, never between its steps
+            self._close(stop_reason, status)
+
+    def _close(self, stop_reason: str, status: str) -> None:
         failure = self.failure
         try:
             if failure is None:
@@ -840,8 +867,7 @@ class RecordWriter:
         finally:
             self.closed = True
             try:
-                with _signals_held():
-                    self._f.close()
+                self._f.close()
             except Exception as exc:  # the samples flushed before are on disk; the handle is gone
                 if failure is None:
                     failure = self._fail(exc, "close")
