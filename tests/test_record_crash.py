@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 
 import hil.record as record_mod
+from hil.errors import HilError
 from hil.record import ChannelSpec, RecordError, RecordWriter, RunRecord, replay_main
 
 RATE = 1000.0
@@ -519,3 +520,23 @@ def test_format_1_records_still_read(tmp_path: Path) -> None:
     assert rec.results["chirp"]["ok"] is True
     np.testing.assert_array_equal(rec.results["chirp"]["f"], [1.0, 2.0])
     assert rec.events == [{"t": 0.0, "kind": "k", "message": "m"}] and rec.t.size == 4
+
+
+@pytest.mark.timeout(120)
+def test_identify_loader_gives_one_line_for_unreadable_mat_npz_csv_and_h5(tmp_path: Path) -> None:
+    from hil.identify.api import load_record
+
+    scipy_io = pytest.importorskip("scipy.io")
+    t = np.arange(500) / 1000
+    scipy_io.savemat(tmp_path / "ok.mat", {"t": t, "x": np.sin(t)})
+    np.savez(tmp_path / "ok.npz", t=t, x=np.sin(t))
+    mat, npz = (tmp_path / "ok.mat").read_bytes(), (tmp_path / "ok.npz").read_bytes()
+    h5 = _live_copy(tmp_path)
+    cases = {"empty.mat": b"", "half.mat": mat[: len(mat) // 2], "half.npz": npz[: len(npz) // 2],
+             "binary.csv": bytes(range(256)) * 8, "half.h5": h5[: _stored_end(h5) // 2], "empty.h5": b""}
+    for name, data in cases.items():
+        path = tmp_path / name
+        path.write_bytes(data)
+        with pytest.raises(HilError) as ei:
+            load_record(path)
+        assert str(path) in str(ei.value) and "\n" not in str(ei.value), name
