@@ -3,11 +3,11 @@
 Writer: :class:`RecordWriter` (context manager). Reader: :class:`RunRecord`. CLI: :func:`replay_main`
 (``hil replay RECORD [--json]``). Importers of other tools' runs: :mod:`hil.importers`.
 
-File layout (format ``hil-record``, ``format_version`` 1; all values SI, time in seconds)::
+File layout (format ``hil-record``, ``format_version`` 2; all values SI, time in seconds)::
 
     /                         root attributes:
         format                "hil-record"
-        format_version        1
+        format_version        2 (1: /status and /results were groups written at close; still read)
         created_utc           ISO 8601 UTC time the file was created
         software.hil|numpy|scipy|h5py|hdf5|python   versions (strings)
         seed                  meta["seed"] when it is an integer (absent otherwise)
@@ -19,23 +19,49 @@ File layout (format ``hil-record``, ``format_version`` 1; all values SI, time in
     /t                        float64 (n,), resizable, chunked, fill NaN: sample times [s], strictly increasing
     /channels/<name>          float64 (n, *shape), resizable along axis 0, fill NaN; attrs unit, description
     /events                   uint8 (m,), resizable: UTF-8 JSON lines {"t": s, "kind": str, "message": str}
-    /results/<experiment>     group, attr ``json`` (the results with numpy arrays replaced by
-                              {"__dataset__": "a/b"}) and the arrays as datasets at those relative paths
-    /status                   group written at close, attrs stop_reason, status, closed_utc, samples;
-                              ABSENT => the run never closed (killed, power loss): the samples up to the
+    /results                  uint8, resizable: UTF-8 JSON lines {"experiment", "results", "arrays"}, one per
+                              set_results (the last per experiment counts); numpy arrays in "results" are
+                              {"__dataset__": key} and "arrays"[key] = [offset, nbytes] in /results_npy
+    /results_npy              uint8, resizable: the arrays in .npy format, back to back
+    /device_counters          uint8, resizable: UTF-8 JSON lines {"t": s, "counters": {device: {name: int}}},
+                              one per set_device_counters (the last counts)
+    /status                   uint8 (1024,), fixed: all zeros until close() overwrites it in place with one
+                              JSON line {stop_reason, status, closed_utc, samples}, zero padded.
+                              Zeros => the run never closed (killed, power loss): the samples up to the
                               last flush are still there
 
-Crash safety: the file is created with ``libver="latest"``; ``/scene``, ``/t``, every channel and
-``/events`` are created first, then SWMR mode is switched on (``f.swmr_mode = True``). Samples are
-buffered in memory and written in blocks of ``flush_samples`` samples (or when ``flush_every_s`` of run
-time ``t`` has passed since the first buffered sample, whichever comes first), each block followed by
-``f.flush()``; so a SIGKILL loses at most the samples after the last flush. Channels are written before
-``/t``, and the reader keeps ``min(len)`` over all of them with trailing non-finite times trimmed, so a
-kill in the middle of a flush never yields a half-written sample. SWMR forbids creating objects or
-attributes, so ``/results`` and ``/status`` are written at :meth:`RecordWriter.close` after reopening the
-file in normal ``r+`` mode (results set during a run are kept in memory until then). A killed file keeps
-its "open for SWMR write" flag: :meth:`RunRecord.open` then reads it in SWMR-read mode (no ``h5clear``
-needed).
+Crash safety. Every object is created, and the file flushed, before SWMR mode is switched on; after
+that the writer only appends to the datasets above (resize + write) and overwrites ``/status`` in
+place, so nothing is ever created, reopened or re-laid out: a SIGKILL at any moment -- also inside
+:meth:`RecordWriter.close` -- leaves a file that SWMR-reads with every sample up to the last flush.
+Samples are buffered in memory and written in blocks of ``flush_samples`` samples (or when
+``flush_every_s`` of run time ``t`` has passed since the first buffered sample, whichever comes
+first), each block followed by ``f.flush()``. Channels are written before ``/t``; the reader keeps
+``min(len)`` over all of them, then the longest prefix of finite, strictly increasing times, so a
+kill in the middle of a flush never yields a half-written sample. The writer tracks the rows and
+bytes the file holds and writes each block at those absolute positions, so a block is never
+written twice (an interrupted write that is retried lands on the same rows).
+
+Signals. While a block (and the whole of ``close()``) is written, the Python handlers of SIGINT,
+SIGTERM, SIGHUP, SIGQUIT, SIGUSR1/2 and SIGALRM are deferred (swapped for a handler that notes the
+signal; re-delivered afterwards), so a handler that raises never runs between a resize and its
+write, and the writer's bookkeeping is updated in the same protected section.
+
+Full disk. Before each block, the writer reserves the block's size plus one chunk per dataset and a
+margin past HDF5's end of file (``posix_fallocate``). A full disk or a file-size limit then fails
+there, before HDF5 writes anything: the writer raises :class:`RecordWriteError` (one line), stays
+failed (every later call raises it again, nothing more is written except the ``/status``, whose
+space exists since creation), and the file keeps every sample flushed before. Without the reserve,
+HDF5 would update its superblock to point past what it could write, and the whole file would be
+unreadable. ``planned_samples`` checks the free space and ``RLIMIT_FSIZE`` before the file is made.
+
+Reading. :meth:`RunRecord.open` checks the HDF5 signature and the superblock's end-of-file address
+against the file size before HDF5 sees the file (HDF5 skips that check in SWMR-read mode, and then
+retries each failed metadata checksum 100 times with back-off: minutes, deaf to Ctrl-C, on a
+truncated file), opens read-only without file locking, uses SWMR-read only for files whose
+superblock says "open for SWMR write" (killed or live writers, no ``h5clear`` needed), and caps the
+metadata read attempts to 8. A truncated, empty or garbage file, or a directory, is a one-line
+:class:`RecordError` naming it.
 
 All channel values are stored as float64 (booleans and counters too), so a channel missing from one
 :meth:`RecordWriter.append` call is NaN in that sample.
