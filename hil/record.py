@@ -627,6 +627,8 @@ class RecordWriter:
             try:
                 self.close(stop_reason=reason, status="error")
             except Exception as close_exc:  # never mask the original exception
+                if close_exc is exc:  # the write failure that is propagating anyway
+                    return
                 logger.error("record %s: close after %s failed: %s", self.path, exc_type.__name__ if exc_type
                              else "error", _one_line(close_exc))
 

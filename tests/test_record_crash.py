@@ -232,6 +232,57 @@ def test_sigkill_at_random_moments_around_close_leaves_a_readable_record(tmp_pat
     assert len(statuses) == len(delays)
 
 
+STREAM_CHILD = textwrap.dedent(
+    """
+    import math, sys
+    from hil.record import ChannelSpec, RecordWriter
+    ch = {"motor.position": ChannelSpec((), "rad"), "master.position": ChannelSpec((2,), "rad")}
+    w = RecordWriter(sys.argv[1], scene_text="", scene_sha256="", meta={}, channels=ch, rate_hz=1000.0,
+                     flush_every_s=0.007)  # 7-sample blocks: a kill mostly lands inside some write
+    flushed = 0
+    for k in range(10**7):
+        w.append(k / 1000, {"motor.position": math.sin(0.01 * k), "master.position": [k / 7, -3.25 * k]})
+        if k % 97 == 0:
+            w.event(k / 1000, "mark", str(k))
+        if k % 1000 == 999:
+            w.set_device_counters({"bus": {"frames": k}})
+        if w.samples_flushed != flushed:
+            flushed = w.samples_flushed
+            print(flushed, flush=True)
+    """
+)
+
+
+@pytest.mark.timeout(180)
+def test_sigkill_at_random_moments_while_streaming_keeps_every_flushed_sample(tmp_path: Path) -> None:
+    script = tmp_path / "stream.py"
+    script.write_text(STREAM_CHILD)
+    rng = random.Random(99)
+    for i in range(5):
+        path = tmp_path / f"s{i}.h5"
+        target = rng.randrange(500, 6000)
+        p = subprocess.Popen([sys.executable, str(script), str(path)], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+        last = 0
+        try:
+            while last < target:
+                line = p.stdout.readline()
+                assert line, p.stderr.read()
+                last = int(line)
+            os.kill(p.pid, signal.SIGKILL)
+        finally:
+            p.wait(timeout=30)
+            p.stdout.close()
+            p.stderr.close()
+        rec = RunRecord.open(path)
+        assert rec.t.size >= last and not rec.closed
+        _check_exact(rec)
+        kept = [e["message"] for e in rec.events]
+        assert kept == [str(k) for k in range(0, 97 * len(kept), 97)]  # in order, none twice, none torn
+        if rec.device_counters:
+            assert rec.device_counters["bus"]["frames"] % 1000 == 999
+
+
 # -- full disk: a real file-size limit in a subprocess ---------------------------------------------------
 
 FULL_CHILD = textwrap.dedent(
