@@ -261,9 +261,9 @@ _SWMR_READ_ATTEMPTS = 8
 
 @functools.cache
 def _hdf5_library() -> Any:
-    """The libhdf5 that h5py is linked to (ctypes handle), or None when it cannot be located."""
+    """The libhdf5 that h5py is linked to (ctypes handle), or None when it cannot be located (then
+    HDF5's default number of read attempts applies)."""
     import ctypes
-    import ctypes.util
 
     candidates: list[str] = []
     with contextlib.suppress(OSError):  # Linux: the copy already mapped into this process (h5py wheels)
@@ -271,9 +271,7 @@ def _hdf5_library() -> Any:
             name = line.rsplit(" ", 1)[-1]
             if re.search(r"/libhdf5(-[0-9a-f]+)?\.so", name) and name not in candidates:
                 candidates.append(name)
-    found = ctypes.util.find_library("hdf5")
-    if found:
-        candidates.append(found)
+    # no ctypes.util.find_library fallback: another copy of libhdf5 than h5py's would not know its ids
     for name in candidates:
         try:
             lib = ctypes.CDLL(name)
