@@ -133,7 +133,7 @@ def test_energy_limit_is_nan_safe():
 def test_device_failures_are_safe_stops(tmp_path, monkeypatch, make_exc, want):
     seen = _zeroed(monkeypatch)
     dev = "motor" if "ODrive" in want else "spring_ft"
-    r, outs = _run_one(tmp_path, _fail_read_at(dev, 50, make_exc), ticks=200, select=(0, 1))
+    _, outs = _run_one(tmp_path, _fail_read_at(dev, 50, make_exc), ticks=200, select=(0, 1))
     assert len(outs) == 1, "a stop ends the whole run: the second experiment must not start"
     (o,) = outs
     assert (o.status, o.stop_reason) == ("safety_stop", want)
@@ -172,7 +172,7 @@ def test_record_that_cannot_be_closed_is_still_a_safe_stop(tmp_path, monkeypatch
         raise RecordError(f"{self.path}: cannot write results/status at close: disk full")
 
     monkeypatch.setattr(RecordWriter, "close", close)
-    r, outs = _run_one(tmp_path, lambda b: None, ticks=100, select=(0, 1))
+    _, outs = _run_one(tmp_path, lambda b: None, ticks=100, select=(0, 1))
     assert len(outs) == 1 and outs[0].status == "safety_stop"
     assert outs[0].stop_reason.startswith("record: RecordError: ") and "disk full" in outs[0].stop_reason
 
