@@ -112,6 +112,8 @@ def test_signal_at_random_points_ends_the_whole_run_with_closed_records(short_sc
             assert all(e["status"] == "completed" for e in doc["experiments"]) and len(doc["experiments"]) == 3
             continue
         stopped += 1
+        print(sig, f"{delay:.2f}", marker.name, [(e["name"], e["status"], e["stop_reason"], e["loop"]["ticks"])
+                                                 for e in doc["experiments"]])
         assert p.returncode == EXPECTED[sig][1], (sig, p.returncode, se[-1500:])
         assert "Traceback" not in se and "Exception ignored" not in se, se[-1500:]
         _check_stopped_run(doc, out, names, sig)
