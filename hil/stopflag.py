@@ -91,6 +91,12 @@ class StopRequest:
 
     # -- handlers ---------------------------------------------------------------------------------
     def _handler(self, signum: int, frame: Any) -> None:  # runs between bytecodes of the main thread
+        if self._depth == 0:  # left installed by a release outside the main thread: behave as before
+            if signum == signal.SIGINT:
+                raise KeyboardInterrupt
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
         self.count += 1
         name = signal.Signals(signum).name
         if self.signum is None:
@@ -117,7 +123,7 @@ class StopRequest:
         with self._lock:
             if self._depth == 0:
                 self.reset()
-                if threading.current_thread() is threading.main_thread():
+                if not self._old and threading.current_thread() is threading.main_thread():
                     for name in SIGNALS:
                         sig = getattr(signal, name, None)
                         if sig is None:  # pragma: no cover - SIGHUP on Windows
@@ -128,7 +134,9 @@ class StopRequest:
     def _release(self) -> None:
         with self._lock:
             self._depth = max(0, self._depth - 1)
-            if self._depth == 0 and self._old:
+            # handlers can only be changed in the main thread (a bench closed by the garbage
+            # collector elsewhere leaves them installed; _handler then acts as the default would)
+            if self._depth == 0 and self._old and threading.current_thread() is threading.main_thread():
                 for sig, old in self._old.items():
                     with contextlib.suppress(ValueError, TypeError):
                         signal.signal(sig, old if old is not None else signal.SIG_DFL)
