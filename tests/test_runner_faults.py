@@ -250,3 +250,18 @@ def test_loop_stats_percentiles_from_the_histogram():
     assert s["late_max_us"] == pytest.approx(1e6 * late.max())
     for q, key in ((50, "late_p50_us"), (99, "late_p99_us")):
         assert s[key] == pytest.approx(1e6 * np.percentile(late, q), rel=0.05)
+
+
+def test_the_limit_breach_sample_is_the_last_one_in_the_record(tmp_path):
+    scene = _scene()
+    (free,) = Runner(scene, tmp_path / "free", max_ticks=600).run([0])
+    v = np.abs(RunRecord.open(free.record).channels["motor.velocity"][:, 0])
+    lim = 0.5 * float(v.max())
+    k = int(np.argmax(v > lim))  # the first tick over the limit, in the unconstrained run
+    scene.safety.max_velocity = lim
+    (o,) = Runner(scene, tmp_path / "limited", max_ticks=600).run([0])
+    assert o.status == "safety_stop" and o.stop_reason.startswith("limit: |velocity| of 'motor'"), o.stop_reason
+    rec = RunRecord.open(o.record)
+    assert rec.t.size == k + 1 == o.stats["ticks"]  # ticks 0..k: the breach sample is the last one
+    np.testing.assert_array_equal(rec.channels["motor.velocity"][:, 0], RunRecord.open(free.record).channels[
+        "motor.velocity"][: k + 1, 0])
