@@ -204,6 +204,47 @@ def test_cli_device_fault_mid_run_exits_20_with_the_reason_in_json(tmp_path):
     assert sorted(x.name for x in out.iterdir()) == ["00_chirp_locked.h5"]
 
 
+_VANISH = r"""
+import sys, termios
+import hil.bench
+from hil.cli import main
+
+orig_open = hil.bench.Bench._open_devices
+
+def opened(self):
+    orig_open(self)
+    for d in self._devs:
+        if d.name == "spring_ft":
+            ad, read, n = d.adapter, d.adapter.read, [0]
+            def vanishing(*a, **kw):
+                n[0] += 1
+                if n[0] > 100:  # the port vanished (USB adapter unplugged)
+                    raise (OSError(5, "Input/output error") if sys.argv[1] == "oserror"
+                           else termios.error(5, "Input/output error"))
+                return read(*a, **kw)
+            ad.read = vanishing
+
+hil.bench.Bench._open_devices = opened
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.parametrize("kind,want", [("oserror", "device: OSError: [Errno 5] Input/output error"),
+                                       ("termios", "device: error: (5, 'Input/output error')")])
+def test_cli_vanished_port_exits_20_with_the_reason_in_json(tmp_path, kind, want):
+    scene = _cli_scene(tmp_path, {})
+    p = subprocess.run([sys.executable, "-c", _VANISH, kind, "run", str(scene), "--lockstep", "--out",
+                        str(tmp_path / "out"), "--json"], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 20, p.stderr[-2000:]
+    assert "Traceback" not in p.stderr
+    doc = json.loads(p.stdout)
+    (o,) = doc["experiments"]
+    assert (o["status"], o["stop_reason"]) == ("safety_stop", want)
+    assert doc["stop"]["reason"] == want
+    rec = RunRecord.open(o["record"])
+    assert rec.stop_reason == want and rec.t.size == 100  # reads 1..100 = ticks 0..99 (tick 0 reuses read 1)
+
+
 # -- bounded memory ----------------------------------------------------------------------------
 
 
