@@ -74,6 +74,9 @@ class SafetyMonitor:
     * ``max_energy``: |E_s| of any port (J);
     * ``watchdog_ms``: device feedback whose sequence number does not advance for longer than this
       (run time) is stale; a realtime tick later than this past its deadline is a loop overrun.
+
+    Every comparison is NaN-safe (written as ``not value <= limit``): a NaN never passes a limit.
+    :meth:`check_finite` stops on any NaN/inf reading, naming the channel and the tick.
     """
 
     def __init__(self, safety: Mapping[str, Any] | None, rate_hz: float) -> None:
