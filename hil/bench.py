@@ -224,6 +224,8 @@ class Bench:
         self.seed = int(scene.seed if seed is None else seed)
         self.dt = scene.dt
         self.timeout = float(timeout)
+        #: per-actuator bound (s) of :meth:`safe_stop`
+        self.safe_stop_timeout = max(1.0, 10.0 * self.timeout)
         self.simulated = scene.simulation is not None
         self.variant = variant
         self.simulator: Any = None
@@ -392,24 +394,33 @@ class Bench:
         """Zero effort on every actuator (and disable where the adapter does so). Never raises.
 
         Runs as a :meth:`hil.stopflag.StopRequest.critical` section: a signal cannot cut it short.
-        Every actuator is attempted, even when an earlier one raises or times out; each adapter's
-        ``safe_stop`` bounds its own bus calls by short timeouts (0.05 s per frame). Returns, per
-        actuator, ``"ok"`` or the one-line error (also logged).
+        Every actuator is attempted, even when an earlier one raises or hangs: each adapter's
+        ``safe_stop`` (whose bus calls have short timeouts of their own, 0.05 s per frame) runs in a
+        worker thread given at most :attr:`safe_stop_timeout` s (default ``max(1 s, 10 x timeout)``)
+        before the next actuator is attempted. Returns, per actuator, ``"ok"``, ``"timeout after
+        T s"`` or the one-line error (also logged).
         """
         done: dict[str, str] = {}
+        limit = self.safe_stop_timeout
         with STOP.critical():
             for d in self._devs:
-                if d.cfg.role == "actuator" and d.adapter is not None:
-                    t0 = time.monotonic()
+                if d.cfg.role != "actuator" or d.adapter is None:
+                    continue
+                box: list[str] = []
+
+                def zero(adapter: Any = d.adapter, box: list[str] = box) -> None:
                     try:
-                        d.adapter.safe_stop()
-                        done[d.name] = "ok"
+                        adapter.safe_stop()
+                        box.append("ok")
                     except BaseException as exc:
-                        done[d.name] = f"{type(exc).__name__}: {exc}"
-                        logger.error("safe_stop of %s failed: %s", d.name, done[d.name])
-                    took = time.monotonic() - t0
-                    if took > 0.5:
-                        logger.warning("safe_stop of %s took %.2f s", d.name, took)
+                        box.append(f"{type(exc).__name__}: {exc}")
+
+                worker = threading.Thread(target=zero, name=f"safe-stop-{d.name}", daemon=True)
+                worker.start()
+                worker.join(limit)  # signals are handled meanwhile (they only count, see STOP)
+                done[d.name] = box[0] if box else f"timeout after {limit:g} s"
+                if done[d.name] != "ok":
+                    logger.error("safe_stop of %s failed: %s", d.name, done[d.name])
             with contextlib.suppress(Exception):
                 self._flush_devices()
         return done

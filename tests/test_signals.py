@@ -204,6 +204,32 @@ def test_safe_stop_attempts_every_actuator_even_if_one_raises(tmp_path):
         assert np.all(b._drives["master2"].effort == 0) and np.all(b._drives["slave"].effort == 0)
 
 
+def test_safe_stop_moves_on_from_a_hung_actuator():
+    import threading
+
+    sc = load_scene("dual_master_3dof")
+    release = threading.Event()
+    with Bench(sc) as b:
+        b.safe_stop_timeout = 0.2
+        for _ in range(3):
+            b.read()
+            b.command({"master1": [0.5], "master2": [0.3, -0.2], "slave": [0.1, 0.2, 0.3]})
+            b.advance()
+        orig = b.actuators["master2"].safe_stop
+
+        def hung():
+            release.wait(30)  # a bus that never answers
+            orig()
+
+        b.actuators["master2"].safe_stop = hung
+        done = b.safe_stop()
+        still_hung = any(t.name == "safe-stop-master2" and t.is_alive() for t in threading.enumerate())
+        release.set()
+        assert done == {"master1": "ok", "master2": "timeout after 0.2 s", "slave": "ok"}
+        assert still_hung  # safe_stop returned without waiting for it ...
+        assert np.all(b._drives["master1"].effort == 0) and np.all(b._drives["slave"].effort == 0)  # ... others zeroed
+
+
 def test_stop_request_counts_and_escalation_rules():
     s = StopRequest()
     with s.install():
