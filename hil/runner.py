@@ -399,15 +399,21 @@ class Runner:
         energy = {p.name: 0.0 for p in self.ports if getattr(p, "force_sensor", None)}
         last_power: dict[str, float] = {}
 
+        zeroed: dict[str, str] = {}
+
+        def stop() -> None:
+            zeroed.update(self.bench.safe_stop() or {})
+
         def on_stop(reason: str, status: str) -> None:
             state["status"], state["reason"] = status, reason
             log.warning("%s: safe stop: %s", name, reason)
             if held:
+                per = ", ".join(f"{k}: {v}" for k, v in zeroed.items()) or "no actuator"
                 with contextlib.suppress(Exception):
                     held[0].event(stats.ticks * self.dt, status, reason)
-                    held[0].event(stats.ticks * self.dt, "safe_stop", "zero effort commanded on every actuator")
+                    held[0].event(stats.ticks * self.dt, "safe_stop", f"zero effort commanded ({per})")
 
-        with safe_stop_context(self.bench.safe_stop, on_stop):  # first reading: channel sizes
+        with safe_stop_context(stop, on_stop):  # first reading: channel sizes
             STOP.check()
             meas0 = self.bench.read()
         if state["status"] != "completed":
@@ -426,7 +432,7 @@ class Runner:
         held.append(writer)
         no_exc = _NoExcitation()
         try:
-            with safe_stop_context(self.bench.safe_stop, on_stop):
+            with safe_stop_context(stop, on_stop):
                 t0 = time.monotonic_ns()
                 period_ns = round(1e9 / self.rate_hz)
                 for k in range(n):

@@ -101,6 +101,7 @@ def test_nan_wrench_is_a_safe_stop_naming_channel_and_tick_and_the_sample_is_rec
     w = rec.channels["spring_ft.wrench"]
     assert np.isnan(w[120, -1]) and np.all(np.isfinite(w[:120]))
     assert np.all(np.isnan(rec.channels["motor.effort_cmd"][120]))  # nothing was computed from it
+    assert {"kind": "safe_stop", "message": "zero effort commanded (motor: ok)"}.items() <= rec.events[-1].items()
     assert seen and all(np.all(e == 0) for e in seen[0].values())
     assert r.stop_status == "safety_stop"
 
