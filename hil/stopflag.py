@@ -10,9 +10,11 @@ the runner for a whole ``run()``), SIGINT, SIGTERM and SIGHUP only *record* the 
   :class:`StopRequested` (a :class:`hil.errors.SafetyStop`) there, so the usual safe stop runs;
   the runner also checks before starting each experiment, so a stop ends the whole run;
 * inside :meth:`StopRequest.critical` (the safe stop: zero effort to every actuator) further signals
-  are only counted, never acted on; after it, a *third* signal, or a *second* one once a safe stop
-  has completed, ends the process (one line on stderr, then the signal's default action: the
-  caller asked twice and every actuator has been sent zero effort already).
+  are only counted, never acted on. A *third* signal ends the process once the safe stop is done
+  (at once if it is done already), a *second* one received after the safe stop completed ends it
+  at once: one line on stderr, then the signal's default action (every actuator has been sent zero
+  effort already). Escape hatch: a fifth signal ends the process even if no safe stop could run
+  (a bench stuck before its next safe point).
 
 Nothing here raises into arbitrary code: handlers only set attributes and, when the process must
 end, re-deliver the signal with its default disposition. Handlers can only be installed in the
@@ -34,6 +36,10 @@ from hil.errors import SafetyStop
 log = logging.getLogger(__name__)
 
 __all__ = ["STOP", "StopRequest", "StopRequested"]
+
+#: Signals received before any safe stop that end the process anyway (a bench stuck before its
+#: next safe point; the safe stop itself is bounded and never cut short).
+_ESCAPE = 5
 
 #: Signals turned into stop requests, and the run status each one gives.
 SIGNALS: dict[str, str] = {"SIGINT": "interrupted", "SIGTERM": "safety_stop", "SIGHUP": "safety_stop"}
@@ -106,9 +112,10 @@ class StopRequest:
             self.status = SIGNALS.get(name, "safety_stop")
             return
         if self.in_critical:
-            return  # the safe stop runs to its end; critical() decides when it is left
-        if self.count >= 3 or (self.count >= 2 and self.safe_stops > 0):
+            return  # the safe stop runs to its end (bounded); critical() decides when it is left
+        if (self.count >= 2 and self.safe_stops > 0) or self.count >= _ESCAPE:
             self._force_exit(signum)
+        # a third signal before the safe stop: acted on when the safe stop is done (critical())
 
     def _force_exit(self, signum: int) -> None:
         """End the process by ``signum``'s default action (after a completed safe stop, or on the

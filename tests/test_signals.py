@@ -242,9 +242,10 @@ def test_stop_request_counts_and_escalation_rules():
         s._handler(signal.SIGTERM, None)
         assert (s.requested, s.reason, s.status, s.count) == (True, "signal: SIGTERM", "safety_stop", 1)
         s._handler(signal.SIGINT, None)  # second signal before any safe stop: wait for it
+        s._handler(signal.SIGINT, None)  # third, before the safe stop: still wait for it
         assert exits == [] and s.reason == "signal: SIGTERM"
         with s.critical():
-            s._handler(signal.SIGINT, None)  # third, inside the safe stop: deferred
+            s._handler(signal.SIGINT, None)  # fourth, inside the safe stop: deferred
             assert exits == []
         assert exits == [signal.SIGTERM]  # ... acted on once the safe stop is done
     assert signal.getsignal(signal.SIGTERM) != s._handler
@@ -258,6 +259,14 @@ def test_stop_request_counts_and_escalation_rules():
         assert len(exits) == 1
         s2._handler(signal.SIGINT, None)  # another one after the safe stop completed: exit
         assert exits[-1] == signal.SIGINT
+    s3 = StopRequest()
+    with s3.install():
+        s3._force_exit = exits.append
+        for _ in range(4):
+            s3._handler(signal.SIGTERM, None)
+        assert len(exits) == 2  # no safe point reached yet: waiting
+        s3._handler(signal.SIGTERM, None)  # the fifth: escape hatch
+        assert len(exits) == 3
 
 
 # -- subprocess: a slowed safe stop and repeated signals ---------------------------------------
