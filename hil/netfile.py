@@ -25,9 +25,18 @@ import json
 import math
 import re
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    Strict,
+    ValidationError,
+    field_validator,
+)
 
 from hil.errors import HilError, SceneError
 from hil.stability.rational import TransferMatrix
@@ -42,33 +51,30 @@ _FLOAT_RE = re.compile(r"^(?:[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9][0-9_]*)(
                        r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$")
 
 
+def _number(x: Any) -> Any:
+    if isinstance(x, bool) or not isinstance(x, int | float):
+        raise ValueError(f"must be a number, got {x!r}")
+    if isinstance(x, int) and abs(x) > _MAX_COEF:
+        raise ValueError(f"is too large ({x:.3e}; at most {_MAX_COEF:g} in magnitude: rescale the units)")
+    return x
+
+
+def _finite(x: float) -> float:
+    if not math.isfinite(x):
+        raise ValueError(f"must be a finite number, got {x!r}")
+    if abs(x) > _MAX_COEF:
+        raise ValueError(f"is too large ({x:g}; at most {_MAX_COEF:g} in magnitude: rescale the units)")
+    return x
+
+
+#: one coefficient: a real number (not a string, not a boolean), finite, at most 1e100 in magnitude
+Coefficient = Annotated[float, BeforeValidator(_number), AfterValidator(_finite)]
+
+
 class Entry(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    num: list[float] = Field(min_length=1)
-    den: list[float] = Field(default_factory=lambda: [1.0], min_length=1)
-
-    @field_validator("num", "den", mode="before")
-    @classmethod
-    def _numbers(cls, v: Any) -> Any:
-        if not isinstance(v, list):
-            return v
-        for i, x in enumerate(v):
-            if isinstance(x, bool) or not isinstance(x, int | float):
-                raise ValueError(f"coefficient {i} must be a number, got {x!r}")
-            if isinstance(x, int) and abs(x) > _MAX_COEF:
-                raise ValueError(f"coefficient {i} is too large ({x:.3e}; at most {_MAX_COEF:g} in magnitude)")
-        return v
-
-    @field_validator("num", "den")
-    @classmethod
-    def _finite(cls, v: list[float]) -> list[float]:
-        for i, x in enumerate(v):
-            if not math.isfinite(x):
-                raise ValueError(f"coefficient {i} must be a finite number, got {x!r}")
-            if abs(x) > _MAX_COEF:
-                raise ValueError(f"coefficient {i} is too large ({x:g}; at most {_MAX_COEF:g} in magnitude: "
-                                 "rescale the units)")
-        return v
+    num: list[Coefficient] = Field(min_length=1)
+    den: list[Coefficient] = Field(default_factory=lambda: [1.0], min_length=1)
 
     @field_validator("den")
     @classmethod
@@ -82,7 +88,7 @@ class NetworkFile(BaseModel):
     model_config = ConfigDict(extra="forbid")
     name: str = ""
     type: Literal["impedance", "admittance", "hybrid", "inverse_hybrid"] = "impedance"
-    ports: list[int] | None = None
+    ports: list[Annotated[int, Strict(), Field(ge=1)]] | None = None
     criterion: Literal["auto", "positive_real", "passivity", "llewellyn", "absolute_stability"] = "auto"
     matrix: list[list[Entry]] = Field(min_length=1)
 
