@@ -141,7 +141,8 @@ def _cmd_stability(args: argparse.Namespace) -> int:
         if args.set:
             raise UsageError("--set applies to built-in models (--model), not to files")
         source = str(args.file)
-        with _numeric_guard(source):
+        with _Progress(f"hil stability {source}") as prog, _numeric_guard(source):
+            prog.update("reading the network file")
             tm, crit = load_network(args.file)
         criterion = args.criterion or crit
     else:
@@ -166,8 +167,8 @@ def _cmd_stability(args: argparse.Namespace) -> int:
         except HilError as exc:
             raise UsageError(f"{source}: {one_line(exc)}") from None
         criterion = args.criterion or m.criterion
-    with _Progress(f"hil stability {source}", enabled=True) as prog:
-        prog.update("checking the conditions")
+    with _Progress(f"hil stability {source}") as prog:
+        prog.update(f"checking the {criterion} conditions")
         try:
             with _numeric_guard(source):
                 result = check(tm, criterion)
@@ -775,8 +776,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _logging(debug: bool) -> None:
     """Warnings of every library; with ``--debug`` also the suite's own debug logs."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    if debug:
-        log.setLevel(logging.DEBUG)
+    log.setLevel(logging.DEBUG if debug else logging.NOTSET)  # NOTSET: the root's WARNING
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -63,6 +63,14 @@ class _Counter:
 DESIGN_FIXED = tuple(k for k in SDEA_TABLE1 if k not in ("k22", "b22", "alpha"))
 
 
+def _plain(x: object) -> str:
+    """A value for a message: numbers (numpy ones too) as plain floats, never ``np.float64(...)``."""
+    try:
+        return repr(float(x)) if not isinstance(x, bool | str) else repr(x)
+    except (TypeError, ValueError):
+        return repr(x)
+
+
 def _is_number(x: object) -> bool:
     return isinstance(x, int | float) and not isinstance(x, bool)
 
@@ -76,14 +84,14 @@ def check_design_inputs(b22: float | None = None, alpha: float | None = None, cr
     if criterion not in ("passivity", "absolute_stability"):
         raise ModelError(f"criterion must be 'passivity' or 'absolute_stability', got {criterion!r}")
     if b22 is not None and (not _is_number(b22) or not math.isfinite(b22) or b22 <= 0):
-        raise ModelError(f"b22 must be a finite positive damping [N.m.s/rad], got {b22!r}")
+        raise ModelError(f"b22 must be a finite positive damping [N.m.s/rad], got {_plain(b22)}")
     if alpha is not None and (not _is_number(alpha) or not math.isfinite(alpha) or not 0.0 <= alpha <= 1.0):
-        raise ModelError(f"alpha must be a number in [0, 1], got {alpha!r}")
+        raise ModelError(f"alpha must be a number in [0, 1], got {_plain(alpha)}")
     for k, v in (params or {}).items():  # values of the design variables here are replaced by the search
         if k not in SDEA_TABLE1:
             raise ModelError(f"unknown SDEA parameter {k!r}; expected one of {', '.join(DESIGN_FIXED)}")
         if not _is_number(v) or not math.isfinite(v):
-            raise ModelError(f"SDEA parameter {k} must be a finite number, got {v!r}")
+            raise ModelError(f"SDEA parameter {k} must be a finite number, got {_plain(v)}")
 
 
 def _feasible(params: Mapping[str, float], criterion: str, k22: float, b22: float, alpha: float,
@@ -143,7 +151,7 @@ def optimize_coupler(criterion: str = "passivity", alpha: float | None = 1.0,
     bf = p["B_f"]
     lo_b, hi_b = b22_bounds or ((1e-4 * bf, 4 * bf) if criterion == "passivity" else (1e-4 * bf, 10 * bf))
     if not (math.isfinite(lo_b) and math.isfinite(hi_b) and 0 < lo_b < hi_b):
-        raise ModelError(f"b22 bounds must be finite with 0 < low < high, got ({lo_b!r}, {hi_b!r})")
+        raise ModelError(f"b22 bounds must be finite with 0 < low < high, got ({_plain(lo_b)}, {_plain(hi_b)})")
     total = _Counter()
     best = [0.0]
 
