@@ -322,11 +322,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 tasks[name] = prog.add_task(name, total=n)
             prog.update(tasks[name], completed=k)
 
+    if prog is None:  # not a terminal: a plain line every few seconds (_Progress)
+        beat = _Progress(f"hil run {scene.name}")
+
+        def progress_cb(name: str, k: int, n: int) -> None:
+            beat.message = f"{name}: {k}/{n} ticks ({100.0 * k / max(n, 1):.0f} %)"
+
     runner = Runner(scene, out, realtime=realtime, progress=progress_cb)
-    if prog is not None:
-        with prog:
-            outcomes = runner.run(select)
-    else:
+    with prog if prog is not None else beat:
         outcomes = runner.run(select)
     if args.json:
         print(json.dumps({"scene": scene.name, "out": str(out), "experiments": [o.to_dict() for o in outcomes]},
@@ -424,11 +427,15 @@ def _cmd_certify(args: argparse.Namespace) -> int:
         scene.seed = args.seed
     out = _out_dir(args.out, f"reports/{scene.name}", args.overwrite)
 
+    beat = _Progress(f"hil certify {scene.name}", enabled=not sys.stderr.isatty())  # stage lines on a terminal
+
     def say(msg: str) -> None:
+        beat.message = f"{msg.removeprefix(scene.name + ': ')} (still running)"
         if not args.json:
             print(msg, file=sys.stderr)
 
-    cert = certify_scene(scene, out, progress=say, run_experiments=not args.no_experiments)
+    with beat:
+        cert = certify_scene(scene, out, progress=say, run_experiments=not args.no_experiments)
     from hil.report import build_reports
 
     files = build_reports(cert, out)

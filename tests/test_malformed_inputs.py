@@ -103,6 +103,13 @@ CASES: list[tuple[str, dict[str, str | bytes], list[str], list[str]]] = [
     ("run-scene-binary", {"s.yaml": RANDOM}, ["run", "{d}/s.yaml"], ["s.yaml"]),
     ("run-scene-directory", {"s.yaml/x": "1"}, ["run", "{d}/s.yaml"], ["s.yaml"]),
     ("run-scene-bad-yaml", {"s.yaml": "name: [x\n"}, ["run", "{d}/s.yaml"], ["s.yaml"]),
+    ("run-scene-no-devices", {"s.yaml": "name: x\nrate_hz: 1000\n"}, ["run", "{d}/s.yaml"], ["s.yaml", "devices"]),
+    ("run-scene-negative-rate", {"s.yaml": "name: x\nrate_hz: -5\ndevices: []\nexperiments: []\n"},
+     ["run", "{d}/s.yaml"], ["s.yaml", "rate_hz"]),
+    ("run-scene-unknown-target", {"s.yaml": "SCENE:target: motor=target: motr"}, ["run", "{d}/s.yaml"],
+     ["s.yaml", "'motr'", "'motor'"]),
+    ("certify-scene-unknown-target", {"s.yaml": "SCENE:target: motor=target: motr"}, ["certify", "{d}/s.yaml"],
+     ["s.yaml", "'motr'"]),
     ("run-seed-not-int", {}, ["run", "sdea_bench", "--seed", "x"], ["--seed", "'x'"]),
     ("run-seed-negative", {}, ["run", "sdea_bench", "--seed", "-5"], ["--seed -5"]),
     ("run-experiment-index", {}, ["run", "sdea_bench", "--experiment", "9"], ["--experiment 9"]),
@@ -200,7 +207,14 @@ def _write(d: Path, files: dict[str, str | bytes]) -> None:
     for name, content in files.items():
         p = d / name
         p.parent.mkdir(parents=True, exist_ok=True)
-        if isinstance(content, str) and content.startswith("MAT:"):
+        if isinstance(content, str) and content.startswith("SCENE:"):  # the built-in sdea_bench with one edit
+            import hil.scene
+
+            old, new = content[6:].split("=", 1)
+            text = (Path(hil.scene.__file__).parent / "scenes" / "sdea_bench.yaml").read_text()
+            assert old in text
+            p.write_text(text.replace(old, new, 1))
+        elif isinstance(content, str) and content.startswith("MAT:"):
             from scipy.io import savemat
 
             savemat(p, {k: np.arange(5.0) for k in content[4:].split(",")})
