@@ -640,10 +640,18 @@ def main(argv: Sequence[str] | None = None) -> int:
                 rec: Any = load_record(target_path)
             else:
                 rec, target_path = load_record(a.record), None
+        elif suffix == ".npz":
+            import zipfile
+
+            try:
+                rec = load_record(a.record)
+            except HilError:
+                raise
+            except (ValueError, EOFError, zipfile.BadZipFile) as exc:  # garbage, pickled objects, truncated
+                raise ModelSpecError(f"{a.record}: not a readable .npz record ({type(exc).__name__})") from None
+            target_path = None
         else:
             rec = load_record(a.record)
-            if suffix == ".npz":
-                target_path = None
         kw = {"model": a.model, "band": a.band, "period": a.period, "seed": a.seed, "skip": a.skip,
               "noise": a.noise, "max_seconds": a.max_seconds, "theta0": theta0, "sampling": a.sampling}
         if a.resolution is not None:
