@@ -477,8 +477,11 @@ def _cmd_report(args: argparse.Namespace) -> int:
     from hil.outdir import check_out_dir
     from hil.report import report_main
 
-    if args.out:  # the report writes report.html / report.pdf there (replacing those two files)
-        check_out_dir(args.out, overwrite=True)
+    if args.out:  # another folder than the certificate's must be new or empty (or --overwrite)
+        src = Path(args.path)
+        home = src if src.is_dir() else src.parent
+        same = Path(args.out).exists() and home.exists() and Path(args.out).resolve() == home.resolve()
+        check_out_dir(args.out, overwrite=args.overwrite or same)
     return int(report_main([args.path] + (["--out", args.out] if args.out else [])) or 0)
 
 
@@ -558,7 +561,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     rep = add("report", help="rebuild the HTML and PDF reports from a stored certificate.json")
     rep.add_argument("path", help="certificate.json or the folder holding it")
-    rep.add_argument("--out", help="output folder (default: next to the certificate)")
+    rep.add_argument("--out", help="output folder (default: next to the certificate); another existing non-empty "
+                     "folder is refused unless --overwrite")
+    rep.add_argument("--overwrite", action="store_true", help="write report.html / report.pdf into a non-empty --out")
     rep.set_defaults(func=_cmd_report)
 
     rp = add("replay", help="inspect a run record (summary of channels, timing, stop reason)")

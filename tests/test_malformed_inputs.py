@@ -191,6 +191,8 @@ CASES: list[tuple[str, dict[str, str | bytes], list[str], list[str]]] = [
     ("report-missing", {}, ["report", "{d}/nothing"], ["nothing"]),
     ("report-malformed", {"c/certificate.json": '{"decision": "GO", "reasons": 3}'}, ["report", "{d}/c"],
      ["certificate.json"]),
+    ("report-out-not-empty", {"c/certificate.json": "{}", "o/report.html": "other"},
+     ["report", "{d}/c", "--out", "{d}/o"], ["/o", "--overwrite"]),
     ("report-out-under-file", {"c/certificate.json": "{}", "f": "x"}, ["report", "{d}/c", "--out", "{d}/f/r"],
      ["f/r"]),
     # ---- hil mock serve (argument errors; nothing is started)
