@@ -3,11 +3,22 @@
 Subcommands import what they need when they run, so ``hil stability`` never imports device
 libraries and ``hil mock serve`` never imports the stability core.
 
+Global options go before the subcommand, for every subcommand: ``hil --debug run ...``,
+``hil --debug identify ...``, ``hil --debug mock serve ...`` (``--debug`` is also accepted after the
+subcommand name of the argparse subcommands).
+
+Errors: an expected failure (a :class:`~hil.errors.HilError`, an unreadable or unwritable file, a
+file that is not UTF-8 text, a bad flag or value) prints exactly one line on stderr,
+``hil <command>: error: <file or flag>: <what is wrong>``, and exits 2; anything else is a bug:
+one line pointing at ``--debug`` and exit 1. ``--debug`` adds the traceback (and debug logs).
+Output folders never overwrite: see :mod:`hil.outdir` (``--overwrite``).
+
 Exit codes (documented in README.md):
 
 ====  ==============================================================
 0     stable (GO)
-2     usage or input error (bad arguments, malformed file, unknown model): one-line message
+2     usage or input error (bad arguments, malformed file, unknown model, an output folder that
+      exists): one-line message
 10    marginal (MARGINAL)
 11    potentially unstable (NO-GO)
 12    criterion not applicable (e.g. Theorem 1's symmetrization fails)
@@ -15,19 +26,25 @@ Exit codes (documented in README.md):
 20    ``hil run``: a safe stop ended the run (limit breach, non-finite feedback, watchdog, device
       failure, record write error, SIGTERM/SIGHUP); no later experiment started
 130   interrupted (Ctrl-C / SIGINT); the records keep every sample taken
-1     unexpected internal error (a bug: please report it with the traceback from --debug)
+1     unexpected internal error (a bug: one line; rerun with ``hil --debug ...`` and report the traceback)
 ====  ==============================================================
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import difflib
 import json
 import logging
 import math
+import os
 import sys
-from collections.abc import Sequence
+import threading
+import time
+import traceback
+import warnings
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -53,17 +70,48 @@ class UsageError(HilError):
     """A command-line mistake; reported in one line with exit code 2."""
 
 
-def _parse_set(items: Sequence[str]) -> dict[str, Any]:
+def one_line(text: object) -> str:
+    """``text`` with every run of white space (newlines too) collapsed to one space."""
+    return " ".join(str(text).split())
+
+
+class OneLineArgumentParser(argparse.ArgumentParser):
+    """An :class:`argparse.ArgumentParser` whose errors are one line on stderr,
+    ``<prog>: error: <message> (see '<prog> --help')``, with exit status 2 (``SystemExit``), instead
+    of the usage block followed by the message. Subparsers inherit the class."""
+
+    def error(self, message: str) -> Any:
+        self.exit(2, f"{self.prog}: error: {one_line(message)} (see '{self.prog} --help')\n")
+
+
+def _number(flag: str, name: str, text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise UsageError(f"{flag} {name}={text.strip()}: {name} must be a number") from None
+    if not math.isfinite(v):
+        raise UsageError(f"{flag} {name}={text.strip()}: {name} must be finite")
+    return v
+
+
+def _parse_set(items: Sequence[str], defaults: dict[str, Any] | None = None, what: str = "",
+               flag: str = "--set") -> dict[str, Any]:
+    """``NAME=VALUE`` items. With ``defaults``: names must be keys of it (did-you-mean otherwise);
+    a name whose default is a string takes the text, every other name a finite number."""
     out: dict[str, Any] = {}
     for it in items:
         if "=" not in it:
-            raise UsageError(f"--set expects NAME=VALUE, got {it!r}")
+            raise UsageError(f"{flag} expects NAME=VALUE, got {it!r}")
         k, v = it.split("=", 1)
         k = k.strip()
-        try:
-            out[k] = float(v)
-        except ValueError:
+        if not k:
+            raise UsageError(f"{flag} {it}: empty parameter name")
+        if defaults is not None and k not in defaults:
+            raise UsageError(f"{flag} {it}: {what} has no parameter {k!r}{_suggest(k, list(defaults))}")
+        if defaults is not None and isinstance(defaults[k], str):
             out[k] = v.strip()
+        else:
+            out[k] = _number(flag, k, v)
     return out
 
 
@@ -93,7 +141,10 @@ def _cmd_stability(args: argparse.Namespace) -> int:
 
         if args.set:
             raise UsageError("--set applies to built-in models (--model), not to files")
-        tm, crit = load_network(args.file)
+        source = str(args.file)
+        with _Progress(f"hil stability {source}") as prog, _numeric_guard(source):
+            prog.update("reading the network file")
+            tm, crit = load_network(args.file)
         criterion = args.criterion or crit
     else:
         from hil.models import get_model, model_names
@@ -101,18 +152,31 @@ def _cmd_stability(args: argparse.Namespace) -> int:
         try:
             m = get_model(args.model)
         except KeyError:
-            raise UsageError(f"unknown model {args.model!r}{_suggest(args.model, model_names())}; "
+            raise UsageError(f"--model {args.model}: unknown model{_suggest(args.model, model_names())}; "
                              f"known: {', '.join(model_names())}") from None
-        params = _parse_set(args.set or [])
-        for k in params:
-            if k not in m.defaults:
-                raise UsageError(f"model {m.name} has no parameter {k!r}{_suggest(k, list(m.defaults))}")
+        params = _parse_set(args.set or [], m.defaults, f"model {m.name}")
+        source = f"--model {m.name}"
         try:
-            tm = m.build(**params)
+            m.check_params(params)
+        except HilError as exc:
+            raise UsageError(f"--set: {one_line(exc)}") from None
+        try:
+            with _numeric_guard(source):
+                tm = m.build(**params)
         except TypeError as exc:
-            raise UsageError(f"bad parameter for {m.name}: {exc}") from None
+            raise UsageError(f"{source}: bad parameter: {exc}") from None
+        except HilError as exc:
+            raise UsageError(f"{source}: {one_line(exc)}") from None
         criterion = args.criterion or m.criterion
-    result = check(tm, criterion)
+    with _Progress(f"hil stability {source}") as prog:
+        prog.update(f"checking the {criterion} conditions")
+        try:
+            with _numeric_guard(source):
+                result = check(tm, criterion)
+        except UsageError:
+            raise
+        except HilError as exc:
+            raise UsageError(f"{source}: {one_line(exc)}") from None
     if args.json:
         print(json.dumps(result.to_dict(), indent=2, ensure_ascii=False))
     else:
@@ -124,7 +188,7 @@ def _print_result(result: Any, verbose: bool) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    con = Console()
+    con = Console(highlight=False, soft_wrap=True)
     colour = {"stable": "green", "marginal": "yellow", "potentially_unstable": "red", "not_applicable": "magenta"}
     v = str(result.verdict)
     title = f"{result.network.get('name') or 'network'} — {result.criterion}"
@@ -140,8 +204,9 @@ def _print_result(result: Any, verbose: bool) -> None:
         wtxt = "" if wf is None else (" at ω → ∞" if math.isinf(wf) else f" at ω = {wf:.5g} rad/s")
         con.print(f"margin (normalized): {result.margin:.4g}{wtxt}")
     tab = Table(show_header=True, header_style="bold")
-    for col in ("condition", "status", "margin", "ω [rad/s]", "detail"):
-        tab.add_column(col)
+    for col in ("condition", "status", "margin", "ω [rad/s]"):  # names and values never wrap
+        tab.add_column(col, no_wrap=True)
+    tab.add_column("detail", min_width=20)  # prose: wraps between words
     shown = 0
     for c in result.conditions:
         if not verbose and c.status == "satisfied":
@@ -164,14 +229,28 @@ def _print_result(result: Any, verbose: bool) -> None:
 
 
 def _cmd_design(args: argparse.Namespace) -> int:
-    from hil.stability.design import k22_max, optimize_coupler
+    from hil.models.sdea import SDEA_TABLE1
+    from hil.stability.design import DESIGN_FIXED, check_design_inputs, k22_max, optimize_coupler
 
-    params = _parse_set(args.set or [])
-    if args.b22 is not None:
-        r = k22_max(args.b22, args.alpha if args.alpha is not None else 1.0, args.criterion, params)
-    else:
-        alpha = None if args.optimize_alpha else (args.alpha if args.alpha is not None else 1.0)
-        r = optimize_coupler(args.criterion, alpha, params)
+    params = _parse_set(args.set or [], {k: SDEA_TABLE1[k] for k in DESIGN_FIXED}, "the SDEA design")
+    if args.b22 is not None and (not math.isfinite(args.b22) or args.b22 <= 0):
+        raise UsageError(f"--b22 {args.b22:g}: the coupler damping must be a finite positive number [N.m.s/rad]")
+    if args.alpha is not None and (not math.isfinite(args.alpha) or not 0.0 <= args.alpha <= 1.0):
+        raise UsageError(f"--alpha {args.alpha:g}: the feed-forward ratio must lie in [0, 1]")
+    if args.optimize_alpha and args.alpha is not None:
+        raise UsageError("--alpha and --optimize-alpha exclude each other")
+    if args.optimize_alpha and args.b22 is not None:
+        raise UsageError("--b22 fixes the damping at the given alpha; drop --optimize-alpha or --b22")
+    try:
+        check_design_inputs(args.b22, args.alpha, args.criterion, params)
+    except HilError as exc:
+        raise UsageError(f"--set: {one_line(exc)}") from None
+    with _Progress("hil design", enabled=True) as prog:
+        if args.b22 is not None:
+            r = k22_max(args.b22, args.alpha if args.alpha is not None else 1.0, args.criterion, params)
+        else:
+            alpha = None if args.optimize_alpha else (args.alpha if args.alpha is not None else 1.0)
+            r = optimize_coupler(args.criterion, alpha, params, progress=prog.update)
     if args.json:
         print(json.dumps(r.to_dict(), indent=2))
     else:
@@ -202,16 +281,14 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    import datetime as dt
-
     from hil.runner import Runner
     from hil.scene import load_scene
 
     scene = load_scene(args.scene)
     if args.seed is not None:
+        if args.seed < 0:
+            raise UsageError(f"--seed {args.seed}: the seed must be a non-negative integer")
         scene.seed = args.seed
-    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-    out = args.out or f"runs/{scene.name}-{stamp}"
     select = None
     if args.experiment:
         select = []
@@ -221,8 +298,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
             except ValueError:
                 idx = [i for i, e in enumerate(scene.experiments) if getattr(e, "type", None) == item]
                 if not idx:
-                    raise UsageError(f"no experiment {item!r} in scene {scene.name}") from None
+                    names = [str(getattr(e, "type", "?")) for e in scene.experiments]
+                    raise UsageError(f"--experiment {item}: no such experiment in scene {scene.name} "
+                                     f"(indices 0-{len(names) - 1}, types: {', '.join(dict.fromkeys(names))})"
+                                     ) from None
                 select += idx
+        bad = [i for i in select if not 0 <= i < len(scene.experiments)]
+        if bad:
+            raise UsageError(f"--experiment {bad[0]}: scene {scene.name} has experiments 0-"
+                             f"{len(scene.experiments) - 1}")
+    out = _out_dir(args.out, f"runs/{scene.name}", args.overwrite)
     realtime = True if args.realtime else (False if args.lockstep else None)
     progress_cb = None
     prog = None
@@ -238,14 +323,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 tasks[name] = prog.add_task(name, total=n)
             prog.update(tasks[name], completed=k)
 
+    beat: Any = None
+    if prog is None:  # not a terminal: a plain line every few seconds (_Progress)
+        beat = _Progress(f"hil run {scene.name}")
+
+        def progress_cb(name: str, k: int, n: int) -> None:
+            beat.message = f"{name}: {k}/{n} ticks ({100.0 * k / max(n, 1):.0f} %)"
+
     from hil.stopflag import STOP
 
     runner = Runner(scene, out, realtime=realtime, progress=progress_cb)
     with STOP.install():  # signals stay stop requests until the results are printed
-        if prog is not None:
-            with prog:
-                outcomes = runner.run(select)
-        else:
+        with prog if prog is not None else beat:
             outcomes = runner.run(select)
         code = _run_exit_code(outcomes, runner)
         _print_run(args, scene, out, outcomes, runner)
@@ -274,27 +363,47 @@ def _print_run(args: argparse.Namespace, scene: Any, out: Any, outcomes: Sequenc
         from rich.console import Console
         from rich.table import Table
 
-        tab = Table("experiment", "status", "stop reason", "record", "key results", title=f"hil run {scene.name}")
+        con = Console(highlight=False, soft_wrap=True)
+        tab = Table(title=f"hil run {scene.name}")
+        tab.add_column("experiment", no_wrap=True)
+        tab.add_column("status", no_wrap=True)
+        tab.add_column("stop reason", min_width=12)
+        tab.add_column("key results", min_width=24)
         for o in outcomes:
             scalars = [(k, v) for k, v in o.results.items() if not isinstance(v, dict | list)][:4]
-            keys = ", ".join(f"{k}={_short(v)}" for k, v in scalars)
-            tab.add_row(o.name, o.status, o.stop_reason if o.status != "completed" else "", str(o.record), keys)
-        Console().print(tab)
+            keys = ", ".join(f"{k}={_short(v)}" for k, v in scalars)  # wraps after a comma, never inside a value
+            tab.add_row(o.name, o.status, o.stop_reason if o.status != "completed" else "", keys)
+        con.print(tab)
         if stop is not None:
-            Console().print(f"run stopped: {stop['reason']}")
+            con.print(f"run stopped: {stop['reason']}")
+        con.print(f"records in {out}:")  # paths outside the table: never split across lines
+        for o in outcomes:
+            con.print(f"  {o.record}")
 
 
 def _short(v: Any) -> str:
-    if isinstance(v, float):
-        return f"{v:.4g}"
+    if isinstance(v, bool):
+        return str(v)
+    if isinstance(v, float | int) or hasattr(v, "dtype"):
+        try:
+            return f"{float(v):.4g}"
+        except (TypeError, ValueError):
+            pass
     return str(v)[:24]
 
 
 def _cmd_import(args: argparse.Namespace) -> int:
     from hil.importers import import_csv, import_mat
+    from hil.outdir import check_out_file
 
     src = Path(args.file)
+    if src.is_dir():
+        raise UsageError(f"{src}: is a folder; give a .csv or .mat file")
+    if not src.exists():
+        raise UsageError(f"{src}: no such file")
     out = Path(args.out) if args.out else src.with_suffix(".h5")
+    if out.resolve() == src.resolve():
+        raise UsageError(f"--out {out}: would replace the input file")
     mapping: dict[str, Any] | None = None
     if args.map or args.time:
         mapping = {}
@@ -305,16 +414,23 @@ def _cmd_import(args: argparse.Namespace) -> int:
                 raise UsageError(f"--map expects CHANNEL=COLUMN[,COLUMN...], got {item!r}")
             ch, cols = item.split("=", 1)
             parts = [c.strip() for c in cols.split(",") if c.strip()]
+            if not ch.strip() or not parts:
+                raise UsageError(f"--map {item}: expects CHANNEL=COLUMN[,COLUMN...]")
             mapping[ch.strip()] = parts[0] if len(parts) == 1 else parts
+        if "t" not in mapping:
+            raise UsageError("--map given without --time: name the time column with --time COLUMN")
     suffix = src.suffix.lower()
-    if suffix == ".mat":
-        if args.sidecar:
-            raise UsageError("--sidecar applies to CSV files; for .mat give --map/--time or a sidecar next to the file")
-        path = import_mat(src, out, mapping=mapping)
-    elif suffix in (".csv", ".txt", ".tsv"):
-        path = import_csv(src, out, mapping=mapping, sidecar=args.sidecar)
-    else:
+    if suffix not in (".mat", ".csv", ".txt", ".tsv"):
         raise UsageError(f"{src}: expected a .csv or .mat file")
+    if suffix == ".mat" and args.sidecar:
+        raise UsageError("--sidecar applies to CSV files; for .mat give --map/--time or a sidecar next to the file")
+    if args.sidecar and mapping is not None:
+        raise UsageError("give --sidecar or --map/--time, not both")
+    check_out_file(out, overwrite=args.overwrite)
+    if suffix == ".mat":
+        path = import_mat(src, out, mapping=mapping)
+    else:
+        path = import_csv(src, out, mapping=mapping, sidecar=args.sidecar)
     print(str(path))
     return EXIT_OK
 
@@ -323,22 +439,25 @@ DECISION_EXIT = {"GO": EXIT_OK, "MARGINAL": EXIT_MARGINAL, "NO-GO": EXIT_UNSTABL
 
 
 def _cmd_certify(args: argparse.Namespace) -> int:
-    import datetime as dt
-
     from hil.pipeline import certify_scene
     from hil.scene import load_scene
 
     scene = load_scene(args.scene or "sdea_bench")
     if args.seed is not None:
+        if args.seed < 0:
+            raise UsageError(f"--seed {args.seed}: the seed must be a non-negative integer")
         scene.seed = args.seed
-    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-    out = Path(args.out or f"reports/{scene.name}-{stamp}")
+    out = _out_dir(args.out, f"reports/{scene.name}", args.overwrite)
+
+    beat = _Progress(f"hil certify {scene.name}", enabled=not sys.stderr.isatty())  # stage lines on a terminal
 
     def say(msg: str) -> None:
+        beat.message = f"{msg.removeprefix(scene.name + ': ')} (still running)"
         if not args.json:
             print(msg, file=sys.stderr)
 
-    cert = certify_scene(scene, out, progress=say, run_experiments=not args.no_experiments)
+    with beat:
+        cert = certify_scene(scene, out, progress=say, run_experiments=not args.no_experiments)
     from hil.report import build_reports
 
     files = build_reports(cert, out)
@@ -348,28 +467,43 @@ def _cmd_certify(args: argparse.Namespace) -> int:
                           "measurements": [m.model_dump() for m in cert.measurements]}, indent=2, default=str))
     else:
         from rich.console import Console
+        from rich.markup import escape
         from rich.table import Table
 
-        con = Console()
+        con = Console(highlight=False, soft_wrap=True)  # prose and paths are never broken by the console
         colour = {"GO": "green", "MARGINAL": "yellow", "NO-GO": "red", "ERROR": "magenta"}[cert.decision]
-        con.print(f"[bold]{scene.name}[/bold]: [bold {colour}]{cert.decision}[/]")
+        con.print(f"[bold]{escape(scene.name)}[/bold]: [bold {colour}]{cert.decision}[/]")
         for r in cert.reasons:
-            con.print(f"  - {r}")
-        tab = Table("measurement", "value", "limits", "outcome")
+            con.print(f"  - {escape(r)}")
+        tab = Table()
+        tab.add_column("measurement", min_width=16)  # a name: wraps between words if it must
+        for col in ("value", "limits", "outcome"):  # values never wrap
+            tab.add_column(col, no_wrap=True)
         for m in cert.measurements:
             lim = " ".join(x for x in (f"≥ {m.lower:g}" if m.lower is not None else "",
                                        f"≤ {m.upper:g}" if m.upper is not None else "") if x)
-            v = f"{m.value:.4g}" if isinstance(m.value, float) else str(m.value)
-            tab.add_row(m.name, f"{v} {m.unit}".strip(), lim, m.outcome)
+            tab.add_row(escape(m.name), escape(f"{_short_value(m.value)} {m.unit}".strip()), lim, m.outcome)
         con.print(tab)
         for k, v in files.items():
-            con.print(f"{k}: {v}")
+            con.print(f"{k}: {escape(str(v))}")
     return DECISION_EXIT[cert.decision]
 
 
+def _short_value(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
+    from hil.outdir import check_out_dir
     from hil.report import report_main
 
+    if args.out:  # another folder than the certificate's must be new or empty (or --overwrite)
+        src = Path(args.path)
+        home = src if src.is_dir() else src.parent
+        same = Path(args.out).exists() and home.exists() and Path(args.out).resolve() == home.resolve()
+        check_out_dir(args.out, overwrite=args.overwrite or same)
     return int(report_main([args.path] + (["--out", args.out] if args.out else [])) or 0)
 
 
@@ -383,12 +517,20 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="hil", description="Hardware-in-the-loop identification and stability "
-                                "certification of haptic devices, teleoperators and series elastic actuators.")
-    p.add_argument("--debug", action="store_true", help="show tracebacks and debug logs")
-    sub = p.add_subparsers(dest="cmd", metavar="COMMAND")
+    p = OneLineArgumentParser(
+        prog="hil", description="Hardware-in-the-loop identification and stability certification of haptic "
+        "devices, teleoperators and series elastic actuators.",
+        epilog="Global options go before the COMMAND: hil --debug COMMAND ... Exit codes: see the README.")
+    p.add_argument("--debug", action="store_true", help="show tracebacks and debug logs (before the COMMAND)")
+    common = OneLineArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    sub = p.add_subparsers(dest="cmd", metavar="COMMAND", parser_class=OneLineArgumentParser)
 
-    s = sub.add_parser("stability", help="check passivity / absolute stability of a network (file or built-in model)")
+    def add(name: str, **kw: Any) -> argparse.ArgumentParser:  # every subcommand also takes --debug
+        kw.setdefault("parents", [common])
+        return sub.add_parser(name, **kw)
+
+    s = add("stability", help="check passivity / absolute stability of a network (file or built-in model)")
     s.add_argument("file", nargs="?", help="network file (YAML or JSON): type, ports, matrix of {num, den}")
     s.add_argument("--model", help="built-in model name (see --list-models)")
     s.add_argument("--set", action="append", metavar="PARAM=VALUE", help="override a model parameter (repeatable)")
@@ -399,7 +541,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--list-models", action="store_true", help="list the built-in models and exit")
     s.set_defaults(func=_cmd_stability)
 
-    d = sub.add_parser("design", help="largest virtual-coupler stiffness k22 of the SDEA (002 Table II)")
+    d = add("design", help="largest virtual-coupler stiffness k22 of the SDEA (002 Table II)")
     d.add_argument("--criterion", choices=["passivity", "absolute_stability"], default="passivity")
     d.add_argument("--alpha", type=float, help="feed-forward ratio alpha in [0, 1] (default 1)")
     d.add_argument("--optimize-alpha", action="store_true", help="also maximize over alpha")
@@ -408,13 +550,16 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--json", action="store_true")
     d.set_defaults(func=_cmd_design)
 
-    sc = sub.add_parser("scenes", help="list the built-in scenes")
+    sc = add("scenes", help="list the built-in scenes")
     sc.add_argument("--json", action="store_true")
     sc.set_defaults(func=_cmd_scenes)
 
-    r = sub.add_parser("run", help="run a scene's experiments (chirp, energy injection, static hold) and record them")
+    r = add("run", help="run a scene's experiments (chirp, energy injection, static hold) and record them")
     r.add_argument("scene", help="scene YAML file or built-in scene name (see hil scenes)")
-    r.add_argument("--out", help="output folder for the records (default runs/<scene>-<UTC time>)")
+    r.add_argument("--out", help="output folder for the records (default runs/<scene>-<UTC time>-<id>); "
+                   "an existing non-empty folder is refused unless --overwrite")
+    r.add_argument("--overwrite", action="store_true", help="write into an existing --out folder, replacing "
+                   "records of the same name")
     r.add_argument("--seed", type=int, help="override the scene's seed")
     r.add_argument("--experiment", action="append", help="run only this experiment (index or type; repeatable)")
     mode = r.add_mutually_exclusive_group()
@@ -424,83 +569,248 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=_cmd_run)
 
-    ce = sub.add_parser("certify", help="experiments -> identification -> criteria over the posterior -> "
+    ce = add("certify", help="experiments -> identification -> criteria over the posterior -> "
                                          "GO / MARGINAL / NO-GO report (default: the mocked SDEA bench)")
     ce.add_argument("scene", nargs="?", help="scene file or built-in name (default sdea_bench)")
-    ce.add_argument("--out", help="output folder (default reports/<scene>-<UTC time>)")
+    ce.add_argument("--out", help="output folder (default reports/<scene>-<UTC time>-<id>); an existing "
+                    "non-empty folder is refused unless --overwrite")
+    ce.add_argument("--overwrite", action="store_true", help="write into an existing --out folder, replacing "
+                    "files of the same name")
     ce.add_argument("--seed", type=int)
     ce.add_argument("--no-experiments", action="store_true", help="skip the runs (certify from the scene's priors)")
     ce.add_argument("--json", action="store_true")
     ce.set_defaults(func=_cmd_certify)
 
-    rep = sub.add_parser("report", help="rebuild the HTML and PDF reports from a stored certificate.json")
+    rep = add("report", help="rebuild the HTML and PDF reports from a stored certificate.json")
     rep.add_argument("path", help="certificate.json or the folder holding it")
-    rep.add_argument("--out", help="output folder (default: next to the certificate)")
+    rep.add_argument("--out", help="output folder (default: next to the certificate); another existing non-empty "
+                     "folder is refused unless --overwrite")
+    rep.add_argument("--overwrite", action="store_true", help="write report.html / report.pdf into a non-empty --out")
     rep.set_defaults(func=_cmd_report)
 
-    rp = sub.add_parser("replay", help="inspect a run record (summary of channels, timing, stop reason)")
+    rp = add("replay", help="inspect a run record (summary of channels, timing, stop reason)")
     rp.add_argument("record")
     rp.add_argument("--json", action="store_true")
     rp.set_defaults(func=_cmd_replay)
 
-    im = sub.add_parser("import", help="convert a CSV or MATLAB .mat run into a run record (HDF5)")
+    im = add("import", help="convert a CSV or MATLAB .mat run into a run record (HDF5)")
     im.add_argument("file", help="CSV (header row) or .mat file")
     im.add_argument("--out", help="record path (default: FILE with .h5)")
     im.add_argument("--time", help="time column / variable (s); default t or time")
     im.add_argument("--map", action="append", metavar="CHANNEL=COL[,COL...]",
                     help="channel from one column or a vector from several (repeatable)")
     im.add_argument("--sidecar", help="YAML/JSON mapping file (default: found next to the CSV)")
+    im.add_argument("--overwrite", action="store_true", help="replace an existing record at --out")
     im.set_defaults(func=_cmd_import)
 
-    i = sub.add_parser("identify", help="identify a grey-box model (M, B, K_f, B_f, ...) from a chirp record",
-                       add_help=False)
+    i = add("identify", help="identify a grey-box model (M, B, K_f, B_f, ...) from a chirp record",
+                       add_help=False, parents=[])
     i.add_argument("rest", nargs=argparse.REMAINDER)
 
-    m = sub.add_parser("mock", help="simulated devices: 'hil mock serve SPEC' starts them and prints endpoints")
+    m = add("mock", help="simulated devices: 'hil mock serve SPEC' starts them and prints endpoints",
+                       parents=[])
     m.add_argument("rest", nargs=argparse.REMAINDER)
     return p
 
 
 _PASSTHROUGH = {"identify": "hil.identify.api", "mock": "hil.mocks.serve"}
+_MOCK_USAGE = ("usage: hil mock serve SCENE [--duration SECONDS] [--json] [--can-interface udp_multicast] "
+               "| hil mock serve --spec SPEC")
+
+# ---------------------------------------------------------------------------------------------
+# output folders, progress, numeric guard, error mapping
+
+#: output folders this process created (removed again when the command fails before writing a file)
+_CREATED: list[Path] = []
+
+
+def _out_dir(path: str | None, default_stem: str, overwrite: bool) -> Path:
+    """:func:`hil.outdir.prepare_out_dir`, remembering a folder it created for clean-up on failure."""
+    from hil.outdir import prepare_out_dir
+
+    existed = path is not None and Path(path).exists()
+    out = prepare_out_dir(path, default_stem=default_stem, overwrite=overwrite)
+    if not existed:
+        _CREATED.append(out)
+    return out
+
+
+def _cleanup_created() -> None:
+    from hil.outdir import remove_if_empty
+
+    while _CREATED:
+        remove_if_empty(_CREATED.pop())
+
+
+def _progress_interval() -> float:
+    try:
+        return max(0.05, float(os.environ.get("HIL_PROGRESS_SECONDS", "5")))
+    except ValueError:
+        return 5.0
+
+
+class _Progress:
+    """Progress of a long step on stderr. On a TTY a rich spinner with the latest message; otherwise
+    a plain line ``<label>: <elapsed> s: <message>`` every ``HIL_PROGRESS_SECONDS`` (default 5) s,
+    the first one only after that interval (a short step prints nothing)."""
+
+    def __init__(self, label: str, enabled: bool = True, interval: float | None = None) -> None:
+        self.label = label
+        self.enabled = enabled
+        self.interval = _progress_interval() if interval is None else interval
+        self.message = "working"
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._status: Any = None
+        self._t0 = time.monotonic()
+
+    def update(self, message: str) -> None:
+        self.message = message
+        if self._status is not None:
+            self._status.update(f"{self.label}: {message}")
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.interval):
+            print(f"{self.label}: {time.monotonic() - self._t0:.0f} s: {self.message}", file=sys.stderr, flush=True)
+
+    def __enter__(self) -> _Progress:
+        self._t0 = time.monotonic()
+        if not self.enabled:
+            return self
+        if sys.stderr.isatty():
+            from rich.console import Console
+
+            self._status = Console(stderr=True).status(f"{self.label}: {self.message}")
+            self._status.__enter__()
+        else:
+            self._thread = threading.Thread(target=self._loop, name="hil-progress", daemon=True)
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        if self._status is not None:
+            self._status.__exit__(*exc)
+
+
+@contextlib.contextmanager
+def _numeric_guard(source: str) -> Iterator[None]:
+    """Turn float overflow in the criteria (coefficients spanning too wide a range) into one
+    :class:`UsageError` naming ``source`` instead of a RuntimeWarning or a traceback."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RuntimeWarning)
+        try:
+            yield
+        except (FloatingPointError, OverflowError) as exc:
+            raise UsageError(f"{source}: the arithmetic leaves float range ({one_line(exc)}): the coefficients "
+                             "span too wide a range; rescale the units") from None
+    bad = [w for w in caught if issubclass(w.category, RuntimeWarning)
+           and any(k in str(w.message) for k in ("overflow", "invalid value"))]
+    for w in caught:
+        if w not in bad:
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    if bad:
+        raise UsageError(f"{source}: the arithmetic leaves float range ({bad[0].message}): the result would not be "
+                         "finite; rescale the units")
+
+
+def _describe(exc: BaseException, cmd: str) -> tuple[int, str]:
+    """(exit code, one-line message) for an exception that ended a command."""
+    if isinstance(exc, HilError):
+        return EXIT_USAGE, one_line(exc)
+    if isinstance(exc, UnicodeDecodeError):
+        return EXIT_USAGE, f"an input is not UTF-8 text ({exc.reason} at byte {exc.start})"
+    if isinstance(exc, OSError):
+        what = exc.strerror or one_line(exc) or type(exc).__name__
+        if exc.filename is not None:
+            two = f" -> {exc.filename2}" if exc.filename2 is not None else ""
+            return EXIT_USAGE, f"{exc.filename}{two}: {what}"
+        return EXIT_USAGE, one_line(exc) or type(exc).__name__
+    if isinstance(exc, ValueError):  # bad values (pydantic ValidationError too)
+        return EXIT_USAGE, one_line(exc) or type(exc).__name__
+    return EXIT_INTERNAL, (f"internal error: {type(exc).__name__}: {one_line(exc)} (a bug: rerun as "
+                           f"'hil --debug {cmd} ...' for the traceback and report it)")
+
+
+def _guarded(cmd: str, debug: bool, fn: Callable[[], Any]) -> int:
+    """Run one command; map every exception to its exit code and one stderr line (module docstring)."""
+    failed = True
+    try:
+        code = int(fn() or 0)
+        failed = False
+        return code
+    except SystemExit as exc:  # argparse: --help (0) or a one-line usage error (2)
+        failed = exc.code not in (0, None)
+        return exc.code if isinstance(exc.code, int) else (EXIT_USAGE if exc.code else EXIT_OK)
+    except KeyboardInterrupt:
+        print(f"hil {cmd}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # e.g. `hil stability ... --json | head`
+        with contextlib.suppress(OSError):
+            sys.stdout = open(os.devnull, "w")  # noqa: SIM115 (the interpreter's final flush must not fail)
+        failed = False
+        return EXIT_OK
+    except Exception as exc:
+        code, msg = _describe(exc, cmd)
+        if debug:
+            traceback.print_exc()
+        print(f"hil {cmd}: error: {msg}", file=sys.stderr)
+        return code
+    finally:
+        if failed:
+            _cleanup_created()
+        _CREATED.clear()
+
+
+def _split_globals(argv: list[str]) -> tuple[bool, list[str]]:
+    """Leading global options (``--debug``) and the rest."""
+    debug = False
+    while argv and argv[0] == "--debug":
+        debug = True
+        argv = argv[1:]
+    return debug, argv
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
+    """The ``hil`` command (exit codes: module docstring)."""
+    debug, argv = _split_globals(list(sys.argv[1:] if argv is None else argv))
     if argv and argv[0] in _PASSTHROUGH:  # these subcommands own their argument parsing (and --help)
-        import importlib
-
-        rest = argv[1:]
-        if argv[0] == "mock":
+        cmd, rest = argv[0], argv[1:]
+        if "--debug" in rest[: rest.index("--") if "--" in rest else len(rest)]:
+            debug = True
+            rest = [a for a in rest if a != "--debug"]
+        _logging(debug)
+        if cmd == "mock":
             if not rest or rest[0] != "serve":
-                print("usage: hil mock serve SCENE [--duration SECONDS] [--json] [--can-interface udp_multicast] "
-                      "| hil mock serve --spec SPEC", file=sys.stderr)
+                print(f"hil mock: error: expected 'serve' ({_MOCK_USAGE})", file=sys.stderr)
                 return EXIT_USAGE
-            rest = rest[1:]
-        try:
+            rest, cmd = rest[1:], "mock serve"
+
+        def passthrough() -> int:
+            import importlib
+
             return int(importlib.import_module(_PASSTHROUGH[argv[0]]).main(rest) or 0)
-        except HilError as exc:
-            print(f"hil {argv[0]}: error: {exc}", file=sys.stderr)
-            return EXIT_USAGE
+
+        return _guarded(cmd, debug, passthrough)
     parser = build_parser()
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.debug else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return EXIT_USAGE
     try:
-        return args.func(args)
-    except (UsageError, HilError) as exc:
-        if args.debug:
-            raise
-        print(f"hil {args.cmd}: error: {exc}", file=sys.stderr)
+        args = parser.parse_args(argv)
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
+    debug = debug or bool(getattr(args, "debug", False))
+    _logging(debug)
+    if not getattr(args, "func", None):
+        parser.print_help(sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
-    except BrokenPipeError:  # e.g. `hil stability ... --json | head`
-        sys.stderr.close()
-        return EXIT_OK
+    return _guarded(args.cmd, debug, lambda: args.func(args))
+
+
+def _logging(debug: bool) -> None:
+    """Warnings of every library; with ``--debug`` also the suite's own debug logs."""
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    log.setLevel(logging.DEBUG if debug else logging.NOTSET)  # NOTSET: the root's WARNING
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -129,16 +129,15 @@ def _normalize(raw: Mapping[str, Any], where: str) -> _Mapping:
 
 def _load_sidecar(path: str | Path) -> dict[str, Any]:
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise RecordError(f"{p}: cannot read sidecar ({exc})") from None
+    if not p.exists():
+        raise RecordError(f"{p}: no such sidecar file")
+    text = _read_text(p, "sidecar file")
     import yaml
 
     try:
         data = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
     except (ValueError, yaml.YAMLError) as exc:
-        raise RecordError(f"{p}: cannot parse sidecar ({exc})") from None
+        raise RecordError(f"{p}: cannot parse the sidecar ({' '.join(str(exc).split())})") from None
     if not isinstance(data, Mapping):
         raise RecordError(f"{p}: sidecar must hold a mapping")
     return dict(data)
@@ -158,8 +157,10 @@ def _default_mapping(names: Sequence[str], where: str) -> _Mapping:
     lower = {n.lower(): n for n in names}
     t_col = lower.get("t") or lower.get("time")
     if t_col is None:
-        raise RecordError(f"{where}: no mapping and no 't' or 'time' column (columns: {', '.join(names)}); "
-                          "give mapping= or a sidecar")
+        what = "variable" if where.lower().endswith(".mat") else "column"
+        raise RecordError(f"{where}: no 't' or 'time' {what} ({what}s: {', '.join(names) or 'none'}); name the time "
+                          f"{what} with 'hil import --time NAME' (channels: --map CHANNEL=NAME) or put a sidecar "
+                          "mapping file next to it")
     groups: dict[str, dict[int, str]] = {}
     chans: dict[str, str | list[str]] = {}
     for n in names:
@@ -184,13 +185,13 @@ def _check_time(t: np.ndarray, where: str, max_jitter: float) -> tuple[float, li
         raise RecordError(f"{where}: need at least 2 samples, got {t.size}")
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:
-        raise RecordError(f"{where}: time is not finite at row {bad[0]} ({t[bad[0]]})")
+        raise RecordError(f"{where}: time is not finite at row {bad[0]} ({float(t[bad[0]])!r})")
     dt = np.diff(t)
     bad = np.flatnonzero(dt <= 0)
     if bad.size:
         i = int(bad[0])
         what = "repeats" if dt[i] == 0 else "decreases"
-        raise RecordError(f"{where}: time {what} at row {i + 1}: {t[i]!r} s -> {t[i + 1]!r} s "
+        raise RecordError(f"{where}: time {what} at row {i + 1}: {float(t[i])!r} s -> {float(t[i + 1])!r} s "
                           f"({bad.size} non-increasing step(s)); sort or clean the data first")
     med = float(np.median(dt))
     ratio = dt / med
@@ -236,11 +237,26 @@ def _write(out: str | Path, t: np.ndarray, data: dict[str, np.ndarray], m: _Mapp
 # ------------------------------------------------------------------------------------------------- CSV
 
 
-def _read_csv(path: Path, delimiter: str | None) -> tuple[list[str], np.ndarray]:
+def _read_text(path: Path, what: str) -> str:
+    """UTF-8 text of ``path``; one-line :class:`RecordError` for a folder, an unreadable, binary or
+    non-UTF-8 file."""
+    if path.is_dir():
+        raise RecordError(f"{path}: is a folder, not a {what}")
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        raw = path.read_bytes()
     except OSError as exc:
-        raise RecordError(f"{path}: cannot read ({exc})") from None
+        raise RecordError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+    if b"\x00" in raw:
+        raise RecordError(f"{path}: binary data (NUL bytes), not a text {what}")
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise RecordError(f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); "
+                          f"save the {what} as UTF-8") from None
+
+
+def _read_csv(path: Path, delimiter: str | None) -> tuple[list[str], np.ndarray]:
+    text = _read_text(path, "CSV file")
     lines = [(i + 1, ln) for i, ln in enumerate(text.splitlines()) if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise RecordError(f"{path}: empty CSV")
@@ -288,6 +304,8 @@ def import_csv(
     ``max_jitter``: tolerated deviation of a time interval from a multiple of the median interval
     (fraction of it)."""
     src = Path(path)
+    if src.is_dir():
+        raise RecordError(f"{src}: is a folder, not a CSV file")
     if not src.is_file():
         raise RecordError(f"{src}: no such file")
     header, rows = _read_csv(src, delimiter)
@@ -374,14 +392,19 @@ def import_mat(
     from scipy.io import loadmat
 
     src = Path(path)
+    if src.is_dir():
+        raise RecordError(f"{src}: is a folder, not a .mat file")
     if not src.is_file():
         raise RecordError(f"{src}: no such file")
     try:
         raw = loadmat(src, simplify_cells=True)
     except NotImplementedError as exc:  # v7.3 files are HDF5
         raise RecordError(f"{src}: MATLAB v7.3 files are not supported; save with -v7 ({exc})") from None
-    except (ValueError, OSError, TypeError) as exc:
-        raise RecordError(f"{src}: not a readable .mat file ({exc})") from None
+    except PermissionError:
+        raise RecordError(f"{src}: cannot read the .mat file (permission denied)") from None
+    except Exception as exc:  # scipy raises ValueError, TypeError, OSError, EOFError, struct.error ... on garbage
+        raise RecordError(f"{src}: not a readable .mat file ({type(exc).__name__}: "
+                          f"{' '.join(str(exc).split())[:200]})") from None
     variables = {k: v for k, v in raw.items() if not k.startswith("__")}
     where = str(src)
     if mapping is None:

@@ -512,6 +512,8 @@ def _kv(items: Sequence[str] | None, what: str) -> dict[str, str]:
         if "=" not in it:
             raise ModelSpecError(f"{what} expects NAME=VALUE, got {it!r}")
         k, v = it.split("=", 1)
+        if not k.strip() or not v.strip():
+            raise ModelSpecError(f"{what} {it}: expects NAME=VALUE with both parts non-empty")
         out[k.strip()] = v.strip()
     return out
 
@@ -521,12 +523,55 @@ def _resolution_arg(v: str | None) -> Resolution | None:
         return None
     if v in ("none", "0"):
         return None if v == "none" else 0.0
-    if v.startswith("float"):
+    if v in ("float16", "float32", "float64"):
         return v
     try:
-        return float(v)
+        step = float(v)
     except ValueError:
-        raise ModelSpecError(f"--resolution: float16/32/64, none, or a quantization step; got {v!r}") from None
+        step = float("nan")
+    if not np.isfinite(step) or step < 0:
+        raise ModelSpecError(f"--resolution {v}: expected float16, float32, float64, none, or a non-negative "
+                             "quantization step")
+    return step
+
+
+def _number_type(kind: str) -> Any:
+    """argparse ``type=`` for a finite number that is ``positive`` or ``nonnegative``."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not np.isfinite(v) or v < 0 or (kind == "positive" and v == 0):
+            raise argparse.ArgumentTypeError(f"{text!r}: expected a finite {kind} number")
+        return v
+
+    parse.__name__ = f"{kind} number"
+    return parse
+
+
+def _seed_type(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: the seed must be a non-negative integer")
+    return v
+
+
+def _theta0(items: Sequence[str] | None) -> dict[str, float] | None:
+    out: dict[str, float] = {}
+    for k, v in _kv(items, "--set").items():
+        try:
+            x = float(v)
+        except ValueError:
+            x = float("nan")
+        if not np.isfinite(x):
+            raise ModelSpecError(f"--set {k}={v}: the starting value of {k} must be a finite number")
+        out[k] = x
+    return out or None
 
 
 def _print_table(res: IdentificationResult) -> None:
@@ -548,7 +593,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """``hil identify RECORD [--model NAME] [--json] ...``. Exit codes: 0 ok; 2 usage or input error
     (file, record, model, channel); 13 no trustworthy estimate (data quality, not identifiable,
     posterior not converged; one-line message on stderr). 1 is left to bugs."""
-    p = argparse.ArgumentParser(
+    from hil.cli import OneLineArgumentParser
+
+    p = OneLineArgumentParser(
         prog="hil identify",
         description="Identify a grey-box model (SDEA: K_f, B_f, M, B; m-DOF: M, B, K) from a chirp/multisine run. "
         "The model, channels, period and band are inferred from the record; flags override them.",
@@ -560,39 +607,61 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--input", action="append", metavar="SIGNAL", help="input signal, repeatable (model order)")
     p.add_argument("--output", action="append", metavar="CHANNEL=SIGNAL",
                    help="model output from a signal, e.g. force=spring_ft.wrench[5] (a leading - negates)")
-    p.add_argument("--band", nargs=2, type=float, metavar=("F_MIN", "F_MAX"), default=None)
-    p.add_argument("--period", type=float, default=None, help="excitation period [s] (Welch segment length)")
-    p.add_argument("--skip", type=float, default=None, help="start-up transient to drop [s]")
+    p.add_argument("--band", nargs=2, type=_number_type("nonnegative"), metavar=("F_MIN", "F_MAX"), default=None,
+                   help="analysis band [Hz], 0 <= F_MIN < F_MAX")
+    p.add_argument("--period", type=_number_type("positive"), default=None,
+                   help="excitation period [s] (Welch segment length)")
+    p.add_argument("--skip", type=_number_type("nonnegative"), default=None, help="start-up transient to drop [s]")
     p.add_argument("--sampling", choices=["zoh", "continuous"], default=None,
                    help="plant behind a zero-order hold at the record's rate (default for records) or continuous")
     p.add_argument("--resolution", default=None,
                    help="rounding of the recorded signals: float32 (default), float64, none, or a step")
     p.add_argument("--noise", choices=["student", "gaussian", "scaled"], default=None)
     p.add_argument("--set", action="append", metavar="PARAM=VALUE", help="starting value of a parameter (theta0)")
-    p.add_argument("--seed", type=int, default=None)
-    p.add_argument("--max-seconds", type=float, default=None, help="time budget of the sampler [s]")
+    p.add_argument("--seed", type=_seed_type, default=None)
+    p.add_argument("--max-seconds", type=_number_type("positive"), default=None, help="time budget of the sampler [s]")
     p.add_argument("--json", action="store_true", help="print the full result as JSON")
     p.add_argument("--no-store", action="store_true", help="do not write the posterior into the record")
     p.add_argument("--out", default=None, help="for .csv/.mat input: keep the imported record (with the result) here")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing record at --out")
     a = p.parse_args(argv)
+    if a.band is not None and not a.band[0] < a.band[1]:
+        p.error(f"argument --band: F_MIN must be below F_MAX, got {a.band[0]:g} {a.band[1]:g}")
     try:
         outputs = _kv(a.output, "--output") or None
-        theta0 = {k: float(v) for k, v in _kv(a.set, "--set").items()} or None
+        theta0 = _theta0(a.set)
         res_spec = _resolution_arg(a.resolution)
         target_path: Path | None = Path(a.record)
         suffix = target_path.suffix.lower()
+        if target_path.is_dir():
+            raise ModelSpecError(f"{target_path}: is a folder, not a record")
+        if a.out and suffix not in (".csv", ".mat"):
+            raise ModelSpecError(f"--out applies to .csv/.mat input (the result goes into {target_path} itself)")
         if suffix in (".csv", ".mat"):
             from hil.importers import import_csv, import_mat
 
             if a.out:
+                from hil.outdir import check_out_file
+
+                if not target_path.is_file():
+                    raise ModelSpecError(f"{target_path}: no such file")
+                check_out_file(a.out, overwrite=a.overwrite)
                 target_path = (import_csv if suffix == ".csv" else import_mat)(a.record, a.out)
                 rec: Any = load_record(target_path)
             else:
                 rec, target_path = load_record(a.record), None
+        elif suffix == ".npz":
+            import zipfile
+
+            try:
+                rec = load_record(a.record)
+            except HilError:
+                raise
+            except (ValueError, EOFError, zipfile.BadZipFile) as exc:  # garbage, pickled objects, truncated
+                raise ModelSpecError(f"{a.record}: not a readable .npz record ({type(exc).__name__})") from None
+            target_path = None
         else:
             rec = load_record(a.record)
-            if suffix == ".npz":
-                target_path = None
         kw = {"model": a.model, "band": a.band, "period": a.period, "seed": a.seed, "skip": a.skip,
               "noise": a.noise, "max_seconds": a.max_seconds, "theta0": theta0, "sampling": a.sampling}
         if a.resolution is not None:
@@ -607,8 +676,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (DataQualityError, NotIdentifiableError, ConvergenceError) as exc:
         print(f"hil identify: {type(exc).__name__}: {' '.join(str(exc).split())}", file=sys.stderr)
         return EXIT_ERROR
-    except (HilError, OSError) as exc:  # ModelSpecError, RecordError, SceneError: usage or input
-        print(f"hil identify: error: {' '.join(str(exc).split())}", file=sys.stderr)
+    except (HilError, OSError, UnicodeDecodeError) as exc:  # ModelSpecError, RecordError, SceneError: input
+        msg = " ".join(str(exc).split())
+        if isinstance(exc, OSError) and exc.filename is not None:
+            msg = f"{exc.filename}: {exc.strerror or msg}"
+        elif isinstance(exc, UnicodeDecodeError):
+            msg = f"{a.record}: not UTF-8 text ({exc.reason} at byte {exc.start})"
+        print(f"hil identify: error: {msg}", file=sys.stderr)
         return EXIT_USAGE
     if target_path is not None and not a.no_store:
         try:

@@ -6,10 +6,15 @@ the parameters it accepts (with their defaults), so the CLI can validate ``--set
 
 from __future__ import annotations
 
+import math
+import numbers
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
+from hil.errors import ModelError
 from hil.stability.rational import TransferMatrix
 
 __all__ = ["BUILTIN_MODELS", "BuiltinModel", "get_model"]
@@ -23,8 +28,38 @@ class BuiltinModel:
     defaults: dict[str, Any] = field(default_factory=dict)
     _builder: Callable[..., TransferMatrix] | None = None
 
+    def check_params(self, params: dict[str, Any], *, allow_unknown: bool = False) -> None:
+        """Refuse unknown names (unless ``allow_unknown``: builders such as ``mbk_impedance`` take
+        more than their defaults list) and values of the wrong kind with a one-line
+        :class:`ModelError` naming the parameter: a parameter whose default is a string (a gain-set
+        name) takes a string, every other one a finite real number (not a boolean)."""
+        for k, v in params.items():
+            if k not in self.defaults and not allow_unknown:
+                raise ModelError(f"model {self.name} has no parameter {k!r}")
+            d = self.defaults.get(k)
+            if isinstance(d, str):
+                if not isinstance(v, str):
+                    raise ModelError(f"model {self.name}: parameter {k} must be a name, got {v!r}")
+                choices = self.choices.get(k)
+                if choices is not None and v not in choices:
+                    raise ModelError(f"model {self.name}: {k} must be one of {', '.join(choices)}, got {v!r}")
+            elif isinstance(v, bool | np.bool_) or not isinstance(v, numbers.Real):
+                raise ModelError(f"model {self.name}: parameter {k} must be a number, got {v!r}")
+            elif not math.isfinite(v):
+                raise ModelError(f"model {self.name}: parameter {k} must be finite, got {float(v)!r}")
+
+    @property
+    def choices(self) -> dict[str, tuple[str, ...]]:
+        """Allowed values of the string parameters (e.g. the gain sets of a table)."""
+        if self.name == "bilateral_2dof":
+            from hil.models.teleop import TWO_DOF_TABLE2
+
+            return {"gains": tuple(TWO_DOF_TABLE2)}
+        return {}
+
     def build(self, **params: Any) -> TransferMatrix:
         assert self._builder is not None
+        self.check_params(params, allow_unknown=True)
         return self._builder(**params)
 
 

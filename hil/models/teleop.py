@@ -164,6 +164,8 @@ def bilateral_2dof(gains: str | Mapping[str, float] = "A1", params: Mapping[str,
     both master and slave unless master/slave-specific keys ``k_pmyy`` / ``k_psyy`` are given.
     Robot parameters default to :data:`TWO_DOF_ROBOT` for both master (``mm_yy``...) and slave.
     """
+    if isinstance(gains, str) and gains not in TWO_DOF_TABLE2:
+        raise ModelError(f"unknown gain set {gains!r} of 000 Table II; known: {', '.join(TWO_DOF_TABLE2)}")
     g = dict(TWO_DOF_TABLE2[gains]) if isinstance(gains, str) else dict(gains)
     g.update({k: v for k, v in kw.items() if k.startswith("k_")})
     # shared keys k_pyy ... (5 chars) apply to both sides; k_pmyy / k_psyy (6 chars) to one side

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from scipy.optimize import minimize_scalar
@@ -37,7 +37,7 @@ from hil.stability.exact import DEFAULT_TOL, decide_nonnegative
 
 log = logging.getLogger(__name__)
 
-__all__ = ["K22Design", "k22_max", "optimize_coupler"]
+__all__ = ["DESIGN_FIXED", "K22Design", "check_design_inputs", "k22_max", "optimize_coupler"]
 
 
 @dataclass
@@ -57,6 +57,41 @@ class K22Design:
 
 class _Counter:
     n = 0
+
+
+#: the SDEA parameters a design search may change (b22, k22 and alpha are the design variables)
+DESIGN_FIXED = tuple(k for k in SDEA_TABLE1 if k not in ("k22", "b22", "alpha"))
+
+
+def _plain(x: object) -> str:
+    """A value for a message: numbers (numpy ones too) as plain floats, never ``np.float64(...)``."""
+    try:
+        return repr(float(x)) if not isinstance(x, bool | str) else repr(x)
+    except (TypeError, ValueError):
+        return repr(x)
+
+
+def _is_number(x: object) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool)
+
+
+def check_design_inputs(b22: float | None = None, alpha: float | None = None, criterion: str = "passivity",
+                        params: Mapping[str, float] | None = None) -> None:
+    """Refuse inputs a design search cannot use, with a one-line :class:`ModelError` naming the
+    value: b22 must be a finite positive damping [N.m.s/rad], alpha a number in [0, 1], the
+    criterion ``passivity`` or ``absolute_stability``, ``params`` finite numbers naming SDEA
+    parameters (k22, b22 and alpha among them are ignored: the search sets them)."""
+    if criterion not in ("passivity", "absolute_stability"):
+        raise ModelError(f"criterion must be 'passivity' or 'absolute_stability', got {criterion!r}")
+    if b22 is not None and (not _is_number(b22) or not math.isfinite(b22) or b22 <= 0):
+        raise ModelError(f"b22 must be a finite positive damping [N.m.s/rad], got {_plain(b22)}")
+    if alpha is not None and (not _is_number(alpha) or not math.isfinite(alpha) or not 0.0 <= alpha <= 1.0):
+        raise ModelError(f"alpha must be a number in [0, 1], got {_plain(alpha)}")
+    for k, v in (params or {}).items():  # values of the design variables here are replaced by the search
+        if k not in SDEA_TABLE1:
+            raise ModelError(f"unknown SDEA parameter {k!r}; expected one of {', '.join(DESIGN_FIXED)}")
+        if not _is_number(v) or not math.isfinite(v):
+            raise ModelError(f"SDEA parameter {k} must be a finite number, got {_plain(v)}")
 
 
 def _feasible(params: Mapping[str, float], criterion: str, k22: float, b22: float, alpha: float,
@@ -80,12 +115,12 @@ def _base_ok(params: Mapping[str, float], criterion: str, b22: float, alpha: flo
 def k22_max(b22: float, alpha: float = 1.0, criterion: str = "passivity", params: Mapping[str, float] | None = None,
             k_hi: float = 1e5, rtol: float = 1e-7) -> K22Design:
     """Largest k22 with the two-port passive (``criterion="passivity"``) or absolutely stable
-    (``"absolute_stability"``) for fixed b22 and alpha. Returns k22_max = 0 when even k22 → 0 fails."""
-    if criterion not in ("passivity", "absolute_stability"):
-        raise ModelError("criterion must be 'passivity' or 'absolute_stability'")
+    (``"absolute_stability"``) for fixed b22 and alpha. Returns k22_max = 0 when even k22 → 0 fails.
+    Raises :class:`ModelError` for b22 ≤ 0 or not finite, alpha outside [0, 1] (:func:`check_design_inputs`)."""
+    check_design_inputs(b22, alpha, criterion, params)
     p = {**SDEA_TABLE1, **(params or {})}
     cnt = _Counter()
-    if b22 <= 0 or not _base_ok(p, criterion, b22, alpha):
+    if not _base_ok(p, criterion, b22, alpha):
         return K22Design(criterion, alpha, b22, 0.0, cnt.n)
     lo, hi = 0.0, 1.0
     if not _feasible(p, criterion, hi, b22, alpha, cnt):
@@ -106,17 +141,28 @@ def k22_max(b22: float, alpha: float = 1.0, criterion: str = "passivity", params
 
 def optimize_coupler(criterion: str = "passivity", alpha: float | None = 1.0,
                      params: Mapping[str, float] | None = None, b22_bounds: tuple[float, float] | None = None,
-                     xtol: float = 1e-5) -> K22Design:
-    """Maximize k22_max over b22 (and over alpha ∈ [0, 1] when ``alpha`` is None)."""
+                     xtol: float = 1e-5, progress: Callable[[str], None] | None = None) -> K22Design:
+    """Maximize k22_max over b22 (and over alpha ∈ [0, 1] when ``alpha`` is None).
+
+    ``progress`` (optional) is called after every inner k22_max search with a one-line message
+    (current alpha, b22, k22_max, the best so far and the number of exact verdicts so far)."""
+    check_design_inputs(None, alpha, criterion, params)
     p = {**SDEA_TABLE1, **(params or {})}
     bf = p["B_f"]
     lo_b, hi_b = b22_bounds or ((1e-4 * bf, 4 * bf) if criterion == "passivity" else (1e-4 * bf, 10 * bf))
+    if not (math.isfinite(lo_b) and math.isfinite(hi_b) and 0 < lo_b < hi_b):
+        raise ModelError(f"b22 bounds must be finite with 0 < low < high, got ({_plain(lo_b)}, {_plain(hi_b)})")
     total = _Counter()
+    best = [0.0]
 
     def best_for_alpha(a: float) -> K22Design:
         def neg(b: float) -> float:
             r = k22_max(b, a, criterion, p)
             total.n += r.evaluations
+            best[0] = max(best[0], r.k22_max)
+            if progress is not None:
+                progress(f"alpha = {a:.4g}, b22 = {b:.4g} N.m.s/rad: k22_max = {r.k22_max:.5g} N.m/rad "
+                         f"(best so far {best[0]:.5g}; {total.n} exact verdicts)")
             return -r.k22_max
 
         res = minimize_scalar(neg, bounds=(lo_b, hi_b), method="bounded", options={"xatol": xtol * bf})
