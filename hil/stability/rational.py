@@ -393,34 +393,38 @@ class TransferMatrix:
         * g = h⁻¹
 
         Raises :class:`ConversionError` when the needed inverse does not exist (identically
-        singular block).
+        singular block). The whole chain (e.g. g → z → h) runs in exact arithmetic over Q(s) and
+        is rounded to floats once, at the end.
         """
         if kind not in KINDS:
             raise ModelError(f"unknown immittance type {kind!r}")
         if kind == self.kind:
             return self
-        z = self._to_impedance()
-        if kind == "impedance":
-            return z
-        if kind == "admittance":
-            return TransferMatrix(_inv(z.entries), "admittance", z.port_dofs, self.name)
-        if len(self.port_dofs) != 2:
+        if kind in ("hybrid", "inverse_hybrid") and len(self.port_dofs) != 2:
             raise ConversionError("hybrid forms exist for two-ports only")
-        h = _z_to_h(z.entries, z.port_dofs[0])
-        if kind == "hybrid":
-            return TransferMatrix(h, "hybrid", z.port_dofs, self.name)
-        return TransferMatrix(_inv(h), "inverse_hybrid", z.port_dofs, self.name)
-
-    def _to_impedance(self) -> TransferMatrix:
-        if self.kind == "impedance":
-            return self
-        if self.kind == "admittance":
-            return TransferMatrix(_inv(self.entries), "impedance", self.port_dofs, self.name)
-        m1 = self.port_dofs[0]
-        h = self.entries if self.kind == "hybrid" else _inv(self.entries)
-        # h -> z is the same map as z -> h with the roles of the ports swapped:
-        # z11 = h11 - h12 h22^-1 h21, z12 = h12 h22^-1, z21 = -h22^-1 h21, z22 = h22^-1
-        return TransferMatrix(_z_to_h(h, m1), "impedance", self.port_dofs, self.name)
+        Q = _to_rf(self.entries)
+        pair = {"impedance": "admittance", "admittance": "impedance", "hybrid": "inverse_hybrid",
+                "inverse_hybrid": "hybrid"}
+        if pair[self.kind] == kind:  # z <-> y, h <-> g: one inverse
+            out = _rf_inv(Q, _SINGULAR)
+        else:
+            m1 = self.port_dofs[0]
+            if self.kind == "impedance":
+                z = Q
+            elif self.kind == "admittance":
+                z = _rf_inv(Q, _SINGULAR)
+            else:
+                # h -> z is the same map as z -> h with the roles of the ports swapped:
+                # z11 = h11 - h12 h22^-1 h21, z12 = h12 h22^-1, z21 = -h22^-1 h21, z22 = h22^-1
+                z = _rf_z_to_h(Q if self.kind == "hybrid" else _rf_inv(Q, _SINGULAR), m1)
+            if kind == "impedance":
+                out = z
+            elif kind == "admittance":
+                out = _rf_inv(z, _SINGULAR)
+            else:
+                h = _rf_z_to_h(z, m1)
+                out = h if kind == "hybrid" else _rf_inv(h, _SINGULAR)
+        return TransferMatrix(_from_rf(out), kind, self.port_dofs, self.name)
 
 
 def _rational_equal(a: Rational, b: Rational, rtol: float) -> bool:
@@ -591,14 +595,12 @@ def _rf_matmul(A: Sequence[Sequence[_RF]], B: Sequence[Sequence[_RF]]) -> list[l
     return out
 
 
-def _inv(M: list[list[Rational]]) -> list[list[Rational]]:
-    return _from_rf(_rf_inv(_to_rf(M), "the matrix is identically singular: this immittance form does not exist"))
+_SINGULAR = "the matrix is identically singular: this immittance form does not exist"
 
 
-def _z_to_h(Z: list[list[Rational]], m1: int) -> list[list[Rational]]:
-    """Block hybrid conversion (the same map also takes h to z):
+def _rf_z_to_h(Q: list[list[_RF]], m1: int) -> list[list[_RF]]:
+    """Block hybrid conversion over Q(s) (the same map also takes h to z):
     h11 = Z11 - Z12 Z22⁻¹ Z21, h12 = Z12 Z22⁻¹, h21 = -Z22⁻¹ Z21, h22 = Z22⁻¹."""
-    Q = _to_rf(Z)
     Z11 = [r[:m1] for r in Q[:m1]]
     Z12 = [r[m1:] for r in Q[:m1]]
     Z21 = [r[:m1] for r in Q[m1:]]
@@ -607,5 +609,4 @@ def _z_to_h(Z: list[list[Rational]], m1: int) -> list[list[Rational]]:
     H12 = _rf_matmul(Z12, Z22i)
     H11 = [[a - b for a, b in zip(ra, rb, strict=True)] for ra, rb in zip(Z11, _rf_matmul(H12, Z21), strict=True)]
     H21 = [[-e for e in r] for r in _rf_matmul(Z22i, Z21)]
-    H = [a + b for a, b in zip(H11, H12, strict=True)] + [a + b for a, b in zip(H21, Z22i, strict=True)]
-    return _from_rf(H)
+    return [a + b for a, b in zip(H11, H12, strict=True)] + [a + b for a, b in zip(H21, Z22i, strict=True)]
