@@ -157,3 +157,24 @@ def test_an_undeclared_import_is_reported(tmp_path):
     assert _undeclared({"sympy": ["hil/x.py"]}, allowed_groups=None)
     assert _undeclared({"no_such_module_xyz": ["hil/x.py"]}, allowed_groups=None)
     assert not _undeclared({"serial": ["hil/x.py"]}, allowed_groups=None)
+
+
+def _readme_commands() -> list[str]:
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    section = text.split("## Two commands on a fresh machine", 1)[1].split("\n## ", 1)[0]
+    return [b.strip() for b in re.findall(r"```bash\n(.*?)```", section, flags=re.S)]
+
+
+def test_ci_runs_the_readme_test_command_in_a_fresh_venv_of_its_own():
+    certify, tests = _readme_commands()[:2]
+    prefix = 'python3 -m venv .venv && . .venv/bin/activate && '
+    assert certify.startswith(prefix) and certify.endswith("hil certify")
+    assert tests.startswith(prefix) and "pytest" in tests
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
+    venv = ci.index("rm -rf .ci-venv")
+    activate = ci.index(". .ci-venv/bin/activate")
+    assert venv < activate and any(line.strip() == "python3 -m venv .ci-venv" for line in ci[venv:activate])
+    assert not any("system-site-packages" in line for line in ci)
+    # after the activation, the README's command verbatim (its own venv prefix replaced by .ci-venv)
+    assert tests[len(prefix):] in ci[activate:]
+    assert ".ci-venv/" in (ROOT / ".gitignore").read_text(encoding="utf-8").splitlines()
