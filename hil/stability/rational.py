@@ -478,14 +478,22 @@ class _RF:
     def is_zero(self) -> bool:
         return self.n == 0
 
+    # Henrici's algorithms: gcds of the small factors instead of one gcd of the full product,
+    # which keeps the intermediate polynomials (and the Gauss-Jordan elimination) small.
     def __add__(self, o: _RF) -> _RF:
         if o.is_zero:
             return self
         if self.is_zero:
             return o
-        if self.d == o.d:
-            return _RF(self.n + o.n, self.d)
-        return _RF(self.n * o.d + o.n * self.d, self.d * o.d)
+        g = self.d.gcd(o.d)
+        if g == 1:  # coprime denominators: the sum is already reduced
+            return _RF(self.n * o.d + o.n * self.d, self.d * o.d, reduced=True)
+        d1, d2 = self.d // g, o.d // g
+        t = self.n * d2 + o.n * d1
+        if t == 0:
+            return _ZERO
+        h = t.gcd(g)  # gcds are monic (FLINT), so is the denominator
+        return _RF(t // h, d1 * d2 * (g // h), reduced=True)
 
     def __neg__(self) -> _RF:
         return _RF(-self.n, self.d, reduced=True)
@@ -496,12 +504,17 @@ class _RF:
     def __mul__(self, o: _RF) -> _RF:
         if self.is_zero or o.is_zero:
             return _ZERO
-        return _RF(self.n * o.n, self.d * o.d)
+        g1, g2 = self.n.gcd(o.d), o.n.gcd(self.d)
+        return _RF((self.n // g1) * (o.n // g2), (self.d // g2) * (o.d // g1), reduced=True)
+
+    def inv(self) -> _RF:
+        if self.is_zero:
+            raise ConversionError("division by an identically zero transfer function")
+        lc = self.n[self.n.degree()]
+        return _RF(self.d / lc, self.n / lc, reduced=True)
 
     def __truediv__(self, o: _RF) -> _RF:
-        if o.is_zero:
-            raise ConversionError("division by an identically zero transfer function")
-        return _RF(self.n * o.d, self.d * o.n)
+        return self * o.inv()
 
     def to_rational(self) -> Rational:
         """Round to floats once: num and den divided (exactly) by den's largest |coefficient|."""

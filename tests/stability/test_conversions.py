@@ -206,3 +206,17 @@ def test_identically_singular_matrices_raise():
     r = (S + 0.1) / (S + 3)
     with pytest.raises(ConversionError):
         TransferMatrix([[r, r * 2], [r * 3, r * 6]], "impedance").to("admittance")
+
+
+def test_exact_determinant_against_numpy_and_exactly_zero_when_singular():
+    from hil.stability.rational import _rf_det, _to_rf
+
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 3, 4):
+        Z = TransferMatrix(_random_matrix(rng, n), "impedance")
+        d = _rf_det(_to_rf(Z.entries)).to_rational()
+        for s in _points(rng):
+            ref = np.linalg.det(_eval(Z, s))
+            assert abs(complex(d(s)) - ref) <= RTOL * max(abs(ref), 1e-300) or not _well_conditioned(_eval(Z, s))
+    r = (S + 0.1) / (S + 3)
+    assert _rf_det(_to_rf([[r, r * 2], [r * 3, r * 6]])).is_zero
