@@ -62,6 +62,7 @@ from hil.scene import (
     Scene,
     WallTermination,
 )
+from hil.stopflag import STOP
 
 __all__ = ["SIMULATED_DRIVERS", "Bench", "Measurements", "SimEndpoint", "SimulatedScene"]
 
@@ -214,12 +215,17 @@ class Bench:
     (the :class:`hil.mocks.simulator.Simulator` or None), ``plant``, ``dt``, ``time``.
     """
 
+    #: install the stop-request signal handlers while open (a SimulatedScene keeps the caller's)
+    _install_stop = True
+
     def __init__(self, scene: Scene, *, seed: int | None = None, variant: str | None = None,
                  timeout: float = 0.1) -> None:
         self.scene = scene
         self.seed = int(scene.seed if seed is None else seed)
         self.dt = scene.dt
         self.timeout = float(timeout)
+        #: per-actuator bound (s) of :meth:`safe_stop`
+        self.safe_stop_timeout = max(1.0, 10.0 * self.timeout)
         self.simulated = scene.simulation is not None
         self.variant = variant
         self.simulator: Any = None
@@ -234,11 +240,19 @@ class Bench:
             self._bench_id = next(_BENCH_IDS)
         if variant not in (None, "locked", "free"):
             raise SceneError(f"{scene.name}: variant must be 'locked', 'free' or None, got {variant!r}")
+        # Stop requests (SIGINT/SIGTERM/SIGHUP) are flags from here until close() has closed every
+        # device: a signal while opening (actuators possibly armed) is a safe stop once opened.
+        self._stop_held = False
+        if self._install_stop:
+            STOP.acquire()
+            self._stop_held = True
         try:
             if self.simulated:
                 self._build_simulation()
             self._open_devices()
+            STOP.check()
         except BaseException:
+            self.safe_stop()
             self.close()
             raise
         logger.info("bench for scene %r opened (%s, %d devices, seed %d)", scene.name,
@@ -376,16 +390,40 @@ class Bench:
             elif kind == "SimulatedFT300":
                 d.sim.update()
 
-    def safe_stop(self) -> None:
-        """Zero effort on every actuator (and disable where the adapter does so). Never raises."""
-        for d in self._devs:
-            if d.cfg.role == "actuator" and d.adapter is not None:
-                try:
-                    d.adapter.safe_stop()
-                except Exception:  # pragma: no cover - adapters already swallow
-                    logger.exception("safe_stop of %s failed", d.name)
-        with contextlib.suppress(Exception):
-            self._flush_devices()
+    def safe_stop(self) -> dict[str, str]:
+        """Zero effort on every actuator (and disable where the adapter does so). Never raises.
+
+        Runs as a :meth:`hil.stopflag.StopRequest.critical` section: a signal cannot cut it short.
+        Every actuator is attempted, even when an earlier one raises or hangs: each adapter's
+        ``safe_stop`` (whose bus calls have short timeouts of their own, 0.05 s per frame) runs in a
+        worker thread given at most :attr:`safe_stop_timeout` s (default ``max(1 s, 10 x timeout)``)
+        before the next actuator is attempted. Returns, per actuator, ``"ok"``, ``"timeout after
+        T s"`` or the one-line error (also logged).
+        """
+        done: dict[str, str] = {}
+        limit = self.safe_stop_timeout
+        with STOP.critical():
+            for d in self._devs:
+                if d.cfg.role != "actuator" or d.adapter is None:
+                    continue
+                box: list[str] = []
+
+                def zero(adapter: Any = d.adapter, box: list[str] = box) -> None:
+                    try:
+                        adapter.safe_stop()
+                        box.append("ok")
+                    except BaseException as exc:
+                        box.append(f"{type(exc).__name__}: {exc}")
+
+                worker = threading.Thread(target=zero, name=f"safe-stop-{d.name}", daemon=True)
+                worker.start()
+                worker.join(limit)  # signals are handled meanwhile (they only count, see STOP)
+                done[d.name] = box[0] if box else f"timeout after {limit:g} s"
+                if done[d.name] != "ok":
+                    logger.error("safe_stop of %s failed: %s", d.name, done[d.name])
+            with contextlib.suppress(Exception):
+                self._flush_devices()
+        return done
 
     def device_identities(self) -> dict[str, dict[str, Any]]:
         """Per device: driver, transport, vendor, model, serial, firmware, extra, role, simulated."""
@@ -403,18 +441,23 @@ class Bench:
         if self._closed:
             return
         self._closed = True
-        for d in self._devs:
-            if d.adapter is not None:
-                try:
-                    d.adapter.close()
-                except Exception:
-                    logger.warning("closing adapter %s failed", d.name, exc_info=True)
-        for d in self._devs:
-            if d.sim is not None:
-                try:
-                    d.sim.close()
-                except Exception:
-                    logger.warning("closing simulated device %s failed", d.name, exc_info=True)
+        try:
+            for d in self._devs:
+                if d.adapter is not None:
+                    try:
+                        d.adapter.close()
+                    except Exception:
+                        logger.warning("closing adapter %s failed", d.name, exc_info=True)
+            for d in self._devs:
+                if d.sim is not None:
+                    try:
+                        d.sim.close()
+                    except Exception:
+                        logger.warning("closing simulated device %s failed", d.name, exc_info=True)
+        finally:
+            if getattr(self, "_stop_held", False):  # every device closed: signals back to the caller's
+                self._stop_held = False
+                STOP.release()
         logger.debug("bench for scene %r closed after %d ticks", self.scene.name, self._ticks)
 
     def __enter__(self) -> Bench:
@@ -742,6 +785,8 @@ class SimulatedScene(Bench):
     :meth:`read`, :meth:`command` and :meth:`advance` are not available (there are no adapters);
     :meth:`set_human_force` works. :meth:`close` stops every thread and closes every transport.
     """
+
+    _install_stop = False  # ``hil mock serve`` handles its own SIGINT/SIGTERM
 
     def __init__(self, scene: Scene, *, seed: int | None = None, variant: str | None = None,
                  can_interface: str = "virtual", can_channels: Mapping[str, str] | None = None,

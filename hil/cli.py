@@ -12,8 +12,9 @@ Exit codes (documented in README.md):
 11    potentially unstable (NO-GO)
 12    criterion not applicable (e.g. Theorem 1's symmetrization fails)
 13    evidence missing or broken (ERROR)
-20    ``hil run``: an experiment ended in a safe stop (limit breach, watchdog, SIGTERM)
-130   interrupted (Ctrl-C); the records keep every sample taken
+20    ``hil run``: a safe stop ended the run (limit breach, non-finite feedback, watchdog, device
+      failure, record write error, SIGTERM/SIGHUP); no later experiment started
+130   interrupted (Ctrl-C / SIGINT); the records keep every sample taken
 1     unexpected internal error (a bug: please report it with the traceback from --debug)
 ====  ==============================================================
 """
@@ -237,15 +238,38 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 tasks[name] = prog.add_task(name, total=n)
             prog.update(tasks[name], completed=k)
 
+    from hil.stopflag import STOP
+
     runner = Runner(scene, out, realtime=realtime, progress=progress_cb)
-    if prog is not None:
-        with prog:
+    with STOP.install():  # signals stay stop requests until the results are printed
+        if prog is not None:
+            with prog:
+                outcomes = runner.run(select)
+        else:
             outcomes = runner.run(select)
-    else:
-        outcomes = runner.run(select)
+        code = _run_exit_code(outcomes, runner)
+        _print_run(args, scene, out, outcomes, runner)
+    return code
+
+
+def _run_exit_code(outcomes: Sequence[Any], runner: Any) -> int:
+    """130 if a run was interrupted (SIGINT), 20 for any other stop (limit, watchdog, device or record
+    failure, SIGTERM/SIGHUP, error), 0 when every experiment completed."""
+    statuses = [o.status for o in outcomes] + [getattr(runner, "stop_status", None)]
+    if "interrupted" in statuses:
+        return EXIT_INTERRUPTED
+    if any(s in ("safety_stop", "error") for s in statuses):
+        return EXIT_SAFETY_STOP
+    return EXIT_OK
+
+
+def _print_run(args: argparse.Namespace, scene: Any, out: Any, outcomes: Sequence[Any], runner: Any) -> None:
+    stop = None
+    if getattr(runner, "stop_status", None):
+        stop = {"status": runner.stop_status, "reason": runner.stop_reason}
     if args.json:
-        print(json.dumps({"scene": scene.name, "out": str(out), "experiments": [o.to_dict() for o in outcomes]},
-                         indent=2, default=str))
+        print(json.dumps({"scene": scene.name, "out": str(out), "stop": stop,
+                          "experiments": [o.to_dict() for o in outcomes]}, indent=2, default=str), flush=True)
     else:
         from rich.console import Console
         from rich.table import Table
@@ -256,11 +280,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
             keys = ", ".join(f"{k}={_short(v)}" for k, v in scalars)
             tab.add_row(o.name, o.status, o.stop_reason if o.status != "completed" else "", str(o.record), keys)
         Console().print(tab)
-    if any(o.status == "interrupted" for o in outcomes):
-        return EXIT_INTERRUPTED
-    if any(o.status in ("safety_stop", "error") for o in outcomes):
-        return EXIT_SAFETY_STOP
-    return EXIT_OK
+        if stop is not None:
+            Console().print(f"run stopped: {stop['reason']}")
 
 
 def _short(v: Any) -> str:

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -561,9 +561,14 @@ class Chirp(_PeriodicEffort):
             "variant": self.variant, "segments": self.segments(), "periodic": self.periodic,
         }
         exc = data.get(f"{self.target}.excitation")
-        if exc is not None and np.asarray(exc).size:
-            arr = np.asarray(exc, dtype=float).reshape(np.asarray(exc).shape[0], -1)
-            res["excitation_rms"] = [float(np.sqrt(np.mean(arr[:, i] ** 2))) for i in self.sel if i < arr.shape[1]]
+        n = int(np.shape(exc)[0]) if exc is not None and np.ndim(exc) else 0
+        if n:
+            sq: np.ndarray | None = None
+            for _, blk in _row_blocks(exc, n):  # in blocks: the channel may be an h5py dataset of a long run
+                part = np.sum(blk ** 2, axis=0)
+                sq = part if sq is None else sq + part
+            assert sq is not None
+            res["excitation_rms"] = [float(np.sqrt(sq[i] / n)) for i in self.sel if i < sq.size]
         return res
 
 
@@ -901,31 +906,81 @@ class StaticHold(_Base):
         return Excitation(effort={self.target: e})
 
     def finish(self, data: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> dict:
+        """Stiffness from the settled window, in one pass over blocks of rows (bounded memory: the
+        channels may be h5py datasets of the record); mean, std and drift (least-squares slope)
+        from merged per-block moments (Chan et al.), equal to the two-pass values to rounding."""
         try:
-            t = np.asarray(data["t"], dtype=float)
-            x = np.asarray(data[f"{self.target}.position"], dtype=float)
+            t_all = data["t"]
+            x_all = data[f"{self.target}.position"]
         except KeyError as exc:
             raise SceneError(f"{self.where}: record lacks channel {exc.args[0]!r}") from exc
-        x = x.reshape(t.size, -1)[:, self.sel]
-        win = t >= self.settle
-        if not np.any(win) or t.size < 2:
+        n_all = int(np.shape(t_all)[0])
+        if n_all < 2:
             raise SceneError(f"{self.where}: no samples after settle = {self.settle} s")
-        x0 = x[0]
-        xm = np.mean(x[win], axis=0)
+        x0 = np.asarray(x_all[0], dtype=float).reshape(-1)[self.sel]
+        mom = _Moments()
+        for i, tb in _row_blocks(t_all, n_all):
+            xb = np.asarray(x_all[i:i + tb.shape[0]], dtype=float).reshape(tb.shape[0], -1)[:, self.sel]
+            win = tb >= self.settle
+            if np.any(win):
+                mom.add(tb[win], xb[win])
+        if mom.n == 0:
+            raise SceneError(f"{self.where}: no samples after settle = {self.settle} s")
+        xm = mom.mean_x
         dx = xm - x0
         with np.errstate(divide="ignore", invalid="ignore"):
             K = np.where(np.abs(dx) > 0, self.effort / dx, np.inf)
         res: dict[str, Any] = {"type": "static_hold", "target": self.target, "dofs": list(self.sel),
                                "effort": self.effort.tolist(), "x0": x0.tolist(), "x_mean": xm.tolist(),
-                               "dx": dx.tolist(), "x_std": np.std(x[win], axis=0).tolist(),
+                               "dx": dx.tolist(), "x_std": np.sqrt(np.maximum(mom.m2_x, 0.0) / mom.n).tolist(),
                                "stiffness": [float(k) for k in K], "settle": self.settle, "variant": self.variant,
-                               "n_samples": int(np.sum(win))}
+                               "n_samples": int(mom.n)}
         # drift over the averaging window: a still-moving position means settle was too short
-        tw, xw = t[win], x[win]
-        if tw.size > 2 and np.ptp(tw) > 0:
-            slope = np.polyfit(tw - tw[0], xw, 1)[0]
-            res["drift_per_s"] = np.atleast_1d(slope).tolist()
+        if mom.n > 2 and mom.m2_t > 0:
+            res["drift_per_s"] = np.atleast_1d(mom.c_tx / mom.m2_t).tolist()
         return res
+
+
+_BLOCK_ROWS = 65536
+
+
+def _row_blocks(ds: Any, n: int) -> Iterator[tuple[int, np.ndarray]]:
+    """``(start, rows)`` blocks of the first ``n`` rows of an array or h5py dataset, as float arrays
+    (``rows`` is (m,) for 1-D data, (m, k) otherwise)."""
+    for i in range(0, n, _BLOCK_ROWS):
+        blk = np.asarray(ds[i:min(n, i + _BLOCK_ROWS)], dtype=float)
+        yield i, blk if blk.ndim == 1 else blk.reshape(blk.shape[0], -1)
+
+
+class _Moments:
+    """Count, means, centred sums of squares of ``t`` and ``x`` (per column) and their centred cross
+    sum, merged block by block (Chan, Golub & LeVeque's pairwise update)."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.mean_t = 0.0
+        self.m2_t = 0.0
+        self.mean_x: np.ndarray = np.zeros(0)
+        self.m2_x: np.ndarray = np.zeros(0)
+        self.c_tx: np.ndarray = np.zeros(0)
+
+    def add(self, t: np.ndarray, x: np.ndarray) -> None:
+        nb = t.shape[0]
+        mt, mx = float(np.mean(t)), np.mean(x, axis=0)
+        dt_, dx_ = t - mt, x - mx
+        m2t, m2x, ctx = float(dt_ @ dt_), np.sum(dx_ ** 2, axis=0), dt_ @ dx_
+        if self.n == 0:
+            self.n, self.mean_t, self.m2_t, self.mean_x, self.m2_x, self.c_tx = nb, mt, m2t, mx, m2x, ctx
+            return
+        na, n = self.n, self.n + nb
+        d_t, d_x = mt - self.mean_t, mx - self.mean_x
+        f = na * nb / n
+        self.m2_t += m2t + d_t * d_t * f
+        self.m2_x = self.m2_x + m2x + d_x * d_x * f
+        self.c_tx = self.c_tx + ctx + d_t * d_x * f
+        self.mean_t += d_t * nb / n
+        self.mean_x = self.mean_x + d_x * nb / n
+        self.n = n
 
 
 # ---------------------------------------------------------------------------------------------

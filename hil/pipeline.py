@@ -275,6 +275,8 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
                 if o.status == "error":
                     errors.append(f"experiment {names[i]}: {o.stop_reason}")
                 _energy_stage(opt, names[i], o, energy, measurements, plots)
+            if runner.stop_reason and all(o.status == "completed" for o in outcomes.values()):
+                errors.append(f"run stopped: {runner.stop_reason}")  # e.g. a signal after the last experiment
 
     # 2. identification ----------------------------------------------------------------------
     draws: dict[str, np.ndarray] = {}

@@ -3,11 +3,11 @@
 Writer: :class:`RecordWriter` (context manager). Reader: :class:`RunRecord`. CLI: :func:`replay_main`
 (``hil replay RECORD [--json]``). Importers of other tools' runs: :mod:`hil.importers`.
 
-File layout (format ``hil-record``, ``format_version`` 1; all values SI, time in seconds)::
+File layout (format ``hil-record``, ``format_version`` 2; all values SI, time in seconds)::
 
     /                         root attributes:
         format                "hil-record"
-        format_version        1
+        format_version        2 (1: /status and /results were groups written at close; still read)
         created_utc           ISO 8601 UTC time the file was created
         software.hil|numpy|scipy|h5py|hdf5|python   versions (strings)
         seed                  meta["seed"] when it is an integer (absent otherwise)
@@ -19,23 +19,49 @@ File layout (format ``hil-record``, ``format_version`` 1; all values SI, time in
     /t                        float64 (n,), resizable, chunked, fill NaN: sample times [s], strictly increasing
     /channels/<name>          float64 (n, *shape), resizable along axis 0, fill NaN; attrs unit, description
     /events                   uint8 (m,), resizable: UTF-8 JSON lines {"t": s, "kind": str, "message": str}
-    /results/<experiment>     group, attr ``json`` (the results with numpy arrays replaced by
-                              {"__dataset__": "a/b"}) and the arrays as datasets at those relative paths
-    /status                   group written at close, attrs stop_reason, status, closed_utc, samples;
-                              ABSENT => the run never closed (killed, power loss): the samples up to the
+    /results                  uint8, resizable: UTF-8 JSON lines {"experiment", "results", "arrays"}, one per
+                              set_results (the last per experiment counts); numpy arrays in "results" are
+                              {"__dataset__": key} and "arrays"[key] = [offset, nbytes] in /results_npy
+    /results_npy              uint8, resizable: the arrays in .npy format, back to back
+    /device_counters          uint8, resizable: UTF-8 JSON lines {"t": s, "counters": {device: {name: int}}},
+                              one per set_device_counters (the last counts)
+    /status                   uint8 (1024,), fixed: all zeros until close() overwrites it in place with one
+                              JSON line {stop_reason, status, closed_utc, samples}, zero padded.
+                              Zeros => the run never closed (killed, power loss): the samples up to the
                               last flush are still there
 
-Crash safety: the file is created with ``libver="latest"``; ``/scene``, ``/t``, every channel and
-``/events`` are created first, then SWMR mode is switched on (``f.swmr_mode = True``). Samples are
-buffered in memory and written in blocks of ``flush_samples`` samples (or when ``flush_every_s`` of run
-time ``t`` has passed since the first buffered sample, whichever comes first), each block followed by
-``f.flush()``; so a SIGKILL loses at most the samples after the last flush. Channels are written before
-``/t``, and the reader keeps ``min(len)`` over all of them with trailing non-finite times trimmed, so a
-kill in the middle of a flush never yields a half-written sample. SWMR forbids creating objects or
-attributes, so ``/results`` and ``/status`` are written at :meth:`RecordWriter.close` after reopening the
-file in normal ``r+`` mode (results set during a run are kept in memory until then). A killed file keeps
-its "open for SWMR write" flag: :meth:`RunRecord.open` then reads it in SWMR-read mode (no ``h5clear``
-needed).
+Crash safety. Every object is created, and the file flushed, before SWMR mode is switched on; after
+that the writer only appends to the datasets above (resize + write) and overwrites ``/status`` in
+place, so nothing is ever created, reopened or re-laid out: a SIGKILL at any moment -- also inside
+:meth:`RecordWriter.close` -- leaves a file that SWMR-reads with every sample up to the last flush.
+Samples are buffered in memory and written in blocks of ``flush_samples`` samples (or when
+``flush_every_s`` of run time ``t`` has passed since the first buffered sample, whichever comes
+first), each block followed by ``f.flush()``. Channels are written before ``/t``; the reader keeps
+``min(len)`` over all of them, then the longest prefix of finite, strictly increasing times, so a
+kill in the middle of a flush never yields a half-written sample. The writer tracks the rows and
+bytes the file holds and writes each block at those absolute positions, so a block is never
+written twice (an interrupted write that is retried lands on the same rows).
+
+Signals. While a block (and the whole of ``close()``) is written, the Python handlers of SIGINT,
+SIGTERM, SIGHUP, SIGQUIT, SIGUSR1/2 and SIGALRM are deferred (swapped for a handler that notes the
+signal; re-delivered afterwards), so a handler that raises never runs between a resize and its
+write, and the writer's bookkeeping is updated in the same protected section.
+
+Full disk. Before each block, the writer reserves the block's size plus one chunk per dataset and a
+margin past HDF5's end of file (``posix_fallocate``). A full disk or a file-size limit then fails
+there, before HDF5 writes anything: the writer raises :class:`RecordWriteError` (one line), stays
+failed (every later call raises it again, nothing more is written except the ``/status``, whose
+space exists since creation), and the file keeps every sample flushed before. Without the reserve,
+HDF5 would update its superblock to point past what it could write, and the whole file would be
+unreadable. ``planned_samples`` checks the free space and ``RLIMIT_FSIZE`` before the file is made.
+
+Reading. :meth:`RunRecord.open` checks the HDF5 signature and the superblock's end-of-file address
+against the file size before HDF5 sees the file (HDF5 skips that check in SWMR-read mode, and then
+retries each failed metadata checksum 100 times with back-off: minutes, deaf to Ctrl-C, on a
+truncated file), opens read-only without file locking, uses SWMR-read only for files whose
+superblock says "open for SWMR write" (killed or live writers, no ``h5clear`` needed), and caps the
+metadata read attempts to 8. A truncated, empty or garbage file, or a directory, is a one-line
+:class:`RecordError` naming it.
 
 All channel values are stored as float64 (booleans and counters too), so a channel missing from one
 :meth:`RecordWriter.append` call is NaN in that sample.
@@ -44,17 +70,25 @@ All channel values are stored as float64 (booleans and counters too), so a chann
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import datetime as _dt
+import errno
+import functools
 import hashlib
+import io
 import json
 import logging
 import math
+import os
 import platform
 import re
+import shutil
+import signal
 import sys
+import threading
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import metadata as _metadata
 from pathlib import Path
@@ -73,13 +107,14 @@ __all__ = [
     "FORMAT_VERSION",
     "ChannelSpec",
     "RecordError",
+    "RecordWriteError",
     "RecordWriter",
     "RunRecord",
     "replay_main",
 ]
 
 FORMAT = "hil-record"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 _DATASET_KEY = "__dataset__"
 _MAX_CHUNK_BYTES = 1 << 20  # 1 MiB per HDF5 chunk at most
 _MIN_CHUNK_ROWS = 1024
@@ -87,6 +122,198 @@ _MIN_CHUNK_ROWS = 1024
 
 class RecordError(HilError):
     """A run record cannot be written or read (bad channel, shape, time, file, ...)."""
+
+
+class RecordWriteError(RecordError):
+    """Writing a record failed (disk full, file-size limit, IO error). The message is one line; the
+    samples flushed before the failure stay readable."""
+
+
+#: byte-log datasets (uint8, resizable) -> (chunk bytes, ``encoding`` attribute). All are created
+#: with the file, so nothing is ever created after SWMR mode is on; each is appended to only.
+_BYTE_LOGS: dict[str, tuple[int, str]] = {
+    "events": (4096, "utf-8 JSON lines"),
+    "results": (4096, "utf-8 JSON lines {experiment, results, arrays}"),
+    "results_npy": (8192, "concatenated .npy arrays; offsets in /results"),
+    "device_counters": (1024, "utf-8 JSON lines {t, counters}"),
+}
+#: size of the fixed ``/status`` dataset [bytes]: written in place at close, so closing never grows the file
+_STATUS_BYTES = 1024
+#: extra file space reserved before every block [bytes] (HDF5 metadata: chunk index, object headers)
+_RESERVE_MARGIN = 1 << 16
+
+#: asynchronous signals held while a block is written: their handlers run after the write
+_HELD_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGUSR1", "SIGUSR2",
+                                                      "SIGALRM") if hasattr(signal, n))
+
+#: tests only: called as ``hook(point, writer)`` at "flushed", "close", "close:flushed", "close:status"
+_TEST_HOOK: Callable[[str, RecordWriter], None] | None = None
+
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """Defer the asynchronous signals' Python handlers until the block is done.
+
+    Python runs signal handlers in the main thread between two bytecodes, whichever thread the
+    signal hit (bus threads do not block it), so ``pthread_sigmask`` alone cannot keep a handler out
+    of a write. In the main thread, each held signal's handler is swapped for one that only notes
+    the signal; on exit the handlers are restored and every noted signal is re-delivered to its own
+    handler (``SIG_DFL``: the signal is re-raised, so e.g. a SIGTERM still ends the process, after
+    the block). In other threads nothing is needed: no handler runs there."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    saved: dict[int, Any] = {}
+
+    def note(signum: int, frame: Any) -> None:
+        caught.append(signum)
+
+    try:
+        for sig in _HELD_SIGNALS:
+            current = signal.getsignal(sig)
+            if current is None or current == signal.SIG_IGN:  # installed outside Python / ignored: leave it
+                continue
+            saved[sig] = signal.signal(sig, note)
+        yield
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+        for signum in caught:
+            handler = saved.get(signum)
+            if callable(handler):
+                handler(signum, None)
+            elif handler == signal.SIG_DFL:
+                os.kill(os.getpid(), signum)
+
+
+def _one_line(exc: BaseException | str) -> str:
+    """An exception's message on one line (HDF5 messages can span several)."""
+    text = str(exc) if not isinstance(exc, str) else exc
+    text = " ".join(text.split())
+    return text[:300] + ("..." if len(text) > 300 else "")
+
+
+def _mib(n: float) -> str:
+    return f"{n / (1 << 20):.1f} MiB"
+
+
+def _fsize_limit() -> int | None:
+    """The process's soft file-size limit [bytes] (``RLIMIT_FSIZE``), None when unlimited."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not POSIX
+        return None
+    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    return None if soft == resource.RLIM_INFINITY else int(soft)
+
+
+def _probe_hdf5(p: Path) -> tuple[bool, int | None]:
+    """Check that ``p`` looks like a complete HDF5 file before HDF5 sees it. Returns (swmr, end):
+    ``swmr`` True when its superblock says it is (or was, for a killed writer) open for SWMR
+    writing; ``end`` the end-of-file address it stores [bytes] (None when undefined).
+
+    Why: HDF5 refuses a truncated file in normal read mode, but in SWMR-read mode (needed for a
+    record whose writer was killed) it skips that check and retries every metadata read that fails
+    its checksum (100 attempts with back-off, inside the C library: minutes, deaf to Ctrl-C). So the
+    stored end-of-file address is compared with the real size here, and SWMR mode is used only for
+    files flagged for it."""
+    try:
+        size = p.stat().st_size
+        with p.open("rb") as fh:
+            head = fh.read(96)
+    except OSError as exc:
+        raise RecordError(f"{p}: cannot read: {_one_line(exc.strerror or exc)}") from None
+    if size == 0:
+        raise RecordError(f"{p}: empty file, not a run record")
+    if head[:8] != _HDF5_SIGNATURE:
+        raise RecordError(f"{p}: not an HDF5 file (no HDF5 signature at the start)")
+    if len(head) < 48:
+        raise RecordError(f"{p}: truncated HDF5 file ({size} bytes, shorter than its superblock)")
+    version = head[8]
+    if version in (0, 1):
+        osize, flags_at = head[13], None
+        base_at = 24 + (4 if version == 1 else 0)
+        eof_at = base_at + 2 * osize
+    elif version in (2, 3):
+        osize, flags_at = head[9], 11
+        base_at = 12
+        eof_at = base_at + 2 * osize
+    else:
+        raise RecordError(f"{p}: unknown HDF5 superblock version {version}")
+    if osize not in (2, 4, 8) or len(head) < eof_at + osize:
+        raise RecordError(f"{p}: malformed HDF5 superblock (size of offsets {osize})")
+    base = int.from_bytes(head[base_at:base_at + osize], "little")
+    eof = int.from_bytes(head[eof_at:eof_at + osize], "little")
+    undefined = (1 << (8 * osize)) - 1
+    end = None if undefined in (eof, base) else base + eof
+    if end is not None and size < end:
+        raise RecordError(f"{p}: truncated HDF5 file ({size} bytes, its superblock says {end})")
+    return flags_at is not None and version == 3 and bool(head[flags_at] & 0b101), end
+
+
+#: metadata read attempts in SWMR-read mode (HDF5's default is 100, each failed checksum retried with a
+#: back-off, so a damaged killed file takes minutes per object; a live writer needs only a few)
+_SWMR_READ_ATTEMPTS = 8
+
+
+@functools.cache
+def _hdf5_library() -> Any:
+    """The libhdf5 that h5py is linked to (ctypes handle), or None when it cannot be located (then
+    HDF5's default number of read attempts applies)."""
+    import ctypes
+
+    candidates: list[str] = []
+    with contextlib.suppress(OSError):  # Linux: the copy already mapped into this process (h5py wheels)
+        for line in Path("/proc/self/maps").read_text().splitlines():
+            name = line.rsplit(" ", 1)[-1]
+            if re.search(r"/libhdf5(-[0-9a-f]+)?\.so", name) and name not in candidates:
+                candidates.append(name)
+    # no ctypes.util.find_library fallback: another copy of libhdf5 than h5py's would not know its ids
+    for name in candidates:
+        try:
+            lib = ctypes.CDLL(name)
+            fn = lib.H5Pset_metadata_read_attempts
+        except (OSError, AttributeError):
+            continue
+        fn.argtypes = [ctypes.c_int64, ctypes.c_uint]
+        fn.restype = ctypes.c_int
+        return lib
+    return None
+
+
+def _open_h5_read(p: Path, swmr: bool) -> h5py.File:
+    """Open ``p`` read-only without file locking (a reader never waits for, nor blocks, a writer);
+    in SWMR-read mode with at most :data:`_SWMR_READ_ATTEMPTS` metadata read attempts."""
+    if not swmr:
+        return h5py.File(p, "r", locking=False)
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_libver_bounds(h5py.h5f.LIBVER_LATEST, h5py.h5f.LIBVER_LATEST)
+    fapl.set_file_locking(False, True)
+    fapl.set_fclose_degree(h5py.h5f.CLOSE_STRONG)
+    lib = _hdf5_library()
+    if lib is None or lib.H5Pset_metadata_read_attempts(fapl.id, _SWMR_READ_ATTEMPTS) < 0:
+        logger.debug("cannot limit HDF5 metadata read attempts (libhdf5 not found)")
+    fid = h5py.h5f.open(os.fsencode(p), h5py.h5f.ACC_RDONLY | h5py.h5f.ACC_SWMR_READ, fapl=fapl)
+    return h5py.File(fid)
+
+
+def _json_lines(raw: bytes, p: Path, what: str) -> list[dict[str, Any]]:
+    """The JSON objects of a UTF-8 JSON-lines log; an incomplete last line (a killed writer) is skipped."""
+    out = []
+    for line in raw.decode("utf-8", errors="replace").splitlines():
+        if not line.strip("\x00 "):
+            continue
+        try:
+            obj = json.loads(line)
+        except json.JSONDecodeError:
+            logger.warning("%s: skipped an unreadable %s line %r", p, what, line[:80])
+            continue
+        if isinstance(obj, dict):
+            out.append(obj)
+    return out
 
 
 @dataclass(frozen=True)
@@ -195,13 +422,15 @@ def _split_arrays(obj: Any, path: tuple[str, ...], arrays: dict[str, np.ndarray]
     raise RecordError(f"result {'/'.join(path) or '<root>'}: {type(obj).__name__} is not JSON-serializable")
 
 
-def _join_arrays(obj: Any, group: h5py.Group) -> Any:
+def _join_arrays(obj: Any, get: Callable[[str], Any]) -> Any:
+    """Inverse of :func:`_split_arrays`: ``get(key)`` returns the array stored under ``key``."""
     if isinstance(obj, dict):
         if set(obj) == {_DATASET_KEY}:
-            return group[obj[_DATASET_KEY]][()]
-        return {k: _join_arrays(v, group) for k, v in obj.items()}
+            arr = get(obj[_DATASET_KEY])
+            return arr[()] if isinstance(arr, h5py.Dataset) else arr
+        return {k: _join_arrays(v, get) for k, v in obj.items()}
     if isinstance(obj, list):
-        return [_join_arrays(v, group) for v in obj]
+        return [_join_arrays(v, get) for v in obj]
     return obj
 
 
@@ -211,10 +440,18 @@ def _join_arrays(obj: Any, group: h5py.Group) -> Any:
 class RecordWriter:
     """Stream one run to an HDF5 file (layout and crash-safety guarantees in the module docstring).
 
-    ``path``: output file (overwritten unless ``overwrite=False``). ``scene_text``: the exact scene
-    YAML; ``scene_sha256``: its hash as computed by the scene loader. ``meta``: JSON-serializable run
-    metadata (device identities, seed, ...). ``channels``: name -> :class:`ChannelSpec`. ``rate_hz``:
-    nominal sample rate [Hz]. ``flush_every_s``: flush period in run time [s].
+    ``path``: output file; an existing file is refused (:class:`RecordError`) unless
+    ``overwrite=True``. ``scene_text``: the exact scene YAML; ``scene_sha256``: its hash as computed
+    by the scene loader. ``meta``: JSON-serializable run metadata (device identities, seed, ...).
+    ``channels``: name -> :class:`ChannelSpec`. ``rate_hz``: nominal sample rate [Hz].
+    ``flush_every_s``: flush period in run time [s]. ``planned_samples``: when given, the free disk
+    space (and the process's file-size limit) is checked against the run's estimated size before
+    anything is created (:meth:`check_space`).
+
+    Errors: bad input raises :class:`RecordError`; a failed write (disk full, file-size limit, IO
+    error) raises :class:`RecordWriteError` with a one-line reason, after which the writer is
+    *failed*: every further call raises that error again without touching the file, and
+    :meth:`close` only releases the file. What was flushed before the failure stays readable.
 
     Use as a context manager; an exception inside the ``with`` closes the record with
     ``status="error"`` and the exception's message as stop reason, then propagates.
@@ -230,7 +467,8 @@ class RecordWriter:
         channels: Mapping[str, ChannelSpec],
         rate_hz: float,
         flush_every_s: float = 0.1,
-        overwrite: bool = True,
+        overwrite: bool = False,
+        planned_samples: int | None = None,
     ) -> None:
         self.path = Path(path)
         if not (math.isfinite(rate_hz) and rate_hz > 0):
@@ -257,7 +495,14 @@ class RecordWriter:
         self._buf = {k: np.full((n, *s.shape), np.nan) for k, s in self.specs.items()}
         self._nbuf = 0
         self._events: list[bytes] = []
-        self._results: dict[str, tuple[str, dict[str, np.ndarray]]] = {}
+        #: JSON-lines / byte logs waiting for the next flush: dataset name -> chunks
+        self._pending: dict[str, list[bytes]] = {}
+        self._results_set: set[str] = set()
+        #: what the file holds (committed by a successful write): rows of /t and the channels,
+        #: bytes of every byte-log dataset. Writes go to these absolute positions, so a write is
+        #: never applied twice.
+        self._rows = 0
+        self._bytes: dict[str, int] = dict.fromkeys(_BYTE_LOGS, 0)
         self._t_last = -math.inf
         self._t_first_buffered = math.nan
         #: samples appended so far / samples written and flushed to the file
@@ -265,22 +510,67 @@ class RecordWriter:
         self.samples_flushed = 0
         self.flushes = 0
         self.closed = False
+        #: the write error that made this writer fail (None while healthy)
+        self.failure: RecordWriteError | None = None
+        self._hdf5_broken = False
         self.stop_reason: str | None = None
         self.status: str | None = None
 
+        if self.path.is_dir():
+            raise RecordError(f"{self.path}: is a directory")
         if self.path.exists() and not overwrite:
-            raise RecordError(f"{self.path}: exists (overwrite=False)")
+            raise RecordError(f"{self.path}: a record already exists; refusing to overwrite it")
+        if planned_samples is not None:
+            self.check_space(planned_samples)
         try:
             self._f = h5py.File(self.path, "w", libver="latest")
         except OSError as exc:
-            raise RecordError(f"{self.path}: cannot create record: {exc}") from None
+            raise RecordError(f"{self.path}: cannot create record: {_one_line(exc)}") from None
         try:
-            self._create_layout(scene_text, scene_sha256, meta_json)
-            self._f.swmr_mode = True
-        except BaseException:
-            self._f.close()
+            with _signals_held():
+                self._create_layout(scene_text, scene_sha256, meta_json)
+                self._f.flush()
+                self._f.swmr_mode = True
+        except BaseException as exc:
+            with contextlib.suppress(Exception):
+                self._f.close()
+            if isinstance(exc, OSError | RuntimeError):
+                raise RecordWriteError(f"{self.path}: cannot create record: {_one_line(exc)}") from None
             raise
         logger.debug("record %s: %d channels, %d samples per flush", self.path, len(self.specs), n)
+
+    # -- disk space
+    def bytes_per_sample(self) -> int:
+        """Bytes one sample takes in the file: 8 for ``/t`` plus 8 per channel value (float64)."""
+        return 8 * (1 + sum(math.prod(s.shape) for s in self.specs.values()))
+
+    def estimated_bytes(self, samples: int) -> int:
+        """Estimated file size [bytes] for ``samples`` samples: raw data plus a margin for chunk
+        indexes, partial chunks, events and results (x1.25 + 1 MiB + one chunk per channel)."""
+        raw = self.bytes_per_sample() * int(samples)
+        chunk = 8 * max(self.flush_samples, _MIN_CHUNK_ROWS) * (1 + len(self.specs))
+        return int(raw * 1.25) + (1 << 20) + chunk
+
+    def check_space(self, samples: int) -> None:
+        """Raise :class:`RecordError` (with the numbers) when the disk holding ``path`` or the
+        process's file-size limit (``RLIMIT_FSIZE``) cannot hold a record of ``samples`` samples."""
+        samples = int(samples)
+        if samples < 0:
+            raise RecordError(f"planned_samples must be >= 0, got {samples}")
+        need = self.estimated_bytes(samples)
+        parent = self.path.parent if str(self.path.parent) else Path(".")
+        try:
+            free = shutil.disk_usage(parent).free
+        except OSError as exc:
+            raise RecordError(f"{self.path}: cannot check free space in {parent}: {_one_line(exc)}") from None
+        if need > free:
+            raise RecordError(f"{self.path}: not enough disk space for {samples} samples: need about "
+                              f"{_mib(need)} ({self.bytes_per_sample()} B/sample + margin), {_mib(free)} free "
+                              f"in {parent}")
+        limit = _fsize_limit()
+        if limit is not None and need > limit:
+            raise RecordError(f"{self.path}: the file-size limit (ulimit -f) {_mib(limit)} is below the "
+                              f"{_mib(need)} needed for {samples} samples")
 
     def _create_layout(self, scene_text: str, scene_sha256: str, meta_json: str) -> None:
         f = self._f
@@ -311,8 +601,14 @@ class RecordWriter:
                                   chunks=(crows, *spec.shape), dtype="f8", fillvalue=np.nan)
             ds.attrs["unit"] = spec.unit
             ds.attrs["description"] = spec.description
-        ev = f.create_dataset("events", shape=(0,), maxshape=(None,), chunks=(4096,), dtype="u1")
-        ev.attrs["encoding"] = "utf-8 JSON lines"
+        for name, (chunk_bytes, encoding) in _BYTE_LOGS.items():
+            ds = f.create_dataset(name, shape=(0,), maxshape=(None,), chunks=(chunk_bytes,), dtype="u1")
+            ds.attrs["encoding"] = encoding
+        # written (all zeros = "not closed") now, overwritten in place by close(): no allocation later
+        st = f.create_dataset("status", data=np.zeros(_STATUS_BYTES, dtype=np.uint8))
+        st.attrs["encoding"] = "utf-8 JSON line {stop_reason, status, closed_utc, samples}, zero padded"
+        self._chunk_bytes = 8 * max(rows, _MIN_CHUNK_ROWS) + sum(
+            8 * math.prod(ds.chunks) for ds in g.values()) + sum(c for c, _ in _BYTE_LOGS.values())
 
     # -- context manager
     def __enter__(self) -> RecordWriter:
@@ -325,14 +621,19 @@ class RecordWriter:
         if exc is None:
             self.close()
         else:
-            reason = str(exc) or type(exc).__name__
+            reason = _one_line(exc) or type(exc).__name__
             try:
                 self.close(stop_reason=reason, status="error")
-            except Exception:  # never mask the original exception
-                logger.exception("record %s: close after %s failed", self.path, exc_type)
+            except Exception as close_exc:  # never mask the original exception
+                if close_exc is exc:  # the write failure that is propagating anyway
+                    return
+                logger.error("record %s: close after %s failed: %s", self.path, exc_type.__name__ if exc_type
+                             else "error", _one_line(close_exc))
 
     # -- writing
     def _check_open(self) -> None:
+        if self.failure is not None:
+            raise self.failure
         if self.closed:
             raise RecordError(f"{self.path}: record is closed")
 
@@ -396,12 +697,13 @@ class RecordWriter:
         coerced = {name: self._coerce(name, v, (m,)) for name, v in values.items()}
         self.flush()
         block = {name: coerced.get(name, np.full((m, *spec.shape), np.nan)) for name, spec in self.specs.items()}
-        self._write(t, block)
-        self._t_last = float(t[-1])
-        self.samples += m
-        self._f.flush()
-        self.samples_flushed = self.samples
-        self.flushes += 1
+
+        def done() -> None:
+            self._t_last = float(t[-1])
+            self.samples += m
+            self.samples_flushed = self.samples
+
+        self._commit(t, block, done)
 
     def event(self, t: float, kind: str, message: str) -> None:
         """Record an event at run time ``t`` [s] (written with the next flush)."""
@@ -411,85 +713,224 @@ class RecordWriter:
         logger.debug("record event t=%.6f %s: %s", t, kind, message)
 
     def set_results(self, experiment: str, results: Mapping[str, Any]) -> None:
-        """Store an experiment's results (JSON-serializable; numpy arrays become datasets).
-
-        Validated now, written at :meth:`close` (SWMR cannot create groups). Setting the same
-        experiment twice replaces the earlier results."""
+        """Store an experiment's results (JSON-serializable; numpy arrays are stored in ``.npy``
+        form in ``/results_npy``). Written and flushed at once, so results survive a later kill.
+        Setting the same experiment twice replaces the earlier results."""
         self._check_open()
         _check_name(experiment, "experiment")
         if not isinstance(results, Mapping):
             raise RecordError(f"results of {experiment!r} must be a mapping, got {type(results).__name__}")
         arrays: dict[str, np.ndarray] = {}
         doc = _split_arrays(results, (), arrays)
-        text = _to_json(doc, f"results of {experiment!r}")
-        if experiment in self._results:
+        _to_json(doc, f"results of {experiment!r}")  # validate before anything is queued
+        if experiment in self._results_set:
             logger.warning("record %s: results of %r replaced", self.path, experiment)
-        self._results[experiment] = (text, {k: np.array(v, copy=True) for k, v in arrays.items()})
+        self._results_set.add(experiment)
+        blobs = []
+        offset = self._bytes["results_npy"] + sum(len(b) for b in self._pending.get("results_npy", []))
+        index: dict[str, list[int]] = {}
+        for key, arr in arrays.items():
+            bio = io.BytesIO()
+            np.save(bio, np.asarray(arr), allow_pickle=False)
+            blob = bio.getvalue()
+            index[key] = [offset, len(blob)]
+            offset += len(blob)
+            blobs.append(blob)
+        line = _to_json({"experiment": experiment, "results": doc, "arrays": index}, "results") + "\n"
+        self._pending.setdefault("results_npy", []).extend(blobs)
+        self._pending.setdefault("results", []).append(line.encode())
+        self.flush()
 
-    def _write(self, t: np.ndarray, block: Mapping[str, np.ndarray]) -> None:
-        f = self._f
-        n0 = f["t"].shape[0]
-        m = t.shape[0]
-        g = f["channels"]
-        for name, data in block.items():  # channels first, /t last: t's length commits the samples
-            ds = g[name]
-            ds.resize(n0 + m, axis=0)
-            ds[n0:] = data
-        f["t"].resize((n0 + m,))
-        f["t"][n0:] = t
-        self._write_events()
+    def set_device_counters(self, counters: Mapping[str, Mapping[str, int]]) -> None:
+        """Store per-device fault counters, e.g. ``{"odrive0": {"crc_errors": 0, "resyncs": 1,
+        "dropped": 3, "late": 0, "stale": 2, "retries": 5}}`` (any integer keys). Each call
+        records a snapshot (the last one counts; read back as :attr:`RunRecord.device_counters`);
+        written with the next flush. Raises :class:`RecordError` for a non-integer count."""
+        self._check_open()
+        if not isinstance(counters, Mapping):
+            raise RecordError(f"device counters must be a mapping, got {type(counters).__name__}")
+        snap: dict[str, dict[str, int]] = {}
+        for dev, cs in counters.items():
+            _check_name(str(dev), "device")
+            if not isinstance(cs, Mapping):
+                raise RecordError(f"device {dev!r}: counters must be a mapping, got {type(cs).__name__}")
+            row: dict[str, int] = {}
+            for k, v in cs.items():
+                if isinstance(v, bool) or not isinstance(v, int | np.integer):
+                    raise RecordError(f"device {dev!r}: counter {k!r} must be an integer, got {v!r}")
+                row[str(k)] = int(v)
+            snap[str(dev)] = row
+        line = _to_json({"t": None if self._t_last == -math.inf else self._t_last, "counters": snap},
+                        "device counters") + "\n"
+        self._pending.setdefault("device_counters", []).append(line.encode())
 
-    def _write_events(self) -> None:
-        if not self._events:
+    def _reserve(self, nbytes: int) -> None:
+        """Make sure the file can grow by ``nbytes`` before HDF5 writes anything (``posix_fallocate``
+        past HDF5's end of file): a full disk or a file-size limit then fails *here*, with the file
+        untouched and consistent, instead of in the middle of a block (HDF5 would have updated its
+        superblock to point past what it could write, making even the earlier samples unreadable).
+        HDF5 trims the unused reserve when it flushes or closes."""
+        if not hasattr(os, "posix_fallocate"):  # pragma: no cover - not POSIX
             return
-        data = np.frombuffer(b"".join(self._events), dtype=np.uint8)
-        ev = self._f["events"]
-        n0 = ev.shape[0]
-        ev.resize((n0 + data.size,))
-        ev[n0:] = data
-        self._events.clear()
+        try:
+            fid = self._f.id
+            os.posix_fallocate(fid.get_vfd_handle(), fid.get_filesize(), int(nbytes))
+        except OSError as exc:
+            if exc.errno in (errno.EINVAL, errno.EOPNOTSUPP):  # pragma: no cover - e.g. some network file systems
+                return
+            raise self._fail(exc, f"reserving {_mib(nbytes)} of disk") from None
+
+    def _fail(self, exc: BaseException, what: str) -> RecordWriteError:
+        reason = (f"{exc.strerror or exc} (errno {exc.errno})" if isinstance(exc, OSError) and exc.errno
+                  else _one_line(exc))
+        err = RecordWriteError(f"{self.path}: {what} failed: {reason}; the {self.samples_flushed} samples "
+                               "flushed before are kept")
+        self.failure = err
+        logger.error("%s", err)
+        return err
+
+    def _commit(self, t: np.ndarray | None, block: Mapping[str, np.ndarray] | None,
+                on_commit: Callable[[], None] | None = None) -> None:
+        """Write one block (samples, then every byte log) at the positions the file is known to hold,
+        flush the file, then update the writer's state (and run ``on_commit``). Signals are held for
+        all of it, so a handler (which may raise) runs only after the block and the state that says
+        it is written are both done: a block is never written twice nor half. Any write failure makes
+        the writer failed (a failed write is never re-applied)."""
+        f = self._f
+        logs = {k: v for k, v in ((k, self._pending.get(k)) for k in _BYTE_LOGS) if v}
+        if self._events:
+            logs["events"] = [*logs.get("events", []), *self._events]
+        rows = self._rows
+        sizes = dict(self._bytes)
+        m = 0 if t is None else t.shape[0]
+        need = 2 * (m * self.bytes_per_sample() + sum(len(c) for cs in logs.values() for c in cs))
+        self._reserve(need + self._chunk_bytes + _RESERVE_MARGIN)
+        err: RecordWriteError | None = None
+        with _signals_held():
+            try:
+                if t is not None and block is not None and m:
+                    g = f["channels"]
+                    for name, data in block.items():  # channels first, /t last: t's length commits samples
+                        ds = g[name]
+                        ds.resize(rows + m, axis=0)
+                        ds[rows:rows + m] = data
+                    f["t"].resize((rows + m,))
+                    f["t"][rows:rows + m] = t
+                    rows += m
+                for name, chunks in logs.items():
+                    data = np.frombuffer(b"".join(chunks), dtype=np.uint8)
+                    ds = f[name]
+                    n0 = sizes[name]
+                    ds.resize((n0 + data.size,))
+                    ds[n0:] = data
+                    sizes[name] = n0 + data.size
+                f.flush()
+            except Exception as exc:  # OSError (EFBIG, ENOSPC, EIO), RuntimeError from HDF5
+                self._hdf5_broken = True  # HDF5 may have written part of the block: write nothing more
+                err = self._fail(exc, "write")
+            else:
+                self._rows = rows
+                self._bytes = sizes
+                self._events.clear()
+                for name in logs:
+                    self._pending.pop(name, None)
+                self.flushes += 1
+                if on_commit is not None:
+                    on_commit()
+        if err is not None:
+            raise err
+        if _TEST_HOOK is not None:
+            _TEST_HOOK("flushed", self)
 
     def flush(self) -> None:
-        """Write the buffered samples and events to the file and flush it (readers see them)."""
+        """Write the buffered samples, events, results and counters to the file and flush it (readers
+        see them). Raises :class:`RecordWriteError` when the write fails."""
         if self.closed:
             return
+        if self.failure is not None:
+            raise self.failure
         k = self._nbuf
-        if k:
-            self._write(self._t_buf[:k], {name: buf[:k] for name, buf in self._buf.items()})
-        else:
-            self._write_events()
-        self._f.flush()
-        self._nbuf = 0
-        self.samples_flushed = self.samples
-        self.flushes += 1
+
+        def done() -> None:
+            self._nbuf = 0
+            self.samples_flushed = self.samples
+
+        self._commit(self._t_buf[:k], {name: buf[:k] for name, buf in self._buf.items()}, done)
 
     def close(self, stop_reason: str = "completed", status: str = "ok") -> None:
-        """Flush, then write ``/results`` and ``/status`` (stop reason, status). Idempotent."""
+        """Flush, write the final ``/status`` (stop reason, status) in place and flush again, then
+        close the file. Idempotent.
+
+        After a write failure (or when this last flush fails) the status records ``"error"`` with the
+        failure as stop reason when the file is still consistent (the failure was caught before HDF5
+        wrote anything, e.g. a full disk), the file is released, and the failure is raised
+        (:class:`RecordWriteError`, once: a second close is a no-op)."""
         if self.closed:
             return
+        if _TEST_HOOK is not None:
+            _TEST_HOOK("close", self)
+        with _signals_held():  # a handler runs once the file is closed, never between its steps
+            self._close(stop_reason, status)
+
+    def _close(self, stop_reason: str, status: str) -> None:
+        failure = self.failure
         try:
-            self.flush()
+            if failure is None:
+                try:
+                    self.flush()
+                except RecordWriteError as exc:
+                    failure = exc
+            if _TEST_HOOK is not None:
+                _TEST_HOOK("close:flushed", self)
+            if not self._hdf5_broken:
+                if failure is not None and status == "ok":
+                    stop_reason, status = str(failure), "error"
+                self._write_status(str(stop_reason), str(status))
+                if _TEST_HOOK is not None:
+                    _TEST_HOOK("close:status", self)
+        except RecordWriteError as exc:
+            failure = failure or exc
         finally:
-            self._f.close()
             self.closed = True
-        self.stop_reason, self.status = str(stop_reason), str(status)
-        try:
-            with h5py.File(self.path, "r+") as f:
-                if self._results:
-                    rg = f.require_group("results")
-                    for exp, (text, arrays) in self._results.items():
-                        g = rg.create_group(exp)
-                        g.attrs["json"] = text
-                        for key, arr in arrays.items():
-                            g.create_dataset(key, data=arr)
-                st = f.create_group("status")
-                st.attrs["stop_reason"] = self.stop_reason
-                st.attrs["status"] = self.status
-                st.attrs["closed_utc"] = _utc_now()
-                st.attrs["samples"] = self.samples
-        except OSError as exc:
-            raise RecordError(f"{self.path}: cannot write results/status at close: {exc}") from None
+            try:
+                self._f.close()
+            except Exception as exc:  # the samples flushed before are on disk; the handle is gone
+                if failure is None:
+                    failure = self._fail(exc, "close")
+        if failure is not None:
+            raise failure
+        self._trim()
         logger.info("record %s closed: %d samples, %s (%s)", self.path, self.samples, self.status, self.stop_reason)
+
+    def _trim(self) -> None:
+        """Cut the unused disk reserve (zeros past HDF5's end of file) off the closed file."""
+        with contextlib.suppress(OSError, RecordError):
+            swmr, end = _probe_hdf5(self.path)
+            if not swmr and end is not None and self.path.stat().st_size > end:
+                os.truncate(self.path, end)
+
+    def _write_status(self, stop_reason: str, status: str) -> None:
+        """Overwrite the fixed ``/status`` bytes with one JSON line (zero padded) and flush. The space
+        was allocated at creation, so this cannot run out of disk."""
+        doc = {"stop_reason": stop_reason, "status": status, "closed_utc": _utc_now(), "samples": self.samples}
+        raw = (_to_json(doc, "status") + "\n").encode()
+        if len(raw) > _STATUS_BYTES:  # a very long reason: shorten it, keep the line valid JSON
+            doc["stop_reason"] = stop_reason[: max(0, len(stop_reason) - (len(raw) - _STATUS_BYTES) - 8)] + "..."
+            raw = (_to_json(doc, "status") + "\n").encode()
+        buf = np.zeros(_STATUS_BYTES, dtype=np.uint8)
+        buf[: len(raw)] = np.frombuffer(raw[:_STATUS_BYTES], dtype=np.uint8)
+        err: RecordWriteError | None = None
+        with _signals_held():
+            try:
+                self._f["status"][:] = buf
+                self._f.flush()
+            except Exception as exc:
+                self._hdf5_broken = True
+                err = self._fail(exc, "writing the status")
+            else:
+                self.stop_reason, self.status = doc["stop_reason"], status
+        if err is not None:
+            raise err
 
 
 # ---------------------------------------------------------------------------------------------- reader
@@ -517,6 +958,8 @@ class RunRecord:
     descriptions: dict[str, str] = field(default_factory=dict)
     rate_hz: float = math.nan
     attrs: dict[str, Any] = field(default_factory=dict)
+    #: per-device fault counters, the writer's last snapshot: device -> counter -> count
+    device_counters: dict[str, dict[str, int]] = field(default_factory=dict)
 
     @property
     def closed(self) -> bool:
@@ -525,22 +968,27 @@ class RunRecord:
 
     @classmethod
     def open(cls, path: str | Path) -> RunRecord:
-        """Read a record (also one whose writer was killed, or is still writing: SWMR read)."""
+        """Read a record (also one whose writer was killed, or is still writing: SWMR read).
+
+        Fails fast with a one-line :class:`RecordError` naming the file for a missing, empty,
+        truncated or non-HDF5 file, a directory, or a file that is not a run record."""
         p = Path(path)
+        if p.is_dir():
+            raise RecordError(f"{p}: is a directory, not a run record")
         if not p.is_file():
             raise RecordError(f"{p}: no such file")
+        swmr, _ = _probe_hdf5(p)
         try:
-            f = h5py.File(p, "r")
-        except OSError:
-            try:  # a file left "open for SWMR write" (killed or live writer)
-                f = h5py.File(p, "r", libver="latest", swmr=True)
-            except OSError as exc:
-                raise RecordError(f"{p}: not a readable HDF5 file ({exc})") from None
+            f = _open_h5_read(p, swmr)  # swmr: a file left "open for SWMR write" (killed or live writer)
+        except (OSError, RuntimeError, ValueError) as exc:
+            raise RecordError(f"{p}: not a readable HDF5 file ({_one_line(exc)})") from None
         try:
             with f:
                 return cls._load(p, f)
-        except (KeyError, ValueError, TypeError, json.JSONDecodeError) as exc:
-            raise RecordError(f"{p}: malformed run record ({exc})") from None
+        except RecordError:
+            raise
+        except (OSError, RuntimeError, KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
+            raise RecordError(f"{p}: malformed run record ({_one_line(exc)})") from None
 
     @classmethod
     def _load(cls, p: Path, f: h5py.File) -> RunRecord:
@@ -549,37 +997,57 @@ class RunRecord:
             raise RecordError(f"{p}: not a {FORMAT} file (format attribute {attrs.get('format')!r})")
         if int(attrs.get("format_version", 0)) > FORMAT_VERSION:
             raise RecordError(f"{p}: format_version {attrs['format_version']} is newer than this reader")
-        for name in ("t", "events"):
-            if f.swmr_mode:
-                f[name].refresh()
         g = f["channels"]
         names = list(g)
         if f.swmr_mode:
+            for name in ("t", *(n for n in _BYTE_LOGS if isinstance(f.get(n), h5py.Dataset))):
+                f[name].refresh()
             for name in names:
                 g[name].refresh()
         n = min([f["t"].shape[0], *(g[k].shape[0] for k in names)])
-        t = f["t"][:n]
-        while n and not math.isfinite(t[n - 1]):  # a flush interrupted between resize and write
-            n -= 1
-        t = np.array(t[:n])
+        t = np.array(f["t"][:n])
+        # keep the longest prefix of finite, strictly increasing times: a flush cut short (kill, full
+        # disk) may leave rows whose time was never written (NaN fill, or zeros past the end of file)
+        ok = np.isfinite(t)
+        ok[1:] &= np.diff(t) > 0
+        bad = np.flatnonzero(~ok)
+        if bad.size:
+            n = int(bad[0])
+            t = t[:n]
         channels = {k: np.array(g[k][:n]) for k in names}
         units = {k: _attr_str(g[k].attrs.get("unit", "")) for k in names}
         descr = {k: _attr_str(g[k].attrs.get("description", "")) for k in names}
-        events = []
-        raw = bytes(f["events"][:])
-        for line in raw.decode("utf-8", errors="replace").splitlines():
-            try:
-                events.append(json.loads(line))
-            except json.JSONDecodeError:  # an incomplete last line of a killed run
-                logger.warning("%s: skipped an unreadable event line %r", p, line[:80])
+        events = _json_lines(bytes(f["events"][:]), p, "event")
+
         results: dict[str, Any] = {}
-        if "results" in f:
-            for exp, rg in f["results"].items():
-                results[exp] = _join_arrays(json.loads(_attr_str(rg.attrs["json"])), rg)
         stop_reason = status = None
-        if "status" in f:
+        counters: dict[str, dict[str, int]] = {}
+        if isinstance(f.get("results"), h5py.Group):  # format_version 1: a group per experiment
+            for exp, rg in f["results"].items():
+                results[exp] = _join_arrays(json.loads(_attr_str(rg.attrs["json"])), rg.__getitem__)
+        elif isinstance(f.get("results"), h5py.Dataset):
+            npy = f["results_npy"]
+
+            def array(ref: Any) -> np.ndarray:
+                off, size = int(ref[0]), int(ref[1])
+                return np.load(io.BytesIO(bytes(npy[off:off + size])), allow_pickle=False)
+
+            for line in _json_lines(bytes(f["results"][:]), p, "results"):
+                index = line.get("arrays", {})
+                results[str(line["experiment"])] = _join_arrays(line["results"], lambda k, i=index: array(i[k]))
+        if isinstance(f.get("status"), h5py.Group):  # format_version 1
             stop_reason = _attr_str(f["status"].attrs["stop_reason"])
             status = _attr_str(f["status"].attrs["status"])
+        elif isinstance(f.get("status"), h5py.Dataset):
+            lines = [x for x in _json_lines(bytes(f["status"][:]), p, "status") if "status" in x]
+            if lines:
+                stop_reason, status = str(lines[-1].get("stop_reason")), str(lines[-1]["status"])
+        if isinstance(f.get("device_counters"), h5py.Dataset):
+            snaps = [x for x in _json_lines(bytes(f["device_counters"][:]), p, "device counters")
+                     if isinstance(x.get("counters"), dict)]
+            if snaps:
+                counters = {str(d): {str(k): int(v) for k, v in cs.items()}
+                            for d, cs in snaps[-1]["counters"].items()}
         scene = f["scene"][()]
         return cls(
             path=p,
@@ -596,6 +1064,7 @@ class RunRecord:
             descriptions=descr,
             rate_hz=float(attrs.get("rate_hz", math.nan)),
             attrs=attrs,
+            device_counters=counters,
         )
 
     # -- derived views
@@ -604,7 +1073,8 @@ class RunRecord:
         per column for vector channels), stop reason/status, events, experiments and, when the
         ``loop.overrun`` / ``loop.latency`` / ``loop.late`` channels exist, loop timing statistics
         (``loop.late``: tick start after its deadline [s]; ``late_over_period`` counts ticks later than
-        one period)."""
+        one period); ``device_counters``: the per-device fault counters (see
+        :meth:`RecordWriter.set_device_counters`)."""
         n = self.t.size
         duration = float(self.t[-1] - self.t[0]) if n > 1 else 0.0
         chans: dict[str, Any] = {}
@@ -641,6 +1111,7 @@ class RunRecord:
             "events": len(self.events),
             "event_kinds": dict(sorted(_count(e.get("kind", "") for e in self.events).items())),
             "experiments": sorted(self.results),
+            "device_counters": {d: dict(c) for d, c in self.device_counters.items()},
         }
         loop: dict[str, Any] = {}
         if "loop.overrun" in self.channels:
@@ -717,6 +1188,7 @@ def _fmt(v: Any) -> str:
 
 def _print_summary(s: Mapping[str, Any]) -> None:
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     con = Console()
@@ -735,6 +1207,13 @@ def _print_summary(s: Mapping[str, Any]) -> None:
     con.print(f"events: {s['events']}" + (f" ({kinds})" if kinds else ""))
     if "loop" in s:
         con.print("loop: " + "  ".join(f"{k}={_fmt(v)}" for k, v in s["loop"].items()))
+    counters = s.get("device_counters") or {}
+    if counters:
+        con.print("device counters:")
+        for dev, cs in counters.items():
+            text = "  ".join((f"[bold red]{escape(k)}={v}[/]" if v else f"{escape(k)}={v}")
+                             for k, v in cs.items()) or "(none)"
+            con.print(f"  {escape(dev)}: {text}", highlight=False)
     tab = Table(show_header=True, header_style="bold")
     for col in ("channel", "unit", "shape", "min", "max", "mean", "NaN"):
         tab.add_column(col, justify="left" if col in ("channel", "unit") else "right", no_wrap=col == "channel")

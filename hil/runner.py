@@ -2,18 +2,27 @@
 
 One tick (period dt = 1/rate_hz):
 
+0. safe point: a stop request (SIGINT / SIGTERM / SIGHUP, :mod:`hil.stopflag`) raises here;
 1. read every device (adapters, with timeouts) -> measurements;
 2. controller effort + experiment excitation -> commanded effort;
-3. safety check (effort, velocity, position, injected port energy, stale feedback, loop overrun);
-   a breach raises :class:`hil.errors.SafetyStop`;
-4. command the actuators, set the simulated human's active force;
-5. append the sample to the run record (streamed to HDF5, flushed every 0.1 s of run time);
+3. append the sample to the run record (streamed to HDF5, flushed every 0.1 s of run time), so
+   the sample that breaches a limit is in the record;
+4. safety check (non-finite feedback, effort, velocity, position, injected port energy, stale
+   feedback, loop overrun); a breach raises :class:`hil.errors.SafetyStop`;
+5. command the actuators, set the simulated human's active force;
 6. lockstep: advance the simulated plant by exactly dt; realtime: sleep until the next absolute
    deadline (monotonic nanosecond clock) and account overruns and jitter.
 
-Everything runs inside :func:`safe_stop_context`: on any exception, limit breach, watchdog miss,
-Ctrl-C or SIGTERM every actuator is commanded zero effort, the reason is recorded, and the record
-is closed with every sample taken so far.
+Everything runs inside :func:`safe_stop_context`: on a limit breach, watchdog miss, signal, device
+failure (DeviceFault, CRC/protocol error past the adapter's tolerance, timeout, OSError or termios
+error of a lost port), record write error or any other exception, every actuator is commanded
+zero effort (an uninterruptible :meth:`hil.stopflag.StopRequest.critical` section), the reason is
+recorded, and the record is closed with every sample taken so far. A stop ends the whole
+:meth:`Runner.run`: no further experiment starts (:attr:`Runner.stop_status` / ``stop_reason``).
+
+Memory is bounded: the runner keeps no per-sample copies. Experiments' ``finish()`` read the
+channels they need back from the flushed record (h5py datasets, read in blocks where possible);
+loop-timing percentiles come from a fixed log-spaced histogram.
 
 Port energy. For each network port with a force sensor, the power into the device is F_port · V
 with F_port = ``force_sign`` × (the sensor's port axes): the force applied *to* the device,
@@ -29,8 +38,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import signal
-import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -39,11 +46,19 @@ from typing import Any
 
 import numpy as np
 
-from hil.errors import DeviceDisconnected, DeviceTimeout, HilError, SafetyStop
+from hil.errors import DeviceDisconnected, DeviceError, DeviceTimeout, HilError, SafetyStop
+from hil.stopflag import STOP, StopRequested
+
+try:  # a vanished serial port raises termios.error (not an OSError) from pyserial
+    import termios
+
+    _PORT_ERRORS: tuple[type[BaseException], ...] = (OSError, termios.error)
+except ImportError:  # pragma: no cover - Windows
+    _PORT_ERRORS = (OSError,)
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ExperimentOutcome", "LoopStats", "Runner", "SafetyMonitor", "safe_stop_context"]
+__all__ = ["ExperimentOutcome", "LoopStats", "Runner", "SafetyMonitor", "one_line", "safe_stop_context"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -59,6 +74,9 @@ class SafetyMonitor:
     * ``max_energy``: |E_s| of any port (J);
     * ``watchdog_ms``: device feedback whose sequence number does not advance for longer than this
       (run time) is stale; a realtime tick later than this past its deadline is a loop overrun.
+
+    Every comparison is NaN-safe (written as ``not value <= limit``): a NaN never passes a limit.
+    :meth:`check_finite` stops on any NaN/inf reading, naming the channel and the tick.
     """
 
     def __init__(self, safety: Mapping[str, Any] | None, rate_hz: float) -> None:
@@ -100,17 +118,31 @@ class SafetyMonitor:
         for name, u in efforts.items():
             if not np.all(np.isfinite(u)):
                 raise SafetyStop(f"fault: non-finite effort command for {name!r}")
-            if np.any(np.abs(u) > self.max_effort):
+            if not np.all(np.abs(u) <= self.max_effort):
                 raise SafetyStop(f"limit: |effort| command for {name!r} = {np.max(np.abs(u)):.4g} "
                                  f"> {self.max_effort:.4g}")
 
+    def check_finite(self, k: int, t: float, meas: Mapping[str, Any]) -> None:
+        """Any NaN or inf in a device's position, velocity, reported effort or wrench is a stop naming
+        the channel and the tick (a drive that reports no effort has ``effort`` None, not NaN)."""
+        for name, sample in meas.items():
+            for field_ in ("position", "velocity", "effort", "wrench"):
+                v = getattr(sample, field_, None)
+                if v is None:
+                    continue
+                a = np.asarray(v, dtype=float)
+                if not np.all(np.isfinite(a)):
+                    raise SafetyStop(f"fault: non-finite {name}.{field_} at tick {k} (t = {t:.6g} s): "
+                                     f"{np.array2string(a.reshape(-1), precision=4)}")
+
     def check_energy(self, energies: Mapping[str, float]) -> None:
         for port, e in energies.items():
-            if abs(e) > self.max_energy:
-                raise SafetyStop(f"limit: |energy| at port {port!r} = {abs(e):.4g} J > {self.max_energy:.4g} J")
+            if not abs(e) <= self.max_energy:  # NaN-safe: a NaN energy is a stop, not a pass
+                raise SafetyStop(f"limit: |energy| at port {port!r} = {abs(e):.4g} J > {self.max_energy:.4g} J"
+                                 if math.isfinite(e) else f"fault: non-finite energy at port {port!r} ({e})")
 
     def check_overrun(self, late_s: float) -> None:
-        if late_s > self.watchdog_s:
+        if not late_s <= self.watchdog_s:
             raise SafetyStop(f"watchdog: loop tick {1e3 * late_s:.1f} ms late (limit {1e3 * self.watchdog_s:.0f} ms)")
 
 
@@ -118,69 +150,107 @@ class SafetyMonitor:
 # signals and the safe-stop context
 
 
-class _SignalGuard:
-    """Turn SIGTERM into a SafetyStop in the main thread (Ctrl-C arrives as KeyboardInterrupt)."""
+def one_line(exc: BaseException) -> str:
+    """``"Type: message"`` on one line (device and record errors as they go into a stop reason)."""
+    msg = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
 
-    def __init__(self) -> None:
-        self._old: Any = None
 
-    def __enter__(self) -> _SignalGuard:
-        if threading.current_thread() is threading.main_thread():
-            self._old = signal.getsignal(signal.SIGTERM)
+def classify(exc: BaseException) -> tuple[str, str]:
+    """``(status, reason)`` of the exception that ended an experiment.
 
-            def handler(signum: int, frame: Any) -> None:
-                raise SafetyStop("signal: SIGTERM")
-
-            signal.signal(signal.SIGTERM, handler)
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        if self._old is not None:
-            signal.signal(signal.SIGTERM, self._old)
+    SafetyStop: its own status (a signal's StopRequested: ``interrupted`` for SIGINT) and message;
+    KeyboardInterrupt (Ctrl-C outside the installed handlers): ``interrupted``; device errors
+    (DeviceFault, ProtocolError/ChecksumError past the adapter's tolerance), OSError/termios errors
+    of a lost port: ``safety_stop`` with reason ``"device: ..."``; a DeviceTimeout /
+    DeviceDisconnected: ``"watchdog: ..."``; any other HilError (e.g. a RecordError):
+    ``safety_stop`` with ``"fault: ..."``; anything else: ``error`` (a bug).
+    """
+    if isinstance(exc, SafetyStop):
+        return getattr(exc, "status", "safety_stop"), str(exc) or type(exc).__name__
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted", "interrupted (Ctrl-C)"
+    if isinstance(exc, DeviceTimeout | DeviceDisconnected):
+        return "safety_stop", f"watchdog: {one_line(exc)}"
+    if isinstance(exc, (DeviceError, *_PORT_ERRORS)):
+        return "safety_stop", f"device: {one_line(exc)}"
+    if isinstance(exc, HilError):
+        return "safety_stop", f"fault: {one_line(exc)}"
+    return "error", f"error: {one_line(exc)}"
 
 
 @contextlib.contextmanager
-def safe_stop_context(stop: Callable[[], None], on_stop: Callable[[str, str], None]) -> Iterator[None]:
+def safe_stop_context(stop: Callable[[], Any], on_stop: Callable[[str, str], None]) -> Iterator[None]:
     """Run a block so that any way out of it other than normal completion commands zero effort.
 
-    ``stop()`` must command zero effort and never raise; ``on_stop(reason, status)`` records why
-    (status ``"safety_stop"`` for limits/watchdog/signals, ``"interrupted"`` for Ctrl-C,
-    ``"error"`` for anything else). Exceptions other than :class:`SafetyStop` and
-    KeyboardInterrupt are re-raised after the safe stop.
+    ``stop()`` must command zero effort and never raise (:meth:`hil.bench.Bench.safe_stop`: an
+    uninterruptible section); ``on_stop(reason, status)`` records why (see :func:`classify`).
+    Signals are stop requests (:data:`hil.stopflag.STOP`, installed for the block) that the block
+    turns into a :class:`~hil.stopflag.StopRequested` at its safe points. Only exceptions
+    classified ``error`` (bugs) are re-raised after the safe stop; safety stops, interrupts,
+    device and record failures end the block normally.
     """
-    try:
-        with _SignalGuard():
+    with STOP.install():
+        try:
             yield
-    except SafetyStop as exc:
-        stop()
-        on_stop(str(exc), "safety_stop")
-    except KeyboardInterrupt:
-        stop()
-        on_stop("interrupted (Ctrl-C)", "interrupted")
-    except BaseException as exc:
-        stop()
-        on_stop(f"error: {type(exc).__name__}: {exc}", "error")
-        raise
+        except BaseException as exc:
+            status, reason = classify(exc)
+            if status != "error" and not isinstance(exc, StopRequested) and not STOP.requested:
+                STOP.request(reason, status)  # a stop ends the whole run
+            try:
+                stop()
+            finally:
+                on_stop(reason, status)
+            if status == "error":
+                raise
 
 
 # ---------------------------------------------------------------------------------------------
 # loop
 
 
+_LATE_BINS_PER_DECADE = 50
+_LATE_MIN_S = 1e-7  # 0.1 us .. 100 s: 9 decades
+
+
 @dataclass
 class LoopStats:
-    """Timing of the loop: ``late`` = how far each tick started after its deadline (s)."""
+    """Timing of the loop: how far each tick started after its deadline (s), in bounded memory.
+
+    ``late_max`` is exact; the percentiles come from a log-spaced histogram (50 bins per decade,
+    0.1 us .. 100 s: within ±2.4 % of the exact value). Every tick's lateness is in the record
+    (``loop.late``).
+    """
 
     ticks: int = 0
     overruns: int = 0
-    late: list[float] = field(default_factory=list)
+    late_n: int = 0
+    late_max: float = 0.0
+    hist: np.ndarray = field(default_factory=lambda: np.zeros(9 * _LATE_BINS_PER_DECADE + 2, dtype=np.int64))
+
+    def add_late(self, late: float) -> None:
+        """Account one tick's lateness ``late`` (s)."""
+        self.late_n += 1
+        self.late_max = max(self.late_max, late)
+        if late <= _LATE_MIN_S:
+            i = 0
+        else:
+            i = min(self.hist.size - 1, 1 + int(math.log10(late / _LATE_MIN_S) * _LATE_BINS_PER_DECADE))
+        self.hist[i] += 1
+
+    def _percentile(self, q: float) -> float:
+        c = np.cumsum(self.hist)
+        i = int(np.searchsorted(c, q / 100.0 * self.late_n, side="left"))
+        if i == 0:
+            return 0.0
+        lo = _LATE_MIN_S * 10 ** ((i - 1) / _LATE_BINS_PER_DECADE)  # geometric bin centre
+        return min(self.late_max, lo * 10 ** (0.5 / _LATE_BINS_PER_DECADE))
 
     def summary(self) -> dict[str, float]:
-        if not self.late:
+        if not self.late_n:
             return {"ticks": self.ticks, "overruns": self.overruns}
-        a = np.asarray(self.late) * 1e6
-        return {"ticks": self.ticks, "overruns": self.overruns, "late_p50_us": float(np.percentile(a, 50)),
-                "late_p99_us": float(np.percentile(a, 99)), "late_max_us": float(a.max())}
+        return {"ticks": self.ticks, "overruns": self.overruns, "late_p50_us": 1e6 * self._percentile(50),
+                "late_p99_us": 1e6 * self._percentile(99), "late_max_us": 1e6 * self.late_max}
 
 
 @dataclass
@@ -274,22 +344,45 @@ class Runner:
         return ch
 
     # -- one experiment --------------------------------------------------------------------------
+    @staticmethod
+    def _name(index: int, ecfg: Mapping[str, Any]) -> str:
+        return f"{index:02d}_{ecfg.get('name') or ecfg.get('type', 'experiment')}"
+
     def run_experiment(self, index: int, cfg: Any) -> ExperimentOutcome:
-        """Run one experiment on a fresh bench; see the module docstring."""
+        """Run one experiment on a fresh bench; see the module docstring.
+
+        A stop request or device failure while the bench opens (the bench commands zero effort to
+        what it opened, then closes) gives an outcome without a record."""
         ecfg = _dump(cfg)
-        with self.bench_factory(ecfg.get("variant")) as bench:
+        name = self._name(index, ecfg)
+        try:
+            bench = self.bench_factory(ecfg.get("variant"))
+        except (SafetyStop, DeviceError, *_PORT_ERRORS) as exc:
+            status, reason = classify(exc)
+            reason = f"{reason} (while the bench was opening)"
+            STOP.request(reason, status)
+            log.warning("%s: safe stop: %s", name, reason)
+            return ExperimentOutcome(name, status, reason, None, {}, {"ticks": 0, "overruns": 0})
+        with bench:
             self.bench = bench
             try:
                 return self._run(index, ecfg)
             finally:
                 self.bench = None
 
+    def _append(self, writer: Any, t: float, values: Mapping[str, Any]) -> None:
+        """Append one sample; a record write error (RecordError, OSError: full disk, ...) is a safe stop."""
+        try:
+            writer.append(t, values)
+        except (HilError, OSError) as exc:
+            raise SafetyStop(f"record: {one_line(exc)}") from exc
+
     def _run(self, index: int, ecfg: dict[str, Any]) -> ExperimentOutcome:
         from hil.controllers import make_controller
         from hil.experiments import make_experiment
         from hil.record import RecordWriter
 
-        name = f"{index:02d}_{ecfg.get('name') or ecfg.get('type', 'experiment')}"
+        name = self._name(index, ecfg)
         exp = make_experiment(ecfg, rate_hz=self.rate_hz)
         exp.check(self.scene)
         ccfg = {"type": "none"} if ecfg.get("controller") == "none" else _dump(getattr(self.scene, "controller", None))
@@ -300,31 +393,50 @@ class Runner:
             n = min(n, self.max_ticks)
         safety = SafetyMonitor(_dump(getattr(self.scene, "safety", None)), self.rate_hz)
         path = self.out_dir / f"{name}.h5"
+        state = {"status": "completed", "reason": "completed"}
+        stats = LoopStats()
+        held: list[Any] = []  # the record writer, once created
+        energy = {p.name: 0.0 for p in self.ports if getattr(p, "force_sensor", None)}
+        last_power: dict[str, float] = {}
+
+        zeroed: dict[str, str] = {}
+
+        def stop() -> None:
+            zeroed.update(self.bench.safe_stop() or {})
+
+        def on_stop(reason: str, status: str) -> None:
+            state["status"], state["reason"] = status, reason
+            log.warning("%s: safe stop: %s", name, reason)
+            if held:
+                per = ", ".join(f"{k}: {v}" for k, v in zeroed.items()) or "no actuator"
+                with contextlib.suppress(Exception):
+                    held[0].event(stats.ticks * self.dt, status, reason)
+                    held[0].event(stats.ticks * self.dt, "safe_stop", f"zero effort commanded ({per})")
+
+        with safe_stop_context(stop, on_stop):  # first reading: channel sizes
+            STOP.check()
+            meas0 = self.bench.read()
+        if state["status"] != "completed":
+            return ExperimentOutcome(name, state["status"], state["reason"], None, {}, stats.summary())
         meta = {"scene": self.scene.name, "experiment": ecfg, "seed": getattr(self.scene, "seed", 0),
                 "mode": "realtime" if self.realtime else "lockstep", "rate_hz": self.rate_hz,
                 "devices": self.bench.device_identities(),
                 "network": [p.model_dump() if hasattr(p, "model_dump") else dict(p) for p in self.ports],
                 "units": getattr(self.scene, "units", "rotary")}
-        writer = RecordWriter(path, scene_text=self.scene.source_text, scene_sha256=self.scene.sha256, meta=meta,
-                              channels=self._channels(self.bench.read()), rate_hz=self.rate_hz)
-        state = {"status": "completed", "reason": "completed"}
-        stats = LoopStats()
-        buf: dict[str, list[Any]] = {"t": []}  # the same samples, kept for the experiment's analysis
-        energy = {p.name: 0.0 for p in self.ports if getattr(p, "force_sensor", None)}
-        last_power: dict[str, float] = {}
-
-        def on_stop(reason: str, status: str) -> None:
-            state["status"], state["reason"] = status, reason
-            log.warning("%s: safe stop: %s", name, reason)
-            with contextlib.suppress(Exception):
-                writer.event(stats.ticks * self.dt, status, reason)
-                writer.event(stats.ticks * self.dt, "safe_stop", "zero effort commanded on every actuator")
-
         try:
-            with safe_stop_context(self.bench.safe_stop, on_stop):
+            writer = RecordWriter(path, scene_text=self.scene.source_text, scene_sha256=self.scene.sha256,
+                                  meta=meta, channels=self._channels(meas0), rate_hz=self.rate_hz)
+        except BaseException:
+            self.bench.safe_stop()
+            raise
+        held.append(writer)
+        no_exc = _NoExcitation()
+        try:
+            with safe_stop_context(stop, on_stop):
                 t0 = time.monotonic_ns()
                 period_ns = round(1e9 / self.rate_hz)
                 for k in range(n):
+                    STOP.check()  # the safe point of a stop request (signal)
                     t = k * self.dt
                     late = 0.0
                     if self.realtime:
@@ -336,50 +448,73 @@ class Runner:
                                 time.sleep((rem - 1_000_000) / 1e9)
                             now = time.monotonic_ns()
                         late = (now - deadline) / 1e9
-                        stats.late.append(late)
+                        stats.add_late(late)
                         if late > self.dt:
                             stats.overruns += 1
                         safety.check_overrun(late)
+                    meas = self.bench.read()  # DeviceTimeout/Disconnected -> "watchdog: ...", faults -> "device: ..."
                     try:
-                        meas = self.bench.read()
-                    except (DeviceTimeout, DeviceDisconnected) as exc:  # feedback missed: a watchdog stop
-                        raise SafetyStop(f"watchdog: {exc}") from exc
-                    safety.check_feedback(t, meas)
+                        safety.check_finite(k, t, meas)
+                    except SafetyStop:  # the breach sample goes into the record (nothing computed from it)
+                        nan_u = {a.name: np.full(int(a.dof), np.nan) for a in self._actuator_like()}
+                        self._append(writer, t, self._sample_values(meas, nan_u, no_exc, late))
+                        stats.ticks = k + 1
+                        raise
                     u = {key: np.asarray(v, float).copy() for key, v in ctrl.update(t, self.dt, meas).items()}
                     exc = exp.excitation(k, t, meas)
                     for key, v in (exc.effort or {}).items():
                         u[key] = u.get(key, np.zeros_like(np.asarray(v, float))) + np.asarray(v, float)
+                    values = self._sample_values(meas, u, exc, late)
+                    self._port_energy(k, meas, exc, energy, last_power, values)
+                    self._append(writer, t, values)  # before the checks: a breach sample is recorded
+                    stats.ticks = k + 1
+                    safety.check_feedback(t, meas)
                     safety.check_command(u)
+                    safety.check_energy(energy)
                     self.bench.command(u)
                     for port, f in (exc.human or {}).items():
                         self.bench.set_human_force(port, np.asarray(f, float))
-                    values = self._sample_values(meas, u, exc, late)
-                    self._port_energy(k, meas, exc, energy, last_power, values)
-                    writer.append(t, values)
-                    buf["t"].append(t)
-                    for key, v in values.items():
-                        buf.setdefault(key, []).append(np.array(v, dtype=float, copy=True))
-                    safety.check_energy(energy)
-                    stats.ticks = k + 1
                     if self.progress and k % max(1, int(self.rate_hz / 10)) == 0:
                         self.progress(name, k, n)
                     self.bench.advance()  # lockstep plant step (no-op on hardware)
-            if state["status"] == "completed":
-                self.bench.safe_stop()
+                if state["status"] == "completed":
+                    self.bench.safe_stop()
+                    try:
+                        writer.flush()  # a full disk here is still a safe stop of this experiment
+                    except (HilError, OSError) as exc:
+                        raise SafetyStop(f"record: {one_line(exc)}") from exc
             results: dict[str, Any] = {}
             if state["status"] != "error":
-                data = {key: np.asarray(v) for key, v in buf.items()}
-                try:
-                    results = exp.finish(data, meta) or {}
-                except HilError as exc:
-                    results = {"error": str(exc)}
+                results = self._finish(exp, path, writer, meta, name)
                 if results:
-                    writer.set_results(name, results)
-            writer.close(stop_reason=state["reason"], status=state["status"])
+                    with contextlib.suppress(HilError):
+                        writer.set_results(name, results)
+            try:
+                writer.close(stop_reason=state["reason"], status=state["status"])
+            except (HilError, OSError) as exc:  # the record could not be closed: still a safe stop
+                reason = f"record: {one_line(exc)}"
+                if state["status"] == "completed":
+                    state["status"], state["reason"] = "safety_stop", reason
+                else:
+                    state["reason"] = f"{state['reason']}; {reason}"
+                STOP.request(state["reason"], state["status"])
+                log.error("%s: %s", name, reason)
             return ExperimentOutcome(name, state["status"], state["reason"], path, results, stats.summary())
         finally:
             with contextlib.suppress(Exception):
                 writer.close(stop_reason=state["reason"], status=state["status"])
+
+    def _finish(self, exp: Any, path: Path, writer: Any, meta: Mapping[str, Any], name: str) -> dict[str, Any]:
+        """The experiment's ``finish()`` on the channels read back from the flushed record."""
+        try:
+            writer.flush()
+            with _RecordChannels(path) as data:
+                return dict(exp.finish(data, meta) or {})
+        except HilError as exc:
+            return {"error": str(exc)}
+        except Exception as exc:  # partial data of a stopped run, an unreadable record: not the loop's concern
+            log.warning("%s: results not computed: %s", name, one_line(exc), exc_info=True)
+            return {"error": one_line(exc)}
 
     def _sample_values(self, meas: Mapping[str, Any], u: Mapping[str, np.ndarray], exc: Any,
                        late: float) -> dict[str, Any]:
@@ -416,13 +551,74 @@ class Runner:
             values[f"{p.name}.human"] = np.asarray(human, float)[:dofs]
 
     def run(self, select: list[int] | None = None) -> list[ExperimentOutcome]:
-        outcomes = []
+        """Run the scene's experiments (or the indices ``select``) in order, one bench each.
+
+        Signal handlers (:data:`hil.stopflag.STOP`) are installed for the whole run. Any stop
+        (limit, watchdog, device or record failure, signal, error) ends the run: no further
+        experiment starts. A stop requested between experiments or while a bench closes adds an
+        outcome for the next experiment (``"<reason> (before it started)"``, no record); after
+        the last one it is in :attr:`stop_status` / :attr:`stop_reason` (None when nothing stopped).
+        """
+        outcomes: list[ExperimentOutcome] = []
+        self.stop_status: str | None = None
+        self.stop_reason: str | None = None
         cfgs = self.scene.experiment_configs() if hasattr(self.scene, "experiment_configs") else self.scene.experiments
-        for i, cfg in enumerate(cfgs):
-            if select is not None and i not in select:
-                continue
-            out = self.run_experiment(i, cfg)
-            outcomes.append(out)
-            if out.status in ("interrupted", "error"):
-                break
+        with STOP.install():
+            for i, cfg in enumerate(cfgs):
+                if select is not None and i not in select:
+                    continue
+                if STOP.requested:
+                    status, reason = STOP.status or "safety_stop", STOP.reason or "stop requested"
+                    outcomes.append(ExperimentOutcome(self._name(i, _dump(cfg)), status,
+                                                      f"{reason} (before it started)", None, {},
+                                                      {"ticks": 0, "overruns": 0}))
+                    log.warning("%s not started: %s", outcomes[-1].name, reason)
+                    break
+                out = self.run_experiment(i, cfg)
+                outcomes.append(out)
+                if out.status != "completed":
+                    break
+            if STOP.requested:
+                self.stop_status, self.stop_reason = STOP.status or "safety_stop", STOP.reason
         return outcomes
+
+
+class _NoExcitation:
+    """The excitation of a tick whose feedback was unusable (nothing computed)."""
+
+    effort = None
+    human = None
+
+
+class _RecordChannels(Mapping[str, Any]):
+    """``t`` and the channels of a flushed record as h5py datasets (read lazily, in blocks by the
+    experiments that can; ``np.asarray(ds)`` reads one whole channel)."""
+
+    def __init__(self, path: Path) -> None:
+        import h5py
+
+        self._f = h5py.File(path, "r")
+        g = self._f["channels"]
+        self._n = min([self._f["t"].shape[0], *(g[k].shape[0] for k in g)])
+
+    def __enter__(self) -> _RecordChannels:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._f.close()
+
+    def _ds(self, key: str) -> Any:
+        return self._f["t"] if key == "t" else self._f["channels"][key]
+
+    def __getitem__(self, key: str) -> Any:
+        try:
+            ds = self._ds(key)
+        except KeyError:
+            raise KeyError(key) from None
+        return ds if ds.shape[0] == self._n else ds[: self._n]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(["t", *self._f["channels"]])
+
+    def __len__(self) -> int:
+        return 1 + len(self._f["channels"])

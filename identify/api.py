@@ -32,6 +32,7 @@ import logging
 import sys
 import tempfile
 import time
+import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -360,21 +361,30 @@ def identify_record(record: Any, **overrides: Any) -> IdentificationResult:
 def load_record(path: str | Path) -> Any:
     """A :class:`hil.record.RunRecord` (``.h5``; ``.csv``/``.mat`` imported into a temporary record
     with the importers' defaults) or a record dict (``.npz``). Raises RecordError / ModelSpecError."""
-    from hil.record import RunRecord
+    from hil.record import RecordError, RunRecord
 
     p = Path(path)
     suffix = p.suffix.lower()
-    if suffix == ".npz":
-        if not p.is_file():
-            raise ModelSpecError(f"{p}: no such file")
-        return load_npz_record(str(p))
-    if suffix in (".csv", ".mat"):
-        from hil.importers import import_csv, import_mat
+    try:  # an unreadable file is one line naming it, never a traceback
+        if suffix == ".npz":
+            if not p.is_file():
+                raise ModelSpecError(f"{p}: no such file")
+            return load_npz_record(str(p))
+        if suffix in (".csv", ".mat"):
+            from hil.importers import import_csv, import_mat
 
-        with tempfile.TemporaryDirectory(prefix="hil-identify-") as tmp:
-            out = Path(tmp) / (p.stem + ".h5")
-            (import_csv if suffix == ".csv" else import_mat)(p, out)
-            return RunRecord.open(out)
+            with tempfile.TemporaryDirectory(prefix="hil-identify-") as tmp:
+                out = Path(tmp) / (p.stem + ".h5")
+                (import_csv if suffix == ".csv" else import_mat)(p, out)
+                return RunRecord.open(out)
+    except HilError:
+        raise
+    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:  # UnicodeDecodeError is a ValueError
+        raise RecordError(f"{p}: not a readable {suffix} record ({' '.join(str(exc).split())[:200]})") from None
+    except Exception as exc:  # scipy's MatReadError derives from Exception only
+        if type(exc).__name__ != "MatReadError":
+            raise
+        raise RecordError(f"{p}: not a readable .mat file ({' '.join(str(exc).split())[:200]})") from None
     return RunRecord.open(p)
 
 

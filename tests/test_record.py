@@ -62,9 +62,10 @@ def test_clean_round_trip(tmp_path: Path) -> None:
             w.append(k / 1000, vals)
         w.event(0.5, "experiment", "chirp started")
         w.event(1.0, "safety", "max_velocity: 21 > 20 rad/s")
+        assert w.samples == n and w.samples_flushed == 1200  # 34 samples still buffered
         w.set_results("chirp", {"f": np.linspace(1, 10, 4), "H": np.array([1 + 2j, 3 - 1j]),
                                 "nested": {"gain": np.float64(2.5), "ok": True, "names": ["a", "b"]}})
-        assert w.samples == n and w.samples_flushed == 1200  # 34 samples still buffered before close
+        assert w.samples_flushed == n  # set_results writes at once (and the buffered samples with it)
     rec = RunRecord.open(path)
     assert rec.status == "ok" and rec.stop_reason == "completed" and rec.closed
     assert rec.scene_text == SCENE and rec.scene_sha256 == SHA
@@ -96,8 +97,13 @@ def test_clean_round_trip(tmp_path: Path) -> None:
         assert f["t"].chunks is not None and f["t"].maxshape == (None,)
         assert f["channels/master.position"].maxshape == (None, 2)
         assert f["channels/motor.position"].attrs["unit"] == "rad"
-        assert f["status"].attrs["samples"] == n
-        assert isinstance(f["results/chirp"]["f"], h5py.Dataset)
+        assert f["status"].shape == (1024,)  # fixed, written in place at close
+        status = json.loads(bytes(f["status"][:]).rstrip(b"\0"))
+        assert (status["status"], status["stop_reason"], status["samples"]) == ("ok", "completed", n)
+        line = json.loads(bytes(f["results"][:]).decode())
+        assert line["experiment"] == "chirp" and set(line["arrays"]) == {"f", "H"}
+        for name in ("results_npy", "device_counters", "events"):
+            assert f[name].dtype == np.uint8 and f[name].maxshape == (None,)
 
 
 @pytest.mark.timeout(60)
@@ -297,7 +303,7 @@ def test_replay_main(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None
     junk = tmp_path / "junk.h5"
     junk.write_bytes(b"not hdf5 at all")
     assert replay_main([str(junk)]) == 2
-    assert "not a readable HDF5 file" in capsys.readouterr().err
+    assert "not an HDF5 file" in capsys.readouterr().err
     with h5py.File(tmp_path / "other.h5", "w") as f:
         f["x"] = 1
     assert replay_main([str(tmp_path / "other.h5")]) == 2
