@@ -17,6 +17,13 @@ Stages (timed; ``Certificate.measurements`` records what each produced):
    coupled system diverges, or E_s(t) = ∫ F·V dt goes negative under a sinusoidal force);
 7. **decide** with the policy; NaN or missing evidence gives ERROR, never GO.
 
+The witness, the plots and the energy evidence are *optional* stages: a failure inside one never
+stops the certification and is never swallowed either. It is logged and recorded in the
+certificate's ``errors`` ("<stage> failed: <reason>", shown in the report's Errors section), and
+it leaves the decision as the criterion made it (a NO-GO stays NO-GO; a NO-GO without its witness
+says why in its reasons), with one conservative exception: a GO whose energy evidence could not be
+read becomes MARGINAL.
+
 Only what the scene uses is computed and reported: no identification section without identify
 entries, no energy section without energy-injection experiments, no multi-port section for a
 two-port with 1-DOF ports, no design section without a design parameter.
@@ -163,6 +170,37 @@ def _check(tm: Any, criterion: str, margins: bool = True) -> Any:
 
 
 # ---------------------------------------------------------------------------------------------
+# optional stages
+
+
+class _Optional:
+    """Runs the optional stages (witness, plots, energy evidence): a failure is logged and recorded
+    as one line ``"<stage> failed: <reason>"`` in :attr:`errors`, and the stage yields ``default``."""
+
+    def __init__(self) -> None:
+        self.errors: list[str] = []
+        self.failed: dict[str, str] = {}  # stage -> reason
+
+    def run(self, name: str, fn: Callable[..., Any], *args: Any, default: Any = None) -> Any:
+        try:
+            return fn(*args)
+        except Exception as exc:  # recorded, never swallowed: see the module docstring
+            reason = _one_line(exc)
+            log.warning("optional stage %s failed: %s", name, reason, exc_info=log.isEnabledFor(logging.DEBUG))
+            self.errors.append(f"{name} failed: {reason}")
+            self.failed[name] = reason
+            return default
+
+
+def _one_line(exc: BaseException, limit: int = 300) -> str:
+    """``exc`` as one line: its message (with the exception type unless it is one of ours)."""
+    msg = " ".join(str(exc).split()) or "(no message)"
+    if not isinstance(exc, HilError):
+        msg = f"{type(exc).__name__}: {msg}"
+    return msg if len(msg) <= limit else msg[: limit - 1] + "…"
+
+
+# ---------------------------------------------------------------------------------------------
 # the pipeline
 
 
@@ -189,6 +227,7 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
     errors: list[str] = []
     measurements: list[Measurement] = []
     plots: dict[str, Series] = {}
+    opt = _Optional()
 
     def stage(name: str) -> Any:
         class _T:
@@ -220,7 +259,7 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
     if given:
         for i_name, o in given.items():
             outcomes[i_name] = o
-            _energy_evidence(i_name, o, energy, measurements, plots)
+            _energy_stage(opt, i_name, o, energy, measurements, plots)
     elif run_experiments and scene.experiments:
         from hil.runner import Runner
 
@@ -235,7 +274,7 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
                     description=o.stop_reason if not ok else f"record {o.record.name}"))
                 if o.status == "error":
                     errors.append(f"experiment {names[i]}: {o.stop_reason}")
-                _energy_evidence(names[i], o, energy, measurements, plots)
+                _energy_stage(opt, names[i], o, energy, measurements, plots)
             if runner.stop_reason and all(o.status == "completed" for o in outcomes.values()):
                 errors.append(f"run stopped: {runner.stop_reason}")  # e.g. a signal after the last experiment
 
@@ -283,7 +322,8 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
                                       f"(have {sorted(available)})")
                         continue
                     draws[dst] = available[src]
-                _identification_plots(plots, spec.experiment, res, seed)
+                opt.run(f"plots (identification {spec.experiment})", _identification_plots, plots,
+                        spec.experiment, res, seed)
                 measurements.append(Measurement(name=f"posterior converged ({res.model.name})", value=res.converged,
                                                 outcome="PASS" if res.converged else "MARGINAL",
                                                 description="integrated autocorrelation time, ≥ 50 τ, acceptance, "
@@ -318,7 +358,7 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
             measurements.append(Measurement(name="nominal margin", value=_f(nominal_res.margin), lower=0.0,
                                             outcome="PASS" if (nominal_res.margin or 0) > 0 else "MARGINAL",
                                             description="normalized margin of the decisive condition"))
-            _decided_plot(plots, tm, nominal_res)
+            opt.run("plots (decided quantities)", _decided_plot, plots, tm, nominal_res)
         except HilError as exc:
             errors.append(f"nominal model: {exc}")
             tm = None
@@ -362,7 +402,7 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
                                                      "region", value=wc, lower=0.0,
                                                 outcome="PASS" if wc > 0 else "MARGINAL",
                                                 description="minimum of the margin by optimization"))
-            _bode_plot(plots, cert.model, params, draws, seed)
+            opt.run("plots (posterior Bode)", _bode_plot, plots, cert.model, params, draws, seed)
 
     # 5. design -----------------------------------------------------------------------------------
     design = None
@@ -383,13 +423,27 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
     if any(e.went_negative for e in energy) and dec == Decision.GO:
         dec = Decision.MARGINAL
         reasons.append("energy injection: E_s(t) went below its noise bound although the criterion passed")
+    energy_failed = [k for k in opt.failed if k.startswith("energy evidence")]
+    if energy_failed and dec == Decision.GO:
+        dec = Decision.MARGINAL
+        reasons.append(f"energy injection evidence could not be read ({', '.join(energy_failed)}): not certified "
+                       "GO without it")
 
     # 6. witness ----------------------------------------------------------------------------------
     witness = None
     unstable = nominal_res is not None and str(nominal_res.verdict) == "potentially_unstable"
     if cert.witness and unstable and tm is not None:
         with stage("witness"):
-            witness = _witness(tm, plots)
+            witness = opt.run("witness", _witness, tm, plots, opt)
+        if witness is None:
+            why = opt.failed.get("witness")
+            reasons.append(f"no destabilizing passive termination reported: the witness search failed ({why})"
+                           if why is not None else
+                           "no destabilizing passive termination found among the candidates searched (a finite "
+                           "family: the criterion's verdict stands)")
+    elif unstable and not cert.witness:
+        reasons.append("no destabilizing passive termination reported: the scene disables the witness search "
+                       "(certification.witness: false)")
 
     multiport = None
     if tm is not None and (tm.n_ports > 2 or max(tm.port_dofs) > 1):
@@ -404,7 +458,7 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
         decision=str(dec), reasons=reasons, policy={"required_probability": policy.required_probability,
                                                     "confidence": policy.confidence, "credible": policy.credible},
         measurements=measurements, nominal=nominal, robust=robust, identification=idents or None, design=design,
-        witness=witness, energy=energy or None, multiport=multiport, plots=plots, errors=errors)
+        witness=witness, energy=energy or None, multiport=multiport, plots=plots, errors=errors + opt.errors)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -516,8 +570,9 @@ def _design(cert: Any, params: Mapping[str, Any], draws: Mapping[str, np.ndarray
                        f"{policy.confidence:.0%} bound of P(stable) stays ≥ {policy.required_probability}")
 
 
-def _witness(tm: Any, plots: dict[str, Series]) -> Witness | None:
-    """Search a passive termination set and simulate the driven, terminated one-port exactly."""
+def _witness(tm: Any, plots: dict[str, Series], opt: _Optional) -> Witness | None:
+    """Search a passive termination set and simulate the driven, terminated one-port exactly
+    (a failure of the simulation is recorded by ``opt``; the witness is kept without it)."""
     from hil.stability.witness import find_witness, termination_family
 
     port = 0
@@ -525,7 +580,9 @@ def _witness(tm: Any, plots: dict[str, Series]) -> Witness | None:
     w = find_witness(tm, port, cands, first=True)
     if w is None:
         return None
-    sim = _simulate_witness(w, plots)
+    sim = opt.run("witness simulation", _simulate_witness, w, plots)
+    if sim is None:
+        sim = {"simulated": False, "reason": f"simulation failed: {opt.failed['witness simulation']}"}
     band = None if w.band_rad_s is None else (float(w.band_rad_s[0]),
                                              "inf" if math.isinf(w.band_rad_s[1]) else float(w.band_rad_s[1]))
     return Witness(terminations={str(k): v.to_dict() for k, v in w.terminations.items()},
@@ -611,20 +668,28 @@ def _identification_plots(plots: dict[str, Series], name: str, res: Any, seed: i
             x=sub[:, a].tolist(), x_label=names[a], y_label=names[b], lines={"draws": sub[:, b].tolist()})
 
 
-def _energy_evidence(name: str, o: Any, energy: list[EnergyEvidence], measurements: list[Measurement],
-                     plots: dict[str, Series]) -> None:
-    """Energy-injection results of an experiment as evidence, a measurement and a plot."""
+def _energy_stage(opt: _Optional, name: str, o: Any, energy: list[EnergyEvidence], measurements: list[Measurement],
+                  plots: dict[str, Series]) -> None:
+    """The optional energy-evidence stage of one experiment, and its plot."""
+    if opt.run(f"energy evidence ({name})", _energy_evidence, name, o, energy, measurements, default=False):
+        opt.run(f"plots (energy {name})", _energy_plot, plots, name, o)
+
+
+def _energy_evidence(name: str, o: Any, energy: list[EnergyEvidence], measurements: list[Measurement]) -> bool:
+    """Energy-injection results of an experiment as evidence and a measurement; True if it had some."""
     r = o.results
     if r.get("type") != "energy_injection" or "went_negative" not in r:
-        return
+        return False
     bound = float(r.get("bound_at_min", 0.0))
-    energy.append(EnergyEvidence(experiment=name, port=str(r.get("port")), record=str(o.record),
-                                 went_negative=bool(r["went_negative"]), min_energy=float(r["min_energy"]),
-                                 bound=bound, first_time=r.get("first_time")))
-    measurements.append(Measurement(name=f"E_s(t) ≥ -bound ({name})", value=float(r["min_energy"]), unit="J",
-                                    lower=-bound, outcome="FAIL" if r["went_negative"] else "PASS",
-                                    description="minimum port energy over the run against its noise bound"))
-    _energy_plot(plots, name, o)
+    ev = EnergyEvidence(experiment=name, port=str(r.get("port")), record=str(o.record),
+                        went_negative=bool(r["went_negative"]), min_energy=float(r["min_energy"]),
+                        bound=bound, first_time=r.get("first_time"))
+    m = Measurement(name=f"E_s(t) ≥ -bound ({name})", value=float(r["min_energy"]), unit="J",
+                    lower=-bound, outcome="FAIL" if r["went_negative"] else "PASS",
+                    description="minimum port energy over the run against its noise bound")
+    energy.append(ev)  # both or neither
+    measurements.append(m)
+    return True
 
 
 def _energy_plot(plots: dict[str, Series], name: str, outcome: Any) -> None:

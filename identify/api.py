@@ -279,7 +279,8 @@ def identify_experiments(
     else:
         guess = mdl.initial_guess(est)
         th0 = mdl.nominal if guess is None else guess
-    pre = check_identifiability(mdl, th0, w=est.w, sigma=est.sigma)
+    # at the initial guess: its messages are in the error it may raise; the check at the fit below warns
+    pre = check_identifiability(mdl, th0, w=est.w, sigma=est.sigma, log_level=logging.DEBUG)
     pre.raise_if_not_identifiable()
     t1 = time.perf_counter()
     ls = fit_least_squares(mdl, est, x0=th0, n_starts=n_starts, seed=seed)

@@ -232,10 +232,13 @@ def check_identifiability(
     cond_warn: float = 1e6,
     rel_std_warn: float = 0.5,
     null_frac: float = 0.1,
+    log_level: int = logging.WARNING,
 ) -> IdentifiabilityReport:
     """Fisher rank/condition check of an experiment, from a ``plan`` or from ``(w [rad/s], sigma)``.
 
     ``theta`` defaults to the model's nominal values (the check is local: use the best prior guess).
+    The report's messages are logged at ``log_level`` (an identification that checks twice, before
+    and after its fit, logs the first check at DEBUG so that each warning appears once).
     """
     th = model.nominal if theta is None else np.asarray(theta, float)
     if plan is not None:
@@ -304,7 +307,7 @@ def check_identifiability(
                 "very different precision"
             )
     for m in messages:
-        logger.warning("identifiability: %s", m)
+        logger.log(log_level, "identifiability: %s", m)
     return IdentifiabilityReport(
         names=names,
         theta=th,

@@ -1,4 +1,5 @@
-"""Figures of an identification (matplotlib imported lazily, Agg backend; ``corner`` used if installed).
+"""Figures of an identification (matplotlib imported lazily, Agg backend; ``corner``, declared in
+the ``report`` extra, used when installed, else a plain pairwise scatter grid).
 
 All functions return the :class:`matplotlib.figure.Figure` and save it when ``path`` is given.
 """
@@ -96,17 +97,18 @@ def plot_residuals(res: IdentificationResult, *, path: str | None = None) -> Any
 
 
 def plot_corner(res: IdentificationResult, *, truths: Any = None, path: str | None = None) -> Any:
-    """Corner plot of the posterior (``corner`` if installed, else a pairwise scatter grid)."""
+    """Corner plot of the posterior (``corner`` from the ``report`` extra if installed, else a
+    pairwise scatter grid)."""
     plt = _plt()
     samples = res.posterior.samples
     names = list(res.posterior.names)
     try:
         import corner  # type: ignore[import-not-found]
-
+    except ImportError:
+        logger.info("corner not installed (pip install 'hil-certify[report]'): plain pairwise scatter grid")
+    else:
         fig = corner.corner(samples, labels=names, truths=truths, quantiles=[0.05, 0.5, 0.95])
         return _save(fig, path)
-    except ImportError:
-        pass
     d = samples.shape[1]
     fig, axes = plt.subplots(d, d, figsize=(1.8 * d, 1.8 * d), squeeze=False)
     sub = samples[:: max(1, samples.shape[0] // 3000)]

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+from flint import fmpq, fmpq_poly
 from numpy.polynomial import polynomial as P
 
 from hil.errors import ConversionError, ModelError
@@ -392,34 +393,38 @@ class TransferMatrix:
         * g = h⁻¹
 
         Raises :class:`ConversionError` when the needed inverse does not exist (identically
-        singular block).
+        singular block). The whole chain (e.g. g → z → h) runs in exact arithmetic over Q(s) and
+        is rounded to floats once, at the end.
         """
         if kind not in KINDS:
             raise ModelError(f"unknown immittance type {kind!r}")
         if kind == self.kind:
             return self
-        z = self._to_impedance()
-        if kind == "impedance":
-            return z
-        if kind == "admittance":
-            return TransferMatrix(_inv(z.entries), "admittance", z.port_dofs, self.name)
-        if len(self.port_dofs) != 2:
+        if kind in ("hybrid", "inverse_hybrid") and len(self.port_dofs) != 2:
             raise ConversionError("hybrid forms exist for two-ports only")
-        h = _z_to_h(z.entries, z.port_dofs[0])
-        if kind == "hybrid":
-            return TransferMatrix(h, "hybrid", z.port_dofs, self.name)
-        return TransferMatrix(_inv(h), "inverse_hybrid", z.port_dofs, self.name)
-
-    def _to_impedance(self) -> TransferMatrix:
-        if self.kind == "impedance":
-            return self
-        if self.kind == "admittance":
-            return TransferMatrix(_inv(self.entries), "impedance", self.port_dofs, self.name)
-        m1 = self.port_dofs[0]
-        h = self.entries if self.kind == "hybrid" else _inv(self.entries)
-        # h -> z is the same map as z -> h with the roles of the ports swapped:
-        # z11 = h11 - h12 h22^-1 h21, z12 = h12 h22^-1, z21 = -h22^-1 h21, z22 = h22^-1
-        return TransferMatrix(_z_to_h(h, m1), "impedance", self.port_dofs, self.name)
+        Q = _to_rf(self.entries)
+        pair = {"impedance": "admittance", "admittance": "impedance", "hybrid": "inverse_hybrid",
+                "inverse_hybrid": "hybrid"}
+        if pair[self.kind] == kind:  # z <-> y, h <-> g: one inverse
+            out = _rf_inv(Q, _SINGULAR)
+        else:
+            m1 = self.port_dofs[0]
+            if self.kind == "impedance":
+                z = Q
+            elif self.kind == "admittance":
+                z = _rf_inv(Q, _SINGULAR)
+            else:
+                # h -> z is the same map as z -> h with the roles of the ports swapped:
+                # z11 = h11 - h12 h22^-1 h21, z12 = h12 h22^-1, z21 = -h22^-1 h21, z22 = h22^-1
+                z = _rf_z_to_h(Q if self.kind == "hybrid" else _rf_inv(Q, _SINGULAR), m1)
+            if kind == "impedance":
+                out = z
+            elif kind == "admittance":
+                out = _rf_inv(z, _SINGULAR)
+            else:
+                h = _rf_z_to_h(z, m1)
+                out = h if kind == "hybrid" else _rf_inv(h, _SINGULAR)
+        return TransferMatrix(_from_rf(out), kind, self.port_dofs, self.name)
 
 
 def _rational_equal(a: Rational, b: Rational, rtol: float) -> bool:
@@ -437,65 +442,184 @@ def _rational_equal(a: Rational, b: Rational, rtol: float) -> bool:
 # ---------------------------------------------------------------------------------------------
 # conversions in exact rational arithmetic
 #
-# Float coefficients are exact binary rationals, so the conversion formulas can be evaluated
-# exactly (sympy, imported lazily: conversions are rare and not on any hot path). Factors shared
-# by the entries (e.g. the characteristic polynomial of an SDEA) then cancel exactly instead of
-# leaving near-cancelling pole/zero pairs; the results are rounded back to floats once.
+# Float coefficients are exact binary rationals (float.as_integer_ratio), so the conversion
+# formulas can be evaluated exactly over Q(s): python-flint's fmpq_poly carries the polynomials,
+# _RF the field of rational functions (gcd-reduced, monic denominator), and the matrices are at
+# most ~6x6, so plain Gauss-Jordan elimination is cheap. Factors shared by the entries (e.g. the
+# characteristic polynomial of an SDEA) then cancel exactly instead of leaving near-cancelling
+# pole/zero pairs; the results are rounded back to floats once.
 
 
-def _sym(M: list[list[Rational]]):
-    import sympy as sp
+class _RF:
+    """An exact rational function n(s)/d(s) over Q: gcd(n, d) = 1, d monic, 0 = 0/1."""
 
-    s = sp.Symbol("s")
+    __slots__ = ("d", "n")
 
-    def poly(c: np.ndarray):
-        return sum(sp.Rational(float(v)) * s**k for k, v in enumerate(c) if v != 0) or sp.Integer(0)
+    def __init__(self, n: fmpq_poly, d: fmpq_poly, reduced: bool = False) -> None:
+        if not reduced:
+            if d == 0:
+                raise ConversionError("division by an identically zero transfer function")
+            if n == 0:
+                n, d = fmpq_poly([]), fmpq_poly([1])
+            else:
+                g = n.gcd(d)
+                if g.degree() > 0:
+                    n, d = n // g, d // g
+                lc = d[d.degree()]
+                if lc != 1:
+                    n, d = n / lc, d / lc
+        self.n, self.d = n, d
 
-    return sp.Matrix([[poly(e.num) / poly(e.den) for e in row] for row in M]), s
+    @staticmethod
+    def of(r: Rational) -> _RF:
+        return _RF(_qpoly(r.num), _qpoly(r.den))
+
+    @property
+    def is_zero(self) -> bool:
+        return self.n == 0
+
+    # Henrici's algorithms: gcds of the small factors instead of one gcd of the full product,
+    # which keeps the intermediate polynomials (and the Gauss-Jordan elimination) small.
+    def __add__(self, o: _RF) -> _RF:
+        if o.is_zero:
+            return self
+        if self.is_zero:
+            return o
+        g = self.d.gcd(o.d)
+        if g == 1:  # coprime denominators: the sum is already reduced
+            return _RF(self.n * o.d + o.n * self.d, self.d * o.d, reduced=True)
+        d1, d2 = self.d // g, o.d // g
+        t = self.n * d2 + o.n * d1
+        if t == 0:
+            return _ZERO
+        h = t.gcd(g)  # gcds are monic (FLINT), so is the denominator
+        return _RF(t // h, d1 * d2 * (g // h), reduced=True)
+
+    def __neg__(self) -> _RF:
+        return _RF(-self.n, self.d, reduced=True)
+
+    def __sub__(self, o: _RF) -> _RF:
+        return self + (-o)
+
+    def __mul__(self, o: _RF) -> _RF:
+        if self.is_zero or o.is_zero:
+            return _ZERO
+        g1, g2 = self.n.gcd(o.d), o.n.gcd(self.d)
+        return _RF((self.n // g1) * (o.n // g2), (self.d // g2) * (o.d // g1), reduced=True)
+
+    def inv(self) -> _RF:
+        if self.is_zero:
+            raise ConversionError("division by an identically zero transfer function")
+        lc = self.n[self.n.degree()]
+        return _RF(self.d / lc, self.n / lc, reduced=True)
+
+    def __truediv__(self, o: _RF) -> _RF:
+        return self * o.inv()
+
+    def to_rational(self) -> Rational:
+        """Round to floats once: num and den divided (exactly) by den's largest |coefficient|."""
+        den = [self.d[k] for k in range(self.d.degree() + 1)]
+        num = [self.n[k] for k in range(self.n.degree() + 1)] or [fmpq(0)]
+        sc = max(abs(c) for c in den)
+        try:
+            n_ = np.array([_qfloat(c / sc) for c in num])
+            d_ = np.array([_qfloat(c / sc) for c in den])
+        except OverflowError:
+            raise ConversionError("a converted coefficient does not fit in a float") from None
+        return Rational(n_, d_).cancel_s()
 
 
-def _from_sym(Ms, s) -> list[list[Rational]]:
-    import sympy as sp
+_ZERO = _RF(fmpq_poly([]), fmpq_poly([1]), reduced=True)
+_ONE = _RF(fmpq_poly([1]), fmpq_poly([1]), reduced=True)
 
+
+def _qpoly(c: np.ndarray) -> fmpq_poly:
+    """The exact rational polynomial (ascending coefficients) of float coefficients."""
+    return fmpq_poly([fmpq(*float(v).as_integer_ratio()) for v in c])
+
+
+def _qfloat(q: fmpq) -> float:
+    """The float nearest to q (Python's int / int is correctly rounded)."""
+    return int(q.p) / int(q.q)
+
+
+def _to_rf(M: Sequence[Sequence[Rational]]) -> list[list[_RF]]:
+    return [[_RF.of(e) for e in row] for row in M]
+
+
+def _from_rf(M: Sequence[Sequence[_RF]]) -> list[list[Rational]]:
+    return [[e.to_rational() for e in row] for row in M]
+
+
+def _rf_inv(A: Sequence[Sequence[_RF]], what: str) -> list[list[_RF]]:
+    """Gauss-Jordan inverse over Q(s). Pivots: the nonzero entry of lowest total degree in the
+    column (keeps intermediate expressions small; any nonzero pivot is exact). Raises
+    :class:`ConversionError` naming ``what`` when the matrix is identically singular."""
+    n = len(A)
+    M = [list(A[i]) + [(_ONE if j == i else _ZERO) for j in range(n)] for i in range(n)]
+    for c in range(n):
+        cand = [r for r in range(c, n) if not M[r][c].is_zero]
+        if not cand:
+            raise ConversionError(what)
+        p = min(cand, key=lambda r: M[r][c].n.degree() + M[r][c].d.degree())
+        M[c], M[p] = M[p], M[c]
+        piv = M[c][c]
+        M[c] = [e / piv for e in M[c]]
+        for r in range(n):
+            f = M[r][c]
+            if r != c and not f.is_zero:
+                M[r] = [a - f * b for a, b in zip(M[r], M[c], strict=True)]
+    return [row[n:] for row in M]
+
+
+def _rf_det(A: Sequence[Sequence[_RF]]) -> _RF:
+    """Determinant over Q(s) by Gaussian elimination (exactly zero for a singular matrix)."""
+    M = [list(r) for r in A]
+    n = len(M)
+    det = _ONE
+    for c in range(n):
+        p = next((r for r in range(c, n) if not M[r][c].is_zero), None)
+        if p is None:
+            return _ZERO
+        if p != c:
+            M[c], M[p] = M[p], M[c]
+            det = -det
+        piv = M[c][c]
+        det = det * piv
+        for r in range(c + 1, n):
+            f = M[r][c]
+            if not f.is_zero:
+                q = f / piv
+                M[r] = [a - q * b for a, b in zip(M[r], M[c], strict=True)]
+    return det
+
+
+def _rf_matmul(A: Sequence[Sequence[_RF]], B: Sequence[Sequence[_RF]]) -> list[list[_RF]]:
     out = []
-    for i in range(Ms.rows):
-        row = []
-        for j in range(Ms.cols):
-            num, den = sp.fraction(sp.cancel(sp.together(Ms[i, j])))
-            pn = sp.Poly(num, s).all_coeffs()[::-1]
-            pd = sp.Poly(den, s).all_coeffs()[::-1]
-            n_, d_ = np.array([float(v) for v in pn]), np.array([float(v) for v in pd])
-            sc = float(np.max(np.abs(d_)))
-            row.append(Rational(n_ / sc, d_ / sc).cancel_s())
-        out.append(row)
+    for row in A:
+        new = []
+        for j in range(len(B[0])):
+            acc = _ZERO
+            for k, a in enumerate(row):
+                if not a.is_zero and not B[k][j].is_zero:
+                    acc = acc + a * B[k][j]
+            new.append(acc)
+        out.append(new)
     return out
 
 
-def _inv(M: list[list[Rational]]) -> list[list[Rational]]:
-    Ms, s = _sym(M)
-    import sympy as sp
-
-    det = sp.cancel(Ms.det(method="berkowitz"))
-    if det == 0:
-        raise ConversionError("the matrix is identically singular: this immittance form does not exist")
-    return _from_sym(Ms.adjugate().applyfunc(lambda e: sp.cancel(e / det)), s)
+_SINGULAR = "the matrix is identically singular: this immittance form does not exist"
 
 
-def _z_to_h(Z: list[list[Rational]], m1: int) -> list[list[Rational]]:
-    """Block hybrid conversion (the same map also takes h to z):
+def _rf_z_to_h(Q: list[list[_RF]], m1: int) -> list[list[_RF]]:
+    """Block hybrid conversion over Q(s) (the same map also takes h to z):
     h11 = Z11 - Z12 Z22⁻¹ Z21, h12 = Z12 Z22⁻¹, h21 = -Z22⁻¹ Z21, h22 = Z22⁻¹."""
-    import sympy as sp
-
-    Ms, s = _sym(Z)
-    n = Ms.rows
-    Z11, Z12, Z21, Z22 = Ms[:m1, :m1], Ms[:m1, m1:], Ms[m1:, :m1], Ms[m1:, m1:]
-    det = sp.cancel(Z22.det(method="berkowitz"))
-    if det == 0:
-        raise ConversionError("Z22 is identically singular: the hybrid form does not exist")
-    Z22i = Z22.adjugate().applyfunc(lambda e: sp.cancel(e / det))
-    H = sp.zeros(n, n)
-    H[:m1, :m1] = Z11 - Z12 * Z22i * Z21
-    H[:m1, m1:] = Z12 * Z22i
-    H[m1:, :m1] = -Z22i * Z21
-    H[m1:, m1:] = Z22i
-    return _from_sym(H, s)
+    Z11 = [r[:m1] for r in Q[:m1]]
+    Z12 = [r[m1:] for r in Q[:m1]]
+    Z21 = [r[:m1] for r in Q[m1:]]
+    Z22 = [r[m1:] for r in Q[m1:]]
+    Z22i = _rf_inv(Z22, "Z22 is identically singular: the hybrid form does not exist")
+    H12 = _rf_matmul(Z12, Z22i)
+    H11 = [[a - b for a, b in zip(ra, rb, strict=True)] for ra, rb in zip(Z11, _rf_matmul(H12, Z21), strict=True)]
+    H21 = [[-e for e in r] for r in _rf_matmul(Z22i, Z21)]
+    return [a + b for a, b in zip(H11, H12, strict=True)] + [a + b for a, b in zip(H21, Z22i, strict=True)]

@@ -18,6 +18,7 @@ excite.
 from __future__ import annotations
 
 import itertools
+import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -25,10 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from hil.errors import ModelError
+from hil.errors import ConversionError, ModelError
 from hil.stability.criteria import positive_real
 from hil.stability.rational import Rational, S, TransferMatrix
 from hil.stability.results import StabilityResult
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Termination", "Witness", "find_witness", "input_impedance", "termination_family"]
 
@@ -158,7 +161,8 @@ def find_witness(Z: TransferMatrix, port: int = 0, candidates: Sequence[Terminat
     """Search passive terminations of the non-operator ports (the same candidate at every one)
     for the most non-passive operator-port impedance. Returns ``None`` if every candidate leaves
     Z_in positive real (which a potentially unstable network need not contradict: the family is
-    finite)."""
+    finite). A candidate for which Z_in does not exist (``Z_rr + T`` identically singular) is
+    skipped; any other failure propagates (the caller records it, see hil.pipeline)."""
     others = [p for p in range(Z.n_ports) if p != port]
     best: Witness | None = None
     cands = list(candidates or termination_family(max(Z.port_dofs)))
@@ -168,7 +172,8 @@ def find_witness(Z: TransferMatrix, port: int = 0, candidates: Sequence[Terminat
         terms = [None if p == port else cand.matrix(Z.port_dofs[p]) for p in range(Z.n_ports)]
         try:
             zin = input_impedance(Z, port, terms)
-        except Exception:
+        except ConversionError as exc:
+            log.debug("witness candidate %s skipped: %s", cand.describe(), exc)
             continue
         res = positive_real(zin)
         if res.verdict != "potentially_unstable":
