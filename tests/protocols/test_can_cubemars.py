@@ -108,7 +108,7 @@ def rig():
 def test_torque_command_scaling_and_feedback(rig):
     j, node, dev = rig
     dev.command_effort(np.array([5.0]))
-    (_, c), = node.commands[-1:]
+    _, c = node.commands[-1]
     assert c.kp == 0 and c.kd == 0 and c.t_ff == pytest.approx(5.0, abs=36 / 4095)
     assert j.measured_force()[0] == pytest.approx(5.0, abs=36 / 4095)
     s = dev.read()  # the reply to the command
