@@ -263,8 +263,10 @@ class SimODrive(SimCanNode):
     Injected error codes are OR-ed into ``axis_error`` and disarm the axis while active.
     ``watchdog_ticks``: the drive's own CAN watchdog (ODrive ``axis.config.watchdog_timeout``):
     when no Set_Input_Torque arrives for that many ticks while armed, the axis drops to IDLE with
-    zero torque and latches WATCHDOG_TIMER_EXPIRED in ``axis_error`` (reported in the heartbeat)
-    -- what keeps a real rig safe when the host or the bus dies (0 = off). The host can configure
+    zero torque -- and, once the host configured the watchdog over RxSdo, latches
+    WATCHDOG_TIMER_EXPIRED in ``axis_error`` (reported in the heartbeat, as the drive does; the
+    built-in default only idles the axis, a safety net for a vanished host) -- what keeps a real
+    rig safe when the host or the bus dies (0 = off). The host can configure
     it through RxSdo endpoint writes (firmware 0.6) to the ids in ``watchdog_endpoints`` (default
     :data:`SIM_WATCHDOG_ENDPOINTS`): ``watchdog_timeout`` (float32 s, converted with ``dt`` s per
     tick) and ``enable_watchdog`` (0/1).
@@ -305,6 +307,7 @@ class SimODrive(SimCanNode):
         self.watchdog_endpoints = dict(watchdog_endpoints or SIM_WATCHDOG_ENDPOINTS)
         self.watchdog_enabled = watchdog_ticks > 0  # armed by default (0: off) or over RxSdo
         self.watchdog_expired = 0  # times the drive's own watchdog idled the axis
+        self.watchdog_configured = False  # set by an RxSdo write from the host
         super().__init__(joints, channel, interface, **kw)
 
     # conversions (inverse of the adapter's)
@@ -351,8 +354,10 @@ class SimODrive(SimCanNode):
         if ep == self.watchdog_endpoints.get("watchdog_timeout") and len(value) >= 4:
             timeout_s = od.struct.unpack_from("<f", value)[0]
             self.watchdog_ticks = max(1, math.ceil(timeout_s / self.dt - 1e-9))
+            self.watchdog_configured = True
         elif ep == self.watchdog_endpoints.get("enable_watchdog"):
             self.watchdog_enabled = bool(value[0])
+            self.watchdog_configured = True
             self._last_torque_tick = self.tick_count
 
     def _encoder_payload(self) -> bytes:
@@ -407,7 +412,8 @@ class SimODrive(SimCanNode):
             log.warning("odrive node %d: CAN watchdog expired, axis idle", self.node_id)
             self.axis_state = int(od.AxisState.IDLE)  # the drive's own watchdog
             self.input_torque = 0.0
-            self.latched_error |= AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
+            if self.watchdog_configured:  # armed by the host over RxSdo: report it as the drive does
+                self.latched_error |= AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
             self.watchdog_expired += 1
         self._apply()
         t = self.tick_count

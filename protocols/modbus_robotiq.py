@@ -255,9 +255,10 @@ class RobotiqFT300(ForceSensor):
     Reply validation: Modbus/TCP has no CRC of its own (the TCP checksum protects the wire, not a
     gateway), so every reply is checked: function code and exception code valid, byte count = 2 x
     registers asked, and, on Modbus/TCP (RTU replies carry their CRC), the wrench within the rated
-    range (``max_force`` N, ``max_torque`` N.m; default the FT-300's +-300 N, +-30 N.m). A reply failing a check is never returned as data: the
-    request is repeated up to ``retries`` times, then :class:`ProtocolError` (or ChecksumError) is
-    raised. A damaged low byte that keeps the value in range cannot be detected on Modbus/TCP.
+    range (``max_force`` N, ``max_torque`` N.m; default the FT-300's +-300 N, +-30 N.m). A reply
+    failing a check is never returned as data: the request is repeated up to ``retries`` times,
+    then :class:`ProtocolError` (or ChecksumError) is raised. A damaged low byte that keeps the
+    value in range cannot be detected on Modbus/TCP.
 
     Freshness: ``produced_at`` is the arrival of the reply (adapter clock); the sensor's registers
     carry no timestamp or counter, so a sensor that stopped refreshing them cannot be told from a
