@@ -626,7 +626,9 @@ class Bench:
             # first samples: publish the state at t = 0
             for d in self._devs:
                 kind = type(d.sim).__name__
-                if kind in ("SimBota", "SimFT300Stream"):
+                if kind == "SimODrive" and d.sim.encoder_every:  # cyclic estimates
+                    d.sim.publish_estimate()
+                elif kind in ("SimBota", "SimFT300Stream"):
                     d.sim.emit()
                 elif kind == "SimulatedFT300":
                     d.sim.update()

@@ -342,6 +342,11 @@ class SimODrive(SimCanNode):
     def _reply(self, cmd: int, data: bytes) -> None:
         self.send(od.arbitration_id(self.node_id, cmd), data)
 
+    def publish_estimate(self) -> None:
+        """Send one Get_Encoder_Estimates frame now (the first cyclic frame of a lockstep bench)."""
+        with self._lock:
+            self._reply_estimate()
+
     def _reply_estimate(self) -> None:
         # a stale estimator has no new estimate: no frame at all (heartbeats go on)
         self.send(od.arbitration_id(self.node_id, od.CMD_GET_ENCODER_ESTIMATES), self._encoder_payload(),
@@ -353,7 +358,7 @@ class SimODrive(SimCanNode):
             return
         if ep == self.watchdog_endpoints.get("watchdog_timeout") and len(value) >= 4:
             timeout_s = od.struct.unpack_from("<f", value)[0]
-            self.watchdog_ticks = max(1, math.ceil(timeout_s / self.dt - 1e-9))
+            self.watchdog_ticks = max(1, math.ceil(timeout_s / self.dt * (1 - 1e-6)))  # float32 on the wire
             self.watchdog_configured = True
         elif ep == self.watchdog_endpoints.get("enable_watchdog"):
             self.watchdog_enabled = bool(value[0])
