@@ -217,7 +217,8 @@ def test_device_counters_are_per_device_ints_that_count_injected_faults():
     json.dumps(c)
     bota = c["spring_ft"]
     assert bota["crc_errors"] == 2  # two frames destroyed
-    assert bota["repeated_frames"] == 3 and bota["stale"] == 3  # three stale ticks, each read stale
+    assert bota["repeated_frames"] == 3  # three frozen frames (same timestamp)
+    assert bota["stale"] == 3 + 2  # reads without new data: the 3 frozen and the 2 destroyed ticks
     assert bota["dropped"] == 2 + 3  # samples missing from the timestamps: 2 destroyed, 3 frozen
     assert c["motor"] == {"error_frames": 0, "stale": 0, "late": 0, "retries": 0, "timeouts": 0}
 
