@@ -252,4 +252,21 @@ class ByteStreamFaults:
             data, self._held = data + self._held, None
         return data
 
+class BoundedLog(list):
+    """A list that keeps only its newest ``maxlen`` entries (a simulated device's request log:
+    memory stays flat over any run length; ``total`` counts every entry ever appended). Compares
+    equal to a plain list with the same entries."""
+
+    def __init__(self, maxlen: int = 1024) -> None:
+        super().__init__()
+        self.maxlen = int(maxlen)
+        self.total = 0
+
+    def append(self, item: object) -> None:
+        super().append(item)
+        self.total += 1
+        if len(self) > self.maxlen:
+            del self[: len(self) - self.maxlen]
+
+
 NO_FAULTS = FaultPlan()

@@ -58,7 +58,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.mocks.faults import FaultInjector, FaultPlan
+from hil.mocks.faults import BoundedLog, FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 
 log = logging.getLogger(__name__)
@@ -168,7 +168,7 @@ class SimulatedFT300:
         self.exception_replies = 0
         self.last_error_code = 0
         self.streaming_requested = False
-        self.written: list[tuple[int, list[int]]] = []
+        self.written: BoundedLog = BoundedLog()  # newest (address, values)
         self.last_request = b""  # raw bytes of the last request frame received (diagnostics)
 
         simdata = [
