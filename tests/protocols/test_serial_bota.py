@@ -203,7 +203,7 @@ def _run(seed: int) -> list:
     out: list = []
     k = 0
     with SimBota(j, faults=plan, seed=seed) as sim, BotaSerial(sim.path, clock=lambda: float(k)) as dev:
-        for k in range(60):  # noqa: B007 - the clock reads k
+        for k in range(60):  # the adapter clock reads k: produced_at = the tick of arrival
             j.apply_effort(np.array([float(k)]))
             sim.emit()
             assert dev.wait_rx(sim.tx_bytes, timeout=30.0)
