@@ -57,9 +57,8 @@ class SafetyMonitor:
       treated as a breach, not clipped (clipping would hide an instability);
     * ``max_velocity`` (m/s or rad/s) and ``position_limits`` [lo, hi] on every actuator DOF;
     * ``max_energy``: |E_s| of any port (J);
-    * ``watchdog_ms``: device feedback whose data is older than this (``t - produced_at``, see
-      :meth:`check_feedback`) is stale; a realtime tick later than this past its deadline is a
-      loop overrun.
+    * ``watchdog_ms``: device feedback whose sequence number does not advance for longer than this
+      (run time) is stale; a realtime tick later than this past its deadline is a loop overrun.
     """
 
     def __init__(self, safety: Mapping[str, Any] | None, rate_hz: float) -> None:
