@@ -906,7 +906,7 @@ class SimulatedScene(Bench):
         if drv == "odrive_can":
             d.sim = SimODrive(d.point, ch, int(params.get("node_id", 0)), iface,
                               gear_ratio=float(params.get("gear_ratio", 1.0)),
-                              linear_scale=params.get("linear_scale"), faults=faults, seed=seed)
+                              linear_scale=params.get("linear_scale"), faults=faults, seed=seed, dt=self.dt)
             if params.get("feedback") == "cyclic":
                 d.sim.encoder_every = 1
         else:
