@@ -465,7 +465,7 @@ class DynamixelChain:
         return 0, bytes(servo.table[addr : addr + size])
 
     def _refresh_present(self, servo: SimulatedServo) -> None:
-        if self.injector.should_repeat_stale() and servo.last_present is not None:
+        if self.injector.should_repeat_stale(self.tick) and servo.last_present is not None:
             self.stale_replies += 1
             servo.table[ADDR_PRESENT_CURRENT : ADDR_PRESENT_POSITION + 4] = servo.last_present
             return

@@ -336,7 +336,7 @@ class SimulatedFT300:
                 return None
             touches_wrench = address < REG_WRENCH + 6 and address + count > REG_WRENCH
             if touches_wrench:
-                if self.injector.should_repeat_stale():
+                if self.injector.should_repeat_stale(tick):
                     self.stale_replies += 1
                 elif self.auto_update:
                     self._write_wrench(wrench_to_registers(self._source()))
