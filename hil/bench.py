@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.errors import HilError, ModelError, SceneError
+from hil.errors import DeviceDisconnected, DeviceTimeout, HilError, ModelError, SceneError
 from hil.protocols.base import JointSample, WrenchSample
 from hil.scene import (
     HumanCfg,
@@ -64,7 +64,7 @@ from hil.scene import (
 )
 from hil.stopflag import STOP
 
-__all__ = ["SIMULATED_DRIVERS", "Bench", "Measurements", "SimEndpoint", "SimulatedScene"]
+__all__ = ["LOCKSTEP_WAIT_FACTOR", "SIMULATED_DRIVERS", "Bench", "Measurements", "SimEndpoint", "SimulatedScene"]
 
 logger = logging.getLogger(__name__)
 
@@ -74,6 +74,9 @@ Measurements = dict[str, JointSample | WrenchSample]
 #: Drivers for which the bench has a simulated counterpart.
 SIMULATED_DRIVERS = ("odrive_can", "cubemars_mit", "bota_serial", "robotiq_ft300", "robotiq_ft300_stream",
                      "dynamixel_x")
+
+#: Wall-clock wait for a simulated device's reply, in units of ``watchdog_ms`` (see :class:`Bench`).
+LOCKSTEP_WAIT_FACTOR = 20.0
 
 _BENCH_IDS = itertools.count(1)
 _BENCH_IDS_LOCK = threading.Lock()
@@ -209,7 +212,14 @@ class Bench:
     variant: plant configuration of a simulated SDEA: ``"locked"`` (output fixed), ``"free"``
         (output inertia ``m_out``) or ``None`` (as the scene says: free iff ``m_out`` is set).
         Experiments with a different ``variant`` need their own bench.
-    timeout: per-call device timeout (s) for reads and commands.
+    timeout: per-call device timeout (s) for reads and commands. Default (``None``): derived from
+        the scene's ``safety.watchdog_ms``: a real bench waits at most ``watchdog_ms`` for a device
+        (a read never blocks longer than the runner's watchdog allows); a simulated bench waits
+        :data:`LOCKSTEP_WAIT_FACTOR` x ``watchdog_ms`` of wall time, because its devices answer in
+        lockstep on the simulated clock: the wall-clock wait is only how long the host waits for a
+        reply the simulator is sure to send (threads, ptys, sockets), never a measure of freshness;
+        freshness is judged on the simulated clock (``produced_at``), so lockstep runs stay
+        deterministic under any machine load.
 
     Attributes: ``actuators`` / ``sensors`` (name -> adapter), ``simulated`` (bool), ``simulator``
     (the :class:`hil.mocks.simulator.Simulator` or None), ``plant``, ``dt``, ``time``.
@@ -219,14 +229,17 @@ class Bench:
     _install_stop = True
 
     def __init__(self, scene: Scene, *, seed: int | None = None, variant: str | None = None,
-                 timeout: float = 0.1) -> None:
+                 timeout: float | None = None) -> None:
         self.scene = scene
         self.seed = int(scene.seed if seed is None else seed)
         self.dt = scene.dt
+        self.simulated = scene.simulation is not None
+        self.watchdog_s = float(getattr(getattr(scene, "safety", None), "watchdog_ms", 50.0)) / 1000.0
+        if timeout is None:
+            timeout = self.watchdog_s * (LOCKSTEP_WAIT_FACTOR if self.simulated else 1.0)
         self.timeout = float(timeout)
         #: per-actuator bound (s) of :meth:`safe_stop`
         self.safe_stop_timeout = max(1.0, 10.0 * self.timeout)
-        self.simulated = scene.simulation is not None
         self.variant = variant
         self.simulator: Any = None
         self.plant: Any = None
@@ -297,11 +310,39 @@ class Bench:
         t = self.timeout if timeout is None else float(timeout)
         out: Measurements = {}
         for d in self._devs:
-            out[d.name] = d.adapter.read(timeout=t)
+            out[d.name] = self._read_device(d, t)
         for g in self.scene.groups:
             out[g.name] = _group_sample([out[m] for m in g.devices])
         if self.simulated:
             self._cache = (self._ticks, dict(out))
+        return out
+
+    def _read_device(self, d: _Dev, t: float) -> Any:
+        """One adapter read; a timeout or lost device names the scene device. A simulated stream
+        (Bota, FT-300 stream) is read behind a byte-count barrier: first every byte the simulated
+        device wrote is received, then the read decides what is new without waiting, so the
+        outcome does not depend on how fast the kernel moves pty bytes."""
+        try:
+            if (self.simulated and hasattr(d.sim, "tx_bytes") and hasattr(d.adapter, "wait_rx")
+                    and d.adapter.wait_rx(d.sim.tx_bytes, max(t, 1.0))):
+                t = 0.0
+            return d.adapter.read(timeout=t)
+        except (DeviceTimeout, DeviceDisconnected) as exc:
+            raise type(exc)(f"device {d.name!r}: {exc}") from exc
+
+    def device_counters(self) -> dict[str, dict[str, int]]:
+        """Fault counters of every device's adapter (:meth:`hil.protocols.base.Device.counters`:
+        CRC errors, resyncs, dropped, late, stale frames, retries, ... as its protocol has them),
+        by device name; plain ints, JSON-ready."""
+        out: dict[str, dict[str, int]] = {}
+        for d in self._devs:
+            fn = getattr(d.adapter, "counters", None)
+            try:
+                counts = fn() if callable(fn) else {}
+            except Exception:  # never let diagnostics break a stop or a close
+                logger.warning("counters of %s failed", d.name, exc_info=True)
+                counts = {}
+            out[d.name] = {str(k): int(v) for k, v in counts.items()}
         return out
 
     def force(self, meas: Mapping[str, Any], sensor: str) -> np.ndarray:
@@ -389,6 +430,8 @@ class Bench:
                 d.sim.emit()
             elif kind == "SimulatedFT300":
                 d.sim.update()
+        for chain in {id(d.chain): d.chain for d in self._devs if d.chain is not None}.values():
+            chain.check_watchdog()  # Bus Watchdog(98) on the simulated clock
 
     def safe_stop(self) -> dict[str, str]:
         """Zero effort on every actuator (and disable where the adapter does so). Never raises.
@@ -611,6 +654,9 @@ class Bench:
             params = dict(cfg.params)
             if self.simulated:
                 params = self._start_sim(i, d, params, channels)
+            else:
+                params.setdefault("timeout", self.timeout)
+            self._device_watchdog_params(cfg.driver, params)
             try:
                 d.adapter = open_device(cfg.driver, **params)
             except HilError:
@@ -623,7 +669,9 @@ class Bench:
             # first samples: publish the state at t = 0
             for d in self._devs:
                 kind = type(d.sim).__name__
-                if kind in ("SimBota", "SimFT300Stream"):
+                if kind == "SimODrive" and d.sim.encoder_every:  # cyclic estimates
+                    d.sim.publish_estimate()
+                elif kind in ("SimBota", "SimFT300Stream"):
                     d.sim.emit()
                 elif kind == "SimulatedFT300":
                     d.sim.update()
@@ -647,12 +695,15 @@ class Bench:
             params.update(interface="virtual", channel=ch, clock=clock, timeout=self.timeout)
             params.pop("bus", None)
             if drv == "odrive_can":
+                from hil.mocks.can_devices import SIM_WATCHDOG_ENDPOINTS
+
                 # heartbeat every 10 ms (a real ODrive sends one every 100 ms by default): on the
                 # simulated bus every frame is copied to every node, so fewer frames = faster runs
                 d.sim = SimODrive(point, ch, int(params.get("node_id", 0)), "virtual",
                                   gear_ratio=float(params.get("gear_ratio", 1.0)),
                                   linear_scale=params.get("linear_scale"), faults=faults, seed=seed, sync=True,
-                                  heartbeat_every=max(1, round(0.01 * self.scene.rate_hz)))
+                                  heartbeat_every=max(1, round(0.01 * self.scene.rate_hz)), dt=self.dt)
+                params.setdefault("watchdog_endpoints", dict(SIM_WATCHDOG_ENDPOINTS))
                 if params.get("feedback") == "cyclic":
                     d.sim.encoder_every = 1
             else:
@@ -691,6 +742,16 @@ class Bench:
         logger.debug("simulated %s for device %s (seed %d)", type(d.sim).__name__, cfg.name, seed)
         return params
 
+    def _device_watchdog_params(self, driver: str, params: dict[str, Any]) -> None:
+        """Arm a device's own watchdog from the scene's ``watchdog_ms`` where it has one (unless the
+        scene's params set it): DYNAMIXEL X Bus Watchdog(98); ODrive axis watchdog over RxSdo
+        (firmware 0.6; needs the endpoint ids, see :mod:`hil.protocols.can_odrive`). CubeMars
+        MIT, Bota and Robotiq FT-300 have none."""
+        if driver == "dynamixel_x":
+            params.setdefault("bus_watchdog_s", self.watchdog_s)
+        elif driver == "odrive_can" and (self.simulated or params.get("watchdog_endpoints")):
+            params.setdefault("watchdog_s", self.watchdog_s)
+
     def _sim_seed_faults(self, index: int, cfg: Any) -> tuple[int, Any]:
         """Seed and :class:`hil.mocks.faults.FaultPlan` of the simulated counterpart of device
         ``index``."""
@@ -723,7 +784,7 @@ class Bench:
                              f"got {ids}")
         points = [x.point for x in group]
         joints = points[0] if len(points) == 1 else _Concat(points)
-        chain = DynamixelChain(joints, ids, faults=faults, seed=seed)
+        chain = DynamixelChain(joints, ids, faults=faults, seed=seed, clock=self._clock)
         d.sim = chain  # owned (closed) by the first device of the group
         return chain
 
@@ -890,7 +951,7 @@ class SimulatedScene(Bench):
         if drv == "odrive_can":
             d.sim = SimODrive(d.point, ch, int(params.get("node_id", 0)), iface,
                               gear_ratio=float(params.get("gear_ratio", 1.0)),
-                              linear_scale=params.get("linear_scale"), faults=faults, seed=seed)
+                              linear_scale=params.get("linear_scale"), faults=faults, seed=seed, dt=self.dt)
             if params.get("feedback") == "cyclic":
                 d.sim.encoder_every = 1
         else:
@@ -946,12 +1007,15 @@ def _jsonable(obj: Any) -> Any:
 
 def _group_sample(samples: list[Any]) -> Any:
     """One JointSample for a group: members' positions/velocities/efforts concatenated in order;
-    ``seq`` is the smallest member sequence number, so one stale member stalls the group (the
-    runner's watchdog sees it), ``fault`` the first non-zero member fault."""
+    ``seq`` is the smallest member sequence number and ``produced_at`` the oldest member's, so one
+    stale member makes the group stale (the runner's watchdog sees it), ``fault`` the first non-zero
+    member fault."""
     from hil.protocols.base import JointSample
 
     eff = None if any(s.effort is None for s in samples) else np.concatenate([s.effort for s in samples])
+    produced = [float(getattr(s, "produced_at", np.nan)) for s in samples]
     return JointSample(t=samples[0].t, seq=min(int(s.seq) for s in samples),
+                       produced_at=min(produced) if not any(np.isnan(produced)) else np.nan,
                        position=np.concatenate([s.position for s in samples]),
                        velocity=np.concatenate([s.velocity for s in samples]), effort=eff,
                        fault=next((s.fault for s in samples if s.fault), 0))

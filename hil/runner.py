@@ -91,14 +91,33 @@ class SafetyMonitor:
         self._last_seq: dict[str, tuple[int, float]] = {}
 
     def check_feedback(self, t: float, meas: Mapping[str, Any]) -> None:
+        """Freshness and limits of one tick's feedback (``t``: run time, s).
+
+        Freshness comes from the device, not from the read: each sample carries ``produced_at``
+        (when the device produced the data, on the adapter's clock) and ``t`` (when it was read,
+        same clock), so its age is ``sample.t - sample.produced_at``. Data older than
+        ``watchdog_ms`` is a watchdog stop naming the device. On a simulated bench the adapters'
+        clock is the simulated one, so a lockstep run stops on the same tick on every machine:
+        the first tick whose data is more than ``watchdog_ms`` old, i.e. within ``watchdog_ms`` +
+        one tick of the last fresh data. Samples without ``produced_at`` (NaN) fall back to their
+        sequence number: one that does not advance for longer than ``watchdog_ms`` of run time.
+        """
+        limit = self.watchdog_s + 1e-9
         for name, sample in meas.items():
-            seq = int(getattr(sample, "seq", -1))
-            prev = self._last_seq.get(name)
-            if prev is None or seq != prev[0]:
-                self._last_seq[name] = (seq, t)
-            elif t - prev[1] > self.watchdog_s + 1e-12:
-                raise SafetyStop(f"watchdog: feedback of {name!r} stale for {1e3 * (t - prev[1]):.0f} ms "
-                                 f"(limit {1e3 * self.watchdog_s:.0f} ms)")
+            produced = float(getattr(sample, "produced_at", math.nan))
+            if not math.isnan(produced):
+                age = float(getattr(sample, "t", produced)) - produced
+                if not age <= limit:  # also catches a NaN age
+                    raise SafetyStop(f"watchdog: feedback of {name!r} is {1e3 * age:.1f} ms old "
+                                     f"(limit {1e3 * self.watchdog_s:.0f} ms, seq {getattr(sample, 'seq', '?')})")
+            else:
+                seq = int(getattr(sample, "seq", -1))
+                prev = self._last_seq.get(name)
+                if prev is None or seq != prev[0]:
+                    self._last_seq[name] = (seq, t)
+                elif t - prev[1] > limit:
+                    raise SafetyStop(f"watchdog: feedback of {name!r} stale for {1e3 * (t - prev[1]):.0f} ms "
+                                     f"(limit {1e3 * self.watchdog_s:.0f} ms)")
             pos = getattr(sample, "position", None)
             if pos is None:
                 continue

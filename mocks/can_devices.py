@@ -23,8 +23,13 @@ Three ways to run a node:
 Fault injection (:mod:`hil.mocks.faults`) applies to every frame the node sends: drop,
 corruption (the frame is replaced by a CAN error frame, as the controllers' CRC check would do),
 late delivery (``late_ticks`` ticks later in lockstep), stale data (the previous payload of that
-message is repeated), device error codes and disconnects (node silent and deaf) scheduled by the
-node's tick counter.
+message is repeated; for the ODrive's encoder estimates: no new estimate frame at all, heartbeats
+go on), device error codes and disconnects (node silent and deaf) scheduled by the node's tick
+counter.
+
+Memory stays flat over any run length: the command logs (``commands``) keep only the newest
+:data:`LOG_LEN` entries (``commands_total`` counts them all), late frames are bounded by
+``late_ticks``.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ import math
 import queue
 import threading
 import time
+from collections import deque
 from typing import Any
 
 import can
@@ -45,6 +51,15 @@ from hil.protocols import can_cubemars as cm
 from hil.protocols import can_odrive as od
 
 log = logging.getLogger(__name__)
+
+AXIS_ERROR_WATCHDOG_TIMER_EXPIRED = 0x1000000
+
+#: RxSdo endpoint ids the simulated ODrive answers for its watchdog configuration (a real drive's
+#: ids come from its firmware's flat_endpoints.json; these are the simulator's own).
+SIM_WATCHDOG_ENDPOINTS = {"watchdog_timeout": 0x0101, "enable_watchdog": 0x0102}
+
+#: Entries kept in a simulated node's command log (``commands``); older ones are discarded.
+LOG_LEN = 1024
 
 
 class _SyncQueue(queue.Queue):
@@ -81,6 +96,8 @@ class SimCanNode:
         self.tick_count = 0
         self.frames_in = 0
         self.frames_out = 0
+        self.frames_suppressed = 0  # frames not sent because the device had no new data (stale)
+        self.commands_total = 0
         self._late: list[tuple[int, can.Message]] = []
         self._last_payload: dict[int, bytes] = {}
         self._lock = threading.RLock()
@@ -119,8 +136,10 @@ class SimCanNode:
         except Exception:  # a malformed frame must not kill the simulated device
             log.exception("%s: error handling %s", self.kind, msg)
 
-    def send(self, arb_id: int, data: bytes, *, stale_key: int | None = None) -> None:
-        """Send one frame through the fault injector (drop / stale / corrupt / late)."""
+    def send(self, arb_id: int, data: bytes, *, stale_key: int | None = None, stale: str = "repeat") -> None:
+        """Send one frame through the fault injector (drop / stale / corrupt / late). ``stale``:
+        what a stale fault does to this frame: ``"repeat"`` the previous payload, or ``"suppress"``
+        (no new data, so no frame)."""
         inj = self.injector
         t = self.tick_count
         if inj.is_disconnected(t) or self._closed:
@@ -128,7 +147,10 @@ class SimCanNode:
         if inj.should_drop(t):
             return
         key = arb_id if stale_key is None else stale_key
-        if key in self._last_payload and inj.should_repeat_stale():
+        if key in self._last_payload and inj.should_repeat_stale(t):
+            if stale == "suppress":
+                self.frames_suppressed += 1
+                return
             data = self._last_payload[key]
         else:
             self._last_payload[key] = data
@@ -241,7 +263,13 @@ class SimODrive(SimCanNode):
     Injected error codes are OR-ed into ``axis_error`` and disarm the axis while active.
     ``watchdog_ticks``: the drive's own CAN watchdog (ODrive ``axis.config.watchdog_timeout``):
     when no Set_Input_Torque arrives for that many ticks while armed, the axis drops to IDLE with
-    zero torque -- what keeps a real rig safe when the host or the bus dies (0 = off).
+    zero torque -- and, once the host configured the watchdog over RxSdo, latches
+    WATCHDOG_TIMER_EXPIRED in ``axis_error`` (reported in the heartbeat, as the drive does; the
+    built-in default only idles the axis, a safety net for a vanished host) -- what keeps a real
+    rig safe when the host or the bus dies (0 = off). The host can configure
+    it through RxSdo endpoint writes (firmware 0.6) to the ids in ``watchdog_endpoints`` (default
+    :data:`SIM_WATCHDOG_ENDPOINTS`): ``watchdog_timeout`` (float32 s, converted with ``dt`` s per
+    tick) and ``enable_watchdog`` (0/1).
     """
 
     kind = "odrive"
@@ -258,6 +286,8 @@ class SimODrive(SimCanNode):
         heartbeat_every: int = 1,
         encoder_every: int = 0,
         watchdog_ticks: int = 20,
+        dt: float = 0.001,
+        watchdog_endpoints: dict[str, int] | None = None,
         **kw: Any,
     ) -> None:
         self.node_id = node_id
@@ -272,7 +302,12 @@ class SimODrive(SimCanNode):
         self.input_mode = int(od.InputMode.INACTIVE)
         self.input_torque = 0.0  # motor N.m
         self.latched_error = 0
-        self.commands: list[tuple[int, float]] = []  # (tick, motor torque) log, for tests
+        self.commands: deque[tuple[int, float]] = deque(maxlen=LOG_LEN)  # newest (tick, motor torque)
+        self.dt = float(dt)
+        self.watchdog_endpoints = dict(watchdog_endpoints or SIM_WATCHDOG_ENDPOINTS)
+        self.watchdog_enabled = watchdog_ticks > 0  # armed by default (0: off) or over RxSdo
+        self.watchdog_expired = 0  # times the drive's own watchdog idled the axis
+        self.watchdog_configured = False  # set by an RxSdo write from the host
         super().__init__(joints, channel, interface, **kw)
 
     # conversions (inverse of the adapter's)
@@ -307,6 +342,29 @@ class SimODrive(SimCanNode):
     def _reply(self, cmd: int, data: bytes) -> None:
         self.send(od.arbitration_id(self.node_id, cmd), data)
 
+    def publish_estimate(self) -> None:
+        """Send one Get_Encoder_Estimates frame now (the first cyclic frame of a lockstep bench)."""
+        with self._lock:
+            self._reply_estimate()
+
+    def _reply_estimate(self) -> None:
+        # a stale estimator has no new estimate: no frame at all (heartbeats go on)
+        self.send(od.arbitration_id(self.node_id, od.CMD_GET_ENCODER_ESTIMATES), self._encoder_payload(),
+                  stale="suppress")
+
+    def _sdo(self, data: bytes) -> None:
+        op, ep, value = od.decode_sdo(data)
+        if op != od.SDO_WRITE:
+            return
+        if ep == self.watchdog_endpoints.get("watchdog_timeout") and len(value) >= 4:
+            timeout_s = od.struct.unpack_from("<f", value)[0]
+            self.watchdog_ticks = max(1, math.ceil(timeout_s / self.dt * (1 - 1e-6)))  # float32 on the wire
+            self.watchdog_configured = True
+        elif ep == self.watchdog_endpoints.get("enable_watchdog"):
+            self.watchdog_enabled = bool(value[0])
+            self.watchdog_configured = True
+            self._last_torque_tick = self.tick_count
+
     def _encoder_payload(self) -> bytes:
         q = float(self.joints.position()[0])
         v = float(self.joints.velocity()[0])
@@ -323,6 +381,7 @@ class SimODrive(SimCanNode):
         if cmd == od.CMD_SET_INPUT_TORQUE and len(data) >= 4:
             self.input_torque = od.struct.unpack_from("<f", data)[0]
             self.commands.append((self.tick_count, self.input_torque))
+            self.commands_total += 1
             self._last_torque_tick = self.tick_count
             self._apply()
         elif cmd == od.CMD_SET_AXIS_STATE and len(data) >= 4:
@@ -341,8 +400,10 @@ class SimODrive(SimCanNode):
             self._apply()
         elif cmd == od.CMD_CLEAR_ERRORS:
             self.latched_error = 0
+        elif cmd == od.CMD_RX_SDO and len(data) >= 5:
+            self._sdo(data)
         elif cmd == od.CMD_GET_ENCODER_ESTIMATES and is_request:
-            self._reply(cmd, self._encoder_payload())
+            self._reply_estimate()
         elif cmd == od.CMD_GET_TORQUES and is_request:
             self._reply(cmd, od.encode_f32x2(self.input_torque, self.applied_motor_torque()))
         elif cmd == od.CMD_HEARTBEAT and is_request:
@@ -351,17 +412,20 @@ class SimODrive(SimCanNode):
     def on_tick(self) -> None:
         if self.axis_error and self.axis_state != od.AxisState.IDLE:
             self.axis_state = int(od.AxisState.IDLE)  # a fault disarms the axis
-        if (self.watchdog_ticks and self.axis_state == od.AxisState.CLOSED_LOOP_CONTROL
+        if (self.watchdog_enabled and self.watchdog_ticks and self.axis_state == od.AxisState.CLOSED_LOOP_CONTROL
                 and self.tick_count - self._last_torque_tick > self.watchdog_ticks):
             log.warning("odrive node %d: CAN watchdog expired, axis idle", self.node_id)
             self.axis_state = int(od.AxisState.IDLE)  # the drive's own watchdog
             self.input_torque = 0.0
+            if self.watchdog_configured:  # armed by the host over RxSdo: report it as the drive does
+                self.latched_error |= AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
+            self.watchdog_expired += 1
         self._apply()
         t = self.tick_count
         if self.heartbeat_every and t % self.heartbeat_every == 0:
             self._reply(od.CMD_HEARTBEAT, od.encode_heartbeat(self.axis_error, self.axis_state))
         if self.encoder_every and t % self.encoder_every == 0:
-            self._reply(od.CMD_GET_ENCODER_ESTIMATES, self._encoder_payload())
+            self._reply_estimate()
 
 
 class SimCubeMars(SimCanNode):
@@ -399,7 +463,7 @@ class SimCubeMars(SimCanNode):
         self.enabled = False
         self.zero_offset = 0.0
         self.torque = 0.0
-        self.commands: list[tuple[int, cm.MitCommand]] = []
+        self.commands: deque[tuple[int, cm.MitCommand]] = deque(maxlen=LOG_LEN)
         super().__init__(joints, channel, interface, **kw)
 
     def _error(self) -> int:
@@ -434,6 +498,7 @@ class SimCubeMars(SimCanNode):
         else:
             c = cm.unpack_command(data, self.limits)
             self.commands.append((self.tick_count, c))
+            self.commands_total += 1
             q = float(self.joints.position()[0]) - self.zero_offset
             v = float(self.joints.velocity()[0])
             tau = c.kp * (c.p_des - q) + c.kd * (c.v_des - v) + c.t_ff
@@ -445,4 +510,4 @@ class SimCubeMars(SimCanNode):
         self._apply()
 
 
-__all__ = ["SimCanNode", "SimCubeMars", "SimODrive"]
+__all__ = ["LOG_LEN", "SIM_WATCHDOG_ENDPOINTS", "SimCanNode", "SimCubeMars", "SimODrive"]

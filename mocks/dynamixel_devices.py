@@ -43,6 +43,14 @@ being processed (0, 1, ...); decisions are drawn per status packet:
 * stale: present values are repeated from the previous reply of that servo;
 * device error: Hardware Error Status(70) holds ``error_code`` and every status packet has the
   alert bit (0x80) set, while the error is scheduled.
+
+**Bus Watchdog(98)** (e-manual, X series RAM area, 1 byte): 0 = off (writing 0 also clears the
+error), 1..127 = armed, unit 20 ms; while Torque Enable is 1 and no instruction packet arrived for
+longer than that, the servo stops (Goal Current := 0, no effort) and Bus Watchdog reads -1 (0xFF,
+Bus Watchdog Error); writing a goal value is then refused with error 4 (data range) until 0 is
+written to 98. Time is the chain's ``clock`` (the simulated clock in lockstep): the watchdog is
+checked on every instruction packet and by :meth:`DynamixelChain.check_watchdog` (the lockstep
+bench calls it once per tick, so a silent host is caught without any packet).
 """
 
 from __future__ import annotations
@@ -53,6 +61,7 @@ import os
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -96,6 +105,9 @@ ADDR_CURRENT_LIMIT = 38
 ADDR_TORQUE_ENABLE = 64
 ADDR_STATUS_RETURN_LEVEL = 68
 ADDR_HARDWARE_ERROR = 70
+ADDR_BUS_WATCHDOG = 98
+BUS_WATCHDOG_UNIT_S = 0.020
+BUS_WATCHDOG_ERROR = 0xFF
 ADDR_GOAL_CURRENT = 102
 ADDR_PRESENT_CURRENT = 126
 ADDR_PRESENT_VELOCITY = 128
@@ -275,7 +287,11 @@ class SimulatedServo:
             return ERR_ACCESS
         if addr < EEPROM_END and self.torque_on:
             return ERR_ACCESS  # EEPROM is locked while torque is enabled
+        if addr <= ADDR_BUS_WATCHDOG < end and data[ADDR_BUS_WATCHDOG - addr] > 127:
+            return ERR_DATA_RANGE  # -1 is a status, not a value to write
         if addr <= ADDR_GOAL_CURRENT < end or addr <= ADDR_GOAL_CURRENT + 1 < end:
+            if self.table[ADDR_BUS_WATCHDOG] == BUS_WATCHDOG_ERROR:
+                return ERR_DATA_RANGE  # goal values are read-only after a Bus Watchdog Error
             if not (addr <= ADDR_GOAL_CURRENT and end >= ADDR_GOAL_CURRENT + 2):
                 return ERR_DATA_LENGTH
             off = ADDR_GOAL_CURRENT - addr
@@ -302,6 +318,7 @@ class DynamixelChain:
         model: ServoModel | None = None,
         faults: FaultPlan | FaultInjector | None = None,
         seed: int | None = 0,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if joints.dof != len(ids):
             raise ValueError(f"joints.dof={joints.dof} but {len(ids)} servo ids")
@@ -324,6 +341,9 @@ class DynamixelChain:
         self.replies_dropped = 0
         self.stale_replies = 0
         self.rx_frames: deque[bytes] = deque(maxlen=64)  # raw instruction frames, newest last
+        self.clock = clock
+        self._last_instruction = clock()
+        self.watchdog_expired = 0  # Bus Watchdog Errors raised so far (all servos)
         self._thread = threading.Thread(target=self._serve, name="sim-dynamixel", daemon=True)
         self._thread.start()
         log.debug("simulated DYNAMIXEL chain %s on %s", self.ids, self.port)
@@ -339,6 +359,28 @@ class DynamixelChain:
                 if left <= 0:
                     raise TimeoutError(f"chain consumed {self.rx_bytes} of {tx_bytes} bytes")
                 self._cond.wait(left)
+
+    def check_watchdog(self) -> list[int]:
+        """Apply the Bus Watchdog(98) of every servo at the current ``clock`` time; returns the ids
+        that expired now (their goal current is zeroed, 98 reads 0xFF)."""
+        with self._cond:
+            return self._check_watchdog()
+
+    def _check_watchdog(self) -> list[int]:
+        silent = self.clock() - self._last_instruction
+        expired = []
+        for i, servo in self.servos.items():
+            units = servo.table[ADDR_BUS_WATCHDOG]
+            if servo.torque_on and 1 <= units <= 127 and silent > units * BUS_WATCHDOG_UNIT_S + 1e-9:
+                servo.table[ADDR_BUS_WATCHDOG] = BUS_WATCHDOG_ERROR
+                servo.write(ADDR_GOAL_CURRENT, b"\x00\x00")
+                expired.append(i)
+        if expired:
+            self.watchdog_expired += len(expired)
+            log.warning("simulated DYNAMIXEL ids %s: Bus Watchdog expired after %.3f s without a packet",
+                        expired, silent)
+            self.joints.apply_effort(self.effort())
+        return expired
 
     def effort(self) -> np.ndarray:
         """Effort (N.m) the chain currently applies to the plant."""
@@ -385,6 +427,8 @@ class DynamixelChain:
                 continue
             if pkt is None:
                 return bytes(out)
+            self._check_watchdog()  # the interval that ends with this packet
+            self._last_instruction = self.clock()
             self.tick += 1
             self.packets += 1
             self.rx_frames.append(pkt.raw)
@@ -421,7 +465,7 @@ class DynamixelChain:
         return 0, bytes(servo.table[addr : addr + size])
 
     def _refresh_present(self, servo: SimulatedServo) -> None:
-        if self.injector.should_repeat_stale() and servo.last_present is not None:
+        if self.injector.should_repeat_stale(self.tick) and servo.last_present is not None:
             self.stale_replies += 1
             servo.table[ADDR_PRESENT_CURRENT : ADDR_PRESENT_POSITION + 4] = servo.last_present
             return

@@ -18,8 +18,12 @@ What each fault means (a simulated device decides per *outgoing* frame / reply u
 * **late** (``late_prob``, ``late_ticks``, ``late_s``): the frame is delivered late: in lockstep
   mode it is held back and sent ``late_ticks`` ticks later (after the next frames of that tick);
   in free-running mode it is delayed by ``late_s`` seconds.
-* **stale** (``stale_prob``): the device repeats its previous data (the same measurement values
-  *and* the same device timestamp/sequence) instead of a fresh sample.
+* **stale** (``stale_prob``, or scheduled from tick ``stale_at_tick`` until ``stale_until_tick``
+  exclusive, or for ever if ``None``): the device produces no new data. Streaming devices repeat
+  their previous frame byte for byte (the same values *and* the same device timestamp); the
+  simulated ODrive sends no Get_Encoder_Estimates frame (cyclic or as an answer) while its
+  heartbeats go on; other frames repeat their previous payload. A frozen sensor: the host's
+  freshness check (device timestamp / frame arrival) and the runner's watchdog must catch it.
 * **garbage** (``garbage_prob``, ``garbage_len``): random bytes are inserted *before* the frame on
   byte streams (serial); adapters must resynchronise. Ignored by message-based transports.
 * **device error** (``error_code`` from tick ``error_at_tick`` until ``error_until_tick``
@@ -61,6 +65,8 @@ class FaultPlan:
     late_ticks: int = 1  # lockstep: deliver this many ticks later
     late_s: float = 0.005  # free-running: delay in seconds
     stale_prob: float = 0.0
+    stale_at_tick: int | None = None
+    stale_until_tick: int | None = None
     garbage_prob: float = 0.0
     garbage_len: int = 7  # max number of garbage bytes inserted (1..garbage_len)
     error_code: int = 0
@@ -162,9 +168,20 @@ class FaultInjector:
         """Free-running helper: seconds to delay this frame (0.0 = on time)."""
         return self.plan.late_s if self.is_late() else 0.0
 
-    def should_repeat_stale(self) -> bool:
-        """True if the device must repeat its previous sample instead of a fresh one."""
+    def should_repeat_stale(self, tick: int | None = None) -> bool:
+        """True if the device must repeat its previous sample instead of a fresh one (scheduled
+        ``stale_at_tick`` .. ``stale_until_tick`` when ``tick`` is given, or a random draw)."""
+        if tick is not None and self.is_stale_scheduled(tick):
+            self.injected["stale"] += 1
+            return True
         return self._draw("stale", self.plan.stale_prob)
+
+    def is_stale_scheduled(self, tick: int) -> bool:
+        """True while the plan schedules stale data at ``tick``."""
+        p = self.plan
+        if p.stale_at_tick is None or tick < p.stale_at_tick:
+            return False
+        return p.stale_until_tick is None or tick < p.stale_until_tick
 
     def garbage(self) -> bytes:
         """Bytes to insert before the next frame on a byte stream (usually ``b""``)."""
@@ -194,7 +211,6 @@ class FaultInjector:
         return p.reconnect_at_tick is None or tick < p.reconnect_at_tick
 
 
-
 class ByteStreamFaults:
     """Per-frame faults of a device that streams frames on a byte line (serial, pty).
 
@@ -217,7 +233,7 @@ class ByteStreamFaults:
         if inj.should_drop(tick):
             self.stats["dropped"] += 1
             return None
-        if self._last is not None and inj.should_repeat_stale():
+        if self._last is not None and inj.should_repeat_stale(tick):
             frame = self._last
             self.stats["stale"] += 1
         self._last = frame
@@ -235,5 +251,22 @@ class ByteStreamFaults:
         if self._held is not None:
             data, self._held = data + self._held, None
         return data
+
+class BoundedLog(list):
+    """A list that keeps only its newest ``maxlen`` entries (a simulated device's request log:
+    memory stays flat over any run length; ``total`` counts every entry ever appended). Compares
+    equal to a plain list with the same entries."""
+
+    def __init__(self, maxlen: int = 1024) -> None:
+        super().__init__()
+        self.maxlen = int(maxlen)
+        self.total = 0
+
+    def append(self, item: object) -> None:
+        super().append(item)
+        self.total += 1
+        if len(self) > self.maxlen:
+            del self[: len(self) - self.maxlen]
+
 
 NO_FAULTS = FaultPlan()

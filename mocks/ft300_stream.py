@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.mocks.faults import ByteStreamFaults, FaultInjector, FaultPlan
+from hil.mocks.faults import BoundedLog, ByteStreamFaults, FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 from hil.mocks.modbus_devices import (
     firmware_registers,
@@ -110,8 +110,10 @@ class SimFT300Stream:
             self._static[REG_SERIAL + k] = v
         self.tick_count = 0
         self.stats: Counter[str] = Counter()
+        self.tx_bytes = 0  # bytes written to the pty (what the host will receive)
+        self._tx_lock = threading.Lock()
         self._frame_faults = ByteStreamFaults(self.injector, self.stats, corrupt_start=2)  # after 0x20 0x4E
-        self.written: list[tuple[int, int, list[int]]] = []  # (function, address, values)
+        self.written: BoundedLog = BoundedLog()  # newest (function, address, values)
         self._streaming = bool(streaming)
         self._ff_run = 0
         self._rx = bytearray()
@@ -200,7 +202,9 @@ class SimFT300Stream:
 
     # -- internals --------------------------------------------------------------------------------
     def _write(self, data: bytes) -> None:
-        write_dropping(self._master, data, self.stats)
+        n = write_dropping(self._master, data, self.stats)
+        with self._tx_lock:
+            self.tx_bytes += n
 
     def _serve(self) -> None:
         for data in host_writes(self._master, self._stop):

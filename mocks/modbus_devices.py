@@ -34,8 +34,13 @@ the int16 range (+-327.67 N, +-32.767 N.m) like a saturated sensor.
 addressed to its slave id (0, 1, 2, ...; requests for other ids are ignored, as on an RS-485 bus):
 
 * drop / disconnect: no reply at all -> the client times out;
-* corrupt: one byte of the reply is flipped; with RTU framing the CRC catches it, with Modbus/TCP
-  framing the damage stays in the payload (no CRC on TCP, as on CAN) and may go unnoticed;
+* corrupt: with RTU framing one byte of the reply is flipped and the CRC catches it. With
+  Modbus/TCP framing (``tcp_corrupt``): ``"gateway"`` (default) is what a real Modbus/TCP
+  installation shows: the TCP/Ethernet checksums protect the wire, the damage happens on the
+  gateway's serial side, whose CRC check fails, and the gateway answers exception 11 (gateway
+  target device failed to respond); ``"payload"`` flips one byte after the MBAP header (a
+  faulty gateway: function code, byte count or a register value may be damaged; only the
+  adapter's validation can catch it, and not a low-byte flip that stays in range);
 * stale: the registers are not refreshed for this request (previous values repeated);
 * device error: the device answers with a Modbus exception response, exception code 4
   (SERVER DEVICE FAILURE); ``error_code`` of the plan is recorded in :attr:`last_error_code`.
@@ -53,7 +58,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.mocks.faults import FaultInjector, FaultPlan
+from hil.mocks.faults import BoundedLog, FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 
 log = logging.getLogger(__name__)
@@ -134,6 +139,7 @@ class SimulatedFT300:
         serial: tuple[str, int] = ("SIM", 1),
         production_year: int = 2024,
         start_timeout: float = 5.0,
+        tcp_corrupt: str = "gateway",
     ) -> None:
         # Imported here: pymodbus is an optional dependency (extra "modbus").
         from pymodbus import FramerType
@@ -141,6 +147,9 @@ class SimulatedFT300:
 
         if framing not in ("tcp", "rtu"):
             raise ValueError(f"framing must be 'tcp' or 'rtu', got {framing!r}")
+        if tcp_corrupt not in ("gateway", "payload"):
+            raise ValueError(f"tcp_corrupt must be 'gateway' or 'payload', got {tcp_corrupt!r}")
+        self.tcp_corrupt = tcp_corrupt
         self.framing = framing
         self.host = host
         self.slave = slave
@@ -155,10 +164,11 @@ class SimulatedFT300:
         self.requests = 0
         self.replies_dropped = 0
         self.stale_replies = 0
+        self.corrupted_replies = 0
         self.exception_replies = 0
         self.last_error_code = 0
         self.streaming_requested = False
-        self.written: list[tuple[int, list[int]]] = []
+        self.written: BoundedLog = BoundedLog()  # newest (address, values)
         self.last_request = b""  # raw bytes of the last request frame received (diagnostics)
 
         simdata = [
@@ -288,6 +298,10 @@ class SimulatedFT300:
             self.replies_dropped += 1
             return b""
         if inj.should_corrupt(tick):
+            self.corrupted_replies += 1
+            if self.framing == "tcp" and self.tcp_corrupt == "gateway" and len(data) >= 8:
+                # MBAP (transaction, protocol, length = 3, unit) + fc | 0x80 + exception 11
+                return data[:4] + (3).to_bytes(2, "big") + data[6:7] + bytes([data[7] | 0x80, 0x0B])
             # keep the RTU address byte / MBAP header intact so the damage lands in the PDU or CRC
             start = 1 if self.framing == "rtu" else 7
             return inj.corrupt(data, start=min(start, len(data) - 1))
@@ -322,7 +336,7 @@ class SimulatedFT300:
                 return None
             touches_wrench = address < REG_WRENCH + 6 and address + count > REG_WRENCH
             if touches_wrench:
-                if self.injector.should_repeat_stale():
+                if self.injector.should_repeat_stale(tick):
                     self.stale_replies += 1
                 elif self.auto_update:
                     self._write_wrench(wrench_to_registers(self._source()))

@@ -28,20 +28,23 @@ def open_raw_pty(*, nonblocking_master: bool = True) -> tuple[int, int, str]:
     return master, slave, os.ttyname(slave)
 
 
-def write_dropping(fd: int, data: bytes, stats: MutableMapping[str, int] | Counter) -> None:
+def write_dropping(fd: int, data: bytes, stats: MutableMapping[str, int] | Counter) -> int:
     """Write to a non-blocking master like a device UART: what does not fit is lost, and counted.
 
     ``stats["overflow_bytes"]`` counts bytes of partial writes, ``stats["overflow_frames"]``
-    frames dropped whole because nobody reads the port.
+    frames dropped whole because nobody reads the port. Returns the number of bytes written (what
+    the host will receive; a lockstep reader waits for exactly that many, see ``tx_bytes``).
     """
     try:
         n = os.write(fd, data)
         if n < len(data):
             stats["overflow_bytes"] += len(data) - n
+        return n
     except BlockingIOError:  # nobody reads: the pty buffer is full -> frame lost
         stats["overflow_frames"] += 1
     except OSError as exc:
         log.debug("pty write failed: %s", exc)
+    return 0
 
 
 def close_fds(*fds: int) -> None:

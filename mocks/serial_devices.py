@@ -17,6 +17,12 @@ failure), garbage (random bytes before the frame -> resynchronisation), stale (t
 is re-sent byte for byte), late (the frame is held and written after the next one), device error
 (the code is OR-ed into ``status``), disconnect (silent from tick N to M). :meth:`hangup` closes
 the master side: the adapter then gets an I/O error -> DeviceDisconnected.
+
+Lockstep reads: a pty delivers the bytes written on the master asynchronously (the kernel moves
+them to the slave side in a worker), so "written" does not mean "readable yet". :attr:`SimBota.tx_bytes`
+counts the bytes actually written; a lockstep reader waits until it has received that many
+(:meth:`hil.protocols.serial_bota.BotaSerial.wait_rx`) before it decides what is new, which makes
+the outcome independent of the machine's load.
 """
 
 from __future__ import annotations
@@ -69,6 +75,7 @@ class SimBota:
         self.temperature = temperature
         self.status = status
         self.tick_count = 0
+        self.tx_bytes = 0  # bytes written to the pty (what the host will receive)
         self.stats: Counter[str] = Counter()
         self._frame_faults = ByteStreamFaults(self.injector, self.stats, corrupt_start=1)  # after the 0xAA header
         self._lock = threading.Lock()
@@ -86,7 +93,7 @@ class SimBota:
         return w
 
     def _write(self, data: bytes) -> None:
-        write_dropping(self._master, data, self.stats)
+        self.tx_bytes += write_dropping(self._master, data, self.stats)
 
     def emit(self) -> None:
         """Build and write one frame (lockstep). Advances the device tick / timestamp."""

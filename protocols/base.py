@@ -5,18 +5,29 @@ Conventions (SI units throughout):
 * positions in m (prismatic) or rad (revolute), velocities in m/s or rad/s,
   forces in N or torques in N.m; a device declares which with ``units``.
 * Sign: a positive force/torque command accelerates the joint in its positive direction.
-* Every sample carries ``t`` (seconds, monotonic clock of the host or the simulated clock in
-  lockstep mode) and ``seq`` (per-device sequence number, increasing by one per sample).
+* Every sample carries ``t`` (seconds: when it was *read*, on the adapter's ``clock``: the
+  host's monotonic clock, or the simulated clock in lockstep mode), ``produced_at`` (seconds, the
+  same clock: when the device *produced* the data: a new device timestamp, a cyclic frame or a
+  reply arriving; see each adapter) and ``seq`` (per-device sequence number that advances by one
+  only when new data arrived). ``t - produced_at`` is the age of the data; a read that found
+  nothing new returns the previous data again with the same ``seq`` and ``produced_at`` (a
+  *stale* sample), and the runner's watchdog compares that age with the scene's ``watchdog_ms``.
+* Fault counters: :meth:`Device.counters` (CRC errors, resyncs, dropped, late, stale frames,
+  retries, ... as the protocol has them), plain ``int`` values that only grow.
 * Multi-DOF devices expose vectors of length ``dof``; 1-DOF devices use length-1 arrays.
 
 Every blocking call takes a ``timeout`` (seconds) and raises :class:`hil.errors.DeviceTimeout`
-when it expires. Adapters are context managers; ``close()`` is idempotent.
+when it expires without an answer (request/response devices), or, for devices that stream data
+(cyclic frames, serial streams), when no data at all has arrived yet. Adapters are context
+managers; ``close()`` is idempotent.
 """
 
 from __future__ import annotations
 
 import abc
 import contextlib
+import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -35,6 +46,12 @@ class JointSample:
     velocity: np.ndarray  # (dof,) m/s or rad/s
     effort: np.ndarray | None = None  # (dof,) N or N.m, measured/estimated by the drive
     fault: int = 0  # raw device fault code, 0 = none
+    produced_at: float = math.nan  # s, adapter clock: when the device produced the data (NaN: = t)
+
+    @property
+    def age(self) -> float:
+        """``t - produced_at`` (s): how old the data was when read (0 when unknown)."""
+        return sample_age(self)
 
 
 @dataclass(frozen=True)
@@ -46,6 +63,27 @@ class WrenchSample:
     seq: int
     wrench: np.ndarray
     status: int = 0
+    produced_at: float = math.nan  # s, adapter clock: when the device produced the data (NaN: = t)
+
+    @property
+    def age(self) -> float:
+        """``t - produced_at`` (s): how old the data was when read (0 when unknown)."""
+        return sample_age(self)
+
+
+def sample_age(sample: object) -> float:
+    """Age (s) of a sample's data when it was read: ``t - produced_at``; 0.0 when the sample has
+    no ``produced_at`` (NaN or missing)."""
+    produced = float(getattr(sample, "produced_at", math.nan))
+    if math.isnan(produced):
+        return 0.0
+    return float(getattr(sample, "t", produced)) - produced
+
+
+def repeat_sample(last: JointSample | WrenchSample, t: float) -> JointSample | WrenchSample:
+    """The stale sample a read returns when no new data arrived: the previous data, ``seq`` and
+    ``produced_at`` unchanged, read at ``t``."""
+    return dataclasses.replace(last, t=t)
 
 
 @dataclass
@@ -65,6 +103,12 @@ class Device(abc.ABC):
     """Common lifecycle of every adapter: open on construction or ``open()``, idempotent close."""
 
     info: DeviceInfo
+
+    def counters(self) -> dict[str, int]:
+        """Fault counters of this adapter since it was opened (name -> count), e.g. ``crc_errors``,
+        ``resyncs``, ``dropped``, ``late``, ``stale``, ``retries``, ``timeouts``; each adapter
+        documents which it has. Default: none."""
+        return {}
 
     @abc.abstractmethod
     def close(self) -> None:

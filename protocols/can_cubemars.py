@@ -29,6 +29,13 @@ as 0x7FF = -0.0044 N.m on an AK80-9: zero is not representable with an even numb
 
 Units: position rad, velocity rad/s, torque N.m, all at the output shaft (the motor reports output
 quantities). Positive torque accelerates towards positive position.
+
+Freshness: a reply carries no timestamp or counter; ``JointSample.produced_at`` is the arrival
+of the state reply (adapter clock, when it was taken off the bus) and ``seq`` advances with each
+new reply. :meth:`CubeMarsMIT.read` uses the reply to the latest command if one arrived since the
+previous read, else re-sends the last command to get one; no reply within ``timeout`` raises
+DeviceTimeout. Counters (:meth:`CubeMarsMIT.counters`): ``error_frames`` (CAN error frames: a
+destroyed reply), ``decode_errors``, ``skipped`` (replies superseded before a read), ``timeouts``.
 """
 
 from __future__ import annotations
@@ -242,6 +249,9 @@ class CubeMarsMIT(Actuator):
         self.temperature: int | None = None
         self.decode_errors = 0
         self.error_frames = 0  # CAN error frames seen (e.g. a corrupted reply)
+        self._fresh_at = math.nan  # adapter clock when self._fresh arrived
+        self._skipped = 0
+        self._timeouts = 0
         filters = None  # error frames must reach us; reply filtering is done in _handle
         if bus is None:
             self._bus = open_can_bus(interface, channel, bitrate, filters, **bus_kwargs)
@@ -291,11 +301,19 @@ class CubeMarsMIT(Actuator):
         if len(data) not in (6, 8) or data[0] != self.motor_id:
             return False
         try:
-            self._fresh = unpack_reply(data, self.limits)
+            reply = unpack_reply(data, self.limits)
         except ProtocolError:
             self.decode_errors += 1
             return False
+        if self._fresh is not None:
+            self._skipped += 1
+        self._fresh, self._fresh_at = reply, self.clock()
         return True
+
+    def counters(self) -> dict[str, int]:
+        """error_frames, decode_errors, skipped, timeouts (see the module docstring)."""
+        return {"error_frames": self.error_frames, "decode_errors": self.decode_errors, "skipped": self._skipped,
+                "timeouts": self._timeouts}
 
     def _drain(self) -> None:
         while (msg := self._recv(0.0)) is not None:
@@ -306,6 +324,7 @@ class CubeMarsMIT(Actuator):
             remaining = deadline - time.monotonic()
             msg = self._recv(remaining if remaining > 0 else 0.0)
             if msg is None:
+                self._timeouts += 1
                 raise DeviceTimeout(f"CubeMars {self.motor_id}: no reply within timeout")
             self._handle(msg)
         return self._fresh
@@ -351,7 +370,7 @@ class CubeMarsMIT(Actuator):
             self._send(self._last_cmd, timeout)
             self._await_reply(deadline)
             self._drain()
-        r = self._fresh
+        r, produced = self._fresh, self._fresh_at
         assert r is not None
         self._fresh = None
         self.temperature = r.temperature
@@ -367,6 +386,7 @@ class CubeMarsMIT(Actuator):
             velocity=np.array([r.velocity]),
             effort=np.array([r.torque]),
             fault=err,
+            produced_at=produced,
         )
 
     def safe_stop(self) -> None:

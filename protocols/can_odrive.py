@@ -39,6 +39,32 @@ discarded); ``feedback="cyclic"`` uses the frames the drive broadcasts at its co
 ``encoder_msg_rate_ms`` and returns the newest one received since the previous read. Heartbeats
 are processed whenever frames are read; a non-zero ``axis_error`` raises
 :class:`hil.errors.DeviceFault` (``code`` = axis_error) on every read until cleared.
+
+Freshness (``JointSample.produced_at``, ``seq``): CANSimple estimates carry no timestamp or
+counter, so the data is dated by the *arrival* of its Get_Encoder_Estimates frame (the adapter's
+``clock`` when the frame was taken off the bus; at most one read period late). ``seq`` advances
+only with a new frame. Cyclic mode: a read that finds no new estimate frame waits for one until
+the newest estimate is ``timeout`` old (host clock), then returns the previous estimate again
+(same ``seq`` and ``produced_at``: a stale sample, counted in ``counters()["stale"]``); the
+runner's watchdog stops the run when its age exceeds ``watchdog_ms``. Only the very first read
+raises DeviceTimeout. Poll mode: each answer to the RTR request is a new frame; a request that
+gets no answer is sent again (``retries``, within the same ``timeout``), then DeviceTimeout.
+A frozen estimator that keeps answering with the same payload cannot be told from a joint at rest
+by the host: the drive itself reports that (axis_error MISSING_ESTIMATE).
+
+Counters (:meth:`ODriveCAN.counters`): ``error_frames`` (CAN error frames: a frame destroyed by a
+CRC/stuffing error), ``stale`` (reads without a new estimate), ``late`` (poll answers that arrived
+after their request had been given up, discarded), ``retries``, ``timeouts``.
+
+Drive watchdog (firmware 0.6 ``axis.config.watchdog_timeout`` / ``enable_watchdog``): CANSimple
+has no dedicated message for it, but firmware 0.6 has generic endpoint access (RxSdo 0x04 ->
+TxSdo 0x05: ``opcode u8 (0 read, 1 write), endpoint_id u16, reserved u8, value``). Endpoint ids
+are *not* stable: they come from the ``flat_endpoints.json`` of the exact firmware build on the
+drive, so the adapter arms the watchdog only when given them: ``watchdog_s`` (s) together with
+``watchdog_endpoints={"watchdog_timeout": id, "enable_watchdog": id}``. It then writes
+watchdog_timeout (float32) and enable_watchdog = 1 on open. Without the ids the drive's own
+watchdog is left as configured (a warning is logged). The drive is assumed to feed the watchdog on
+every Set_Input_Torque (what the simulator does).
 """
 
 from __future__ import annotations
@@ -57,13 +83,15 @@ import numpy as np
 
 from hil.errors import DeviceDisconnected, DeviceFault, DeviceTimeout, ProtocolError
 from hil.protocols import can_common
-from hil.protocols.base import Actuator, DeviceInfo, JointSample
+from hil.protocols.base import Actuator, DeviceInfo, JointSample, repeat_sample
 
 log = logging.getLogger(__name__)
 
 # -- command ids ----------------------------------------------------------------------------
 CMD_HEARTBEAT = 0x01
 CMD_ESTOP = 0x02
+CMD_RX_SDO = 0x04
+CMD_TX_SDO = 0x05
 CMD_SET_AXIS_STATE = 0x07
 CMD_GET_ENCODER_ESTIMATES = 0x09
 CMD_SET_CONTROLLER_MODE = 0x0B
@@ -158,6 +186,25 @@ def encode_u32(x: int) -> bytes:
     return struct.pack("<I", x)
 
 
+SDO_READ = 0
+SDO_WRITE = 1
+
+
+def encode_sdo_write(endpoint_id: int, value: bytes) -> bytes:
+    """RxSdo (0x04) payload writing ``value`` (1..4 bytes, little endian) to ``endpoint_id``."""
+    if not 0 <= endpoint_id <= 0xFFFF or not 1 <= len(value) <= 4:
+        raise ValueError(f"endpoint id 0..65535 and 1..4 value bytes required, got {endpoint_id}, {len(value)}")
+    return struct.pack("<BHB", SDO_WRITE, endpoint_id, 0) + bytes(value)
+
+
+def decode_sdo(data: bytes | bytearray) -> tuple[int, int, bytes]:
+    """(opcode, endpoint_id, value bytes) of an RxSdo/TxSdo payload."""
+    if len(data) < 4:
+        raise ProtocolError(f"SDO needs >= 4 bytes, got {len(data)}")
+    op, ep, _ = struct.unpack_from("<BHB", bytes(data))
+    return op, ep, bytes(data[4:])
+
+
 def encode_controller_mode(control_mode: int, input_mode: int) -> bytes:
     return struct.pack("<II", control_mode, input_mode)
 
@@ -224,6 +271,9 @@ class ODriveCAN(Actuator):
         enable: bool = True,
         clock: Callable[[], float] = time.monotonic,
         timeout: float = 0.1,
+        retries: int = 1,
+        watchdog_s: float | None = None,
+        watchdog_endpoints: dict[str, int] | None = None,
         **bus_kwargs: Any,
     ) -> None:
         if feedback not in ("poll", "cyclic"):
@@ -245,9 +295,15 @@ class ODriveCAN(Actuator):
         self._closed = False
         self._fault = 0
         self.axis_state: int | None = None
+        self.retries = max(0, int(retries))
         self.error_frames = 0  # CAN error frames seen (e.g. a corrupted answer)
         self.stale_discarded = 0  # poll mode: late answers discarded before a new request
-        self._estimate: tuple[float, float] | None = None  # newest unread (pos, vel) in turns
+        self._stale_reads = 0
+        self._retried = 0
+        self._timeouts = 0
+        self._estimate: tuple[float, float, float] | None = None  # newest unread (pos, vel) turns, arrival
+        self._last: JointSample | None = None
+        self._last_rx_wall = -math.inf  # host monotonic time of the newest estimate frame
         self._torques: tuple[float, float] | None = None
         # no acceptance filter: error frames (id 0) must reach us too; node filtering is done in _handle
         filters = None
@@ -264,13 +320,39 @@ class ODriveCAN(Actuator):
             model="CANSimple axis",
             extra={"node_id": self.node_id, "gear_ratio": self.gear_ratio, "linear_scale": self.linear_scale},
         )
+        self.watchdog_armed = False
         if enable:
             try:
+                if watchdog_s is not None:
+                    self.arm_watchdog(float(watchdog_s), watchdog_endpoints)
                 self.set_controller_mode(ControlMode.TORQUE_CONTROL, InputMode.PASSTHROUGH)
                 self.set_axis_state(AxisState.CLOSED_LOOP_CONTROL)
             except Exception:
                 self.close()
                 raise
+
+    def counters(self) -> dict[str, int]:
+        """error_frames, stale, late, retries, timeouts (see the module docstring)."""
+        return {"error_frames": self.error_frames, "stale": self._stale_reads, "late": self.stale_discarded,
+                "retries": self._retried, "timeouts": self._timeouts}
+
+    def arm_watchdog(self, timeout_s: float, endpoints: dict[str, int] | None, timeout: float = 0.1) -> bool:
+        """Write ``axis.config.watchdog_timeout`` = ``timeout_s`` and ``enable_watchdog`` = 1 through
+        RxSdo endpoint access (firmware 0.6). ``endpoints`` maps ``watchdog_timeout`` and
+        ``enable_watchdog`` to the endpoint ids of the drive's firmware (its flat_endpoints.json);
+        without them nothing is sent and False is returned."""
+        if not endpoints or not {"watchdog_timeout", "enable_watchdog"} <= set(endpoints):
+            log.warning("ODrive node %d: drive watchdog not armed: endpoint ids of watchdog_timeout and "
+                        "enable_watchdog not given (see the firmware's flat_endpoints.json)", self.node_id)
+            return False
+        if not (math.isfinite(timeout_s) and timeout_s > 0):
+            raise ValueError(f"watchdog timeout must be > 0 s, got {timeout_s!r}")
+        self._send(CMD_RX_SDO, encode_sdo_write(int(endpoints["watchdog_timeout"]), encode_f32(timeout_s)),
+                   timeout=timeout)
+        self._send(CMD_RX_SDO, encode_sdo_write(int(endpoints["enable_watchdog"]), b"\x01"), timeout=timeout)
+        self.watchdog_armed = True
+        log.info("ODrive node %d: drive watchdog armed (%.3f s)", self.node_id, timeout_s)
+        return True
 
     # -- unit conversion --------------------------------------------------------------------
     def _turns_to_joint(self, turns: float) -> float:
@@ -327,7 +409,8 @@ class ODriveCAN(Actuator):
                     log.info("ODrive node %d: axis_error cleared", node)
             self._fault, self.axis_state = err, state
         elif cmd == CMD_GET_ENCODER_ESTIMATES:
-            self._estimate = decode_f32x2(msg.data)
+            self._estimate = (*decode_f32x2(msg.data), self.clock())
+            self._last_rx_wall = time.monotonic()
         elif cmd == CMD_GET_TORQUES:
             self._torques = decode_f32x2(msg.data)
         return cmd
@@ -384,46 +467,77 @@ class ODriveCAN(Actuator):
 
     # -- feedback -----------------------------------------------------------------------------
     def read(self, timeout: float = 0.1) -> JointSample:
-        """Newest encoder estimate as a JointSample (rad, rad/s or m, m/s).
+        """Newest encoder estimate as a JointSample (rad, rad/s or m, m/s); see "Freshness" in the
+        module docstring for what a read without a new frame returns.
 
-        Raises DeviceTimeout when no fresh estimate arrives within ``timeout`` and DeviceFault when
-        the latest heartbeat carries a non-zero axis_error.
+        Raises DeviceTimeout when no estimate arrives in ``timeout`` (poll mode, or the first read
+        in cyclic mode) and DeviceFault when the latest heartbeat carries a non-zero axis_error.
         """
-        deadline = time.monotonic() + timeout
         if self.feedback == "poll":
-            self._drain()
-            if self._estimate is not None:
-                self.stale_discarded += 1
-                self._estimate = None
-            self._raise_if_fault()
-            self._send(CMD_GET_ENCODER_ESTIMATES, remote=True, timeout=timeout)
-            self._wait_for(CMD_GET_ENCODER_ESTIMATES, deadline)
-            if self.read_torque:
-                self._torques = None
-                self._send(CMD_GET_TORQUES, remote=True, timeout=timeout)
-                self._wait_for(CMD_GET_TORQUES, deadline)
+            self._poll(timeout)
         else:
             self._drain()
             if self._estimate is None:
-                self._wait_for(CMD_GET_ENCODER_ESTIMATES, deadline)
+                wait_until = time.monotonic() + timeout
+                if self._last is not None:  # wait only until the newest estimate is `timeout` old
+                    wait_until = min(wait_until, self._last_rx_wall + timeout)
+                with contextlib.suppress(DeviceTimeout):
+                    self._wait_for(CMD_GET_ENCODER_ESTIMATES, wait_until)
                 self._drain()
         self._raise_if_fault()
         est = self._estimate
-        if est is None:  # pragma: no cover - guarded by _wait_for
-            raise DeviceTimeout(f"ODrive node {self.node_id}: no encoder estimate")
+        if est is None:
+            if self._last is None:
+                self._timeouts += 1
+                raise DeviceTimeout(f"ODrive node {self.node_id}: no encoder estimate within {timeout:.3f} s")
+            self._stale_reads += 1
+            return repeat_sample(self._last, self.clock())
         self._estimate = None
         effort = None
         if self._torques is not None:
             effort = np.array([self._motor_torque_to_joint(self._torques[1])])
         self._seq += 1
-        return JointSample(
+        self._last = JointSample(
             t=self.clock(),
             seq=self._seq,
             position=np.array([self._turns_to_joint(est[0])]),
             velocity=np.array([self._turns_to_joint(est[1])]),
             effort=effort,
             fault=self._fault,
+            produced_at=est[2],
         )
+        return self._last
+
+    def _poll(self, timeout: float) -> None:
+        """Request the estimate (and torques) with RTR frames; resend up to ``retries`` times within
+        ``timeout``; DeviceTimeout if no answer."""
+        deadline = time.monotonic() + timeout
+        self._drain()
+        if self._estimate is not None:
+            self.stale_discarded += 1
+            self._estimate = None
+        self._raise_if_fault()
+        attempts = 1 + self.retries
+        for k in range(attempts):
+            self._send(CMD_GET_ENCODER_ESTIMATES, remote=True, timeout=timeout)
+            until = time.monotonic() + (deadline - time.monotonic()) / (attempts - k)
+            try:
+                self._wait_for(CMD_GET_ENCODER_ESTIMATES, until)
+                break
+            except DeviceTimeout:
+                if k == attempts - 1:
+                    self._timeouts += 1
+                    raise DeviceTimeout(f"ODrive node {self.node_id}: no answer to Get_Encoder_Estimates "
+                                        f"within {timeout:.3f} s ({attempts} requests)") from None
+                self._retried += 1
+        if self.read_torque:
+            self._torques = None
+            self._send(CMD_GET_TORQUES, remote=True, timeout=timeout)
+            try:
+                self._wait_for(CMD_GET_TORQUES, max(deadline, time.monotonic()))
+            except DeviceTimeout:
+                self._timeouts += 1
+                raise
 
     def safe_stop(self) -> None:
         """Zero torque, then request IDLE. Never raises."""
@@ -450,9 +564,11 @@ __all__ = [
     "CMD_GET_ENCODER_ESTIMATES",
     "CMD_GET_TORQUES",
     "CMD_HEARTBEAT",
+    "CMD_RX_SDO",
     "CMD_SET_AXIS_STATE",
     "CMD_SET_CONTROLLER_MODE",
     "CMD_SET_INPUT_TORQUE",
+    "CMD_TX_SDO",
     "AxisState",
     "ControlMode",
     "InputMode",

@@ -45,6 +45,20 @@ a status packet with a bad CRC raises :class:`ChecksumError`.
 
 Timeouts: the SDK's own packet timeout (based on a 16 ms USB latency timer) is replaced by the
 call's ``timeout``; its polling loop is made to sleep in ``select`` instead of spinning.
+
+Freshness: status packets carry no timestamp; ``JointSample.produced_at`` is the arrival of the
+sync read's status packets (adapter clock) and ``seq`` advances with each complete set. A missing
+status packet raises DeviceTimeout (counted in ``counters()["timeouts"]``), a corrupt one
+ChecksumError (``crc_errors``).
+
+Bus Watchdog(98) (e-manual: 1 byte, RAM; 0 = off and clears the error, 1..127 = armed in units of
+20 ms, -1 = Bus Watchdog Error): with ``bus_watchdog_s`` the adapter arms it on open (rounded up
+to 20 ms, at most 2.54 s; the bench passes the scene's ``watchdog_ms``), after clearing it. While
+the torque is on and no instruction packet arrives for that long, the servo stops by itself and
+98 reads -1; goal values are then refused. The adapter reads 98 of every servo every
+``watchdog_check_every`` reads (default 100: one extra 1-byte sync read) and in
+:meth:`bus_watchdog_expired`, and raises :class:`DeviceFault` (``code = 0x200``) naming the servos
+whose watchdog expired. Counters: ``crc_errors``, ``timeouts``, ``bus_watchdog_errors``.
 """
 
 from __future__ import annotations
@@ -70,6 +84,10 @@ ADDR_OPERATING_MODE = 11
 ADDR_CURRENT_LIMIT = 38
 ADDR_TORQUE_ENABLE = 64
 ADDR_HARDWARE_ERROR = 70
+ADDR_BUS_WATCHDOG = 98
+BUS_WATCHDOG_UNIT_S = 0.020
+BUS_WATCHDOG_ERROR = 0xFF
+FAULT_BUS_WATCHDOG = 0x200
 ADDR_GOAL_CURRENT = 102
 ADDR_PRESENT_CURRENT = 126
 ADDR_PRESENT_VELOCITY = 128
@@ -124,6 +142,14 @@ def effort_to_current_raw(
     """Effort (N.m) -> Goal Current register values (signed ints), clamped to +-limit."""
     raw = np.rint(directions * np.asarray(effort, dtype=float) / torque_constant / CURRENT_UNIT_A)
     return np.clip(raw, -limit_raw, limit_raw).astype(np.int64)
+
+
+def bus_watchdog_units(seconds: float) -> int:
+    """Bus Watchdog(98) value for a timeout of ``seconds``: rounded *up* to the 20 ms unit, in
+    1..127 (so the servo never stops earlier than asked; at most 2.54 s)."""
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"bus watchdog timeout must be > 0 s, got {seconds!r}")
+    return int(min(127, max(1, math.ceil(seconds / BUS_WATCHDOG_UNIT_S - 1e-9))))
 
 
 def decode_present_block(block: bytes | Sequence[int]) -> tuple[int, int, int]:
@@ -197,6 +223,8 @@ class DynamixelX(Actuator):
         timeout: float = 0.1,
         enable: bool = True,
         clock: Callable[[], float] = time.monotonic,
+        bus_watchdog_s: float | None = None,
+        watchdog_check_every: int = 100,
     ) -> None:
         from dynamixel_sdk import GroupSyncRead, GroupSyncWrite, PacketHandler
 
@@ -217,6 +245,10 @@ class DynamixelX(Actuator):
         )
         self.timeout = float(timeout)
         self._clock = clock
+        self.bus_watchdog_units = bus_watchdog_units(bus_watchdog_s) if bus_watchdog_s is not None else 0
+        self.watchdog_check_every = max(1, int(watchdog_check_every))
+        self._counts = {"crc_errors": 0, "timeouts": 0, "bus_watchdog_errors": 0}
+        self._reads = 0
         self._seq = 0
         self._closed = False
         self._enabled = False
@@ -245,6 +277,9 @@ class DynamixelX(Actuator):
         self._gsr = GroupSyncRead(self._port, self._ph, ADDR_PRESENT_CURRENT, PRESENT_BLOCK_LEN)
         for i in self.ids:
             self._gsr.addParam(i)
+        self._gsr_wd = GroupSyncRead(self._port, self._ph, ADDR_BUS_WATCHDOG, 1)
+        for i in self.ids:
+            self._gsr_wd.addParam(i)
         log.info("DYNAMIXEL %s ids %s on %s opened", self.model.name, self.ids, port)
 
     # -- Actuator ---------------------------------------------------------------------------------
@@ -286,15 +321,47 @@ class DynamixelX(Actuator):
         for i, err in zip(self.ids, errors, strict=True):
             self._raise_for_error(i, err, timeout)
         cur, vel, pos = (np.array(v, dtype=float) for v in zip(*map(decode_present_block, blocks), strict=True))
+        produced = self._clock()
         d = self.directions
         self._seq += 1
+        self._reads += 1
+        if self.bus_watchdog_units and self._reads % self.watchdog_check_every == 0:
+            self._raise_if_watchdog_expired(timeout)
         return JointSample(
-            t=self._clock(),
+            t=produced,
             seq=self._seq,
             position=d * (pos - self.zero_ticks) * RAD_PER_TICK,
             velocity=d * vel * VELOCITY_UNIT_RAD_S,
             effort=d * cur * CURRENT_UNIT_A * self.torque_constant,
+            produced_at=produced,
         )
+
+    def counters(self) -> dict[str, int]:
+        """crc_errors, timeouts, bus_watchdog_errors (see the module docstring)."""
+        return dict(self._counts)
+
+    def bus_watchdog_expired(self, timeout: float | None = None) -> list[int]:
+        """Ids whose Bus Watchdog(98) reads -1 (Bus Watchdog Error), with one sync read."""
+        from dynamixel_sdk import COMM_SUCCESS
+
+        self._check_open()
+        self._with_timeout(timeout)
+        self._check_comm(self._gsr_wd.txPacket(), "sync read Bus Watchdog")
+        out = []
+        for i in self.ids:
+            data, result, _error = self._ph.readRx(self._port, i, 1)
+            if result != COMM_SUCCESS:
+                self._check_comm(result, f"sync read Bus Watchdog of id {i}")
+            if data and data[0] == BUS_WATCHDOG_ERROR:
+                out.append(i)
+        return out
+
+    def _raise_if_watchdog_expired(self, timeout: float | None) -> None:
+        expired = self.bus_watchdog_expired(timeout)
+        if expired:
+            self._counts["bus_watchdog_errors"] += 1
+            raise DeviceFault(f"DYNAMIXEL ids {expired}: Bus Watchdog expired (servo stopped by itself)",
+                              code=FAULT_BUS_WATCHDOG)
 
     def enable(self, on: bool = True, timeout: float | None = None) -> None:
         """Torque Enable(64) on every servo."""
@@ -346,9 +413,14 @@ class DynamixelX(Actuator):
         for i in self.ids:
             self._write(i, ADDR_TORQUE_ENABLE, 1, 0, None)
             self._write(i, ADDR_OPERATING_MODE, 1, MODE_CURRENT, None)
+            self._write(i, ADDR_BUS_WATCHDOG, 1, 0, None)  # off; also clears a Bus Watchdog Error
             self._write(i, ADDR_GOAL_CURRENT, 2, 0, None)
         if enable:
             self.enable(True)
+            if self.bus_watchdog_units:
+                for i in self.ids:
+                    self._write(i, ADDR_BUS_WATCHDOG, 1, self.bus_watchdog_units, None)
+                log.info("DYNAMIXEL ids %s: Bus Watchdog armed (%d ms)", self.ids, 20 * self.bus_watchdog_units)
 
     def _check_open(self) -> None:
         if self._closed:
@@ -361,8 +433,10 @@ class DynamixelX(Actuator):
             return
         text = self._ph.getTxRxResult(result)
         if result == COMM_RX_TIMEOUT:
+            self._counts["timeouts"] += 1
             raise DeviceTimeout(f"DYNAMIXEL {what}: no status packet ({text})")
         if result == COMM_RX_CORRUPT:
+            self._counts["crc_errors"] += 1
             raise ChecksumError(f"DYNAMIXEL {what}: corrupt status packet ({text})")
         if result == COMM_TX_FAIL:
             raise DeviceDisconnected(f"DYNAMIXEL {what}: transmit failed ({text})")

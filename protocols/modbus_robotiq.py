@@ -69,7 +69,7 @@ from hil.errors import (
     DeviceTimeout,
     ProtocolError,
 )
-from hil.protocols.base import DeviceInfo, ForceSensor, WrenchSample
+from hil.protocols.base import DeviceInfo, ForceSensor, WrenchSample, repeat_sample
 from hil.protocols.crc import crc16_modbus
 
 log = logging.getLogger(__name__)
@@ -219,13 +219,54 @@ def _modbus_crc_ok(frame: bytes) -> bool:
     return len(frame) >= 4 and crc16_modbus(frame[:-2]) == int.from_bytes(frame[-2:], "little")
 
 
+#: Exception codes a Modbus server may answer with (Modbus Application Protocol v1.1b3, 7).
+MODBUS_EXCEPTION_CODES = frozenset({1, 2, 3, 4, 5, 6, 8, 10, 11})
+#: Gateway exceptions: 10 path unavailable, 11 target device failed to respond (its reply was
+#: missing or failed the serial CRC): a missed reply, not a device fault.
+GATEWAY_EXCEPTION_CODES = frozenset({10, 11})
+
+
+class GatewayError(ProtocolError):
+    """A Modbus gateway answered exception 10/11: the sensor behind it gave no valid reply."""
+
+
+#: FT-300 rated measuring range: |Fx|, |Fy|, |Fz| <= 300 N, |Mx|, |My|, |Mz| <= 30 N.m.
+RATED_FORCE = 300.0
+RATED_TORQUE = 30.0
+
+
+def check_wrench_range(wrench: np.ndarray, max_force: float, max_torque: float) -> None:
+    """Raise :class:`ProtocolError` if a decoded wrench lies outside the sensor's range (a
+    damaged reply on a transport without a CRC, e.g. Modbus/TCP)."""
+    w = np.asarray(wrench, dtype=float).reshape(6)
+    if np.any(np.abs(w[:3]) > max_force) or np.any(np.abs(w[3:]) > max_torque):
+        raise ProtocolError(f"FT-300: wrench {np.round(w, 3).tolist()} outside the range "
+                            f"+-{max_force:g} N, +-{max_torque:g} N.m (damaged reply?)")
+
+
 class RobotiqFT300(ForceSensor):
     """Robotiq FT-300 polled over Modbus: one FC03 read of registers 180-185 per :meth:`read`.
 
-    ``timeout`` is the default per-call timeout (s); every call can override it. No automatic
-    retries: a missing reply raises :class:`DeviceTimeout` at once (the runner decides whether to
-    record a gap). A garbled RTU reply (bad CRC) raises :class:`ChecksumError`; a Modbus exception
-    response raises :class:`DeviceFault` with ``code`` = the Modbus exception code.
+    ``timeout`` is the default per-call timeout (s); every call can override it. A missing reply
+    raises :class:`DeviceTimeout` at once (no retry: the wait is already the whole budget). A
+    garbled RTU reply (bad CRC) raises :class:`ChecksumError`; a Modbus exception response raises
+    :class:`DeviceFault` with ``code`` = the Modbus exception code.
+
+    Reply validation: Modbus/TCP has no CRC of its own (the TCP checksum protects the wire, not a
+    gateway), so every reply is checked: function code and exception code valid, byte count = 2 x
+    registers asked, and, on Modbus/TCP (RTU replies carry their CRC), the wrench within the rated
+    range (``max_force`` N, ``max_torque`` N.m; default the FT-300's +-300 N, +-30 N.m). A reply
+    failing a check is never returned as data: the request is repeated up to ``retries`` times,
+    then :class:`ProtocolError` (or ChecksumError) is raised. A damaged low byte that keeps the
+    value in range cannot be detected on Modbus/TCP.
+
+    Freshness: ``produced_at`` is the arrival of the reply (adapter clock); the sensor's registers
+    carry no timestamp or counter, so a sensor that stopped refreshing them cannot be told from a
+    constant force. Counters (:meth:`counters`): ``crc_errors``, ``invalid_replies`` (bad function
+    code / byte count / exception code / undecodable), ``out_of_range``, ``gateway_errors``
+    (exceptions 10/11 from a Modbus/TCP gateway: the sensor's serial reply was missing or failed its
+    CRC; retried like a bad reply, :class:`GatewayError` in the end), ``exceptions`` (other Modbus
+    exception replies: DeviceFault), ``retries``, ``timeouts``.
 
     ``clock`` gives the sample time ``t`` (host monotonic clock by default; the lockstep runner
     passes the simulated clock).
@@ -241,6 +282,9 @@ class RobotiqFT300(ForceSensor):
         *,
         read_info: bool = True,
         clock: Callable[[], float] = time.monotonic,
+        retries: int = 1,
+        max_force: float = RATED_FORCE,
+        max_torque: float = RATED_TORQUE,
     ) -> None:
         from pymodbus import FramerType
         from pymodbus.client import ModbusSerialClient, ModbusTcpClient
@@ -254,6 +298,11 @@ class RobotiqFT300(ForceSensor):
         self._offset = np.zeros(6)
         self._closed = False
         self._rx = b""
+        self.retries = max(0, int(retries))
+        self.max_force = float(max_force)
+        self.max_torque = float(max_torque)
+        self._counts = {"crc_errors": 0, "invalid_replies": 0, "out_of_range": 0, "gateway_errors": 0,
+                        "exceptions": 0, "retries": 0, "timeouts": 0}
         ep = self.endpoint
         client: Any
         if ep.kind == "rtu":
@@ -284,15 +333,38 @@ class RobotiqFT300(ForceSensor):
 
     # -- ForceSensor ------------------------------------------------------------------------------
     def read(self, timeout: float | None = None) -> WrenchSample:
-        """Poll Fx..Mz once. Raises DeviceTimeout / ChecksumError / DeviceFault (see class doc)."""
-        regs = self._read_registers(REG_WRENCH, 6, timeout)
-        wrench = registers_to_wrench(regs) - self._offset
+        """Poll Fx..Mz once (validated, see the class doc). Raises DeviceTimeout / ChecksumError /
+        ProtocolError / DeviceFault."""
+        raw = self._read_wrench(timeout)
+        produced = self._clock()
         self._seq += 1
-        return WrenchSample(t=self._clock(), seq=self._seq, wrench=wrench)
+        return WrenchSample(t=produced, seq=self._seq, wrench=raw - self._offset, produced_at=produced)
+
+    def counters(self) -> dict[str, int]:
+        """crc_errors, invalid_replies, out_of_range, gateway_errors, exceptions, retries, timeouts."""
+        return dict(self._counts)
+
+    def _read_wrench(self, timeout: float | None) -> np.ndarray:
+        for attempt in range(self.retries + 1):
+            try:
+                w = registers_to_wrench(self._read_registers(REG_WRENCH, 6, timeout))
+                if self.endpoint.kind == "tcp":  # RTU replies are CRC-checked
+                    try:
+                        check_wrench_range(w, self.max_force, self.max_torque)
+                    except ProtocolError:
+                        self._counts["out_of_range"] += 1
+                        raise
+                return w
+            except (ProtocolError, ChecksumError) as exc:
+                if attempt == self.retries:
+                    raise
+                self._counts["retries"] += 1
+                log.debug("FT-300: %s; asking again", exc)
+        raise AssertionError("unreachable")  # pragma: no cover
 
     def tare(self, timeout: float = 0.5) -> None:
         """Software zero: later readings are reported relative to the current one."""
-        self._offset = registers_to_wrench(self._read_registers(REG_WRENCH, 6, timeout))
+        self._offset = self._read_wrench(timeout)
 
     def start_stream(self, timeout: float | None = None) -> None:
         """Write 0x0200 to register 410: a serial sensor then switches to its 100 Hz stream and no
@@ -336,22 +408,42 @@ class RobotiqFT300(ForceSensor):
         except ModbusIOException as exc:
             rx = self._rx
             if rx and self.endpoint.kind != "tcp" and not _modbus_crc_ok(rx):
+                self._counts["crc_errors"] += 1
                 raise ChecksumError(f"FT-300: reply with bad CRC ({rx.hex(' ')})") from exc
             if rx:
+                self._counts["invalid_replies"] += 1
                 raise ProtocolError(f"FT-300: undecodable reply ({rx.hex(' ')})") from exc
+            self._counts["timeouts"] += 1
             raise DeviceTimeout(f"FT-300 on {self.url}: no reply within {t:.3f} s") from exc
         except ModbusException as exc:
+            self._counts["invalid_replies"] += 1
             raise ProtocolError(f"FT-300: {exc}") from exc
         if resp.isError():
             code = getattr(resp, "exception_code", None)
+            if code not in MODBUS_EXCEPTION_CODES:  # a damaged function code with its high bit set
+                self._counts["invalid_replies"] += 1
+                raise ProtocolError(f"FT-300: reply with an invalid exception code {code!r} (damaged reply?)")
+            if code in GATEWAY_EXCEPTION_CODES:  # the gateway got no (valid) reply from the sensor
+                self._counts["gateway_errors"] += 1
+                raise GatewayError(f"FT-300 on {self.url}: gateway exception {code} (no valid reply from the sensor)")
+            self._counts["exceptions"] += 1
             raise DeviceFault(f"FT-300 answered with Modbus exception {code}", code=code)
         return resp
 
     def _read_registers(self, address: int, count: int, timeout: float | None) -> list[int]:
         resp = self._call(self._client.read_holding_registers, timeout, address, count=count)
+        if int(getattr(resp, "function_code", FC_READ_HOLDING)) != FC_READ_HOLDING:
+            self._counts["invalid_replies"] += 1
+            raise ProtocolError(f"FT-300: reply with function code {resp.function_code}, expected {FC_READ_HOLDING}")
         regs = list(resp.registers)
         if len(regs) != count:
+            self._counts["invalid_replies"] += 1
             raise ProtocolError(f"FT-300: asked {count} registers at {address}, got {len(regs)}")
+        rx = self._rx  # the raw reply: its byte count field must match too (MBAP: byte 8, RTU: byte 2)
+        bc_at = 8 if self.endpoint.kind == "tcp" else 2
+        if len(rx) > bc_at and rx[bc_at - 1] == FC_READ_HOLDING and rx[bc_at] != 2 * count:
+            self._counts["invalid_replies"] += 1
+            raise ProtocolError(f"FT-300: byte count {rx[bc_at]} for {count} registers")
         return regs
 
     def _write_register(self, address: int, value: int, timeout: float | None) -> None:
@@ -431,14 +523,20 @@ class RobotiqFT300Stream(ForceSensor):
     exception reply -> :class:`DeviceFault` (``code`` = exception code); only garbled replies ->
     :class:`ChecksumError`.
 
-    :meth:`read` returns the newest frame received since the previous read and waits at most
-    ``timeout`` for one (:class:`DeviceTimeout` otherwise; the sensor streams at 100 Hz, so a faster
-    loop either waits or passes ``max_age``: a previous sample at most that old (s, host clock) is
-    then returned again, same ``seq``). Garbage is skipped (the parser resynchronises on the
-    0x20 0x4E header); frames failing their CRC are dropped and counted in ``stats["crc_errors"]``
-    and ``stats["gaps"]`` (each is a missing sample), or raise :class:`ChecksumError` with
-    ``on_crc_error="raise"``. Frames carry no sequence number or timestamp: a dropped frame shows
-    only as a longer wait, a repeated (stale) one cannot be told from a constant force.
+    :meth:`read` returns the newest frame received since the previous read. Freshness: frames carry
+    no sequence number or timestamp, so ``produced_at`` is the *arrival* of the frame (adapter
+    clock) and ``seq`` advances only with a new frame. Without a new frame a read waits for one
+    until the newest data is ``timeout`` old (host clock), then returns the previous sample again
+    (same ``seq`` and ``produced_at``: stale, ``counters()["stale"]``); the runner's watchdog judges
+    its age. ``max_age`` > 0: a previous sample at most that old (s, host clock) is returned at once
+    instead of waiting (a loop faster than the 100 Hz stream). Only a read before any frame raises
+    :class:`DeviceTimeout`. Garbage is skipped (the parser resynchronises on the 0x20 0x4E header);
+    frames failing their CRC are dropped and counted in ``stats["crc_errors"]`` and
+    ``stats["gaps"]`` (each is a missing sample), or raise :class:`ChecksumError` with
+    ``on_crc_error="raise"``. A dropped frame shows only as a longer wait, a repeated (stale) one
+    cannot be told from a constant force. :meth:`wait_rx` is the lockstep byte-count barrier (see
+    :mod:`hil.mocks.ft300_stream`). Counters (:meth:`counters`): ``crc_errors``, ``resync_bytes``,
+    ``skipped`` (frames superseded before a read), ``stale``, ``timeouts``.
 
     :meth:`close` (idempotent, never raises) stops the stream with the 0xFF jam, waiting up to
     ``stop_timeout`` for the line to go quiet (``stream_stopped`` tells whether it did), then
@@ -482,6 +580,10 @@ class RobotiqFT300Stream(ForceSensor):
         self._pending: np.ndarray | None = None
         self._last: WrenchSample | None = None
         self._last_rx = -np.inf
+        self._pending_at = np.nan
+        self.rx_bytes = 0
+        self._stale_reads = 0
+        self._timeouts = 0
         self._crc_seen = 0
         self._skipped = 0
         self._closed = False
@@ -516,20 +618,44 @@ class RobotiqFT300Stream(ForceSensor):
         return {"frames": p.frames, "crc_errors": p.crc_errors, "gaps": p.crc_errors,
                 "skipped_bytes": p.skipped_bytes, "skipped_frames": self._skipped}
 
+    def counters(self) -> dict[str, int]:
+        """crc_errors, resync_bytes, skipped, stale, timeouts (see the class doc)."""
+        p = self.parser
+        return {"crc_errors": p.crc_errors, "resync_bytes": p.skipped_bytes, "skipped": self._skipped,
+                "stale": self._stale_reads, "timeouts": self._timeouts}
+
+    def wait_rx(self, total_bytes: int, timeout: float) -> bool:
+        """Receive (and decode, without consuming) until ``rx_bytes >= total_bytes`` or ``timeout``
+        (s) passes; True if reached (lockstep barrier: ``SimFT300Stream.tx_bytes``)."""
+        deadline = time.monotonic() + timeout
+        while self.rx_bytes < total_bytes:
+            if time.monotonic() >= deadline:
+                return False
+            self._pump(block=True)
+        return True
+
     def read(self, timeout: float | None = None) -> WrenchSample:
-        """Newest stream sample (N, N.m); waits at most ``timeout`` (default: the adapter's)."""
+        """Newest stream sample (N, N.m); see the class doc for freshness and waiting."""
         t = self.timeout if timeout is None else float(timeout)
         deadline = time.monotonic() + t
+        if self._last is not None:
+            deadline = min(deadline, self._last_rx + t)
         self._pump(block=False)
         while self._pending is None:
             if self._last is not None and self.max_age > 0 and time.monotonic() - self._last_rx <= self.max_age:
-                return self._last
+                self._stale_reads += 1
+                return repeat_sample(self._last, self._clock())
             if time.monotonic() >= deadline:
-                raise DeviceTimeout(f"FT-300 stream on {self.url}: no frame within {t:.3f} s")
+                if self._last is None:
+                    self._timeouts += 1
+                    raise DeviceTimeout(f"FT-300 stream on {self.url}: no frame within {t:.3f} s")
+                self._stale_reads += 1
+                return repeat_sample(self._last, self._clock())
             self._pump(block=True)
         wrench, self._pending = self._pending, None
         self._seq += 1
-        self._last = WrenchSample(t=self._clock(), seq=self._seq, wrench=wrench - self._offset)
+        self._last = WrenchSample(t=self._clock(), seq=self._seq, wrench=wrench - self._offset,
+                                  produced_at=self._pending_at)
         return self._last
 
     def tare(self, timeout: float = 0.5) -> None:
@@ -601,11 +727,11 @@ class RobotiqFT300Stream(ForceSensor):
             raise DeviceDisconnected("FT-300 stream adapter is closed")
         try:
             n = self._ser.in_waiting
-            if n:
-                return self._ser.read(n)
-            return self._ser.read(1) if block else b""
+            data = self._ser.read(n) if n else (self._ser.read(1) if block else b"")
         except self._serial_errors as exc:
             raise self._io_error(exc) from exc
+        self.rx_bytes += len(data)
+        return data
 
     def _send(self, data: bytes) -> None:
         try:
@@ -621,6 +747,7 @@ class RobotiqFT300Stream(ForceSensor):
         if frames:
             self._skipped += len(frames) - 1 + (self._pending is not None)
             self._pending = frames[-1]
+            self._pending_at = self._clock()
             self._last_rx = time.monotonic()
         n = self.parser.crc_errors
         if n != self._crc_seen:
@@ -692,6 +819,7 @@ class RobotiqFT300Stream(ForceSensor):
         return list(struct.unpack(f">{count}H", frame[3 : 3 + 2 * count]))
 
 __all__ = [
+    "GatewayError",
     "ModbusEndpoint",
     "RobotiqFT300",
     "RobotiqFT300Stream",

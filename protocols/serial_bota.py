@@ -28,8 +28,17 @@ Error handling (documented behaviour):
 * Missing samples: detected from timestamp jumps larger than the sample period (``period_s``
   given, or learned from the first two frames); counted in ``stats["gaps"]`` (events) and
   ``stats["missed_samples"]``.
-* Stale data (a frame repeating the previous timestamp) is not a fresh sample: counted in
-  ``stats["stale"]``; if no fresh frame arrives within the timeout -> DeviceTimeout.
+* Stale data (a frame repeating the previous timestamp) is not new data: counted in
+  ``stats["stale"]`` (``counters()["repeated_frames"]``).
+* Freshness: ``WrenchSample.produced_at`` is the arrival (adapter clock) of the frame that
+  carried a *new* device timestamp; ``seq`` advances only with one. A read that finds no new frame
+  waits for one until the newest data is ``timeout`` old (host clock), then returns the previous
+  sample again (same ``seq`` and ``produced_at``; ``counters()["stale"]``): the runner's watchdog
+  judges its age against ``watchdog_ms``. Only a read before any frame ever arrived raises
+  DeviceTimeout.
+* Lockstep: :meth:`BotaSerial.wait_rx` blocks until a given number of bytes has been received
+  (what a simulated sensor reports it wrote), so that what a read finds does not depend on how
+  fast the kernel moves pty bytes.
 * ``status & fault_mask`` (default overrange | invalid_measurements) raises
   :class:`hil.errors.DeviceFault` with ``code = status``.
 * A closed / lost port raises :class:`hil.errors.DeviceDisconnected`. Nothing blocks longer than
@@ -50,7 +59,7 @@ import numpy as np
 import serial
 
 from hil.errors import ChecksumError, DeviceDisconnected, DeviceFault, DeviceTimeout
-from hil.protocols.base import DeviceInfo, ForceSensor, WrenchSample
+from hil.protocols.base import DeviceInfo, ForceSensor, WrenchSample, repeat_sample
 from hil.protocols.crc import crc16_x25
 
 log = logging.getLogger(__name__)
@@ -167,6 +176,12 @@ class BotaSerial(ForceSensor):
         self._offset = np.zeros(6)
         self._crc_seen = 0
         self.last_frame: BotaFrame | None = None
+        self.rx_bytes = 0  # bytes received from the port so far
+        self._pending: list[BotaFrame] = []  # decoded, not yet accepted
+        self._last: WrenchSample | None = None
+        self._last_rx_wall = -float("inf")  # host monotonic time of the newest fresh frame
+        self._stale_reads = 0
+        self._timeouts = 0
         try:
             self._ser = serial.serial_for_url(url, baudrate=baudrate, timeout=poll_s, write_timeout=timeout)
         except (serial.SerialException, OSError, ValueError) as exc:
@@ -178,16 +193,39 @@ class BotaSerial(ForceSensor):
         """Counters: frames, crc_errors, resync_bytes, gaps, missed_samples, stale, skipped."""
         return self.parser.stats
 
+    def counters(self) -> dict[str, int]:
+        """crc_errors, resync_bytes, dropped (samples missing from timestamp gaps), gaps,
+        repeated_frames (same timestamp again), skipped (superseded before a read), stale (reads
+        without new data), timeouts."""
+        st = self.parser.stats
+        return {"crc_errors": st["crc_errors"], "resync_bytes": st["resync_bytes"], "dropped": st["missed_samples"],
+                "gaps": st["gaps"], "repeated_frames": st["stale"], "skipped": st["skipped"],
+                "stale": self._stale_reads, "timeouts": self._timeouts}
+
     def _read_bytes(self, block: bool) -> bytes:
         if self._closed:
             raise DeviceDisconnected("BotaSerial is closed")
         try:
             n = self._ser.in_waiting
-            if n:
-                return self._ser.read(n)
-            return self._ser.read(1) if block else b""
+            data = self._ser.read(n) if n else (self._ser.read(1) if block else b"")
         except (serial.SerialException, OSError) as exc:
             raise DeviceDisconnected(f"{self.url}: port lost: {exc}") from exc
+        self.rx_bytes += len(data)
+        return data
+
+    def _pump(self, block: bool) -> None:
+        self._pending += self.parser.feed(self._read_bytes(block))
+
+    def wait_rx(self, total_bytes: int, timeout: float) -> bool:
+        """Receive (and decode, without consuming) until ``rx_bytes >= total_bytes`` or ``timeout``
+        (s) passes; True if reached. Lockstep barrier: ``total_bytes`` is what the simulated
+        sensor wrote (``SimBota.tx_bytes``)."""
+        deadline = time.monotonic() + timeout
+        while self.rx_bytes < total_bytes:
+            if time.monotonic() >= deadline:
+                return False
+            self._pump(block=True)
+        return True
 
     def _accept(self, frames: list[BotaFrame]) -> BotaFrame | None:
         """Newest fresh frame among ``frames`` (updates gap / stale counters)."""
@@ -223,23 +261,39 @@ class BotaSerial(ForceSensor):
             if self.on_crc_error == "raise":
                 raise ChecksumError(f"{self.url}: {new} frame(s) failed CRC-16/X-25")
 
-    def read(self, timeout: float = 0.1) -> WrenchSample:
-        """Newest fresh wrench (N, N.m) received; waits at most ``timeout`` for one."""
-        deadline = time.monotonic() + timeout
-        frame = self._accept(self.parser.feed(self._read_bytes(block=False)))
+    def _take(self) -> BotaFrame | None:
+        frames, self._pending = self._pending, []
+        frame = self._accept(frames)
         self._check_crc()
-        while frame is None:
-            if time.monotonic() >= deadline:
+        return frame
+
+    def read(self, timeout: float = 0.1) -> WrenchSample:
+        """Newest wrench (N, N.m) with a new device timestamp; see "Freshness" in the module
+        docstring for what a read without one returns."""
+        now = time.monotonic()
+        deadline = now + timeout
+        if self._last is not None:  # wait only until the newest data is `timeout` old
+            deadline = min(deadline, self._last_rx_wall + timeout)
+        self._pump(block=False)
+        frame = self._take()
+        while frame is None and time.monotonic() < deadline:
+            self._pump(block=True)
+            frame = self._take()
+        if frame is None:
+            if self._last is None:
+                self._timeouts += 1
                 raise DeviceTimeout(f"{self.url}: no fresh frame within {timeout:.3f} s")
-            frame = self._accept(self.parser.feed(self._read_bytes(block=True)))
-            self._check_crc()
+            self._stale_reads += 1
+            return repeat_sample(self._last, self.clock())
+        self._last_rx_wall = time.monotonic()
+        produced = self.clock()
         self.last_frame = frame
         if frame.status & self.fault_mask:
             raise DeviceFault(f"{self.url}: sensor status 0x{frame.status:04X}", code=frame.status)
         self._seq += 1
-        return WrenchSample(
-            t=self.clock(), seq=self._seq, wrench=np.asarray(frame.wrench) - self._offset, status=frame.status
-        )
+        self._last = WrenchSample(t=produced, seq=self._seq, wrench=np.asarray(frame.wrench) - self._offset,
+                                  status=frame.status, produced_at=produced)
+        return self._last
 
     def tare(self, timeout: float = 0.5) -> None:
         """Software tare: subtract the current reading from all later readings."""

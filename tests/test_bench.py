@@ -145,7 +145,8 @@ def test_human_force_reaches_the_master_sensor() -> None:
         # F_h = f_act - (m_h a + b_h v): positive, a bit below the active force
         f = bench.force(meas, "master1_ft")[0]
         assert 0.3 < f < 1.0
-        for _ in range(100):
+        for _ in range(100):  # zero commands feed the drives' watchdogs (armed from watchdog_ms)
+            bench.command({name: [0.0] for name in bench.actuators})
             bench.advance()
         meas = bench.read()
         assert meas["master1"].velocity[0] > 0.0

@@ -147,9 +147,10 @@ def test_watchdog_miss_on_device_disconnect(tmp_path):
 
     sc = _modified("mcet_trilateral", edit)
     seen: list = []
-    # the disconnected drive cannot hear the host's zero command: its own CAN watchdog (20 ticks)
-    # idles it; every other actuator is zeroed by the host at once
-    o = _run(sc, tmp_path, max_ticks=1000, factory=_capturing_factory(sc, seen, settle_ticks=25))[0]
+    # the disconnected drive cannot hear the host's zero command: its own watchdog, armed from the
+    # scene's watchdog_ms (50 ms = 50 ticks at 1 kHz), idles it; every other actuator is zeroed by
+    # the host at once
+    o = _run(sc, tmp_path, max_ticks=1000, factory=_capturing_factory(sc, seen, settle_ticks=55))[0]
     assert o.status == "safety_stop" and o.stop_reason.startswith("watchdog"), o.stop_reason
     assert seen and all(np.all(e == 0.0) for e in seen[0].values())
     assert 100 <= RunRecord.open(o.record).t.size <= 200

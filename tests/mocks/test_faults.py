@@ -118,3 +118,22 @@ def test_byte_stream_faults_order_and_counts():
     out = bad.bytes_to_send(frame, 1)
     diff = [i for i in range(10) if out[i] != frame[i]]
     assert len(diff) == 1 and diff[0] >= 2 and bad.stats["corrupted"] == 1
+
+
+def test_scheduled_stale_window_and_draws_unchanged():
+    from hil.mocks.faults import FaultInjector, FaultPlan
+
+    inj = FaultInjector(FaultPlan(stale_at_tick=3, stale_until_tick=5), seed=1)
+    assert [inj.should_repeat_stale(t) for t in range(7)] == [False, False, False, True, True, False, False]
+    assert inj.injected["stale"] == 2
+    forever = FaultInjector(FaultPlan(stale_at_tick=2), seed=1)
+    assert [forever.is_stale_scheduled(t) for t in (1, 2, 10**6)] == [False, True, True]
+
+
+def test_bounded_log_keeps_the_newest_entries():
+    from hil.mocks.faults import BoundedLog
+
+    log = BoundedLog(maxlen=3)
+    for k in range(10):
+        log.append(k)
+    assert log == [7, 8, 9] and log.total == 10

@@ -108,7 +108,7 @@ def rig():
 def test_torque_command_scaling_and_feedback(rig):
     j, node, dev = rig
     dev.command_effort(np.array([5.0]))
-    (_, c), = node.commands[-1:]
+    _, c = node.commands[-1]
     assert c.kp == 0 and c.kd == 0 and c.t_ff == pytest.approx(5.0, abs=36 / 4095)
     assert j.measured_force()[0] == pytest.approx(5.0, abs=36 / 4095)
     s = dev.read()  # the reply to the command
@@ -180,3 +180,21 @@ def test_lockstep_without_sync_uses_tick():
         dev.close()
     finally:
         node.close()
+
+
+def test_reply_arrival_dates_the_sample_and_counters():
+    ch = channel()
+    j = FreeJoints()
+    clock = {"t": 0.0}
+    with SimCubeMars(j, ch, motor_id=1, sync=True) as node, \
+            CubeMarsMIT(1, ch, "virtual", clock=lambda: clock["t"]) as dev:
+        clock["t"] = 1.0
+        dev.command_effort(np.array([0.5]))  # the reply is queued on the bus
+        clock["t"] = 2.0
+        s = dev.read()  # taken off the bus now: dated by its reception (at most one read late)
+        assert s.produced_at == 2.0 and s.t == 2.0 and s.age == 0.0 and s.seq == 1
+        clock["t"] = 3.0
+        s2 = dev.read()  # nothing new: re-sends the last command, a new reply at t = 3
+        assert s2.produced_at == 3.0 and s2.seq == 2
+        assert dev.counters() == {"error_frames": 0, "decode_errors": 0, "skipped": 0, "timeouts": 0}
+        assert node.commands_total >= 2

@@ -116,8 +116,39 @@ def test_cyclic_feedback_lockstep_without_sync():
         node.tick()
         s = dev.read()
         assert s.position[0] == pytest.approx(j.position()[0] * 1.0, rel=1e-6)
+        again = dev.read(timeout=0.01)  # no new cyclic frame since: the same data, not fresh
+        assert again.seq == s.seq and again.produced_at == s.produced_at
+        assert dev.counters()["stale"] == 1
+
+
+def test_cyclic_first_read_without_estimate_times_out():
+    ch = channel()
+    j = FreeJoints()
+    with SimODrive(j, ch, node_id=2, encoder_every=0) as node, ODriveCAN(2, ch, "virtual", feedback="cyclic") as dev:
+        node.tick()
         with pytest.raises(DeviceTimeout):
-            dev.read(timeout=0.01)  # no new cyclic frame since
+            dev.read(timeout=0.01)
+        assert dev.counters()["timeouts"] == 1
+
+
+def test_cyclic_produced_at_is_frame_arrival_and_stale_estimates_are_not_fresh():
+    """Lockstep clock k: produced_at is the clock when the estimate frame was taken off the bus;
+    while the drive is stale (no estimate frames, heartbeats go on) reads repeat the last sample."""
+    ch = channel()
+    j = FreeJoints()
+    clock = {"t": 0.0}
+    plan = FaultPlan(stale_at_tick=3, stale_until_tick=6)
+    with SimODrive(j, ch, node_id=2, encoder_every=1, heartbeat_every=1, sync=True, faults=plan) as node, \
+            ODriveCAN(2, ch, "virtual", feedback="cyclic", clock=lambda: clock["t"]) as dev:
+        seen = []
+        for k in range(1, 9):
+            node.tick()  # publishes the estimate of tick k (none at ticks 3, 4, 5)
+            clock["t"] = float(k)
+            s = dev.read(timeout=0.0)
+            seen.append((s.seq, s.produced_at))
+        assert seen == [(1, 1.0), (2, 2.0), (2, 2.0), (2, 2.0), (2, 2.0), (3, 6.0), (4, 7.0), (5, 8.0)]
+        assert node.frames_suppressed == 3 and dev.counters()["stale"] == 3
+        assert dev.axis_state == od.AxisState.CLOSED_LOOP_CONTROL  # heartbeats kept coming
 
 
 def test_free_running_thread():
@@ -206,7 +237,8 @@ def test_corrupt_frame_is_error_frame_and_timeout():
         node.tick()
         with pytest.raises(DeviceTimeout):
             dev.read(timeout=0.02)
-        assert dev.error_frames == 1
+        # the request is sent twice (one retry), both answers destroyed at tick 1
+        assert dev.error_frames == 2 and dev.counters()["retries"] == 1 and dev.counters()["timeouts"] == 1
 
 
 def test_late_answer_is_discarded_not_mistaken():

@@ -181,8 +181,9 @@ def _opened(plan: FaultPlan, ids=(1, 2)):
     return plant, chain, dx
 
 
-# open(): ping, read limit, read firmware, torque off, mode, zero goal, torque on = 7 packets per servo
-OPEN_TICKS = 14
+# open(): ping, read limit, read firmware, torque off, mode, Bus Watchdog off, zero goal, torque on
+# = 8 packets per servo
+OPEN_TICKS = 16
 
 
 def test_read_faults_surface_as_exceptions_and_recover() -> None:
@@ -250,3 +251,64 @@ def test_bad_port_raises() -> None:
 def test_invalid_ids() -> None:
     with pytest.raises(ValueError):
         DynamixelX("/dev/null", ids=[1, 1])
+
+
+# -- Bus Watchdog(98) and freshness -------------------------------------------------------------
+def test_bus_watchdog_units_round_up() -> None:
+    from hil.protocols.dynamixel_x import bus_watchdog_units
+
+    assert [bus_watchdog_units(s) for s in (0.001, 0.02, 0.021, 0.05, 0.1, 10.0)] == [1, 1, 2, 3, 5, 127]
+    with pytest.raises(ValueError):
+        bus_watchdog_units(0.0)
+
+
+def test_bus_watchdog_armed_on_open_stops_the_servo_when_the_host_goes_silent() -> None:
+    """Simulated clock: the host talks every 1 ms for 10 ms, then is silent; the 40 ms Bus Watchdog
+    (2 units) stops the servo at the first check more than 40 ms after the last packet, and the
+    adapter reports it as a DeviceFault on its next check."""
+    from hil.mocks.dynamixel_devices import ADDR_BUS_WATCHDOG
+
+    clock = {"t": 0.0}
+    plant = FreeJoints(dof=1)
+    with DynamixelChain(plant, ids=[1], clock=lambda: clock["t"]) as chain, \
+            DynamixelX(chain.port, ids=[1], bus_watchdog_s=0.04, watchdog_check_every=1,
+                       clock=lambda: clock["t"]) as dx:
+        assert chain.servos[1].table[ADDR_BUS_WATCHDOG] == 2
+        for k in range(10):
+            clock["t"] = k * 0.001
+            dx.command_effort(np.array([0.2]))
+            s = dx.read()
+            assert s.produced_at == s.t == k * 0.001 and s.seq == k + 1
+        assert chain.effort()[0] != 0.0
+        last = clock["t"]
+        expired_at = None
+        for k in range(1, 100):  # the host is silent; the bench would call check_watchdog per tick
+            clock["t"] = last + k * 0.001
+            if chain.check_watchdog():
+                expired_at = clock["t"]
+                break
+        assert expired_at == pytest.approx(last + 0.041)  # first tick with silence > 40 ms
+        assert chain.effort()[0] == 0.0 and plant.measured_force()[0] == 0.0
+        assert chain.servos[1].table[ADDR_BUS_WATCHDOG] == 0xFF
+        with pytest.raises(DeviceFault) as ei:
+            dx.read()
+        assert ei.value.code == 0x200 and dx.counters()["bus_watchdog_errors"] == 1
+        # goal values are refused until 98 is cleared (a new open clears it)
+        dx.command_effort(np.array([0.3]))
+        chain.sync(dx.tx_bytes)
+        assert chain.servos[1].get(ADDR_GOAL_CURRENT, 2, signed=True) == 0
+
+
+def test_bus_watchdog_kept_fed_by_a_running_host() -> None:
+    clock = {"t": 0.0}
+    plant = FreeJoints(dof=1)
+    with DynamixelChain(plant, ids=[1], clock=lambda: clock["t"]) as chain, \
+            DynamixelX(chain.port, ids=[1], bus_watchdog_s=0.02, watchdog_check_every=10,
+                       clock=lambda: clock["t"]) as dx:
+        for k in range(200):
+            clock["t"] = k * 0.005
+            dx.command_effort(np.array([0.1]))
+            dx.read()
+            assert chain.check_watchdog() == []
+        assert chain.watchdog_expired == 0 and dx.counters() == {"crc_errors": 0, "timeouts": 0,
+                                                                 "bus_watchdog_errors": 0}

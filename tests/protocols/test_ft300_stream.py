@@ -188,6 +188,15 @@ def test_garbage_fault_every_frame():
             dev.close()
 
 
+def _lockstep_read(dev: RobotiqFT300Stream, sim: SimFT300Stream):
+    """Wait for every byte the sensor wrote (a byte-count barrier), then read without waiting:
+    the new wrench[0], or None when the read found no new frame (a stale sample)."""
+    assert dev.wait_rx(sim.tx_bytes, timeout=30.0)
+    before = dev._seq
+    s = dev.read(timeout=0.0)
+    return s.wrench[0] if s.seq > before else None
+
+
 def test_crc_failures_are_counted_gaps():
     box = Box()
     with SimFT300Stream(box, faults=FaultPlan(corrupt_ticks=frozenset({2, 4})), seed=2) as sim:
@@ -197,12 +206,10 @@ def test_crc_failures_are_counted_gaps():
             for k in range(1, 6):
                 box.w = np.array([k, 0, 0, 0, 0, 0], dtype=float)
                 sim.emit()
-                try:
-                    got.append(dev.read(timeout=0.2).wrench[0])
-                except DeviceTimeout:
-                    got.append(None)
+                got.append(_lockstep_read(dev, sim))
             assert got == [1.0, None, 3.0, None, 5.0]
             assert dev.stats["crc_errors"] == 2 and dev.stats["gaps"] == 2 and dev.stats["frames"] == 3
+            assert dev.counters()["crc_errors"] == 2 and dev.counters()["stale"] == 2
         finally:
             dev.close()
 
@@ -228,9 +235,12 @@ def test_dropped_frame_and_silence_time_out_promptly(rig):
         dev.read(timeout=0.05)
     assert time.monotonic() - t0 < 0.3
     sim.emit()
-    dev.read()
-    with pytest.raises(DeviceTimeout):
-        dev.read(timeout=0.02)  # no new frame: no stale repeat by default
+    first = dev.read()
+    t0 = time.monotonic()
+    again = dev.read(timeout=0.02)  # no new frame: the previous data, not fresh
+    assert time.monotonic() - t0 < 0.3
+    assert again.seq == first.seq and again.produced_at == first.produced_at
+    assert dev.counters() == {"crc_errors": 0, "resync_bytes": 0, "skipped": 0, "stale": 1, "timeouts": 1}
 
 
 def test_max_age_returns_previous_sample():
@@ -241,7 +251,7 @@ def test_max_age_returns_previous_sample():
             sim.emit()
             a = dev.read()
             b = dev.read(timeout=0.0)
-            assert b is a and b.seq == 1
+            assert b.seq == a.seq == 1 and b.produced_at == a.produced_at
         finally:
             dev.close()
 
@@ -353,9 +363,9 @@ def test_determinism_with_faults():
                     box.w = np.array([k, -k, 0.5 * k, 0.01 * k, 0, -0.01 * k], dtype=float)
                     sim.emit()
                     try:
-                        out.append(dev.read(timeout=0.1).wrench.tolist())
-                    except DeviceTimeout:
-                        out.append(None)
+                        out.append(_lockstep_read(dev, sim))
+                    except DeviceTimeout:  # no frame at all yet
+                        out.append("timeout")
                 return out, dict(dev.stats)
             finally:
                 dev.close()

@@ -17,12 +17,13 @@ from hil.errors import (
     DeviceTimeout,
     ProtocolError,
 )
-from hil.mocks.faults import FaultPlan
+from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import FreeJoints
-from hil.mocks.modbus_devices import SimulatedFT300
+from hil.mocks.modbus_devices import SimulatedFT300, wrench_to_registers
 from hil.protocols.base import ForceSensor
 from hil.protocols.modbus_robotiq import (
     STREAM_FRAME_LEN,
+    GatewayError,
     ModbusEndpoint,
     RobotiqFT300,
     StreamParser,
@@ -33,7 +34,7 @@ from hil.protocols.modbus_robotiq import (
     registers_to_wrench,
 )
 
-pytestmark = pytest.mark.timeout(20)
+pytestmark = pytest.mark.timeout(60)
 
 # Manual scaling: Fx,Fy,Fz = register / 100 N; Mx,My,Mz = register / 1000 N.m (signed 16 bit).
 SCALING = [
@@ -192,11 +193,80 @@ def test_dropped_reply_raises_timeout_quickly(framing: str) -> None:
 def test_corrupted_rtu_reply_raises_checksum_error() -> None:
     with (
         SimulatedFT300(framing="rtu", faults=FaultPlan(corrupt_ticks=[0])) as sim,
-        RobotiqFT300(sim.url, read_info=False, timeout=0.1) as ft,
+        RobotiqFT300(sim.url, read_info=False, timeout=0.1, retries=0) as ft,
     ):
         with pytest.raises(ChecksumError):
             ft.read()
         ft.read()
+        assert ft.counters()["crc_errors"] == 1
+
+
+def test_corrupted_rtu_reply_is_asked_again_and_counted() -> None:
+    plant = FreeJoints(dof=1)
+    plant.apply_effort(np.array([12.5]))
+    with (
+        SimulatedFT300(plant, framing="rtu", faults=FaultPlan(corrupt_ticks=[0])) as sim,
+        RobotiqFT300(sim.url, read_info=False, timeout=0.1) as ft,
+    ):
+        s = ft.read()
+        assert s.wrench[0] == pytest.approx(12.5) and s.seq == 1
+        assert ft.counters()["crc_errors"] == 1 and ft.counters()["retries"] == 1 and sim.requests == 2
+
+
+def test_tcp_gateway_exception_is_a_missed_reply_not_data() -> None:
+    """Modbus/TCP: a reply damaged on the gateway's serial side comes back as exception 11."""
+    plant = FreeJoints(dof=1)
+    plant.apply_effort(np.array([7.0]))
+    with (
+        SimulatedFT300(plant, framing="tcp", faults=FaultPlan(corrupt_ticks=[1, 2])) as sim,
+        RobotiqFT300(sim.url, read_info=False, timeout=0.1) as ft,
+    ):
+        ft.read()
+        with pytest.raises(GatewayError):
+            ft.read()  # ticks 1 and 2 (the retry) both damaged
+        assert ft.read().wrench[0] == pytest.approx(7.0)
+        assert ft.counters()["gateway_errors"] == 2 and ft.counters()["retries"] == 1
+        assert sim.corrupted_replies == 2
+
+
+def _damaged_reply(seed: int, reply: bytes) -> bytes:
+    """The bytes the simulator sends for ``reply`` when it damages it (same seeded stream)."""
+    inj = FaultInjector(FaultPlan(corrupt_ticks=[1]), seed)
+    return inj.corrupt(reply, start=7)
+
+
+def test_tcp_payload_damage_never_returned_as_data_unless_undetectable() -> None:
+    """A faulty gateway flips one byte of the PDU: a damaged function code or byte count, or a
+    value outside the rated range, raises ProtocolError; only an in-range value damage (no CRC on
+    Modbus/TCP) can pass, and then the adapter returns exactly the damaged value."""
+    truth = np.array([10.0, -5.0, 2.0, 0.1, 0.2, 0.3])
+    regs = wrench_to_registers(truth)
+    pdu = bytes([9, 3, 12]) + b"".join(int(r).to_bytes(2, "big") for r in regs)
+    seen = {"fc_or_count": 0, "range": 0, "passed": 0}
+    for seed in range(30):
+        reply = b"\x00\x02\x00\x00\x00\x0f" + pdu  # MBAP of the 2nd request + unit, fc, count, data
+        bad = _damaged_reply(seed, reply)
+        i = next(k for k in range(len(reply)) if bad[k] != reply[k])
+        damaged = registers_to_wrench([int.from_bytes(bad[9 + 2 * k: 11 + 2 * k], "big") for k in range(6)])
+        with (
+            SimulatedFT300(lambda: truth, framing="tcp", faults=FaultPlan(corrupt_ticks=[1]), seed=seed,
+                           tcp_corrupt="payload") as sim,
+            RobotiqFT300(sim.url, read_info=False, timeout=0.2, retries=0) as ft,
+        ):
+            ft.read()
+            if i in (7, 8):
+                with pytest.raises(ProtocolError):
+                    ft.read()
+                seen["fc_or_count"] += 1
+            elif np.any(np.abs(damaged[:3]) > 300) or np.any(np.abs(damaged[3:]) > 30):
+                with pytest.raises(ProtocolError):
+                    ft.read()
+                assert ft.counters()["out_of_range"] == 1
+                seen["range"] += 1
+            else:
+                np.testing.assert_allclose(ft.read().wrench, damaged)
+                seen["passed"] += 1
+    assert seen["fc_or_count"] > 0 and seen["passed"] > 0
 
 
 def test_device_error_raises_device_fault(framing: str) -> None:

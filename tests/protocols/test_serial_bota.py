@@ -58,16 +58,29 @@ def test_wrench_decodes(rig):
     s = dev.read()
     np.testing.assert_allclose(s.wrench, [0, 0, 4.25, 0, 0, 0])
     assert s.seq == 1 and s.status == 0
-    with pytest.raises(DeviceTimeout):
-        dev.read(timeout=0.01)  # nothing new: no hang
+    again = dev.read(timeout=0.01)  # nothing new: no hang, the previous data with its seq and date
+    assert again.seq == 1 and again.produced_at == s.produced_at
+    np.testing.assert_array_equal(again.wrench, s.wrench)
+    assert dev.counters()["stale"] == 1
 
 
-def _outcome(dev: BotaSerial) -> str:
+def test_first_read_without_any_frame_times_out():
+    j = FreeJoints()
+    with SimBota(j) as sim, BotaSerial(sim.path) as dev:
+        with pytest.raises(DeviceTimeout):
+            dev.read(timeout=0.01)
+        assert dev.counters()["timeouts"] == 1
+
+
+def _outcome(dev: BotaSerial, sim: SimBota) -> str:
+    """One lockstep read: wait for every byte the sensor wrote, then "ok" (new data) or "stale"."""
+    assert dev.wait_rx(sim.tx_bytes, timeout=10.0)
+    before = dev._seq
     try:
-        dev.read(timeout=0.01)
-        return "ok"
+        s = dev.read(timeout=0.0)
     except DeviceTimeout:
         return "timeout"
+    return "ok" if s.seq > before else "stale"
 
 
 def test_drop_records_gap():
@@ -76,9 +89,10 @@ def test_drop_records_gap():
         got = []
         for _ in range(6):
             sim.emit()
-            got.append(_outcome(dev))
-        assert got == ["ok", "ok", "timeout", "timeout", "ok", "ok"]
+            got.append(_outcome(dev, sim))
+        assert got == ["ok", "ok", "stale", "stale", "ok", "ok"]
         assert dev.stats["gaps"] == 1 and dev.stats["missed_samples"] == 2
+        assert dev.counters()["dropped"] == 2 and dev.counters()["stale"] == 2
 
 
 def test_corrupt_counts_crc_and_raise_mode():
@@ -88,14 +102,16 @@ def test_corrupt_counts_crc_and_raise_mode():
     ) as dev:
         for _ in range(3):
             sim.emit()
-            _outcome(dev)
+            _outcome(dev, sim)
         assert dev.stats["crc_errors"] >= 1 and dev.stats["gaps"] == 1
+        assert dev.counters()["crc_errors"] == dev.stats["crc_errors"]
     with SimBota(j, faults=FaultPlan(corrupt_ticks=frozenset({2}))) as sim, BotaSerial(
         sim.path, on_crc_error="raise"
     ) as dev:
         sim.emit()
         dev.read()
         sim.emit()
+        assert dev.wait_rx(sim.tx_bytes, timeout=10.0)
         with pytest.raises(ChecksumError):
             dev.read(timeout=0.01)
 
@@ -112,13 +128,29 @@ def test_garbage_resync():
 
 def test_stale_is_not_fresh():
     j = FreeJoints()
-    with SimBota(j, faults=FaultPlan(stale_prob=1.0)) as sim, BotaSerial(sim.path) as dev:
+    with SimBota(j, faults=FaultPlan(stale_prob=1.0)) as sim, BotaSerial(sim.path, clock=lambda: len(ts)) as dev:
+        ts: list = []
         sim.emit()
-        dev.read()
-        sim.emit()  # repeats the previous frame
-        with pytest.raises(DeviceTimeout):
-            dev.read(timeout=0.01)
-        assert dev.stats["stale"] == 1
+        first = dev.read()
+        ts.append(1)
+        j.apply_effort(np.array([3.0]))
+        sim.emit()  # repeats the previous frame (same timestamp, same values)
+        assert dev.wait_rx(sim.tx_bytes, timeout=10.0)
+        s = dev.read(timeout=0.0)
+        assert s.seq == first.seq and s.produced_at == first.produced_at == 0 and s.t == 1 and s.age == 1
+        assert dev.stats["stale"] == 1 and dev.counters()["repeated_frames"] == 1
+
+
+def test_scheduled_stale_freezes_the_timestamp():
+    j = FreeJoints()
+    plan = FaultPlan(stale_at_tick=3, stale_until_tick=5)
+    with SimBota(j, faults=plan) as sim, BotaSerial(sim.path, period_s=0.001) as dev:
+        got = []
+        for _ in range(6):
+            sim.emit()
+            got.append(_outcome(dev, sim))
+        assert got == ["ok", "ok", "stale", "stale", "ok", "ok"]
+        assert dev.counters()["repeated_frames"] == 2 and dev.counters()["dropped"] == 2
 
 
 def test_status_fault():
@@ -143,8 +175,8 @@ def test_disconnect_then_reconnect_and_hangup():
         got = []
         for _ in range(3):
             sim.emit()
-            got.append(_outcome(dev))
-        assert got == ["ok", "timeout", "ok"]
+            got.append(_outcome(dev, sim))
+        assert got == ["ok", "stale", "ok"]
         sim.hangup()
         with pytest.raises(DeviceDisconnected):
             dev.read(timeout=0.05)
@@ -163,18 +195,25 @@ def test_free_running_stream():
 
 
 def _run(seed: int) -> list:
+    """A lockstep read sequence: after each frame the reader waits for every byte the sensor wrote
+    (a byte-count barrier, not a wall-clock timeout), then reads without waiting. What it sees is
+    then a function of the seed only, whatever the machine's load."""
     j = FreeJoints()
-    plan = FaultPlan(drop_prob=0.2, corrupt_prob=0.1, garbage_prob=0.2, stale_prob=0.1)
-    out = []
-    with SimBota(j, faults=plan, seed=seed) as sim, BotaSerial(sim.path, clock=lambda: 0.0) as dev:
-        for k in range(30):
+    plan = FaultPlan(drop_prob=0.2, corrupt_prob=0.1, garbage_prob=0.2, stale_prob=0.1, late_prob=0.1)
+    out: list = []
+    k = 0
+    with SimBota(j, faults=plan, seed=seed) as sim, BotaSerial(sim.path, clock=lambda: float(k)) as dev:
+        for k in range(60):  # the adapter clock reads k: produced_at = the tick of arrival
             j.apply_effort(np.array([float(k)]))
             sim.emit()
+            assert dev.wait_rx(sim.tx_bytes, timeout=30.0)
             try:
-                out.append(dev.read(timeout=0.005).wrench[2])
+                s = dev.read(timeout=0.0)
+                out.append((s.seq, s.produced_at, float(s.wrench[2])))
             except DeviceTimeout:
                 out.append(None)
         out.append(dict(dev.stats))
+        out.append(dev.counters())
     return out
 
 
@@ -182,6 +221,7 @@ def test_lockstep_determinism():
     a, b, c = _run(3), _run(3), _run(4)
     assert a == b
     assert a != c
+    assert any(x is not None and x[0] < i for i, x in enumerate(a[:60]))  # some reads were stale
 
 
 def test_open_missing_port():
