@@ -203,12 +203,16 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
 def _cmd_run(args: argparse.Namespace) -> int:
     import datetime as dt
 
+    from hil.protocols.registry import extras_message
     from hil.runner import Runner
-    from hil.scene import load_scene
+    from hil.scene import check_seed, load_scene
 
     scene = load_scene(args.scene)
     if args.seed is not None:
-        scene.seed = args.seed
+        scene.seed = check_seed(args.seed)
+    if need := extras_message(scene):  # a base install: say which extra, before anything is on disk
+        print(f"hil run {args.scene}: {need}", file=sys.stderr)
+        return EXIT_USAGE
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
     out = args.out or f"runs/{scene.name}-{stamp}"
     select = None
@@ -305,11 +309,15 @@ def _cmd_certify(args: argparse.Namespace) -> int:
     import datetime as dt
 
     from hil.pipeline import certify_scene
-    from hil.scene import load_scene
+    from hil.protocols.registry import extras_message
+    from hil.scene import check_seed, load_scene
 
     scene = load_scene(args.scene or "sdea_bench")
     if args.seed is not None:
-        scene.seed = args.seed
+        scene.seed = check_seed(args.seed)
+    if need := extras_message(None if args.no_experiments else scene, report=True):  # before any folder
+        print(f"hil certify {args.scene or 'sdea_bench'}: {need}", file=sys.stderr)
+        return EXIT_USAGE
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
     out = Path(args.out or f"reports/{scene.name}-{stamp}")
 
@@ -347,6 +355,11 @@ def _cmd_certify(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
+    from hil.protocols.registry import extras_message
+
+    if need := extras_message(report=True):
+        print(f"hil report {args.path}: {need}", file=sys.stderr)
+        return EXIT_USAGE
     from hil.report import report_main
 
     return int(report_main([args.path] + (["--out", args.out] if args.out else [])) or 0)
