@@ -9,6 +9,13 @@ its single source of truth (pydantic models, ``extra="forbid"`` everywhere).
 * :func:`builtin_scenes` lists ``(name, description)`` of the built-in scenes.
 * Every mistake raises :class:`hil.errors.SceneError` with ONE line ``file: field.path: message``
   (e.g. ``sdea.yaml: devices[0].driver: unknown driver 'odrive_cna' (did you mean 'odrive_can'?)``).
+* The whole scene is checked at load time, before any device moves: YAML without duplicate keys
+  (:func:`parse_yaml`, any depth, with line numbers), unknown keys (``unknown key 'drivr', did you
+  mean 'driver'?``), cross-references, seeds in [0, 2**32-1], every experiment and the controller
+  built as the runner builds them, and the ``certification`` section (network model and its
+  parameters, criterion for that network, identify entries and both sides of their ``map``,
+  uncertain parameters, design range, policy) -- see :func:`_check_certification`.
+* :func:`check_seed` validates a seed given outside a file (``--seed``).
 
 Units are SI and never written in numeric fields: ``max_effort: 5.0`` (N or N.m, per
 ``units``), not ``"5 Nm"``. Matrices are lists of rows; where a gain or parameter matrix is
@@ -58,14 +65,19 @@ from hil.errors import SceneError
 __all__ = [
     "ChirpExperiment",
     "Device",
+    "DuplicateKeyError",
     "EnergyInjectionExperiment",
     "MultisineExperiment",
     "Scene",
     "Simulation",
     "StaticHoldExperiment",
     "builtin_scenes",
+    "check_seed",
     "load_scene",
+    "parse_yaml",
     "scene_from_dict",
+    "unique_key_loader",
+    "unknown_key_message",
 ]
 
 logger = logging.getLogger(__name__)
