@@ -1275,6 +1275,12 @@ def _identification_names(sc: Scene, path: str, spec: IdentifyCfg, exp: Any) -> 
         if n != 1:
             raise _Where(f"{path}.model", f"{key} identifies a 1-DOF SDEA; experiment {spec.experiment!r} "
                                           f"excites {n} DOF")
+        if key == "sdea_locked" and not sc.force_sensors:
+            # the locked-output velocity alone carries B + B_f only: identification would refuse
+            # after the runs (hil.identify's identifiability check)
+            raise _Where(f"{path}.model", "sdea_locked needs the spring force: with only the motor velocity, "
+                                          "B and B_f are inseparable; add a force sensor on the target's body "
+                                          "or network port, or identify sdea_free from a free-output chirp")
         names = sdea + (["m_h"] if key == "sdea_free" else [])
         return key, names, names
     sampled, available = mbk(n)

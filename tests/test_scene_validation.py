@@ -50,6 +50,13 @@ def _default_names_clash(d: dict[str, Any]) -> None:
     _cert(d)["identify"][0]["experiment"] = "chirp_2"
 
 
+def _drop_force_sensor(d: dict[str, Any]) -> None:
+    """The SDEA bench without its spring-torque sensor (and the VSIC that needs it)."""
+    d["devices"] = d["devices"][:1]
+    d["network"]["ports"][0].pop("force_sensor")
+    d["controller"] = {"type": "none"}
+
+
 Mutation = Callable[[dict[str, Any]], None]
 
 # (id, base scene, mutation, field path expected in the message, message fragment)
@@ -130,6 +137,8 @@ CASES: list[tuple[str, str, Mutation, str, str]] = [
      "certification.parameters.gains", "unknown gain set 'Z'"),
     ("network that cannot be built", "sdea_bench", lambda d: _cert(d).update(parameters={"k22": 0.0, "b22": 0.0}),
      "certification", "needs k22 > 0 or b22 > 0"),
+    ("locked SDEA without a force sensor", "sdea_bench", lambda d: _drop_force_sensor(d),
+     "certification.identify[0].model", "B and B_f are inseparable"),
     ("sdea model on a 2-DOF excitation", "mbk_2dof_bench", lambda d: _cert(d)["identify"][0].update(model="sdea"),
      "certification.identify[0].model", "excites 2 DOF"),
 ]
