@@ -281,14 +281,16 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    from hil.protocols.registry import extras_message
     from hil.runner import Runner
-    from hil.scene import load_scene
+    from hil.scene import check_seed, load_scene
 
     scene = load_scene(args.scene)
     if args.seed is not None:
-        if args.seed < 0:
-            raise UsageError(f"--seed {args.seed}: the seed must be a non-negative integer")
-        scene.seed = args.seed
+        scene.seed = check_seed(args.seed)
+    if need := extras_message(scene):  # a base install: say which extra, before anything is on disk
+        print(f"hil run {args.scene}: {need}", file=sys.stderr)
+        return EXIT_USAGE
     select = None
     if args.experiment:
         select = []
@@ -440,13 +442,15 @@ DECISION_EXIT = {"GO": EXIT_OK, "MARGINAL": EXIT_MARGINAL, "NO-GO": EXIT_UNSTABL
 
 def _cmd_certify(args: argparse.Namespace) -> int:
     from hil.pipeline import certify_scene
-    from hil.scene import load_scene
+    from hil.protocols.registry import extras_message
+    from hil.scene import check_seed, load_scene
 
     scene = load_scene(args.scene or "sdea_bench")
     if args.seed is not None:
-        if args.seed < 0:
-            raise UsageError(f"--seed {args.seed}: the seed must be a non-negative integer")
-        scene.seed = args.seed
+        scene.seed = check_seed(args.seed)
+    if need := extras_message(None if args.no_experiments else scene, report=True):  # before any folder
+        print(f"hil certify {args.scene or 'sdea_bench'}: {need}", file=sys.stderr)
+        return EXIT_USAGE
     out = _out_dir(args.out, f"reports/{scene.name}", args.overwrite)
 
     beat = _Progress(f"hil certify {scene.name}", enabled=not sys.stderr.isatty())  # stage lines on a terminal
@@ -497,6 +501,11 @@ def _short_value(v: Any) -> str:
 
 def _cmd_report(args: argparse.Namespace) -> int:
     from hil.outdir import check_out_dir
+    from hil.protocols.registry import extras_message
+
+    if need := extras_message(report=True):
+        print(f"hil report {args.path}: {need}", file=sys.stderr)
+        return EXIT_USAGE
     from hil.report import report_main
 
     if args.out:  # another folder than the certificate's must be new or empty (or --overwrite)

@@ -57,7 +57,7 @@ from hil.certificate import (
     Witness,
 )
 from hil.certify import Decision, Policy, decide, max_safe_parameter, probability_of_stability, worst_case_margin
-from hil.errors import HilError, SceneError
+from hil.errors import HilError
 
 log = logging.getLogger(__name__)
 
@@ -240,15 +240,8 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
 
         return _T()
 
-    from hil.models import get_model
-
-    try:
-        get_model(cert.model)
-    except KeyError:
-        from hil.models import model_names
-
-        raise SceneError(f"{scene.name}: certification.model: unknown model {cert.model!r}; known: "
-                         f"{', '.join(model_names())}") from None
+    # the scene's names and ranges (model, parameters, identify entries, design) were checked by
+    # hil.scene at load time
     params = model_params_from_scene(scene)
     criterion = _criterion(cert.model, cert.criterion)
 

@@ -9,6 +9,13 @@ its single source of truth (pydantic models, ``extra="forbid"`` everywhere).
 * :func:`builtin_scenes` lists ``(name, description)`` of the built-in scenes.
 * Every mistake raises :class:`hil.errors.SceneError` with ONE line ``file: field.path: message``
   (e.g. ``sdea.yaml: devices[0].driver: unknown driver 'odrive_cna' (did you mean 'odrive_can'?)``).
+* The whole scene is checked at load time, before any device moves: YAML without duplicate keys
+  (:func:`parse_yaml`, any depth, with line numbers), unknown keys (``unknown key 'drivr', did you
+  mean 'driver'?``), cross-references, seeds in [0, 2**32-1], every experiment and the controller
+  built as the runner builds them, and the ``certification`` section (network model and its
+  parameters, criterion for that network, identify entries and both sides of their ``map``,
+  uncertain parameters, design range, policy) -- see :func:`_check_certification`.
+* :func:`check_seed` validates a seed given outside a file (``--seed``).
 
 Units are SI and never written in numeric fields: ``max_effort: 5.0`` (N or N.m, per
 ``units``), not ``"5 Nm"``. Matrices are lists of rows; where a gain or parameter matrix is
@@ -58,14 +65,19 @@ from hil.errors import SceneError
 __all__ = [
     "ChirpExperiment",
     "Device",
+    "DuplicateKeyError",
     "EnergyInjectionExperiment",
     "MultisineExperiment",
     "Scene",
     "Simulation",
     "StaticHoldExperiment",
     "builtin_scenes",
+    "check_seed",
     "load_scene",
+    "parse_yaml",
     "scene_from_dict",
+    "unique_key_loader",
+    "unknown_key_message",
 ]
 
 logger = logging.getLogger(__name__)
@@ -196,11 +208,42 @@ class _Strict(BaseModel):
             known = set(cls.model_fields) | {f.alias for f in cls.model_fields.values() if f.alias}
             for key in data:
                 if key not in known:
-                    close = difflib.get_close_matches(str(key), sorted(known), n=1, cutoff=0.6)
-                    hint = (f" (did you mean {close[0]!r}?)" if close
-                            else f"; expected one of: {', '.join(sorted(known))}")
-                    raise PydanticCustomError("unknown_key", "unknown key{hint}", {"key": str(key), "hint": hint})
+                    raise PydanticCustomError("unknown_key", "{msg}",
+                                              {"key": str(key), "msg": unknown_key_message(key, known)})
         return data
+
+
+def unknown_key_message(key: Any, known: Any) -> str:
+    """``unknown key 'matrx', did you mean 'matrix'?`` (or the list of known keys when none is
+    close): the one message for a mistyped key, shared by every strict mapping."""
+    names = sorted(str(k) for k in known)
+    close = difflib.get_close_matches(str(key), names, n=1, cutoff=0.6)
+    if close:
+        return f"unknown key {str(key)!r}, did you mean {close[0]!r}?"
+    return f"unknown key {str(key)!r}; expected one of: {', '.join(names)}"
+
+
+SEED_MAX = 2**32 - 1
+
+
+def _seed(value: Any) -> Any:
+    if isinstance(value, bool):
+        raise PydanticCustomError("seed", "expected an integer seed in [0, 2**32-1], got {got}", {"got": repr(value)})
+    if isinstance(value, int) and not 0 <= value <= SEED_MAX:
+        raise PydanticCustomError("seed", "expected an integer seed in [0, 2**32-1], got {got}", {"got": value})
+    return value
+
+
+#: a random seed: an integer in [0, 2**32 - 1] (what numpy's generators and the mocks accept)
+Seed = Annotated[int, BeforeValidator(_seed), Field(ge=0, le=SEED_MAX)]
+
+
+def check_seed(value: Any, what: str = "--seed") -> int:
+    """``value`` as a seed, or :class:`SceneError` ``what: expected an integer seed in [0, 2**32-1]``
+    (for seeds given outside a scene file, e.g. ``hil run --seed``)."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= SEED_MAX:
+        raise SceneError(f"{what}: expected an integer seed in [0, 2**32-1], got {value!r}")
+    return int(value)
 
 
 Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", max_length=64)]
@@ -224,7 +267,7 @@ class DeviceSim(_Strict):
     over TCP.
     """
 
-    seed: int | None = None
+    seed: Seed | None = None
     faults: dict[str, Any] | None = None
     noise_std: Annotated[float, BeforeValidator(lambda v: _number(v, "N, N.m, m or rad")), Field(ge=0)] = 0.0
     measure: Literal["auto", "body", "human"] = "auto"
@@ -664,7 +707,7 @@ class MultisineExperiment(_ExpBase):
     dofs: DofList | None = None
     simultaneous: bool = True
     periods: int = Field(default=1, ge=1)
-    seed: int | None = None
+    seed: Seed | None = None
     variant: Literal["locked", "free"] | None = None
 
     @model_validator(mode="after")
@@ -685,7 +728,7 @@ class ForceProfileCfg(_Strict):
     freq: Annotated[float, BeforeValidator(lambda v: _number(v, "Hz")), Field(ge=0)] = 1.0
     phase: Annotated[float, BeforeValidator(lambda v: _number(v, "rad"))] = 0.0
     direction: list[Number] | None = None
-    seed: int | None = None
+    seed: Seed | None = None
 
 
 def _auto_or_joules(value: Any) -> Any:
@@ -739,9 +782,16 @@ Experiment = Annotated[
 # ---------------------------------------------------------------------------------------------
 
 
+#: identification models of :mod:`hil.identify.models` (``sdea`` is an alias of ``sdea_locked``)
+IDENTIFICATION_MODELS = ("sdea_locked", "sdea_free", "mbk")
+
+
 class IdentifyCfg(_Strict):
-    """Identify plant parameters from an experiment's record: ``map`` renames identified
-    parameters to the network model's (e.g. ``{M: M, B: B, K_f: K_f, B_f: B_f}``)."""
+    """Identify plant parameters from an experiment's record: ``experiment`` names a chirp or
+    multisine of ``experiments``; ``model`` one of :data:`IDENTIFICATION_MODELS` (default: inferred
+    as ``hil identify`` does); ``map`` renames identified parameters to the network model's (e.g.
+    ``{M: M, B: B, K_f: K_f, B_f: B_f}``; empty: every identified parameter under its own name).
+    Checked at load time against both models (see :func:`_check_certification`)."""
 
     experiment: Name
     model: str | None = None
@@ -749,24 +799,36 @@ class IdentifyCfg(_Strict):
 
 
 class UncertainCfg(_Strict):
-    """A parameter known only to a relative standard deviation (log-normal around ``value``)."""
+    """A parameter known only to a relative standard deviation (log-normal around ``value`` > 0)."""
 
-    value: float
-    rel_std: Annotated[float, Field(ge=0, le=1)] = 0.05
+    value: Annotated[float, BeforeValidator(lambda v: _number(v, "")), Field(gt=0)]
+    rel_std: Annotated[float, BeforeValidator(lambda v: _number(v, "")), Field(ge=0, le=1)] = 0.05
 
 
 class DesignCfg(_Strict):
-    """A free design parameter of the model and the range to search (largest value that keeps the
-    required probability of stability)."""
+    """A free design parameter of the model and the range ``[low, high]`` to search (largest value
+    that keeps the required probability of stability), finite with low < high."""
 
     parameter: str
-    range: tuple[float, float]
+    range: tuple[Number, Number]
+
+    @field_validator("range")
+    @classmethod
+    def _ordered(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not v[0] < v[1]:
+            raise PydanticCustomError("range", "expected [low, high] with low < high, got {v}", {"v": list(v)})
+        return v
+
+
+Probability = _num_type("(0, 1)", gt=0, lt=1)
 
 
 class PolicyCfg(_Strict):
-    required_probability: Annotated[float, Field(gt=0, lt=1)] = 0.95
-    confidence: Annotated[float, Field(gt=0, lt=1)] = 0.95
-    credible: Annotated[float, Field(gt=0, lt=1)] = 0.90
+    """The verdict policy (:class:`hil.certify.Policy`): probabilities strictly inside (0, 1)."""
+
+    required_probability: Probability = 0.95
+    confidence: Probability = 0.95
+    credible: Probability = 0.90
 
 
 class CertificationCfg(_Strict):
@@ -795,7 +857,7 @@ class Scene(_Strict):
 
     name: Name
     description: str = ""
-    seed: int = 0
+    seed: Seed = 0
     rate_hz: Annotated[float, BeforeValidator(lambda v: _number(v, "Hz")), Field(gt=0, le=100_000)] = 1000.0
     mode: Literal["lockstep", "realtime"] | None = None
     units: Literal["rotary", "linear"] = "linear"
@@ -1017,6 +1079,12 @@ def _cross_check(sc: Scene) -> None:
         if c.k22 == 0 and c.b22 == 0:
             raise _Where("controller.k22", "the virtual coupler needs k22 > 0 or b22 > 0")
     # experiments
+    exp_names: dict[str, int] = {}
+    for i, cfg in enumerate(sc.experiment_configs()):
+        if cfg["name"] in exp_names:
+            raise _Where(f"experiments[{i}].name", f"duplicate experiment name {cfg['name']!r} (also "
+                                                   f"experiments[{exp_names[cfg['name']]}])")
+        exp_names[cfg["name"]] = i
     for i, e in enumerate(sc.experiments):
         if isinstance(e, EnergyInjectionExperiment):
             if e.port not in pnames:
@@ -1039,6 +1107,8 @@ def _cross_check(sc: Scene) -> None:
             raise _Where(f"devices[{i}].axes", "axes applies to force sensors only")
     if sc.simulation is not None:
         _check_simulation(sc, sc.simulation)
+    if sc.certification is not None:
+        _check_certification(sc, sc.certification)
 
 
 def _check_simulation(sc: Scene, sim: Simulation) -> None:
@@ -1122,6 +1192,208 @@ def _check_simulation(sc: Scene, sim: Simulation) -> None:
                     osel = other.dofs if other.dofs is not None else list(range(all_bodies[d.body]))
                     if set(osel) & set(sel):
                         raise _Where(f"devices[{i}].dofs", f"DOF already driven by actuator {sc.devices[j].name!r}")
+
+
+def _hint(name: str, known: Sequence[str], limit: int = 16) -> str:
+    """`` (did you mean 'x'?)`` or ``; known: a, b, ...`` (at most ``limit`` names)."""
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.5)
+    if close:
+        return f" (did you mean {close[0]!r}?)"
+    shown = list(known)[:limit]
+    more = f", ... ({len(known) - limit} more)" if len(known) > limit else ""
+    return f"; known: {', '.join(shown) if shown else '(none)'}{more}"
+
+
+_MBK_ENTRY = re.compile(r"^([MBK])_(\d)(\d)$")
+
+
+def _network_parameters(model: str) -> tuple[list[str], Any]:
+    """The parameters the network model ``model`` accepts: ``(names for messages, predicate)``.
+
+    Most built-in models take exactly the keys of their defaults. ``mbk_impedance`` takes the
+    upper-triangle entries ``M_ij``, ``B_ij``, ``K_ij`` (i <= j) of any size; ``bilateral_2dof``
+    takes ``gains`` (a Table II set or a mapping), gains ``k_{p|v}[m|s]{yy|zz|yz|zy}`` and robot
+    entries ``{m|b|k}[m|s]_{yy|zz|yz}`` (shared, master or slave)."""
+    from hil.models import get_model
+
+    m = get_model(model)
+    if model == "mbk_impedance":
+        names = sorted(m.defaults)
+
+        def ok(k: str) -> bool:
+            hit = _MBK_ENTRY.match(k)
+            return bool(hit) and int(hit.group(2)) <= int(hit.group(3))
+
+        return names, ok
+    if model == "bilateral_2dof":
+        known = {"gains"}
+        for side in ("", "m", "s"):
+            known |= {f"k_{pv}{side}{ax}" for pv in "pv" for ax in ("yy", "zz", "yz", "zy")}
+            known |= {f"{key}{side}_{ax}" for key in "mbk" for ax in ("yy", "zz", "yz")}
+        names = sorted(known)
+        return names, known.__contains__
+    names = sorted(m.defaults)
+    return names, set(names).__contains__
+
+
+def _identification_names(sc: Scene, path: str, spec: IdentifyCfg, exp: Any) -> tuple[str, list[str], list[str]]:
+    """``(model, sampled parameter names, every name a map may use)`` of what identifying ``spec``
+    from experiment ``exp`` yields; the model is inferred as :func:`hil.identify.records.plan_from_record`
+    does (an SDEA variant, else a 1-DOF target with a force sensor, else an m-DOF MBK body)."""
+    n = len(exp.dofs) if exp.dofs is not None else sc.device(exp.target).dof
+    variant = getattr(exp, "variant", None)
+    key = None if spec.model is None else spec.model.lower().replace("-", "_")
+    if key == "sdea":
+        key = "sdea_locked"
+    if key is not None and key not in IDENTIFICATION_MODELS:
+        raise _Where(f"{path}.model", f"unknown identification model {spec.model!r}"
+                                      f"{_hint(spec.model or '', IDENTIFICATION_MODELS)}")
+    sdea = ["K_f", "B_f", "M", "B"]
+
+    def mbk(k: int) -> tuple[list[str], list[str]]:
+        sampled = [f"L{m}_{i}{j}" for m in "MBK" for i in range(k) for j in range(i + 1)]
+        derived = [f"{m}_{i}{j}" for m in "MBK" for i in range(k) for j in range(i, k)]
+        return sampled, sampled + derived
+
+    if key is None:
+        if variant in ("locked", "free"):
+            key = f"sdea_{variant}"
+        elif n == 1:
+            tdev = sc.device(exp.target)
+            by_port = any(p.actuator == exp.target and p.force_sensor for p in sc.network.ports)
+            same_body = [s for s in sc.force_sensors if s.body is not None and s.body == tdev.body]
+            if by_port or len(same_body) == 1:
+                key = "sdea_locked"
+            elif sc.force_sensors:  # decided from the record's channels: either model
+                ms, ma = mbk(1)
+                return "sdea_locked or mbk", sdea + ms, sdea + ma
+            else:
+                key = "mbk"
+        else:
+            key = "mbk"
+    if key.startswith("sdea"):
+        if n != 1:
+            raise _Where(f"{path}.model", f"{key} identifies a 1-DOF SDEA; experiment {spec.experiment!r} "
+                                          f"excites {n} DOF")
+        if key == "sdea_locked" and not sc.force_sensors:
+            # the locked-output velocity alone carries B + B_f only: identification would refuse
+            # after the runs (hil.identify's identifiability check)
+            raise _Where(f"{path}.model", "sdea_locked needs the spring force: with only the motor velocity, "
+                                          "B and B_f are inseparable; add a force sensor on the target's body "
+                                          "or network port, or identify sdea_free from a free-output chirp")
+        names = sdea + (["m_h"] if key == "sdea_free" else [])
+        return key, names, names
+    sampled, available = mbk(n)
+    return key, sampled, available
+
+
+def _check_certification(sc: Scene, cert: CertificationCfg) -> None:
+    """Every name and range of the ``certification`` section, before anything runs: the network
+    model and its parameters, the criterion for that network, the identify entries (experiment,
+    identification model, map on both sides), the uncertain parameters, the design range."""
+    from hil.models import get_model, model_names
+
+    try:
+        get_model(cert.model)
+    except KeyError:
+        raise _Where("certification.model", f"unknown model {cert.model!r}{_hint(cert.model, model_names())}"
+                     ) from None
+    names, accepts = _network_parameters(cert.model)
+
+    def need_param(path: str, k: str) -> None:
+        if not accepts(k):
+            raise _Where(path, f"model {cert.model} has no parameter {k!r}{_hint(k, names)}")
+
+    for k, v in cert.parameters.items():
+        need_param(f"certification.parameters.{k}", k)
+        if cert.model == "bilateral_2dof" and k == "gains":
+            from hil.models.teleop import TWO_DOF_TABLE2
+
+            if isinstance(v, str) and v not in TWO_DOF_TABLE2:
+                raise _Where(f"certification.parameters.{k}", f"unknown gain set {v!r}"
+                                                              f"{_hint(v, sorted(TWO_DOF_TABLE2))}")
+            if isinstance(v, dict):
+                for gk, gv in v.items():
+                    need_param(f"certification.parameters.gains.{gk}", str(gk))
+                    _param_number(f"certification.parameters.gains.{gk}", gv)
+            elif not isinstance(v, str):
+                raise _Where(f"certification.parameters.{k}", f"expected a gain set name ({', '.join(TWO_DOF_TABLE2)})"
+                                                              f" or a mapping of gains, got {v!r}")
+            continue
+        _param_number(f"certification.parameters.{k}", v)
+    for k in cert.uncertain:
+        need_param(f"certification.uncertain.{k}", k)
+    # identify entries
+    exps = {c["name"]: (i, sc.experiments[i]) for i, c in enumerate(sc.experiment_configs())}
+    identified: dict[str, str] = {}
+    for i, spec in enumerate(cert.identify):
+        path = f"certification.identify[{i}]"
+        if spec.experiment not in exps:
+            raise _Where(f"{path}.experiment", f"no experiment {spec.experiment!r} in the scene"
+                                               f"{_hint(spec.experiment, sorted(exps))}")
+        j, exp = exps[spec.experiment]
+        if exp.type not in ("chirp", "multisine"):
+            raise _Where(f"{path}.experiment", f"experiment {spec.experiment!r} (experiments[{j}]) is a {exp.type}; "
+                                               "identification needs a chirp or a multisine")
+        model, sampled, available = _identification_names(sc, path, spec, exp)
+        mapping = spec.map or {n: n for n in sampled}
+        for src, dst in mapping.items():
+            where = f"{path}.map.{src}" if spec.map else f"{path}.map"
+            if src not in available:
+                raise _Where(where, f"identification model {model} has no parameter {src!r}{_hint(src, available)}")
+            if not accepts(dst):
+                what = (f"maps {src!r} to {dst!r}, which" if spec.map
+                        else f"is empty: every identified parameter keeps its name, but {dst!r}")
+                raise _Where(where, f"{what} is not a parameter of model {cert.model}{_hint(dst, names)}")
+            if dst in identified:
+                raise _Where(where, f"parameter {dst!r} is already identified by {identified[dst]}")
+            if dst in cert.uncertain:
+                raise _Where(where, f"parameter {dst!r} is also in certification.uncertain: identify it or "
+                                    "give its uncertainty, not both")
+            identified[dst] = path
+    # design
+    d = cert.design
+    if d is not None:
+        need_param("certification.design.parameter", d.parameter)
+        if cert.model != "sdea" or d.parameter not in ("k22", "b22"):
+            raise _Where("certification.design.parameter", "the design search is implemented for the SDEA "
+                                                           "coupler (model sdea, parameter k22 or b22)")
+        if d.range[0] < 0:
+            raise _Where("certification.design.range", f"{d.parameter} must be >= 0, got [{d.range[0]:g}, "
+                                                       f"{d.range[1]:g}]")
+        if d.parameter in identified or d.parameter in cert.uncertain:
+            raise _Where("certification.design.parameter", f"{d.parameter!r} is identified or uncertain; a design "
+                                                           "parameter is chosen, not measured")
+        if not identified and not cert.uncertain:
+            raise _Where("certification.design", "the design search runs over the posterior: it needs identify "
+                                                 "or uncertain entries")
+    _check_network_builds(sc, cert)
+
+
+def _param_number(path: str, v: Any) -> None:
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(float(v)):
+        raise _Where(path, f"expected a finite number, got {v!r}")
+
+
+def _check_network_builds(sc: Scene, cert: CertificationCfg) -> None:
+    """Build the nominal network once (fixed parameters from the controller and simulation,
+    ``parameters``, the uncertain values; identified ones at the model defaults) and check that
+    the criterion applies to its shape."""
+    from hil.errors import HilError
+    from hil.pipeline import _build, model_params_from_scene
+
+    q = model_params_from_scene(sc)
+    q.update({k: u.value for k, u in cert.uncertain.items()})
+    try:
+        tm = _build(cert.model, q)
+    except (HilError, ValueError, TypeError, KeyError, ArithmeticError) as exc:
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        raise _Where("certification", f"the network model {cert.model} cannot be built from this scene: {msg}"
+                     ) from None
+    if cert.criterion == "llewellyn" and not (tm.n == 2 and tm.n_ports == 2):
+        raise _Where("certification.criterion", f"llewellyn applies to 1-DOF two-ports; model {cert.model} is a "
+                                                f"{tm.n_ports}-port with {tm.n} DOF (use absolute_stability or "
+                                                "passivity)")
 
 
 class _Where(Exception):
@@ -1209,6 +1481,88 @@ def _format_error(exc: ValidationError, data: Any) -> str:
     return f"{_fmt_loc(loc)}: {msg}"
 
 
+def _check_blocks(sc: Scene) -> None:
+    """Build every experiment and the controller as the runner will (``make_experiment`` +
+    ``check(scene)``, ``make_controller``), so their checks (band against the rate, peak effort
+    against ``safety.max_effort``, a human for energy injection, ...) fail at load time, not after
+    the experiments before them have run."""
+    from hil.controllers import make_controller
+    from hil.experiments import make_experiment
+
+    for cfg in sc.experiment_configs():
+        make_experiment(cfg, rate_hz=sc.rate_hz).check(sc)
+    make_controller(sc.controller_config(), units=sc.units, scene=sc)
+
+
+class DuplicateKeyError(Exception):
+    """A YAML mapping holds the same key twice (``path``: where, ``line``/``first``: 1-based lines)."""
+
+    def __init__(self, path: str, key: str, line: int, first: int) -> None:
+        super().__init__(f"{path}: duplicate key {key!r} (line {line}; first at line {first})")
+        self.path, self.key, self.line, self.first = path, key, line, first
+
+
+_LOADER: Any = None
+
+
+def unique_key_loader() -> Any:
+    """A :class:`yaml.SafeLoader` subclass that raises :class:`DuplicateKeyError` when a mapping, at
+    any depth, holds a key twice (plain ``yaml.safe_load`` silently keeps the last value). Merge
+    keys (``<<: *anchor``) may still be overridden, as YAML intends."""
+    global _LOADER
+    if _LOADER is not None:
+        return _LOADER
+    import yaml
+
+    class UniqueKeyLoader(yaml.SafeLoader):
+        def construct_document(self, node: Any) -> Any:
+            _find_duplicates(node, [], set())
+            return super().construct_document(node)
+
+    _LOADER = UniqueKeyLoader
+    return _LOADER
+
+
+def _find_duplicates(node: Any, path: list[Any], seen: set[int]) -> None:
+    import yaml
+
+    if id(node) in seen:  # an alias of a node already walked
+        return
+    seen.add(id(node))
+    if isinstance(node, yaml.MappingNode):
+        first: dict[Any, int] = {}
+        for key_node, value_node in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            scalar = isinstance(key_node, yaml.ScalarNode)
+            key = (key_node.tag, key_node.value) if scalar else ("", id(key_node))
+            line = key_node.start_mark.line + 1
+            if key in first:
+                raise DuplicateKeyError(_fmt_loc([*path, key_node.value]), str(key_node.value), line, first[key])
+            first[key] = line
+            _find_duplicates(value_node, [*path, key_node.value if scalar else "?"], seen)
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            _find_duplicates(item, [*path, i], seen)
+
+
+def parse_yaml(text: str, label: str) -> Any:
+    """Parse YAML ``text`` with :func:`unique_key_loader`; any problem is one :class:`SceneError`
+    line ``label: ...`` (``not valid YAML (line L, column C): ...`` or ``field.path: duplicate key
+    'k' (line L; first at line F)``)."""
+    import yaml
+
+    try:
+        return yaml.load(text, Loader=unique_key_loader())  # a SafeLoader subclass: no code
+    except DuplicateKeyError as exc:
+        raise SceneError(f"{label}: {exc}") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).strip().splitlines()[0]
+        raise SceneError(f"{label}: not valid YAML{where}: {problem}") from None
+
+
 def _builtin_dir() -> Path:
     return Path(str(resources.files(_BUILTIN_PACKAGE).joinpath(_BUILTIN_DIR)))
 
@@ -1257,6 +1611,10 @@ def scene_from_dict(data: Any, *, label: str = "<scene>", source_text: str = "",
         _cross_check(sc)
     except _Where as w:
         raise SceneError(f"{label}: {w.path}: {w.message}") from None
+    try:
+        _check_blocks(sc)
+    except SceneError as exc:  # hil.experiments / hil.controllers say "field.path: message"
+        raise SceneError(f"{label}: {' '.join(str(exc).split())}") from None
     if not source_text:
         import yaml
 
@@ -1270,22 +1628,15 @@ def scene_from_dict(data: Any, *, label: str = "<scene>", source_text: str = "",
 def load_scene(src: str | Path) -> Scene:
     """Load and validate a scene from a YAML path or a built-in scene name.
 
-    Raises :class:`SceneError` with one line ``file: field: message`` on any problem.
+    Raises :class:`SceneError` with one line ``file: field: message`` on any problem (a duplicate
+    key, at any depth, is one).
     """
-    import yaml
-
     path, label = _resolve(src)
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise SceneError(f"{label}: cannot read: {exc}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).strip().splitlines()[0]
-        raise SceneError(f"{label}: not valid YAML{where}: {problem}") from None
+    data = parse_yaml(text, label)
     is_builtin = path.parent.resolve() == _builtin_dir().resolve()
     sc = scene_from_dict(data, label=label, source_text=text,
                          path=f"builtin:{path.stem}" if is_builtin else str(path))

@@ -332,9 +332,15 @@ def main(argv: list[str] | None = None) -> int:
 
 def _serve_scene_main(args: argparse.Namespace, stop: threading.Event) -> int:
     from hil.errors import HilError
+    from hil.protocols.registry import extras_message
+    from hil.scene import load_scene
 
+    scene = load_scene(args.scene)
+    if need := extras_message(scene, adapters=False):  # a base install: name the extra, start nothing
+        print(f"hil mock serve {args.scene}: {need}", file=sys.stderr)
+        return 2
     try:
-        sim = serve_scene(args.scene, seed=args.seed, variant=args.variant, can_interface=args.can_interface,
+        sim = serve_scene(scene, seed=args.seed, variant=args.variant, can_interface=args.can_interface,
                           can_channels=_parse_can_channels(args.can_channel), stream_rate_hz=args.stream_rate)
     except HilError:
         raise
@@ -367,7 +373,16 @@ def _serve_scene_main(args: argparse.Namespace, stop: threading.Event) -> int:
 
 
 def _serve_spec_main(args: argparse.Namespace, stop: threading.Event) -> int:
+    from hil.protocols.registry import SIMULATOR_REQUIRES, importable
+
     specs = load_spec(args.spec) if args.spec else None
+    kinds = {"odrive": "odrive_can", "cubemars": "cubemars_mit", "bota": "bota_serial"}
+    need = {r for s in (specs or DEFAULT_SPEC) for r in SIMULATOR_REQUIRES.get(kinds.get(str(s.get("kind")), ""), ())
+            if not importable(r.module)}
+    if need:
+        print(f"hil mock serve: the simulated devices need {' and '.join(sorted(r.distribution for r in need))}: "
+              f"pip install 'hil-certify[{','.join(sorted(r.extra for r in need))}]'", file=sys.stderr)
+        return 2
     endpoints = serve(specs, plant_rate_hz=args.plant_rate)
     try:
         if args.json:
