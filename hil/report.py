@@ -21,7 +21,8 @@ a public key). A certificate whose content does not match its digest (or has non
 signature fails with the given key) is refused by ``hil report``; with ``--allow-modified`` it is
 rendered, and then every PDF page and the HTML page (on screen and on every printed page) carry
 ``MODIFIED: NOT A VALID CERTIFICATE`` and the decision badge is grey, never the decision's colour.
-The render functions apply the same marking whenever the digest does not match, whoever calls them.
+The render functions apply the same marking whenever the digest does not match (or is missing), whoever
+calls them.
 
 Only the sections present in the record appear (an absent section is not rendered empty).
 matplotlib and jinja2 (the ``report`` extra) are imported inside the functions that need them,
