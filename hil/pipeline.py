@@ -204,7 +204,9 @@ def _seal(cert: Certificate, scene: Any, out: Path) -> Certificate:
     named = [i.record for i in cert.identification or []] + [e.record for e in cert.energy or []]
     for r in named:
         p = Path(r)
-        if p.is_file() and all(p.resolve() != q.resolve() for q in records):
+        if not p.is_file():
+            log.warning("evidence: record %s named by the certificate is not a file; not hashed", r)
+        elif all(p.resolve() != q.resolve() for q in records):
             records.append(p)
     evidence += [file_evidence(out, r, "record") for r in records]
     return seal(cert.model_copy(update={"evidence": evidence}))
