@@ -12,20 +12,60 @@ identified parameters as the identification model states them.
 Measurements follow OpenHTF's idea: each is a named value with limits and an outcome, and the
 outcome is PASS / FAIL / MARGINAL for a decided measurement but ERROR when the evidence is
 missing or broken -- never confused with FAIL.
+
+Tamper evidence (``integrity`` and ``evidence``)
+------------------------------------------------
+``evidence`` lists the files the certificate rests on -- every run record and the scene text --
+with their SHA-256, size in bytes and a path relative to the certificate's folder.
+``integrity.digest`` is the SHA-256 (lower-case hex) of the certificate's *canonical content*,
+``hil-c14n/1``, defined as:
+
+1. take every field of the validated certificate except ``integrity`` itself, as JSON values
+   (exactly what ``certificate.json`` stores: tuples become arrays, and a non-finite float --
+   NaN, +inf, -inf -- becomes ``null``, as pydantic writes it; JSON has no NaN);
+2. serialize them as JSON with object keys sorted by Unicode code point at every level, no
+   whitespace at all (separators ``,`` and ``:``), strings with every non-ASCII character
+   escaped as ``\\uXXXX`` (UTF-16 surrogate pairs above U+FFFF), so the bytes are pure ASCII;
+   integers in decimal; floats by Python's ``repr`` (the shortest text that reads back to the
+   same double: ``0.1``, ``1e-05``, ``1e+300``, ``-0.0``, ``2.0``); ``true``/``false``/``null``;
+3. hash those bytes with SHA-256.
+
+Because the digest is computed from the validated record, re-indenting or re-ordering the keys of
+``certificate.json`` does not change it, while any change of a value (a decision, a measurement, a
+reason, an evidence hash) does. ``integrity.signature`` (optional, Ed25519, see
+:mod:`hil.signing`) signs the digest together with the signer's name and key fingerprint.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import math
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-SCHEMA_VERSION = "1.0"
+SCHEMA_VERSION = "1.1"
+CANONICALIZATION = "hil-c14n/1"
+_HEX64 = r"^[0-9a-f]{64}$"
 
 Outcome = Literal["PASS", "FAIL", "MARGINAL", "ERROR", "INFO"]
 DecisionStr = Literal["GO", "MARGINAL", "NO-GO", "ERROR"]
 
-__all__ = ["SCHEMA_VERSION", "Certificate", "Measurement", "Series"]
+__all__ = [
+    "CANONICALIZATION",
+    "SCHEMA_VERSION",
+    "Certificate",
+    "Evidence",
+    "Integrity",
+    "Measurement",
+    "Series",
+    "Signature",
+    "canonical_bytes",
+    "canonical_json",
+    "content_digest",
+    "seal",
+]
 
 
 class _M(BaseModel):
@@ -165,6 +205,35 @@ class MultiPort(_M):
     symmetrization: str = ""
 
 
+class Evidence(_M):
+    """A file the certificate rests on: a run record or the scene text."""
+
+    path: str = Field(description="POSIX path relative to the folder holding certificate.json")
+    sha256: str = Field(pattern=_HEX64, description="SHA-256 of the file's bytes, lower-case hex")
+    bytes: int = Field(ge=0, description="file size in bytes")
+    role: Literal["record", "scene"]
+
+
+class Signature(_M):
+    """An Ed25519 signature over the digest (see :func:`hil.signing.signed_message`)."""
+
+    algorithm: Literal["ed25519"] = "ed25519"
+    public_key: str = Field(description="the signer's raw 32-byte public key, base64")
+    public_key_sha256: str = Field(pattern=_HEX64, description="fingerprint: SHA-256 of the raw public key, hex")
+    signer: str = Field(default="", description="who signed (free text, e.g. a name; signed too)")
+    signed_utc: str
+    value: str = Field(description="the 64-byte Ed25519 signature, base64")
+
+
+class Integrity(_M):
+    """The digest of the canonical content (every field but this block) and an optional signature."""
+
+    algorithm: Literal["sha256"] = "sha256"
+    canonicalization: Literal["hil-c14n/1"] = CANONICALIZATION
+    digest: str = Field(pattern=_HEX64, description="SHA-256 of the canonical content, lower-case hex")
+    signature: Signature | None = None
+
+
 class Certificate(_M):
     """One signed-or-refused answer for one scene."""
 
@@ -185,3 +254,44 @@ class Certificate(_M):
     multiport: MultiPort | None = None
     plots: dict[str, Series] = Field(default_factory=dict)
     errors: list[str] = Field(default_factory=list)
+    evidence: list[Evidence] = Field(default_factory=list)
+    integrity: Integrity | None = None
+
+
+# ---------------------------------------------------------------------------------------------
+# canonical content and digest (hil-c14n/1, see the module docstring)
+
+
+def _finite(v: Any) -> Any:
+    """JSON values with non-finite floats as None (lists/tuples as lists)."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {str(k): _finite(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_finite(x) for x in v]
+    return v
+
+
+def canonical_json(value: Any) -> bytes:
+    """``hil-c14n/1`` bytes of a JSON value (dict, list, str, int, float, bool, None): sorted keys,
+    no whitespace, ASCII with ``\\u`` escapes, floats by ``repr``, NaN/inf as ``null``."""
+    return json.dumps(_finite(value), sort_keys=True, separators=(",", ":"), ensure_ascii=True,
+                      allow_nan=False).encode("ascii")
+
+
+def canonical_bytes(cert: Certificate) -> bytes:
+    """The canonical content of a certificate: every field except ``integrity``, as stored in JSON."""
+    data = json.loads(cert.model_dump_json(exclude={"integrity"}))
+    return canonical_json(data)
+
+
+def content_digest(cert: Certificate) -> str:
+    """Hex SHA-256 of :func:`canonical_bytes` (what ``integrity.digest`` must equal)."""
+    return hashlib.sha256(canonical_bytes(cert)).hexdigest()
+
+
+def seal(cert: Certificate) -> Certificate:
+    """A copy of ``cert`` carrying the digest of its current content (and no signature: a
+    signature made over another digest would no longer hold)."""
+    return cert.model_copy(update={"integrity": Integrity(digest=content_digest(cert))})

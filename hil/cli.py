@@ -16,9 +16,10 @@ Output folders never overwrite: see :mod:`hil.outdir` (``--overwrite``).
 Exit codes (documented in README.md):
 
 ====  ==============================================================
-0     stable (GO)
+0     stable (GO); ``hil verify``: the certificate and its evidence match
 2     usage or input error (bad arguments, malformed file, unknown model, an output folder that
-      exists): one-line message
+      exists): one-line message; ``hil verify`` / ``hil report``: the certificate does not match
+      its digest, an evidence file or its signature (one line naming what)
 10    marginal (MARGINAL)
 11    potentially unstable (NO-GO)
 12    criterion not applicable (e.g. Theorem 1's symmetrization fails)
@@ -451,6 +452,13 @@ def _cmd_certify(args: argparse.Namespace) -> int:
     if need := extras_message(None if args.no_experiments else scene, report=True):  # before any folder
         print(f"hil certify {args.scene or 'sdea_bench'}: {need}", file=sys.stderr)
         return EXIT_USAGE
+    key = None
+    if args.sign:  # read the key (and check the extra) before anything runs or is written
+        from hil.signing import load_private_key
+
+        key = load_private_key(args.sign)
+    elif args.signer:
+        raise UsageError("--signer names who signs: give the key with --sign KEY")
     out = _out_dir(args.out, f"reports/{scene.name}", args.overwrite)
 
     beat = _Progress(f"hil certify {scene.name}", enabled=not sys.stderr.isatty())  # stage lines on a terminal
@@ -461,13 +469,23 @@ def _cmd_certify(args: argparse.Namespace) -> int:
             print(msg, file=sys.stderr)
 
     with beat:
-        cert = certify_scene(scene, out, progress=say, run_experiments=not args.no_experiments)
+        cert = certify_scene(scene, out, progress=say, run_experiments=not args.no_experiments)  # sealed
     from hil.report import build_reports
 
-    files = build_reports(cert, out)
+    integrity = None
+    if key is not None:
+        from hil.signing import sign_certificate
+        from hil.verify import check_certificate
+
+        cert = sign_certificate(cert, key, args.signer or "")
+        integrity = check_certificate(cert, public_key=key.public(),
+                                      verified_with="the signing key's public half, when signing")
+    files = build_reports(cert, out, integrity=integrity)
     if args.json:
         print(json.dumps({"decision": cert.decision, "reasons": cert.reasons, "scene": scene.name,
                           "files": {k: str(v) for k, v in files.items()},
+                          "digest": cert.integrity.digest if cert.integrity else None,
+                          "signed": bool(cert.integrity and cert.integrity.signature),
                           "measurements": [m.model_dump() for m in cert.measurements]}, indent=2, default=str))
     else:
         from rich.console import Console
@@ -490,6 +508,11 @@ def _cmd_certify(args: argparse.Namespace) -> int:
         con.print(tab)
         for k, v in files.items():
             con.print(f"{k}: {escape(str(v))}")
+        if cert.integrity is not None:
+            sig = cert.integrity.signature
+            signed = f", signed with key {sig.public_key_sha256[:16]}…" if sig is not None else ""
+            print(f"digest: {cert.integrity.digest}{signed}")
+            print(f"check with: hil verify {out}")
     return DECISION_EXIT[cert.decision]
 
 
@@ -513,7 +536,25 @@ def _cmd_report(args: argparse.Namespace) -> int:
         home = src if src.is_dir() else src.parent
         same = Path(args.out).exists() and home.exists() and Path(args.out).resolve() == home.resolve()
         check_out_dir(args.out, overwrite=args.overwrite or same)
-    return int(report_main([args.path] + (["--out", args.out] if args.out else [])) or 0)
+    argv = [args.path] + (["--out", args.out] if args.out else []) + (
+        ["--public-key", args.public_key] if args.public_key else []) + (
+        ["--allow-modified"] if args.allow_modified else [])
+    return int(report_main(argv) or 0)
+
+
+def _cmd_verify(args: argparse.Namespace) -> int:
+    from hil.verify import verify_main
+
+    return int(verify_main([args.path] + (["--public-key", args.public_key] if args.public_key else [])) or 0)
+
+
+def _cmd_keygen(args: argparse.Namespace) -> int:
+    from hil.signing import generate_keypair, load_public_key
+
+    priv, pub = generate_keypair(args.out)
+    print(f"private key {priv} (mode 0600: keep it secret; hil certify --sign {priv})")
+    print(f"public key  {pub} (fingerprint {load_public_key(pub).fingerprint}; hil verify DIR --public-key {pub})")
+    return EXIT_OK
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
@@ -587,6 +628,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "files of the same name")
     ce.add_argument("--seed", type=int)
     ce.add_argument("--no-experiments", action="store_true", help="skip the runs (certify from the scene's priors)")
+    ce.add_argument("--sign", metavar="KEY", help="sign the certificate's digest with this Ed25519 private key "
+                                                  "(PEM, see hil keygen; needs the 'sign' extra)")
+    ce.add_argument("--signer", metavar="NAME", help="who signs (recorded and signed with --sign)")
     ce.add_argument("--json", action="store_true")
     ce.set_defaults(func=_cmd_certify)
 
@@ -595,7 +639,21 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--out", help="output folder (default: next to the certificate); another existing non-empty "
                      "folder is refused unless --overwrite")
     rep.add_argument("--overwrite", action="store_true", help="write report.html / report.pdf into a non-empty --out")
+    rep.add_argument("--public-key", metavar="PUB", help="check the signature with this Ed25519 public key (PEM)")
+    rep.add_argument("--allow-modified", action="store_true",
+                     help="render a certificate that does not match its digest, marked on every page "
+                          "'MODIFIED: NOT A VALID CERTIFICATE'")
     rep.set_defaults(func=_cmd_report)
+
+    ve = add("verify", help="check a certificate's digest, the SHA-256 of its records and scene, "
+                            "and (with --public-key) its signature; exit 0 or 2")
+    ve.add_argument("path", metavar="DIR", help="the certificate folder (or its certificate.json)")
+    ve.add_argument("--public-key", metavar="PUB", help="Ed25519 public key (PEM) the signature must verify with")
+    ve.set_defaults(func=_cmd_verify)
+
+    kg = add("keygen", help="write a new Ed25519 signing key pair (private 0600, public) into a folder")
+    kg.add_argument("--out", required=True, metavar="DIR", help="folder for the key files (never overwritten)")
+    kg.set_defaults(func=_cmd_keygen)
 
     rp = add("replay", help="inspect a run record (summary of channels, timing, stop reason)")
     rp.add_argument("record")

@@ -34,6 +34,7 @@ from __future__ import annotations
 import datetime as _dt
 import logging
 import math
+import os
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -55,6 +56,7 @@ from hil.certificate import (
     SceneInfo,
     Series,
     Witness,
+    seal,
 )
 from hil.certify import Decision, Policy, decide, max_safe_parameter, probability_of_stability, worst_case_margin
 from hil.errors import HilError
@@ -210,7 +212,48 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
     """Run the whole pipeline for ``scene`` (see the module docstring). Never raises for bad
     evidence: problems become an ERROR certificate with their reasons (a scene without a
     ``certification`` section too). ``outcomes`` (experiment name -> ExperimentOutcome) reuses
-    runs already made instead of running the experiments again."""
+    runs already made instead of running the experiments again.
+
+    The certificate comes back sealed: ``evidence`` holds the SHA-256 of the scene text (written
+    to ``out_dir/scene.yaml``) and of every record it rests on (the records written under
+    ``out_dir/records`` and any reused record it names), ``integrity.digest`` the digest of its
+    content (see :mod:`hil.certificate`)."""
+    cert = _assess(scene, out_dir, seed=seed, progress=progress, run_experiments=run_experiments,
+                   max_ticks=max_ticks, outcomes=outcomes)
+    return _seal(cert, scene, Path(out_dir))
+
+
+def _seal(cert: Certificate, scene: Any, out: Path) -> Certificate:
+    """Evidence hashes (records are closed by now: runs and identification are done) and digest."""
+    from hil.verify import file_evidence
+
+    scene_path = out / "scene.yaml"
+    text = scene.source_text.encode("utf-8")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        if not (scene_path.is_file() and scene_path.read_bytes() == text):
+            tmp = scene_path.with_name(f".scene.yaml.{os.getpid()}.tmp")
+            tmp.write_bytes(text)
+            os.replace(tmp, scene_path)
+    except OSError as exc:
+        raise HilError(f"{scene_path}: cannot write the scene copy: {exc.strerror or exc}") from None
+    evidence = [file_evidence(out, scene_path, "scene")]
+    records: list[Path] = sorted((out / "records").glob("*.h5")) if (out / "records").is_dir() else []
+    named = [i.record for i in cert.identification or []] + [e.record for e in cert.energy or []]
+    for r in named:
+        p = Path(r)
+        if not p.is_file():
+            log.warning("evidence: record %s named by the certificate is not a file; not hashed", r)
+        elif all(p.resolve() != q.resolve() for q in records):
+            records.append(p)
+    evidence += [file_evidence(out, r, "record") for r in records]
+    return seal(cert.model_copy(update={"evidence": evidence}))
+
+
+def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progress: Progress | None = None,
+            run_experiments: bool = True, max_ticks: int | None = None,
+            outcomes: Mapping[str, Any] | None = None) -> Certificate:
+    """The pipeline proper (:func:`certify_scene` adds the evidence and the digest)."""
     if scene.certification is None:
         return Certificate(created_utc=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), software=_versions(),
                            scene=SceneInfo(name=scene.name, sha256=scene.sha256, description=scene.description,

@@ -10,8 +10,19 @@ data series), so ``hil report PATH`` rebuilds both documents later from ``certif
   present in the record, plot pages and a signature page.
 * :func:`write_json` / :func:`load_certificate` -- the record itself (validated on load; broken or
   missing files raise :class:`ReportError` with a one-line message).
-* :func:`build_reports` -- ``certificate.json``, ``report.html`` and ``report.pdf`` in one folder.
-* :func:`report_main` -- ``hil report PATH [--out DIR]``: exit 0, or 2 with a one-line error.
+* :func:`build_reports` -- ``certificate.json`` (sealed: it carries its digest), ``report.html``
+  and ``report.pdf`` in one folder.
+* :func:`report_main` -- ``hil report PATH [--out DIR] [--public-key PUB] [--allow-modified]``:
+  exit 0, or 2 with a one-line error.
+
+Integrity (see :mod:`hil.verify`): the reports show the certificate's digest, its evidence files
+and, on the signature page/section, who signed and whether the signature holds (when checked with
+a public key). A certificate whose content does not match its digest (or has none, or whose
+signature fails with the given key) is refused by ``hil report``; with ``--allow-modified`` it is
+rendered, and then every PDF page and the HTML page (on screen and on every printed page) carry
+``MODIFIED: NOT A VALID CERTIFICATE`` and the decision badge is grey, never the decision's colour.
+The render functions apply the same marking whenever the digest does not match (or is missing), whoever
+calls them.
 
 Only the sections present in the record appear (an absent section is not rendered empty).
 matplotlib and jinja2 (the ``report`` extra) are imported inside the functions that need them,
@@ -29,7 +40,6 @@ from __future__ import annotations
 
 import argparse
 import base64
-import hashlib
 import io
 import json
 import math
@@ -42,8 +52,9 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from hil.certificate import SCHEMA_VERSION, Certificate, Series
+from hil.certificate import SCHEMA_VERSION, Certificate, Series, content_digest, seal
 from hil.errors import HilError
+from hil.verify import MODIFIED, IntegrityStatus, check_certificate
 
 __all__ = [
     "ReportError",
@@ -65,6 +76,8 @@ DECISION_STYLE: dict[str, tuple[str, str, str]] = {
     "NO-GO": ("d-nogo", "#c62828", "#ffffff"),
     "ERROR": ("d-error", "#6a3d9a", "#ffffff"),
 }
+# a certificate that does not match its digest: grey, whatever decision it claims
+VOID_STYLE: tuple[str, str, str] = ("d-void", "#5f6368", "#ffffff")
 # outcome -> (css class, light cell background)
 OUTCOME_STYLE: dict[str, tuple[str, str]] = {
     "PASS": ("o-pass", "#d4efdc"),
@@ -171,8 +184,29 @@ def _policy_label(key: str) -> str:
             "credible": "credible region (worst case)"}.get(key, key.replace("_", " "))
 
 
-def _digest(cert: Certificate) -> str:
-    return hashlib.sha256(_canonical_json(cert).encode("utf-8")).hexdigest()
+def _status(cert: Certificate, integrity: IntegrityStatus | None) -> IntegrityStatus:
+    """The integrity status to show: the caller's, or the digest check of ``cert`` itself."""
+    return integrity if integrity is not None else check_certificate(cert)
+
+
+def _style(cert: Certificate, st: IntegrityStatus) -> tuple[str, str, str]:
+    return DECISION_STYLE[cert.decision] if st.valid else VOID_STYLE
+
+
+def _digest_text(st: IntegrityStatus) -> str:
+    if st.recorded_digest is None:
+        return f"NONE recorded (content sha256 {st.computed_digest})"
+    if st.digest_ok:
+        return f"{st.recorded_digest} (matches the content)"
+    return f"{st.recorded_digest} DOES NOT MATCH the content (sha256 {st.computed_digest})"
+
+
+def _evidence_note(st: IntegrityStatus) -> str:
+    if not st.evidence_checked:
+        return "Evidence files are not checked by the report: hil verify DIR recomputes their SHA-256."
+    if st.evidence_problems:
+        return "Evidence check FAILED: " + "; ".join(st.evidence_problems)
+    return f"All {st.n_evidence} evidence files match their recorded SHA-256."
 
 
 def _present_sections(cert: Certificate) -> list[str]:
@@ -451,13 +485,19 @@ def _jinja_env() -> Any:
     return env
 
 
-def _html_context(cert: Certificate) -> dict[str, Any]:
+def _html_context(cert: Certificate, st: IntegrityStatus) -> dict[str, Any]:
     ctx: dict[str, Any] = {
         "cert": cert,
-        "title": f"Certificate: {cert.scene.name} — {cert.decision}",
-        "decision_class": DECISION_STYLE[cert.decision][0],
+        "title": (f"{MODIFIED} — " if not st.valid else "") + f"Certificate: {cert.scene.name} — {cert.decision}",
+        "decision_class": _style(cert, st)[0],
+        "modified": not st.valid,
+        "modified_text": MODIFIED,
+        "modified_reason": st.reason(),
+        "integrity": st,
+        "digest_text": _digest_text(st),
+        "signature_text": st.signature_text(),
+        "evidence_note": _evidence_note(st),
         "sections": [(k, SECTION_TITLES[k]) for k in _present_sections(cert)],
-        "digest": _digest(cert),
         "outcome_counts": _outcome_counts(cert),
         "plots": _plots_png(cert) if cert.plots else [],
         "robust_status": None,
@@ -480,10 +520,13 @@ def _outcome_counts(cert: Certificate) -> list[tuple[str, int]]:
     return [(o, counts[o]) for o in OUTCOME_STYLE if o in counts]
 
 
-def render_html(cert: Certificate, out_path: str | os.PathLike[str]) -> Path:
-    """Write the certificate as one self-contained, printable HTML file; returns its path."""
+def render_html(cert: Certificate, out_path: str | os.PathLike[str], *,
+                integrity: IntegrityStatus | None = None) -> Path:
+    """Write the certificate as one self-contained, printable HTML file; returns its path.
+    ``integrity`` (default: the digest check of ``cert``) decides the MODIFIED marking and the
+    signature status shown."""
     env = _jinja_env()
-    html = env.get_template("report.html.j2").render(**_html_context(cert))
+    html = env.get_template("report.html.j2").render(**_html_context(cert, _status(cert, integrity)))
     return _atomic_write(Path(out_path), html.encode("utf-8"))
 
 
@@ -504,9 +547,12 @@ class _PdfDoc:
     MONO_EM = 0.602  # DejaVu Sans Mono advance width per em
     SANS_EM = 0.56  # a conservative average for DejaVu Sans
 
-    def __init__(self, pdf: Any, cert: Certificate) -> None:
+    def __init__(self, pdf: Any, cert: Certificate, integrity: IntegrityStatus | None = None) -> None:
         self.pdf = pdf
         self.cert = cert
+        self.integrity = _status(cert, integrity)
+        self.modified = not self.integrity.valid
+        self.style = _style(cert, self.integrity)
         self.fig: Any = None
         self.page = 0
         self.y = 0.0
@@ -526,14 +572,31 @@ class _PdfDoc:
         self.page += 1
         self.fig = Figure(figsize=(self.W, self.H))
         c = self.cert
-        bg, fg = DECISION_STYLE[c.decision][1:]
+        bg, fg = self.style[1:]
+        st = self.integrity
         self._t(self.ML, self.H - 0.45, f"hil-certify certificate · scene {c.scene.name}", 8, color="#555555")
-        self._t(self.W - self.MR, self.H - 0.45, f" {c.decision} ", 8, weight="bold", color=fg, ha="right",
+        self._t(self.W - self.MR, self.H - 0.45, f" {c.decision} " if not self.modified else " MODIFIED ", 8,
+                weight="bold", color=fg, ha="right",
                 bbox={"boxstyle": "round,pad=0.25", "facecolor": bg, "edgecolor": "none"})
         self._hrule(self.H - 0.58, "#bbbbbb")
-        self._t(self.ML, 0.45, f"created {c.created_utc} · record sha256 {_digest(c)[:16]}…", 7, color="#777777")
+        dg = st.recorded_digest[:16] + "…" if st.recorded_digest else "none"
+        self._t(self.ML, 0.45, f"created {c.created_utc} · digest sha256 {dg}", 7, color="#777777")
         self._t(self.W - self.MR, 0.45, f"page {self.page}", 7, color="#777777", ha="right")
         self.y = self.H - self.MT
+        if self.modified:
+            self._void_marks()
+
+    def _void_marks(self) -> None:
+        """MODIFIED: NOT A VALID CERTIFICATE, as a banner under the header and across the page."""
+        self.fig.text(0.5, 0.5, MODIFIED, fontsize=30, weight="bold", color="#c62828", alpha=0.2, rotation=55,
+                      ha="center", va="center", transform=self.fig.transFigure, zorder=10)
+        y = self.H - self.MT + 0.02
+        self._rect(self.ML - 0.04, y - 0.36, self.width + 0.08, 0.42, "#f8d0d0")
+        self._t(self.ML + 0.04, y - 0.16, MODIFIED, 11, weight="bold", color="#8e1616")
+        why = _one_line(self.integrity.reason())
+        chars = int((self.width - 0.1) * 72 / (self.SANS_EM * 6.5))
+        self._t(self.ML + 0.04, y - 0.31, why if len(why) <= chars else why[: chars - 1] + "…", 6.5, color="#8e1616")
+        self.y = y - 0.5
 
     def flush(self) -> None:
         if self.fig is not None:
@@ -695,7 +758,7 @@ class _PdfDoc:
 
 def _pdf_title(doc: _PdfDoc, cert: Certificate) -> None:
     doc.new_page("title")
-    bg, fg = DECISION_STYLE[cert.decision][1:]
+    bg, fg = doc.style[1:]
     doc.y -= 0.35
     doc._t(doc.ML, doc.y, "Stability certificate", 20, weight="bold", color="#1d2733")
     doc.y -= 0.38
@@ -874,14 +937,23 @@ def _pdf_plots(doc: _PdfDoc, cert: Certificate) -> None:
 def _pdf_signature(doc: _PdfDoc, cert: Certificate) -> None:
     doc.new_page("signature")
     doc.heading("Review and signature")
-    bg, fg = DECISION_STYLE[cert.decision][1:]
+    bg, fg = doc.style[1:]
+    st = doc.integrity
     doc.y -= 0.3
     doc._t(doc.ML, doc.y, "Decision:", 12)
     doc._t(doc.ML + 1.0, doc.y + 0.04, f"  {cert.decision}  ", 14, weight="bold", color=fg, va="center",
            bbox={"boxstyle": "round,pad=0.3", "facecolor": bg, "edgecolor": "none"})
     doc.y -= 0.25
+    doc.subheading("Integrity", 10)
+    doc.kv([("digest (sha256, hil-c14n/1)", _digest_text(st)), ("electronic signature", st.signature_text())],
+           size=8)
+    if cert.evidence:
+        doc.table(["evidence", "role", "bytes", "sha256"], [[e.path, e.role, str(e.bytes), e.sha256]
+                                                             for e in cert.evidence], size=7)
+    doc.para(_evidence_note(st), 8, color="#444444" if st.valid else "#8e1616")
+    doc.space(0.1)
     doc.para(f"I have reviewed this certificate for scene {cert.scene.name} (scene sha256 {cert.scene.sha256}; "
-             f"record sha256 {_digest(cert)}) and its evidence, and I accept the decision above.", 10)
+             f"digest {st.recorded_digest or 'none'}) and its evidence, and I accept the decision above.", 10)
     doc.space(0.3)
     for role in ("Reviewed by", "Approved by"):
         doc.ensure(1.9)
@@ -893,8 +965,10 @@ def _pdf_signature(doc: _PdfDoc, cert: Certificate) -> None:
         doc.space(0.35)
 
 
-def render_pdf(cert: Certificate, out_path: str | os.PathLike[str]) -> Path:
-    """Write the certificate as a PDF for signing (matplotlib ``PdfPages`` only); returns its path."""
+def render_pdf(cert: Certificate, out_path: str | os.PathLike[str], *,
+               integrity: IntegrityStatus | None = None) -> Path:
+    """Write the certificate as a PDF for signing (matplotlib ``PdfPages`` only); returns its path.
+    ``integrity`` as for :func:`render_html` (a modified certificate is marked on every page)."""
     import warnings
 
     import matplotlib
@@ -906,14 +980,16 @@ def render_pdf(cert: Certificate, out_path: str | os.PathLike[str]) -> Path:
     except OSError as exc:
         raise ReportError(f"{out}: cannot write: {exc.strerror or exc}") from None
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    meta = {"Title": f"Certificate {cert.scene.name}: {cert.decision}", "Subject": "hil-certify stability certificate",
+    st = _status(cert, integrity)
+    meta = {"Title": (f"{MODIFIED}: " if not st.valid else "") + f"Certificate {cert.scene.name}: {cert.decision}",
+            "Subject": "hil-certify stability certificate",
             "Creator": "hil-certify " + cert.software.get("hil-certify", "")}
     # TrueType fonts: selectable, searchable text (pdftotext reads it)
     with matplotlib.rc_context({"pdf.fonttype": 42, "font.family": _SANS}), warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=r"Glyph \d+ .* missing from", category=UserWarning)
         try:
             with PdfPages(tmp, metadata=meta) as pdf:
-                doc = _PdfDoc(pdf, cert)
+                doc = _PdfDoc(pdf, cert, st)
                 _pdf_title(doc, cert)
                 _pdf_sections(doc, cert)
                 _pdf_plots(doc, cert)
@@ -931,11 +1007,22 @@ def render_pdf(cert: Certificate, out_path: str | os.PathLike[str]) -> Path:
 # all three, and the command
 
 
-def build_reports(cert: Certificate, out_dir: str | os.PathLike[str]) -> dict[str, Path]:
-    """Write ``certificate.json``, ``report.html`` and ``report.pdf`` into ``out_dir``."""
+def build_reports(cert: Certificate, out_dir: str | os.PathLike[str], *,
+                  integrity: IntegrityStatus | None = None) -> dict[str, Path]:
+    """Write ``certificate.json``, ``report.html`` and ``report.pdf`` into ``out_dir``.
+
+    The written certificate carries its digest: an unsealed ``cert`` is sealed first; a sealed one
+    whose content no longer matches its digest is refused (:class:`ReportError`), so a record is
+    never written with a digest, or a signature, that does not hold. ``integrity`` is the status
+    shown in the reports (default: the digest check; ``hil certify --sign`` passes the checked
+    signature)."""
     d = Path(out_dir)
-    return {"json": write_json(cert, d / CERT_NAME), "html": render_html(cert, d / "report.html"),
-            "pdf": render_pdf(cert, d / "report.pdf")}
+    if cert.integrity is None:
+        cert = seal(cert)
+    elif cert.integrity.digest != content_digest(cert):
+        raise ReportError("the certificate was changed after its digest was computed; refusing to write it")
+    return {"json": write_json(cert, d / CERT_NAME), "html": render_html(cert, d / "report.html", integrity=integrity),
+            "pdf": render_pdf(cert, d / "report.pdf", integrity=integrity)}
 
 
 class _Parser(argparse.ArgumentParser):
@@ -944,22 +1031,42 @@ class _Parser(argparse.ArgumentParser):
 
 
 def report_main(argv: Sequence[str] | None = None) -> int:
-    """``hil report PATH [--out DIR]``: rebuild report.html and report.pdf from a stored
-    certificate.json (PATH is the file or a folder holding it). Exit 0, or 2 with one line."""
+    """``hil report PATH [--out DIR] [--public-key PUB] [--allow-modified]``: rebuild report.html
+    and report.pdf from a stored certificate.json (PATH is the file or a folder holding it).
+
+    A certificate that does not match its digest (or has none), or whose signature fails with
+    ``--public-key``, is refused; ``--allow-modified`` renders it marked MODIFIED: NOT A VALID
+    CERTIFICATE on every page. Exit 0, or 2 with one line."""
     import sys
 
     p = _Parser(prog="hil report", description="Rebuild the HTML and PDF reports from a stored certificate.json.")
     p.add_argument("path", metavar="PATH", help="certificate.json, or a folder containing it")
     p.add_argument("--out", metavar="DIR", help="output folder (default: the certificate's folder)")
+    p.add_argument("--public-key", metavar="PUB", help="check the signature with this Ed25519 public key (PEM)")
+    p.add_argument("--allow-modified", action="store_true",
+                   help=f"render a certificate that fails its checks anyway, marked '{MODIFIED}'")
     try:
         args = p.parse_args(list(argv) if argv is not None else None)
         cert = load_certificate(args.path)
+        key = None
+        if args.public_key:
+            from hil.signing import load_public_key
+
+            key = load_public_key(args.public_key)
+        st = check_certificate(cert, public_key=key)
+        if key is not None and st.signature == "absent":
+            st.signature, st.signature_detail = "invalid", "the certificate is not signed"
+        if not st.valid and not args.allow_modified:
+            raise ReportError(f"{_resolve(args.path)}: {st.reason()}; refusing to render it "
+                              f"(--allow-modified renders it marked '{MODIFIED}')")
         out = Path(args.out) if args.out else _resolve(args.path).parent
-        paths = {"html": render_html(cert, out / "report.html"), "pdf": render_pdf(cert, out / "report.pdf")}
-    except ReportError as exc:
+        paths = {"html": render_html(cert, out / "report.html", integrity=st),
+                 "pdf": render_pdf(cert, out / "report.pdf", integrity=st)}
+    except HilError as exc:
         print(f"hil report: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except SystemExit as exc:  # --help
         return int(exc.code or 0)
-    print(f"{cert.decision} {cert.scene.name}: {paths['html']} {paths['pdf']}")
+    mark = f" [{MODIFIED}]" if not st.valid else ""
+    print(f"{cert.decision} {cert.scene.name}{mark}: {paths['html']} {paths['pdf']}")
     return 0
