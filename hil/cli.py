@@ -335,7 +335,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     from hil.stopflag import STOP
 
-    runner = Runner(scene, out, realtime=realtime, progress=progress_cb)
+    runner = Runner(scene, out, realtime=realtime, progress=progress_cb, overwrite=args.overwrite)
     with STOP.install():  # signals stay stop requests until the results are printed
         with prog if prog is not None else beat:
             outcomes = runner.run(select)
@@ -785,6 +785,11 @@ def _numeric_guard(source: str) -> Iterator[None]:
 
 def _describe(exc: BaseException, cmd: str) -> tuple[int, str]:
     """(exit code, one-line message) for an exception that ended a command."""
+    from hil.errors import SafetyStop
+
+    if isinstance(exc, SafetyStop):  # e.g. a signal during the runs of hil certify: 130 / 20
+        status = getattr(exc, "status", "safety_stop")
+        return (EXIT_INTERRUPTED if status == "interrupted" else EXIT_SAFETY_STOP), f"stopped: {one_line(exc)}"
     if isinstance(exc, HilError):
         return EXIT_USAGE, one_line(exc)
     if isinstance(exc, UnicodeDecodeError):

@@ -296,6 +296,7 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
         for i_name, o in given.items():
             outcomes[i_name] = o
             _energy_stage(opt, i_name, o, energy, measurements, plots)
+        _fault_measurements(given, measurements)
     elif run_experiments and scene.experiments:
         from hil.runner import Runner
 
@@ -313,6 +314,13 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                 _energy_stage(opt, names[i], o, energy, measurements, plots)
             if runner.stop_reason and all(o.status == "completed" for o in outcomes.values()):
                 errors.append(f"run stopped: {runner.stop_reason}")  # e.g. a signal after the last experiment
+            if (runner.stop_reason or "").startswith("signal"):
+                # the person at the bench asked to stop: no identification or certificate follows
+                from hil.stopflag import StopRequested
+
+                raise StopRequested(f"{runner.stop_reason}; the records so far are in {out / 'records'}",
+                                    runner.stop_status or "safety_stop")
+            _fault_measurements(outcomes, measurements)
 
     # 2. identification ----------------------------------------------------------------------
     draws: dict[str, np.ndarray] = {}
@@ -702,6 +710,18 @@ def _identification_plots(plots: dict[str, Series], name: str, res: Any, seed: i
         plots[f"corner_{name}"] = Series(
             title=f"Posterior draws ({name}): {names[a]} against {names[b]} (correlation {C[a, b]:+.2f})",
             x=sub[:, a].tolist(), x_label=names[a], y_label=names[b], lines={"draws": sub[:, b].tolist()})
+
+
+def _fault_measurements(outcomes: Mapping[str, Any], measurements: list[Measurement]) -> None:
+    """One INFO measurement per experiment and device with fault counters: the total count of
+    tolerated faults (CRC errors, resyncs, dropped, late and stale frames, retries), the counters
+    themselves in the description. Evidence only: the decision does not use them."""
+    for exp_name, o in outcomes.items():
+        for dev, counters in (getattr(o, "results", {}) or {}).get("device_counters", {}).items():
+            detail = ", ".join(f"{k}={int(v)}" for k, v in sorted(counters.items()))
+            measurements.append(Measurement(
+                name=f"device faults tolerated: {dev} ({exp_name})", value=float(sum(counters.values())),
+                unit="count", outcome="INFO", description=f"adapter counters during the run: {detail}"))
 
 
 def _energy_stage(opt: _Optional, name: str, o: Any, energy: list[EnergyEvidence], measurements: list[Measurement],

@@ -309,8 +309,10 @@ class Runner:
 
     def __init__(self, scene: Any, out_dir: str | Path, *, bench_factory: Callable[[str | None], Any] | None = None,
                  realtime: bool | None = None, progress: Callable[[str, int, int], None] | None = None,
-                 max_ticks: int | None = None) -> None:
+                 max_ticks: int | None = None, overwrite: bool = False) -> None:
         self.scene = scene
+        #: replace an existing record of the same name (``hil run --overwrite``); refused otherwise
+        self.overwrite = bool(overwrite)
         if bench_factory is None:
             from hil.bench import Bench
 
@@ -419,6 +421,7 @@ class Runner:
         last_power: dict[str, float] = {}
 
         zeroed: dict[str, str] = {}
+        now = {"t": 0.0}  # run time [s] of the tick in progress: a stop's events are dated by it
 
         def stop() -> None:
             zeroed.update(self.bench.safe_stop() or {})
@@ -429,8 +432,8 @@ class Runner:
             if held:
                 per = ", ".join(f"{k}: {v}" for k, v in zeroed.items()) or "no actuator"
                 with contextlib.suppress(Exception):
-                    held[0].event(stats.ticks * self.dt, status, reason)
-                    held[0].event(stats.ticks * self.dt, "safe_stop", f"zero effort commanded ({per})")
+                    held[0].event(now["t"], status, reason)
+                    held[0].event(now["t"], "safe_stop", f"zero effort commanded ({per})")
 
         with safe_stop_context(stop, on_stop):  # first reading: channel sizes
             STOP.check()
@@ -444,7 +447,8 @@ class Runner:
                 "units": getattr(self.scene, "units", "rotary")}
         try:
             writer = RecordWriter(path, scene_text=self.scene.source_text, scene_sha256=self.scene.sha256,
-                                  meta=meta, channels=self._channels(meas0), rate_hz=self.rate_hz)
+                                  meta=meta, channels=self._channels(meas0), rate_hz=self.rate_hz,
+                                  overwrite=self.overwrite, planned_samples=n)
         except BaseException:
             self.bench.safe_stop()
             raise
@@ -455,8 +459,9 @@ class Runner:
                 t0 = time.monotonic_ns()
                 period_ns = round(1e9 / self.rate_hz)
                 for k in range(n):
-                    STOP.check()  # the safe point of a stop request (signal)
                     t = k * self.dt
+                    now["t"] = t
+                    STOP.check()  # the safe point of a stop request (signal)
                     late = 0.0
                     if self.realtime:
                         deadline = t0 + k * period_ns
@@ -502,6 +507,10 @@ class Runner:
                         writer.flush()  # a full disk here is still a safe stop of this experiment
                     except (HilError, OSError) as exc:
                         raise SafetyStop(f"record: {one_line(exc)}") from exc
+            counters = self._device_counters()
+            if counters:
+                with contextlib.suppress(HilError, OSError):  # evidence of tolerated faults, kept in the record
+                    writer.set_device_counters(counters)
             results: dict[str, Any] = {}
             if state["status"] != "error":
                 results = self._finish(exp, path, writer, meta, name)
@@ -518,10 +527,24 @@ class Runner:
                     state["reason"] = f"{state['reason']}; {reason}"
                 STOP.request(state["reason"], state["status"])
                 log.error("%s: %s", name, reason)
+            if counters:
+                results = {**results, "device_counters": counters}
             return ExperimentOutcome(name, state["status"], state["reason"], path, results, stats.summary())
         finally:
             with contextlib.suppress(Exception):
                 writer.close(stop_reason=state["reason"], status=state["status"])
+
+    def _device_counters(self) -> dict[str, dict[str, int]]:
+        """Per-device fault counters (CRC errors, resyncs, dropped, late, stale frames, retries) of the
+        bench, or {} when the bench does not report them."""
+        get = getattr(self.bench, "device_counters", None)
+        if get is None:
+            return {}
+        try:
+            return {str(d): {str(k): int(v) for k, v in c.items()} for d, c in (get() or {}).items() if c}
+        except Exception as exc:  # counters are evidence, never a reason to lose the record
+            log.warning("device counters not read: %s", one_line(exc))
+            return {}
 
     def _finish(self, exp: Any, path: Path, writer: Any, meta: Mapping[str, Any], name: str) -> dict[str, Any]:
         """The experiment's ``finish()`` on the channels read back from the flushed record."""

@@ -152,7 +152,7 @@ def test_stale_or_silent_odrive_stops_within_watchdog_plus_one_tick(tmp_path, fa
     w, dt = sc.safety.watchdog_ms / 1000.0, sc.dt
     assert w < t_stop - t_fresh <= w + dt + 1e-12
     assert t_stop - t_fresh == pytest.approx((math.floor(w / dt + 1e-9) + 1) * dt)
-    assert rec.t[-1] == pytest.approx(t_stop - dt)  # every tick up to the stop is recorded
+    assert rec.t[-1] == pytest.approx(t_stop)  # every tick up to and including the breach tick is recorded
 
 
 def test_stale_bota_frames_stop_within_watchdog_plus_one_tick_deterministically(tmp_path):

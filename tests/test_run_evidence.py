@@ -1,0 +1,88 @@
+"""Glue between the runner, the adapters' fault counters, the record and the certificate: tolerated
+faults are evidence (stored in the record, listed in a certificate's measurements); a signal during
+the runs of ``hil certify`` ends the command (no identification, no certificate) with 130 / 20."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from hil.record import RunRecord
+from hil.runner import Runner
+from hil.scene import load_scene, scene_from_dict
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _sdea_with_corrupt_frames(prob: float) -> object:
+    d = yaml.safe_load(load_scene("sdea_bench").source_text)
+    for dev in d["devices"]:
+        if dev["name"] == "spring_ft":
+            dev.setdefault("sim", {})["faults"] = {"corrupt_prob": prob}
+    d["experiments"] = d["experiments"][:1]
+    return scene_from_dict(d, label="sdea_bench-corrupt")
+
+
+@pytest.mark.timeout(120)
+def test_tolerated_crc_errors_are_stored_in_the_record(tmp_path):
+    """Corrupted Bota frames are dropped by the adapter (CRC) and counted; the counts reach the
+    record and the outcome. With corruption off the same counter is 0, so the count is not a
+    constant of the code path."""
+    counts = {}
+    for prob in (0.0, 0.05):
+        out = Runner(_sdea_with_corrupt_frames(prob), tmp_path / f"p{prob}", max_ticks=400).run()
+        assert out and out[0].record is not None, out
+        rec = RunRecord.open(out[0].record)
+        assert set(rec.device_counters) >= {"spring_ft"}, rec.device_counters
+        assert all(isinstance(v, int) for c in rec.device_counters.values() for v in c.values())
+        assert out[0].results["device_counters"] == rec.device_counters
+        counts[prob] = rec.device_counters["spring_ft"]["crc_errors"]
+    assert counts[0.0] == 0
+    assert counts[0.05] > 0, counts
+
+
+def test_fault_counters_become_info_measurements():
+    from types import SimpleNamespace
+
+    from hil.pipeline import _fault_measurements
+
+    outcome = SimpleNamespace(results={"device_counters": {"spring_ft": {"crc_errors": 3, "resync_bytes": 40},
+                                                           "motor": {}}})
+    ms: list = []
+    _fault_measurements({"chirp_locked": outcome}, ms)
+    assert len(ms) == 2
+    m = next(m for m in ms if "spring_ft" in m.name)
+    assert m.value == 43 and m.outcome == "INFO" and m.unit == "count"
+    assert "crc_errors=3" in m.description and "chirp_locked" in m.name
+
+
+@pytest.mark.timeout(180)
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 20)])
+def test_a_signal_during_the_runs_of_certify_ends_the_command(tmp_path, sig, code):
+    out = tmp_path / "cert"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200"}
+    p = subprocess.Popen([sys.executable, "-m", "hil.cli", "certify", "sdea_bench", "--out", str(out)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=env)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not list((out / "records").glob("*.h5")):
+        if p.poll() is not None:
+            break
+        time.sleep(0.05)
+    assert p.poll() is None, p.communicate()
+    time.sleep(0.3)
+    p.send_signal(sig)
+    _stdout, stderr = p.communicate(timeout=120)
+    assert p.returncode == code, stderr
+    assert f"signal: {signal.Signals(sig).name}" in stderr
+    assert "Traceback" not in stderr
+    assert not (out / "certificate.json").exists()  # nothing certified from a run the person stopped
+    for rec in (out / "records").glob("*.h5"):
+        r = RunRecord.open(rec)
+        assert r.closed and "signal" in r.stop_reason
