@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from hil.inputs import read_text_file
 from hil.record import ChannelSpec, RecordError, RecordWriter
 
 logger = logging.getLogger(__name__)
@@ -131,7 +132,7 @@ def _load_sidecar(path: str | Path) -> dict[str, Any]:
     p = Path(path)
     if not p.exists():
         raise RecordError(f"{p}: no such sidecar file")
-    text = _read_text(p, "sidecar file")
+    text = read_text_file(p, "sidecar file", RecordError)
     import yaml
 
     try:
@@ -237,26 +238,8 @@ def _write(out: str | Path, t: np.ndarray, data: dict[str, np.ndarray], m: _Mapp
 # ------------------------------------------------------------------------------------------------- CSV
 
 
-def _read_text(path: Path, what: str) -> str:
-    """UTF-8 text of ``path``; one-line :class:`RecordError` for a folder, an unreadable, binary or
-    non-UTF-8 file."""
-    if path.is_dir():
-        raise RecordError(f"{path}: is a folder, not a {what}")
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise RecordError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
-    if b"\x00" in raw:
-        raise RecordError(f"{path}: binary data (NUL bytes), not a text {what}")
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise RecordError(f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); "
-                          f"save the {what} as UTF-8") from None
-
-
 def _read_csv(path: Path, delimiter: str | None) -> tuple[list[str], np.ndarray]:
-    text = _read_text(path, "CSV file")
+    text = read_text_file(path, "CSV file", RecordError)
     lines = [(i + 1, ln) for i, ln in enumerate(text.splitlines()) if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise RecordError(f"{path}: empty CSV")

@@ -61,6 +61,8 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from hil.errors import SceneError
+from hil.inputs import SEED_MAX, DuplicateKeyError, field_path, unique_key_loader
+from hil.inputs import parse_yaml as _parse_yaml
 
 __all__ = [
     "ChirpExperiment",
@@ -221,9 +223,6 @@ def unknown_key_message(key: Any, known: Any) -> str:
     if close:
         return f"unknown key {str(key)!r}, did you mean {close[0]!r}?"
     return f"unknown key {str(key)!r}; expected one of: {', '.join(names)}"
-
-
-SEED_MAX = 2**32 - 1
 
 
 def _seed(value: Any) -> Any:
@@ -1440,13 +1439,6 @@ def _model_names() -> set[str]:
     return names
 
 
-def _fmt_loc(loc: Sequence[Any]) -> str:
-    s = ""
-    for part in loc:
-        s += f"[{part}]" if isinstance(part, int) else ("." if s else "") + str(part)
-    return s or "(top level)"
-
-
 def _format_error(exc: ValidationError, data: Any) -> str:
     errs = exc.errors(include_url=False)
     # the deepest location is the most specific (for unions such as ``human: X | list[X]`` the
@@ -1478,7 +1470,7 @@ def _format_error(exc: ValidationError, data: Any) -> str:
         inp = err.get("input")
         if not isinstance(inp, dict | list):
             msg = f"{msg} (got {inp!r})"
-    return f"{_fmt_loc(loc)}: {msg}"
+    return f"{field_path(loc)}: {msg}"
 
 
 def _check_blocks(sc: Scene) -> None:
@@ -1494,73 +1486,10 @@ def _check_blocks(sc: Scene) -> None:
     make_controller(sc.controller_config(), units=sc.units, scene=sc)
 
 
-class DuplicateKeyError(Exception):
-    """A YAML mapping holds the same key twice (``path``: where, ``line``/``first``: 1-based lines)."""
-
-    def __init__(self, path: str, key: str, line: int, first: int) -> None:
-        super().__init__(f"{path}: duplicate key {key!r} (line {line}; first at line {first})")
-        self.path, self.key, self.line, self.first = path, key, line, first
-
-
-_LOADER: Any = None
-
-
-def unique_key_loader() -> Any:
-    """A :class:`yaml.SafeLoader` subclass that raises :class:`DuplicateKeyError` when a mapping, at
-    any depth, holds a key twice (plain ``yaml.safe_load`` silently keeps the last value). Merge
-    keys (``<<: *anchor``) may still be overridden, as YAML intends."""
-    global _LOADER
-    if _LOADER is not None:
-        return _LOADER
-    import yaml
-
-    class UniqueKeyLoader(yaml.SafeLoader):
-        def construct_document(self, node: Any) -> Any:
-            _find_duplicates(node, [], set())
-            return super().construct_document(node)
-
-    _LOADER = UniqueKeyLoader
-    return _LOADER
-
-
-def _find_duplicates(node: Any, path: list[Any], seen: set[int]) -> None:
-    import yaml
-
-    if id(node) in seen:  # an alias of a node already walked
-        return
-    seen.add(id(node))
-    if isinstance(node, yaml.MappingNode):
-        first: dict[Any, int] = {}
-        for key_node, value_node in node.value:
-            if key_node.tag == "tag:yaml.org,2002:merge":
-                continue
-            scalar = isinstance(key_node, yaml.ScalarNode)
-            key = (key_node.tag, key_node.value) if scalar else ("", id(key_node))
-            line = key_node.start_mark.line + 1
-            if key in first:
-                raise DuplicateKeyError(_fmt_loc([*path, key_node.value]), str(key_node.value), line, first[key])
-            first[key] = line
-            _find_duplicates(value_node, [*path, key_node.value if scalar else "?"], seen)
-    elif isinstance(node, yaml.SequenceNode):
-        for i, item in enumerate(node.value):
-            _find_duplicates(item, [*path, i], seen)
-
-
 def parse_yaml(text: str, label: str) -> Any:
-    """Parse YAML ``text`` with :func:`unique_key_loader`; any problem is one :class:`SceneError`
-    line ``label: ...`` (``not valid YAML (line L, column C): ...`` or ``field.path: duplicate key
-    'k' (line L; first at line F)``)."""
-    import yaml
-
-    try:
-        return yaml.load(text, Loader=unique_key_loader())  # a SafeLoader subclass: no code
-    except DuplicateKeyError as exc:
-        raise SceneError(f"{label}: {exc}") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).strip().splitlines()[0]
-        raise SceneError(f"{label}: not valid YAML{where}: {problem}") from None
+    """Parse scene YAML ``text`` (safe, duplicate keys refused at any depth); any problem is one
+    :class:`SceneError` line ``label: ...`` (see :func:`hil.inputs.parse_yaml`)."""
+    return _parse_yaml(text, label, SceneError)
 
 
 def _builtin_dir() -> Path:

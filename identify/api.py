@@ -26,7 +26,6 @@ model's nominal parameters with the data's own FRF variance, and raises
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import sys
@@ -54,6 +53,7 @@ from hil.identify.fit import LsResult, fit_least_squares
 from hil.identify.frf import FrfEstimate, Resolution, estimate_frf
 from hil.identify.models import GreyBoxModel, make_model
 from hil.identify.posterior import LogPosterior, PosteriorResult, sample_posterior
+from hil.inputs import number_type, seed_type
 
 logger = logging.getLogger(__name__)
 
@@ -536,32 +536,6 @@ def _resolution_arg(v: str | None) -> Resolution | None:
     return step
 
 
-def _number_type(kind: str) -> Any:
-    """argparse ``type=`` for a finite number that is ``positive`` or ``nonnegative``."""
-
-    def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not np.isfinite(v) or v < 0 or (kind == "positive" and v == 0):
-            raise argparse.ArgumentTypeError(f"{text!r}: expected a finite {kind} number")
-        return v
-
-    parse.__name__ = f"{kind} number"
-    return parse
-
-
-def _seed_type(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: the seed must be a non-negative integer")
-    return v
-
-
 def _theta0(items: Sequence[str] | None) -> dict[str, float] | None:
     out: dict[str, float] = {}
     for k, v in _kv(items, "--set").items():
@@ -608,19 +582,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--input", action="append", metavar="SIGNAL", help="input signal, repeatable (model order)")
     p.add_argument("--output", action="append", metavar="CHANNEL=SIGNAL",
                    help="model output from a signal, e.g. force=spring_ft.wrench[5] (a leading - negates)")
-    p.add_argument("--band", nargs=2, type=_number_type("nonnegative"), metavar=("F_MIN", "F_MAX"), default=None,
+    p.add_argument("--band", nargs=2, type=number_type("nonnegative"), metavar=("F_MIN", "F_MAX"), default=None,
                    help="analysis band [Hz], 0 <= F_MIN < F_MAX")
-    p.add_argument("--period", type=_number_type("positive"), default=None,
+    p.add_argument("--period", type=number_type("positive"), default=None,
                    help="excitation period [s] (Welch segment length)")
-    p.add_argument("--skip", type=_number_type("nonnegative"), default=None, help="start-up transient to drop [s]")
+    p.add_argument("--skip", type=number_type("nonnegative"), default=None, help="start-up transient to drop [s]")
     p.add_argument("--sampling", choices=["zoh", "continuous"], default=None,
                    help="plant behind a zero-order hold at the record's rate (default for records) or continuous")
     p.add_argument("--resolution", default=None,
                    help="rounding of the recorded signals: float32 (default), float64, none, or a step")
     p.add_argument("--noise", choices=["student", "gaussian", "scaled"], default=None)
     p.add_argument("--set", action="append", metavar="PARAM=VALUE", help="starting value of a parameter (theta0)")
-    p.add_argument("--seed", type=_seed_type, default=None)
-    p.add_argument("--max-seconds", type=_number_type("positive"), default=None, help="time budget of the sampler [s]")
+    p.add_argument("--seed", type=seed_type, default=None)
+    p.add_argument("--max-seconds", type=number_type("positive"), default=None, help="time budget of the sampler [s]")
     p.add_argument("--json", action="store_true", help="print the full result as JSON")
     p.add_argument("--no-store", action="store_true", help="do not write the posterior into the record")
     p.add_argument("--out", default=None, help="for .csv/.mat input: keep the imported record (with the result) here")

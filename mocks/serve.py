@@ -43,7 +43,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 import os
 import signal
 import sys
@@ -53,6 +52,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hil.inputs import number_type, seed_type
 from hil.mocks.faults import FaultPlan
 from hil.mocks.interfaces import FreeJoints
 
@@ -259,31 +259,6 @@ def _wait(duration: float | None, stop: threading.Event) -> None:
         stop.wait(min(0.2, left))
 
 
-def _number(kind: str) -> Any:
-    """argparse ``type=``: a finite ``positive`` or ``non-negative`` number."""
-
-    def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not math.isfinite(v) or v < 0 or (kind == "positive" and v == 0):
-            raise argparse.ArgumentTypeError(f"{text!r}: expected a finite {kind} number")
-        return v
-
-    return parse
-
-
-def _seed(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: the seed must be a non-negative integer")
-    return v
-
-
 def main(argv: list[str] | None = None) -> int:
     """``hil mock serve [SCENE | --spec SPEC] [--duration S] [--json] ...``: serve simulated devices
     and print their endpoints (see the module docstring)."""
@@ -292,18 +267,20 @@ def main(argv: list[str] | None = None) -> int:
     ap = OneLineArgumentParser(prog="hil mock serve", description=__doc__.split("\n", 1)[0])
     ap.add_argument("scene", nargs="?", help="scene file or built-in scene name (see 'hil scenes')")
     ap.add_argument("--spec", help="instead of a scene: JSON string or .json/.yaml file (see module doc)")
-    ap.add_argument("--duration", type=_number("non-negative"), default=None,
+    ap.add_argument("--duration", type=number_type("non-negative"), default=None,
                     help="seconds to run (default: until Ctrl-C/SIGTERM)")
     ap.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
-    ap.add_argument("--seed", type=_seed, default=None, help="scene: seed of noise and faults (default: the scene's)")
+    ap.add_argument("--seed", type=seed_type, default=None,
+                    help="scene: seed of noise and faults (default: the scene's)")
     ap.add_argument("--variant", choices=["locked", "free"], default=None, help="scene: SDEA plant variant")
     ap.add_argument("--can-interface", default="virtual",
                     help="scene: python-can interface of the CAN devices (virtual | udp_multicast | socketcan ...)")
     ap.add_argument("--can-channel", action="append", default=[], metavar="SCENE_CH=CH",
                     help="scene: serve scene CAN channel SCENE_CH on channel CH (repeatable)")
-    ap.add_argument("--stream-rate", type=_number("positive"), default=100.0,
+    ap.add_argument("--stream-rate", type=number_type("positive"), default=100.0,
                     help="scene: frame rate of streaming FT-300 sensors [Hz] (the sensor's is 100)")
-    ap.add_argument("--plant-rate", type=_number("positive"), default=1000.0, help="spec: FreeJoints step rate [Hz]")
+    ap.add_argument("--plant-rate", type=number_type("positive"), default=1000.0,
+                    help="spec: FreeJoints step rate [Hz]")
     args = ap.parse_args(argv)
     if args.scene and args.spec:
         ap.error("give a SCENE or --spec, not both")

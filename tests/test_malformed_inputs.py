@@ -111,7 +111,7 @@ CASES: list[tuple[str, dict[str, str | bytes], list[str], list[str]]] = [
     ("certify-scene-unknown-target", {"s.yaml": "SCENE:target: motor=target: motr"}, ["certify", "{d}/s.yaml"],
      ["s.yaml", "'motr'"]),
     ("run-seed-not-int", {}, ["run", "sdea_bench", "--seed", "x"], ["--seed", "'x'"]),
-    ("run-seed-negative", {}, ["run", "sdea_bench", "--seed", "-5"], ["--seed -5"]),
+    ("run-seed-negative", {}, ["run", "sdea_bench", "--seed", "-5"], ["--seed", "got -5"]),
     ("run-experiment-index", {}, ["run", "sdea_bench", "--experiment", "9"], ["--experiment 9"]),
     ("run-experiment-type", {}, ["run", "sdea_bench", "--experiment", "sine"], ["--experiment sine"]),
     ("run-realtime-and-lockstep", {}, ["run", "sdea_bench", "--realtime", "--lockstep"], ["--lockstep"]),
@@ -122,7 +122,7 @@ CASES: list[tuple[str, dict[str, str | bytes], list[str], list[str]]] = [
     ("run-out-missing-value", {}, ["run", "sdea_bench", "--out"], ["--out"]),
     ("certify-out-not-empty", {"o/certificate.json": "{}"}, ["certify", "--out", "{d}/o"], ["/o", "--overwrite"]),
     ("certify-out-under-file", {"f": "x"}, ["certify", "--out", "{d}/f/r"], ["f/r"]),
-    ("certify-seed-negative", {}, ["certify", "--seed", "-1"], ["--seed -1"]),
+    ("certify-seed-negative", {}, ["certify", "--seed", "-1"], ["--seed", "got -1"]),
     ("certify-missing-scene", {}, ["certify", "{d}/nope.yaml"], ["nope.yaml"]),
     # ---- hil import: CSV and .mat
     ("import-csv-binary", {"r.csv": RANDOM}, ["import", "{d}/r.csv"], ["r.csv", "binary"]),
