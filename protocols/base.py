@@ -28,6 +28,7 @@ import abc
 import contextlib
 import dataclasses
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -153,3 +154,29 @@ class ForceSensor(Device):
     def tare(self, timeout: float = 0.5) -> None:  # pragma: no cover - optional
         """Zero the sensor if supported."""
         raise NotImplementedError
+
+
+class StreamingSensor(ForceSensor):
+    """A force sensor that streams frames over a byte transport (Bota serial, FT-300 stream mode).
+
+    Subclasses count the bytes received in ``rx_bytes`` and decode what :meth:`_pump` reads.
+    :meth:`wait_rx` is the lockstep barrier: a simulated sensor reports how many bytes it wrote,
+    and the host waits for exactly those before reading, so a test run does not depend on when
+    the kernel delivers them.
+    """
+
+    rx_bytes: int = 0
+
+    @abc.abstractmethod
+    def _pump(self, block: bool) -> None:
+        """Read what the transport has (waiting up to its read timeout when ``block``) and decode it."""
+
+    def wait_rx(self, total_bytes: int, timeout: float) -> bool:
+        """Receive (and decode, without consuming) until ``rx_bytes >= total_bytes`` or ``timeout``
+        (s) passes; True if reached."""
+        deadline = time.monotonic() + timeout
+        while self.rx_bytes < total_bytes:
+            if time.monotonic() >= deadline:
+                return False
+            self._pump(block=True)
+        return True

@@ -69,7 +69,7 @@ from hil.errors import (
     DeviceTimeout,
     ProtocolError,
 )
-from hil.protocols.base import DeviceInfo, ForceSensor, WrenchSample, repeat_sample
+from hil.protocols.base import DeviceInfo, ForceSensor, StreamingSensor, WrenchSample, repeat_sample
 from hil.protocols.crc import crc16_modbus
 
 log = logging.getLogger(__name__)
@@ -510,7 +510,7 @@ def _parse_rtu_reply(buf: bytearray, slave: int, fc: int) -> tuple[bytes | None,
         start = i + 1
 
 
-class RobotiqFT300Stream(ForceSensor):
+class RobotiqFT300Stream(StreamingSensor):
     """Robotiq FT-300 in data-stream mode on a serial line (see the module docstring).
 
     On open: the port is opened with :func:`serial.serial_for_url` (19200 8N1 by default) and its
@@ -623,16 +623,6 @@ class RobotiqFT300Stream(ForceSensor):
         p = self.parser
         return {"crc_errors": p.crc_errors, "resync_bytes": p.skipped_bytes, "skipped": self._skipped,
                 "stale": self._stale_reads, "timeouts": self._timeouts}
-
-    def wait_rx(self, total_bytes: int, timeout: float) -> bool:
-        """Receive (and decode, without consuming) until ``rx_bytes >= total_bytes`` or ``timeout``
-        (s) passes; True if reached (lockstep barrier: ``SimFT300Stream.tx_bytes``)."""
-        deadline = time.monotonic() + timeout
-        while self.rx_bytes < total_bytes:
-            if time.monotonic() >= deadline:
-                return False
-            self._pump(block=True)
-        return True
 
     def read(self, timeout: float | None = None) -> WrenchSample:
         """Newest stream sample (N, N.m); see the class doc for freshness and waiting."""

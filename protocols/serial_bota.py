@@ -59,7 +59,7 @@ import numpy as np
 import serial
 
 from hil.errors import ChecksumError, DeviceDisconnected, DeviceFault, DeviceTimeout
-from hil.protocols.base import DeviceInfo, ForceSensor, WrenchSample, repeat_sample
+from hil.protocols.base import DeviceInfo, StreamingSensor, WrenchSample, repeat_sample
 from hil.protocols.crc import crc16_x25
 
 log = logging.getLogger(__name__)
@@ -131,7 +131,7 @@ class FrameParser:
         return out
 
 
-class BotaSerial(ForceSensor):
+class BotaSerial(StreamingSensor):
     """A Bota serial F/T sensor streaming binary frames; 6 axes (Fx, Fy, Fz, Tx, Ty, Tz).
 
     Parameters
@@ -215,17 +215,6 @@ class BotaSerial(ForceSensor):
 
     def _pump(self, block: bool) -> None:
         self._pending += self.parser.feed(self._read_bytes(block))
-
-    def wait_rx(self, total_bytes: int, timeout: float) -> bool:
-        """Receive (and decode, without consuming) until ``rx_bytes >= total_bytes`` or ``timeout``
-        (s) passes; True if reached. Lockstep barrier: ``total_bytes`` is what the simulated
-        sensor wrote (``SimBota.tx_bytes``)."""
-        deadline = time.monotonic() + timeout
-        while self.rx_bytes < total_bytes:
-            if time.monotonic() >= deadline:
-                return False
-            self._pump(block=True)
-        return True
 
     def _accept(self, frames: list[BotaFrame]) -> BotaFrame | None:
         """Newest fresh frame among ``frames`` (updates gap / stale counters)."""
