@@ -713,15 +713,21 @@ def _identification_plots(plots: dict[str, Series], name: str, res: Any, seed: i
 
 
 def _fault_measurements(outcomes: Mapping[str, Any], measurements: list[Measurement]) -> None:
-    """One INFO measurement per experiment and device with fault counters: the total count of
-    tolerated faults (CRC errors, resyncs, dropped, late and stale frames, retries), the counters
-    themselves in the description. Evidence only: the decision does not use them."""
+    """One INFO measurement per experiment whose devices report fault counters: the total count of
+    faults the adapters tolerated during the run (CRC errors, resyncs, dropped, late and stale
+    frames, retries, ...), each device's non-zero counters in the description. Evidence only: the
+    decision does not use it (a fault the adapter could not tolerate is a safe stop, FAIL)."""
     for exp_name, o in outcomes.items():
-        for dev, counters in (getattr(o, "results", {}) or {}).get("device_counters", {}).items():
-            detail = ", ".join(f"{k}={int(v)}" for k, v in sorted(counters.items()))
-            measurements.append(Measurement(
-                name=f"device faults tolerated: {dev} ({exp_name})", value=float(sum(counters.values())),
-                unit="count", outcome="INFO", description=f"adapter counters during the run: {detail}"))
+        per = (getattr(o, "results", {}) or {}).get("device_counters", {})
+        if not per:
+            continue
+        total = sum(int(v) for c in per.values() for v in c.values())
+        nonzero = [f"{dev}: " + ", ".join(f"{k}={int(v)}" for k, v in sorted(c.items()) if int(v))
+                   for dev, c in sorted(per.items()) if any(int(v) for v in c.values())]
+        detail = "; ".join(nonzero) if nonzero else f"none on {len(per)} device(s)"
+        measurements.append(Measurement(
+            name=f"device faults tolerated ({exp_name})", value=float(total), unit="count", outcome="INFO",
+            description=f"adapter counters during the run: {detail}"))
 
 
 def _energy_stage(opt: _Optional, name: str, o: Any, energy: list[EnergyEvidence], measurements: list[Measurement],

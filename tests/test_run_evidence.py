@@ -53,14 +53,16 @@ def test_fault_counters_become_info_measurements():
 
     from hil.pipeline import _fault_measurements
 
-    outcome = SimpleNamespace(results={"device_counters": {"spring_ft": {"crc_errors": 3, "resync_bytes": 40},
-                                                           "motor": {}}})
+    faulty = SimpleNamespace(results={"device_counters": {"spring_ft": {"crc_errors": 3, "resync_bytes": 40,
+                                                                        "stale": 0}, "motor": {"timeouts": 0}}})
+    clean = SimpleNamespace(results={"device_counters": {"spring_ft": {"crc_errors": 0}, "motor": {}}})
     ms: list = []
-    _fault_measurements({"chirp_locked": outcome}, ms)
-    assert len(ms) == 2
-    m = next(m for m in ms if "spring_ft" in m.name)
+    _fault_measurements({"chirp_locked": faulty, "chirp_free": clean, "hold": SimpleNamespace(results={})}, ms)
+    assert [m.name for m in ms] == ["device faults tolerated (chirp_locked)", "device faults tolerated (chirp_free)"]
+    m, z = ms
     assert m.value == 43 and m.outcome == "INFO" and m.unit == "count"
-    assert "crc_errors=3" in m.description and "chirp_locked" in m.name
+    assert "spring_ft: crc_errors=3, resync_bytes=40" in m.description and "motor" not in m.description
+    assert z.value == 0 and "none on 2 device(s)" in z.description
 
 
 @pytest.mark.timeout(180)
