@@ -30,6 +30,7 @@ import logging
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
+from fractions import Fraction
 
 import numpy as np
 from numpy.polynomial import polynomial as P
@@ -49,6 +50,7 @@ __all__ = [
     "Tolerances",
     "absolute_stability",
     "check",
+    "infinity_condition",
     "llewellyn",
     "pole_conditions",
     "positive_real",
@@ -124,6 +126,8 @@ def _rescale(conds: list[Condition], w0: float) -> list[Condition]:
         ev = c.evidence
         if "negative_bands_rad_s" in ev:
             ev["negative_bands_rad_s"] = [(a * w0, b * w0) for a, b in ev["negative_bands_rad_s"]]
+            if c.status == "violated" and ev["negative_bands_rad_s"] and c.detail.startswith("negative for ω"):
+                c.detail = _band_detail(ev)
         if "touching_rad_s" in ev:
             ev["touching_rad_s"] = [x * w0 for x in ev["touching_rad_s"]]
         if "pole" in ev:
@@ -233,7 +237,7 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
         worst = max(rhp_all, key=lambda t: t[2].real / abs(t[2]))
         conds.append(Condition(
             "C", "no poles in the open right-half plane", "violated", -worst[2].real / abs(worst[2]),
-            abs(worst[2].imag), f"entry ({worst[0] + 1},{worst[1] + 1}) has a pole at {worst[2]:.6g}",
+            abs(worst[2].imag), f"entry ({worst[0] + 1},{worst[1] + 1}) has a pole at {worst[2] * w0:.6g} rad/s",
             {"rhp_poles": [{"entry": [i + 1, j + 1], "pole": p} for i, j, p in rhp_all]}))
     else:
         allp = [p for row in tm.entries for e in row if not e.is_zero for p in e.poles()]
@@ -242,10 +246,11 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
                                "all poles in the closed left-half plane", {"poles": allp}))
     for w, rec in sorted(axis.items()):
         name = f"D[ω={w:.6g}]"
+        wp = w * w0  # physical rad/s, for the detail lines
         label = "imaginary-axis pole simple with admissible residues"
         if rec["mult"] > 1:
             conds.append(Condition(name, label, "violated", -1.0, w,
-                                   f"pole at s = j{w:.6g} has multiplicity {rec['mult']}",
+                                   f"pole at s = j{wp:.6g} has multiplicity {rec['mult']}",
                                    {"multiplicity": rec["mult"]}))
             continue
         # residues of the frequency-normalized entries are the physical ones divided by w0
@@ -259,12 +264,12 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
             margin = float(np.min(lam)) / scale
             ev["eigenvalues"] = lam
             if herm_err > tol.residue:
-                status, detail = "violated", f"residue matrix at s = j{w:.6g} is not Hermitian"
+                status, detail = "violated", f"residue matrix at s = j{wp:.6g} is not Hermitian"
                 margin = -herm_err
             elif margin < -tol.residue:
-                status, detail = "violated", f"residue matrix at s = j{w:.6g} is not positive semidefinite"
+                status, detail = "violated", f"residue matrix at s = j{wp:.6g} is not positive semidefinite"
             elif margin <= tol.residue:
-                status, detail = "equality", f"residue matrix at s = j{w:.6g} is singular (PSD)"
+                status, detail = "equality", f"residue matrix at s = j{wp:.6g} is singular (PSD)"
                 margin = 0.0
             else:
                 status, detail = "satisfied", "residue matrix positive definite"
@@ -274,6 +279,111 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
             status, detail = "marginal", detail + "; pole only within tolerance of the imaginary axis"
         conds.append(Condition(name, label, status, margin, w, detail, ev))
     return conds
+
+
+def _frac_det(A: list[list[Fraction]]) -> Fraction:
+    """Exact determinant of a small matrix of Fractions (Gaussian elimination over Q)."""
+    M = [list(r) for r in A]
+    n = len(M)
+    det = Fraction(1)
+    for c in range(n):
+        piv = next((r for r in range(c, n) if M[r][c] != 0), None)
+        if piv is None:
+            return Fraction(0)
+        if piv != c:
+            M[c], M[piv] = M[piv], M[c]
+            det = -det
+        det *= M[c][c]
+        for r in range(c + 1, n):
+            f = M[r][c] / M[c][c]
+            if f:
+                M[r] = [a - f * b for a, b in zip(M[r], M[c], strict=True)]
+    return det
+
+
+def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> Condition:
+    """Condition D[ω=∞]: at most a simple pole at s = ∞ with an admissible residue matrix.
+
+    Positive realness (and therefore passivity, Llewellyn and Theorem 1, which all reduce to
+    positive realness of an immittance or of its symmetrization) requires every entry to grow at
+    most like s (degree excess deg num - deg den ≤ 1) and the residue R = lim_{s→∞} G(s)/s to be
+    admissible. The residue of an entry is the ratio of its leading coefficients when the excess
+    is 1 (else 0); the float coefficients are exact binary rationals, so R is formed and decided
+    exactly (Fractions): ``hermitian`` -- R symmetric (Hermitian, R is real) with all principal
+    minors ≥ 0, i.e. positive semidefinite; ``minors`` (Llewellyn, Theorem 1) -- every principal
+    minor of R ≥ 0 and every r_ij·r_ji ≥ 0 (the symmetrized R' is PSD). An excess ≥ 2 (a double
+    pole at infinity, e.g. Z = m s²) is a violation. Singular admissible R (some principal minor
+    exactly 0 while R ≠ 0) is ``equality``, as for finite imaginary-axis poles.
+
+    Evidence: ``degree_excess`` per entry (None for zero entries), ``residue_inf`` (R, floats),
+    ``eigenvalues`` (of the symmetric part of R) and the decisive exact minor. Margin: the
+    smallest eigenvalue of the symmetric part of R over max|r_ij| (``minors``: the smallest
+    principal minor over the permanent of |R|), invariant under s → a·s and G → b·G.
+    """
+    n = tm.n
+    name, label = "D[ω=∞]", "pole at s = ∞ at most simple with admissible residue R = lim G(s)/s"
+    exc: list[list[int | None]] = [[None if tm[i, j].is_zero else int(tm[i, j].num.size - tm[i, j].den.size)
+                                    for j in range(n)] for i in range(n)]
+    ev: dict = {"degree_excess": exc, "pole": math.inf}
+    top = max((d for row in exc for d in row if d is not None), default=-1)
+    if top >= 2:
+        i, j = next((i, j) for i in range(n) for j in range(n) if exc[i][j] == top)
+        return Condition(name, label, "violated", -1.0, math.inf,
+                         f"entry ({i + 1},{j + 1}) has a pole of order {top} at s = ∞ (degree excess {top})", ev)
+    if top <= 0:
+        return Condition(name, label, "satisfied", 1.0, None, "no pole at s = ∞ (all entries proper)", ev)
+    R = [[Fraction(0) if exc[i][j] != 1 else
+          Fraction(float(tm[i, j].num[-1])) / Fraction(float(tm[i, j].den[-1])) for j in range(n)] for i in range(n)]
+    Rf = np.array([[float(v) for v in row] for row in R])
+    scale = float(np.max(np.abs(Rf))) or 1.0
+    lam = np.linalg.eigvalsh((Rf + Rf.T) / 2)
+    ev.update({"residue_inf": Rf, "eigenvalues": lam, "exact": True})
+    if residue_test == "hermitian":
+        asym = [(i, j) for i in range(n) for j in range(i + 1, n) if R[i][j] != R[j][i]]
+        if asym:
+            i, j = asym[0]
+            err = max(abs(float(R[a][b] - R[b][a])) for a, b in asym) / scale
+            return Condition(name, label, "violated", -err, math.inf,
+                             f"residue matrix at s = ∞ is not symmetric (r{i + 1}{j + 1} ≠ r{j + 1}{i + 1})", ev)
+    else:
+        for i in range(n):
+            for j in range(i + 1, n):
+                if R[i][j] * R[j][i] < 0:
+                    return Condition(name, label, "violated", -1.0, math.inf,
+                                     f"r{i + 1}{j + 1}·r{j + 1}{i + 1} = {float(R[i][j] * R[j][i]):.4g} < 0 "
+                                     "at s = ∞", ev)
+    worst: tuple[float, tuple[int, ...]] | None = None
+    zero_minor: tuple[int, ...] | None = None
+    for k in range(1, n + 1):
+        for idx in itertools.combinations(range(n), k):
+            mnr = _frac_det([[R[a][b] for b in idx] for a in idx])
+            perm = _permanent_abs(Rf[np.ix_(idx, idx)])
+            rel = float(mnr) / perm if perm else 0.0
+            if mnr < 0 and (worst is None or rel < worst[0]):
+                worst = (min(rel, -1e-300), idx)
+            if mnr == 0 and zero_minor is None and perm:
+                zero_minor = idx
+    if worst is not None:
+        ev["negative_minor"] = [i + 1 for i in worst[1]]
+        margin = float(np.min(lam)) / scale if residue_test == "hermitian" else worst[0]
+        if not margin < 0:
+            margin = worst[0]
+        what = "not positive semidefinite" if residue_test == "hermitian" else "not admissible"
+        return Condition(name, label, "violated", margin, math.inf,
+                         f"residue matrix at s = ∞ is {what}: principal minor {_lbl(worst[1])} < 0 "
+                         f"(eigenvalues {', '.join(f'{v:.4g}' for v in lam)})", ev)
+    if residue_test == "hermitian":
+        margin = max(float(np.min(lam)) / scale, 0.0)
+    else:
+        margin = min((float(_frac_det([[R[a][b] for b in idx] for a in idx])) / _permanent_abs(Rf[np.ix_(idx, idx)])
+                      for k in range(1, n + 1) for idx in itertools.combinations(range(n), k)
+                      if _permanent_abs(Rf[np.ix_(idx, idx)])), default=1.0)
+    if zero_minor is not None or any(R[i][i] == 0 for i in range(n)):
+        idx = zero_minor if zero_minor is not None else (next(i for i in range(n) if R[i][i] == 0),)
+        return Condition(name, label, "equality", 0.0, math.inf,
+                         f"simple pole at s = ∞, residue matrix singular (minor {_lbl(idx)} = 0, PSD)", ev)
+    return Condition(name, label, "satisfied", float(min(margin, 1.0)), math.inf,
+                     "simple pole at s = ∞ with positive definite residue matrix", ev)
 
 
 def _residue_minors(K: np.ndarray, tol: Tolerances) -> tuple[str, float, str]:
@@ -477,8 +587,7 @@ def _cond_from_decision(name: str, label: str, d: SignDecision, extra: dict | No
             if status == "satisfied" and interior and pv <= tol.poly:
                 status = "marginal"
     if status == "violated":
-        b = bands_w[int(np.argmin(d.band_depths))]
-        detail = f"negative for ω in [{b[0]:.6g}, {b[1]:.6g}] rad/s"
+        detail = _band_detail(ev)
     elif status == "marginal":
         detail = "within tolerance of zero (touches or dips by less than round-off)"
     elif status == "equality":
@@ -486,6 +595,14 @@ def _cond_from_decision(name: str, label: str, d: SignDecision, extra: dict | No
     else:
         detail = "positive for all ω"
     return Condition(name, label, status, margin, wf, detail, ev)
+
+
+def _band_detail(ev: dict) -> str:
+    """The detail line of a violated frequency condition, from its evidence (the one definition
+    shared by the JSON and the text table): the deepest negative band, in physical rad/s once
+    :func:`_rescale` has scaled ``negative_bands_rad_s``."""
+    b = ev["negative_bands_rad_s"][int(np.argmin(ev["band_depths"]))]
+    return f"negative for ω in [{b[0]:.6g}, {b[1]:.6g}] rad/s"
 
 
 def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: Tolerances, prefix: str,
@@ -537,7 +654,7 @@ def positive_real(g: TransferMatrix | Rational, tol: Tolerances = TOL, margins: 
     conds += _hermitian_minors(tm.entries, list(range(tm.n)), tol, "E",
                                "G(jω)+G(jω)ᴴ ⪰ 0" if tm.n > 1 else "Re Z(jω) ≥ 0", margins)
     crit = "positive_real" if tm.n > 1 else "positive_real (one-port)"
-    return combine(crit, _rescale(conds, w0), _netinfo(tm0, w0))
+    return combine(crit, [*_rescale(conds, w0), infinity_condition(tm0, "hermitian")], _netinfo(tm0, w0))
 
 
 def two_port_passivity(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -> StabilityResult:
@@ -627,7 +744,7 @@ def llewellyn(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -
     for k in range(2):
         conds += _hermitian_minors(tm.entries, [k], tol, "E", "Re p(jω) ≥ 0", margins)
     conds.append(_llewellyn_eta(tm.entries, 0, 1, tol, margins))
-    return combine("llewellyn", _rescale(conds, w0), _netinfo(tm0, w0))
+    return combine("llewellyn", [*_rescale(conds, w0), infinity_condition(tm0, "minors")], _netinfo(tm0, w0))
 
 
 # -- Theorem 1 of paper 000 ------------------------------------------------------------------
@@ -917,7 +1034,7 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
             conds.append(_llewellyn_eta(tm.entries, i, j, tol))
         else:
             conds += _sweep_block(tm, comp, tol)
-    return combine("absolute_stability_nport", _rescale(conds, w0), net)
+    return combine("absolute_stability_nport", [*_rescale(conds, w0), infinity_condition(tm0, "minors")], net)
 
 
 def check(tm: TransferMatrix | Rational, criterion: str = "auto", tol: Tolerances = TOL) -> StabilityResult:
