@@ -352,6 +352,7 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> C
     scale = float(np.max(np.abs(Rf))) or 1.0
     lam = np.linalg.eigvalsh((Rf + Rf.T) / 2)
     ev.update({"residue_inf": Rf, "eigenvalues": lam, "exact": True})
+    lam_scale = float(np.max(np.abs(lam))) or scale  # spectral radius: eigenvalue margins in [-1, 1]
     if residue_test == "hermitian":
         asym = [(i, j) for i in range(n) for j in range(i + 1, n) if R[i][j] != R[j][i]]
         if asym:
@@ -379,7 +380,7 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> C
                 zero_minor = idx
     if worst is not None:
         ev["negative_minor"] = [i + 1 for i in worst[1]]
-        margin = float(np.min(lam)) / scale if residue_test == "hermitian" else worst[0]
+        margin = float(np.min(lam)) / lam_scale if residue_test == "hermitian" else worst[0]
         if not margin < 0:
             margin = worst[0]
         what = "not positive semidefinite" if residue_test == "hermitian" else "not admissible"
@@ -387,7 +388,7 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> C
                          f"residue matrix at s = ∞ is {what}: principal minor {_lbl(worst[1])} < 0 "
                          f"(eigenvalues {', '.join(f'{v:.4g}' for v in lam)})", ev)
     if residue_test == "hermitian":
-        margin = max(float(np.min(lam)) / scale, 0.0)
+        margin = max(float(np.min(lam)) / lam_scale, 0.0)
     else:
         margin = min((float(_frac_det([[R[a][b] for b in idx] for a in idx])) / _permanent_abs(Rf[np.ix_(idx, idx)])
                       for k in range(1, n + 1) for idx in itertools.combinations(range(n), k)

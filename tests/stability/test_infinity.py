@@ -93,6 +93,9 @@ def test_indefinite_mass_matrix_is_potentially_unstable():
         ev = r.condition("D[ω=∞]").evidence
         np.testing.assert_allclose(sorted(ev["eigenvalues"]), [-1.0, 3.0])
         assert ev["negative_minor"] == [1, 2]  # det [[1,2],[2,1]] = -3
+    # margins: λ_min/ρ = -1/3 (positive realness), det/perm = -3/5 (Theorem 1's minors)
+    assert check(tm, "positive_real").condition("D[ω=∞]").margin == pytest.approx(-1 / 3)
+    assert check(tm, "absolute_stability").condition("D[ω=∞]").margin == pytest.approx(-3 / 5)
 
 
 def test_mass_matrix_flips_exactly_at_singularity():
