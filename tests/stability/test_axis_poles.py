@@ -95,3 +95,22 @@ def test_llewellyn_eta_with_a_resonance_is_decided_after_cancellation():
     r = llewellyn(TransferMatrix([[1 + t, 1.5 + zero], [1.5 + zero, 1 + t]], "impedance", (1, 1)))
     assert str(r.verdict) == "potentially_unstable" and r.failed_condition == "E{1,2}"
     assert r.condition("E{1,2}").margin == pytest.approx(-2.5 / 6.5, rel=1e-6)
+
+
+@pytest.mark.parametrize("w0", np.geomspace(1e-3, 1e3, 25))
+def test_formula_built_tank_is_stable_at_every_omega0(w0):
+    # Z = 1 + ω0·s/(s² + ω0²) built with the Rational algebra (Re Z = 1, residue ω0/2 at jω0)
+    r = check(1 + w0 * S / (S**2 + w0**2))
+    assert str(r.verdict) == "stable" and not r.weak, r.summary()
+    d = next(x for x in r.conditions if x.name.startswith("D[ω=") and x.name != "D[ω=∞]")
+    assert complex(d.evidence["residues"][0][0]).real == pytest.approx(w0 / 2, rel=1e-9)
+
+
+@pytest.mark.parametrize("b", np.geomspace(1e-6, 1e6, 7))
+def test_rounded_impedance_scaling_is_never_called_unstable(b):
+    # b·(1 + tank) with a decimal b: the float products b·ω0² are rounded, so the given
+    # coefficients describe (exactly) a network whose residue is complex by ~1e-16 relative;
+    # that is within round-off of the boundary -- stable or marginal, never potentially_unstable
+    for w0 in (1e-3, 0.37, 10.0, 1e3):
+        r = check(b * (1 + w0 * S / (S**2 + w0**2)))
+        assert str(r.verdict) in ("stable", "marginal"), r.summary()
