@@ -30,8 +30,10 @@ import logging
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
+from fractions import Fraction
 
 import numpy as np
+from flint import fmpq, fmpq_poly
 from numpy.polynomial import polynomial as P
 
 from hil.errors import ModelError
@@ -49,6 +51,7 @@ __all__ = [
     "Tolerances",
     "absolute_stability",
     "check",
+    "infinity_condition",
     "llewellyn",
     "pole_conditions",
     "positive_real",
@@ -111,8 +114,21 @@ def _normalize(tm: TransferMatrix) -> tuple[TransferMatrix, float]:
     w0 = float(math.sqrt(min(mags) * max(mags)))
     if not (np.isfinite(w0) and w0 > 0) or abs(math.log10(w0)) < 0.5:
         return tm, 1.0
-    ent = [[e if e.is_zero else e.scaled(w0) for e in row] for row in tm.entries]
+    # a power of two: the scaled coefficients c_k·w0^k / 2^e are then *exact* (no rounding), so
+    # exact relations between the entries' coefficients (common factors, imaginary-axis poles,
+    # cancellations) survive the normalization and the exact decisions see the given network
+    w0 = 2.0 ** round(math.log2(w0))
+    ent = [[e if e.is_zero else _scaled_exact(e, w0) for e in row] for row in tm.entries]
     return TransferMatrix(ent, tm.kind, tm.port_dofs, tm.name), w0
+
+
+def _scaled_exact(e: Rational, w0: float) -> Rational:
+    """e(w0·s̃) with w0 a power of two, divided by a power of two near den's largest coefficient:
+    every coefficient is scaled exactly (barring under/overflow)."""
+    num = e.num * w0 ** np.arange(e.num.size)
+    den = e.den * w0 ** np.arange(e.den.size)
+    sc = 2.0 ** round(math.log2(float(np.max(np.abs(den)))))
+    return Rational(num / sc, den / sc)
 
 
 def _rescale(conds: list[Condition], w0: float) -> list[Condition]:
@@ -124,6 +140,8 @@ def _rescale(conds: list[Condition], w0: float) -> list[Condition]:
         ev = c.evidence
         if "negative_bands_rad_s" in ev:
             ev["negative_bands_rad_s"] = [(a * w0, b * w0) for a, b in ev["negative_bands_rad_s"]]
+            if c.status == "violated" and ev["negative_bands_rad_s"] and c.detail.startswith("negative for ω"):
+                c.detail = _band_detail(ev)
         if "touching_rad_s" in ev:
             ev["touching_rad_s"] = [x * w0 for x in ev["touching_rad_s"]]
         if "pole" in ev:
@@ -233,7 +251,7 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
         worst = max(rhp_all, key=lambda t: t[2].real / abs(t[2]))
         conds.append(Condition(
             "C", "no poles in the open right-half plane", "violated", -worst[2].real / abs(worst[2]),
-            abs(worst[2].imag), f"entry ({worst[0] + 1},{worst[1] + 1}) has a pole at {worst[2]:.6g}",
+            abs(worst[2].imag), f"entry ({worst[0] + 1},{worst[1] + 1}) has a pole at {worst[2] * w0:.6g} rad/s",
             {"rhp_poles": [{"entry": [i + 1, j + 1], "pole": p} for i, j, p in rhp_all]}))
     else:
         allp = [p for row in tm.entries for e in row if not e.is_zero for p in e.poles()]
@@ -242,10 +260,11 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
                                "all poles in the closed left-half plane", {"poles": allp}))
     for w, rec in sorted(axis.items()):
         name = f"D[ω={w:.6g}]"
+        wp = w * w0  # physical rad/s, for the detail lines
         label = "imaginary-axis pole simple with admissible residues"
         if rec["mult"] > 1:
             conds.append(Condition(name, label, "violated", -1.0, w,
-                                   f"pole at s = j{w:.6g} has multiplicity {rec['mult']}",
+                                   f"pole at s = j{wp:.6g} has multiplicity {rec['mult']}",
                                    {"multiplicity": rec["mult"]}))
             continue
         # residues of the frequency-normalized entries are the physical ones divided by w0
@@ -259,12 +278,12 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
             margin = float(np.min(lam)) / scale
             ev["eigenvalues"] = lam
             if herm_err > tol.residue:
-                status, detail = "violated", f"residue matrix at s = j{w:.6g} is not Hermitian"
+                status, detail = "violated", f"residue matrix at s = j{wp:.6g} is not Hermitian"
                 margin = -herm_err
             elif margin < -tol.residue:
-                status, detail = "violated", f"residue matrix at s = j{w:.6g} is not positive semidefinite"
+                status, detail = "violated", f"residue matrix at s = j{wp:.6g} is not positive semidefinite"
             elif margin <= tol.residue:
-                status, detail = "equality", f"residue matrix at s = j{w:.6g} is singular (PSD)"
+                status, detail = "equality", f"residue matrix at s = j{wp:.6g} is singular (PSD)"
                 margin = 0.0
             else:
                 status, detail = "satisfied", "residue matrix positive definite"
@@ -274,6 +293,112 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
             status, detail = "marginal", detail + "; pole only within tolerance of the imaginary axis"
         conds.append(Condition(name, label, status, margin, w, detail, ev))
     return conds
+
+
+def _frac_det(A: list[list[Fraction]]) -> Fraction:
+    """Exact determinant of a small matrix of Fractions (Gaussian elimination over Q)."""
+    M = [list(r) for r in A]
+    n = len(M)
+    det = Fraction(1)
+    for c in range(n):
+        piv = next((r for r in range(c, n) if M[r][c] != 0), None)
+        if piv is None:
+            return Fraction(0)
+        if piv != c:
+            M[c], M[piv] = M[piv], M[c]
+            det = -det
+        det *= M[c][c]
+        for r in range(c + 1, n):
+            f = M[r][c] / M[c][c]
+            if f:
+                M[r] = [a - f * b for a, b in zip(M[r], M[c], strict=True)]
+    return det
+
+
+def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> Condition:
+    """Condition D[ω=∞]: at most a simple pole at s = ∞ with an admissible residue matrix.
+
+    Positive realness (and therefore passivity, Llewellyn and Theorem 1, which all reduce to
+    positive realness of an immittance or of its symmetrization) requires every entry to grow at
+    most like s (degree excess deg num - deg den ≤ 1) and the residue R = lim_{s→∞} G(s)/s to be
+    admissible. The residue of an entry is the ratio of its leading coefficients when the excess
+    is 1 (else 0); the float coefficients are exact binary rationals, so R is formed and decided
+    exactly (Fractions): ``hermitian`` -- R symmetric (Hermitian, R is real) with all principal
+    minors ≥ 0, i.e. positive semidefinite; ``minors`` (Llewellyn, Theorem 1) -- every principal
+    minor of R ≥ 0 and every r_ij·r_ji ≥ 0 (the symmetrized R' is PSD). An excess ≥ 2 (a double
+    pole at infinity, e.g. Z = m s²) is a violation. Singular admissible R (some principal minor
+    exactly 0 while R ≠ 0) is ``equality``, as for finite imaginary-axis poles.
+
+    Evidence: ``degree_excess`` per entry (None for zero entries), ``residue_inf`` (R, floats),
+    ``eigenvalues`` (of the symmetric part of R) and the decisive exact minor. Margin: the
+    smallest eigenvalue of the symmetric part of R over max|r_ij| (``minors``: the smallest
+    principal minor over the permanent of |R|), invariant under s → a·s and G → b·G.
+    """
+    n = tm.n
+    name, label = "D[ω=∞]", "pole at s = ∞ at most simple with admissible residue R = lim G(s)/s"
+    exc: list[list[int | None]] = [[None if tm[i, j].is_zero else int(tm[i, j].num.size - tm[i, j].den.size)
+                                    for j in range(n)] for i in range(n)]
+    ev: dict = {"degree_excess": exc, "pole": math.inf}
+    top = max((d for row in exc for d in row if d is not None), default=-1)
+    if top >= 2:
+        i, j = next((i, j) for i in range(n) for j in range(n) if exc[i][j] == top)
+        return Condition(name, label, "violated", -1.0, math.inf,
+                         f"entry ({i + 1},{j + 1}) has a pole of order {top} at s = ∞ (degree excess {top})", ev)
+    if top <= 0:
+        return Condition(name, label, "satisfied", 1.0, None, "no pole at s = ∞ (all entries proper)", ev)
+    R = [[Fraction(0) if exc[i][j] != 1 else
+          Fraction(float(tm[i, j].num[-1])) / Fraction(float(tm[i, j].den[-1])) for j in range(n)] for i in range(n)]
+    Rf = np.array([[float(v) for v in row] for row in R])
+    scale = float(np.max(np.abs(Rf))) or 1.0
+    lam = np.linalg.eigvalsh((Rf + Rf.T) / 2)
+    ev.update({"residue_inf": Rf, "eigenvalues": lam, "exact": True})
+    lam_scale = float(np.max(np.abs(lam))) or scale  # spectral radius: eigenvalue margins in [-1, 1]
+    if residue_test == "hermitian":
+        asym = [(i, j) for i in range(n) for j in range(i + 1, n) if R[i][j] != R[j][i]]
+        if asym:
+            i, j = asym[0]
+            err = max(abs(float(R[a][b] - R[b][a])) for a, b in asym) / scale
+            return Condition(name, label, "violated", -err, math.inf,
+                             f"residue matrix at s = ∞ is not symmetric (r{i + 1}{j + 1} ≠ r{j + 1}{i + 1})", ev)
+    else:
+        for i in range(n):
+            for j in range(i + 1, n):
+                if R[i][j] * R[j][i] < 0:
+                    return Condition(name, label, "violated", -1.0, math.inf,
+                                     f"r{i + 1}{j + 1}·r{j + 1}{i + 1} = {float(R[i][j] * R[j][i]):.4g} < 0 "
+                                     "at s = ∞", ev)
+    worst: tuple[float, tuple[int, ...]] | None = None
+    zero_minor: tuple[int, ...] | None = None
+    for k in range(1, n + 1):
+        for idx in itertools.combinations(range(n), k):
+            mnr = _frac_det([[R[a][b] for b in idx] for a in idx])
+            perm = _permanent_abs(Rf[np.ix_(idx, idx)])
+            rel = float(mnr) / perm if perm else 0.0
+            if mnr < 0 and (worst is None or rel < worst[0]):
+                worst = (min(rel, -1e-300), idx)
+            if mnr == 0 and zero_minor is None and perm:
+                zero_minor = idx
+    if worst is not None:
+        ev["negative_minor"] = [i + 1 for i in worst[1]]
+        margin = float(np.min(lam)) / lam_scale if residue_test == "hermitian" else worst[0]
+        if not margin < 0:
+            margin = worst[0]
+        what = "not positive semidefinite" if residue_test == "hermitian" else "not admissible"
+        return Condition(name, label, "violated", margin, math.inf,
+                         f"residue matrix at s = ∞ is {what}: principal minor {_lbl(worst[1])} < 0 "
+                         f"(eigenvalues {', '.join(f'{v:.4g}' for v in lam)})", ev)
+    if residue_test == "hermitian":
+        margin = max(float(np.min(lam)) / lam_scale, 0.0)
+    else:
+        margin = min((float(_frac_det([[R[a][b] for b in idx] for a in idx])) / _permanent_abs(Rf[np.ix_(idx, idx)])
+                      for k in range(1, n + 1) for idx in itertools.combinations(range(n), k)
+                      if _permanent_abs(Rf[np.ix_(idx, idx)])), default=1.0)
+    if zero_minor is not None or any(R[i][i] == 0 for i in range(n)):
+        idx = zero_minor if zero_minor is not None else (next(i for i in range(n) if R[i][i] == 0),)
+        return Condition(name, label, "equality", 0.0, math.inf,
+                         f"simple pole at s = ∞, residue matrix singular (minor {_lbl(idx)} = 0, PSD)", ev)
+    return Condition(name, label, "satisfied", float(min(margin, 1.0)), math.inf,
+                     "simple pole at s = ∞ with positive definite residue matrix", ev)
 
 
 def _residue_minors(K: np.ndarray, tol: Tolerances) -> tuple[str, float, str]:
@@ -349,32 +474,45 @@ def _perm_batch(A: np.ndarray) -> np.ndarray:
     return out
 
 
-def _hermitian_ratio(sub: list[list[Rational]]):
+def _hermitian_ratio(sub: list[list[Rational]], values=None):
     """ω ↦ det(H)/perm(|G|+|Gᵀ|) with H = G + Gᴴ on the index set: in [-1, 1], scale invariant,
-    identical for every immittance form that describes the same passive quantity."""
+    identical for every immittance form that describes the same passive quantity. ``values``
+    (ω ↦ G(jω)) replaces the plain frequency response (e.g. by its regular part)."""
 
     def f(w: np.ndarray) -> np.ndarray:
-        G = _freq_values(sub, w)
+        G = _freq_values(sub, w) if values is None else values(w)
         H = G + np.conj(np.swapaxes(G, 1, 2))
         S_ = np.abs(G) + np.abs(np.swapaxes(G, 1, 2))
+        finite = np.all(np.isfinite(G), axis=(1, 2))  # only at an exact pole frequency
+        H = np.where(finite[:, None, None], H, 0.0)
+        S_ = np.where(finite[:, None, None], S_, 0.0)
         det = np.linalg.det(H).real if H.shape[1] > 1 else H[:, 0, 0].real
         sc = _perm_batch(S_)
         with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(sc > 0, det / np.where(sc > 0, sc, 1.0), 0.0)
+            r = np.where(sc > 0, det / np.where(sc > 0, sc, 1.0), 0.0)
+        return r if values is None else np.where(finite, r, np.inf)
 
     return f
 
 
-def _eta_ratio(sub: list[list[Rational]]):
-    """ω ↦ η/(2|p11||p22| + 2|p12 p21|), Llewellyn's η normalized to [-1, 1]."""
+def _eta_ratio(sub: list[list[Rational]], scale_values=None):
+    """ω ↦ η/(2|p11||p22| + 2|p12 p21|), Llewellyn's η normalized to [-1, 1]. ``scale_values``
+    (ω ↦ G_reg(jω), the regular part) supplies the scale when imaginary-axis poles were cancelled;
+    η itself is always evaluated on G."""
 
     def f(w: np.ndarray) -> np.ndarray:
-        G = _freq_values(sub, w)
-        c = G[:, 0, 1] * G[:, 1, 0]
-        eta = 2 * G[:, 0, 0].real * G[:, 1, 1].real - c.real - np.abs(c)
-        sc = 2 * np.abs(G[:, 0, 0]) * np.abs(G[:, 1, 1]) + 2 * np.abs(c)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(sc > 0, eta / np.where(sc > 0, sc, 1.0), 0.0)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            G = _freq_values(sub, w)
+            c = G[:, 0, 1] * G[:, 1, 0]
+            eta = 2 * G[:, 0, 0].real * G[:, 1, 1].real - c.real - np.abs(c)
+            Gs = G if scale_values is None else scale_values(w)
+            cs = Gs[:, 0, 1] * Gs[:, 1, 0]
+            sc = 2 * np.abs(Gs[:, 0, 0]) * np.abs(Gs[:, 1, 1]) + 2 * np.abs(cs)
+            r = np.where(sc > 0, eta / np.where(sc > 0, sc, 1.0), 0.0)
+        if scale_values is None:
+            return r
+        r = np.clip(r, -1.0, 1.0)
+        return np.where(np.isfinite(r) & np.isfinite(sc), r, np.inf)
 
     return f
 
@@ -477,8 +615,7 @@ def _cond_from_decision(name: str, label: str, d: SignDecision, extra: dict | No
             if status == "satisfied" and interior and pv <= tol.poly:
                 status = "marginal"
     if status == "violated":
-        b = bands_w[int(np.argmin(d.band_depths))]
-        detail = f"negative for ω in [{b[0]:.6g}, {b[1]:.6g}] rad/s"
+        detail = _band_detail(ev)
     elif status == "marginal":
         detail = "within tolerance of zero (touches or dips by less than round-off)"
     elif status == "equality":
@@ -486,6 +623,151 @@ def _cond_from_decision(name: str, label: str, d: SignDecision, extra: dict | No
     else:
         detail = "positive for all ω"
     return Condition(name, label, status, margin, wf, detail, ev)
+
+
+# -- imaginary-axis poles in the frequency conditions (exact cancellation) -------------------
+#
+# A pole of G at s = ±jω_p (ω_p > 0) makes d(jω) vanish at x_p = ω_p², so every condition
+# polynomial p(x) = (condition)·|d(jω)|^(2k) carries the factor (x - x_p)^(2k): a double root that
+# the sign decision would report as "touching" (marginal) although the condition itself (e.g.
+# Re Z = 1 for Z = 1 + s/(s² + 1)) is strictly positive. The axis factor h(x) is found exactly:
+# d(jω) = E(x) + jω O(x), and jω_p is a root iff x_p is a common root of E and O, so h is the
+# squarefree part of gcd(E, O) over Q (python-flint), without the factor x (s = 0 sits at the
+# boundary x = 0 and needs no cancellation). The condition polynomial is then formed exactly over
+# Q from the float coefficients (exact binary rationals) and divided by h² as often as it is
+# exactly divisible, at most as often as h² divides the denominator |d|^(2k). Dividing by a square
+# keeps the sign of p at every frequency that is not a pole, and at the pole frequency itself the
+# frequency condition is undefined: the pole is judged by its residue condition D[ω=ω_p].
+
+
+def _xq(c: fmpq_poly) -> tuple[fmpq_poly, fmpq_poly]:
+    """N(jω) = a(x) + jω·b(x) for an exact polynomial N(s)."""
+    a: list[fmpq] = []
+    b: list[fmpq] = []
+    for k in range(c.degree() + 1):
+        v = c[k] if (k // 2) % 2 == 0 else -c[k]
+        (a if k % 2 == 0 else b).append(v)
+    return fmpq_poly(a), fmpq_poly(b)
+
+
+_X = fmpq_poly([0, 1])
+
+
+def _jmul(u: tuple[fmpq_poly, fmpq_poly], v: tuple[fmpq_poly, fmpq_poly]) -> tuple[fmpq_poly, fmpq_poly]:
+    return u[0] * v[0] - _X * u[1] * v[1], u[0] * v[1] + u[1] * v[0]
+
+
+def _axis_factor(dens: list[fmpq_poly]) -> tuple[fmpq_poly, fmpq_poly, int] | None:
+    """(common denominator D = lcm, axis factor h, multiplicity μ of h in gcd(E, O)) or None
+    when no denominator has a root on the imaginary axis away from s = 0."""
+    D = fmpq_poly([1])
+    for d in dens:
+        D = D * d // D.gcd(d)
+    if D.degree() < 2:
+        return None
+    E, O = _xq(D)
+    g = E.gcd(O)
+    while g.degree() > 0 and g[0] == 0:  # drop the factor x (poles at s = 0)
+        g = g // _X
+    if g.degree() < 1:
+        return None
+    h = g // g.gcd(g.derivative())
+    if h.degree() < 1:
+        return None
+    mu, t = 0, g
+    while t.degree() >= h.degree() and t % h == 0:
+        t, mu = t // h, mu + 1
+    return D, h, max(mu, 1)
+
+
+def _exact_minor_polys(sub: list[list[Rational]]) -> dict[tuple[int, ...], tuple[fmpq_poly, int]] | None:
+    """Every principal minor of (G + Gᴴ)(jω)·|D(jω)|^(2k), formed exactly over Q and divided by
+    the squared axis factor (see above); None when G has no imaginary-axis pole with ω > 0.
+    Values: (polynomial in x, number of h² factors cancelled)."""
+    from hil.stability.rational import _qpoly
+
+    n = len(sub)
+    nums = [[None if sub[i][j].is_zero else _qpoly(sub[i][j].num) for j in range(n)] for i in range(n)]
+    dens = [[_qpoly(sub[i][j].den) for j in range(n)] for i in range(n)]
+    ax = _axis_factor([dens[i][j] for i in range(n) for j in range(n) if nums[i][j] is not None])
+    if ax is None:
+        return None
+    D, h, mu = ax
+    Dc = _xq(D)
+    Dc = (Dc[0], -Dc[1])
+    zero = (fmpq_poly([]), fmpq_poly([]))
+    A = [[zero if nums[i][j] is None else _jmul(_xq(nums[i][j] * (D // dens[i][j])), Dc) for j in range(n)]
+         for i in range(n)]
+    Pm = [[(A[i][j][0] + A[j][i][0], A[i][j][1] - A[j][i][1]) for j in range(n)] for i in range(n)]
+    memo: dict = {}
+
+    def det(rows: tuple[int, ...], cols: tuple[int, ...]) -> tuple[fmpq_poly, fmpq_poly]:
+        if len(rows) == 1:
+            return Pm[rows[0]][cols[0]]
+        if (rows, cols) in memo:
+            return memo[(rows, cols)]
+        acc = zero
+        for k, c in enumerate(cols):
+            t = _jmul(Pm[rows[0]][c], det(rows[1:], cols[:k] + cols[k + 1:]))
+            acc = (acc[0] + t[0], acc[1] + t[1]) if k % 2 == 0 else (acc[0] - t[0], acc[1] - t[1])
+        memo[(rows, cols)] = acc
+        return acc
+
+    h2 = h * h
+    out = {}
+    for k in range(1, n + 1):
+        for idx in itertools.combinations(range(n), k):
+            p = det(idx, idx)[0]
+            cut = 0
+            while p != 0 and cut < k * mu and p % h2 == 0:
+                p, cut = p // h2, cut + 1
+            out[idx] = (p, cut)
+    return out
+
+
+def _exact_xpoly(p: fmpq_poly) -> tuple[XPoly, list[Fraction]]:
+    """Float XPoly (coefficients correctly rounded, magnitude bound |c|) and the exact coefficients."""
+    from hil.stability.rational import _qfloat
+
+    fr = [Fraction(int(p[i].p), int(p[i].q)) for i in range(p.degree() + 1)] or [Fraction(0)]
+    c = np.array([_qfloat(p[i]) for i in range(p.degree() + 1)] or [0.0])
+    return XPoly(c, np.abs(c)), fr
+
+
+def _regular_part(sub: list[list[Rational]]):
+    """ω ↦ G(jω) minus its imaginary-axis pole parts K/(s - jω_p) + K̄/(s + jω_p) (ω_p > 0), for the
+    reported margin of a condition whose axis poles were cancelled: with Hermitian residues the
+    pole parts do not contribute to G + Gᴴ, and the scale |G| is that of the regular part, so the
+    margin does not collapse to 0 at the resonance."""
+    n = len(sub)
+    parts = []
+    for i in range(n):
+        for j in range(n):
+            e = sub[i][j]
+            if e.is_zero:
+                continue
+            for w, mult, _ex in _entry_axis_poles(e, TOL)[1]:
+                if w > 0 and mult == 1:
+                    parts.append((i, j, w, _residue(e, w)))
+
+    def f(w: np.ndarray) -> np.ndarray:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            G = _freq_values(sub, w)
+            for i, j, wp, K in parts:
+                G[:, i, j] -= K / (1j * (w - wp)) + np.conj(K) / (1j * (w + wp))
+                # within 1e-6 of the pole the subtraction is dominated by round-off: not evaluated
+                G[np.abs(w - wp) <= 1e-6 * wp] = np.nan
+        return G
+
+    return f
+
+
+def _band_detail(ev: dict) -> str:
+    """The detail line of a violated frequency condition, from its evidence (the one definition
+    shared by the JSON and the text table): the deepest negative band, in physical rad/s once
+    :func:`_rescale` has scaled ``negative_bands_rad_s``."""
+    b = ev["negative_bands_rad_s"][int(np.argmin(ev["band_depths"]))]
+    return f"negative for ω in [{b[0]:.6g}, {b[1]:.6g}] rad/s"
 
 
 def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: Tolerances, prefix: str,
@@ -512,14 +794,23 @@ def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: To
 
     conds = []
     lo, hi = _freq_range(sub) if margins else (1.0, 1.0)
+    exact = _exact_minor_polys(sub)
     for k in range(1, n + 1):
         for idx in itertools.combinations(range(n), k):
-            mnr = det(idx, idx).real()
             glob = tuple(idx_all[i] for i in idx)
             subsub = [[sub[a][b] for b in idx] for a in idx]
-            phys = (_hermitian_ratio(subsub), lo, hi) if margins else None
-            conds.append(_decision_condition(f"{prefix}{_lbl(glob)}", f"{label}, principal minor {_lbl(glob)}",
-                                             mnr, tol, physical=phys, margins=margins))
+            name, lab = f"{prefix}{_lbl(glob)}", f"{label}, principal minor {_lbl(glob)}"
+            if exact is None:
+                mnr = det(idx, idx).real()
+                phys = (_hermitian_ratio(subsub), lo, hi) if margins else None
+                conds.append(_decision_condition(name, lab, mnr, tol, physical=phys, margins=margins))
+                continue
+            pq, cut = exact[idx]
+            xp, fr = _exact_xpoly(pq)
+            d = decide_nonnegative(xp, tol.poly, margin=margins, exact=fr)
+            phys = (_hermitian_ratio(subsub, _regular_part(subsub)), lo, hi) if margins else None
+            conds.append(_cond_from_decision(name, lab, d, {"formed": "exact", "axis_pole_factors_cancelled": cut},
+                                             phys, tol))
     return conds
 
 
@@ -537,7 +828,7 @@ def positive_real(g: TransferMatrix | Rational, tol: Tolerances = TOL, margins: 
     conds += _hermitian_minors(tm.entries, list(range(tm.n)), tol, "E",
                                "G(jω)+G(jω)ᴴ ⪰ 0" if tm.n > 1 else "Re Z(jω) ≥ 0", margins)
     crit = "positive_real" if tm.n > 1 else "positive_real (one-port)"
-    return combine(crit, _rescale(conds, w0), _netinfo(tm0, w0))
+    return combine(crit, [*_rescale(conds, w0), infinity_condition(tm0, "hermitian")], _netinfo(tm0, w0))
 
 
 def two_port_passivity(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -> StabilityResult:
@@ -595,19 +886,56 @@ def llewellyn_polys(entries: list[list[Rational]], i: int = 0, j: int = 1) -> tu
     return a * 2.0 - cr, a * (a - cr) * 4.0 - (ci * ci).mulx()
 
 
+def _exact_llewellyn_polys(sub: list[list[Rational]]) -> tuple[fmpq_poly, fmpq_poly] | None:
+    """(L1, L2) of :func:`llewellyn_polys` formed exactly over Q with the squared imaginary-axis
+    factor divided out (L1 carries |d|⁴, L2 |d|⁸); None when there is no axis pole with ω > 0."""
+    from hil.stability.rational import _qpoly
+
+    nums = [[None if sub[a][b].is_zero else _qpoly(sub[a][b].num) for b in range(2)] for a in range(2)]
+    dens = [[_qpoly(sub[a][b].den) for b in range(2)] for a in range(2)]
+    ax = _axis_factor([dens[a][b] for a in range(2) for b in range(2) if nums[a][b] is not None])
+    if ax is None:
+        return None
+    D, h, mu = ax
+    Dc = _xq(D)
+    Dc = (Dc[0], -Dc[1])
+    zero = (fmpq_poly([]), fmpq_poly([]))
+    u = [[zero if nums[a][b] is None else _xq(nums[a][b] * (D // dens[a][b])) for b in range(2)] for a in range(2)]
+    A1 = _jmul(u[0][0], Dc)[0]
+    A2 = _jmul(u[1][1], Dc)[0]
+    C = _jmul(_jmul(_jmul(u[0][1], u[1][0]), Dc), Dc)
+    a = A1 * A2
+    L1 = 2 * a - C[0]
+    L2 = 4 * a * (a - C[0]) - _X * C[1] * C[1]
+    h2 = h * h
+    out = []
+    for p, cap in ((L1, 2 * mu), (L2, 4 * mu)):
+        cut = 0
+        while p != 0 and cut < cap and p % h2 == 0:
+            p, cut = p // h2, cut + 1
+        out.append(p)
+    return out[0], out[1]
+
+
 def _llewellyn_eta(entries: list[list[Rational]], i: int, j: int, tol: Tolerances,
                    margins: bool = True) -> Condition:
     """Llewellyn's η_ij ≥ 0 for all ω as an exact condition (see :func:`llewellyn_polys`)."""
-    L1, L2 = llewellyn_polys(entries, i, j)
-    d1 = decide_nonnegative(L1, tol.poly, margin=margins)
-    d2 = decide_nonnegative(L2, tol.poly, margin=margins)
+    ex = _exact_llewellyn_polys([[entries[a][b] for b in (i, j)] for a in (i, j)])
+    if ex is None:
+        L1, L2 = llewellyn_polys(entries, i, j)
+        d1 = decide_nonnegative(L1, tol.poly, margin=margins)
+        d2 = decide_nonnegative(L2, tol.poly, margin=margins)
+    else:
+        (x1, f1), (x2, f2) = (_exact_xpoly(q) for q in ex)
+        d1 = decide_nonnegative(x1, tol.poly, margin=margins, exact=f1)
+        d2 = decide_nonnegative(x2, tol.poly, margin=margins, exact=f2)
     name = f"E{_lbl((i, j))}"
     a_, b_ = i + 1, j + 1
     label = f"Llewellyn η{a_}{b_} = 2Re p{a_}{a_} Re p{b_}{b_} - Re(p{a_}{b_}p{b_}{a_}) - |p{a_}{b_}p{b_}{a_}| ≥ 0"
     rank = {"violated": 3, "marginal": 2, "equality": 1, "satisfied": 0}
     worst = d2 if rank[d2.status] >= rank[d1.status] else d1
     sub = [[entries[a][b] for b in (i, j)] for a in (i, j)]
-    phys = (_eta_ratio(sub), *_freq_range(sub)) if margins else None
+    phys = (_eta_ratio(sub, None if ex is None else _regular_part(sub)), *_freq_range(sub)) if margins else None
     return _cond_from_decision(name, label, worst, {"L1_x_desc": _desc(d1.coefficients), "L1_status": d1.status,
                                                     "L2_x_desc": _desc(d2.coefficients), "L2_status": d2.status},
                                phys, tol)
@@ -627,7 +955,7 @@ def llewellyn(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -
     for k in range(2):
         conds += _hermitian_minors(tm.entries, [k], tol, "E", "Re p(jω) ≥ 0", margins)
     conds.append(_llewellyn_eta(tm.entries, 0, 1, tol, margins))
-    return combine("llewellyn", _rescale(conds, w0), _netinfo(tm0, w0))
+    return combine("llewellyn", [*_rescale(conds, w0), infinity_condition(tm0, "minors")], _netinfo(tm0, w0))
 
 
 # -- Theorem 1 of paper 000 ------------------------------------------------------------------
@@ -917,7 +1245,7 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
             conds.append(_llewellyn_eta(tm.entries, i, j, tol))
         else:
             conds += _sweep_block(tm, comp, tol)
-    return combine("absolute_stability_nport", _rescale(conds, w0), net)
+    return combine("absolute_stability_nport", [*_rescale(conds, w0), infinity_condition(tm0, "minors")], net)
 
 
 def check(tm: TransferMatrix | Rational, criterion: str = "auto", tol: Tolerances = TOL) -> StabilityResult:

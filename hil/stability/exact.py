@@ -34,6 +34,7 @@ from __future__ import annotations
 import itertools
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from fractions import Fraction
 from typing import Literal
@@ -136,6 +137,15 @@ def _var_at(seq: list[list[int]], t: Fraction | None) -> int:
 def _to_int_poly(c_asc: np.ndarray) -> list[int]:
     """Exact integer polynomial (descending) proportional (positive factor) to float coefficients."""
     fr = [Fraction(float(v)) for v in c_asc[::-1]]
+    den = 1
+    for f in fr:
+        den = den * f.denominator // math.gcd(den, f.denominator)
+    return _content_normalize(_strip([int(f * den) for f in fr]))
+
+
+def _int_poly_exact(c_asc: Sequence[Fraction]) -> list[int]:
+    """Integer polynomial (descending) proportional, by a positive factor, to exact rationals."""
+    fr = [Fraction(v) for v in c_asc[::-1]]
     den = 1
     for f in fr:
         den = den * f.denominator // math.gcd(den, f.denominator)
@@ -274,11 +284,15 @@ def _cauchy_bound(c_asc: np.ndarray) -> float:
     return 1.0 + float(np.max(np.abs(c[:-1] / c[-1])))
 
 
-def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL, margin: bool = True) -> SignDecision:
+def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL, margin: bool = True,
+                       exact: Sequence[Fraction] | None = None) -> SignDecision:
     """Decide ``p(x) ≥ 0`` for all x ≥ 0 exactly (up to the documented tolerance policy).
 
     ``margin=False`` skips the (numerical) search for the minimum of the normalized margin when the
-    polynomial has no positive root; the decision itself is unchanged.
+    polynomial has no positive root; the decision itself is unchanged. ``exact`` (ascending
+    rational coefficients) is the exact polynomial that ``p.c`` rounds: the Sturm sequence and the
+    root isolation then use it instead of the float coefficients (callers that formed the
+    condition exactly, e.g. after cancelling imaginary-axis poles, pass it with ``p.m = |p.c|``).
     """
     c = np.asarray(p.c, dtype=float).copy()
     m = np.zeros(max(c.size, p.m.size))
@@ -315,6 +329,8 @@ def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL, margin: bool = True) 
         if sign0 > 0 and not margin:
             return SignDecision("satisfied", math.nan, math.nan, n_roots=0, method="descartes", coefficients=cc)
         ip = [0]
+    elif exact is not None:
+        ip = _int_poly_exact(list(exact)[k: k + q.size])
     else:
         ip = _to_int_poly(q)
     if len(ip) > 1:
