@@ -10,7 +10,9 @@ Stages (timed; ``Certificate.measurements`` records what each produced):
    e.g. controller gains) through the criterion, with margins and evidence;
 4. **robust**: the criterion on every posterior draw (vectorized for the SDEA; per draw,
    verdict-only, for other networks), P(stable) with a Clopper-Pearson interval, the worst-case
-   margin over the credible ellipsoid (optimized), the frequency band where margins are smallest;
+   margin over the credible ellipsoid (optimized), the critical band (where the binding condition is
+   within 10 % of its minimum; README "Definitions of the robust numbers"); P(stable) counts only
+   independent draws: each emcee chain is thinned by its autocorrelation time first;
 5. **design** guidance for a free parameter (the largest value keeping the required probability);
 6. **witness**: when the nominal network is potentially unstable, a passive termination set that
    makes the operator-port impedance non-positive-real, simulated with the exact-ZOH engine (the
