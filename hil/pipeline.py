@@ -465,6 +465,8 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                                                 outcome=_margin_outcome(wc),
                                                 description="minimum of the margin by optimization"))
             opt.run("plots (posterior Bode)", _bode_plot, plots, cert.model, params, draws, seed)
+            if fast and band is not None:
+                opt.run("plots (critical band)", _critical_band_plot, plots, params, draws, band)
 
     # 5. design -----------------------------------------------------------------------------------
     design = None
@@ -615,8 +617,8 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
                  ) -> tuple[np.ndarray, Callable[[Mapping[str, np.ndarray]], np.ndarray] | None, str,
                             tuple[float, float] | None]:
     """Stability of every draw, a vectorized margin function for the worst-case search, the method,
-    and the band (5-95 % over the draws) of the frequency where the deciding condition is smallest
-    (None when the path does not provide it)."""
+    and the critical band (5 % quantile of the draws' lower edges to 95 % of their upper edges, see
+    hil.stability.batch) (None when the path does not provide it)."""
     n = len(next(iter(draws.values())))
     if model == "sdea" and criterion == "passivity":
         from hil.stability.batch import sdea_passivity_batch
@@ -853,6 +855,45 @@ def _decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
     plots["decided"] = Series(title=f"Decided quantities ({r.criterion}) against frequency", x=(w * w0).tolist(),
                               x_label="ω [rad/s]", y_label="normalized margin", log_x=True, lines=lines,
                               points=pts, hline=0.0)
+
+
+def _critical_band_plot(plots: dict[str, Series], params: Mapping[str, Any], draws: Mapping[str, np.ndarray],
+                        band: tuple[float, float]) -> None:
+    """The SDEA's normalized coupler condition g(ω) = t(ω²)/|t|(ω²) at the posterior mean and its
+    5-95 % band over the draws, with the 10 % threshold of the mean and the certificate's critical
+    band (over the draws) marked."""
+    from hil.models.sdea import SDEA_TABLE1, sdea_polynomials
+    from hil.stability.batch import BAND_GRID_RAD_S, CRITICAL_BAND_FRACTION
+
+    base = {**SDEA_TABLE1, **{k: float(v) for k, v in params.items() if isinstance(v, int | float)}}
+    n = len(next(iter(draws.values())))
+    sub = slice(None, None, max(1, n // 400))
+    w = BAND_GRID_RAD_S
+    x = (w * w)[:, None]
+
+    def g_of(q: Mapping[str, np.ndarray]) -> np.ndarray:
+        t0, t1, t2, t3 = sdea_polynomials(q)["t"]
+        tv = ((t3 * x + t2) * x + t1) * x + t0
+        tm = ((np.abs(t3) * x + np.abs(t2)) * x + np.abs(t1)) * x + np.abs(t0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(tm > 0, tv / tm, np.nan)
+
+    qd = {k: np.asarray(draws[k], float)[sub] if k in draws else np.full(len(range(n)[sub]), base[k])
+          for k in SDEA_TABLE1}
+    gd = g_of(qd)
+    gm = g_of({k: np.array([float(np.mean(draws[k])) if k in draws else base[k]]) for k in SDEA_TABLE1})[:, 0]
+    q05, q95 = np.nanquantile(gd, [0.05, 0.95], axis=1)
+    gmin = float(np.nanmin(gm))
+    thr = gmin + CRITICAL_BAND_FRACTION * (1.0 - gmin)
+    plots["critical_band"] = Series(
+        title="Critical band: the coupler condition (c-ii) within 10 % of its minimum",
+        x=w.tolist(), x_label="ω [rad/s]", y_label="g(ω) = t(ω²)/|t|(ω²)", log_x=True,
+        lines={"posterior mean": _clean(gm), "10 % threshold (posterior mean)": [thr] * w.size},
+        bands={"5-95 % over the draws": (_clean(q05), _clean(q95))},
+        points={"worst (posterior mean)": (float(w[int(np.nanargmin(gm))]), gmin),
+                "critical band, low edge (over the draws)": (float(band[0]), thr),
+                "critical band, high edge (over the draws)": (float(band[1]), thr)},
+        hline=0.0)
 
 
 def _clean(a: np.ndarray) -> list[float | None]:
