@@ -142,3 +142,23 @@ def test_margin_outcome_negative_is_FAIL_not_MARGINAL(margin, verdict, expected)
     from hil.pipeline import _margin_outcome
 
     assert _margin_outcome(margin, verdict) == expected
+
+
+def test_independent_samples_thin_the_chain_without_duplicates():
+    """The emcee chain (steps × walkers) is thinned every ⌈τ⌉ steps per walker, in the flat order
+    of PosteriorResult.samples; every kept sample is a distinct stored one."""
+    from types import SimpleNamespace
+
+    from hil.pipeline import _independent_samples
+
+    n_steps, n_walkers = 100, 4
+    chain = np.arange(n_steps * n_walkers * 2, dtype=float).reshape(n_steps, n_walkers, 2)
+    samples = chain.reshape(-1, 2)
+    res = SimpleNamespace(names=("a", "b"), model=SimpleNamespace(name="m"), posterior=SimpleNamespace(
+        samples=samples, chain_z=chain, diagnostics=SimpleNamespace(tau=np.array([3.0, 9.5]))))
+    kept, note = _independent_samples(res)
+    assert kept.shape == (n_walkers * 10, 2)  # ⌈9.5⌉ = 10: steps 0, 10, ..., 90
+    steps = kept[:, 0] // (2 * n_walkers)
+    assert set(steps.tolist()) == set(range(0, n_steps, 10))
+    assert len(np.unique(kept[:, 0])) == kept.shape[0]
+    assert "40 independent draws" in note and "⌈τ⌉ = 10" in note
