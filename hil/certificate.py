@@ -143,6 +143,10 @@ class Robust(_M):
     worst_case_parameters: dict[str, float] | None
     critical_band_rad_s: tuple[float, float] | None = None
     method: str = ""
+    n_requested: int | None = Field(default=None, description="draws the scene asked for (certification.draws)")
+    n_independent: int | None = Field(default=None, description="independent posterior draws available after "
+                                      "thinning the MCMC chain by its autocorrelation time")
+    sampling: str = Field(default="", description="how the draws were obtained (thinning, shortfall)")
 
 
 class ParameterSummary(_M):

@@ -4,7 +4,11 @@ into a GO / MARGINAL / NO-GO decision, kept apart from ERROR.
 Pieces (each usable on its own):
 
 * :func:`probability_of_stability` -- the fraction of posterior draws that are stable, with an
-  exact (Clopper-Pearson) confidence interval for the Monte Carlo estimate;
+  exact (Clopper-Pearson) confidence interval for the Monte Carlo estimate; the interval assumes
+  independent draws, so a correlated MCMC chain is first thinned by its integrated
+  autocorrelation time (:func:`autocorrelation_time`, :func:`thin_indices`): the interval then
+  rests on about n_steps·n_walkers/τ draws, the chain's effective sample size, never on
+  resampled duplicates;
 * :func:`worst_case_margin` -- the smallest margin over a credible region of the posterior (the
   Mahalanobis ellipsoid of the draws' mean and covariance at the requested credibility), found by
   multi-start bounded optimization, not only by sampling;
@@ -46,9 +50,11 @@ __all__ = [
     "Certificate",
     "Decision",
     "Policy",
+    "autocorrelation_time",
     "decide",
     "max_safe_parameter",
     "probability_of_stability",
+    "thin_indices",
     "worst_case_margin",
 ]
 
@@ -79,8 +85,9 @@ class Policy:
 
 def probability_of_stability(stable: np.ndarray, confidence: float = 0.95) -> tuple[float, float, float]:
     """(p̂, lower, upper): fraction of stable draws and its exact two-sided Clopper-Pearson
-    interval at ``confidence``. Draws are treated as independent (thin correlated MCMC chains by
-    their autocorrelation time before calling this)."""
+    interval at ``confidence``. Draws must be independent: thin a correlated MCMC chain with
+    :func:`thin_indices` by its :func:`autocorrelation_time` before calling this (an unthinned
+    chain gives an interval about √τ times too narrow)."""
     from scipy.stats import beta
 
     s = np.asarray(stable, dtype=bool)
@@ -92,6 +99,38 @@ def probability_of_stability(stable: np.ndarray, confidence: float = 0.95) -> tu
     lo = 0.0 if k == 0 else float(beta.ppf(a / 2, k, n - k + 1))
     hi = 1.0 if k == n else float(beta.ppf(1 - a / 2, k + 1, n - k))
     return k / n, lo, hi
+
+
+def autocorrelation_time(chain: np.ndarray) -> float:
+    """The largest integrated autocorrelation time τ (in steps) of a chain, over its parameters,
+    by ``emcee.autocorr.integrated_time`` (``tol=0``: no length check; a chain shorter than ~50 τ
+    gives an underestimate, which the identification's convergence check already flags).
+
+    ``chain``: (n_steps,), (n_steps, n_walkers) or (n_steps, n_walkers, d); walkers are averaged
+    as emcee does. Returns at least 1."""
+    import emcee
+
+    c = np.asarray(chain, float)
+    if c.ndim == 1:
+        c = c[:, None, None]
+    elif c.ndim == 2:
+        c = c[:, :, None]
+    if c.ndim != 3 or c.shape[0] < 2:
+        raise HilError(f"autocorrelation time needs a chain of shape (n_steps, n_walkers, d), got {c.shape}")
+    tau = np.asarray(emcee.autocorr.integrated_time(c, tol=0), float)
+    tau = tau[np.isfinite(tau)]
+    return max(1.0, float(tau.max())) if tau.size else 1.0
+
+
+def thin_indices(n_steps: int, n_walkers: int, tau: float) -> np.ndarray:
+    """Indices, into the flattened chain (row ``step·n_walkers + walker``, emcee's
+    ``get_chain(flat=True)`` order), of the samples kept when every walker is thinned to one sample
+    per ⌈τ⌉ steps: about n_steps·n_walkers/τ approximately independent draws (the chain's
+    effective sample size)."""
+    if n_steps < 1 or n_walkers < 1:
+        raise HilError("thinning needs at least one step and one walker")
+    step = max(1, math.ceil(float(tau))) if math.isfinite(float(tau)) else n_steps
+    return (np.arange(0, n_steps, step)[:, None] * n_walkers + np.arange(n_walkers)[None, :]).ravel()
 
 
 def worst_case_margin(margin_fn: Callable[[np.ndarray], np.ndarray], draws: np.ndarray, credible: float = 0.90,

@@ -10,7 +10,9 @@ Stages (timed; ``Certificate.measurements`` records what each produced):
    e.g. controller gains) through the criterion, with margins and evidence;
 4. **robust**: the criterion on every posterior draw (vectorized for the SDEA; per draw,
    verdict-only, for other networks), P(stable) with a Clopper-Pearson interval, the worst-case
-   margin over the credible ellipsoid (optimized), the frequency band where margins are smallest;
+   margin over the credible ellipsoid (optimized), the critical band (where the binding condition is
+   within 10 % of its minimum; README "Definitions of the robust numbers"); P(stable) counts only
+   independent draws: each emcee chain is thinned by its autocorrelation time first;
 5. **design** guidance for a free parameter (the largest value keeping the required probability);
 6. **witness**: when the nominal network is potentially unstable, a passive termination set that
    makes the operator-port impedance non-positive-real, simulated with the exact-ZOH engine (the
@@ -324,6 +326,7 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
 
     # 2. identification ----------------------------------------------------------------------
     draws: dict[str, np.ndarray] = {}
+    thinning: list[str] = []  # how each identification's chain became independent draws
     idents: list[Identification] = []
     converged = True
     if cert.identify:
@@ -354,7 +357,8 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                                                  std=v["std"], ls_std=v.get("ls_std"), crb_std=v.get("crb_std"))
                                 for k, v in summ.items()],
                     diagnostics=res.posterior.diagnostics.to_dict(res.names)))
-                samples = np.asarray(res.posterior.samples)[:, : len(res.names)]
+                samples, thin_note = _independent_samples(res)
+                thinning.append(thin_note)
                 # sampled parameters plus the model's derived quantities (e.g. the entries of M, B, K
                 # of an MBK model sampled as Cholesky factors)
                 available = {n: samples[:, i] for i, n in enumerate(res.names)}
@@ -374,11 +378,22 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                                                             "split-R̂"))
     rng = np.random.default_rng(seed)
     n_draws = cert.draws
+    n_independent: int | None = None
     if draws:
+        # independent posterior draws only (thinned chains), never resampled with replacement: with
+        # fewer independent draws than requested, all of them are used and the certificate says so
         n_avail = min(len(v) for v in draws.values())
-        idx = rng.choice(n_avail, size=min(n_draws, n_avail), replace=n_avail < n_draws)
+        n_independent = n_avail
+        idx = rng.choice(n_avail, size=min(n_draws, n_avail), replace=False)
         draws = {k: np.asarray(v)[idx] for k, v in draws.items()}
         n_draws = idx.size
+        if n_avail < cert.draws:
+            thinning.append(f"only {n_avail} independent posterior draws exist: all used, fewer than the "
+                            f"{cert.draws} requested")
+        else:
+            thinning.append(f"{n_draws} of them drawn without replacement")
+    elif cert.uncertain:
+        thinning.append(f"{n_draws} independent log-normal draws of the uncertain parameters")
     for k, u in cert.uncertain.items():
         draws[k] = u.value * np.exp(u.rel_std * rng.standard_normal(n_draws))
     for k, v in draws.items():
@@ -400,7 +415,7 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                 outcome={"stable": "PASS", "marginal": "MARGINAL", "potentially_unstable": "FAIL"}.get(
                     str(nominal_res.verdict), "ERROR"), description=nominal_res.summary()))
             measurements.append(Measurement(name="nominal margin", value=_f(nominal_res.margin), lower=0.0,
-                                            outcome="PASS" if (nominal_res.margin or 0) > 0 else "MARGINAL",
+                                            outcome=_margin_outcome(nominal_res.margin, str(nominal_res.verdict)),
                                             description="normalized margin of the decisive condition"))
             opt.run("plots (decided quantities)", _decided_plot, plots, tm, nominal_res)
         except HilError as exc:
@@ -431,22 +446,27 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                     math.isfinite(float(nominal_res.worst_frequency)):
                 w = float(nominal_res.worst_frequency)
                 band = (w / 2.0, w * 2.0)
+            sampling = "; ".join(thinning)
             robust = Robust(n_draws=int(stable_draws.size), p_stable=p, lower=lo, upper=hi,
                             confidence=policy.confidence, required=policy.required_probability,
                             credible=policy.credible, worst_case_margin=wc, worst_case_parameters=theta,
-                            critical_band_rad_s=band, method=method)
+                            critical_band_rad_s=band, method=method, n_requested=int(cert.draws),
+                            n_independent=n_independent, sampling=sampling)
             measurements.append(Measurement(name="P(stable), lower confidence bound", value=lo,
                                             lower=policy.required_probability,
                                             outcome="PASS" if lo >= policy.required_probability else (
                                                 "MARGINAL" if p >= policy.required_probability else "FAIL"),
-                                            description=f"P̂ = {p:.4f} over {stable_draws.size} draws "
-                                                        f"({policy.confidence:.0%} Clopper-Pearson)"))
+                                            description=f"P̂ = {p:.4f} over {stable_draws.size} independent draws "
+                                                        f"({policy.confidence:.0%} Clopper-Pearson on the "
+                                                        f"thinned chain: {sampling})"))
             if wc is not None:
                 measurements.append(Measurement(name=f"worst-case margin over the {policy.credible:.0%} credible "
                                                      "region", value=wc, lower=0.0,
-                                                outcome="PASS" if wc > 0 else "MARGINAL",
+                                                outcome=_margin_outcome(wc),
                                                 description="minimum of the margin by optimization"))
             opt.run("plots (posterior Bode)", _bode_plot, plots, cert.model, params, draws, seed)
+            if fast and band is not None:
+                opt.run("plots (critical band)", _critical_band_plot, plots, params, draws, band)
 
     # 5. design -----------------------------------------------------------------------------------
     design = None
@@ -517,6 +537,49 @@ def _f(v: Any) -> float | None:
     return x if math.isfinite(x) else None
 
 
+#: a margin within this of zero is MARGINAL (the batch path's round-off tolerance, hil.stability.batch)
+MARGIN_TOL = 1e-9
+
+
+def _margin_outcome(margin: Any, verdict: str | None = None) -> str:
+    """OpenHTF-style outcome of a margin against its limit 0: FAIL below -``MARGIN_TOL`` (or when the
+    verdict is potentially unstable), MARGINAL only within ``MARGIN_TOL`` of 0 (or when the verdict
+    is marginal), PASS above; ERROR when the margin is missing or not finite."""
+    m = _f(margin)
+    if verdict == "potentially_unstable":
+        return "FAIL"
+    if m is None:
+        return "ERROR"
+    if m < -MARGIN_TOL:
+        return "FAIL"
+    if verdict == "marginal" or m <= MARGIN_TOL:
+        return "MARGINAL"
+    return "PASS"
+
+
+def _independent_samples(res: Any) -> tuple[np.ndarray, str]:
+    """The identification's posterior samples thinned to independent draws: every walker of the
+    kept emcee chain keeps one sample per ⌈τ⌉ steps, τ the largest integrated autocorrelation time
+    over the parameters (``diagnostics.tau``, or estimated from the chain when missing). Returns the
+    (n_independent, p) samples and one sentence saying how they were obtained."""
+    from hil.certify import autocorrelation_time, thin_indices
+
+    post = res.posterior
+    samples = np.asarray(post.samples)[:, : len(res.names)]
+    chain = np.asarray(post.chain_z)
+    if chain.ndim != 3 or chain.shape[0] * chain.shape[1] != samples.shape[0]:
+        return samples, (f"{res.model.name}: {samples.shape[0]} stored samples, chain layout unknown: "
+                         "not thinned")
+    n_steps, n_walkers = chain.shape[:2]
+    tau_d = np.asarray(post.diagnostics.tau, float)
+    tau = float(np.max(tau_d)) if tau_d.size and np.all(np.isfinite(tau_d)) else autocorrelation_time(chain)
+    idx = thin_indices(n_steps, n_walkers, tau)
+    note = (f"{res.model.name}: {samples.shape[0]} stored samples ({n_walkers} walkers × {n_steps} steps) "
+            f"thinned every ⌈τ⌉ = {max(1, math.ceil(tau))} steps (τ = {tau:.1f}, the largest integrated "
+            f"autocorrelation time): {idx.size} independent draws")
+    return samples[idx], note
+
+
 def _truth(scene: Any) -> dict[str, float]:
     """Parameters of the simulated plant (known on a mocked bench; shown next to the estimates)."""
     sim = scene.simulation
@@ -554,8 +617,8 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
                  ) -> tuple[np.ndarray, Callable[[Mapping[str, np.ndarray]], np.ndarray] | None, str,
                             tuple[float, float] | None]:
     """Stability of every draw, a vectorized margin function for the worst-case search, the method,
-    and the band (5-95 % over the draws) of the frequency where the deciding condition is smallest
-    (None when the path does not provide it)."""
+    and the critical band (5 % quantile of the draws' lower edges to 95 % of their upper edges, see
+    hil.stability.batch) (None when the path does not provide it)."""
     n = len(next(iter(draws.values())))
     if model == "sdea" and criterion == "passivity":
         from hil.stability.batch import sdea_passivity_batch
@@ -566,8 +629,12 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
             return sdea_passivity_batch(d, fixed=fixed)["margin"]
 
         res = sdea_passivity_batch(draws, fixed=fixed)
-        w = res["worst_omega"][res["worst_omega"] > 0]
-        band = (float(np.quantile(w, 0.05)), float(np.quantile(w, 0.95))) if w.size else None
+        # the critical band (hil.stability.batch): per draw, where the coupler condition (c-ii) is
+        # within 10 % of its minimum; over the draws, the 5 % quantile of the lower edges to the 95 %
+        # quantile of the upper edges
+        lo_e, hi_e = res["band_lo"], res["band_hi"]
+        ok = np.isfinite(lo_e) & np.isfinite(hi_e) & (hi_e > lo_e)
+        band = (float(np.quantile(lo_e[ok], 0.05)), float(np.quantile(hi_e[ok], 0.95))) if ok.any() else None
         return res["passive"], margin, "vectorized closed form (Theorem 5), exact fallback near the boundary", band
     stable = np.zeros(n, bool)
     for i in range(n):
@@ -794,6 +861,45 @@ def _decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
     plots["decided"] = Series(title=f"Decided quantities ({r.criterion}) against frequency", x=(w * w0).tolist(),
                               x_label="ω [rad/s]", y_label="normalized margin", log_x=True, lines=lines,
                               points=pts, hline=0.0)
+
+
+def _critical_band_plot(plots: dict[str, Series], params: Mapping[str, Any], draws: Mapping[str, np.ndarray],
+                        band: tuple[float, float]) -> None:
+    """The SDEA's normalized coupler condition g(ω) = t(ω²)/|t|(ω²) at the posterior mean and its
+    5-95 % band over the draws, with the 10 % threshold of the mean and the certificate's critical
+    band (over the draws) marked."""
+    from hil.models.sdea import SDEA_TABLE1, sdea_polynomials
+    from hil.stability.batch import BAND_GRID_RAD_S, CRITICAL_BAND_FRACTION
+
+    base = {**SDEA_TABLE1, **{k: float(v) for k, v in params.items() if isinstance(v, int | float)}}
+    n = len(next(iter(draws.values())))
+    sub = slice(None, None, max(1, n // 400))
+    w = BAND_GRID_RAD_S
+    x = (w * w)[:, None]
+
+    def g_of(q: Mapping[str, np.ndarray]) -> np.ndarray:
+        t0, t1, t2, t3 = sdea_polynomials(q)["t"]
+        tv = ((t3 * x + t2) * x + t1) * x + t0
+        tm = ((np.abs(t3) * x + np.abs(t2)) * x + np.abs(t1)) * x + np.abs(t0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(tm > 0, tv / tm, np.nan)
+
+    qd = {k: np.asarray(draws[k], float)[sub] if k in draws else np.full(len(range(n)[sub]), base[k])
+          for k in SDEA_TABLE1}
+    gd = g_of(qd)
+    gm = g_of({k: np.array([float(np.mean(draws[k])) if k in draws else base[k]]) for k in SDEA_TABLE1})[:, 0]
+    q05, q95 = np.nanquantile(gd, [0.05, 0.95], axis=1)
+    gmin = float(np.nanmin(gm))
+    thr = gmin + CRITICAL_BAND_FRACTION * (1.0 - gmin)
+    plots["critical_band"] = Series(
+        title="Critical band: the coupler condition (c-ii) within 10 % of its minimum",
+        x=w.tolist(), x_label="ω [rad/s]", y_label="g(ω) = t(ω²)/|t|(ω²)", log_x=True,
+        lines={"posterior mean": _clean(gm), "10 % threshold (posterior mean)": [thr] * w.size},
+        bands={"5-95 % over the draws": (_clean(q05), _clean(q95))},
+        points={"worst (posterior mean)": (float(w[int(np.nanargmin(gm))]), gmin),
+                "critical band, low edge (over the draws)": (float(band[0]), thr),
+                "critical band, high edge (over the draws)": (float(band[1]), thr)},
+        hline=0.0)
 
 
 def _clean(a: np.ndarray) -> list[float | None]:

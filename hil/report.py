@@ -824,6 +824,7 @@ def _pdf_sections(doc: _PdfDoc, cert: Certificate) -> None:
                 (f"{r.confidence:.0%} confidence interval", f"[{fmt_p(r.lower)}, {fmt_p(r.upper)}]"),
                 ("required (lower bound must clear)", fmt_p(r.required)),
                 ("posterior draws", str(r.n_draws)),
+                ("sampling (independent draws)", r.sampling or "—"),
                 (f"worst-case margin over the {r.credible:.0%} credible region", fmt(r.worst_case_margin)),
                 ("critical band", fmt_band(r.critical_band_rad_s)),
                 ("method", r.method or "—")])

@@ -78,3 +78,74 @@ def test_policy(args, kw, expected):
 def test_policy_validates_levels():
     with pytest.raises(Exception, match="required_probability"):
         Policy(required_probability=1.5)
+
+
+def _ar1_chains(rng, phi, n_steps, n_walkers, reps=1):
+    """Stationary AR(1) chains θ_t = φ θ_{t-1} + √(1-φ²) ε_t (unit variance), shape
+    (reps, n_steps, n_walkers); integrated autocorrelation time τ = (1 + φ)/(1 - φ)."""
+    x = np.empty((reps, n_steps, n_walkers))
+    x[:, 0] = rng.standard_normal((reps, n_walkers))
+    e = rng.standard_normal((reps, n_steps, n_walkers)) * math.sqrt(1 - phi * phi)
+    for t in range(1, n_steps):
+        x[:, t] = phi * x[:, t - 1] + e[:, t]
+    return x
+
+
+def _width(stable):
+    _, lo, hi = probability_of_stability(stable, 0.95)
+    return hi - lo
+
+
+def test_thinned_ar1_chain_interval_as_wide_as_for_n_over_tau_independent_draws():
+    """Defect 8: on a strongly autocorrelated chain (AR(1), τ = 39) the Clopper-Pearson interval on
+    the thinned chain is as wide as the one for n/τ independent draws, not √τ times narrower."""
+    from scipy.stats import norm
+
+    from hil.certify import autocorrelation_time, thin_indices
+
+    rng = np.random.default_rng(11)
+    phi = 0.95
+    tau_true = (1 + phi) / (1 - phi)
+    n_steps, n_walkers = 8000, 8
+    chain = _ar1_chains(rng, phi, n_steps, n_walkers)[0]
+    tau = autocorrelation_time(chain)
+    assert tau == pytest.approx(tau_true, rel=0.2)
+    stable = (chain < 1.0).ravel()  # row-major: step * n_walkers + walker, emcee's flat order
+    idx = thin_indices(n_steps, n_walkers, tau)
+    n_eff = n_steps * n_walkers / tau_true
+    assert idx.size == pytest.approx(n_eff, rel=0.2)
+    p_true = norm.cdf(1.0)
+    ref = _width(rng.random(int(n_eff)) < p_true)  # n/τ independent draws
+    assert _width(stable[idx]) == pytest.approx(ref, rel=0.15)
+    assert _width(stable) < 0.4 * ref  # the unthinned chain claims far too much precision
+
+
+def test_thinned_chain_interval_covers_the_true_probability():
+    """Coverage of the interval over 150 independent AR(1) ensembles: ≥ 95 % nominal, ≥ 0.9
+    allowing for Monte Carlo noise, where the unthinned interval covers far less often."""
+    from scipy.stats import norm
+
+    from hil.certify import autocorrelation_time, thin_indices
+
+    rng = np.random.default_rng(5)
+    phi, n_steps, n_walkers, reps = 0.9, 2000, 8, 150
+    chains = _ar1_chains(rng, phi, n_steps, n_walkers, reps)
+    p_true = norm.cdf(1.5)
+    hit_thin = hit_raw = 0
+    for c in chains:
+        s = (c < 1.5).ravel()
+        idx = thin_indices(n_steps, n_walkers, autocorrelation_time(c))
+        _, lo, hi = probability_of_stability(s[idx], 0.95)
+        hit_thin += lo <= p_true <= hi
+        _, lo, hi = probability_of_stability(s, 0.95)
+        hit_raw += lo <= p_true <= hi
+    assert hit_thin / reps >= 0.9
+    assert hit_raw / reps < 0.8
+
+
+def test_thin_indices_layout():
+    from hil.certify import thin_indices
+
+    idx = thin_indices(10, 3, 3.2)  # every 4th step of each of 3 walkers: steps 0, 4, 8
+    assert idx.tolist() == [0, 1, 2, 12, 13, 14, 24, 25, 26]
+    assert len(set(idx.tolist())) == idx.size  # never a duplicate

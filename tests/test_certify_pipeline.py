@@ -4,6 +4,7 @@ GO / MARGINAL / NO-GO, with a witness for NO-GO, and the exit codes of `hil cert
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -47,6 +48,23 @@ def test_sdea_inside_passive_region_is_GO(sdea_run, tmp_path):
     assert c.robust.lower >= 0.95 and c.robust.worst_case_margin > 0
     assert 400 < c.design.max_value < 420  # the exact design limit at Table I is 408.05
     Certificate.model_validate_json(c.model_dump_json())  # the record validates against its schema
+    # defect 8: P(stable) rests on independent draws of the thinned chain, and says how many
+    r = c.robust
+    diag = ident.diagnostics
+    n_indep = diag["n_walkers"] * -(-diag["n_kept"] // math.ceil(max(diag["tau"].values())))
+    assert r.n_independent == n_indep and r.n_requested == 4000
+    assert r.n_draws == min(4000, n_indep) and f"{n_indep} independent draws" in r.sampling
+    m = next(m for m in c.measurements if m.name == "P(stable), lower confidence bound")
+    assert f"over {r.n_draws} independent draws" in m.description
+    # defect 9: the critical band has positive width and contains the worst frequency of the
+    # coupler condition at the nominal parameters
+    lo, hi = r.critical_band_rad_s
+    nominal = {k: np.array([v]) for k, v in c.nominal.parameters.items() if k in SDEA_TABLE1}
+    w = sdea_passivity_batch(nominal)["worst_omega"][0]
+    assert 0 < lo < w < hi and hi / lo > 1.2
+    pts = c.plots["critical_band"].points  # plotted, with the band's edges and the worst frequency
+    assert lo < pts["worst (posterior mean)"][0] < hi
+    assert pts["critical band, low edge (over the draws)"][0] == lo
 
 
 @pytest.mark.timeout(600)
@@ -54,6 +72,10 @@ def test_sdea_above_the_passive_limit_is_NO_GO_with_a_witness(sdea_run, tmp_path
     c = certify_scene(_sdea_scene(450.0), tmp_path, outcomes=sdea_run)
     assert c.decision == "NO-GO", c.reasons
     assert c.nominal.verdict == "potentially_unstable"
+    # a negative margin is FAIL, never MARGINAL (OpenHTF: MARGINAL is within tolerance of a limit)
+    outcomes = {m.name: m.outcome for m in c.measurements}
+    assert outcomes["nominal margin"] == "FAIL"
+    assert all(o != "MARGINAL" for n, o in outcomes.items() if "margin" in n)
     w = c.witness
     assert w is not None and w.margin < 0
     sim = w.simulation
@@ -110,3 +132,33 @@ def test_scene_without_certification_is_an_ERROR_certificate(tmp_path):
     d.pop("certification")
     c = certify_scene(scene_from_dict(d, label="x"), tmp_path)
     assert c.decision == "ERROR" and c.errors
+
+
+@pytest.mark.parametrize("margin,verdict,expected", [
+    (0.3, "stable", "PASS"), (-0.2, None, "FAIL"), (-1e-6, None, "FAIL"), (0.0, "stable", "MARGINAL"),
+    (5e-10, None, "MARGINAL"), (1e-3, "marginal", "MARGINAL"), (0.3, "potentially_unstable", "FAIL"),
+    (float("nan"), None, "ERROR"), (None, None, "ERROR")])
+def test_margin_outcome_negative_is_FAIL_not_MARGINAL(margin, verdict, expected):
+    from hil.pipeline import _margin_outcome
+
+    assert _margin_outcome(margin, verdict) == expected
+
+
+def test_independent_samples_thin_the_chain_without_duplicates():
+    """The emcee chain (steps × walkers) is thinned every ⌈τ⌉ steps per walker, in the flat order
+    of PosteriorResult.samples; every kept sample is a distinct stored one."""
+    from types import SimpleNamespace
+
+    from hil.pipeline import _independent_samples
+
+    n_steps, n_walkers = 100, 4
+    chain = np.arange(n_steps * n_walkers * 2, dtype=float).reshape(n_steps, n_walkers, 2)
+    samples = chain.reshape(-1, 2)
+    res = SimpleNamespace(names=("a", "b"), model=SimpleNamespace(name="m"), posterior=SimpleNamespace(
+        samples=samples, chain_z=chain, diagnostics=SimpleNamespace(tau=np.array([3.0, 9.5]))))
+    kept, note = _independent_samples(res)
+    assert kept.shape == (n_walkers * 10, 2)  # ⌈9.5⌉ = 10: steps 0, 10, ..., 90
+    steps = kept[:, 0] // (2 * n_walkers)
+    assert set(steps.tolist()) == set(range(0, n_steps, 10))
+    assert len(np.unique(kept[:, 0])) == kept.shape[0]
+    assert "40 independent draws" in note and "⌈τ⌉ = 10" in note

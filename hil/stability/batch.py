@@ -13,6 +13,19 @@ p is non-negative at its positive critical points (roots of 3p3x² + 2p2x + p1).
 deciding value is within ``tol`` of zero (relative to the magnitudes of its terms) are re-decided
 one by one with the exact general criterion (:func:`two_port_passivity`), so the batch never
 flips a boundary case on round-off.
+
+A cubic with p3 < 0 (for t: b22 > 4 B_f) is unbounded below; its normalized value
+p(x)/|p|(x) (|p|(x) = Σ|p_i| xⁱ) tends to sign(p3) = -1 as x → ∞, and -1 is its exact infimum
+(|p(x)| ≤ |p|(x)), so such a draw gets the finite margin -1 and is decided without the exact
+path (only a p3 within ``tol`` of zero, i.e. b22 within ``tol`` of 4 B_f, is re-decided exactly).
+
+The **critical band** of a draw (``band_lo``, ``band_hi``, rad/s) is the frequency interval around
+the minimum of g(ω) = t(ω²)/|t|(ω²), the normalized (c-ii) coupler condition, where
+g(ω) - g_min ≤ f·(1 - g_min), f = :data:`CRITICAL_BAND_FRACTION` (10 %): the frequencies where the
+binding condition lies within 10 % of the way from its minimum to the top of its scale (g ≤ 1).
+It is evaluated on :data:`BAND_GRID_RAD_S` (ω from 1 to 10⁶ rad/s, 60 points per decade) with the
+edges interpolated linearly in log ω, so it has positive width whenever g is not constant; an edge
+at the end of the grid (e.g. for b22 > 4 B_f, where g → -1 as ω → ∞) is reported as that end.
 """
 
 from __future__ import annotations
@@ -23,9 +36,14 @@ import numpy as np
 
 from hil.models.sdea import SDEA_TABLE1, sdea_polynomials
 
-__all__ = ["sdea_passivity_batch"]
+__all__ = ["BAND_GRID_RAD_S", "CRITICAL_BAND_FRACTION", "critical_band", "sdea_passivity_batch"]
 
 _KEYS = tuple(SDEA_TABLE1)
+
+#: the fraction f of the critical band's definition (see the module docstring)
+CRITICAL_BAND_FRACTION = 0.10
+#: the frequency grid (rad/s) on which the critical band and the worst frequency are evaluated
+BAND_GRID_RAD_S = np.geomspace(1.0, 1e6, 361)
 
 
 def _cubic_min(p3: np.ndarray, p2: np.ndarray, p1: np.ndarray,
@@ -90,10 +108,15 @@ def sdea_passivity_batch(draws: Mapping[str, np.ndarray] | np.ndarray, tol: floa
         m_a = np.where(hur_s > 0, hur / hur_s, -1.0)
         m_r = np.where(rs > 0, rmin / rs, np.where(np.isneginf(rmin), -1.0, 0.0))
         m_t = np.where(ts > 0, tmin / ts, np.where(np.isneginf(tmin), -1.0, 0.0))
+        # a cubic unbounded below (p3 < 0): its normalized value's exact infimum is -1 (x → ∞)
+        m_r = np.where(r3 < 0, -1.0, m_r)
+        m_t = np.where(t3 < 0, -1.0, m_t)
     margin = np.minimum(np.minimum(m_a, m_r), m_t)
     margin = np.where(pos & (b22 > 0) & (b22 <= 4 * Bf), margin, np.minimum(margin, -1.0))
     passive = margin > tol
-    ambiguous = (np.abs(margin) <= tol) | ~np.isfinite(margin)
+    # b22 within tol of 4 B_f: the sign of t3 is not resolved by the float coefficients
+    edge = np.abs(4 * Bf - b22) <= tol * np.abs(4 * Bf + b22)
+    ambiguous = (np.abs(margin) <= tol) | ~np.isfinite(margin) | edge
     if np.any(ambiguous):
         from hil.models.sdea import sdea_vsic
         from hil.stability.criteria import two_port_passivity
@@ -101,12 +124,47 @@ def sdea_passivity_batch(draws: Mapping[str, np.ndarray] | np.ndarray, tol: floa
         for i in np.nonzero(ambiguous)[0]:
             r = two_port_passivity(sdea_vsic({k: float(q[k][i]) for k in _KEYS}))
             passive[i] = r.verdict == "stable"
-    # where the coupler-dependent passivity condition (c-ii) is closest to failing: the minimum over
-    # a log grid of ω of t(x)/|t|(x) (value over its magnitude), x = ω²
-    x = np.geomspace(1.0, 1e12, 241)[:, None]
+    # where the coupler-dependent passivity condition (c-ii) is closest to failing, and the band
+    # around it (module docstring): g(ω) = t(x)/|t|(x), x = ω²
+    worst, lo, hi = critical_band((t0, t1, t2, t3))
+    return {"passive": passive, "margin": margin, "exact_rechecked": ambiguous, "worst_omega": worst,
+            "band_lo": lo, "band_hi": hi}
+
+
+def critical_band(t: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+                  fraction: float = CRITICAL_BAND_FRACTION,
+                  grid: np.ndarray = BAND_GRID_RAD_S) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ω_worst, ω_lo, ω_hi) in rad/s per draw for the cubics t(x) = t0 + t1 x + t2 x² + t3 x³
+    (ascending coefficients, arrays of length N): the grid frequency where g(ω) = t(ω²)/|t|(ω²)
+    is smallest, and the edges of the contiguous interval around it where
+    g - g_min ≤ ``fraction``·(1 - g_min), interpolated linearly in log ω between grid points
+    (the grid's ends when the interval reaches them)."""
+    t0, t1, t2, t3 = (np.atleast_1d(np.asarray(c, float)) for c in t)
+    x = (grid * grid)[:, None]
     tv = ((t3 * x + t2) * x + t1) * x + t0
     tm = ((np.abs(t3) * x + np.abs(t2)) * x + np.abs(t1)) * x + np.abs(t0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        k = np.argmin(np.where(tm > 0, tv / tm, np.inf), axis=0)
-    worst = np.sqrt(x[k, 0])
-    return {"passive": passive, "margin": margin, "exact_rechecked": ambiguous, "worst_omega": worst}
+        g = np.where(tm > 0, tv / tm, 1.0)  # t ≡ 0 at a point: no information there
+    m, n = g.shape
+    k = np.argmin(g, axis=0)
+    cols = np.arange(n)
+    gmin = g[k, cols]
+    thr = gmin + fraction * (1.0 - gmin)
+    below = g <= thr[None, :]
+    lw = np.log(grid)
+    # the contiguous run of `below` containing k: walk outwards with cumulative "first break"
+    idx = np.arange(m)[:, None]
+    brk_lo = np.where(~below & (idx < k[None, :]), idx, -1).max(axis=0)  # last grid point above thr left of k
+    brk_hi = np.where(~below & (idx > k[None, :]), idx, m).min(axis=0)  # first one right of k
+
+    def edge(i_out: np.ndarray, i_in: np.ndarray) -> np.ndarray:
+        go, gi = g[i_out, cols], g[i_in, cols]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            a = np.clip(np.where(go != gi, (thr - gi) / (go - gi), 0.0), 0.0, 1.0)
+        return np.exp(lw[i_in] + a * (lw[i_out] - lw[i_in]))
+
+    io = np.clip(brk_lo, 0, m - 2)
+    lo = np.where(brk_lo < 0, grid[0], edge(io, io + 1))
+    io = np.clip(brk_hi, 1, m - 1)
+    hi = np.where(brk_hi >= m, grid[-1], edge(io, io - 1))
+    return grid[k], lo, hi

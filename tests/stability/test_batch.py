@@ -1,6 +1,7 @@
 """The vectorized SDEA passivity path agrees with the general exact criterion draw by draw."""
 
 import numpy as np
+import pytest
 
 from hil.models.sdea import SDEA_TABLE1, sdea_vsic
 from hil.stability.batch import sdea_passivity_batch
@@ -27,3 +28,47 @@ def test_batch_boundary_is_the_design_limit():
     kmax = k22_max(0.17, 1.0, "passivity").k22_max
     res = sdea_passivity_batch({"k22": np.array([kmax * 0.999, kmax * 1.01]), "b22": np.array([0.17, 0.17])})
     assert res["passive"].tolist() == [True, False]
+
+
+def test_b22_above_4Bf_gets_a_finite_margin_and_the_exact_verdict():
+    """Defect 9: b22 > 4 B_f made t3 < 0 and the margin -inf, which sent every such draw through the
+    exact path. The margin is now the exact infimum -1 of t(x)/|t|(x), decided without the exact
+    path, and the verdict agrees with the general exact criterion."""
+    rng = np.random.default_rng(7)
+    n = 6
+    draws = {"B_f": rng.uniform(0.02, 0.04, n), "b22": rng.uniform(0.17, 0.3, n),
+             "k22": rng.uniform(100.0, 400.0, n)}
+    assert np.all(draws["b22"] > 4 * draws["B_f"])
+    res = sdea_passivity_batch(draws)
+    assert np.all(np.isfinite(res["margin"])) and np.all(res["margin"] == -1.0)
+    assert not res["exact_rechecked"].any()
+    for i in range(n):
+        r = two_port_passivity(sdea_vsic({**SDEA_TABLE1, **{k: float(v[i]) for k, v in draws.items()}}))
+        assert r.verdict == "potentially_unstable" and r.margin < 0
+        assert not res["passive"][i]
+
+
+def test_b22_at_4Bf_is_rechecked_exactly():
+    res = sdea_passivity_batch({"B_f": np.array([0.05]), "b22": np.array([0.2])})
+    assert res["exact_rechecked"][0]
+
+
+def test_critical_band_has_width_and_contains_the_worst_frequency():
+    """The critical band at the default scene: where g = t/|t| is within 10 % (of 1 - g_min) of its
+    minimum; positive width, contains the minimizer, and g at its edges equals the threshold
+    (checked against a dense independent evaluation)."""
+    from hil.models.sdea import sdea_polynomials
+    from hil.stability.batch import CRITICAL_BAND_FRACTION
+
+    res = sdea_passivity_batch({"k22": np.array([300.0])})
+    lo, hi, w = res["band_lo"][0], res["band_hi"][0], res["worst_omega"][0]
+    assert 0 < lo < w < hi and hi / lo > 1.2
+    t0, t1, t2, t3 = (float(c) for c in sdea_polynomials(SDEA_TABLE1)["t"])
+    om = np.geomspace(1.0, 1e6, 200001)
+    x = om * om
+    g = (((t3 * x + t2) * x + t1) * x + t0) / (((abs(t3) * x + abs(t2)) * x + abs(t1)) * x + abs(t0))
+    gmin = g.min()
+    assert om[np.argmin(g)] == pytest.approx(w, rel=0.03)
+    thr = gmin + CRITICAL_BAND_FRACTION * (1 - gmin)
+    inside = om[g <= thr]
+    assert lo == pytest.approx(inside.min(), rel=5e-3) and hi == pytest.approx(inside.max(), rel=5e-3)
