@@ -657,6 +657,27 @@ def _jmul(u: tuple[fmpq_poly, fmpq_poly], v: tuple[fmpq_poly, fmpq_poly]) -> tup
     return u[0] * v[0] - _X * u[1] * v[1], u[0] * v[1] + u[1] * v[0]
 
 
+def _axis_numerators(sub: list[list[Rational]]) -> tuple[list[list[tuple[fmpq_poly, fmpq_poly]]],
+                                                          tuple[fmpq_poly, fmpq_poly], fmpq_poly, int] | None:
+    """Exact values at s = jω of the entries of ``sub`` over their common denominator D:
+    ``(u, conj(D(jω)), h, μ)`` with u[i][j] = n_ij·(D/d_ij) at s = jω as (even, odd) polynomials in
+    x = ω², h the imaginary-axis factor of D and μ its multiplicity (see :func:`_axis_factor`); None
+    when no entry has a pole on the imaginary axis away from s = 0."""
+    from hil.stability.rational import _qpoly
+
+    n = len(sub)
+    nums = [[None if sub[i][j].is_zero else _qpoly(sub[i][j].num) for j in range(n)] for i in range(n)]
+    dens = [[_qpoly(sub[i][j].den) for j in range(n)] for i in range(n)]
+    ax = _axis_factor([dens[i][j] for i in range(n) for j in range(n) if nums[i][j] is not None])
+    if ax is None:
+        return None
+    D, h, mu = ax
+    Dc = _xq(D)
+    zero = (fmpq_poly([]), fmpq_poly([]))
+    u = [[zero if nums[i][j] is None else _xq(nums[i][j] * (D // dens[i][j])) for j in range(n)] for i in range(n)]
+    return u, (Dc[0], -Dc[1]), h, mu
+
+
 def _axis_factor(dens: list[fmpq_poly]) -> tuple[fmpq_poly, fmpq_poly, int] | None:
     """(common denominator D = lcm, axis factor h, multiplicity μ of h in gcd(E, O)) or None
     when no denominator has a root on the imaginary axis away from s = 0."""
@@ -684,20 +705,13 @@ def _exact_minor_polys(sub: list[list[Rational]]) -> dict[tuple[int, ...], tuple
     """Every principal minor of (G + Gᴴ)(jω)·|D(jω)|^(2k), formed exactly over Q and divided by
     the squared axis factor (see above); None when G has no imaginary-axis pole with ω > 0.
     Values: (polynomial in x, number of h² factors cancelled)."""
-    from hil.stability.rational import _qpoly
-
-    n = len(sub)
-    nums = [[None if sub[i][j].is_zero else _qpoly(sub[i][j].num) for j in range(n)] for i in range(n)]
-    dens = [[_qpoly(sub[i][j].den) for j in range(n)] for i in range(n)]
-    ax = _axis_factor([dens[i][j] for i in range(n) for j in range(n) if nums[i][j] is not None])
+    ax = _axis_numerators(sub)
     if ax is None:
         return None
-    D, h, mu = ax
-    Dc = _xq(D)
-    Dc = (Dc[0], -Dc[1])
+    u, Dc, h, mu = ax
+    n = len(sub)
     zero = (fmpq_poly([]), fmpq_poly([]))
-    A = [[zero if nums[i][j] is None else _jmul(_xq(nums[i][j] * (D // dens[i][j])), Dc) for j in range(n)]
-         for i in range(n)]
+    A = [[_jmul(u[i][j], Dc) for j in range(n)] for i in range(n)]
     Pm = [[(A[i][j][0] + A[j][i][0], A[i][j][1] - A[j][i][1]) for j in range(n)] for i in range(n)]
     memo: dict = {}
 
@@ -889,18 +903,10 @@ def llewellyn_polys(entries: list[list[Rational]], i: int = 0, j: int = 1) -> tu
 def _exact_llewellyn_polys(sub: list[list[Rational]]) -> tuple[fmpq_poly, fmpq_poly] | None:
     """(L1, L2) of :func:`llewellyn_polys` formed exactly over Q with the squared imaginary-axis
     factor divided out (L1 carries |d|⁴, L2 |d|⁸); None when there is no axis pole with ω > 0."""
-    from hil.stability.rational import _qpoly
-
-    nums = [[None if sub[a][b].is_zero else _qpoly(sub[a][b].num) for b in range(2)] for a in range(2)]
-    dens = [[_qpoly(sub[a][b].den) for b in range(2)] for a in range(2)]
-    ax = _axis_factor([dens[a][b] for a in range(2) for b in range(2) if nums[a][b] is not None])
+    ax = _axis_numerators(sub)
     if ax is None:
         return None
-    D, h, mu = ax
-    Dc = _xq(D)
-    Dc = (Dc[0], -Dc[1])
-    zero = (fmpq_poly([]), fmpq_poly([]))
-    u = [[zero if nums[a][b] is None else _xq(nums[a][b] * (D // dens[a][b])) for b in range(2)] for a in range(2)]
+    u, Dc, h, mu = ax
     A1 = _jmul(u[0][0], Dc)[0]
     A2 = _jmul(u[1][1], Dc)[0]
     C = _jmul(_jmul(_jmul(u[0][1], u[1][0]), Dc), Dc)
