@@ -54,6 +54,7 @@ from pydantic import ValidationError
 
 from hil.certificate import SCHEMA_VERSION, Certificate, Series, content_digest, seal
 from hil.errors import HilError
+from hil.inputs import read_text_file
 from hil.verify import MODIFIED, IntegrityStatus, check_certificate
 
 __all__ = [
@@ -445,16 +446,9 @@ def _resolve(path: str | os.PathLike[str]) -> Path:
 def load_certificate(path: str | os.PathLike[str]) -> Certificate:
     """Read and validate a certificate (a ``certificate.json`` file, or a folder holding one)."""
     p = _resolve(path)
+    text = read_text_file(p, "certificate", ReportError)  # missing, unreadable, binary, not UTF-8: one line
     try:
-        raw = p.read_bytes()
-    except FileNotFoundError:
-        raise ReportError(f"{p}: no such file") from None
-    except OSError as exc:
-        raise ReportError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    try:
-        data = json.loads(raw.decode("utf-8"))
-    except UnicodeDecodeError:
-        raise ReportError(f"{p}: not a UTF-8 text file") from None
+        data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ReportError(f"{p}: not valid JSON: line {exc.lineno} column {exc.colno}: {exc.msg}") from None
     if not isinstance(data, dict):

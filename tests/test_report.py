@@ -259,7 +259,8 @@ def test_write_json_refuses_a_record_that_cannot_load_back(tmp_path):
     (None, "no such file"),
     (b"{\"decision\": \"GO\",", "not valid JSON: line 1"),
     (b"[1, 2]", "top level is not a JSON object"),
-    (b"\xff\xfe\x00", "not a UTF-8"),
+    (b"\xff\xfe{", "not UTF-8 text"),
+    (b"\x00\x01", "binary data"),
     (json.dumps({"decision": "MAYBE"}).encode(), "invalid certificate: "),
     (json.dumps({"schema_version": "2.0"}).encode(), "schema_version '2.0' is not supported"),
 ])
