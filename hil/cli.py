@@ -420,8 +420,7 @@ def _cmd_import(args: argparse.Namespace) -> int:
             if not ch.strip() or not parts:
                 raise UsageError(f"--map {item}: expects CHANNEL=COLUMN[,COLUMN...]")
             mapping[ch.strip()] = parts[0] if len(parts) == 1 else parts
-        if "t" not in mapping:
-            raise UsageError("--map given without --time: name the time column with --time COLUMN")
+        # without --time the importer takes the t/time column (hil.importers)
     suffix = src.suffix.lower()
     if suffix not in (".mat", ".csv", ".txt", ".tsv"):
         raise UsageError(f"{src}: expected a .csv or .mat file")

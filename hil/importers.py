@@ -2,7 +2,7 @@
 
 Mapping (a dict, or a YAML/JSON *sidecar* file with the same content)::
 
-    t: time                          # time column / variable [s] (after ``scale``)
+    t: time                          # time column / variable [s] (after ``scale``); default t or time
     motor.position: pos              # scalar channel <- one column
     master.position: [q1, q2]        # vector channel (2,) <- several columns
     slave.position: {columns: [q3, q4], unit: rad, description: "...", scale: 0.001}
@@ -126,6 +126,22 @@ def _normalize(raw: Mapping[str, Any], where: str) -> _Mapping:
     if raw.get("rate_hz") is not None:
         m.rate_hz = float(raw["rate_hz"])
     return m
+
+
+def _with_default_time(mapping: Mapping[str, Any], names: Sequence[str], where: str) -> Mapping[str, Any]:
+    """``mapping`` with ``t`` set to the ``t``/``time`` column (case-insensitive) when it names none
+    (``hil import --map ...`` without ``--time``)."""
+    if not isinstance(mapping, Mapping) or "t" in mapping:
+        return mapping
+    lower = {n.lower(): n for n in names}
+    t_col = lower.get("t") or lower.get("time")
+    if t_col is None:
+        what = "variable" if where.lower().endswith(".mat") else "column"
+        raise RecordError(f"{where}: the mapping names no time {what} and there is no 't' or 'time' {what} "
+                          f"({what}s: {', '.join(names) or 'none'}); name it with 'hil import --time NAME' "
+                          "(or 't:' in the mapping)")
+    logger.info("%s: time %s %r (default)", where, "variable" if where.lower().endswith(".mat") else "column", t_col)
+    return {"t": t_col, **mapping}
 
 
 def _load_sidecar(path: str | Path) -> dict[str, Any]:
@@ -313,7 +329,7 @@ def _resolve_mapping(src: Path, mapping: Mapping[str, Any] | None, sidecar: str 
     if mapping is not None and sidecar is not None:
         raise RecordError(f"{src}: give mapping or sidecar, not both")
     if mapping is not None:
-        return _normalize(mapping, f"{src}: mapping")
+        return _normalize(_with_default_time(mapping, names, str(src)), f"{src}: mapping")
     if sidecar is None:
         sidecar = _find_sidecar(src)
         if sidecar is not None:
@@ -405,7 +421,7 @@ def import_mat(
                 m.channels = {k: (prefix + v if isinstance(v, str) else [prefix + c for c in v])
                               for k, v in m.channels.items()}
     else:
-        m = _normalize(mapping, f"{where}: mapping")
+        m = _normalize(_with_default_time(mapping, _mat_names(variables), where), f"{where}: mapping")
     t = _as_columns(_mat_get(variables, m.time, where), None, m.time, where)
     if t.ndim != 1:
         raise RecordError(f"{where}: time variable {m.time!r} must be a vector, got shape {t.shape}")

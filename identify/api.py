@@ -193,6 +193,7 @@ def identify_experiments(
     resolution: Resolution | Sequence[Resolution] = "float32",
     input_resolution: Resolution | Sequence[Resolution] = "float32",
     sampling: str = "continuous",
+    excitation: str = "refuse",
 ) -> IdentificationResult:
     """Identify ``model`` from experiments ``[{"t": t, "inputs": ..., "outputs": ...}, ...]``.
 
@@ -207,6 +208,7 @@ def identify_experiments(
     instance must then have been built with ``zoh_fs``). ``theta0`` (default: the model's
     data-derived :meth:`~hil.identify.models.GreyBoxModel.initial_guess`, else its nominal values)
     is where the identifiability check runs and the LS fit starts.
+    ``excitation``: ``refuse`` (default) or ``warn`` when the band cannot pin a parameter (hil.identify.excitation).
     Returns an :class:`IdentificationResult` (raise on data/identifiability errors).
     """
     timings: dict[str, float] = {}
@@ -282,6 +284,9 @@ def identify_experiments(
     # at the initial guess: its messages are in the error it may raise; the check at the fit below warns
     pre = check_identifiability(mdl, th0, w=est.w, sigma=est.sigma, log_level=logging.DEBUG)
     pre.raise_if_not_identifiable()
+    from hil.identify.excitation import check_excitation_adequacy  # does the band pin every parameter?
+
+    report.diagnoses += check_excitation_adequacy(mdl, est, th0, mode=excitation).diagnoses()  # "refuse": raises
     t1 = time.perf_counter()
     ls = fit_least_squares(mdl, est, x0=th0, n_starts=n_starts, seed=seed)
     timings["least_squares"] = time.perf_counter() - t1
@@ -335,6 +340,7 @@ _META_KW = (
     "resolution",
     "input_resolution",
     "sampling",
+    "excitation",
 )
 
 

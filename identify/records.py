@@ -25,7 +25,10 @@ Inference, in order of precedence (override > record meta/results > scene > chan
 * windows: one per excitation segment (``results.segments``; sequential chirps on several DOFs
   give one experiment per DOF), each dropping ``skip`` seconds (one period of start-up transient);
 * Welch segment ``nperseg``/``period`` and ``band`` from the results (the chirp's ``[f0, f1]``,
-  the multisine's lines);
+  the multisine's lines); a record without experiment meta (imported from CSV/.mat) gets the band
+  its input actually excites: 99.8 % of the measured input power
+  (:func:`hil.identify.excitation.excited_band`), capped at 0.45 fs -- not the whole 0.45 fs, whose
+  unexcited bins would read as "coherence at the noise-only level";
 * sampling: ``zoh`` (the runner's tick: outputs sampled, then a command held for one period; see
   :mod:`hil.identify.models`); ``continuous`` on request.
 """
@@ -295,6 +298,10 @@ def plan_from_record(
         band = res.get("band") or ([cfg["f0"], cfg["f1"]] if "f0" in cfg and "f1" in cfg else None)
         if band is not None and period:
             band = [max(float(band[0]), 1.0 / float(period)), float(band[1])]
+    if band is None:  # no experiment meta (an imported record): the band the input actually excites
+        band = _measured_band(t, signals, inputs, windows, fs, notes)
+        if band is not None and period:
+            band = [max(float(band[0]), 1.0 / float(period)), float(band[1])]
     nperseg = ov.pop("nperseg", None) or (None if period is not None else res.get("nperseg"))
     for k, v in (("period", period), ("skip", skip), ("band", band), ("nperseg", nperseg)):
         if v is not None:
@@ -317,6 +324,30 @@ def plan_from_record(
         experiment=exp_name,
         notes=notes,
     )
+
+
+def _measured_band(t: np.ndarray, signals: Mapping[str, Any], inputs: Sequence[str],
+                   windows: Sequence[tuple[float, float]], fs: float, notes: list[str]) -> list[float] | None:
+    """The band holding 99.8 % of the input power over the experiment windows
+    (:func:`hil.identify.excitation.excited_band`), capped at 0.45 fs; None if no input has power."""
+    from hil.identify.excitation import excited_band
+
+    lo, hi = np.inf, 0.0
+    for w in windows:
+        m = window_mask(t, w)
+        if np.count_nonzero(m) < 8:
+            continue
+        try:
+            u = np.column_stack([signal(signals, n)[m] for n in inputs])
+            b = excited_band(u, fs)
+        except ValueError:  # an idle window (one DOF after the other)
+            continue
+        lo, hi = min(lo, b[0]), max(hi, b[1])
+    if not np.isfinite(lo) or hi <= lo:
+        return None
+    hi = min(hi, 0.45 * fs)
+    notes.append(f"band {lo:.4g}-{hi:.4g} Hz: 99.8 % of the measured input power (no experiment meta)")
+    return [float(lo), float(hi)]
 
 
 def nominal_rate(fs: float) -> float:

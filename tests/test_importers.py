@@ -157,8 +157,8 @@ def test_input_errors_name_the_problem(tmp_path: Path) -> None:
     _write_csv(tmp_path / "run.csv", t, d)
     with pytest.raises(RecordError, match=r"channel 'master\.position': no column 'q3'"):
         import_csv(tmp_path / "run.csv", tmp_path / "x.h5", mapping={**MAPPING, "master.position": ["q1", "q3"]})
-    with pytest.raises(RecordError, match="needs 't'"):
-        import_csv(tmp_path / "run.csv", tmp_path / "x.h5", mapping={"motor.position": "pos"})
+    with pytest.raises(RecordError, match="'t' must name one column"):
+        import_csv(tmp_path / "run.csv", tmp_path / "x.h5", mapping={"t": None, "motor.position": "pos"})
     lines = (tmp_path / "run.csv").read_text().splitlines()
     lines[5] = lines[5].replace(lines[5].split(",")[1], "abc", 1)
     (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
@@ -167,8 +167,72 @@ def test_input_errors_name_the_problem(tmp_path: Path) -> None:
     _write_csv(tmp_path / "clock.csv", t, d, header="clock,pos,q1,q2,ovr")
     with pytest.raises(RecordError, match="no 't' or 'time' column"):
         import_csv(tmp_path / "clock.csv", tmp_path / "x.h5")
+    with pytest.raises(RecordError, match="names no time column and there is no 't' or 'time' column"):
+        import_csv(tmp_path / "clock.csv", tmp_path / "x.h5", mapping={"motor.position": "pos"})
     with pytest.raises(RecordError, match="no such file"):
         import_mat(tmp_path / "nope.mat", tmp_path / "x.h5")
     scipy.io.savemat(tmp_path / "v.mat", {"time": t, "pos": d["motor.position"][:10]})
     with pytest.raises(RecordError, match=r"'pos' has shape \(10,\)"):
         import_mat(tmp_path / "v.mat", tmp_path / "x.h5", mapping={"t": "time", "motor.position": "pos"})
+
+
+# ------------------------------------------------------------------ import defaults (issue 12)
+
+
+@pytest.mark.timeout(60)
+def test_map_without_time_uses_the_default_time_column(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from hil.cli import main
+
+    t, d = _data()
+    _write_csv(tmp_path / "run.csv", t, d)  # time column "time"
+    code = main(["import", str(tmp_path / "run.csv"), "--map", "motor.position=pos", "--map",
+                 "master.position=q1,q2", "--out", str(tmp_path / "run.h5")])
+    assert code == 0, capsys.readouterr().err
+    rec = RunRecord.open(tmp_path / "run.h5")
+    np.testing.assert_array_equal(rec.t, t)
+    np.testing.assert_array_equal(rec.channels["motor.position"], d["motor.position"])
+    assert set(rec.channels) == {"motor.position", "master.position"}  # only the mapped channels
+    assert rec.meta["imported_from"]["mapping"]["t"] == "time"
+    scipy.io.savemat(tmp_path / "run.mat", {"t": t, "pos": d["motor.position"]})  # .mat: variable "t"
+    assert main(["import", str(tmp_path / "run.mat"), "--map", "motor.position=pos",
+                 "--out", str(tmp_path / "mat.h5")]) == 0
+    np.testing.assert_array_equal(RunRecord.open(tmp_path / "mat.h5").t, t)
+    _write_csv(tmp_path / "clock.csv", t, d, header="clock,pos,q1,q2,ovr")  # no default time column: exit 2
+    capsys.readouterr()
+    assert main(["import", str(tmp_path / "clock.csv"), "--map", "motor.position=pos",
+                 "--out", str(tmp_path / "c.h5")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--time" in err and "'t' or 'time'" in err
+    assert not (tmp_path / "c.h5").exists()
+
+
+@pytest.mark.timeout(120)
+def test_imported_chirp_band_follows_the_input_spectrum(tmp_path: Path) -> None:
+    """A one-shot 1-400 Hz log chirp logged at 5 kHz by another tool: the default band of the imported
+    record is the band its input excites, not 0.45 fs (where 82 % of the bins carry no excitation and
+    the velocity's coherence sits at the noise-only level)."""
+    from sdea_synth import log_chirp_record
+
+    from hil.cli import main
+    from hil.identify.api import identify_record
+    from hil.identify.errors import DataQualityError
+    from hil.identify.records import plan_from_record
+
+    c = log_chirp_record(1, 1.0, 400.0, duration=2.0)
+    cols = np.column_stack([c.t, c.u, c.v, c.f])
+    np.savetxt(tmp_path / "run.csv", cols, delimiter=",", header="t,tau,vel,torque", comments="", fmt="%.17g")
+    assert main(["import", str(tmp_path / "run.csv"), "--map", "motor.effort_cmd=tau", "--map", "motor.velocity=vel",
+                 "--map", "spring_ft.wrench=torque", "--out", str(tmp_path / "run.h5")]) == 0
+    rec = RunRecord.open(tmp_path / "run.h5")
+    plan = plan_from_record(rec, rec.to_identify_dict()["signals"], {})
+    lo, hi = plan.kwargs["band"]
+    # 99.8 % of the power of a 1-400 Hz sweep lies in it, widened by the leakage of the abrupt start and
+    # stop by a few 0.5 Hz periodogram bins (measured 402.5 Hz): within 3 % of the sweep's end
+    assert lo <= 1.0 and 400.0 <= hi <= 412.0
+    assert any("measured input power" in n for n in plan.notes)
+    res = identify_record(tmp_path / "run.h5", max_steps=200, excitation="warn")
+    assert res.frf.f[-1] <= hi and res.frf.f[-1] > 395.0
+    assert "excitation" not in {d.kind for d in res.data_report.diagnoses}  # 1-400 Hz pins every parameter
+    # control: the former default band (to 0.45 fs = 2250 Hz) refuses the same record
+    with pytest.raises(DataQualityError, match="noise-only level"):
+        identify_record(tmp_path / "run.h5", max_steps=200, band=(4.0, 2250.0))
