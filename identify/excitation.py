@@ -254,26 +254,26 @@ class ExcitationReport:
 def _extension(model: GreyBoxModel, th: NDArray[np.float64], F_rec: NDArray[np.float64],
                band: tuple[float, float], edge: NDArray[np.float64], ref: tuple[float, float], df: float,
                var_ref: NDArray[np.float64], idx: int, thr: float, direction: str) -> float | None:
-    """Smallest extension of the excited band (down to f_lo or up to f_hi [Hz], at the edge's per-bin
-    std ``edge``) that brings parameter ``idx``'s information fraction to ``thr``; None if the reference band
-    edge does not."""
-    if direction == "down":
-        if band[0] <= max(ref[0], df) * 1.01:
-            return None
-        edges = np.geomspace(band[0], max(ref[0], df), 25)[1:]
-    else:
-        if band[1] >= ref[1] / 1.01:
-            return None
-        edges = np.geomspace(band[1], ref[1], 25)[1:]
-    for e in edges:
-        fx = _grid(e, band[0] - df / 2, df) if direction == "down" else _grid(band[1] + df / 2, e, df)
-        if fx.size == 0:
-            continue
-        F = F_rec + _fisher(model, th, fx, np.broadcast_to(edge, (fx.size, *edge.shape)))
-        _, var = _vif_and_var(F)
-        if var[idx] <= 0 or var_ref[idx] / var[idx] >= thr:
-            return float(e)
-    return None
+    """Smallest extension of the excited band (down to f_lo or up to f_hi [Hz], on the bin grid, at the
+    edge's per-bin std ``edge``) that brings parameter ``idx``'s information fraction to ``thr``; None
+    if extending to the reference band edge does not. Bisection over the added bins: the fraction
+    grows monotonically with them (each adds a positive semidefinite term to F)."""
+    fx = _grid(ref[0], band[0] - df / 2, df)[::-1] if direction == "down" else _grid(band[1] + df / 2, ref[1], df)
+    if fx.size == 0:
+        return None
+
+    def pins(k: int) -> bool:  # the first k added bins
+        part = fx[:k]
+        _, var = _vif_and_var(F_rec + _fisher(model, th, part, np.broadcast_to(edge, (part.size, *edge.shape))))
+        return bool(var[idx] <= 0 or var_ref[idx] / var[idx] >= thr)
+
+    if not pins(fx.size):
+        return None
+    lo, hi = 0, fx.size  # pins(hi) holds; pins(0) does not (the caller flagged idx)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if pins(mid) else (mid, hi)
+    return float(fx[hi - 1])
 
 
 def _assess(model: GreyBoxModel, th: NDArray[np.float64], f: NDArray[np.float64], sig: NDArray[np.float64],
