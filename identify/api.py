@@ -601,6 +601,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--set", action="append", metavar="PARAM=VALUE", help="starting value of a parameter (theta0)")
     p.add_argument("--seed", type=seed_type, default=None)
     p.add_argument("--max-seconds", type=number_type("positive"), default=None, help="time budget of the sampler [s]")
+    p.add_argument("--excitation", choices=["refuse", "warn"], default=None, help="a band that cannot pin a parameter: "
+                   "refuse (default, exit 13) or warn and fit anyway (hil.identify.excitation)")
     p.add_argument("--json", action="store_true", help="print the full result as JSON")
     p.add_argument("--no-store", action="store_true", help="do not write the posterior into the record")
     p.add_argument("--out", default=None, help="for .csv/.mat input: keep the imported record (with the result) here")
@@ -645,6 +647,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             rec = load_record(a.record)
         kw = {"model": a.model, "band": a.band, "period": a.period, "seed": a.seed, "skip": a.skip,
               "noise": a.noise, "max_seconds": a.max_seconds, "theta0": theta0, "sampling": a.sampling}
+        kw["excitation"] = a.excitation
         if a.resolution is not None:
             kw["resolution"] = kw["input_resolution"] = res_spec
         if isinstance(rec, Mapping):  # .npz record dict

@@ -181,3 +181,17 @@ def test_excited_band_brackets_the_sweep(f0, f1) -> None:
     assert f0 - 0.25 * w <= lo <= f0 + 0.02 * w and f1 - 0.02 * w <= hi <= f1 + 0.25 * w
     with pytest.raises(ValueError, match="no input carries power"):
         excited_band(np.zeros(100), FS)
+
+
+def test_cli_warn_fits_and_reports_the_flags(tmp_path, capsys) -> None:
+    from hil.cli import main
+
+    c = log_chirp_record(1, 100.0, 140.0)
+    np.savez(tmp_path / "narrow.npz", t=c.t, torque=c.u, velocity=c.v, force=c.f,
+             meta=json.dumps({"model": "sdea_locked", "sampling": "continuous"}))
+    code = main(["identify", str(tmp_path / "narrow.npz"), "--band", "100", "140", "--excitation", "warn",
+                 "--max-seconds", "1", "--json"])
+    cap = capsys.readouterr()
+    assert code in (0, 13) and "NotIdentifiableError" not in cap.err  # 13 only for an unconverged posterior
+    checks = json.loads(cap.out)["data_checks"]
+    assert {"K_f", "M"} <= {d["details"]["parameter"] for d in checks if d["kind"] == "excitation"}
