@@ -52,7 +52,7 @@ by SDO target torque 0 and controlword Quick stop 0x02 (the drive follows quick 
 torque actual are kept in ``last_stop``. Never raises.
 
 Counters: ``error_frames``, ``timeouts`` (SYNCs or SDOs without an answer), ``emcy`` (EMCY frames
-with a non-zero code), ``heartbeats``.
+with a non-zero code); heartbeats received are in ``heartbeats`` (not a fault).
 """
 
 from __future__ import annotations
@@ -193,6 +193,7 @@ class CiA402Drive(Actuator):
         else:
             self._bus, self._own_bus = bus, False
         self.network = canopen.Network(self._bus)
+        self.network.NOTIFIER_CYCLE = 0.05  # receive-thread poll period: bounds how long close() waits
         self.network.listeners.append(self._errors)
         od = canopen.import_od(default_eds() if eds is None else eds, self.node_id)
         self.node = canopen.RemoteNode(self.node_id, od)
@@ -368,9 +369,13 @@ class CiA402Drive(Actuator):
 
     # -- role API -----------------------------------------------------------------------------
     def counters(self) -> dict[str, int]:
-        """error_frames, timeouts, emcy, heartbeats (module docstring)."""
-        return {"error_frames": self._errors.count, "timeouts": self._timeouts, "emcy": self._emcy_count,
-                "heartbeats": self._hb_count}
+        """error_frames, timeouts, emcy (module docstring); heartbeats received: ``heartbeats``."""
+        return {"error_frames": self._errors.count, "timeouts": self._timeouts, "emcy": self._emcy_count}
+
+    @property
+    def heartbeats(self) -> int:
+        """Heartbeats received since open (not a fault counter)."""
+        return self._hb_count
 
     def joint_torque_to_per_mille(self, effort: float) -> int:
         """Joint torque (N.m) -> target torque 0x6071 (per mille of rated torque, int16)."""
