@@ -193,3 +193,15 @@ def test_bad_parameters():
     with pytest.raises(ValueError):
         parse_mode("velocity")
     assert parse_mode("cyclic_synchronous_torque") == 10 and parse_mode(4) == 4
+
+
+def test_scene_refuses_a_linear_cia402_axis():
+    import yaml
+
+    from hil.errors import SceneError
+    from hil.scene import load_scene, scene_from_dict
+
+    d = yaml.safe_load(load_scene("cia402_bench").source_text)
+    d["units"] = "linear"
+    with pytest.raises(SceneError, match="one rotary actuator axis"):
+        scene_from_dict(d, label="linear-cia402")
