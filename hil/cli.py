@@ -695,7 +695,7 @@ def _cmd_probe(args: argparse.Namespace) -> int:
 
 _PASSTHROUGH = {"identify": "hil.identify.api", "mock": "hil.mocks.serve"}
 _MOCK_USAGE = ("usage: hil mock serve SCENE [--duration SECONDS] [--json] [--can-interface udp_multicast] "
-               "| hil mock serve --spec SPEC")
+               "| hil mock serve --spec SPEC | hil mock serve --device KIND")
 
 # ---------------------------------------------------------------------------------------------
 # output folders, progress, numeric guard, error mapping

@@ -29,7 +29,7 @@
     An FT-300 over Modbus (``tcp://HOST:PORT``, ``rtu-over-tcp://...``, a serial device): firmware
     and serial number registers.
 
-Output: a table (family, driver, address, identity, details) or, with ``--json``, one JSON object
+Output: a table (family, driver, address, details) or, with ``--json``, one JSON object
 ``{"devices": [...]}`` whose entries carry the ``open_device`` parameters; ``--scene OUT.yaml``
 writes a scene stub with one device per find (refused if OUT exists, unless ``--overwrite``).
 Not read: the Bota sensor's serial number (its binary stream carries none; see the report).
