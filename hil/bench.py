@@ -73,7 +73,10 @@ Measurements = dict[str, JointSample | WrenchSample]
 
 #: Drivers for which the bench has a simulated counterpart.
 SIMULATED_DRIVERS = ("odrive_can", "cubemars_mit", "bota_serial", "robotiq_ft300", "robotiq_ft300_stream",
-                     "dynamixel_x")
+                     "dynamixel_x", "cia402")
+
+#: simulated CAN nodes (python-can virtual bus, lockstep tick per control period)
+_CAN_SIMS = ("SimODrive", "SimCubeMars", "SimCiA402")
 
 #: Wall-clock wait for a simulated device's reply, in units of ``watchdog_ms`` (see :class:`Bench`).
 LOCKSTEP_WAIT_FACTOR = 20.0
@@ -424,7 +427,7 @@ class Bench:
         self.simulator.tick()
         for d in self._devs:
             kind = type(d.sim).__name__
-            if kind in ("SimODrive", "SimCubeMars"):
+            if kind in _CAN_SIMS:
                 d.sim.tick()
             elif kind in ("SimBota", "SimFT300Stream"):
                 d.sim.emit()
@@ -736,6 +739,13 @@ class Bench:
         elif drv == "dynamixel_x":
             d.chain = self._dynamixel_chain(index, d, faults, seed)
             params.update(port=d.chain.port, clock=clock, timeout=self.timeout)
+        elif drv == "cia402":  # CiA 402 drive: canopen LocalNode on a private virtual CAN channel
+            scene_ch = str(params.get("channel", "hil0"))
+            ch = channels.setdefault((str(params.get("interface", "virtual")), scene_ch),
+                                     f"{scene_ch}.bench{self._bench_id}")
+            params.update(interface="virtual", channel=ch, clock=clock, timeout=self.timeout)
+            params.pop("bus", None)
+            d.sim = _sim_cia402(point, ch, params, faults, seed, self.dt, sync=True)
         else:
             raise SceneError(f"{label}: devices[{index}].driver: no simulated counterpart for driver {drv!r} "
                              f"(simulated: {', '.join(SIMULATED_DRIVERS)})")
@@ -799,7 +809,7 @@ class Bench:
             if d.chain is not None and d.adapter is not None:
                 c, n = chains.get(id(d.chain), (d.chain, 0))
                 chains[id(d.chain)] = (c, n + d.adapter.tx_bytes)
-            elif d.sim is not None and type(d.sim).__name__ in ("SimODrive", "SimCubeMars"):
+            elif d.sim is not None and type(d.sim).__name__ in _CAN_SIMS:
                 d.sim.process_pending()
         for chain, n in chains.values():
             chain.sync(n, timeout=max(1.0, 10 * self.timeout))
@@ -872,7 +882,7 @@ class SimulatedScene(Bench):
         rate = float(self.scene.rate_hz)
         for d in self._devs:
             kind = type(d.sim).__name__
-            if kind in ("SimODrive", "SimCubeMars", "SimBota"):
+            if kind in (*_CAN_SIMS, "SimBota"):
                 d.sim.start(rate)
             elif kind == "SimFT300Stream":
                 d.sim.start(self.stream_rate_hz)
@@ -933,7 +943,7 @@ class SimulatedScene(Bench):
     def _start_sim(self, index: int, d: _Dev, params: dict[str, Any],
                    channels: dict[tuple[str, str], str]) -> dict[str, Any]:
         drv = d.cfg.driver
-        if drv not in ("odrive_can", "cubemars_mit"):
+        if drv not in ("odrive_can", "cubemars_mit", "cia402"):
             params = super()._start_sim(index, d, params, channels)
             if type(d.sim).__name__ == "SimulatedFT300":
                 d.sim.auto_update = True  # free-running: registers refreshed on every request
@@ -948,7 +958,9 @@ class SimulatedScene(Bench):
         ch, iface = channels[key], self.can_interface
         params.update(interface=iface, channel=ch)
         params.pop("bus", None)
-        if drv == "odrive_can":
+        if drv == "cia402":
+            d.sim = _sim_cia402(d.point, ch, params, faults, seed, self.dt, interface=iface)
+        elif drv == "odrive_can":
             d.sim = SimODrive(d.point, ch, int(params.get("node_id", 0)), iface,
                               gear_ratio=float(params.get("gear_ratio", 1.0)),
                               linear_scale=params.get("linear_scale"), faults=faults, seed=seed, dt=self.dt)
@@ -969,8 +981,9 @@ class SimulatedScene(Bench):
     def _endpoint(self, d: _Dev, params: dict[str, Any]) -> SimEndpoint:
         drv = d.cfg.driver
         cross = True
-        if drv in ("odrive_can", "cubemars_mit"):
-            ident = f"node {params.get('node_id', 0)}" if drv == "odrive_can" else f"motor {params.get('motor_id', 1)}"
+        if drv in ("odrive_can", "cubemars_mit", "cia402"):
+            ident = (f"motor {params.get('motor_id', 1)}" if drv == "cubemars_mit"
+                     else f"node {params.get('node_id', 0 if drv == 'odrive_can' else 1)}")
             address = f"can {params['interface']}:{params['channel']} {ident}"
             cross = params["interface"] != "virtual"
         elif drv == "dynamixel_x":
@@ -978,6 +991,17 @@ class SimulatedScene(Bench):
         else:
             address = str(params.get("url", ""))
         return SimEndpoint(d.name, drv, d.cfg.role, _jsonable(params), address, cross)
+
+
+def _sim_cia402(point: Any, channel: str, params: dict[str, Any], faults: Any, seed: int, dt: float, *,
+                interface: str = "virtual", sync: bool = False) -> Any:
+    """The simulated CiA 402 drive of a scene device (its ``params``: node_id, gear_ratio,
+    counts_per_rev, rated_torque_mNm, heartbeat_ms as the adapter's)."""
+    from hil.mocks.cia402_drive import SimCiA402
+
+    kw = {k: params[k] for k in ("counts_per_rev", "rated_torque_mNm", "heartbeat_ms") if params.get(k) is not None}
+    return SimCiA402(point, channel, int(params.get("node_id", 1)), interface,
+                     gear_ratio=float(params.get("gear_ratio", 1.0)), faults=faults, seed=seed, sync=sync, dt=dt, **kw)
 
 
 def _arr(value: Any) -> Any:

@@ -720,15 +720,28 @@ def build_parser() -> argparse.ArgumentParser:
                        add_help=False, parents=[])
     i.add_argument("rest", nargs=argparse.REMAINDER)
 
+    from hil.probe import add_arguments as _probe_arguments
+
+    pb = add("probe", help="list what answers on a CAN channel, serial port or Modbus address "
+                           "(--scene writes a scene stub)")
+    _probe_arguments(pb)
+    pb.set_defaults(func=_cmd_probe)
+
     m = add("mock", help="simulated devices: 'hil mock serve SPEC' starts them and prints endpoints",
                        parents=[])
     m.add_argument("rest", nargs=argparse.REMAINDER)
     return p
 
 
+def _cmd_probe(args: argparse.Namespace) -> int:
+    from hil.probe import run
+
+    return run(args)
+
+
 _PASSTHROUGH = {"identify": "hil.identify.api", "mock": "hil.mocks.serve"}
 _MOCK_USAGE = ("usage: hil mock serve SCENE [--duration SECONDS] [--json] [--can-interface udp_multicast] "
-               "| hil mock serve --spec SPEC")
+               "| hil mock serve --spec SPEC | hil mock serve --device KIND")
 
 # ---------------------------------------------------------------------------------------------
 # output folders, progress, numeric guard, error mapping

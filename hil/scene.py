@@ -1104,6 +1104,10 @@ def _cross_check(sc: Scene) -> None:
     for i, d in enumerate(sc.devices):
         if d.role == "actuator" and d.axes is not None:
             raise _Where(f"devices[{i}].axes", "axes applies to force sensors only")
+        if d.driver == "cia402" and (sc.units == "linear" or d.dof != 1 or d.role != "actuator"):
+            # hil.protocols.cia402: one rotary axis (rad, N.m) per drive node
+            raise _Where(f"devices[{i}].driver", "a cia402 drive is one rotary actuator axis: role actuator, dof 1, "
+                                                 "units rotary")
     if sc.simulation is not None:
         _check_simulation(sc, sc.simulation)
     if sc.certification is not None:

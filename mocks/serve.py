@@ -22,7 +22,18 @@ Python objects)::
        "interface": "virtual", "rate_hz": 1000, "encoder_every": 0, "heartbeat_every": 10},
       {"kind": "cubemars", "channel": "hil0", "motor_id": 1, "model": "AK80-9", "rate_hz": 1000},
       {"kind": "bota",     "rate_hz": 1000},
+      {"kind": "cia402",   "channel": "hil0", "node_id": 2, "rate_hz": 1000},
+      {"kind": "dynamixel", "ids": [1, 2]},
+      {"kind": "ft300",    "slave": 9, "port": 0},           # Modbus/TCP on 127.0.0.1 (0: a free port)
+      {"kind": "ft300_stream", "slave": 9, "rate_hz": 100},   # pty
     ]
+
+Single devices from the command line (no spec file): ``hil mock serve --device KIND`` with
+``--can-channel CH --can-interface IFACE --node N`` (odrive, cubemars: motor id, cia402),
+``--ids 1,2`` (dynamixel), ``--unit N`` (ft300, ft300_stream: Modbus slave id), ``--port P``
+(ft300: TCP port, default a free one), ``--pty`` (serial devices; the default and only transport
+of bota, ft300_stream and dynamixel), ``--rate HZ``. It prints where to connect: the pty path, TCP
+URL or CAN channel and node, and the ``open_device(...)`` call of the matching adapter.
 
 Common optional keys: ``seed`` (int, default 0), ``faults`` (a :class:`FaultPlan` mapping),
 ``mass`` (kg or kg.m^2 of the stand-in :class:`FreeJoints` plant, default 1.0).
@@ -141,9 +152,42 @@ def _make(spec: dict[str, Any]) -> tuple[Endpoint, float]:
     elif kind == "bota":
         dev = SimBota(joints, period_s=1.0 / rate, faults=faults, seed=seed, **s)
         ep = Endpoint(kind, dev.path, "bota_serial", {"url": dev.path, "period_s": 1.0 / rate}, dev, joints)
+    elif kind == "cia402":
+        from hil.mocks.cia402_drive import SimCiA402
+
+        ch, iface = s.pop("channel", "hil0"), s.pop("interface", "virtual")
+        node_id, gear = int(s.pop("node_id", 1)), float(s.pop("gear_ratio", 1.0))
+        dev = SimCiA402(joints, ch, node_id, iface, gear_ratio=gear, faults=faults, seed=seed, dt=1.0 / rate, **s)
+        params = {"interface": iface, "channel": ch, "node_id": node_id, "gear_ratio": gear}
+        ep = Endpoint(kind, f"can {iface}:{ch} node {node_id}", "cia402", params, dev, joints)
+    elif kind == "dynamixel":
+        from hil.mocks.dynamixel_devices import DynamixelChain
+
+        ids = [int(i) for i in s.pop("ids", [1])]
+        joints = FreeJoints(dof=len(ids), mass=joints.mass)
+        dev = DynamixelChain(joints, ids, faults=faults, seed=seed, **s)
+        ep = Endpoint(kind, f"{dev.port} ids {ids}", "dynamixel_x", {"port": dev.port, "ids": ids}, dev, joints)
+    elif kind == "ft300":
+        from hil.mocks.modbus_devices import SimulatedFT300
+
+        slave = int(s.pop("slave", 9))
+        dev = SimulatedFT300(joints, port=int(s.pop("port", 0)), slave=slave, faults=faults, seed=seed, **s)
+        ep = Endpoint(kind, dev.url, "robotiq_ft300", {"url": dev.url, "slave": slave}, dev, joints)
+    elif kind == "ft300_stream":
+        from hil.mocks.ft300_stream import SimFT300Stream
+
+        slave = int(s.pop("slave", 9))
+        rate = float(spec.get("rate_hz", 100.0))
+        dev = SimFT300Stream(joints, rate_hz=rate, slave=slave, faults=faults, seed=seed, **s)
+        ep = Endpoint(kind, dev.path, "robotiq_ft300_stream", {"url": dev.path, "slave": slave}, dev, joints)
     else:
-        raise ValueError(f"unknown mock kind {kind!r}; known: odrive, cubemars, bota")
+        raise ValueError(f"unknown mock kind {kind!r}; known: {', '.join(MOCK_KINDS)}")
     return ep, rate
+
+
+#: ``kind`` of a spec entry / ``--device`` -> registry driver of the matching adapter
+MOCK_KINDS = {"odrive": "odrive_can", "cubemars": "cubemars_mit", "cia402": "cia402", "bota": "bota_serial",
+              "ft300": "robotiq_ft300", "ft300_stream": "robotiq_ft300_stream", "dynamixel": "dynamixel_x"}
 
 
 def serve(specs: list[dict[str, Any]] | None = None, *, plant_rate_hz: float = 1000.0) -> list[Endpoint]:
@@ -160,7 +204,8 @@ def serve(specs: list[dict[str, Any]] | None = None, *, plant_rate_hz: float = 1
             ep._stepper = stepper
             endpoints.append(ep)
             stepper.plants.append(ep.joints)
-            ep.device.start(rate)
+            if ep.kind not in ("dynamixel", "ft300"):  # those serve from their own threads already
+                ep.device.start(rate)
             log.info("mock %s listening on %s", ep.kind, ep.address)
     except Exception:
         shutdown(endpoints)
@@ -281,9 +326,27 @@ def main(argv: list[str] | None = None) -> int:
                     help="scene: frame rate of streaming FT-300 sensors [Hz] (the sensor's is 100)")
     ap.add_argument("--plant-rate", type=number_type("positive"), default=1000.0,
                     help="spec: FreeJoints step rate [Hz]")
+    ap.add_argument("--device", choices=sorted(MOCK_KINDS), default=None,
+                    help="serve ONE simulated device of this kind (instead of a scene or --spec)")
+    ap.add_argument("--node", type=int, default=None,
+                    help="device: CAN node id (odrive 0..63, cia402 1..127) or CubeMars motor id")
+    ap.add_argument("--ids", default=None, help="device dynamixel: comma-separated servo ids (default 1)")
+    ap.add_argument("--unit", type=int, default=None, help="device ft300 / ft300_stream: Modbus slave id (default 9)")
+    ap.add_argument("--port", type=int, default=None, help="device ft300: TCP port on 127.0.0.1 (default: a free one)")
+    ap.add_argument("--pty", action="store_true",
+                    help="device bota / ft300_stream / dynamixel: serve on a pty (the default and only transport)")
+    ap.add_argument("--rate", type=number_type("positive"), default=None,
+                    help="device: tick / frame rate [Hz] (CAN cyclic frames, Bota frames; default 1000, "
+                         "FT-300 stream 100)")
     args = ap.parse_args(argv)
-    if args.scene and args.spec:
-        ap.error("give a SCENE or --spec, not both")
+    if sum(map(bool, (args.scene, args.spec, args.device))) > 1:
+        ap.error("give one of SCENE, --spec or --device")
+    if args.device:
+        try:
+            args.spec = json.dumps([_device_spec(args)])
+        except ValueError as exc:
+            ap.error(str(exc))
+        args.can_channel = []
     for item in args.can_channel:
         scene_ch, sep, ch = item.partition("=")
         if not sep or not scene_ch or not ch:
@@ -305,6 +368,47 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _device_spec(args: argparse.Namespace) -> dict[str, Any]:
+    """The spec entry of ``--device KIND`` and its options (ValueError on a bad combination)."""
+    kind = args.device
+    spec: dict[str, Any] = {"kind": kind}
+    can_kinds = ("odrive", "cubemars", "cia402")
+    if args.can_channel:
+        if kind not in can_kinds or len(args.can_channel) != 1 or "=" in args.can_channel[0]:
+            raise ValueError(f"argument --can-channel: --device {kind} takes one CAN channel name"
+                             if kind in can_kinds else f"argument --can-channel: --device {kind} is not a CAN device")
+        spec["channel"] = args.can_channel[0]
+    if kind in can_kinds:
+        spec["interface"] = args.can_interface
+        if args.node is not None:
+            lo, hi = {"odrive": (0, 63), "cubemars": (0, 0x7FF), "cia402": (1, 127)}[kind]
+            if not lo <= args.node <= hi:
+                raise ValueError(f"argument --node: {kind} ids are {lo}..{hi}, got {args.node}")
+            spec["motor_id" if kind == "cubemars" else "node_id"] = args.node
+    elif args.node is not None:
+        raise ValueError(f"argument --node: --device {kind} has no CAN node id")
+    if args.ids is not None:
+        if kind != "dynamixel":
+            raise ValueError("argument --ids: only --device dynamixel has servo ids")
+        try:
+            spec["ids"] = [int(x) for x in args.ids.split(",") if x.strip()]
+        except ValueError:
+            raise ValueError(f"argument --ids: expects comma-separated integers, got {args.ids!r}") from None
+    if args.unit is not None:
+        if kind not in ("ft300", "ft300_stream"):
+            raise ValueError("argument --unit: only --device ft300 / ft300_stream have a Modbus slave id")
+        spec["slave"] = args.unit
+    if args.port is not None:
+        if kind != "ft300":
+            raise ValueError("argument --port: only --device ft300 listens on a TCP port")
+        spec["port"] = args.port
+    if args.pty and kind not in ("bota", "ft300_stream", "dynamixel"):
+        raise ValueError(f"argument --pty: --device {kind} does not serve on a pty")
+    if args.rate is not None:
+        spec["rate_hz"] = args.rate
+    return spec
 
 
 def _serve_scene_main(args: argparse.Namespace, stop: threading.Event) -> int:
@@ -353,14 +457,18 @@ def _serve_spec_main(args: argparse.Namespace, stop: threading.Event) -> int:
     from hil.protocols.registry import SIMULATOR_REQUIRES, importable
 
     specs = load_spec(args.spec) if args.spec else None
-    kinds = {"odrive": "odrive_can", "cubemars": "cubemars_mit", "bota": "bota_serial"}
+    kinds = MOCK_KINDS
     need = {r for s in (specs or DEFAULT_SPEC) for r in SIMULATOR_REQUIRES.get(kinds.get(str(s.get("kind")), ""), ())
             if not importable(r.module)}
     if need:
         print(f"hil mock serve: the simulated devices need {' and '.join(sorted(r.distribution for r in need))}: "
               f"pip install 'hil-certify[{','.join(sorted(r.extra for r in need))}]'", file=sys.stderr)
         return 2
-    endpoints = serve(specs, plant_rate_hz=args.plant_rate)
+    try:
+        endpoints = serve(specs, plant_rate_hz=args.plant_rate)
+    except (ValueError, TypeError, OSError) as exc:
+        print(f"hil mock serve: error: cannot start the simulated devices: {exc}", file=sys.stderr)
+        return 2
     try:
         if args.json:
             print(json.dumps({"pid": os.getpid(), "devices": [
@@ -370,6 +478,7 @@ def _serve_spec_main(args: argparse.Namespace, stop: threading.Event) -> int:
         else:
             for ep in endpoints:
                 print(f"{ep.kind:9s} {ep.address:32s} driver={ep.driver} params={json.dumps(ep.params)}", flush=True)
+                print(f"          connect: {open_device_call(ep.driver, ep.params)}", flush=True)
         if any(ep.params.get("interface") == "virtual" for ep in endpoints):
             print("note: interface 'virtual' is reachable from this process only", file=sys.stderr)
         _wait(args.duration, stop)

@@ -44,6 +44,7 @@ _DRIVERS: dict[str, str] = {
     "robotiq_ft300": "hil.protocols.modbus_robotiq:RobotiqFT300",
     "robotiq_ft300_stream": "hil.protocols.modbus_robotiq:RobotiqFT300Stream",
     "dynamixel_x": "hil.protocols.dynamixel_x:DynamixelX",
+    "cia402": "hil.protocols.cia402:CiA402Drive",
 }
 
 
@@ -117,6 +118,7 @@ class Requirement:
 CAN = Requirement("can", "python-can", "can")
 SERIAL = Requirement("serial", "pyserial", "serial")
 MODBUS = Requirement("pymodbus", "pymodbus", "modbus")
+CANOPEN = Requirement("canopen", "canopen", "canopen")
 DYNAMIXEL_SDK = Requirement("dynamixel_sdk", "dynamixel-sdk", "dynamixel")
 DYNAMIXEL_SERIAL = Requirement("serial", "pyserial", "dynamixel")  # dynamixel-sdk imports pyserial
 REPORT = (Requirement("matplotlib", "matplotlib", "report"), Requirement("jinja2", "jinja2", "report"))
@@ -129,6 +131,7 @@ ADAPTER_REQUIRES: dict[str, tuple[Requirement, ...]] = {
     "robotiq_ft300": (MODBUS,),
     "robotiq_ft300_stream": (SERIAL,),
     "dynamixel_x": (DYNAMIXEL_SDK, DYNAMIXEL_SERIAL),
+    "cia402": (CAN, CANOPEN),
 }
 #: what a driver's simulated counterpart imports (hil.mocks): needed on a simulated bench and by
 #: ``hil mock serve`` (the DYNAMIXEL chain and the FT-300 stream are plain ptys)
@@ -139,6 +142,7 @@ SIMULATOR_REQUIRES: dict[str, tuple[Requirement, ...]] = {
     "robotiq_ft300": (MODBUS,),
     "robotiq_ft300_stream": (),
     "dynamixel_x": (),
+    "cia402": (CAN, CANOPEN),  # the simulated drive is a canopen LocalNode
 }
 DEVICE_LABELS: dict[str, str] = {
     "odrive_can": "ODrive",
@@ -147,6 +151,7 @@ DEVICE_LABELS: dict[str, str] = {
     "robotiq_ft300": "Robotiq FT-300 (Modbus)",
     "robotiq_ft300_stream": "Robotiq FT-300 (stream)",
     "dynamixel_x": "DYNAMIXEL servo",
+    "cia402": "CiA 402 drive",
 }
 
 

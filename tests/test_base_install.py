@@ -109,7 +109,7 @@ def test_extras_message_follows_the_registry(monkeypatch: pytest.MonkeyPatch) ->
 def test_every_driver_has_its_requirements_and_a_label() -> None:
     drivers = set(registry.available_drivers())
     assert drivers == set(registry.ADAPTER_REQUIRES) == set(registry.SIMULATOR_REQUIRES) == set(registry.DEVICE_LABELS)
-    extras = {"can", "serial", "modbus", "dynamixel", "report"}
+    extras = {"can", "canopen", "serial", "modbus", "dynamixel", "report"}
     for reqs in (*registry.ADAPTER_REQUIRES.values(), *registry.SIMULATOR_REQUIRES.values(), registry.REPORT):
         assert {r.extra for r in reqs} <= extras
 

@@ -1,0 +1,511 @@
+"""CiA 402 servo drive over CANopen (the :mod:`canopen` package), torque modes, as an
+:class:`~hil.protocols.base.Actuator`.
+
+Standards: CiA 301 (CANopen application layer: NMT, SDO, PDO, SYNC, EMCY, heartbeat) and CiA 402 /
+IEC 61800-7-201 (drive profile: state machine, modes, objects). SDO, PDO, NMT and EMCY are
+canopen's (:class:`canopen.RemoteNode`); the state names and controlword codes are canopen's
+:class:`canopen.profiles.p402.State402`. The default object dictionary is the shipped
+``hil/protocols/data/cia402.eds`` (pass ``eds=`` for a vendor's EDS).
+
+Open sequence (``enable=True``):
+
+1. NMT Enter pre-operational; identity 0x1018 (vendor id, product code, revision, serial), device
+   type 0x1000 (must be profile 402), name 0x1008, software version 0x100A; encoder resolution
+   0x608F and motor rated torque 0x6076 unless given.
+2. Heartbeat producer time 0x1017 := ``heartbeat_ms``; the adapter is the heartbeat *consumer*:
+   no heartbeat for ``heartbeat_timeout_ms`` (default 3 x ``heartbeat_ms``) or one reporting an NMT
+   state other than OPERATIONAL is a :class:`~hil.errors.DeviceFault`.
+3. PDO mapping by SDO (canopen ``PdoMap.save``): RPDO1 = controlword 0x6040 + target torque
+   0x6071 (transmission type 255: applied on reception; ``sync_rpdo=True``: type 1, applied at the
+   next SYNC, the usual choice in cyclic synchronous torque); TPDO1 = statusword 0x6041 + position
+   actual 0x6064 + torque actual 0x6077, TPDO2 = velocity actual 0x606C + modes display 0x6061,
+   both transmission type 1 (sent on every SYNC). Other PDOs disabled.
+4. Modes of operation 0x6060 := 4 (profile torque) or 10 (cyclic synchronous torque), checked in
+   0x6061; target torque := 0; NMT Start (OPERATIONAL).
+5. State machine to Operation enabled: Fault reset (0x80, if in Fault), Shutdown 0x06, Switch on
+   0x07, Enable operation 0x0F, each confirmed in the statusword (SDO) within ``timeout``.
+
+Per tick: :meth:`CiA402Drive.read` sends one SYNC and waits for TPDO1 and TPDO2 (the drive
+samples them at the SYNC); :meth:`CiA402Drive.command_effort` sends RPDO1 (controlword 0x0F,
+target torque).
+
+Units (SI at this boundary; rotary joints only): ``q [rad] = 2 pi counts / (cpr * gear_ratio)``,
+``qd [rad/s]`` the same scale applied to 0x606C in counts/s (the drive's velocity unit must be
+encoder increments per second: factor group 0x6091/0x6092/0x6096 at identity), torque ``[N.m at
+the joint] = gear_ratio * per_mille / 1000 * rated_torque_mNm / 1000`` (0x6071/0x6077 are per
+mille of the motor rated torque 0x6076, CiA 402 §6.5.1). Commands are rounded to the nearest per
+mille (resolution ``gear_ratio * rated / 1e6`` N.m) and clamped to int16. Positive effort drives
+the joint positive (the drive's polarity 0x607E is left as configured).
+
+Errors: an SDO that gets no answer in ``timeout`` is a :class:`~hil.errors.DeviceTimeout`
+(canopen ``SdoCommunicationError``), an SDO abort a :class:`~hil.errors.ProtocolError` naming the
+abort code; no TPDO answer to a SYNC within ``timeout`` is a DeviceTimeout; the statusword Fault
+bit, an EMCY (``code`` = the EMCY error code, else 0x603F) or leaving Operation enabled is a
+:class:`~hil.errors.DeviceFault`; bus errors are :class:`~hil.errors.DeviceDisconnected`.
+
+Freshness: ``produced_at`` is the adapter ``clock`` when the TPDOs answering the read's SYNC
+arrived (the drive samples at the SYNC), ``seq`` counts those answers.
+
+Safe stop (:meth:`CiA402Drive.safe_stop`, also on :meth:`close`): RPDO with target torque 0, then
+by SDO target torque 0 and controlword Quick stop 0x02 (the drive follows quick stop option code
+0x605A), then Disable voltage 0x00 if the drive stays in Quick stop active; the final state and
+torque actual are kept in ``last_stop``. Never raises.
+
+Counters: ``error_frames``, ``timeouts`` (SYNCs or SDOs without an answer), ``emcy`` (EMCY frames
+with a non-zero code); heartbeats received are in ``heartbeats`` (not a fault).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from importlib import resources
+from typing import Any
+
+import can
+import canopen
+import numpy as np
+from canopen.profiles.p402 import State402
+
+from hil.errors import DeviceDisconnected, DeviceFault, DeviceTimeout, ProtocolError
+from hil.protocols.base import Actuator, DeviceInfo, JointSample
+
+log = logging.getLogger(__name__)
+
+#: modes of operation (0x6060) the adapter drives, by name
+MODES = {"profile_torque": 4, "pt": 4, "cyclic_synchronous_torque": 10, "cst": 10}
+PROFILE_402 = 0x192
+EMCY_DESCRIPTIONS = {0x2310: "continuous over current", 0x3210: "DC link over voltage",
+                     0x4310: "drive over temperature", 0x7305: "incremental encoder", 0x8611: "following error"}
+
+
+def default_eds() -> str:
+    """Path of the shipped object dictionary (``hil/protocols/data/cia402.eds``)."""
+    return str(resources.files("hil.protocols").joinpath("data", "cia402.eds"))
+
+
+def state_of(statusword: int) -> str:
+    """CiA 402 state name of a statusword (canopen's State402 masks), ``"UNKNOWN"`` otherwise."""
+    for name, (mask, value) in State402.SW_MASK.items():
+        if statusword & mask == value:
+            return name
+    return "UNKNOWN"
+
+
+def describe_emcy(code: int) -> str:
+    """A short description of an EMCY error code (CiA 301 Table 21 classes, a few CiA 402 codes)."""
+    if code in EMCY_DESCRIPTIONS:
+        return EMCY_DESCRIPTIONS[code]
+    return canopen.emcy.EmcyError(code, 0, b"", 0.0).get_desc() or "unknown"
+
+
+def parse_mode(mode: int | str) -> int:
+    """4 / 10 from ``4``, ``10``, ``"profile_torque"``, ``"pt"``, ``"cyclic_synchronous_torque"``, ``"cst"``."""
+    if isinstance(mode, str):
+        if mode.lower() not in MODES:
+            raise ValueError(f"mode must be one of {sorted(MODES)} or 4/10, got {mode!r}")
+        return MODES[mode.lower()]
+    if int(mode) not in (4, 10):
+        raise ValueError(f"mode must be 4 (profile torque) or 10 (cyclic synchronous torque), got {mode!r}")
+    return int(mode)
+
+
+class _ErrorFrames(can.Listener):
+    def __init__(self) -> None:
+        self.count = 0
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if msg.is_error_frame:
+            self.count += 1
+
+
+class CiA402Drive(Actuator):
+    """One CiA 402 drive axis in a torque mode; ``dof`` = 1, rotary.
+
+    Parameters
+    ----------
+    node_id: CANopen node id (1..127).
+    channel, interface, bitrate, bus_kwargs: python-can bus; ``bus``: an open bus (not shut down
+        by :meth:`close`).
+    mode: 4 / ``"profile_torque"`` or 10 / ``"cyclic_synchronous_torque"``.
+    gear_ratio: motor turns per joint turn.
+    counts_per_rev, rated_torque_mNm: encoder increments per motor revolution and motor rated torque
+        (mN.m); ``None``: read from the drive (0x608F, 0x6076).
+    effort_limit: symmetric clamp of the commanded joint torque (N.m), ``None``: none.
+    heartbeat_ms, heartbeat_timeout_ms: producer time written to 0x1017 and consumer timeout
+        (default 3 x heartbeat_ms); ``heartbeat_ms=0``: no heartbeat supervision.
+    sync_rpdo: RPDO1 transmission type 1 (applied at the next SYNC) instead of 255 (default: True
+        in cyclic synchronous torque, False in profile torque).
+    enable: run the open sequence (module docstring); on close, safe stop and NMT pre-operational.
+    clock: time source of ``JointSample.t`` / ``produced_at``.
+    timeout: SDO response timeout and state-change confirmation time (s).
+    eds: object dictionary (path or :class:`canopen.ObjectDictionary`); default: the shipped one.
+    """
+
+    dof = 1
+    units = "rotary"
+
+    def __init__(self, node_id: int = 1, channel: str = "can0", interface: str = "socketcan",
+                 bitrate: int | None = None, *, bus: can.BusABC | None = None, mode: int | str = 4,
+                 gear_ratio: float = 1.0, counts_per_rev: int | None = None, rated_torque_mNm: int | None = None,
+                 effort_limit: float | None = None, heartbeat_ms: int = 100, heartbeat_timeout_ms: float | None = None,
+                 sync_rpdo: bool | None = None, enable: bool = True, clock: Callable[[], float] = time.monotonic,
+                 timeout: float = 0.1, eds: Any = None, **bus_kwargs: Any) -> None:
+        if not 1 <= int(node_id) <= 127:
+            raise ValueError(f"CANopen node id must be 1..127, got {node_id}")
+        if gear_ratio == 0 or not math.isfinite(gear_ratio):
+            raise ValueError("gear_ratio must be finite and non-zero")
+        self.node_id = int(node_id)
+        self.mode = parse_mode(mode)
+        self.gear_ratio = float(gear_ratio)
+        self.effort_limit = effort_limit
+        self.heartbeat_ms = int(heartbeat_ms)
+        self.heartbeat_timeout_s = (3.0 * self.heartbeat_ms if heartbeat_timeout_ms is None
+                                    else float(heartbeat_timeout_ms)) / 1000.0
+        self.sync_rpdo = (self.mode == 10) if sync_rpdo is None else bool(sync_rpdo)
+        self.clock = clock
+        self.timeout = float(timeout)
+        self._enable = enable
+        self._closed = False
+        self._seq = 0
+        self._timeouts = 0
+        self._emcy_count = 0
+        self._hb_count = 0
+        self._cond = threading.Condition()
+        self._rx = [0, 0]  # TPDO1, TPDO2 receptions
+        self._rx_at = [math.nan, math.nan]
+        self._emcy: Any = None
+        self._hb_state: int | None = None
+        self._last_hb = clock()
+        self.last_stop: dict[str, Any] = {}
+        self.counts_per_rev = counts_per_rev
+        self.rated_torque_mNm = rated_torque_mNm
+        self._errors = _ErrorFrames()
+        if bus is None:
+            from hil.protocols.can_odrive import open_can_bus
+
+            self._bus = open_can_bus(interface, channel, bitrate, None, **bus_kwargs)
+            self._own_bus = True
+        else:
+            self._bus, self._own_bus = bus, False
+        self.network = canopen.Network(self._bus)
+        self.network.NOTIFIER_CYCLE = 0.05  # receive-thread poll period: bounds how long close() waits
+        self.network.listeners.append(self._errors)
+        od = canopen.import_od(default_eds() if eds is None else eds, self.node_id)
+        self.node = canopen.RemoteNode(self.node_id, od)
+        self.node.sdo.RESPONSE_TIMEOUT = self.timeout
+        self.network.add_node(self.node)
+        self.network.connect()
+        self.node.emcy.add_callback(self._on_emcy)
+        self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
+        self.info = DeviceInfo(driver="cia402", transport=f"can:{interface}:{channel}" if bus is None
+                               else f"can:{bus.channel_info}", vendor="", model="CiA 402 drive",
+                               extra={"node_id": self.node_id, "mode": self.mode, "gear_ratio": self.gear_ratio})
+        try:
+            if enable:
+                self._open_sequence()
+        except BaseException:
+            self.close()
+            raise
+
+    # -- SDO with the package's errors ----------------------------------------------------------
+    def _var(self, index: int, sub: int | None = None) -> Any:
+        v = self.node.sdo[index]
+        return v if sub is None else v[sub]
+
+    def _sdo(self, fn: Callable[[], Any], what: str) -> Any:
+        if self._closed:
+            raise DeviceDisconnected(f"CiA 402 node {self.node_id} is closed")
+        try:
+            return fn()
+        except canopen.SdoAbortedError as exc:
+            raise ProtocolError(f"CiA 402 node {self.node_id}: {what}: SDO abort 0x{exc.code:08X} ({exc})") from exc
+        except canopen.SdoCommunicationError as exc:
+            self._timeouts += 1
+            raise DeviceTimeout(f"CiA 402 node {self.node_id}: {what}: no SDO answer within "
+                                f"{self.timeout:.3f} s ({exc})") from exc
+        except can.CanError as exc:
+            raise DeviceDisconnected(f"CiA 402 node {self.node_id}: bus error during {what}: {exc}") from exc
+
+    def sdo_read(self, index: int, sub: int | None = None) -> Any:
+        """Read an object by SDO (decoded with the object dictionary)."""
+        return self._sdo(lambda: self._var(index, sub).raw, f"SDO read 0x{index:04X}" + (f":{sub}" if sub else ""))
+
+    def sdo_write(self, index: int, value: Any, sub: int | None = None) -> None:
+        """Write an object by SDO (encoded with the object dictionary)."""
+        def w() -> None:
+            self._var(index, sub).raw = value
+        self._sdo(w, f"SDO write 0x{index:04X}" + (f":{sub}" if sub else ""))
+
+    def _send(self, fn: Callable[[], None], what: str) -> None:
+        if self._closed:
+            raise DeviceDisconnected(f"CiA 402 node {self.node_id} is closed")
+        try:
+            fn()
+        except can.CanOperationError as exc:
+            raise DeviceTimeout(f"CiA 402 node {self.node_id}: {what} failed: {exc}") from exc
+        except can.CanError as exc:
+            raise DeviceDisconnected(f"CiA 402 node {self.node_id}: bus error during {what}: {exc}") from exc
+
+    # -- open ---------------------------------------------------------------------------------
+    def _open_sequence(self) -> None:
+        node = self.node
+        self._send(lambda: setattr(node.nmt, "state", "PRE-OPERATIONAL"), "NMT enter pre-operational")
+        dtype = int(self.sdo_read(0x1000))
+        if dtype & 0xFFFF != PROFILE_402:
+            raise ProtocolError(f"CiA 402 node {self.node_id}: device type 0x{dtype:08X} is not a CiA 402 drive")
+        ident = {k: int(self.sdo_read(0x1018, s)) for s, k in ((1, "vendor_id"), (2, "product_code"),
+                                                                (3, "revision"), (4, "serial"))}
+        name = firmware = ""
+        with contextlib.suppress(ProtocolError):
+            name = str(self.sdo_read(0x1008))
+        with contextlib.suppress(ProtocolError):
+            firmware = str(self.sdo_read(0x100A))
+        if self.counts_per_rev is None:
+            inc, rev = int(self.sdo_read(0x608F, 1)), int(self.sdo_read(0x608F, 2))
+            self.counts_per_rev = inc // max(rev, 1)
+        if self.rated_torque_mNm is None:
+            self.rated_torque_mNm = int(self.sdo_read(0x6076))
+        if self.counts_per_rev <= 0 or self.rated_torque_mNm <= 0:
+            raise ProtocolError(f"CiA 402 node {self.node_id}: encoder resolution {self.counts_per_rev} "
+                                f"counts/rev and rated torque {self.rated_torque_mNm} mN.m must be > 0")
+        self.info.vendor = f"0x{ident['vendor_id']:08X}"
+        self.info.model = name or f"product 0x{ident['product_code']:08X}"
+        self.info.serial = str(ident["serial"])
+        self.info.firmware = firmware or f"rev 0x{ident['revision']:08X}"
+        self.info.extra.update(ident, counts_per_rev=self.counts_per_rev, rated_torque_mNm=self.rated_torque_mNm)
+        self.sdo_write(0x1017, self.heartbeat_ms)
+        self._map_pdos()
+        self.sdo_write(0x6060, self.mode)
+        shown = int(self.sdo_read(0x6061))
+        if shown != self.mode:
+            raise ProtocolError(f"CiA 402 node {self.node_id}: modes of operation display {shown}, "
+                                f"requested {self.mode}")
+        self.sdo_write(0x6071, 0)
+        self._send(lambda: setattr(node.nmt, "state", "OPERATIONAL"), "NMT start")
+        self._last_hb = self.clock()
+        self.enable_operation()
+
+    def _map_pdos(self) -> None:
+        node = self.node
+
+        def configure() -> None:
+            node.rpdo.read()
+            node.tpdo.read()
+            for maps in (node.rpdo.map, node.tpdo.map):
+                for m in maps.values():
+                    m.enabled = False
+            r1 = node.rpdo[1]
+            r1.clear()
+            r1.add_variable(0x6040)
+            r1.add_variable(0x6071)
+            r1.cob_id, r1.trans_type, r1.enabled = 0x200 + self.node_id, (1 if self.sync_rpdo else 255), True
+            for k, (cob, objs) in enumerate(((0x180, (0x6041, 0x6064, 0x6077)), (0x280, (0x606C, 0x6061))), 1):
+                t = node.tpdo[k]
+                t.clear()
+                for index in objs:
+                    t.add_variable(index)
+                t.cob_id, t.trans_type, t.enabled = cob + self.node_id, 1, True
+            node.rpdo.save()
+            node.tpdo.save()
+
+        self._sdo(configure, "PDO mapping")
+        node.tpdo[1].add_callback(lambda m: self._on_tpdo(0))
+        node.tpdo[2].add_callback(lambda m: self._on_tpdo(1))
+
+    def _await_state(self, target: str, deadline: float) -> int:
+        while True:
+            sw = int(self.sdo_read(0x6041))
+            if state_of(sw) == target or time.monotonic() >= deadline:
+                return sw
+            time.sleep(0.001)
+
+    def enable_operation(self) -> None:
+        """State machine to Operation enabled (fault reset if needed, Shutdown, Switch on, Enable
+        operation, each confirmed within ``timeout``); DeviceFault if a step is not reached."""
+        sw = int(self.sdo_read(0x6041))
+        if state_of(sw) in ("FAULT", "FAULT REACTION ACTIVE"):
+            self.sdo_write(0x6040, 0x00)
+            self.sdo_write(0x6040, 0x80)  # rising edge of bit 7: fault reset (transition 15)
+            sw = self._await_state("SWITCH ON DISABLED", time.monotonic() + self.timeout)
+            if state_of(sw) != "SWITCH ON DISABLED":
+                code = int(self.sdo_read(0x603F))
+                raise DeviceFault(f"CiA 402 node {self.node_id}: fault reset refused (error code 0x{code:04X}, "
+                                  f"{describe_emcy(code)})", code=code)
+            self._emcy = None
+        for cw, target in ((State402.CW_SHUTDOWN, "READY TO SWITCH ON"), (State402.CW_SWITCH_ON, "SWITCHED ON"),
+                           (State402.CW_OPERATION_ENABLED, "OPERATION ENABLED")):
+            self.sdo_write(0x6040, cw)
+            sw = self._await_state(target, time.monotonic() + self.timeout)
+            if state_of(sw) != target:
+                raise DeviceFault(f"CiA 402 node {self.node_id}: controlword 0x{cw:04X} did not reach {target} "
+                                  f"(statusword 0x{sw:04X}: {state_of(sw)})", code=sw)
+        log.info("CiA 402 node %d: operation enabled, mode %d", self.node_id, self.mode)
+
+    # -- callbacks (canopen's notifier thread) -------------------------------------------------
+    def _on_tpdo(self, k: int) -> None:
+        with self._cond:
+            self._rx[k] += 1
+            self._rx_at[k] = self.clock()
+            self._cond.notify_all()
+
+    def _on_emcy(self, entry: Any) -> None:
+        if entry.code & 0xFF00 == 0:
+            self._emcy = None
+            return
+        self._emcy_count += 1
+        self._emcy = entry
+        log.warning("CiA 402 node %d: EMCY 0x%04X (%s), error register 0x%02X", self.node_id, entry.code,
+                    describe_emcy(entry.code), entry.register)
+
+    def _on_heartbeat(self, state: int) -> None:
+        self._hb_count += 1
+        self._hb_state = state
+        self._last_hb = self.clock()
+
+    # -- role API -----------------------------------------------------------------------------
+    def counters(self) -> dict[str, int]:
+        """error_frames, timeouts, emcy (module docstring); heartbeats received: ``heartbeats``."""
+        return {"error_frames": self._errors.count, "timeouts": self._timeouts, "emcy": self._emcy_count}
+
+    @property
+    def heartbeats(self) -> int:
+        """Heartbeats received since open (not a fault counter)."""
+        return self._hb_count
+
+    def joint_torque_to_per_mille(self, effort: float) -> int:
+        """Joint torque (N.m) -> target torque 0x6071 (per mille of rated torque, int16)."""
+        pm = round(effort / self.gear_ratio / (self.rated_torque_mNm / 1000.0) * 1000.0)
+        return max(-32768, min(32767, pm))
+
+    def per_mille_to_joint_torque(self, pm: int) -> float:
+        return self.gear_ratio * pm / 1000.0 * self.rated_torque_mNm / 1000.0
+
+    def counts_to_rad(self, counts: float) -> float:
+        return 2.0 * math.pi * counts / (self.counts_per_rev * self.gear_ratio)
+
+    def command_effort(self, effort: np.ndarray, timeout: float = 0.1) -> None:
+        """Joint torque (N.m) as target torque in RPDO1 (controlword Enable operation)."""
+        u = float(np.asarray(effort, dtype=float).reshape(-1)[0])
+        if not math.isfinite(u):
+            raise ValueError(f"non-finite effort {u!r}")
+        if self.effort_limit is not None:
+            u = min(max(u, -self.effort_limit), self.effort_limit)
+        self._rpdo(State402.CW_OPERATION_ENABLED, self.joint_torque_to_per_mille(u))
+
+    def _rpdo(self, controlword: int, per_mille: int) -> None:
+        r1 = self.node.rpdo[1]
+        r1[0x6040].raw = controlword
+        r1[0x6071].raw = per_mille
+        self._send(r1.transmit, "RPDO1")
+
+    def _raise_if_fault(self, statusword: int | None = None) -> None:
+        if self._emcy is not None:
+            e = self._emcy
+            raise DeviceFault(f"CiA 402 node {self.node_id}: EMCY 0x{e.code:04X} ({describe_emcy(e.code)}), "
+                              f"error register 0x{e.register:02X}", code=e.code)
+        if self.heartbeat_ms > 0:
+            age = self.clock() - self._last_hb
+            if age > self.heartbeat_timeout_s:
+                raise DeviceFault(f"CiA 402 node {self.node_id}: heartbeat lost ({age * 1000:.0f} ms without one, "
+                                  f"consumer time {self.heartbeat_timeout_s * 1000:.0f} ms)", code=None)
+            if self._hb_state is not None and self._hb_state != 5:
+                st = canopen.nmt.NMT_STATES.get(self._hb_state, str(self._hb_state))
+                raise DeviceFault(f"CiA 402 node {self.node_id}: heartbeat reports NMT state {st}, not OPERATIONAL",
+                                  code=self._hb_state)
+        if statusword is not None:
+            st = state_of(statusword)
+            if st in ("FAULT", "FAULT REACTION ACTIVE"):
+                code = None
+                with contextlib.suppress(Exception):
+                    code = int(self.sdo_read(0x603F))
+                what = f"error code 0x{code:04X} ({describe_emcy(code)})" if code is not None else "error code unread"
+                raise DeviceFault(f"CiA 402 node {self.node_id}: drive in {st}, {what}", code=code)
+            if st != "OPERATION ENABLED":
+                raise DeviceFault(f"CiA 402 node {self.node_id}: drive left OPERATION ENABLED (statusword "
+                                  f"0x{statusword:04X}: {st}): torque commands are not applied", code=statusword)
+
+    def read(self, timeout: float = 0.1) -> JointSample:
+        """SYNC, then TPDO1 + TPDO2 as a JointSample (rad, rad/s, N.m). DeviceTimeout when they do
+        not arrive within ``timeout``; DeviceFault on EMCY, Fault, lost heartbeat or a state other
+        than Operation enabled."""
+        self._raise_if_fault()
+        with self._cond:
+            before = list(self._rx)
+        self._send(self.network.sync.transmit, "SYNC")
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while not (self._rx[0] > before[0] and self._rx[1] > before[1]):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    self._timeouts += 1
+                    raise DeviceTimeout(f"CiA 402 node {self.node_id}: no TPDO answer to SYNC within {timeout:.3f} s")
+                self._cond.wait(left)
+            produced = max(self._rx_at)
+            t1, t2 = self.node.tpdo[1], self.node.tpdo[2]
+            sw = int(t1[0x6041].raw)
+            pos, tq = int(t1[0x6064].raw), int(t1[0x6077].raw)
+            vel = int(t2[0x606C].raw)
+        self._raise_if_fault(sw)
+        self._seq += 1
+        return JointSample(t=self.clock(), seq=self._seq, position=np.array([self.counts_to_rad(pos)]),
+                           velocity=np.array([self.counts_to_rad(vel)]),
+                           effort=np.array([self.per_mille_to_joint_torque(tq)]), fault=0, produced_at=produced)
+
+    def quick_stop(self, timeout: float = 0.05) -> str:
+        """Controlword Quick stop (0x02) by SDO; returns the state reached (statusword)."""
+        self.sdo_write(0x6040, State402.CW_QUICK_STOP)
+        sw = self._await_state("QUICK STOP ACTIVE", time.monotonic() + timeout)
+        st = state_of(sw)
+        if st != "QUICK STOP ACTIVE":
+            sw = int(self.sdo_read(0x6041))
+            st = state_of(sw)
+        return st
+
+    def safe_stop(self) -> None:
+        """Zero torque, Quick stop, then Disable voltage if still in Quick stop active (module
+        docstring). Never raises; ``last_stop`` records what was reached."""
+        rec: dict[str, Any] = {}
+        old = self.node.sdo.RESPONSE_TIMEOUT
+        self.node.sdo.RESPONSE_TIMEOUT = min(old, 0.05)
+        try:
+            with contextlib.suppress(Exception):
+                self._rpdo(State402.CW_OPERATION_ENABLED, 0)
+                rec["rpdo_zero"] = True
+            with contextlib.suppress(Exception):
+                self.sdo_write(0x6071, 0)
+            try:
+                rec["state"] = self.quick_stop()
+                if rec["state"] == "QUICK STOP ACTIVE":
+                    self.sdo_write(0x6040, State402.CW_DISABLE_VOLTAGE)
+                    rec["state"] = state_of(int(self.sdo_read(0x6041)))
+                rec["torque_actual"] = int(self.sdo_read(0x6077))
+            except Exception as exc:
+                rec["error"] = f"{type(exc).__name__}: {exc}"
+        finally:
+            self.node.sdo.RESPONSE_TIMEOUT = old
+        self.last_stop = rec
+        log.info("CiA 402 node %d: safe stop %s", self.node_id, rec)
+
+    def close(self) -> None:
+        """Safe stop (if enabled), NMT pre-operational, stop the receive thread, release the bus."""
+        if self._closed:
+            return
+        if self._enable:
+            self.safe_stop()
+            with contextlib.suppress(Exception):
+                self.node.nmt.state = "PRE-OPERATIONAL"
+        self._closed = True
+        with contextlib.suppress(Exception):
+            if self.network.notifier is not None:
+                self.network.notifier.stop(1.0)
+        if self._own_bus:
+            with contextlib.suppress(Exception):
+                self._bus.shutdown()
+
+
+__all__ = ["MODES", "CiA402Drive", "default_eds", "describe_emcy", "parse_mode", "state_of"]
