@@ -129,7 +129,7 @@ def _defaults() -> dict[str, BuiltinModel]:
         "dual_master_3dof": BuiltinModel("dual_master_3dof", "dual-master/single-slave 3-DOF (001 eq. 17, Table I)",
                                          "absolute_stability", dict(DUAL_MASTER_TABLE1), _dual),
         "mbk_impedance": BuiltinModel("mbk_impedance", "m-DOF mass-damper-spring device, Z = (M s² + B s + K)/s",
-                                      "positive_real", dict(MBK_2DOF), _mbk),
+                                      "positive_real", {**MBK_2DOF, "dof": 2}, _mbk),
         "T1": BuiltinModel("T1", "2-DOF termination T1 of 000 eq. (1) (not passive)", "positive_real", {}, _t1),
         "T2": BuiltinModel("T2", "3-DOF termination T2 of 001 (passive)", "positive_real", {}, _t2),
     }

@@ -88,9 +88,23 @@ MBK_2DOF: dict[str, float] = {"M_00": 1.0, "M_01": 0.2, "M_11": 0.6, "B_00": 8.0
 def mbk_impedance(p: Mapping[str, float] | None = None, **kw: float) -> TransferMatrix:
     """Z(s) = (M s² + B s + K)/s of an m-DOF body (F = Z V, one m-DOF port). Parameters ``M_ij``,
     ``B_ij``, ``K_ij`` (i ≤ j, symmetric; the names the identification's ``mbk`` model derives).
-    Positive real exactly when M, B, K are symmetric positive semidefinite (Re Z = B, residue K)."""
-    q = {**MBK_2DOF, **(p or {}), **kw}
-    n = 1 + max(int(k[-1]) for k in q if k[:2] in ("M_", "B_", "K_"))
+    Positive real exactly when M, B, K are symmetric positive semidefinite (Re Z = B, residue K).
+
+    ``dof`` (optional) sets the number of DOF m; without it m is the largest index given here or in
+    the 2-DOF defaults (:data:`MBK_2DOF`). Entries missing for i, j < m take those defaults (1-DOF:
+    ``dof=1`` with ``M_00``, ``B_00``, ``K_00``); defaults beyond m are ignored."""
+    given = {**(p or {}), **kw}
+    dof = given.pop("dof", None)
+    q = {**MBK_2DOF, **given}
+    if dof is None:
+        n = 1 + max(int(k[-1]) for k in q if k[:2] in ("M_", "B_", "K_"))
+    else:
+        n = int(dof)
+        if n != dof or not 1 <= n <= 6:
+            raise ModelError(f"mbk_impedance: dof must be an integer from 1 to 6, got {dof!r}")
+        big = [k for k in given if k[:2] in ("M_", "B_", "K_") and max(int(k[-2]), int(k[-1])) >= n]
+        if big:
+            raise ModelError(f"mbk_impedance: {big[0]} is outside a {n}-DOF body")
     mats = {}
     for key in ("M", "B", "K"):
         A = np.zeros((n, n))

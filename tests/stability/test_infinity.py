@@ -139,3 +139,19 @@ def test_cli_mbk_negative_mass(capsys):
     d = json.loads(capsys.readouterr().out)
     assert d["verdict"] == "potentially_unstable" and d["failed_condition"] == "D[ω=∞]"
     assert main(["stability", "--model", "mbk_impedance"]) == EXIT_OK
+
+
+def test_mbk_impedance_one_dof_body() -> None:
+    """dof=1: a 1-DOF body Z = (m s² + b s + k)/s, not the 2-DOF defaults; PR iff m, b, k ≥ 0."""
+    tm = mbk_impedance(dof=1, M_00=2.0, B_00=3.0, K_00=40.0)
+    assert tm.n_ports == 1
+    assert positive_real(tm).verdict == "stable"
+    assert positive_real(mbk_impedance(dof=1, M_00=-0.5, B_00=3.0, K_00=40.0)).verdict == "potentially_unstable"
+    import pytest
+
+    from hil.errors import ModelError
+
+    with pytest.raises(ModelError, match="outside a 1-DOF"):
+        mbk_impedance(dof=1, M_01=0.1)
+    with pytest.raises(ModelError, match="integer from 1 to 6"):
+        mbk_impedance(dof=1.5)
