@@ -42,8 +42,8 @@ from hil.stability.exact import (
     SignDecision,
     decide_exact,
     decide_nonnegative,
+    exact_poles,
     flips_within,
-    on_imaginary_axis_exact,
 )
 from hil.stability.jpoly import JPoly, XPoly, trim_back
 from hil.stability.rational import Rational, TransferMatrix
@@ -182,29 +182,24 @@ class _AxisPole:
 
 
 def _entry_axis_poles(e: Rational, tol: Tolerances) -> tuple[list[complex], list[tuple[float, int, bool]]]:
-    """RHP poles and imaginary-axis poles (w, multiplicity, exact) of one entry."""
-    den = e.den
-    k0 = 0
-    while k0 < den.size - 1 and den[k0] == 0:
-        k0 += 1
-    rest = den[k0:]
-    poles = np.roots(rest[::-1]) if rest.size > 1 else np.zeros(0, complex)
-    rhp = []
-    axis: list[tuple[float, int, bool]] = []
-    if k0:
-        axis.append((0.0, k0, True))
-    for p in poles:
-        mag = abs(p)
-        if p.real > tol.pole * mag:
-            rhp.append(complex(p))
-        elif abs(p.real) <= tol.pole * mag and p.imag >= 0:
-            w = float(abs(p.imag))
-            for idx, (w0, mult, ex) in enumerate(axis):
-                if abs(w0 - w) <= 1e-6 * max(w, 1e-300):
-                    axis[idx] = (w0, mult + 1, ex)
-                    break
-            else:
-                axis.append((w, 1, on_imaginary_axis_exact(rest, w)))
+    """RHP poles and imaginary-axis poles (w, multiplicity, exact) of one entry, decided exactly
+    (:func:`hil.stability.exact.exact_poles` on the reduced denominator: counts and multiplicities
+    exact, locations to double precision). ``tol`` is not used (kept for the signature)."""
+    from hil.stability.rational import _qpoly
+
+    n, d = _qpoly(e.num), _qpoly(e.den)
+    if n != 0:
+        g = n.gcd(d)
+        if g.degree() > 0:
+            d = d // g
+    ep = exact_poles(d)
+    axis: list[tuple[float, int, bool]] = [(0.0, ep.n_zero, True)] if ep.n_zero else []
+    axis += [(math.sqrt(x), mult, True) for x, mult in ep.axis]
+    rhp: list[complex] = []
+    if ep.n_rhp:
+        c = np.array([float(d[k]) for k in range(d.degree(), -1, -1)])
+        r = sorted(np.roots(c), key=lambda z: -z.real)
+        rhp = [complex(z) for z in r[: ep.n_rhp]]
     return rhp, axis
 
 

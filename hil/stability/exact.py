@@ -708,10 +708,53 @@ def decide_exact(p, m: np.ndarray | None = None, margin: bool = True) -> SignDec
     # bands, touching points and the margin: the isolation machinery on the exact integers
     d = decide_nonnegative(XPoly(c, mm), tol=0.0, margin=margin, exact=fr, _m_rep=m_rep)
     d.status = status_map[es.status]  # type: ignore[assignment]
+    _exact_depths(p, d, mm, m_rep, margin)
     d.method = "exact (sturm over Q)"
     if d.status == "violated" and not d.negative_bands:  # pragma: no cover - defensive
         log.warning("exact classification says violated but no negative band was isolated")
     return d
+
+
+def _exact_ratio(p, mpoly: np.ndarray, x: float) -> float:
+    """p(x)/m(x) with p evaluated exactly at the float x (no cancellation error), m in floats."""
+    from flint import fmpq
+
+    if not (math.isfinite(x) and x > 0):
+        return math.nan
+    v = p(fmpq(*float(x).as_integer_ratio()))
+    mv = float(P.polyval(x, mpoly))
+    if not (mv > 0 and math.isfinite(mv)):
+        return math.nan
+    return float(Fraction(int(v.p), int(v.q)) / Fraction(mv))
+
+
+def _exact_depths(p, d: SignDecision, m: np.ndarray, m_rep: np.ndarray, margin: bool) -> None:
+    """Band depths and the margin re-evaluated with p exact: inside each (exactly isolated) negative
+    band, p is evaluated exactly on 65 points, so depths far below double round-off (a band of
+    relative width 1e-10) are resolved; the margin of a holding condition is re-evaluated exactly
+    at its minimizer."""
+    if d.negative_bands:
+        depths = []
+        best = (math.inf, math.nan)
+        for a, b in d.negative_bands:
+            lo = a if a > 0 else (b * 1e-6 if math.isfinite(b) else 1e-6)
+            hi = b if math.isfinite(b) else max(lo, 1.0) * 1e6
+            xs = np.geomspace(lo, hi, 67)[1:-1] if hi > lo * (1 + 1e-12) else np.array([lo])
+            xs = np.unique(np.concatenate([xs, np.linspace(lo, hi, 67)[1:-1]]))
+            vals = [(_exact_ratio(p, m, float(x)), float(x)) for x in xs]
+            vals = [v for v in vals if v[0] == v[0]]
+            vmin = min(vals) if vals else (-math.inf, lo)
+            depths.append(vmin[0])
+            vr = min(((_exact_ratio(p, m_rep, x), x) for _, x in vals), default=(math.nan, lo))
+            if vr[0] == vr[0] and vr[0] < best[0]:
+                best = vr
+        d.band_depths = depths
+        if (margin and best[0] < (d.margin if d.margin == d.margin else math.inf)) or (margin and not (d.margin < 0) and best[0] == best[0]):
+            d.margin, d.worst_x = best
+    elif margin and d.worst_x == d.worst_x and 0 < d.worst_x < math.inf:
+        v = _exact_ratio(p, m_rep, d.worst_x)
+        if v == v:
+            d.margin = v
 
 
 def flips_within(p, m: np.ndarray, eps: float, status: str) -> bool:
@@ -725,3 +768,102 @@ def flips_within(p, m: np.ndarray, eps: float, status: str) -> bool:
     if status == "violated":
         return exact_sign(p + e * mq).status != "violated"
     return exact_sign(p - e * mq).status == "violated"
+
+
+# ----------------------------------------------------------------------------------------------
+# exact pole location: open right-half plane and imaginary axis
+
+
+def _cauchy_index(Q, P) -> int:
+    """Cauchy index of Q/P over (-∞, ∞) by a generalized Sturm sequence over Q (exact)."""
+    if P.degree() < 0:
+        return 0
+    if Q.degree() >= P.degree():
+        Q = Q % P
+    seq = [P, Q]
+    while seq[-1] != 0 and seq[-1].degree() > 0:
+        r = seq[-2] % seq[-1]
+        if r == 0:
+            break
+        seq.append(-r)
+    seq = [q for q in seq if q != 0]
+    v_pos = _var([_sgn(q[q.degree()]) for q in seq])
+    v_neg = _var([_sgn(q[q.degree()]) * (-1) ** q.degree() for q in seq])
+    return v_neg - v_pos
+
+
+def _s_of_x(g):
+    """g(-s²) as a polynomial in s."""
+    from flint import fmpq_poly
+
+    c = []
+    for k in range(g.degree() + 1):
+        c += [g[k] * (-1) ** k, 0]
+    return fmpq_poly(c[:-1] if c else [])
+
+
+@dataclass
+class ExactPoles:
+    """Exact pole structure of a real polynomial d(s): ``n_rhp`` roots in the open right-half plane
+    (with multiplicity), ``n_zero`` roots at s = 0, ``axis`` = [(ω², multiplicity)] of the roots at
+    s = ±jω, ω > 0 (ω² located to double precision; count and multiplicities exact)."""
+
+    n_rhp: int
+    n_zero: int
+    axis: list[tuple[float, int]]
+
+
+def exact_poles(d) -> ExactPoles:
+    """Locate the roots of ``d`` (``flint.fmpq_poly`` in s) relative to the imaginary axis exactly.
+
+    d(jω) = E(x) + jω O(x) (x = ω²); g = gcd(E, O) collects the root pairs ±s0 symmetric about the
+    origin (s0² = -x0, x0 a root of g): d = g(-s²)·q(s). A positive root x0 of g is a pair on the
+    imaginary axis; any other root of g is a pair ±s0 off the axis, one of them in the open RHP.
+    q has no imaginary-axis roots, and its RHP count follows from the Routh-Hurwitz theorem in
+    Cauchy-index form: n_L - n_R = -Ind(I/R) (deg q even) or Ind(R/I) (deg q odd), with
+    q(jω) = R(ω) + jI(ω), each index from a Sturm sequence over Q. No rounding anywhere."""
+    from flint import fmpq_poly
+
+    k0 = 0
+    while d[k0] == 0:
+        k0 += 1
+    rest = d // fmpq_poly([0] * k0 + [1]) if k0 else d
+    a: list = []
+    b: list = []
+    for k in range(rest.degree() + 1):
+        v = rest[k] if (k // 2) % 2 == 0 else -rest[k]
+        (a if k % 2 == 0 else b).append(v)
+    E, O = fmpq_poly(a), fmpq_poly(b)
+    g = E.gcd(O) if O != 0 else E
+    n_rhp = 0
+    axis: list[tuple[float, int]] = []
+    q = rest
+    if g.degree() > 0:
+        q = rest // _s_of_x(g)
+        _c, facs = g.factor_squarefree()
+        for f, e in facs:
+            npos = count_positive_roots(f)
+            n_rhp += e * (f.degree() - npos)
+            if npos:
+                xs = _positive_real_roots(np.array([float(f[i]) for i in range(f.degree() + 1)]))
+                if xs.size != npos:  # pragma: no cover - numerical location only
+                    xs = np.sort(np.abs(np.roots(np.array([float(f[i]) for i in range(f.degree(), -1, -1)]))))[:npos]
+                axis += [(float(x), e) for x in xs]
+    n = q.degree()
+    if n > 0:
+        R = [0] * (n + 1)
+        Im = [0] * (n + 1)
+        for k in range(n + 1):
+            m = k % 4
+            if m == 0:
+                R[k] = q[k]
+            elif m == 1:
+                Im[k] = q[k]
+            elif m == 2:
+                R[k] = -q[k]
+            else:
+                Im[k] = -q[k]
+        Rp, Ip = fmpq_poly(R), fmpq_poly(Im)
+        diff = -_cauchy_index(Ip, Rp) if n % 2 == 0 else _cauchy_index(Rp, Ip)
+        n_rhp += (n - diff) // 2
+    return ExactPoles(n_rhp, k0, sorted(axis))
