@@ -749,7 +749,8 @@ def _exact_depths(p, d: SignDecision, m: np.ndarray, m_rep: np.ndarray, margin: 
             if vr[0] == vr[0] and vr[0] < best[0]:
                 best = vr
         d.band_depths = depths
-        if (margin and best[0] < (d.margin if d.margin == d.margin else math.inf)) or (margin and not (d.margin < 0) and best[0] == best[0]):
+        cur = d.margin if d.margin == d.margin else math.inf
+        if margin and best[0] == best[0] and (best[0] < cur or not cur < 0):
             d.margin, d.worst_x = best
     elif margin and d.worst_x == d.worst_x and 0 < d.worst_x < math.inf:
         v = _exact_ratio(p, m_rep, d.worst_x)
