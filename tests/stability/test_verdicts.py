@@ -8,6 +8,7 @@ Random networks come from seeded numpy generators (no hypothesis).
 
 from __future__ import annotations
 
+import itertools
 import math
 from fractions import Fraction
 
@@ -90,7 +91,7 @@ def _ref_negative_somewhere(c: list[Fraction]) -> bool:
 
     def var(x: Fraction) -> int:
         sg = [v for v in (_ev(p, x) for p in seq) if v != 0]
-        return sum(1 for u, w in zip(sg, sg[1:], strict=False) if (u > 0) != (w > 0))
+        return sum(1 for u, w in itertools.pairwise(sg) if (u > 0) != (w > 0))
 
     bound = 1 + max(abs(v / c[-1]) for v in c[:-1])
     pts = {Fraction(0), Fraction(bound)}
@@ -120,7 +121,8 @@ def _random_stable_den(rng, deg: int) -> np.ndarray:
         if deg - len(roots) >= 2 and rng.random() < 0.6:
             w = 10 ** rng.uniform(-1, 1)
             z = 10 ** rng.uniform(-3, 0)
-            roots += [complex(-z * w, w * math.sqrt(max(1 - z * z, 0))), complex(-z * w, -w * math.sqrt(max(1 - z * z, 0)))]
+            wd = w * math.sqrt(max(1 - z * z, 0))
+            roots += [complex(-z * w, wd), complex(-z * w, -wd)]
         else:
             roots.append(complex(-(10 ** rng.uniform(-1, 1)), 0))
     return np.real(np.poly(roots))[::-1]
@@ -334,7 +336,7 @@ def test_margin_goes_to_zero_at_the_boundary_and_is_monotone():
     eps = [1.0, 0.3, 1e-1, 1e-2, 1e-4, 1e-6, 1e-9]
     ms = [positive_real(Rational.from_desc([1.0, e, 1.0], [1.0, 1.0, 1.0])).condition("E{1}").margin for e in eps]
     assert all(0 < m <= 1 for m in ms)
-    assert all(a > b for a, b in zip(ms, ms[1:], strict=False))
+    assert all(a > b for a, b in itertools.pairwise(ms))
     assert ms[-1] < 1e-8
     # closed form: p = x² + (ε - 2)x + 1, m = x² + (ε + 2)x + 1 (same degree range); the minimum of
     # p/m over x ≥ 0 is at x = 1 by symmetry (p/m is invariant under x -> 1/x): ε/(ε + 4)
@@ -372,7 +374,7 @@ def test_sdea_margin_tends_to_zero_at_k22_max_and_is_monotone():
     ks = [50.0, 100.0, 200.0, 300.0, 400.0, km * (1 - 1e-3), km * (1 - 1e-5), km * (1 - 1e-7)]
     ms = [two_port_passivity(sdea_vsic(k22=k)).margin for k in ks]
     assert all(m > 0 for m in ms)
-    assert all(x > y for x, y in zip(ms, ms[1:], strict=False)), ms
+    assert all(x > y for x, y in itertools.pairwise(ms)), ms
     assert ms[-1] < 1e-3 * ms[3]  # near k22_max the margin is a vanishing fraction of the nominal one
     assert two_port_passivity(sdea_vsic(k22=km * (1 + 1e-5))).margin < 0
 
