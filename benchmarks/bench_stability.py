@@ -8,7 +8,13 @@ Prints two tables (not a test; no assertions):
 2. Throughput over 1e4 posterior-like draws of the SDEA model: the vectorized batch path vs the
    general exact criterion (timed on a subset and extrapolated), with their agreement.
 
-Run: ``python benchmarks/bench_stability.py`` (about a minute on one core).
+3. Verdict time per network size (one-port of degree 2..8, two-port, three-port, 4×4): the exact
+   verdict with and without margins against a 1e4-point numpy grid of the same frequency
+   conditions, measured in the same run (issue 11; speed goal of issue 15: one-port ≤ 50 µs,
+   two-port ≤ 200 µs).
+
+Run: ``python benchmarks/bench_stability.py`` (about a minute on one core);
+``python benchmarks/bench_stability.py sizes`` runs table 3 only.
 """
 
 from __future__ import annotations
@@ -150,7 +156,86 @@ def table_single_verdict(n: int = 200) -> None:
         print(f"{name:46s} {t * 1e3:8.3f}ms {t / base:8.2f}")
 
 
+def _random_one_port(rng: np.random.Generator, deg: int) -> Rational:
+    """A passive one-port of degree ``deg``: a resistor plus deg//2 damped resonances (R-L-C)."""
+    from hil.stability.rational import S
+
+    z = Rational.const(float(rng.uniform(0.5, 2.0)))
+    for _ in range(deg // 2):
+        w = float(10 ** rng.uniform(-1, 2))
+        zeta = float(10 ** rng.uniform(-3, -0.5))
+        z = z + float(rng.uniform(0.1, 1.0)) * w * S / (S**2 + 2 * zeta * w * S + w * w)
+    if deg % 2:
+        z = z + float(rng.uniform(0.1, 1.0)) / (S + float(rng.uniform(0.1, 10.0)))
+    return z
+
+
+def _grid_baseline(tm: TransferMatrix, n: int = 10_000) -> float:
+    """Time of a numpy grid of every principal minor of G(jω) + G(jω)ᴴ at n log-spaced points."""
+    import itertools
+
+    lo, hi = _freq_range(tm.entries)
+    w = np.geomspace(lo, hi, n)
+    t0 = time.perf_counter()
+    G = tm.freq(w)
+    H = G + np.conj(np.swapaxes(G, 1, 2))
+    worst = np.inf
+    for k in range(1, tm.n + 1):
+        for sel in itertools.combinations(range(tm.n), k):
+            sub = H[:, sel][:, :, sel]
+            worst = min(worst, float(np.min(np.linalg.det(sub).real)))
+    return time.perf_counter() - t0
+
+
+def table_sizes(reps: int = 30) -> None:
+    from hil.models.teleop import bilateral_2dof
+    from hil.stability.criteria import check
+
+    rng = np.random.default_rng(11)
+    nets: list[tuple[str, TransferMatrix]] = []
+    for deg in range(2, 9):
+        nets.append((f"one-port, degree {deg}", TransferMatrix([[_random_one_port(rng, deg)]])))
+    nets.append(("two-port (SDEA hybrid, Table I)", sdea_vsic()))
+    nets.append(("three-port (000 MCET, k_vm1 = 64)", mcet_trilateral(k_vm1=64)))
+    nets.append(("4x4 (000 bilateral 2-DOF, gains A1)", bilateral_2dof("A1")))
+
+    def per_call(f, n: int) -> float:
+        f()
+        t0 = time.perf_counter()
+        for _ in range(n):
+            f()
+        return (time.perf_counter() - t0) / n
+
+    print("\nVerdict time per network size (exact, this run) against a 1e4-point numpy grid")
+    hdr = (f"{'network':38s} {'verdict':22s} {'exact':>10s} {'no margins':>11s} {'grid 1e4':>10s} "
+           f"{'exact/grid':>10s} {'nm/grid':>8s}")
+    print(hdr)
+    print("-" * len(hdr))
+    for name, tm in nets:
+        crit = "positive_real" if tm.n == 1 else ("passivity" if tm.n == 2 else "absolute_stability")
+        n = reps if tm.n <= 2 else max(3, reps // 10)
+        verdict = check(tm, crit).verdict
+        te = per_call(lambda tm=tm, crit=crit: check(tm, crit), n)
+        if crit == "positive_real":
+            tn = per_call(lambda tm=tm: positive_real(tm, margins=False), n)
+        elif crit == "passivity":
+            tn = per_call(lambda tm=tm: two_port_passivity(tm, margins=False), n)
+        else:
+            tn = math.nan
+        tg = min(_grid_baseline(tm) for _ in range(3))
+        print(f"{name:38s} {verdict!s:22s} {te * 1e6:8.0f}µs {tn * 1e6:9.0f}µs {tg * 1e6:8.0f}µs "
+              f"{te / tg:10.2f} {tn / tg:8.2f}")
+    print("(exact = the criterion with margins; no margins = verdict only; grid 1e4 = numpy evaluation of "
+          "every principal minor of G + Gᴴ at 1e4 points, which decides nothing exactly)")
+
+
 if __name__ == "__main__":
-    table_hard_cases()
-    table_single_verdict()
-    table_throughput()
+    import sys
+
+    if sys.argv[1:] == ["sizes"]:
+        table_sizes()
+    else:
+        table_hard_cases()
+        table_single_verdict()
+        table_throughput()
+        table_sizes()

@@ -612,13 +612,38 @@ def count_positive_roots(f) -> int:
     coeffs = [_sgn(f[i]) for i in range(f.degree() + 1)]
     if _var(coeffs) == 0:  # Descartes: no sign change, no positive root
         return 0
-    f = f // f.gcd(f.derivative()) if f.gcd(f.derivative()).degree() > 0 else f
-    seq = [f, f.derivative()]
+    g = f.gcd(f.derivative())
+    if g.degree() > 0:
+        f = f // g
+    # rigorous root isolation (FLINT/Arb, arb_fmpz_poly_complex_roots on the squarefree integer
+    # polynomial): real roots come with an exactly zero imaginary part, their balls are disjoint and
+    # exclude 0 unless a root sits within the ball radius of 0 (then: Sturm)
+    n_pos = 0
+    for r, _mult in f.numer().complex_roots():
+        if r.imag == 0:
+            if r.real > 0:
+                n_pos += 1
+            elif not r.real < 0:  # pragma: no cover - ambiguous ball: exact Sturm count instead
+                return _sturm_count_q(f)
+    return n_pos
+
+
+def _sturm_count_q(f) -> int:
+    """Distinct positive roots of a squarefree exact polynomial with f(0) ≠ 0: primitive Sturm
+    sequence over Q (each remainder divided by its positive content, which keeps its signs)."""
+    from flint import fmpq_poly
+
+    def prim(g):
+        n = g.numer()
+        c = n.content()
+        return fmpq_poly(n) / c if c != 0 else g
+
+    seq = [prim(f), prim(f.derivative())]
     while seq[-1].degree() > 0:
         r = seq[-2] % seq[-1]
         if r == 0:
             break
-        seq.append(-r)
+        seq.append(-prim(r))
     return _var([_sgn(q[0]) for q in seq]) - _var([_sgn(q[q.degree()]) for q in seq])
 
 
