@@ -14,13 +14,12 @@ Criteria (each returns a :class:`~hil.stability.results.StabilityResult`):
   vs non-strict reading of the same conditions: see ``StabilityResult.weak``.
 * :func:`check` -- picks the cheapest sufficient test for the network's size.
 
-Frequency conditions are reduced to real polynomials in x = ω² (:mod:`jpoly`) and decided by
-exact root isolation (:mod:`exact`); dense sweeps are only used (and flagged ``method: sweep``)
-for Theorem 1 blocks of size ≥ 3 whose symmetrized matrix Z' is not rational.
-
-Pole tolerance: a pole p with |Re p| ≤ ``pole_tol``·|p| is treated as lying on the imaginary
-axis (poles at s = 0 are detected exactly from zero constant coefficients). Its residue must then
-pass the residue test; if it is not exactly on the axis the condition is reported *marginal*.
+Frequency conditions are reduced to real polynomials in x = ω², formed exactly over Q from the
+float coefficients (python-flint), and decided without rounding (:mod:`exact`); dense sweeps are
+only used (and flagged ``method: sweep``) for Theorem 1 blocks of size ≥ 3 whose symmetrized
+matrix Z' is not rational. Poles are located exactly (:func:`hil.stability.exact.exact_poles`: RHP
+count by Routh-Hurwitz over Q, imaginary-axis poles from gcd(Re d(jω), Im d(jω)/ω)); no pole
+tolerance. Verdicts, statuses and margins are defined in docs/VERDICTS.md.
 """
 
 from __future__ import annotations
@@ -68,7 +67,14 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Tolerances:
-    """Documented tolerances (all relative): see module docstrings of ``exact`` and ``criteria``."""
+    """Tolerances (all relative; docs/VERDICTS.md).
+
+    ``rtol`` (default 0): a relative tolerance on the coefficients; a condition whose status can
+    flip under such a perturbation is ``marginal``. With 0 every verdict is the exact one for the
+    given coefficients. ``poly``: the rounding bound used only for conditions formed from derived
+    (rounded) entries (Theorem 1's Z' of blocks ≥ 3). ``residue``: residue matrices at finite
+    imaginary-axis poles (floating point) within it of singular count as singular. ``pole``: unused
+    (poles are located exactly), kept for compatibility."""
 
     poly: float = DEFAULT_TOL
     pole: float = POLE_TOL
