@@ -654,7 +654,7 @@ class _Setup:
     Dcf: JPoly
 
 
-def _setup(sub: list[list[Rational]]) -> _Setup:
+def _setup(sub: list[list[Rational]], need_m: bool = True) -> _Setup:
     from hil.stability.rational import _qpoly
 
     n = len(sub)
@@ -665,6 +665,8 @@ def _setup(sub: list[list[Rational]]) -> _Setup:
     Dc = (E, -O)
     zero = (fmpq_poly([]), fmpq_poly([]))
     u = [[zero if nums[i][j] is None else _xq(nums[i][j] * (D // dens[i][j])) for j in range(n)] for i in range(n)]
+    if not need_m:
+        return _Setup(u, Dc, h, mu, [], JPoly.zero())
     uf = [[_jfloat(e) for e in row] for row in u]
     return _Setup(u, Dc, h, mu, uf, _jfloat(Dc))
 
@@ -708,17 +710,19 @@ def _cancel(p: fmpq_poly, h: fmpq_poly | None, cap: int) -> tuple[fmpq_poly, int
     return p, cut
 
 
-def _exact_minor_polys(sub: list[list[Rational]]) -> dict[tuple[int, ...], tuple[fmpq_poly, int, np.ndarray]]:
+def _exact_minor_polys(sub: list[list[Rational]],
+                       need_m: bool = True) -> dict[tuple[int, ...], tuple[fmpq_poly, int, np.ndarray | None]]:
     """Every principal minor of (G + Gᴴ)(jω)·|D(jω)|^(2k), formed exactly over Q, divided by the
     squared axis factor where present. Values: (exact polynomial in x, number of h² factors
-    cancelled, float magnitude polynomial m of the uncancelled minor)."""
-    st = _setup(sub)
+    cancelled, float magnitude polynomial m of the uncancelled minor, None unless ``need_m``)."""
+    st = _setup(sub, need_m)
     n = len(sub)
     zero = (fmpq_poly([]), fmpq_poly([]))
     A = [[_jmul(st.u[i][j], st.Dc) for j in range(n)] for i in range(n)]
     Pm = [[(A[i][j][0] + A[j][i][0], A[i][j][1] - A[j][i][1]) for j in range(n)] for i in range(n)]
-    Af = [[st.uf[i][j] * st.Dcf for j in range(n)] for i in range(n)]
-    Pf = [[Af[i][j] + Af[j][i].conj() for j in range(n)] for i in range(n)]
+    if need_m:
+        Af = [[st.uf[i][j] * st.Dcf for j in range(n)] for i in range(n)]
+        Pf = [[Af[i][j] + Af[j][i].conj() for j in range(n)] for i in range(n)]
     memo: dict = {}
     memof: dict = {}
 
@@ -750,16 +754,15 @@ def _exact_minor_polys(sub: list[list[Rational]]) -> dict[tuple[int, ...], tuple
     for k in range(1, n + 1):
         for idx in itertools.combinations(range(n), k):
             p, cut = _cancel(det(idx, idx)[0], st.h, k * st.mu)
-            out[idx] = (p, cut, detf(idx, idx).real().m)
+            out[idx] = (p, cut, detf(idx, idx).real().m if need_m else None)
     return out
 
 
-def _exact_llewellyn_polys(sub: list[list[Rational]]) -> tuple[tuple[fmpq_poly, int, np.ndarray],
-                                                               tuple[fmpq_poly, int, np.ndarray]]:
+def _exact_llewellyn_polys(sub: list[list[Rational]], need_m: bool = True):
     """(L1, L2) of :func:`llewellyn_polys` formed exactly over Q with the squared imaginary-axis
     factor divided out where present (L1 carries |D|⁴, L2 |D|⁸): (polynomial, h² factors cancelled,
-    magnitude polynomial) each."""
-    st = _setup(sub)
+    magnitude polynomial or None unless ``need_m``) each."""
+    st = _setup(sub, need_m)
     u, Dc = st.u, st.Dc
     A1 = _jmul(u[0][0], Dc)[0]
     A2 = _jmul(u[1][1], Dc)[0]
@@ -767,6 +770,10 @@ def _exact_llewellyn_polys(sub: list[list[Rational]]) -> tuple[tuple[fmpq_poly, 
     a = A1 * A2
     L1 = 2 * a - C[0]
     L2 = 4 * a * (a - C[0]) - _X * C[1] * C[1]
+    if not need_m:
+        p1, c1 = _cancel(L1, st.h, 2 * st.mu)
+        p2, c2 = _cancel(L2, st.h, 4 * st.mu)
+        return (p1, c1, None), (p2, c2, None)
     uf, Dcf = st.uf, st.Dcf
     a1f = (uf[0][0] * Dcf).real()
     a2f = (uf[1][1] * Dcf).real()
@@ -786,7 +793,7 @@ def _exact_decision(p: fmpq_poly, cut: int, m: np.ndarray, K: int, tol: Toleranc
     can flip under relative perturbations ≤ rtol of the coefficients of u and D (K coefficient
     factors per term of p). When axis factors were cancelled the magnitude bound is the cancelled
     polynomial's own |coefficients| (the uncancelled m does not divide)."""
-    mm = m if cut == 0 else None
+    mm = m if cut == 0 and m is not None else None
     need_margin = margins or tol.rtol > 0
     d = decide_exact(p, mm, margin=need_margin)
     flip = False
@@ -852,7 +859,7 @@ def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: To
     zero within it = ``equality``), the one place a tolerance enters a verdict (docs/VERDICTS.md)."""
     sub = [[entries[i][j] for j in idx_all] for i in idx_all]
     n = len(sub)
-    exact = _exact_minor_polys(sub)
+    exact = _exact_minor_polys(sub, need_m=margins or tol.rtol > 0 or derived)
     conds = []
     for k in range(1, n + 1):
         for idx in itertools.combinations(range(n), k):
@@ -953,7 +960,8 @@ def llewellyn_polys(entries: list[list[Rational]], i: int = 0, j: int = 1) -> tu
 def _llewellyn_eta(entries: list[list[Rational]], i: int, j: int, tol: Tolerances,
                    margins: bool = True) -> Condition:
     """Llewellyn's η_ij ≥ 0 for all ω as an exact condition (see :func:`llewellyn_polys`)."""
-    (p1, c1, m1), (p2, c2, m2) = _exact_llewellyn_polys([[entries[a][b] for b in (i, j)] for a in (i, j)])
+    (p1, c1, m1), (p2, c2, m2) = _exact_llewellyn_polys([[entries[a][b] for b in (i, j)] for a in (i, j)],
+                                                        need_m=margins or tol.rtol > 0)
     d1, f1 = _exact_decision(p1, c1, m1, 4, tol, margins)
     d2, f2 = _exact_decision(p2, c2, m2, 8, tol, margins)
     name = f"E{_lbl((i, j))}"

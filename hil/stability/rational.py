@@ -163,7 +163,8 @@ class Rational:
     # -- properties ---------------------------------------------------------------------------
     @property
     def is_zero(self) -> bool:
-        return not np.any(self.num)
+        n = self.num  # _clean leaves the zero polynomial as [0.0]
+        return n.size == 1 and n[0] == 0.0
 
     def is_proper(self) -> bool:
         return self.num.size <= self.den.size
