@@ -59,6 +59,7 @@ __all__ = [
     "check",
     "infinity_condition",
     "llewellyn",
+    "margin_curve",
     "pole_conditions",
     "positive_real",
     "two_port_passivity",
@@ -1310,3 +1311,43 @@ def check(tm: TransferMatrix | Rational, criterion: str = "auto", tol: Tolerance
         return absolute_stability(tm, tol)
     raise ModelError(f"unknown criterion {criterion!r}; expected auto, positive_real, passivity, llewellyn or "
                      "absolute_stability")
+
+
+def margin_curve(g: TransferMatrix | Rational, condition: str = "E{1}"):
+    """ω ↦ p(x)/m_r(x) of one frequency condition, the quantity whose minimum is that condition's
+    frequency-domain margin (docs/VERDICTS.md), for plots: ω in physical rad/s, values in [-1, 1].
+
+    ``condition`` is a condition name as in the results: ``E{i,j,...}`` (a principal minor of
+    G + Gᴴ) or, for a 1-DOF two-port, ``L1`` / ``L2`` (Llewellyn's polynomials of E{1,2})."""
+    from hil.stability.exact import _Ratio, exact_sign
+
+    tm, w0 = _normalized(_as_tm(g))
+    if condition in ("L1", "L2"):
+        if tm.n != 2:
+            raise ModelError("L1/L2 are defined for 1-DOF two-ports")
+        pair = _exact_llewellyn_polys([[tm[a, b] for b in (0, 1)] for a in (0, 1)])
+        p, cut, m = pair[0] if condition == "L1" else pair[1]
+    else:
+        try:
+            idx = tuple(int(t) - 1 for t in condition[2:-1].split(","))
+        except ValueError:
+            raise ModelError(f"unknown condition {condition!r}; expected E{{i,...}}, L1 or L2") from None
+        if not condition.startswith("E{") or any(i < 0 or i >= tm.n for i in idx):
+            raise ModelError(f"unknown condition {condition!r} for a {tm.n}x{tm.n} network")
+        sub = [[tm[a, b] for b in idx] for a in idx]
+        p, cut, m = _exact_minor_polys(sub)[tuple(range(len(idx)))]
+    c = _qpoly_float(p)
+    mm = np.abs(c) if (cut or m is None) else np.maximum(
+        np.pad(np.abs(m), (0, max(0, c.size - m.size)))[: max(c.size, m.size)],
+        np.pad(np.abs(c), (0, max(0, m.size - c.size))))
+    a = exact_sign(p).order0 if p != 0 else 0
+    m_rep = mm.copy()
+    m_rep[:a] = 0.0
+    m_rep[c.size:] = 0.0
+    ratio = _Ratio(c, m_rep)
+
+    def f(w: np.ndarray) -> np.ndarray:
+        x = (np.asarray(w, float) / w0) ** 2
+        return ratio(x) if p != 0 else np.zeros_like(x)
+
+    return f

@@ -388,3 +388,21 @@ def test_rtol_marginal_means_the_verdict_can_flip():
     bad = Rational.from_desc([1.0, -1e-6, 1.0], [1.0, 1.0, 1.0])
     assert str(positive_real(bad, Tolerances(rtol=1e-6)).verdict) == "marginal"
     assert str(positive_real(bad, Tolerances(rtol=1e-9)).verdict) == "potentially_unstable"
+
+
+def test_margin_curve_minimum_is_the_reported_margin():
+    from hil.models.sdea import sdea_vsic
+    from hil.stability.criteria import margin_curve
+
+    z = Rational.from_desc([1.0, 0.3, 2.0], [1.0, 1.0, 1.0])
+    e = positive_real(z).condition("E{1}")
+    f = margin_curve(z, "E{1}")
+    w = np.geomspace(1e-4, 1e4, 20001)
+    v = f(w)
+    assert np.all(v >= e.margin - 1e-12) and np.all(np.abs(v) <= 1)
+    assert float(f(np.array([e.worst_frequency]))[0]) == pytest.approx(e.margin, rel=1e-9)
+    # the SDEA's binding condition: the curve's value near ω = 0 approaches the margin
+    tm = sdea_vsic()
+    r = two_port_passivity(tm)
+    g = margin_curve(tm, "E{1,2}")
+    assert float(g(np.array([1e-6]))[0]) == pytest.approx(r.condition("E{1,2}").margin, rel=1e-3)
