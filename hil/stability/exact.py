@@ -666,6 +666,11 @@ def exact_sign(p) -> ExactSign:
     low = p[k]
     if p.degree() == k:
         return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
+    signs = [_sgn(p[i]) for i in range(k, p.degree() + 1)]
+    if all(v >= 0 for v in signs):  # Descartes: no sign change, p > 0 on x > 0
+        return ExactSign("satisfied", k, 0, 0)
+    if all(v <= 0 for v in signs):
+        return ExactSign("violated", k, 0, 0)
     _c, facs = p.factor_squarefree()
     q_odd, q_even = fmpq_poly([1]), fmpq_poly([1])
     for f, e in facs:

@@ -101,3 +101,16 @@ def test_console_script_runs_without_traceback():
     p = subprocess.run([sys.executable, "-m", "hil.cli", "stability", "--model", "sdea"], capture_output=True,
                        text=True, timeout=120)
     assert p.returncode == 0 and "stable" in p.stdout
+
+
+@pytest.mark.parametrize("kind", ["impedance", "admittance", "hybrid", "inverse_hybrid"])
+def test_passive_t_network_file_is_stable_in_every_form(tmp_path, capsys, kind):
+    # issue 11, defect 3: the hybrid form used to crash ("entry denominator does not divide the
+    # common denominator", exit 2) and the inverse hybrid was called potentially unstable
+    from tests.stability.test_verdicts import T_FORMS
+
+    f = tmp_path / f"t_{kind}.json"
+    f.write_text(json.dumps({"type": kind, "ports": [1, 1], "matrix": T_FORMS[kind]}))
+    for crit in ("passivity", "llewellyn"):
+        code, out, err = run(["stability", str(f), "--criterion", crit, "--json"], capsys)
+        assert (json.loads(out)["verdict"], code) == ("stable", EXIT_OK), err
