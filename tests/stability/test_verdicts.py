@@ -406,3 +406,39 @@ def test_margin_curve_minimum_is_the_reported_margin():
     r = two_port_passivity(tm)
     g = margin_curve(tm, "E{1,2}")
     assert float(g(np.array([1e-6]))[0]) == pytest.approx(r.condition("E{1,2}").margin, rel=1e-3)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_exact_pole_classification_matches_roots_by_construction(seed):
+    # d(s) = s^k0 · ∏(s - r) · ∏(s² + w²)^e · ∏((s - a)² + b²) with chosen roots (dyadic values,
+    # so the float coefficients are exact): the counts are known by construction
+    from flint import fmpq, fmpq_poly
+
+    from hil.stability.exact import exact_poles
+
+    rng = np.random.default_rng(seed)
+    d = fmpq_poly([1])
+    n_rhp, axis = 0, {}
+    k0 = int(rng.integers(0, 2))
+    d *= fmpq_poly([0] * k0 + [1])
+    for _ in range(int(rng.integers(1, 4))):
+        r = fmpq(int(rng.integers(-64, 65)) or 1, 16)
+        d *= fmpq_poly([-r, 1])
+        n_rhp += r > 0
+    for _ in range(int(rng.integers(0, 3))):
+        w2 = fmpq(int(rng.integers(1, 200)), 8)
+        e = int(rng.integers(1, 3))
+        d *= fmpq_poly([w2, 0, 1]) ** e
+        axis[float(w2)] = axis.get(float(w2), 0) + e
+    for _ in range(int(rng.integers(0, 3))):
+        a, b = fmpq(int(rng.integers(-40, 41)) or 3, 8), fmpq(int(rng.integers(1, 40)), 8)
+        d *= fmpq_poly([a * a + b * b, -2 * a, 1])
+        n_rhp += 2 * (a > 0)
+    ep = exact_poles(d)
+    assert ep.n_rhp == n_rhp and ep.n_zero == k0
+    got = {}
+    for x, mult in ep.axis:
+        key = min(axis, key=lambda w: abs(w - x)) if axis else x
+        assert abs(key - x) <= 1e-9 * key
+        got[key] = got.get(key, 0) + mult
+    assert got == axis
