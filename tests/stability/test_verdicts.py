@@ -170,9 +170,10 @@ def test_active_two_port_with_tiny_negative_margin_is_potentially_unstable():
     for r in (two_port_passivity(tm), llewellyn(tm)):
         assert str(r.verdict) == "potentially_unstable", r.summary()
         assert r.failed_condition == "E{1,2}"
-        # margin definition: p/m_r with p = 4(1 - c²), m = 4(1 + c²) (constant in x), exactly
-        assert r.condition("E{1,2}").margin == pytest.approx((1 - c * c) / (1 + c * c), rel=1e-6) or \
-            r.criterion == "llewellyn"
+        # margin definition: p/m_r with p = 4(1 - c²), m = 4(1 + c²) (constant in x): the passivity
+        # minor (2·1)(2·1) - (2c)² over its magnitude, and Llewellyn's L2 = (2 - c²)² - c⁴ over
+        # 4·1·(1 + c²) -- the same ratio, ≈ -8.5e-7
+        assert r.condition("E{1,2}").margin == pytest.approx((1 - c * c) / (1 + c * c), rel=1e-6)
 
 
 def test_sdea_just_above_k22_max_is_potentially_unstable_and_just_below_stable():
