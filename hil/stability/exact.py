@@ -605,6 +605,16 @@ def count_positive_roots(f) -> int:
     coeffs = [_sgn(f[i]) for i in range(f.degree() + 1)]
     if _var(coeffs) == 0:  # Descartes: no sign change, no positive root
         return 0
+    if f.degree() == 1:  # f0 + f1 x: root -f0/f1 > 0 iff the signs differ (Descartes: they do)
+        return 1
+    if f.degree() == 2:  # exact discriminant; sign changes exist (Descartes above)
+        c0, c1, c2 = f[0], f[1], f[2]
+        disc = c1 * c1 - 4 * c0 * c2
+        if disc < 0:
+            return 0
+        if disc == 0:
+            return 1 if _sgn(c1) != _sgn(c2) else 0  # double root -c1/(2 c2)
+        return 2 if _sgn(c0) == _sgn(c2) else 1  # product of the roots c0/c2 > 0: both positive
     g = f.gcd(f.derivative())
     if g.degree() > 0:
         f = f // g
