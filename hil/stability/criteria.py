@@ -449,14 +449,13 @@ def _lbl(idx: Iterable[int]) -> str:
 
 
 # ------------------------------------------------------------------------------------------
-# physical margins: dimensionless ratios evaluated on the transfer functions themselves
+# ratios evaluated on the transfer functions (plots; not the reported margins, docs/VERDICTS.md)
 
 
 def _freq_range(entries: list[list[Rational]]) -> tuple[float, float]:
-    """The band over which physical margins are reported: the non-zero pole and zero magnitudes
-    of the entries, widened by two decades on each side. (The exact decision covers all ω; the
-    limits ω → 0 and ω → ∞, where ratios of positive-real functions typically vanish by structure,
-    are not used as margins.)"""
+    """A plotting band: the non-zero pole and zero magnitudes of the entries, widened by two
+    decades on each side (used by plots and benchmarks; margins are computed over all ω exactly,
+    docs/VERDICTS.md)."""
     mags = [abs(r) for row in entries for e in row if not e.is_zero for r in (*e.poles(), *e.zeros())
             if abs(r) > 0 and np.isfinite(abs(r))]
     if not mags:
@@ -525,30 +524,6 @@ def _eta_ratio(sub: list[list[Rational]], scale_values=None):
         return np.where(np.isfinite(r) & np.isfinite(sc), r, np.inf)
 
     return f
-
-
-def _physical_min(fn, lo: float, hi: float, band: tuple[float, float] | None = None) -> tuple[float, float, bool]:
-    """Minimum of a ratio over ω: (value, ω, found at an interior local minimum)."""
-    from scipy.optimize import minimize_scalar
-
-    if band is not None:
-        a, b = band
-        a = max(a, lo * 1e-3) if a > 0 else lo * 1e-3
-        b = min(b, hi * 1e3) if math.isfinite(b) else hi * 1e3
-        w = np.geomspace(a, b, 201) if b > a else np.array([a])
-    else:
-        w = np.geomspace(lo, hi, 241)
-    v = fn(w)
-    i = int(np.argmin(v))
-    interior = 0 < i < w.size - 1
-    bw, bv = float(w[i]), float(v[i])
-    if interior:
-        res = minimize_scalar(lambda u: float(fn(np.array([math.exp(u)]))[0]),
-                              bounds=(math.log(w[i - 1]), math.log(w[i + 1])), method="bounded",
-                              options={"xatol": 1e-10})
-        if res.fun < bv:
-            bw, bv = float(math.exp(res.x)), float(res.fun)
-    return bv, bw, interior or band is not None
 
 
 # ------------------------------------------------------------------------------------------
