@@ -125,6 +125,21 @@ def _suggest(name: str, known: Sequence[str]) -> str:
 # hil stability
 
 
+def _stability_tol(args: argparse.Namespace):
+    """Tolerances for ``hil stability``: ``--rtol R`` (relative perturbation of the coefficients;
+    then ``marginal`` means the verdict can flip within it, docs/VERDICTS.md)."""
+    import math
+
+    from hil.stability.criteria import Tolerances
+
+    r = getattr(args, "rtol", None)
+    if r is None:
+        return Tolerances()
+    if not math.isfinite(r) or r < 0 or r >= 1:
+        raise UsageError(f"--rtol must be a number in [0, 1), got {r!r}")
+    return Tolerances(rtol=float(r))
+
+
 def _cmd_stability(args: argparse.Namespace) -> int:
     from hil.stability.criteria import check
 
@@ -173,7 +188,7 @@ def _cmd_stability(args: argparse.Namespace) -> int:
         prog.update(f"checking the {criterion} conditions")
         try:
             with _numeric_guard(source):
-                result = check(tm, criterion)
+                result = check(tm, criterion, _stability_tol(args))
         except UsageError:
             raise
         except HilError as exc:
@@ -624,6 +639,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--criterion", choices=["auto", "positive_real", "passivity", "llewellyn", "absolute_stability"],
                    help="criterion to apply (default: the file's, or the model's, or auto)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
+    s.add_argument("--rtol", type=float, metavar="R",
+                   help="relative tolerance on the coefficients: marginal = the verdict can flip within it "
+                        "(default 0: the exact verdict for the given coefficients)")
     s.add_argument("-v", "--verbose", action="store_true", help="list every condition")
     s.add_argument("--list-models", action="store_true", help="list the built-in models and exit")
     s.set_defaults(func=_cmd_stability)

@@ -69,10 +69,15 @@ def _mulx(a: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class XPoly:
-    """A real polynomial in x = ω² with its magnitude bound ``m`` (both ascending)."""
+    """A real polynomial in x = ω² with its magnitude bound ``m`` (both ascending).
+
+    ``exact`` (optional, a ``flint.fmpq_poly``) is the exact polynomial that ``c`` rounds, when it
+    was formed exactly (:func:`hil.stability.criteria.hermitian_minor_poly`, ``llewellyn_polys``):
+    :func:`hil.stability.exact.decide_nonnegative` then decides on it without any tolerance."""
 
     c: np.ndarray
     m: np.ndarray
+    exact: object = None
 
     @staticmethod
     def const(v: float) -> XPoly:

@@ -15,10 +15,11 @@ Conventions
   with velocities oriented *into* the ports so that power into the network is Re(F^H V)
   (the papers' convention). For an n-port with m DOFs per port, entries are ordered port by
   port (block (i, j) is m×m), as in paper 000 eq. (11)-(12).
-* Common factors of numerator and denominator: powers of s are cancelled exactly; other
-  common roots are cancelled when they agree to a relative tolerance of 1e-7 (documented in
-  :func:`Rational.minreal`), which keeps conversions between immittance types from creating
-  spurious pole/zero pairs.
+* Common factors of numerator and denominator: powers of s are cancelled exactly; the algebra's
+  shortcuts (a denominator dividing another, a numerator equal to a denominator) are taken only
+  on exact divisibility over Q[s] (:func:`_exact_quotient`); conversions between immittance types
+  run entirely in exact arithmetic (:meth:`TransferMatrix.to`). :func:`Rational.minreal` (explicit
+  call only) still cancels roots that agree to a relative tolerance.
 """
 
 from __future__ import annotations
@@ -162,7 +163,8 @@ class Rational:
     # -- properties ---------------------------------------------------------------------------
     @property
     def is_zero(self) -> bool:
-        return not np.any(self.num)
+        n = self.num  # _clean leaves the zero polynomial as [0.0]
+        return n.size == 1 and n[0] == 0.0
 
     def is_proper(self) -> bool:
         return self.num.size <= self.den.size
@@ -237,38 +239,30 @@ def _as_rational(o: Rational | float | int) -> Rational:
     return o if isinstance(o, Rational) else Rational.const(float(o))
 
 
-def _exact_quotient(a: np.ndarray, b: np.ndarray, rtol: float = 1e-12) -> np.ndarray | None:
-    """q with a = b·q when b divides a to within rtol, else None.
+def _exact_quotient(a: np.ndarray, b: np.ndarray, rtol: float = 0.0) -> np.ndarray | None:
+    """q with a = b·q EXACTLY (the float coefficients read as the exact binary rationals they are,
+    divided over Q[s] with python-flint), rounded to floats once; None when b does not divide a.
 
-    The division is carried out in a balanced variable s = σ·t (σ from b's extreme coefficients),
-    which keeps long division well conditioned when coefficients span many decades.
-    """
+    Near-divisibility is never accepted: a polynomial that differs from a multiple of b by rounding
+    is a different polynomial. ``rtol`` is accepted for backward compatibility and ignored."""
     a = trim_back(np.asarray(a, float))
     b = trim_back(np.asarray(b, float))
-    if a.size < b.size or not np.any(b):
+    if a.size == 0:
+        return np.zeros(1)
+    if a.size < b.size or b.size == 0:
         return None
     if b.size == 1:
-        return a / b[0]
-    nz = np.nonzero(b)[0]
-    lo = nz[0]
-    if lo and np.any(a[:lo]):
+        if b[0] == 0:
+            return None
+        qa = _qpoly(a) / fmpq(*float(b[0]).as_integer_ratio())
+    else:
+        qa, r = divmod(_qpoly(a), _qpoly(b))
+        if r != 0:
+            return None
+    try:
+        return np.array([_qfloat(qa[k]) for k in range(qa.degree() + 1)] or [0.0])
+    except OverflowError:
         return None
-    n = b.size - 1 - lo
-    sig = (abs(b[lo]) / abs(b[-1])) ** (1.0 / n) if n > 0 else 1.0
-    if not (np.isfinite(sig) and sig > 0):
-        sig = 1.0
-    pa = sig ** np.arange(a.size)
-    pb = sig ** np.arange(b.size)
-    A, B = a * pa, b * pb
-    q, _r = P.polydiv(A, B)
-    scale = float(np.max(np.abs(A)))
-    resid = P.polysub(P.polymul(B, q), A)
-    if np.max(np.abs(resid)) > rtol * scale:
-        return None
-    # an exact quotient has no round-off-sized coefficients in the balanced variable: snap them
-    # to zero (e.g. (s·A)/A must be s, not s + 1e-17)
-    q = np.where(np.abs(q) <= 64 * np.finfo(float).eps * q.size * np.max(np.abs(q)), 0.0, q)
-    return q / sig ** np.arange(q.size)
 
 
 def _roots_asc(c: np.ndarray) -> np.ndarray:

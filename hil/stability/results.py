@@ -2,23 +2,27 @@
 
 A :class:`StabilityResult` is built from :class:`Condition` records, one per checked condition
 (pole location, residue, one frequency-domain polynomial). The verdict is derived, never set by
-hand:
+hand (definitions with their tests: docs/VERDICTS.md):
 
-* ``potentially_unstable`` -- some condition is violated beyond the tolerance;
-* ``marginal`` -- no violation, but some condition sits within the tolerance of its boundary
-  (a negative dip shallower than round-off, a root touching zero, a pole within tolerance of
-  the imaginary axis) so that round-off could decide it;
+* ``potentially_unstable`` -- some condition is violated: its exact sign for the given
+  coefficients (read as the binary rationals they are) is negative somewhere;
+* ``marginal`` -- no violation, but some condition is marginal: with a user tolerance
+  (``Tolerances(rtol=R)``, ``hil stability --rtol R``) its status can flip under a relative
+  perturbation R of the coefficients; or, on the flagged paths that form a condition from derived
+  (rounded) entries or a sweep, the rounding bound straddles zero;
 * ``stable`` -- every condition holds. When some condition holds only with *equality*
-  (an identically-zero minor, a singular residue matrix) the result is flagged ``weak``: the
-  network is stable against strictly passive terminations ("weakly stable" in paper 001;
-  "absolutely stable" in paper 000, whose Theorem 1 uses non-strict inequalities);
+  (an identically-zero minor, a real part touching zero at isolated frequencies, a singular
+  residue matrix) the result is flagged ``weak``: the network is stable against strictly passive
+  terminations ("weakly stable" in paper 001; "absolutely stable" in paper 000, whose Theorem 1
+  uses non-strict inequalities);
 * ``not_applicable`` -- the criterion's preconditions fail (e.g. the symmetrization conditions
   A/B of Theorem 1), with the reason.
 
-Margins are *normalized*: for polynomial conditions the minimum over ω of p(x)/m(x) (value over
-its own round-off magnitude bound, in [-1, 1]); for poles the damping-like ratio -Re(p)/|p|; for
-residue minors the minor over the permanent of the absolute residues. They are invariant under
-frequency and impedance scaling.
+Margins are dimensionless and invariant under frequency and impedance scaling: for frequency
+conditions the frequency-domain margin min p(x)/m_r(x) (docs/VERDICTS.md: the magnitude
+polynomial restricted to p's exact degree range, so structural zeros at ω = 0 and ω = ∞ are
+factored out); for poles the damping-like ratio -Re(p)/|p|; for residue matrices the smallest
+eigenvalue (or minor) over their scale.
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from hil.errors import ConversionError, ModelError
-from hil.stability.criteria import positive_real
+from hil.stability.criteria import Tolerances, positive_real
 from hil.stability.rational import Rational, S, TransferMatrix
 from hil.stability.results import StabilityResult
 
@@ -175,7 +175,9 @@ def find_witness(Z: TransferMatrix, port: int = 0, candidates: Sequence[Terminat
         except ConversionError as exc:
             log.debug("witness candidate %s skipped: %s", cand.describe(), exc)
             continue
-        res = positive_real(zin)
+        # Z_in is derived in floating point: a witness must survive a relative perturbation of 1e-9
+        # of its coefficients (round-off of the derivation is never a witness)
+        res = positive_real(zin, Tolerances(rtol=1e-9))
         if res.verdict != "potentially_unstable":
             continue
         if best is None or res.margin < best.result.margin:

@@ -109,9 +109,9 @@ def test_verdict_invariant_under_frequency_and_impedance_scaling(seed, active, e
     zs = _scaled(z, 10.0**ek, 10.0**el)
     r = llewellyn(zs)
     assert r.verdict == base.verdict
-    if base.worst_frequency and np.isfinite(base.worst_frequency) and base.verdict != "stable":
-        assert r.worst_frequency == np.float64(r.worst_frequency)
-        np.testing.assert_allclose(r.worst_frequency, base.worst_frequency * 10.0**el, rtol=1e-3)
+    # the frequency-domain margin is invariant under s -> a·s, Z -> b·Z (docs/VERDICTS.md); the
+    # decimal scalings round the coefficients (1e-16 relative), the margin's minimization is to ~1e-8
+    np.testing.assert_allclose(r.margin, base.margin, rtol=1e-5, atol=1e-12)
 
 
 @given(st.integers(0, 10_000), st.integers(-9, 9), st.integers(-9, 9))
