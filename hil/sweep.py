@@ -514,15 +514,23 @@ class SweepResult:
     def names(self) -> list[str]:
         return [a.name for a in self.axes]
 
-    def boundary_curve(self, axis: int | str = -1) -> tuple[np.ndarray, np.ndarray]:
-        """For a 2-axis sweep: the crossings found along ``axis`` (default the last) as a curve over
-        the other axis, sorted (e.g. k22_max(b22)). With several crossings per line, all are kept."""
+    def boundary_curve(self, axis: int | str = -1, where: Mapping[str, float] | None = None
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """The crossings found along ``axis`` (default the last) as a curve over the first other
+        axis, sorted (e.g. k22_max(b22)). With three axes, ``where`` fixes the third one
+        (``{"alpha": 0.9}``; default its first value). With several crossings per line, all are kept."""
         ax = self.names.index(axis) if isinstance(axis, str) else axis % len(self.axes)
-        if len(self.axes) != 2:
-            raise SweepError("a boundary curve needs exactly two swept parameters")
-        other = 1 - ax
+        if len(self.axes) == 1:
+            raise SweepError("a boundary curve needs two or three swept parameters")
+        others = [i for i in range(len(self.axes)) if i != ax]
         sel = self.boundary["axis"] == ax
         pts = self.boundary["points"][sel]
+        if len(others) == 2:
+            third = others[1]
+            name = self.names[third]
+            value = (where or {}).get(name, float(self.axes[third].values[0]))
+            pts = pts[np.isclose(pts[:, third], value, rtol=1e-12, atol=0)]
+        other = others[0]
         order = np.lexsort((pts[:, ax], pts[:, other]))
         return pts[order, other], pts[order, ax]
 
@@ -734,10 +742,16 @@ def plot_sweep(res: SweepResult, path: str | Path, required: float | None = None
         cb.ax.set_yticklabels(["stable", "marginal", "potentially\nunstable", "not\napplicable"])
         b = res.boundary
         if len(b["points"]):
-            ax.plot(b["points"][:, 0], b["points"][:, 1], "k.", ms=3, label="refined boundary points")
+            first = np.ones(len(b["points"]), dtype=bool) if len(res.axes) == 2 else \
+                np.isclose(b["points"][:, 2], res.axes[2].values[0], rtol=1e-12, atol=0)
+            ax.plot(b["points"][first, 0], b["points"][first, 1], "k.", ms=3, label="refined boundary points")
             if len(res.axes) == 2 and np.any(b["axis"] == 1):
                 bx, by = res.boundary_curve(1)
                 ax.plot(bx, by, "k-", lw=1.4, label=f"{names[1]} at the boundary")
+            elif len(res.axes) == 3 and np.any(b["axis"] == 1):
+                for j, v in enumerate(res.axes[2].values[:8]):
+                    bx, by = res.boundary_curve(1, {names[2]: float(v)})
+                    ax.plot(bx, by, "-", color=f"C{j}", lw=1.4, label=f"{names[1]} at the boundary, {names[2]} = {v:g}")
             ax.legend(loc="best", fontsize=8)
         ax.set_xlabel(_label(names[0], res))
         ax.set_ylabel(_label(names[1], res))
@@ -746,7 +760,7 @@ def plot_sweep(res: SweepResult, path: str | Path, required: float | None = None
         if res.axes[1].log:
             ax.set_yscale("log")
         if len(res.axes) == 3:
-            ax.text(0.01, 0.01, f"{names[2]} = {res.axes[2].values[0]:g} (first value)", transform=ax.transAxes,
+            ax.text(0.01, 0.01, f"colours and points: {names[2]} = {res.axes[2].values[0]:g}", transform=ax.transAxes,
                     fontsize=8)
     ax.set_title(f"{res.spec.get('model')}: {crit} ", fontsize=10)
     if res.p_stable is not None:

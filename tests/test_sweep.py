@@ -93,6 +93,19 @@ def test_boundary_agrees_with_the_design_search() -> None:
         assert check(sdea_vsic(SDEA_TABLE1, k22=u, b22=bi), "passivity").verdict != "stable"
 
 
+def test_three_axes_give_one_boundary_curve_per_alpha() -> None:
+    """k22_max(b22) for two feed-forward ratios (002 Table II's rows are its maxima over b22)."""
+    spec = SweepSpec("sdea", [parse_grid("b22=0.08:0.16:3"), parse_grid("k22=200:500:4"), parse_grid("alpha=0.9:1:2")],
+                     criterion="passivity", chunk=8)
+    res = run_sweep(spec)
+    for alpha in (0.9, 1.0):
+        b, k = res.boundary_curve("k22", {"alpha": alpha})
+        assert len(b) == 3
+        for bi, ki in zip(b, k, strict=True):
+            ref = k22_max(float(bi), alpha, "passivity").k22_max
+            assert abs(ki - ref) <= spec.boundary_tol * 100 + 1e-7 * ref, (alpha, bi, ki, ref)
+
+
 def test_grid_verdicts_are_the_exact_ones() -> None:
     from hil.models.sdea import sdea_vsic
     from hil.stability.criteria import check
