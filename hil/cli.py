@@ -269,6 +269,14 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from hil.stopflag import STOP, StopRequested
     from hil.sweep import SweepSpec, iter_table, make_executor, parse_grid, plot_sweep, run_sweep, save_sweep
 
+    if bool(args.model) == bool(args.scene):
+        raise UsageError("give either --model NAME or --scene SCENE (the network of its certification)")
+    scene = None
+    if args.scene:
+        from hil.scene import load_scene
+
+        scene = load_scene(args.scene)
+        args.model = scene.certification.model
     try:
         m = get_model(args.model)
     except KeyError:
@@ -284,14 +292,16 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         posterior = posterior_from_record(path, name or None)
     if args.required is not None and not 0 < args.required < 1:
         raise UsageError(f"--required {args.required:g}: a probability in (0, 1)")
-    spec = SweepSpec(args.model, axes, params, args.criterion, refine=not args.no_refine,
-                     boundary_tol=args.boundary_tol, posterior=posterior, n_draws=args.draws, chunk=args.chunk)
+    kw = {"refine": not args.no_refine, "boundary_tol": args.boundary_tol, "posterior": posterior,
+          "n_draws": args.draws, "chunk": args.chunk}
+    spec = (SweepSpec.from_scene(scene, axes, params, args.criterion, **kw) if scene is not None
+            else SweepSpec(args.model, axes, params, args.criterion, **kw))
     spec.validate()
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers {args.workers}: give at least 1")
     executor = "dask" if args.scheduler else args.executor
     cache = None if args.no_cache else (args.cache or ".hil-cache/sweep")
-    out = _out_dir(args.out, f"reports/sweep-{args.model}", args.overwrite)
+    out = _out_dir(args.out, f"reports/sweep-{scene.name if scene is not None else args.model}", args.overwrite)
     ex = make_executor(executor, args.workers, args.scheduler)
     bar = _SweepProgress(f"hil sweep {args.model}", enabled=not args.json)
     try:
@@ -734,7 +744,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     sw = add("sweep", help="stability map of a built-in model over 1-3 parameters, boundary refined "
                            "by bisection (see README, Stability maps)")
-    sw.add_argument("--model", required=True, help="built-in model (hil stability --list-models)")
+    sw.add_argument("--model", help="built-in model (hil stability --list-models)")
+    sw.add_argument("--scene", help="sweep the network a scene certifies (its model, gains and plant)")
     sw.add_argument("--grid", action="append", required=True, metavar="NAME=LO:HI:N",
                     help="swept parameter (repeatable, 1-3; NAME=log:LO:HI:N for log spacing)")
     sw.add_argument("--set", action="append", metavar="PARAM=VALUE", help="fix a model parameter (repeatable)")

@@ -136,6 +136,21 @@ class SweepSpec:
     posterior: dict[str, np.ndarray] | None = None
     n_draws: int = 200
     chunk: int = 64
+    #: parameters taken from a scene (``from_scene``): passed to the builder as they are
+    scene_params: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def from_scene(cls, scene: Any, axes: list[GridAxis], params: Mapping[str, Any] | None = None,
+                   criterion: str | None = None, **kw: Any) -> SweepSpec:
+        """A sweep of a scene's certification network: its model, the fixed parameters its
+        controller and simulation imply (:func:`hil.pipeline.model_params_from_scene`), ``params``
+        on top, and its criterion unless ``criterion`` is given."""
+        from hil.pipeline import model_params_from_scene
+
+        cert = scene.certification
+        sp = {k: v for k, v in model_params_from_scene(scene).items() if k not in {a.name for a in axes}}
+        crit = criterion or (None if cert.criterion == "auto" else cert.criterion)
+        return cls(cert.model, axes, dict(params or {}), crit, scene_params=sp, **kw)
 
     def validate(self) -> None:
         from hil.models import get_model, model_names
@@ -152,6 +167,9 @@ class SweepSpec:
         for a in self.axes:
             if a.name in self.params:
                 raise SweepError(f"--grid {a.name}: also fixed with --set; drop one")
+            gains = self.scene_params.get("gains")
+            if isinstance(gains, Mapping) and a.name in gains:
+                continue  # a gain of the scene's controller table
             if m.defaults and a.name not in m.defaults:
                 raise SweepError(f"--grid {a.name}: model {self.model} has no parameter {a.name!r}; "
                                  f"known: {', '.join(sorted(m.defaults))}")
@@ -177,6 +195,11 @@ class SweepSpec:
                                  f"{', '.join(unknown)}")
 
     @property
+    def fixed(self) -> dict[str, Any]:
+        """Every fixed parameter: the scene's, then ``params`` on top."""
+        return {**self.scene_params, **self.params}
+
+    @property
     def criterion_name(self) -> str:
         from hil.models import get_model
 
@@ -191,8 +214,9 @@ class SweepSpec:
                 h.update(k.encode())
                 h.update(np.ascontiguousarray(self.posterior[k], dtype=float).tobytes())
             post = {"sha256": h.hexdigest(), "n_draws": self.n_draws}
+        fixed = self.fixed
         return {"format": SWEEP_FORMAT, "model": self.model, "criterion": self.criterion_name,
-                "params": {k: self.params[k] for k in sorted(self.params)}, "posterior": post,
+                "params": {k: fixed[k] for k in sorted(fixed)}, "posterior": post,
                 "version": _version()}
 
 
@@ -222,9 +246,20 @@ def _draw_subset(posterior: Mapping[str, np.ndarray], n: int, seed_text: str) ->
     return {k: np.asarray(v, dtype=float)[idx] for k, v in posterior.items()}
 
 
-def _p_stable(model: str, criterion: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray]) -> float:
-    from hil.models import get_model
+def build_network(model: str, params: Mapping[str, Any]) -> Any:
+    """The network of a built-in model (the certification pipeline's builder, which also takes a
+    scene's controller gains, e.g. a bilateral_2dof gain dict)."""
+    from hil.pipeline import _build
 
+    gains = params.get("gains")
+    if isinstance(gains, Mapping):  # a scene's gain table: swept gains replace their entries
+        moved = {k: v for k, v in params.items() if k in gains}
+        if moved:
+            params = {k: v for k, v in params.items() if k not in moved} | {"gains": {**gains, **moved}}
+    return _build(model, params)
+
+
+def _p_stable(model: str, criterion: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray]) -> float:
     n = len(next(iter(draws.values())))
     if model == "sdea" and criterion == "passivity":
         from hil.stability.batch import sdea_passivity_batch
@@ -237,11 +272,10 @@ def _p_stable(model: str, criterion: str, params: Mapping[str, Any], draws: Mapp
         return float(np.mean(res["passive"]))
     from hil.stability.criteria import check
 
-    m = get_model(model)
     ok = 0
     for i in range(n):
         p = {**{k: float(v[i]) for k, v in draws.items()}, **params}
-        ok += check(m.build(**p), criterion).verdict == "stable"
+        ok += check(build_network(model, p), criterion).verdict == "stable"
     return ok / n
 
 
@@ -250,10 +284,8 @@ def evaluate_points(model: str, criterion: str, params: Mapping[str, Any], names
     """Exact verdict, margin and worst frequency (and P(stable) over ``draws``) at each row of
     ``points`` (shape (n, len(names))). A network the model cannot build counts as
     ``not_applicable`` with a NaN margin (the message is logged)."""
-    from hil.models import get_model
     from hil.stability.criteria import check
 
-    m = get_model(model)
     n = points.shape[0]
     verdict = np.full(n, -1, dtype=np.int8)
     margin = np.full(n, np.nan)
@@ -262,7 +294,7 @@ def evaluate_points(model: str, criterion: str, params: Mapping[str, Any], names
     for i in range(n):
         p = {**params, **{k: float(points[i, j]) for j, k in enumerate(names)}}
         try:
-            r = check(m.build(**p), criterion)
+            r = check(build_network(model, p), criterion)
         except HilError as exc:
             log.info("sweep point %s: %s", p, exc)
             verdict[i] = VERDICT_CODES["not_applicable"]
@@ -276,11 +308,10 @@ def evaluate_points(model: str, criterion: str, params: Mapping[str, Any], names
 
 
 def _is_stable(model: str, criterion: str, params: Mapping[str, Any]) -> bool:
-    from hil.models import get_model
     from hil.stability.criteria import check
 
     try:
-        return check(get_model(model).build(**params), criterion).verdict == "stable"
+        return check(build_network(model, params), criterion).verdict == "stable"
     except HilError:
         return False
 
@@ -587,7 +618,7 @@ def run_sweep(spec: SweepSpec, executor: Executor | None = None, cache_dir: str 
     tasks, keys, spans = [], [], []
     for s in range(0, len(pts), spec.chunk):
         chunk = pts[s:s + spec.chunk]
-        payload = {"model": spec.model, "criterion": crit, "params": dict(spec.params), "names": names,
+        payload = {"model": spec.model, "criterion": crit, "params": spec.fixed, "names": names,
                    "points": chunk, "draws": draws}
         tasks.append(("points", payload))
         keys.append(_digest([ident, "points", names, chunk.tolist()]))
@@ -630,7 +661,7 @@ def run_sweep(spec: SweepSpec, executor: Executor | None = None, cache_dir: str 
                 i = int(idx[ax])
                 step = abs(vals[i + 1] - vals[i])
                 point = {names[d]: float(spec.axes[d].values[idx[d]]) for d in range(len(names)) if d != ax}
-                payload = {"model": spec.model, "criterion": crit, "params": {**spec.params, **point},
+                payload = {"model": spec.model, "criterion": crit, "params": {**spec.fixed, **point},
                            "name": a.name, "a": float(vals[i]), "b": float(vals[i + 1]),
                            "a_stable": bool(s_lo[idx]), "tol": spec.boundary_tol * step}
                 seg_tasks.append(("segment", payload))

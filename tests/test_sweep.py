@@ -259,3 +259,25 @@ def test_cli_sweep_bad_input_is_one_line(tmp_path, args, msg) -> None:
     lines = p.stderr.strip().splitlines()
     assert len(lines) == 1 and msg in lines[0], p.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_scene_network_sweep_uses_the_scenes_parameters() -> None:
+    """--scene: the scene's model, gains and plant; a swept gain of a gain table replaces its entry."""
+    from hil.pipeline import _build, model_params_from_scene
+    from hil.scene import load_scene
+    from hil.stability.criteria import check
+
+    sc = load_scene("sdea_bench")
+    spec = SweepSpec.from_scene(sc, [parse_grid("k22=150:450:3")], refine=False)
+    res = run_sweep(spec)
+    fixed = model_params_from_scene(sc)
+    for row in iter_table(res):
+        ref = check(_build("sdea", {**fixed, "k22": row["k22"]}), spec.criterion_name)
+        assert row["verdict"] == str(ref.verdict) and row["margin"] == float(ref.margin)
+    bi = load_scene("bilateral_2dof_B")
+    spec = SweepSpec.from_scene(bi, [parse_grid("k_pmyz=450:550:2")], refine=False)
+    res = run_sweep(spec)
+    gains = model_params_from_scene(bi)["gains"]
+    for row in iter_table(res):
+        p = {**model_params_from_scene(bi), "gains": {**gains, "k_pmyz": row["k_pmyz"]}}
+        assert row["verdict"] == str(check(_build("bilateral_2dof", p), spec.criterion_name).verdict)
