@@ -289,7 +289,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         from hil.sweep import posterior_from_record
 
         path, _, name = args.posterior.partition(":")
-        posterior = posterior_from_record(path, name or None)
+        posterior = posterior_from_record(path, name or None, args.model)
     if args.required is not None and not 0 < args.required < 1:
         raise UsageError(f"--required {args.required:g}: a probability in (0, 1)")
     kw = {"refine": not args.no_refine, "boundary_tol": args.boundary_tol, "posterior": posterior,

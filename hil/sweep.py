@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.errors import HilError, ModelError
+from hil.errors import HilError
 
 log = logging.getLogger(__name__)
 
@@ -831,31 +831,39 @@ def _label(name: str, res: SweepResult) -> str:
     return f"{name} [{unit}]" if unit else name
 
 
-def posterior_from_record(path: str, name: str | None = None) -> dict[str, np.ndarray]:
+def posterior_from_record(path: str, name: str | None = None, network_model: str | None = None
+                          ) -> dict[str, np.ndarray]:
     """Posterior draws (parameter name → array) of a stored identification (``hil identify`` /
-    ``hil certify`` records); :class:`SweepError` if none can be read."""
+    ``hil certify`` records): the sampled parameters and the identification model's derived ones
+    (e.g. the entries of M, B, K of an MBK model sampled as Cholesky factors), kept where the
+    network ``network_model`` takes them. :class:`SweepError` if none can be read or none match."""
     from hil.identify.api import load_identification
+    from hil.identify.models import make_model
 
     try:
         ident = load_identification(path, name)
     except HilError as exc:
         raise SweepError(f"--posterior {path}: {exc}") from None
     samples = np.asarray(ident["samples"], dtype=float)
-    names = _sample_names(ident["summary"])
-    if samples.ndim != 2 or samples.shape[1] != len(names):
+    summary = ident["summary"] if isinstance(ident["summary"], Mapping) else {}
+    names = summary.get("sample_names") or list(summary.get("parameters") or [])
+    if samples.ndim != 2 or samples.shape[1] < len(names) or not names:
         raise SweepError(f"--posterior {path}: samples of shape {samples.shape} do not match parameters {names}")
-    return {n: samples[:, i] for i, n in enumerate(names)}
+    out = {n: samples[:, i] for i, n in enumerate(names)}
+    try:
+        out.update({k: np.asarray(v, dtype=float) for k, (v, _u) in
+                    make_model(str(summary.get("model"))).derived(samples[:, : len(names)]).items()})
+    except HilError as exc:
+        log.info("posterior %s: no derived parameters (%s)", path, exc)
+    if network_model is not None:
+        from hil.models import get_model
 
-
-def _sample_names(summary: Any) -> list[str]:
-    if isinstance(summary, Mapping):
-        for key in ("names", "parameters"):
-            v = summary.get(key)
-            if isinstance(v, list) and all(isinstance(x, str) for x in v):
-                return list(v)
-            if isinstance(v, Mapping):
-                return list(v)
-    raise ModelError("the stored identification does not name its parameters")
+        takes = set(get_model(network_model).defaults)
+        out = {k: v for k, v in out.items() if k in takes}
+        if not out:
+            raise SweepError(f"--posterior {path}: none of its parameters ({', '.join(names)}) is a parameter of "
+                             f"the model {network_model}")
+    return out
 
 
 def iter_table(res: SweepResult) -> Iterable[dict[str, Any]]:

@@ -281,3 +281,39 @@ def test_scene_network_sweep_uses_the_scenes_parameters() -> None:
     for row in iter_table(res):
         p = {**model_params_from_scene(bi), "gains": {**gains, "k_pmyz": row["k_pmyz"]}}
         assert row["verdict"] == str(check(_build("bilateral_2dof", p), spec.criterion_name).verdict)
+
+
+def test_mbk_boundary_is_where_the_mass_matrix_stops_being_psd() -> None:
+    """Z = (M s² + B s + K)/s is PR iff M, B, K are PSD (the model's docstring); with M_00 = 1 and
+    M_11 = 0.6 the mass matrix loses definiteness at M_01 = √0.6 (closed form)."""
+    spec = SweepSpec("mbk_impedance", [parse_grid("M_01=0.6:0.9:7")], params={"M_00": 1.0, "M_11": 0.6})
+    res = run_sweep(spec)
+    (p,) = res.boundary["points"][:, 0]
+    assert abs(p - np.sqrt(0.6)) <= spec.boundary_tol * 0.05
+    s, u = res.boundary["bracket"][0]
+    assert s < np.sqrt(0.6) < u
+
+
+def test_posterior_from_a_stored_identification(tmp_path) -> None:
+    """Sampled parameters plus the identification model's derived ones, kept where the network takes them."""
+    import h5py
+
+    from hil.identify.models import make_model
+    from hil.sweep import posterior_from_record
+
+    mdl = make_model("mbk")
+    rng = np.random.default_rng(0)
+    z = np.array([mdl.nominal[n] for n in mdl.names]) if isinstance(getattr(mdl, "nominal", None), dict) else None
+    samples = (np.ones(len(mdl.names)) if z is None else z) * (1 + 0.01 * rng.standard_normal((50, len(mdl.names))))
+    path = tmp_path / "r.h5"
+    with h5py.File(path, "w") as f:
+        g = f.create_group("identification/mbk")
+        g.create_dataset("samples", data=samples)
+        g.create_dataset("summary", data=json.dumps({"model": "mbk", "sample_names": list(mdl.names)}))
+    post = posterior_from_record(str(path), None, "mbk_impedance")
+    derived = mdl.derived(samples)
+    assert set(post) == set(derived)  # the Cholesky factors are not network parameters; M, B, K entries are
+    for k, (v, _unit) in derived.items():
+        np.testing.assert_array_equal(post[k], v)
+    with pytest.raises(SweepError, match="none of its parameters"):
+        posterior_from_record(str(path), None, "sdea")
