@@ -513,7 +513,8 @@ class TaskCache:
         tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
         try:
             with open(tmp, "wb") as fh:
-                np.savez(fh, **{k: np.asarray(v) for k, v in value.items()})
+                arrays: dict[str, Any] = {k: np.asarray(v) for k, v in value.items()}
+                np.savez(fh, **arrays)
             os.replace(tmp, p)
         except OSError as exc:
             tmp.unlink(missing_ok=True)
@@ -615,10 +616,12 @@ def run_sweep(spec: SweepSpec, executor: Executor | None = None, cache_dir: str 
     pts = _grid_points(spec.axes)
     draws = None if spec.posterior is None else _draw_subset(spec.posterior, spec.n_draws, _digest(ident))
     t0 = time.perf_counter()
-    tasks, keys, spans = [], [], []
+    tasks: list[tuple[str, dict[str, Any]]] = []
+    keys: list[str] = []
+    spans: list[tuple[int, int]] = []
     for s in range(0, len(pts), spec.chunk):
         chunk = pts[s:s + spec.chunk]
-        payload = {"model": spec.model, "criterion": crit, "params": spec.fixed, "names": names,
+        payload: dict[str, Any] = {"model": spec.model, "criterion": crit, "params": spec.fixed, "names": names,
                    "points": chunk, "draws": draws}
         tasks.append(("points", payload))
         keys.append(_digest([ident, "points", names, chunk.tolist()]))
@@ -643,30 +646,29 @@ def run_sweep(spec: SweepSpec, executor: Executor | None = None, cache_dir: str 
                                        "bracket": np.zeros((0, 2))}
     evaluations = n
     if spec.refine:
-        seg_tasks, seg_keys, seg_meta = [], [], []
+        seg_tasks: list[tuple[str, dict[str, Any]]] = []
+        seg_keys: list[str] = []
+        seg_meta: list[tuple[int, dict[str, float]]] = []
         stable = VERDICT_CODES["stable"] == V
         unstable = VERDICT_CODES["potentially_unstable"] == V
         for ax, a in enumerate(spec.axes):
             if a.n < 2:
                 continue
             vals = a.values
-            lo_idx = [slice(None)] * len(shape)
-            hi_idx = [slice(None)] * len(shape)
-            lo_idx[ax] = slice(0, -1)
-            hi_idx[ax] = slice(1, None)
-            s_lo, s_hi = stable[tuple(lo_idx)], stable[tuple(hi_idx)]
-            u_lo, u_hi = unstable[tuple(lo_idx)], unstable[tuple(hi_idx)]
+            s_lo = np.take(stable, np.arange(a.n - 1), axis=ax)
+            s_hi = np.take(stable, np.arange(1, a.n), axis=ax)
+            u_lo = np.take(unstable, np.arange(a.n - 1), axis=ax)
+            u_hi = np.take(unstable, np.arange(1, a.n), axis=ax)
             cross = (s_lo & u_hi) | (u_lo & s_hi)
             for idx in zip(*np.nonzero(cross), strict=True):
                 i = int(idx[ax])
                 step = abs(vals[i + 1] - vals[i])
                 point = {names[d]: float(spec.axes[d].values[idx[d]]) for d in range(len(names)) if d != ax}
-                payload = {"model": spec.model, "criterion": crit, "params": {**spec.fixed, **point},
-                           "name": a.name, "a": float(vals[i]), "b": float(vals[i + 1]),
-                           "a_stable": bool(s_lo[idx]), "tol": spec.boundary_tol * step}
-                seg_tasks.append(("segment", payload))
-                seg_keys.append(_digest([ident, "segment", payload["params"], a.name, payload["a"], payload["b"],
-                                         payload["tol"]]))
+                seg = {"model": spec.model, "criterion": crit, "params": {**spec.fixed, **point}, "name": a.name,
+                       "a": float(vals[i]), "b": float(vals[i + 1]), "a_stable": bool(s_lo[idx]),
+                       "tol": spec.boundary_tol * step}
+                seg_tasks.append(("segment", seg))
+                seg_keys.append(_digest([ident, "segment", seg["params"], a.name, seg["a"], seg["b"], seg["tol"]]))
                 seg_meta.append((ax, point))
         results: list[dict[str, Any] | None] = [None] * len(seg_tasks)
 
@@ -674,14 +676,16 @@ def run_sweep(spec: SweepSpec, executor: Executor | None = None, cache_dir: str 
             results[i] = r
 
         _run_tasks(executor, cache, seg_tasks, seg_keys, seg_done, progress, should_stop)
-        rows, axis_of, brackets = [], [], []
+        rows: list[list[float]] = []
+        axis_of: list[int] = []
+        brackets: list[tuple[float, float]] = []
         for (ax, point), r in zip(seg_meta, results, strict=True):
             assert r is not None
-            s, u = float(r["stable_end"]), float(r["unstable_end"])
-            row = [point.get(nm, 0.5 * (s + u)) for nm in names]
+            s_end, u_end = float(r["stable_end"]), float(r["unstable_end"])
+            row = [point.get(nm, 0.5 * (s_end + u_end)) for nm in names]
             rows.append(row)
             axis_of.append(ax)
-            brackets.append((s, u))
+            brackets.append((s_end, u_end))
             evaluations += int(r["evaluations"])
         if rows:
             boundary = {"points": np.array(rows, dtype=float), "axis": np.array(axis_of, dtype=np.int64),
@@ -872,7 +876,7 @@ def iter_table(res: SweepResult) -> Iterable[dict[str, Any]]:
     V, M, W = res.verdict.ravel(), res.margin.ravel(), res.worst_frequency.ravel()
     P = None if res.p_stable is None else res.p_stable.ravel()
     for i, p in enumerate(pts):
-        row = {n: float(p[j]) for j, n in enumerate(res.names)}
+        row: dict[str, Any] = {n: float(p[j]) for j, n in enumerate(res.names)}
         row |= {"verdict": VERDICT_NAMES.get(int(V[i]), "not_computed"), "margin": float(M[i]),
                 "worst_frequency": float(W[i])}
         if P is not None:
