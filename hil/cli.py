@@ -1021,14 +1021,16 @@ class _SweepProgress(_Progress):
         self._task: Any = None
         self._t_phase = time.monotonic()
         self._last_total = -1
+        self._n_phase = 0
 
     def update(self, done: int, total: int) -> None:  # type: ignore[override]
         if total != self._last_total:
             self._t_phase, self._last_total = time.monotonic(), total
+            self._n_phase += 1
         el = time.monotonic() - self._t_phase
         left = (el / done * (total - done)) if done else float("nan")
-        phase = "grid" if self._bar is None or self._task == "grid" else "boundary"
-        self.message = f"{done}/{total} tasks, about {left:.0f} s left"
+        phase = "grid points" if self._n_phase <= 1 else "boundary segments"
+        self.message = f"{done}/{total} {phase}, about {left:.0f} s left"
         if self._tty:
             if self._bar is None:
                 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn

@@ -574,26 +574,31 @@ def _grid_points(axes: Sequence[GridAxis]) -> np.ndarray:
 
 def _run_tasks(executor: Executor, cache: TaskCache, tasks: list[tuple[str, dict[str, Any]]], keys: list[str],
                on_done: Callable[[int, dict[str, Any]], None], progress: Callable[[int, int], None] | None,
-               should_stop: Callable[[], None] | None) -> None:
+               should_stop: Callable[[], None] | None, weights: Sequence[int] | None = None) -> None:
+    """Cached tasks first, then the rest on ``executor``; ``progress(done, total)`` counts
+    ``weights`` (grid points per task; default 1 per task)."""
+    w = list(weights) if weights is not None else [1] * len(keys)
+    total = sum(w)
     todo = []
+    done = 0
     for i, k in enumerate(keys):
         hit = cache.get(k)
         if hit is not None:
             on_done(i, hit)
+            done += w[i]
         else:
             todo.append(i)
-    done = len(keys) - len(todo)
     if progress:
-        progress(done, len(keys))
+        progress(done, total)
     if not todo:
         return
     for j, res in executor.map_unordered(_task, [tasks[i] for i in todo]):
         i = todo[j]
         cache.put(keys[i], res)
         on_done(i, res)
-        done += 1
+        done += w[i]
         if progress:
-            progress(done, len(keys))
+            progress(done, total)
         if should_stop is not None:
             should_stop()  # raises (e.g. hil.stopflag.StopRequested) to end the sweep here
 
@@ -603,7 +608,7 @@ def run_sweep(spec: SweepSpec, executor: Executor | None = None, cache_dir: str 
               should_stop: Callable[[], None] | None = None) -> SweepResult:
     """Evaluate the grid, then (``spec.refine``) bisect every stable/unstable neighbour pair.
 
-    ``progress(done, total)`` is called after every task of each phase; ``should_stop()`` is
+    ``progress(done, total)`` is called after every task (grid points, then boundary segments); ``should_stop()`` is
     called between tasks and ends the sweep by raising (e.g. ``hil.stopflag.STOP.check``); every
     task finished by then is in the cache."""
     spec.validate()
@@ -639,7 +644,7 @@ def run_sweep(spec: SweepSpec, executor: Executor | None = None, cache_dir: str 
         wf[a:b] = r["worst_frequency"]
         pst[a:b] = r["p_stable"]
 
-    _run_tasks(executor, cache, tasks, keys, grid_done, progress, should_stop)
+    _run_tasks(executor, cache, tasks, keys, grid_done, progress, should_stop, [b - a for a, b in spans])
     t_grid = time.perf_counter() - t0
     V = verdict.reshape(shape)
     boundary: dict[str, np.ndarray] = {"points": np.zeros((0, len(names))), "axis": np.zeros(0, dtype=np.int64),
