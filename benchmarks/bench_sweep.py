@@ -50,7 +50,7 @@ def main() -> None:
         try:
             t0 = time.perf_counter()
             r = run_sweep(_spec(n), ex)
-            rows.append((f"process pool", w, time.perf_counter() - t0, _same(ref, r)))
+            rows.append(("process pool", w, time.perf_counter() - t0, _same(ref, r)))
         finally:
             ex.close()
     import distributed
@@ -62,7 +62,7 @@ def main() -> None:
         rows.append(("dask LocalCluster", 2, time.perf_counter() - t0, _same(ref, r)))
     print(f"{'executor':>18} {'workers':>7} {'time [s]':>9} {'points/s':>9} {'× serial':>9} {'identical':>9}")
     for name, w, t, same in rows:
-        print(f"{name:>18} {w:7d} {t:9.2f} {n * n / t:9.0f} {t_serial / t:9.2f} {str(same):>9}")
+        print(f"{name:>18} {w:7d} {t:9.2f} {n * n / t:9.0f} {t_serial / t:9.2f} {same!s:>9}")
     print("(process-pool and dask times include starting the workers)\n")
 
     # overhead per task: tasks of one point against the in-process time of the same verdicts

@@ -632,7 +632,8 @@ def _cmd_certify_fleet(args: argparse.Namespace) -> int:
 
     try:
         with STOP.install():
-            res = certify_fleet(scenes, out, executor=ex, seed=seed, extra_args=extra, progress=said)
+            res = certify_fleet(scenes, out, executor=ex, seed=seed, extra_args=extra, progress=said,
+                                should_stop=lambda: STOP.requested)
     finally:
         ex.close()
     if args.json:
@@ -655,6 +656,7 @@ def _cmd_certify_fleet(args: argparse.Namespace) -> int:
         con.print(tab)
         con.print(f"[bold]fleet decision: [{colour[res.decision]}]{res.decision}[/][/bold] (the worst scene)")
         con.print(f"index: {escape(str(out / 'index.html'))}")
+    STOP.check()  # a signal stopped the fleet: exit 130 / 20 after the summary and the index
     return res.exit_code
 
 

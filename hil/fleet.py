@@ -133,6 +133,14 @@ def transport_groups(scenes: Sequence[Any]) -> list[list[int]]:
     return sorted(groups.values())
 
 
+def _default_sigint() -> None:
+    """In the child ``hil certify``: SIGINT back to its default (the pool's workers ignore it, and an
+    ignored signal would be inherited), so a Ctrl-C reaches every scene's own safe stop."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _certify_group(items: list[tuple[str, str, int | None, list[str]]]) -> list[dict[str, Any]]:
     """Run ``hil certify`` for each (scene, out, seed, extra args) one after another (a worker task)."""
     results = []
@@ -141,7 +149,7 @@ def _certify_group(items: list[tuple[str, str, int | None, list[str]]]) -> list[
         if seed is not None:
             cmd += ["--seed", str(seed)]
         t0 = time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        proc = subprocess.run(cmd, capture_output=True, text=True, check=False, preexec_fn=_default_sigint)
         results.append({"scene": scene, "out": out, "code": proc.returncode, "stdout": proc.stdout,
                         "stderr": proc.stderr, "seconds": time.perf_counter() - t0})
     return results
@@ -161,9 +169,12 @@ def _entry(r: dict[str, Any], name: str, simulated: bool) -> FleetEntry:
 
 def certify_fleet(scenes: Sequence[str], out_root: str | Path, *, executor: Any = None, seed: int | None = None,
                   extra_args: Sequence[str] = (),
-                  progress: Callable[[int, int, FleetEntry], None] | None = None) -> FleetResult:
+                  progress: Callable[[int, int, FleetEntry], None] | None = None,
+                  should_stop: Callable[[], bool] | None = None) -> FleetResult:
     """Certify every scene (names or files) into ``out_root/<scene name>``; see the module docstring.
-    ``executor`` is a :class:`hil.sweep.Executor` (default a local process pool)."""
+    ``executor`` is a :class:`hil.sweep.Executor` (default a local process pool). When
+    ``should_stop()`` turns true no further scene is started (those running finish or stop on their
+    own signal handling); the scenes not run are ERROR entries saying so, and the index is written."""
     from hil.scene import load_scene
     from hil.sweep import ProcessExecutor
 
@@ -184,9 +195,15 @@ def certify_fleet(scenes: Sequence[str], out_root: str | Path, *, executor: Any 
                 entries[i] = _entry(r, names[i], loaded[i].simulation is not None)
                 if progress is not None:
                     progress(len(entries), len(args), entries[i])
+            if should_stop is not None and should_stop():
+                break  # closing the generator cancels the scenes not started yet
     finally:
         if executor is None:
             ex.close()
+    for i in range(len(args)):
+        if i not in entries:
+            entries[i] = FleetEntry(args[i], names[i], "ERROR", ["not run: the fleet was stopped"], -1,
+                                    str(root / names[i]), 0.0, {}, loaded[i].simulation is not None)
     res = FleetResult([entries[i] for i in range(len(args))], root)
     write_index(res)
     return res

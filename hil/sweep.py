@@ -39,7 +39,7 @@ import os
 import re
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -388,17 +388,35 @@ class ProcessExecutor(Executor):
         self._pool: ProcessPoolExecutor | None = None
 
     def map_unordered(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> Iterator[tuple[int, Any]]:
+        """At most ``workers`` tasks in flight: a task is handed out only after the consumer took
+        the previous result, so a consumer that stops (a signal) starts nothing new."""
+        from concurrent.futures import FIRST_COMPLETED, wait
+
         if self._pool is None:
             import multiprocessing as mp
 
             self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"),
                                              initializer=_ignore_sigint)
-        futs = {self._pool.submit(fn, *t): i for i, t in enumerate(tasks)}
+        todo = iter(enumerate(tasks))
+        pending: dict[Any, int] = {}
+
+        def fill() -> None:
+            assert self._pool is not None
+            for i, t in todo:
+                pending[self._pool.submit(fn, *t)] = i
+                if len(pending) >= self.workers:
+                    return
+
+        fill()
         try:
-            for f in as_completed(futs):
-                yield futs[f], f.result()
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for f in done:
+                    i = pending.pop(f)
+                    yield i, f.result()
+                fill()
         finally:
-            for f in futs:
+            for f in pending:
                 f.cancel()
 
     def close(self) -> None:
@@ -434,16 +452,34 @@ class DaskExecutor(Executor):
             self._own = True
 
     def map_unordered(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> Iterator[tuple[int, Any]]:
+        """At most two tasks per worker thread in flight (a stopped consumer starts little new)."""
         from distributed import as_completed as dask_completed
 
-        futs = [self.client.submit(fn, *t, pure=False) for t in tasks]
-        index = {f.key: i for i, f in enumerate(futs)}
+        limit = max(1, 2 * sum(self.client.nthreads().values()))
+        todo = iter(enumerate(tasks))
+        index: dict[Any, int] = {}  # future key -> task index
+        live: dict[Any, Any] = {}  # future key -> future not yet consumed
+        seq = dask_completed()
+        for i, t in todo:
+            f = self.client.submit(fn, *t, pure=False)
+            index[f.key] = i
+            live[f.key] = f
+            seq.add(f)
+            if len(index) >= limit:
+                break
         try:
-            for f in dask_completed(futs):
+            for f in seq:
+                live.pop(f.key, None)
                 yield index[f.key], f.result()
+                for i, t in todo:
+                    g = self.client.submit(fn, *t, pure=False)
+                    index[g.key] = i
+                    live[g.key] = g
+                    seq.add(g)
+                    break
         finally:
-            for f in futs:
-                f.cancel()
+            if live:
+                self.client.cancel(list(live.values()))
 
     def close(self) -> None:
         if self._own:

@@ -107,3 +107,25 @@ def test_fleet_refuses_bad_scene_before_running(tmp_path) -> None:
     assert not (tmp_path / "f").exists()
     p = _hil("certify", "sdea_bench", "sdea_bench", "--out", str(tmp_path / "g"))
     assert p.returncode == 2 and "share the name" in p.stderr
+
+
+def test_sigint_stops_the_fleet_with_a_summary(tmp_path) -> None:
+    """SIGINT to the fleet: no new scene starts, the index is written, exit 130."""
+    import signal
+    import time
+
+    out = tmp_path / "f"
+    proc = subprocess.Popen([sys.executable, "-m", "hil", "certify", "sdea_bench", "mbk_2dof_bench", "dual_master_3dof",
+                             "--no-experiments", "--workers", "1", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not (out / "sdea_bench" / "certificate.json").exists() \
+            and not (out / "mbk_2dof_bench" / "certificate.json").exists():
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _o, err = proc.communicate(timeout=300)
+    assert proc.returncode == 130, err
+    assert "stopped: signal: SIGINT" in err
+    doc = json.loads((out / "fleet.json").read_text())
+    assert len(doc["scenes"]) == 3 and doc["decision"] == "ERROR"  # the scenes are all listed
+    assert (out / "index.html").exists()
