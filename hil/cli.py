@@ -276,6 +276,88 @@ def _cmd_design(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------------------------
+# hil sweep
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from hil.models import get_model, model_names
+    from hil.stopflag import STOP, StopRequested
+    from hil.sweep import SweepSpec, iter_table, make_executor, parse_grid, plot_sweep, run_sweep, save_sweep
+
+    if bool(args.model) == bool(args.scene):
+        raise UsageError("give either --model NAME or --scene SCENE (the network of its certification)")
+    scene = None
+    if args.scene:
+        from hil.scene import load_scene
+
+        scene = load_scene(args.scene)
+        args.model = scene.certification.model
+    try:
+        m = get_model(args.model)
+    except KeyError:
+        raise UsageError(f"--model {args.model}: unknown model{_suggest(args.model, model_names())}; "
+                         f"known: {', '.join(model_names())}") from None
+    axes = [parse_grid(g) for g in args.grid]
+    params = _parse_set(args.set or [], m.defaults, f"model {m.name}")
+    posterior = None
+    if args.posterior:
+        from hil.sweep import posterior_from_record
+
+        path, _, name = args.posterior.partition(":")
+        posterior = posterior_from_record(path, name or None, args.model)
+    if args.required is not None and not 0 < args.required < 1:
+        raise UsageError(f"--required {args.required:g}: a probability in (0, 1)")
+    kw = {"refine": not args.no_refine, "boundary_tol": args.boundary_tol, "posterior": posterior,
+          "n_draws": args.draws, "chunk": args.chunk}
+    spec = (SweepSpec.from_scene(scene, axes, params, args.criterion, **kw) if scene is not None
+            else SweepSpec(args.model, axes, params, args.criterion, **kw))
+    spec.validate()
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers {args.workers}: give at least 1")
+    executor = "dask" if args.scheduler else args.executor
+    cache = None if args.no_cache else (args.cache or ".hil-cache/sweep")
+    out = _out_dir(args.out, f"reports/sweep-{scene.name if scene is not None else args.model}", args.overwrite)
+    ex = make_executor(executor, args.workers, args.scheduler)
+    bar = _SweepProgress(f"hil sweep {args.model}", enabled=not args.json)
+    try:
+        with STOP.install(), bar:
+            res = run_sweep(spec, ex, cache, progress=bar.update, should_stop=STOP.check)
+    except StopRequested as exc:
+        raise StopRequested(f"{exc}: the finished tasks are cached in {cache}; run the same command "
+                            "again to resume" if cache else f"{exc} (no cache: nothing kept)", exc.status) from None
+    finally:
+        ex.close()
+    files = {"table": save_sweep(res, out / "sweep.h5")}
+    if len(res.boundary["points"]):
+        import numpy as np
+
+        hdr = ",".join([*res.names, "axis", "stable_end", "unstable_end"])
+        rows = np.column_stack([res.boundary["points"], res.boundary["axis"], res.boundary["bracket"]])
+        np.savetxt(out / "boundary.csv", rows, delimiter=",", header=hdr, comments="", fmt="%.10g")
+        files["boundary"] = out / "boundary.csv"
+    from hil.protocols.registry import missing_extras
+
+    if not args.no_plot and not missing_extras(report=True):
+        files["map"] = plot_sweep(res, out / "sweep.png", args.required)
+    from collections import Counter
+
+    counts = Counter(r["verdict"] for r in iter_table(res))
+    if args.json:
+        print(json.dumps({"model": args.model, "criterion": spec.criterion_name, "points": int(res.verdict.size),
+                          "verdicts": dict(counts), "boundary_points": len(res.boundary["points"]),
+                          "evaluations": res.evaluations, "cache_hits": res.cache_hits, "timings": res.timings,
+                          "files": {k: str(v) for k, v in files.items()}}, indent=2))
+    else:
+        print(f"{args.model} ({spec.criterion_name}): {res.verdict.size} grid points, "
+              + ", ".join(f"{v} {k}" for k, v in sorted(counts.items()))
+              + f"; {len(res.boundary['points'])} boundary points refined; {res.evaluations} exact verdicts "
+              f"({res.cache_hits} tasks from the cache) in {res.timings['total_s']:.1f} s")
+        for k, v in files.items():
+            print(f"{k}: {v}")
+    return EXIT_OK
+
+
+# ---------------------------------------------------------------------------------------------
 # hil scenes / hil run / hil replay
 
 
@@ -498,6 +580,11 @@ def _cmd_certify(args: argparse.Namespace) -> int:
     from hil.protocols.registry import extras_message
     from hil.scene import check_seed, load_scene
 
+    if len(args.scene) > 1 or (args.scene and Path(args.scene[0]).is_dir()):
+        return _cmd_certify_fleet(args)
+    if args.workers is not None or args.scheduler:
+        raise UsageError("--workers and --scheduler apply to a fleet (several scenes or a folder)")
+    args.scene = args.scene[0] if args.scene else None
     scene = load_scene(args.scene or "sdea_bench")
     if args.seed is not None:
         scene.seed = check_seed(args.seed)
@@ -566,6 +653,63 @@ def _cmd_certify(args: argparse.Namespace) -> int:
             print(f"digest: {cert.integrity.digest}{signed}")
             print(f"check with: hil verify {out}")
     return DECISION_EXIT[cert.decision]
+
+
+def _cmd_certify_fleet(args: argparse.Namespace) -> int:
+    from hil.fleet import certify_fleet, expand_scenes
+    from hil.protocols.registry import extras_message
+    from hil.scene import check_seed, load_scene
+    from hil.sweep import make_executor
+
+    if args.sign or args.signer:
+        raise UsageError("--sign signs one certificate: sign the scenes of a fleet one by one")
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers {args.workers}: give at least 1")
+    scenes = expand_scenes(args.scene)
+    seed = None if args.seed is None else check_seed(args.seed)
+    for s in scenes:  # every scene loads and has its extras before anything runs or is written
+        sc = load_scene(s)
+        if need := extras_message(None if args.no_experiments else sc, report=True):
+            print(f"hil certify {s}: {need}", file=sys.stderr)
+            return EXIT_USAGE
+    ex = make_executor("dask" if args.scheduler else "process", args.workers, args.scheduler)
+    out = _out_dir(args.out, "reports/fleet", args.overwrite)
+    extra = ["--no-experiments"] if args.no_experiments else []
+
+    def said(done: int, total: int, e: Any) -> None:
+        if not args.json:
+            print(f"[{done}/{total}] {e.name}: {e.decision} ({e.seconds:.0f} s)", file=sys.stderr)
+
+    from hil.stopflag import STOP
+
+    try:
+        with STOP.install():
+            res = certify_fleet(scenes, out, executor=ex, seed=seed, extra_args=extra, progress=said,
+                                should_stop=lambda: STOP.requested)
+    finally:
+        ex.close()
+    if args.json:
+        print(json.dumps(res.to_dict(), indent=2))
+    else:
+        from rich.console import Console
+        from rich.markup import escape
+        from rich.table import Table
+
+        con = Console(highlight=False, soft_wrap=True)
+        colour = {"GO": "green", "MARGINAL": "yellow", "NO-GO": "red", "ERROR": "magenta"}
+        tab = Table(title=f"fleet: {len(res.entries)} scene(s)")
+        for col in ("scene", "decision", "bench", "time [s]"):
+            tab.add_column(col, no_wrap=True)
+        tab.add_column("first reason", min_width=20)
+        for e in res.entries:
+            tab.add_row(escape(e.name), f"[{colour[e.decision]}]{e.decision}[/]",
+                        "simulated" if e.simulated else "real", f"{e.seconds:.1f}",
+                        escape(e.reasons[0] if e.reasons else ""))
+        con.print(tab)
+        con.print(f"[bold]fleet decision: [{colour[res.decision]}]{res.decision}[/][/bold] (the worst scene)")
+        con.print(f"index: {escape(str(out / 'index.html'))}")
+    STOP.check()  # a signal stopped the fleet: exit 130 / 20 after the summary and the index
+    return res.exit_code
 
 
 def _short_value(v: Any) -> str:
@@ -655,6 +799,35 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--json", action="store_true")
     d.set_defaults(func=_cmd_design)
 
+    sw = add("sweep", help="stability map of a built-in model over 1-3 parameters, boundary refined "
+                           "by bisection (see README, Stability maps)")
+    sw.add_argument("--model", help="built-in model (hil stability --list-models)")
+    sw.add_argument("--scene", help="sweep the network a scene certifies (its model, gains and plant)")
+    sw.add_argument("--grid", action="append", required=True, metavar="NAME=LO:HI:N",
+                    help="swept parameter (repeatable, 1-3; NAME=log:LO:HI:N for log spacing)")
+    sw.add_argument("--set", action="append", metavar="PARAM=VALUE", help="fix a model parameter (repeatable)")
+    sw.add_argument("--criterion", choices=["positive_real", "passivity", "llewellyn", "absolute_stability"],
+                    help="criterion (default: the model's)")
+    sw.add_argument("--no-refine", action="store_true", help="grid only: no bisection of the boundary")
+    sw.add_argument("--boundary-tol", type=float, default=1e-4,
+                    help="bisect each crossing to this fraction of the grid step (default 1e-4)")
+    sw.add_argument("--posterior", metavar="RECORD[:NAME]",
+                    help="also P(stable) per point over a stored identification's posterior draws")
+    sw.add_argument("--draws", type=int, default=200, help="posterior draws per point (default 200)")
+    sw.add_argument("--required", type=float, help="draw the P(stable) contour at this probability")
+    sw.add_argument("--executor", choices=["process", "serial", "dask"], default="process",
+                    help="where tasks run (default: a local process pool)")
+    sw.add_argument("--workers", type=int, help="processes (default: all cores)")
+    sw.add_argument("--scheduler", metavar="ADDR", help="Dask scheduler address (tcp://host:8786; extra 'dask')")
+    sw.add_argument("--chunk", type=int, default=64, help="grid points per task (default 64)")
+    sw.add_argument("--cache", metavar="DIR", help="task cache (default .hil-cache/sweep): a rerun resumes")
+    sw.add_argument("--no-cache", action="store_true", help="neither read nor write the task cache")
+    sw.add_argument("--out", help="output folder (default reports/sweep-<model>-<UTC time>-<id>)")
+    sw.add_argument("--overwrite", action="store_true", help="write into an existing non-empty --out")
+    sw.add_argument("--no-plot", action="store_true", help="no sweep.png")
+    sw.add_argument("--json", action="store_true", help="print one JSON object")
+    sw.set_defaults(func=_cmd_sweep)
+
     sc = add("scenes", help="list the built-in scenes")
     sc.add_argument("--json", action="store_true")
     sc.set_defaults(func=_cmd_scenes)
@@ -685,7 +858,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     ce = add("certify", help="experiments -> identification -> criteria over the posterior -> "
                                          "GO / MARGINAL / NO-GO report (default: the mocked SDEA bench)")
-    ce.add_argument("scene", nargs="?", help="scene file or built-in name (default sdea_bench)")
+    ce.add_argument("scene", nargs="*", help="scene file, built-in name or folder of scenes (default "
+                    "sdea_bench); several: a fleet certified in parallel (see README, Fleet certification)")
+    ce.add_argument("--workers", type=int, help="fleet: parallel scenes (default: all cores)")
+    ce.add_argument("--scheduler", metavar="ADDR", help="fleet: run on a Dask scheduler (tcp://host:8786; "
+                    "extra 'dask')")
     ce.add_argument("--out", help="output folder (default reports/<scene>-<UTC time>-<id>); an existing "
                     "non-empty folder is refused unless --overwrite")
     ce.add_argument("--overwrite", action="store_true", help="write into an existing --out folder, replacing "
@@ -911,6 +1088,43 @@ def _guarded(cmd: str, debug: bool, fn: Callable[[], Any]) -> int:
         if failed:
             _cleanup_created()
         _CREATED.clear()
+
+
+class _SweepProgress(_Progress):
+    """Points done and time left: a rich bar on a TTY, otherwise a line every few seconds."""
+
+    def __init__(self, label: str, enabled: bool = True) -> None:
+        super().__init__(label, enabled=enabled and not sys.stderr.isatty())
+        self._tty = enabled and sys.stderr.isatty()
+        self._bar: Any = None
+        self._task: Any = None
+        self._t_phase = time.monotonic()
+        self._last_total = -1
+        self._n_phase = 0
+
+    def update(self, done: int, total: int) -> None:  # type: ignore[override]
+        if total != self._last_total:
+            self._t_phase, self._last_total = time.monotonic(), total
+            self._n_phase += 1
+        el = time.monotonic() - self._t_phase
+        left = (el / done * (total - done)) if done else float("nan")
+        phase = "grid points" if self._n_phase <= 1 else "boundary segments"
+        self.message = f"{done}/{total} {phase}, about {left:.0f} s left"
+        if self._tty:
+            if self._bar is None:
+                from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+
+                self._bar = Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
+                                     TimeRemainingColumn(), transient=True)
+                self._bar.start()
+            if self._task is None or self._bar.tasks[-1].total != total:
+                self._task = self._bar.add_task(f"{self.label} ({phase})", total=total)
+            self._bar.update(self._task, completed=done)
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._bar is not None:
+            self._bar.stop()
+        super().__exit__(*exc)
 
 
 def _split_globals(argv: list[str]) -> tuple[bool, list[str]]:

@@ -111,7 +111,10 @@ def test_scene_that_is_a_directory(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     monkeypatch.chdir(tmp_path)
     d = tmp_path / "scene.yaml"
     d.mkdir()
-    _one_line_error(["certify", str(d), "--out", str(tmp_path / "x")], capsys, ["scene.yaml: cannot read"])
+    _one_line_error(["run", str(d), "--out", str(tmp_path / "x")], capsys, ["scene.yaml: cannot read"])
+    assert not (tmp_path / "x").exists()
+    # hil certify takes a folder as a fleet of scenes: an empty one is refused before anything is written
+    _one_line_error(["certify", str(d), "--out", str(tmp_path / "x")], capsys, ["holds no scene files"])
     assert not (tmp_path / "x").exists()
 
 
