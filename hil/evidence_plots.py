@@ -311,3 +311,46 @@ def witness_response(w: Any, plots: dict[str, Series], scene: Any = None) -> dic
 witness_response.FIELDS = ("closed_loop_poles", "growth_rate_1_s", "drive_amplitude", "limits",  # type: ignore[attr-defined]
                            "limit_exceeded", "time_to_limit_s", "energy_to_limit_J")
 
+
+
+# ---------------------------------------------------------------------------------------------
+# design headroom
+
+
+def headroom_plot(plots: dict[str, Series], cert_cfg: Any, params: Any, draws: Any, policy: Any,
+                  design: Any, n_grid: int = 41) -> None:
+    """P(stable) and its lower confidence bound against the SDEA design parameter (k22 or b22)
+    over the scene's design range, with the requirement, the current value and the largest value
+    meeting the requirement (where the lower bound crosses it: the headroom) marked."""
+    from hil.certify import probability_of_stability
+    from hil.stability.batch import sdea_passivity_batch
+
+    d = cert_cfg.design
+    if cert_cfg.model != "sdea" or d is None or d.parameter not in ("k22", "b22") or design is None:
+        return
+    fixed = {k: float(v) for k, v in params.items() if isinstance(v, int | float)}
+    n = len(next(iter(draws.values())))
+    xs = np.linspace(float(d.range[0]), float(d.range[1]), n_grid)
+    if design.max_value is not None and math.isfinite(design.max_value):
+        xs = np.unique(np.concatenate([xs, [design.max_value]]))
+    phat, lower = [], []
+    for x in xs:
+        dd = dict(draws)
+        dd[d.parameter] = np.full(n, x)
+        p, lo, _ = probability_of_stability(sdea_passivity_batch(dd, fixed=fixed)["passive"], policy.confidence)
+        phat.append(p)
+        lower.append(lo)
+    unit = design.unit or parameter_unit(d.parameter, "rotary", "sdea")
+    pts: dict[str, tuple[float, float]] = {}
+    vl: dict[str, float] = {}
+    if design.max_value is not None and math.isfinite(design.max_value):
+        pts[f"requirement crossing: {d.parameter} = {design.max_value:.4g} {unit}"] = (
+            float(design.max_value), float(policy.required_probability))
+    if design.current is not None:
+        vl[f"current {d.parameter}"] = float(design.current)
+    plots["headroom"] = Series(
+        title=f"Headroom: P(stable) against {d.parameter} (the lower {policy.confidence:.0%} bound must stay "
+              f"≥ {policy.required_probability})", x=xs.tolist(), x_label=f"{d.parameter} [{unit}]",
+        y_label="P(stable) [1]", lines={"P̂(stable)": _clean(phat), f"lower {policy.confidence:.0%} bound":
+                                        _clean(lower)},
+        points=pts, vlines=vl, hline=float(policy.required_probability))

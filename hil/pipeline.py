@@ -477,6 +477,7 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                 measurements.append(Measurement(name=f"largest {design.parameter} at P ≥ {policy.required_probability}",
                                                 value=design.max_value, outcome="INFO", unit=design.unit,
                                                 description=design.note))
+                opt.run("plots (headroom)", _headroom_plot, plots, cert, params, draws, policy, design)
 
     # 7. decision ---------------------------------------------------------------------------------
     dec, reasons, _prob = decide(None if nominal_res is None else str(nominal_res.verdict),
@@ -873,3 +874,13 @@ def _bode_plot(plots: dict[str, Series], model: str, params: Mapping[str, Any], 
                            y_label=immittance_db_label(tm0.kind, units), log_x=True,
                            lines={"median": db(q50)},
                            bands={"90 % credible": (db(q05), db(q95))})
+
+
+def _headroom_plot(plots: dict[str, Series], cert_cfg: Any, params: Mapping[str, Any],
+                   draws: Mapping[str, np.ndarray], policy: Policy, design: Design) -> None:
+    """P(stable) against the design parameter, requirement crossing marked; see
+    :func:`hil.evidence_plots.headroom_plot`."""
+    from hil.evidence_plots import headroom_plot
+
+    headroom_plot(plots, cert_cfg, params, draws, policy, design)
+
