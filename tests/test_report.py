@@ -147,7 +147,7 @@ def two_port_nogo() -> Certificate:
         ],
         nominal={"network": "bilateral_2dof", "criterion": "absolute_stability", "verdict": "potentially_unstable",
                  "margin": -0.21, "worst_frequency": 12.5, "failed_condition": "B2", "weak": False,
-                 "parameters": {"m1": 1.0, "m2": 1.0}, "conditions": [
+                 "parameters": {"mm_yy": 1.0, "ms_yy": 1.0}, "conditions": [
                      {"name": "A", "label": "cycle products", "status": "satisfied", "margin": 0.5,
                       "worst_frequency": 3.0},
                      {"name": "B2", "label": "η(ω) ≥ 1 on block 2", "status": "violated", "margin": -0.21,
