@@ -211,10 +211,13 @@ def decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
     if wf is not None and math.isfinite(wf) and wf > 0:
         pts[f"worst: {shown.name} = {shown.margin:.3g} at ω = {wf:.4g} rad/s"] = (float(wf), float(shown.margin))
         vl["worst frequency"] = float(wf)
-    which = "decisive" if shown is dec else f"decisive: {dec.name} (residue, right); frequency condition with the " \
-                                            f"{'most negative' if shown.status == 'violated' else 'smallest'} margin"
+    if shown is dec:
+        title = f"Decisive condition {shown.name} ({r.criterion})"
+    else:
+        title = (f"Decisive condition {dec.name}: a residue (bars, right)\nfrequency condition with the "
+                 f"{'most negative' if shown.status == 'violated' else 'smallest'} margin: {shown.name}")
     plots["decided"] = Series(
-        title=f"{which}: {shown.name} ({r.criterion})", x=_clean(w), x_label="ω [rad/s]",
+        title=title, x=_clean(w), x_label="ω [rad/s]",
         y_label="normalized margin [1]", log_x=True, lines={f"{shown.name}: {shown.label}": _clean(y)},
         points=pts, vlines=vl, hline=0.0, shade_negative=True, bars=residues)
 

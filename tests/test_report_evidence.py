@@ -111,7 +111,7 @@ def test_nogo_plots_its_decisive_condition_below_zero(bilateral_b):
     # the decision's own failed condition (an imaginary-axis residue) is shown as its residue margin
     dec = decisive_condition(r)
     assert dec.name == r.failed_condition and s.bars[dec.name] == pytest.approx(dec.margin) and dec.margin < 0
-    assert dec.name in s.title
+    assert dec.name in s.title and worst.name in s.title
 
 
 def test_go_plots_the_condition_with_the_smallest_margin():
