@@ -44,7 +44,8 @@ def _clean(a: Any) -> list[float | None]:
 
 
 def _db(a: Any) -> list[float | None]:
-    return _clean(20 * np.log10(np.maximum(np.abs(np.asarray(a, float)), 1e-300)))
+    """20 log10 |a| (a real or complex)."""
+    return _clean(20 * np.log10(np.maximum(np.abs(np.asarray(a)), 1e-300)))
 
 
 def immittance_db_label(kind: str, units: str | None) -> str:
@@ -90,7 +91,8 @@ def identification_plots(plots: dict[str, Series], name: str, res: Any, seed: in
             r = (Hm[:, o, i] - H) / np.where(sig > 0, sig, np.nan)
         n = len(f)
         plots[f"frf_{name}_{o}"] = Series(
-            title=f"FRF fit ({name}): {ins} → {outs}", x=f, x_label="f [Hz]", y_label=f"|H| [dB re 1 {u}]",
+            title=f"FRF fit ({name}): {ins} → {outs}", x=f, x_label="f [Hz]",
+            y_label=f"|H| [dB re 1 {u}]" if u != "1" else "|H| [dB re 1]",
             log_x=True,
             lines={"posterior median": _db(Hm[:, o, i]), "measured H1": _db(H)},
             bands={"posterior median": (_db(q05), _db(q95)), "measured H1": (_db(lo_m), _db(hi_m))},

@@ -828,7 +828,7 @@ def _critical_band_plot(plots: dict[str, Series], params: Mapping[str, Any], dra
     thr = gmin + CRITICAL_BAND_FRACTION * (1.0 - gmin)
     plots["critical_band"] = Series(
         title="Critical band: the coupler condition (c-ii) within 10 % of its minimum",
-        x=w.tolist(), x_label="ω [rad/s]", y_label="g(ω) = t(ω²)/|t|(ω²)", log_x=True,
+        x=w.tolist(), x_label="ω [rad/s]", y_label="g(ω) = t(ω²)/|t|(ω²) [1]", log_x=True,
         lines={"posterior mean": _clean(gm), "10 % threshold (posterior mean)": [thr] * w.size},
         bands={"5-95 % over the draws": (_clean(q05), _clean(q95))},
         points={"worst (posterior mean)": (float(w[int(np.nanargmin(gm))]), gmin),

@@ -280,7 +280,8 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
         if scatter:
             ax.plot(x, y, linestyle="none", marker=".", markersize=3, alpha=0.6, color=c, label=_mtext(name))
         elif name.startswith("measured"):  # measured data as markers over the fit: never hidden under it
-            ax.plot(x, y, linestyle="none", marker="o", markersize=2.2, color=c, label=_mtext(name), zorder=4)
+            ax.plot(x, y, linestyle="none", marker="o", markersize=1.6, alpha=0.6, color=c, label=_mtext(name),
+                    zorder=4)
         else:
             ax.plot(x, y, color=c, linewidth=1.4, label=_mtext(name), zorder=3)
         drawn += int(np.isfinite(y).any())
@@ -374,6 +375,10 @@ def _corner_png(s: Series, dpi: int) -> Any:
                       label_kwargs={"fontsize": 8}, max_n_ticks=3, plot_datapoints=True)
         for ax in fig.axes:
             ax.tick_params(labelsize=6)
+            for axis in (ax.xaxis, ax.yaxis):  # plain numbers, no "1e-12+3.62e2" offsets
+                fm = axis.get_major_formatter()
+                if hasattr(fm, "set_useOffset"):
+                    fm.set_useOffset(False)
     else:
         axes = fig.subplots(k, k, squeeze=False)
         for r in range(k):
@@ -1023,7 +1028,11 @@ def _pdf_block_flow(doc: _PdfDoc, cert: Certificate) -> None:
     floating: list[Series] = []
     for sec in report_sections(cert):
         floating = _pdf_section(doc, cert, sec, floating)
+    for f in floating:
+        doc.figure(f)
     st = doc.integrity
+    # the integrity block is kept together: a last page never holds only its tail
+    doc.ensure(0.55 + 0.75 + 0.16 * (len(cert.evidence) + 1) + 0.4)
     doc.heading("Evidence and integrity", 12)
     doc.kv([("digest (sha256, hil-c14n/1)", _digest_text(st)), ("electronic signature", st.signature_text())],
            size=7.5)
@@ -1031,8 +1040,6 @@ def _pdf_block_flow(doc: _PdfDoc, cert: Certificate) -> None:
         doc.table(["evidence", "role", "bytes [B]", "sha256"], [[e.path, e.role, str(e.bytes), e.sha256]
                                                                  for e in cert.evidence], size=6.5)
     doc.para(_evidence_note(st), 8, color="#444444" if st.valid else "#8e1616")
-    for f in floating:
-        doc.figure(f)
 
 
 def _pdf_section(doc: _PdfDoc, cert: Certificate, sec: Section, carried: list[Series] | None = None

@@ -48,6 +48,9 @@ def parameter_unit(name: str, units: str | None, model: str = "") -> str:
         return _SDEA[name]
     if name == "alpha":
         return "1"
+    m = re.fullmatch(r"([MBK])_\d+", name)  # entries of an identified M, B, K matrix (mbk models)
+    if m:
+        return quantity_unit({"M": "mass", "B": "damping", "K": "stiffness"}[m.group(1)], units)
     if re.fullmatch(r"k_p.*", name):  # PD position gains: a stiffness
         return quantity_unit("stiffness", units)
     if re.fullmatch(r"k_v.*", name):  # PD velocity gains: a damping

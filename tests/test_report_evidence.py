@@ -254,3 +254,58 @@ def test_schema_round_trip_of_the_new_fields():
                           bars={"D[ω=0]": -0.1}, vlines={"w": 1.5}, shade_negative=True)
     again = Certificate.model_validate_json(c.model_dump_json())
     assert again == c
+
+
+# ---------------------------------------------------------------------------------------------
+# identification plots
+
+
+def test_identification_plots_show_magnitude_phase_coherence_residuals_and_the_corner():
+    """A first-order plant H = g/(1 + jω/a) (velocity/torque, rotary): the plotted magnitude and
+    phase are those of the complex H1 (20 log10 |H|, unwrapped angle), the coherence band follows
+    Bendat & Piersol, the residual is (model − H1)/σ, and every axis carries its unit."""
+    from types import SimpleNamespace
+
+    from hil.evidence_plots import identification_plots
+
+    f = np.geomspace(1.0, 200.0, 60)
+    w = 2 * np.pi * f
+
+    def frf(theta, ww):
+        th = np.atleast_2d(theta)
+        H = th[:, 0, None] / (1 + 1j * ww[None, :] / th[:, 1, None])
+        out = H[:, :, None, None]
+        return out[0] if np.ndim(theta) == 1 else out
+
+    H1 = frf(np.array([2.0, 60.0]), w) * (1 + 0.01j)
+    coh = np.full((f.size, 1), 0.9)
+    sigma = np.full((f.size, 1, 1), 0.01)
+    est = SimpleNamespace(f=f, w=w, H=H1, coherence=coh, sigma=sigma, n_avg=8.0, input_names=("torque",),
+                          output_names=("velocity",))
+    rng = np.random.default_rng(0)
+    samples = np.column_stack([2.0 + 0.01 * rng.standard_normal(400), 60.0 + 0.5 * rng.standard_normal(400)])
+    model = SimpleNamespace(n_params=2, frf=frf, names=("g", "a"), units=("rad/(N.m.s)", "rad/s"))
+    res = SimpleNamespace(frf=est, model=model, posterior=SimpleNamespace(samples=samples), names=("g", "a"))
+    plots: dict[str, Series] = {}
+    identification_plots(plots, "chirp", res, 0, "rotary")
+    s = plots["frf_chirp_0"]
+    assert s.y_label == "|H| [dB re 1 (rad/s)/(N.m)]"
+    mag = np.array(s.lines["measured H1"])
+    assert mag == pytest.approx(20 * np.log10(np.abs(H1[:, 0, 0])), abs=1e-9)
+    phase, coherence, resid = s.panels
+    assert np.array(phase.lines["measured H1"]) == pytest.approx(np.degrees(np.unwrap(np.angle(H1[:, 0, 0]))),
+                                                                 abs=1e-6)
+    assert coherence.lines["coherence γ²"] == pytest.approx([0.9] * f.size)
+    # confidence band: |H1| (1 ± 2ε), ε = √(1 − γ²)/(|γ| √(2 n_d))
+    eps = math.sqrt(0.1) / (math.sqrt(0.9) * math.sqrt(16.0))
+    lo, hi = s.bands["measured H1"]
+    assert np.array(hi) - mag == pytest.approx(20 * math.log10(1 + 2 * eps), abs=1e-9)
+    assert mag - np.array(lo) == pytest.approx(-20 * math.log10(1 - 2 * eps), abs=1e-9)
+    Hm = frf(np.median(samples, axis=0), w)[:, 0, 0]
+    assert np.array(resid.lines["real part"]) == pytest.approx(((Hm - H1[:, 0, 0]) / 0.01).real, rel=1e-9)
+    c = plots["corner_chirp"]
+    assert c.kind == "corner" and set(c.lines) == {"g [rad/(N.m.s)]", "a [rad/s]"}
+    cert = Certificate.model_validate({"created_utc": "x", "software": {}, "scene": {"name": "s", "sha256": "0"},
+                                       "decision": "GO", "reasons": [], "policy": {}, "measurements": [],
+                                       "plots": {k: v.model_dump() for k, v in plots.items()}})
+    assert missing_units(cert) == []
