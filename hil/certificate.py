@@ -97,6 +97,14 @@ class Series(_M):
     bands: dict[str, tuple[list[float | None], list[float | None]]] = Field(default_factory=dict)
     points: dict[str, tuple[float, float]] = Field(default_factory=dict)
     hline: float | None = None
+    # (additive, report issue 18) axis labels end with their unit in brackets: "ω [rad/s]", "[1]"
+    kind: Literal["xy", "corner"] = Field(default="xy", description="xy: lines over x; corner: a corner plot of "
+                                          "the ``lines`` (each a parameter's posterior draws, named 'p [unit]')")
+    shade_negative: bool = Field(default=False, description="shade where the first line is below 0 (a violation)")
+    vlines: dict[str, float] = Field(default_factory=dict, description="named x positions marked by vertical lines")
+    bars: dict[str, float] = Field(default_factory=dict, description="named values drawn as a bar chart panel (e.g. "
+                                   "imaginary-axis and infinity residue margins) beside the curve")
+    panels: list[Series] = Field(default_factory=list, description="further axes stacked beneath, sharing x")
 
 
 class SceneInfo(_M):
@@ -104,6 +112,8 @@ class SceneInfo(_M):
     sha256: str
     description: str = ""
     source: str = ""
+    units: Literal["linear", "rotary"] | None = Field(default=None, description="the scene's units: linear (N, m, "
+                                                       "m/s) or rotary (N.m, rad, rad/s); SI throughout")
 
 
 class ConditionRow(_M):
@@ -201,6 +211,21 @@ class Witness(_M):
     band_rad_s: tuple[float, float | str] | None
     margin: float
     simulation: dict[str, Any] = Field(default_factory=dict)
+    # (additive, report issue 18) what the destabilizing termination does, in SI units
+    units: Literal["linear", "rotary"] | None = None
+    closed_loop_poles: list[tuple[float, float]] = Field(default_factory=list, description="poles (re, im) [1/s] "
+                                                         "of the terminated network driven by a force at the operator "
+                                                         "port (poles of Y_in = Z_in⁻¹), right-half plane first")
+    growth_rate_1_s: float | None = Field(default=None, description="largest real part of the closed-loop poles [1/s] "
+                                          "(> 0: the response grows as e^(σt))")
+    drive_amplitude: float | None = Field(default=None, description="amplitude of the simulated drive force [N or N.m]")
+    limits: dict[str, float] = Field(default_factory=dict, description="the bench's safety limits compared against "
+                                     "(max_velocity [m/s or rad/s], max_position [m or rad], max_energy [J])")
+    limit_exceeded: str | None = Field(default=None, description="which limit the simulated response crosses first")
+    time_to_limit_s: float | None = Field(default=None, description="simulated time until the first limit is "
+                                          "exceeded [s]")
+    energy_to_limit_J: float | None = Field(default=None, description="port energy E_s = ∫ F·V dt at that time [J] "
+                                            "(negative: delivered by the network)")
 
 
 class MultiPort(_M):

@@ -259,7 +259,7 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
     if scene.certification is None:
         return Certificate(created_utc=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), software=_versions(),
                            scene=SceneInfo(name=scene.name, sha256=scene.sha256, description=scene.description,
-                                           source=scene.path),
+                                           source=scene.path, units=scene.units),
                            decision="ERROR", reasons=["the scene has no 'certification' section: nothing to certify"],
                            policy={}, measurements=[], errors=["no certification section"])
     cert = scene.certification
@@ -371,7 +371,7 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                         continue
                     draws[dst] = available[src]
                 opt.run(f"plots (identification {spec.experiment})", _identification_plots, plots,
-                        spec.experiment, res, seed)
+                        spec.experiment, res, seed, scene.units)
                 measurements.append(Measurement(name=f"posterior converged ({res.model.name})", value=res.converged,
                                                 outcome="PASS" if res.converged else "MARGINAL",
                                                 description="integrated autocorrelation time, ≥ 50 τ, acceptance, "
@@ -464,7 +464,7 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                                                      "region", value=wc, lower=0.0,
                                                 outcome=_margin_outcome(wc),
                                                 description="minimum of the margin by optimization"))
-            opt.run("plots (posterior Bode)", _bode_plot, plots, cert.model, params, draws, seed)
+            opt.run("plots (posterior Bode)", _bode_plot, plots, cert.model, params, draws, seed, scene.units)
             if fast and band is not None:
                 opt.run("plots (critical band)", _critical_band_plot, plots, params, draws, band)
 
@@ -477,6 +477,7 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                 measurements.append(Measurement(name=f"largest {design.parameter} at P ≥ {policy.required_probability}",
                                                 value=design.max_value, outcome="INFO", unit=design.unit,
                                                 description=design.note))
+                opt.run("plots (headroom)", _headroom_plot, plots, cert, params, draws, policy, design)
 
     # 7. decision ---------------------------------------------------------------------------------
     dec, reasons, _prob = decide(None if nominal_res is None else str(nominal_res.verdict),
@@ -498,7 +499,7 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
     unstable = nominal_res is not None and str(nominal_res.verdict) == "potentially_unstable"
     if cert.witness and unstable and tm is not None:
         with stage("witness"):
-            witness = opt.run("witness", _witness, tm, plots, opt)
+            witness = opt.run("witness", _witness, tm, plots, opt, scene)
         if witness is None:
             why = opt.failed.get("witness")
             reasons.append(f"no destabilizing passive termination reported: the witness search failed ({why})"
@@ -518,7 +519,8 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                                     description=", ".join(f"{k} {v:.1f} s" for k, v in timings.items())))
     return Certificate(
         created_utc=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), software=_versions(),
-        scene=SceneInfo(name=scene.name, sha256=scene.sha256, description=scene.description, source=scene.path),
+        scene=SceneInfo(name=scene.name, sha256=scene.sha256, description=scene.description, source=scene.path,
+                        units=scene.units),
         decision=str(dec), reasons=reasons, policy={"required_probability": policy.required_probability,
                                                     "confidence": policy.confidence, "credible": policy.credible},
         measurements=measurements, nominal=nominal, robust=robust, identification=idents or None, design=design,
@@ -681,9 +683,12 @@ def _design(cert: Any, params: Mapping[str, Any], draws: Mapping[str, np.ndarray
                        f"{policy.confidence:.0%} bound of P(stable) stays ≥ {policy.required_probability}")
 
 
-def _witness(tm: Any, plots: dict[str, Series], opt: _Optional) -> Witness | None:
+def _witness(tm: Any, plots: dict[str, Series], opt: _Optional, scene: Any = None) -> Witness | None:
     """Search a passive termination set and simulate the driven, terminated one-port exactly
-    (a failure of the simulation is recorded by ``opt``; the witness is kept without it)."""
+    (a failure of the simulation is recorded by ``opt``; the witness is kept without it). With the
+    scene, the witness says what a reader needs: the closed-loop poles the termination creates,
+    and when the response crosses the bench's safety limits (hil.evidence_plots.witness_response)."""
+    from hil.evidence_plots import witness_response
     from hil.stability.witness import find_witness, termination_family
 
     port = 0
@@ -691,93 +696,40 @@ def _witness(tm: Any, plots: dict[str, Series], opt: _Optional) -> Witness | Non
     w = find_witness(tm, port, cands, first=True)
     if w is None:
         return None
-    sim = opt.run("witness simulation", _simulate_witness, w, plots)
+    units = getattr(scene, "units", None)
+    sim = opt.run("witness simulation", _simulate_witness, w, plots, scene)
     if sim is None:
         sim = {"simulated": False, "reason": f"simulation failed: {opt.failed['witness simulation']}"}
     band = None if w.band_rad_s is None else (float(w.band_rad_s[0]),
                                              "inf" if math.isinf(w.band_rad_s[1]) else float(w.band_rad_s[1]))
+    extra = {k: sim.pop(k) for k in list(sim) if k in witness_response.FIELDS}
     return Witness(terminations={str(k): v.to_dict() for k, v in w.terminations.items()},
                    drive_frequency_rad_s=w.drive_frequency, band_rad_s=band, margin=float(w.result.margin),
-                   simulation=sim)
+                   simulation=sim, units=units, **extra)
 
-
-def _simulate_witness(w: Any, plots: dict[str, Series]) -> dict[str, Any]:
+def _simulate_witness(w: Any, plots: dict[str, Series], scene: Any = None) -> dict[str, Any]:
     """Drive the terminated network's operator port with F(t) = F0 d sin(ωt) (d = the most
-    non-passive direction) and integrate E_s(t) = ∫ Fᵀ V dt, V = Y_in(s) F, with the exact-ZOH
-    engine of hil.mocks (admittance state space from the exact rational Y_in = Z_in⁻¹)."""
-    from hil.mocks.lti import StateSpace, tf_matrix
+    non-passive direction, F0 = 1 N or N.m) and integrate E_s(t) = ∫ Fᵀ V dt, V = Y_in(s) F, with the
+    exact-ZOH engine of hil.mocks (admittance state space from the exact rational Y_in = Z_in⁻¹),
+    until the response crosses the scene's safety limits (or grows a thousandfold without a scene);
+    see :func:`hil.evidence_plots.witness_response`."""
+    from hil.evidence_plots import witness_response
 
-    y = w.z_in.to("admittance")
-    m = y.n
-    try:
-        ss: StateSpace = tf_matrix([[None if e.is_zero else (e.num[::-1].tolist(), e.den[::-1].tolist())
-                                     for e in row] for row in y.entries])
-    except HilError as exc:  # an improper admittance cannot be simulated as given
-        return {"simulated": False, "reason": f"admittance not realizable: {exc}"}
-    wd = float(w.drive_frequency)
-    period = 2 * math.pi / wd
-    dt = min(1e-3, period / 200)
-    n = int(min(40 * period, 60.0) / dt)
-    t = np.arange(n) * dt
-    d = np.asarray(w.direction, float).reshape(-1)[:m]
-    d = d / (np.linalg.norm(d) or 1.0)
-    F = np.outer(np.sin(wd * t), d)
-    with np.errstate(all="ignore"):
-        _, V = ss.discretize(dt).simulate(F)
-    V = np.asarray(V).reshape(n, -1)[:, :m]
-    finite = np.all(np.isfinite(V), axis=1)
-    n_ok = int(np.argmin(finite)) if not finite.all() else n
-    ref = float(np.max(np.abs(V[: max(1, n_ok // 10)])))
-    grew = np.abs(V[:n_ok]).max(axis=1) > 1e3 * max(ref, 1e-12)
-    diverged = bool(n_ok < n or grew.any())
-    n_keep = int(np.argmax(grew)) + 1 if grew.any() else n_ok  # up to where it blew up
-    t, F, V = t[:n_keep], F[:n_keep], V[:n_keep]
-    n = n_keep
-    power = np.einsum("ij,ij->i", F, V)
-    E = np.concatenate([[0.0], np.cumsum(0.5 * (power[1:] + power[:-1]) * dt)])
-    step = max(1, n // 800)
-    plots["witness_energy"] = Series(title="Witness: port energy E_s(t) under the destabilizing terminations",
-                                     x=t[::step].tolist(), x_label="t [s]", y_label="E_s [J]",
-                                     lines={"E_s": E[::step].tolist()}, hline=0.0)
-    return {"simulated": True, "duration_s": float(t[-1]), "drive_frequency_rad_s": wd,
-            "min_energy": float(np.min(E)), "final_energy": float(E[-1]),
-            "went_negative": bool(np.min(E) < 0), "diverged": diverged,
-            "method": "exact-ZOH simulation (hil.mocks.lti) of V = Y_in F"}
+    return witness_response(w, plots, scene)
+
 
 
 # ---------------------------------------------------------------------------------------------
 # plots (as data series; rendered by hil.report)
 
 
-def _identification_plots(plots: dict[str, Series], name: str, res: Any, seed: int) -> None:
-    """FRF fit (measured H1 against the posterior median and its 90 % band, first channels) and a
-    scatter of the two most correlated posterior parameters (a corner-plot panel)."""
-    est, mdl = res.frf, res.model
-    samp = np.asarray(res.posterior.samples)[:, : mdl.n_params]
-    rng = np.random.default_rng(seed + 2)
-    pick = samp[rng.choice(samp.shape[0], size=min(150, samp.shape[0]), replace=False)]
-    Hd = np.abs(mdl.frf(pick, est.w))
-    Hm = np.abs(mdl.frf(np.median(samp, axis=0), est.w))
-    no = est.H.shape[1]
-    for o in range(min(no, 2)):
-        i = 0  # the first input column
-        lo, hi = np.quantile(Hd[:, :, o, i], [0.05, 0.95], axis=0)
-        db = lambda a: (20 * np.log10(np.maximum(np.asarray(a, float), 1e-300))).tolist()  # noqa: E731
-        label = f"{est.input_names[i]} -> {est.output_names[o]}" if est.input_names else f"output {o}"
-        plots[f"frf_{name}_{o}"] = Series(
-            title=f"FRF fit ({name}): {label}", x=est.f.tolist(), x_label="f [Hz]", y_label="|H| [dB]", log_x=True,
-            lines={"measured H1": db(np.abs(est.H[:, o, i])), "posterior median": db(Hm[:, o, i])},
-            bands={"posterior median": (db(lo), db(hi))})
-    names = list(res.names)[: samp.shape[1]]
-    if samp.shape[1] >= 2:
-        C = np.corrcoef(samp.T)
-        np.fill_diagonal(C, 0.0)
-        a, b = np.unravel_index(int(np.argmax(np.abs(C))), C.shape)
-        sub = samp[:: max(1, samp.shape[0] // 800)]
-        plots[f"corner_{name}"] = Series(
-            title=f"Posterior draws ({name}): {names[a]} against {names[b]} (correlation {C[a, b]:+.2f})",
-            x=sub[:, a].tolist(), x_label=names[a], y_label=names[b], lines={"draws": sub[:, b].tolist()})
+def _identification_plots(plots: dict[str, Series], name: str, res: Any, seed: int, units: str | None = None) -> None:
+    """FRF evidence (measured H1 with its coherence-based confidence band, the posterior fit band,
+    magnitude and phase, coherence and normalized residuals beneath) per output, and the corner
+    plot of the posterior; see :func:`hil.evidence_plots.identification_plots`."""
+    from hil.evidence_plots import identification_plots
 
+    identification_plots(plots, name, res, seed, units)
 
 def _fault_measurements(outcomes: Mapping[str, Any], measurements: list[Measurement]) -> None:
     """One INFO measurement per experiment whose devices report fault counters: the total count of
@@ -839,29 +791,12 @@ def _energy_plot(plots: dict[str, Series], name: str, outcome: Any) -> None:
 
 
 def _decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
-    """The decisive frequency condition's physical ratio against frequency, worst point marked."""
-    from hil.stability.criteria import _eta_ratio, _freq_range, _hermitian_ratio, _normalized
+    """The decisive condition against frequency (the failing one of a NO-GO, the one with the
+    smallest margin otherwise), negative band shaded, worst frequency marked, and the imaginary-axis
+    and infinity conditions as their residue margins; see :func:`hil.evidence_plots.decided_plot`."""
+    from hil.evidence_plots import decided_plot
 
-    tmn, w0 = _normalized(tm)
-    lo, hi = _freq_range(tmn.entries)
-    w = np.geomspace(lo, hi, 600)
-    lines: dict[str, list[float | None]] = {}
-    n = tm.n
-    idxs = [(i,) for i in range(n)] + ([tuple(range(n))] if n > 1 else [])
-    for idx in idxs[:6]:
-        sub = [[tmn.entries[a][b] for b in idx] for a in idx]
-        lines[f"minor {{{','.join(str(i + 1) for i in idx)}}}"] = _clean(_hermitian_ratio(sub)(w))
-    if n == 2 and "llewellyn" in r.criterion:
-        sub = [[tmn.entries[a][b] for b in (0, 1)] for a in (0, 1)]
-        lines["Llewellyn η (normalized)"] = _clean(_eta_ratio(sub)(w))
-    pts = {}
-    if r.worst_frequency is not None and math.isfinite(r.worst_frequency) and r.worst_frequency > 0 and \
-            math.isfinite(r.margin):
-        pts["worst"] = (float(r.worst_frequency), float(r.margin))
-    plots["decided"] = Series(title=f"Decided quantities ({r.criterion}) against frequency", x=(w * w0).tolist(),
-                              x_label="ω [rad/s]", y_label="normalized margin", log_x=True, lines=lines,
-                              points=pts, hline=0.0)
-
+    decided_plot(plots, tm, r)
 
 def _critical_band_plot(plots: dict[str, Series], params: Mapping[str, Any], draws: Mapping[str, np.ndarray],
                         band: tuple[float, float]) -> None:
@@ -893,7 +828,7 @@ def _critical_band_plot(plots: dict[str, Series], params: Mapping[str, Any], dra
     thr = gmin + CRITICAL_BAND_FRACTION * (1.0 - gmin)
     plots["critical_band"] = Series(
         title="Critical band: the coupler condition (c-ii) within 10 % of its minimum",
-        x=w.tolist(), x_label="ω [rad/s]", y_label="g(ω) = t(ω²)/|t|(ω²)", log_x=True,
+        x=w.tolist(), x_label="ω [rad/s]", y_label="g(ω) = t(ω²)/|t|(ω²) [1]", log_x=True,
         lines={"posterior mean": _clean(gm), "10 % threshold (posterior mean)": [thr] * w.size},
         bands={"5-95 % over the draws": (_clean(q05), _clean(q95))},
         points={"worst (posterior mean)": (float(w[int(np.nanargmin(gm))]), gmin),
@@ -907,7 +842,7 @@ def _clean(a: np.ndarray) -> list[float | None]:
 
 
 def _bode_plot(plots: dict[str, Series], model: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray],
-               seed: int) -> None:
+               seed: int, units: str | None = None) -> None:
     """|entry (1,1)| of the network over the posterior: median and 90 % band."""
     rng = np.random.default_rng(seed + 1)
     n = len(next(iter(draws.values())))
@@ -933,6 +868,19 @@ def _bode_plot(plots: dict[str, Series], model: str, params: Mapping[str, Any], 
     M = np.array(mags)
     q05, q50, q95 = np.quantile(M, [0.05, 0.5, 0.95], axis=0)
     db = lambda a: (20 * np.log10(np.maximum(a, 1e-300))).tolist()  # noqa: E731
+    from hil.evidence_plots import immittance_db_label
+
     plots["bode"] = Series(title=f"|{tm0.kind} entry (1,1)| over the posterior", x=w.tolist(), x_label="ω [rad/s]",
-                           y_label="magnitude [dB]", log_x=True, lines={"median": db(q50)},
+                           y_label=immittance_db_label(tm0.kind, units), log_x=True,
+                           lines={"median": db(q50)},
                            bands={"90 % credible": (db(q05), db(q95))})
+
+
+def _headroom_plot(plots: dict[str, Series], cert_cfg: Any, params: Mapping[str, Any],
+                   draws: Mapping[str, np.ndarray], policy: Policy, design: Design) -> None:
+    """P(stable) against the design parameter, requirement crossing marked; see
+    :func:`hil.evidence_plots.headroom_plot`."""
+    from hil.evidence_plots import headroom_plot
+
+    headroom_plot(plots, cert_cfg, params, draws, policy, design)
+

@@ -55,6 +55,19 @@ from pydantic import ValidationError
 from hil.certificate import SCHEMA_VERSION, Certificate, Series, content_digest, seal
 from hil.errors import HilError
 from hil.inputs import read_text_file
+from hil.report_model import (
+    Section,
+    Table,
+    definition_link,
+    fmt,
+    fmt_p,
+    fmt_range,
+    headroom,
+    measurements_table,
+    policy_label,
+    report_sections,
+    robust_status,
+)
 from hil.verify import MODIFIED, IntegrityStatus, check_certificate
 
 __all__ = [
@@ -113,43 +126,6 @@ def _one_line(s: Any) -> str:
     return " ".join(str(s).split())
 
 
-def fmt(v: Any, digits: int = 4) -> str:
-    """A value as a short human-readable string (None -> an em dash, NaN/inf spelled out)."""
-    if v is None:
-        return "—"
-    if isinstance(v, bool):
-        return "yes" if v else "no"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "NaN"
-        if math.isinf(v):
-            return "∞" if v > 0 else "−∞"
-        if v == 0.0:
-            return "0"
-        return f"{v:.{digits}g}"
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(fmt(x, digits) for x in v) + "]"
-    if isinstance(v, dict):
-        s = "{" + ", ".join(f"{k}: {fmt(x, digits)}" for k, x in v.items()) + "}"
-        return s if len(s) <= 240 else s[:237] + "…"
-    return str(v)
-
-
-def fmt_p(v: float | None) -> str:
-    """A probability with enough digits that a value below 1 never prints as 1."""
-    if v is None or not isinstance(v, int | float) or not math.isfinite(v):
-        return fmt(v)
-    if v in (0.0, 1.0):
-        return f"{v:.0f}"
-    for d in range(4, 10):
-        s = f"{v:.{d}f}"
-        if float(s) not in (0.0, 1.0):
-            return s
-    return f"{v:.3g}"
-
-
 def fmt_freq(w: Any) -> str:
     """A frequency in rad/s, with Hz in parentheses; strings (e.g. 'inf', 'dc') as given."""
     if isinstance(w, int | float) and not isinstance(w, bool) and math.isfinite(w):
@@ -158,10 +134,10 @@ def fmt_freq(w: Any) -> str:
 
 
 def fmt_band(b: Any) -> str:
+    """A band in rad/s; two different ends never print alike (more digits when needed)."""
     if b is None:
         return "—"
-    lo, hi = b
-    return f"{fmt(lo)} … {fmt(hi)} rad/s"
+    return f"{fmt_range(*b)} rad/s"
 
 
 def fmt_limits(lower: float | None, upper: float | None, unit: str = "") -> str:
@@ -181,8 +157,7 @@ def _value_unit(v: Any, unit: str) -> str:
 
 
 def _policy_label(key: str) -> str:
-    return {"required_probability": "required P(stable)", "confidence": "confidence of the P(stable) interval",
-            "credible": "credible region (worst case)"}.get(key, key.replace("_", " "))
+    return policy_label(key)
 
 
 def _status(cert: Certificate, integrity: IntegrityStatus | None) -> IntegrityStatus:
@@ -213,25 +188,12 @@ def _evidence_note(st: IntegrityStatus) -> str:
 def _present_sections(cert: Certificate) -> list[str]:
     out = ["errors"] if cert.errors else []
     out.append("measurements")
-    for k in ("nominal", "robust", "identification", "design", "witness", "energy", "multiport"):
-        if getattr(cert, k) is not None:
-            out.append(k)
-    if cert.plots:
-        out.append("plots")
+    out += [sec.key for sec in report_sections(cert)]
     return out
 
 
 def _robust_status(cert: Certificate) -> tuple[str, str]:
-    """(outcome, sentence) of the robust result against the required level."""
-    r = cert.robust
-    assert r is not None
-    if r.lower >= r.required:
-        return "PASS", (f"the lower {r.confidence:.0%} bound {fmt_p(r.lower)} clears the required "
-                        f"{fmt_p(r.required)}")
-    if r.p_stable >= r.required:
-        return "MARGINAL", (f"the estimate {fmt_p(r.p_stable)} clears the required {fmt_p(r.required)} "
-                            f"but its lower {r.confidence:.0%} bound {fmt_p(r.lower)} does not")
-    return "FAIL", f"P(stable) = {fmt_p(r.p_stable)} is below the required {fmt_p(r.required)}"
+    return robust_status(cert)
 
 
 def _gauge(cert: Certificate) -> dict[str, Any]:
@@ -304,6 +266,7 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
 
     k = 0
     drawn = 0
+    first_line = None
     for name, ys in s.lines.items():
         y = _arr(ys)
         if y.size != n:
@@ -312,10 +275,15 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
         c = next_colour(k)
         k += 1
         colours[name] = c
+        if first_line is None:
+            first_line = y
         if scatter:
             ax.plot(x, y, linestyle="none", marker=".", markersize=3, alpha=0.6, color=c, label=_mtext(name))
+        elif name.startswith("measured"):  # measured data as markers over the fit: never hidden under it
+            ax.plot(x, y, linestyle="none", marker="o", markersize=1.6, alpha=0.6, color=c, label=_mtext(name),
+                    zorder=4)
         else:
-            ax.plot(x, y, color=c, linewidth=1.4, label=_mtext(name))
+            ax.plot(x, y, color=c, linewidth=1.4, label=_mtext(name), zorder=3)
         drawn += int(np.isfinite(y).any())
     for name, (lo_v, hi_v) in s.bands.items():
         lo, hi = _arr(lo_v), _arr(hi_v)
@@ -331,23 +299,34 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
         ax.fill_between(x[order], lo[order], hi[order], where=ok[order], color=c, alpha=0.22, linewidth=0,
                         label=_mtext(name if name not in s.lines else f"{name} (band)"))
         drawn += int(ok.any())
+    if s.shade_negative and first_line is not None and not scatter:
+        neg = np.isfinite(first_line) & (first_line < 0)
+        if neg.any():
+            ax.fill_between(x, first_line, 0.0, where=neg, color="#c62828", alpha=0.30, linewidth=0,
+                            label="negative: condition violated", zorder=2)
     for i, (name, (px, py)) in enumerate(s.points.items()):
         if not (math.isfinite(px) and math.isfinite(py)):
             notes.append(f"point {name!r} left out: not finite")
             continue
         ax.plot([px], [py], linestyle="none", marker=_POINT_MARKERS[i % len(_POINT_MARKERS)], markersize=8,
                 markerfacecolor="#d62728" if i == 0 else "#222222", markeredgecolor="white", markeredgewidth=1.0,
-                zorder=5, label=_mtext(f"{name} ({fmt(px)}, {fmt(py)})"))
+                zorder=5, label=_mtext(name if "=" in name or "(" in name else f"{name} ({fmt(px)}, {fmt(py)})"))
         drawn += 1
+    for name, xv in s.vlines.items():
+        if math.isfinite(xv):
+            ax.axvline(xv, color="#c62828", linestyle=":", linewidth=1.2, label=_mtext(f"{name}: {fmt(xv)}"))
     if s.hline is not None and math.isfinite(s.hline):
         ax.axhline(s.hline, color="#555555", linestyle="--", linewidth=1.0, label=f"reference {fmt(s.hline)}")
     if s.log_x:
         ax.set_xscale("log")
     if s.log_y:
         ax.set_yscale("log")
-    ax.set_title(_mtext(s.title), fontsize=11)
-    ax.set_xlabel(_mtext(s.x_label))
-    ax.set_ylabel(_mtext(s.y_label))
+    if s.y_label.startswith("γ²"):  # a coherence: always on [0, 1]
+        ax.set_ylim(0.0, 1.05)
+    ax.set_title(_mtext(s.title), fontsize=10)
+    ax.set_xlabel(_mtext(s.x_label), fontsize=9)
+    ax.set_ylabel(_mtext(s.y_label), fontsize=9)
+    ax.tick_params(labelsize=8)
     ax.grid(True, which="major", alpha=0.35)
     if s.log_x or s.log_y:
         ax.grid(True, which="minor", alpha=0.12)
@@ -357,41 +336,150 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
     handles, _ = ax.get_legend_handles_labels()
     if handles:
         loc = "best" if n * max(1, len(s.lines)) <= 4000 else "upper right"
-        ax.legend(loc=loc, fontsize=8, framealpha=0.85)
+        ax.legend(loc=loc, fontsize=7, framealpha=0.85)
     return notes
 
 
-def _safe_draw(ax: Any, s: Series) -> list[str]:
-    """Draw a series; a plot that cannot be drawn becomes a note, never a failed report."""
+def _draw_bars(ax: Any, bars: dict[str, float]) -> None:
+    names = list(bars)
+    vals = [bars[k] for k in names]
+    colours = ["#c62828" if v < 0 else "#1b7f3b" for v in vals]
+    ax.barh(range(len(names)), vals, color=colours, alpha=0.8)
+    ax.set_yticks(range(len(names)), [_mtext(n) for n in names], fontsize=8)
+    ax.axvline(0.0, color="#555555", linestyle="--", linewidth=1.0)
+    ax.set_xlabel("margin [1]", fontsize=9)
+    ax.set_title("pole and residue conditions", fontsize=9)
+    ax.tick_params(axis="x", labelsize=7)
+    ax.grid(True, axis="x", alpha=0.3)
+
+
+def _corner_png(s: Series, dpi: int) -> Any:
+    """A corner plot of the series' lines (each a parameter's draws) as an RGBA array."""
+    import matplotlib.image as mpimg
+    import numpy as np
+
+    names = list(s.lines)
+    data = np.column_stack([_arr(s.lines[k]) for k in names])
+    data = data[np.all(np.isfinite(data), axis=1)]
+    try:
+        import corner
+    except ImportError:  # declared in the report extra; a plain grid otherwise
+        corner = None
+    from matplotlib.figure import Figure
+
+    k = len(names)
+    fig = Figure(figsize=(1.7 * k + 0.6, 1.7 * k + 0.6), dpi=dpi)
+    if corner is not None:
+        fig.subplots(k, k)
+        corner.corner(data, labels=[_mtext(n) for n in names], quantiles=[0.05, 0.5, 0.95], fig=fig,
+                      label_kwargs={"fontsize": 8}, max_n_ticks=3, plot_datapoints=True)
+        for ax in fig.axes:
+            ax.tick_params(labelsize=6)
+            for axis in (ax.xaxis, ax.yaxis):  # plain numbers, no "1e-12+3.62e2" offsets
+                fm = axis.get_major_formatter()
+                if hasattr(fm, "set_useOffset"):
+                    fm.set_useOffset(False)
+    else:
+        axes = fig.subplots(k, k, squeeze=False)
+        for r in range(k):
+            for c in range(k):
+                ax = axes[r, c]
+                if c > r:
+                    ax.set_axis_off()
+                elif r == c:
+                    ax.hist(data[:, c], bins=30, histtype="step", color="k")
+                else:
+                    ax.plot(data[:, c], data[:, r], ",", color="k", alpha=0.4)
+                if r == k - 1:
+                    ax.set_xlabel(_mtext(names[c]), fontsize=7)
+                if c == 0 and r > 0:
+                    ax.set_ylabel(_mtext(names[r]), fontsize=7)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, facecolor="white")
+    buf.seek(0)
+    return mpimg.imread(buf)
+
+
+def _plot_height(s: Series) -> float:
+    """Height in inches of a plot 6.8 in wide (panels stacked beneath the main axes)."""
+    if s.kind == "corner":
+        return min(6.8, 1.5 * max(2, len(s.lines)) + 0.8)
+    return 2.9 + 1.35 * len(s.panels)
+
+
+def draw_plot(fig: Any, s: Series, rect: tuple[float, float, float, float] | None = None, dpi: int = 110
+              ) -> list[str]:
+    """Draw a Series (main axes, stacked panels beneath, a bar panel on the right, or a corner
+    plot) into ``rect`` = (x, y, width, height) in inches on ``fig`` (default: the whole figure);
+    returns notes on anything left out. Never raises for a bad series."""
     import warnings
 
+    fw, fh = fig.get_size_inches()
+    x0, y0, w, h = rect if rect is not None else (0.0, 0.0, float(fw), float(fh))
+
+    def axes(x: float, y: float, ww: float, hh: float, **kw: Any) -> Any:
+        return fig.add_axes((x / fw, y / fh, ww / fw, hh / fh), **kw)
+
+    made: list[Any] = []
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # e.g. log axes with non-positive values (masked)
-            return _draw_series(ax, s)
+            if s.kind == "corner":
+                ax = axes(x0, y0, w, h - 0.05)
+                made.append(ax)
+                img = _corner_png(s, dpi=max(dpi, 150))
+                ax.imshow(img)
+                ax.set_axis_off()
+                ax.set_title(_mtext(s.title), fontsize=10)
+                return []
+            left, right, top, bottom, gap = 0.75, 0.15, 0.3, 0.5, 0.62
+            bars_w = 1.9 if s.bars else 0.0
+            main_w = w - left - right - (bars_w + 0.35 if s.bars else 0.0)
+            n_p = len(s.panels)
+            avail = h - top - bottom - gap * n_p
+            unit = avail / (2.0 + n_p)
+            y = y0 + h - top - 2.0 * unit
+            ax = axes(x0 + left, y, main_w, 2.0 * unit)
+            made.append(ax)
+            notes = _draw_series(ax, s)
+            if s.bars:
+                bx = axes(x0 + left + main_w + 0.35 + 1.1, y, bars_w - 1.1, 2.0 * unit)
+                made.append(bx)
+                _draw_bars(bx, s.bars)
+            for p in s.panels:
+                y -= gap + unit
+                pax = axes(x0 + left, y, main_w, unit, sharex=ax if p.log_x == s.log_x and p.x == s.x else None)
+                made.append(pax)
+                notes += [f"panel {p.title}: {n}" for n in _draw_series(pax, p)]
+            return notes
     except Exception as exc:  # a bad series must not lose the whole report
-        ax.clear()
-        ax.set_axis_off()
-        ax.text(0.5, 0.5, f"plot could not be drawn: {_mtext(_one_line(exc))[:120]}", transform=ax.transAxes,
-                ha="center", va="center", color="#c62828")
+        for a in made:
+            a.remove()
+        fig.text((x0 + w / 2) / fw, (y0 + h / 2) / fh, f"plot could not be drawn: {_mtext(_one_line(exc))[:120]}",
+                 ha="center", va="center", color="#c62828")
         return [f"could not be drawn: {_one_line(exc)}"]
 
 
-def _plots_png(cert: Certificate, dpi: int = 110) -> list[_Plot]:
+def _safe_draw(ax: Any, s: Series) -> list[str]:
+    """Draw a series on one axes (kept for callers drawing a single panel)."""
+    return _draw_series(ax, s)
+
+
+def _plots_png(cert: Certificate, dpi: int = 110) -> dict[str, _Plot]:
     import warnings
 
     from matplotlib.figure import Figure
 
-    out = []
+    out = {}
     for name, s in cert.plots.items():
-        fig = Figure(figsize=(9.0, 4.4), dpi=dpi, layout="constrained")
-        ax = fig.add_subplot()
-        notes = _safe_draw(ax, s)
+        fig = Figure(figsize=(9.0, 1.25 * _plot_height(s)), dpi=dpi)
+        notes = draw_plot(fig, s, dpi=dpi)
         buf = io.BytesIO()
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r"Glyph \d+ .* missing from", category=UserWarning)
+            warnings.filterwarnings("ignore", category=UserWarning)
             fig.savefig(buf, format="png", dpi=dpi, facecolor="white")
-        out.append(_Plot(name, s.title, base64.b64encode(buf.getvalue()).decode("ascii"), notes))
+        out[name] = _Plot(name, s.title, base64.b64encode(buf.getvalue()).decode("ascii"), notes)
     return out
 
 
@@ -475,7 +563,7 @@ def _jinja_env() -> Any:
     env.filters.update(fmt=fmt, fmt_p=fmt_p, fmt_freq=fmt_freq, fmt_band=fmt_band)
     env.globals.update(fmt_limits=fmt_limits, value_unit=_value_unit, policy_label=_policy_label,
                        outcome_class=lambda o: OUTCOME_STYLE.get(str(o), ("o-info", ""))[0],
-                       status_class=_status_class)
+                       status_class=_status_class, link=definition_link, cell_class=_cell_class)
     return env
 
 
@@ -491,13 +579,16 @@ def _html_context(cert: Certificate, st: IntegrityStatus) -> dict[str, Any]:
         "digest_text": _digest_text(st),
         "signature_text": st.signature_text(),
         "evidence_note": _evidence_note(st),
-        "sections": [(k, SECTION_TITLES[k]) for k in _present_sections(cert)],
+        "toc": [(k, SECTION_TITLES[k]) for k in _present_sections(cert)],
+        "sections": report_sections(cert),
+        "summary": _kv_table(summary_rows(cert, st)),
+        "measurements": measurements_table(cert),
         "outcome_counts": _outcome_counts(cert),
-        "plots": _plots_png(cert) if cert.plots else [],
+        "plots": _plots_png(cert) if cert.plots else {},
         "robust_status": None,
         "gauge": None,
         "show_truth": False,
-        "headroom": _headroom(cert.design) if cert.design is not None else "",
+        "headroom": headroom(cert.design) if cert.design is not None else "",
     }
     if cert.robust is not None:
         ctx["robust_status"] = _robust_status(cert)
@@ -505,6 +596,21 @@ def _html_context(cert: Certificate, st: IntegrityStatus) -> dict[str, Any]:
     if cert.identification:
         ctx["show_truth"] = any(p.truth is not None for i in cert.identification for p in i.parameters)
     return ctx
+
+
+def _kv_table(rows: list[tuple[str, str, str, str | None]]) -> Table:
+    from hil.report_model import _kv
+
+    return _kv(rows)
+
+
+def _cell_class(t: Table, i: int, j: int) -> str:
+    """CSS class of a model-table cell: its outcome colour, else num / nowrap."""
+    o = t.colours[i][j] if t.colours else None
+    if o in OUTCOME_STYLE:
+        return OUTCOME_STYLE[o][0]
+    c = t.columns[j]
+    return " ".join(k for k, on in (("num", c.num), ("nowrap", c.nowrap)) if on)
 
 
 def _outcome_counts(cert: Certificate) -> list[tuple[str, int]]:
@@ -668,16 +774,23 @@ class _PdfDoc:
 
     def table(self, headers: Sequence[str], rows: Sequence[Sequence[str]],
               cell_colours: Sequence[Sequence[str | None]] | None = None, size: float = 8.0,
-              min_col: int = 5) -> None:
+              min_col: int = 5, nowrap: Sequence[bool] | None = None, header_links: Sequence[str | None] | None = None,
+              row_links: Sequence[str | None] | None = None) -> None:
         """A monospaced table; columns shrink (cells wrap) to the page width, rows continue on
-        the next page with the header row repeated."""
+        the next page with the header row repeated. A ``nowrap`` column keeps its widest cell on
+        one line (condition names); ``header_links`` / ``row_links`` (first cell) link to the
+        definitions."""
         ncol = len(headers)
         cells = [[_one_line(c) for c in r] for r in rows]
         gap = 2
         natural = [max(1, len(headers[j]), *(len(r[j]) for r in cells)) for j in range(ncol)]
-        # a column is not narrowed below its longest word (numbers never break), up to 16 characters
+        # a column is not narrowed below its longest word (numbers never break), up to 16 characters;
+        # a no-wrap column not below its widest cell
         floor = [max(min_col, min(16, max(len(w) for c in [headers[j], *(r[j] for r in cells)]
                                           for w in (c.split() or [""])))) for j in range(ncol)]
+        for j in range(ncol):
+            if nowrap is not None and nowrap[j]:
+                floor[j] = max(floor[j], *(len(r[j]) for r in cells)) if cells else floor[j]
         while True:
             avail = int(self.width * 72 / (self.MONO_EM * size)) - 1
             widths = list(natural)
@@ -709,8 +822,12 @@ class _PdfDoc:
         def draw_header() -> None:
             self._rect(self.ML - 0.04, self.y - head_h, self.width + 0.08, head_h, "#dfe3e8")
             for j, hl in enumerate(head):
+                link = header_links[j] if header_links else None
                 for i, line in enumerate(hl):
-                    self._t(xs[j], self.y - pad - (i + 1) * lh + 0.25 * lh, line, size, family=_MONO, weight="bold")
+                    t = self._t(xs[j], self.y - pad - (i + 1) * lh + 0.25 * lh, line, size, family=_MONO,
+                                weight="bold", color="#0b3d91" if link else "#000000")
+                    if link:
+                        t.set_url(link)
             self.y -= head_h
 
         self.ensure(head_h + lh + 2 * pad)
@@ -728,8 +845,12 @@ class _PdfDoc:
                 colour = cell_colours[r_i][j] if cell_colours else None
                 if colour:
                     self._rect(xs[j] - 0.04, self.y - h, widths[j] * char_w + 0.08, h, colour)
+                link = row_links[r_i] if (row_links and j == 0) else None
                 for i, line in enumerate(wl):
-                    self._t(xs[j], self.y - pad - (i + 1) * lh + 0.25 * lh, line, size, family=_MONO)
+                    t = self._t(xs[j], self.y - pad - (i + 1) * lh + 0.25 * lh, line, size, family=_MONO,
+                                color="#0b3d91" if link else "#000000")
+                    if link:
+                        t.set_url(link)
             self.y -= h
         self._hrule(self.y, "#bbbbbb", 0.5)
         self.y -= 0.14
@@ -737,159 +858,258 @@ class _PdfDoc:
     def kv(self, pairs: Sequence[tuple[str, str]], size: float = 9.0) -> None:
         self.table(["quantity", "value"], [list(p) for p in pairs], size=size)
 
-    def figure(self, s: Series, h: float = 4.3) -> None:
-        """A plot in the flow (two fit on a page)."""
-        self.ensure(h + 0.2)
-        left = self.ML / self.W
-        ax = self.fig.add_axes((left + 0.07, (self.y - h + 0.45) / self.H, self.width / self.W - 0.09,
-                                (h - 0.8) / self.H))
-        notes = _safe_draw(ax, s)
+    def model_table(self, t: Table) -> None:
+        """A table of the report model (units in the headers, outcome colours, definition links)."""
+        colours = None
+        if t.colours:
+            colours = [[OUTCOME_STYLE[o][1] if o in OUTCOME_STYLE else None for o in row] for row in t.colours]
+        row_links = [definition_link(f) for f in t.row_fields] if t.row_fields else None
+        self.table([c.header for c in t.columns], t.rows, colours, size=t.size,
+                   nowrap=[c.nowrap for c in t.columns], header_links=[c.link for c in t.columns],
+                   row_links=row_links)
+
+    def pstable(self, cert: Certificate) -> None:
+        h = 1.5
+        self.ensure(h + 0.1)
+        ax = self.fig.add_axes((self.ML / self.W, (self.y - h + 0.45) / self.H, self.width / self.W,
+                                (h - 0.75) / self.H))
+        draw_pstable(ax, cert)
+        self.y -= h + 0.05
+
+    def fits(self, s: Series) -> bool:
+        """Would the plot fit (possibly shrunk to 72 %) in the space left on this page?"""
+        h = min(_plot_height(s), self.H - self.MT - self.MB - 0.6)
+        return self.fig is not None and 0.72 * h <= self.y - self.MB - 0.25
+
+    def figure(self, s: Series, caption: str = "") -> None:
+        """A plot in the flow, 6.8 in wide; its height follows its panels."""
+        h = min(_plot_height(s), self.H - self.MT - self.MB - 0.6)
+        room = self.y - self.MB - 0.25
+        if self.fig is not None and 0.72 * h <= room < h:
+            h = room - 0.02  # shrink a little rather than leave most of a page empty
+        self.ensure(h + 0.25)
+        notes = draw_plot(self.fig, s, (self.ML, self.y - h, self.width, h))
         self.y -= h
+        if caption:
+            self.para(caption, 8, color="#555555")
         for n in notes:
             self.para(f"Note: {n}", 8, color="#8a5a00")
-        self.space(0.15)
+        self.space(0.1)
 
 
-def _pdf_title(doc: _PdfDoc, cert: Certificate) -> None:
+def _decisive_row(cert: Certificate) -> Any:
+    """The nominal condition that decides (violated with the smallest margin, else the smallest)."""
+    n = cert.nominal
+    if n is None:
+        return None
+    conds = [c for c in n.conditions if isinstance(c.margin, int | float) and math.isfinite(c.margin)
+             and c.name not in ("A", "B", "A*")]
+    failed = [c for c in conds if _status_outcome(c.status) == "FAIL"]
+    pool = failed or conds
+    return min(pool, key=lambda c: c.margin) if pool else None
+
+
+def summary_rows(cert: Certificate, st: IntegrityStatus) -> list[tuple[str, str, str, str | None]]:
+    """The one-page summary: (quantity, value, unit, field path) of what the decision rests on."""
+    rows: list[tuple[str, str, str, str | None]] = [("decision", cert.decision, "—", "decision")]
+    r = cert.robust
+    if r is not None:
+        status, _ = robust_status(cert)
+        rows.append((f"P(stable) and its {r.confidence:.0%} interval",
+                     f"{fmt_p(r.p_stable)} [{fmt_p(r.lower)}, {fmt_p(r.upper)}] ({status})", "1", "robust.p_stable"))
+        rows.append(("required: the lower bound must clear", fmt_p(r.required), "1", "robust.required"))
+        rows.append((f"worst-case margin ({r.credible:.0%} credible region)", fmt(r.worst_case_margin), "1",
+                     "robust.worst_case_margin"))
+    n = cert.nominal
+    if n is not None:
+        rows.append(("nominal verdict", n.verdict + (" (weak)" if n.weak else ""), "—", "nominal.verdict"))
+        rows.append(("nominal margin", fmt(n.margin), "1", "nominal.margin"))
+        dc = _decisive_row(cert)
+        if dc is not None:
+            rows.append(("decisive condition", f"{dc.name} ({dc.status}, margin {fmt(dc.margin)})", "—",
+                         "nominal.failed_condition"))
+    d = cert.design
+    if d is not None and d.max_value is not None:
+        rows.append((f"largest {d.parameter} meeting the requirement", fmt(d.max_value), d.unit or "—",
+                     "design.max_value"))
+        if d.current is not None:
+            rows.append((f"current {d.parameter}", fmt(d.current) + (f" ({headroom(d)})" if headroom(d) else ""),
+                         d.unit or "—", "design.current"))
+    w = cert.witness
+    if w is not None:
+        from hil.report_units import termination_units
+
+        terms = []
+        for t in w.terminations.values():
+            if isinstance(t, dict) and "params" in t:
+                tu = termination_units(t["params"], w.units or cert.scene.units)
+                terms.append(f"{t.get('kind')} " + ", ".join(f"{k} = {fmt(v)} {tu.get(k, '')}".rstrip()
+                                                              for k, v in t["params"].items()))
+        rows.append(("destabilizing passive termination", "; ".join(terms) or "—", "—", "witness.terminations"))
+        if w.growth_rate_1_s is not None:
+            rows.append(("closed-loop growth rate σ", fmt(w.growth_rate_1_s), "1/s", "witness.growth_rate_1_s"))
+        if w.time_to_limit_s is not None:
+            rows.append((f"time to exceed the bench's {str(w.limit_exceeded).replace('_', ' ')}",
+                         fmt(w.time_to_limit_s), "s", "witness.time_to_limit_s"))
+    for e in cert.energy or []:
+        rows.append((f"min port energy E_s ({e.experiment}, {e.port})",
+                     f"{fmt(e.min_energy)} (noise bound {fmt(e.bound)})", "J", "energy.min_energy"))
+    counts = _outcome_counts(cert)
+    if counts:
+        rows.append(("measurements", ", ".join(f"{k} {o}" for o, k in counts), "—", "measurements"))
+    if cert.errors:
+        rows.append(("errors", str(len(cert.errors)), "1", None))
+    return rows
+
+
+def _pdf_summary(doc: _PdfDoc, cert: Certificate) -> None:
+    """Page 1: everything a signer needs, and the signature block."""
     doc.new_page("title")
     bg, fg = doc.style[1:]
-    doc.y -= 0.35
-    doc._t(doc.ML, doc.y, "Stability certificate", 20, weight="bold", color="#1d2733")
-    doc.y -= 0.38
-    doc._t(doc.ML, doc.y, f"scene {cert.scene.name}", 13, color="#333333")
-    doc._t(doc.W - doc.MR - 0.15, doc.y + 0.1, f"  {cert.decision}  ", 26, weight="bold", color=fg, ha="right",
+    doc.y -= 0.3
+    doc._t(doc.ML, doc.y, "Stability certificate", 19, weight="bold", color="#1d2733")
+    doc.y -= 0.34
+    doc._t(doc.ML, doc.y, f"scene {cert.scene.name}", 12, color="#333333")
+    doc._t(doc.W - doc.MR - 0.15, doc.y + 0.1, f"  {cert.decision}  ", 24, weight="bold", color=fg, ha="right",
            va="center", bbox={"boxstyle": "round,pad=0.35", "facecolor": bg, "edgecolor": "none"})
-    doc.y -= 0.2
+    doc.y -= 0.16
     if cert.scene.description:
-        doc.para(cert.scene.description, 9, color="#444444")
-    doc.para(f"scene sha256 {cert.scene.sha256}" + (f" · source {cert.scene.source}" if cert.scene.source else ""),
-             8, color="#666666")
+        doc.para(cert.scene.description, 8, color="#444444")
+    doc.para(f"scene sha256 {cert.scene.sha256}" + (f" · source {cert.scene.source}" if cert.scene.source else "")
+             + (f" · units {cert.scene.units} (SI)" if cert.scene.units else ""), 7, color="#666666")
     doc.para(f"created {cert.created_utc} (UTC) · schema {cert.schema_version} · "
-             + ", ".join(f"{k} {v}" for k, v in cert.software.items()), 8, color="#666666")
-    doc.space(0.1)
-    doc.subheading("Reasons")
-    doc.bullets(cert.reasons or ["(no reasons recorded)"])
+             + ", ".join(f"{k} {v}" for k, v in cert.software.items()), 7, color="#666666")
+    doc.subheading("Reasons", 10)
+    doc.bullets(cert.reasons or ["(no reasons recorded)"], 8.5)
+    doc.subheading("Summary", 10)
+    from hil.report_model import _kv
+
+    doc.model_table(_kv(summary_rows(cert, doc.integrity)))
+    st = doc.integrity
+    doc.subheading("Review and signature", 10)
+    doc.kv([("digest (sha256, hil-c14n/1)", _digest_text(st)), ("electronic signature", st.signature_text())],
+           size=7)
+    doc.para(f"I have reviewed this certificate for scene {cert.scene.name} (scene sha256 {cert.scene.sha256}; "
+             f"digest {st.recorded_digest or 'none'}), its evidence on the following pages, and I accept the "
+             "decision above.", 8)
+    # two signature columns side by side
+    doc.ensure(1.35)
+    col_w = (doc.width - 0.3) / 2
+    top = doc.y
+    for k, role in enumerate(("Reviewed by", "Approved by")):
+        x0 = doc.ML + k * (col_w + 0.3)
+        y = top - 0.2
+        doc._t(x0, y, role, 9.5, weight="bold", color="#1d2733")
+        for label in ("Name", "Date", "Signature"):
+            y -= 0.36
+            doc._t(x0, y + 0.03, label, 8.5, color="#333333")
+            doc._hrule(y, "#222222", 0.8, x0 + 0.8, x0 + col_w)
+    doc.y = top - 1.35
+
+
+def _pdf_block_flow(doc: _PdfDoc, cert: Certificate) -> None:
+    """Pages 2…: measurements, policy, errors, then every evidence section with its figures,
+    flowing (a section starts where the previous one ends), then the evidence files."""
+    doc.new_page("measurements")
     if cert.errors:
-        doc.subheading("Errors")
-        doc.bullets(cert.errors)
-    doc.subheading("Policy")
-    if cert.policy:
-        doc.kv([(_policy_label(k), fmt(v)) for k, v in cert.policy.items()])
-    else:
-        doc.para("(no policy recorded)", 9)
-    doc.subheading("Measurements")
+        doc.heading(SECTION_TITLES["errors"])
+        doc.bullets(cert.errors, 9)
+    doc.heading(SECTION_TITLES["measurements"])
     if cert.measurements:
-        rows, colours = [], []
-        for m in cert.measurements:
-            rows.append([m.name, _value_unit(m.value, m.unit), fmt_limits(m.lower, m.upper, m.unit), m.outcome,
-                         m.description])
-            colours.append([None, None, None, OUTCOME_STYLE.get(m.outcome, ("", None))[1], None])
-        doc.table(["measurement", "value", "limits", "outcome", "description"], rows, colours)
+        doc.model_table(measurements_table(cert))
     else:
         doc.para("(no measurements recorded)", 9)
+    doc.subheading("Policy", 10)
+    if cert.policy:
+        doc.table(["policy", "value [1]"], [[policy_label(k), fmt(v)] for k, v in cert.policy.items()], size=8,
+                  row_links=[definition_link(f"policy.{k}") for k in cert.policy])
+    else:
+        doc.para("(no policy recorded)", 9)
+    floating: list[Series] = []
+    for sec in report_sections(cert):
+        floating = _pdf_section(doc, cert, sec, floating)
+    for f in floating:
+        doc.figure(f)
+    st = doc.integrity
+    # the integrity block is kept together: a last page never holds only its tail
+    doc.ensure(0.55 + 0.75 + 0.16 * (len(cert.evidence) + 1) + 0.4)
+    doc.heading("Evidence and integrity", 12)
+    doc.kv([("digest (sha256, hil-c14n/1)", _digest_text(st)), ("electronic signature", st.signature_text())],
+           size=7.5)
+    if cert.evidence:
+        doc.table(["evidence", "role", "bytes [B]", "sha256"], [[e.path, e.role, str(e.bytes), e.sha256]
+                                                                 for e in cert.evidence], size=6.5)
+    doc.para(_evidence_note(st), 8, color="#444444" if st.valid else "#8e1616")
 
 
-def _pdf_sections(doc: _PdfDoc, cert: Certificate) -> None:
-    if cert.nominal is not None:
-        n = cert.nominal
-        doc.new_page("nominal")
-        doc.heading(SECTION_TITLES["nominal"])
-        doc.kv([("network", n.network), ("criterion", n.criterion),
-                ("verdict", n.verdict + (" (weak)" if n.weak else "")),
-                ("margin", fmt(n.margin)), ("worst frequency", fmt_freq(n.worst_frequency)),
-                ("failed condition", fmt(n.failed_condition))])
-        if n.parameters:
-            doc.subheading("Nominal parameters")
-            doc.kv([(k, fmt(v)) for k, v in n.parameters.items()])
-        if n.conditions:
-            doc.subheading("Conditions")
-            doc.table(["condition", "label", "status", "margin", "worst frequency", "detail"],
-                      [[c.name, c.label, c.status, fmt(c.margin), fmt_freq(c.worst_frequency), c.detail]
-                       for c in n.conditions],
-                      [[None, None, _status_colour(c.status), None, None, None] for c in n.conditions])
-    if cert.robust is not None:
-        r = cert.robust
-        status, sentence = _robust_status(cert)
-        doc.new_page("robust")
-        doc.heading(SECTION_TITLES["robust"])
-        doc.para(f"{status}: {sentence}.", 10, weight="bold", color=_outcome_text_colour(status))
-        doc.space(0.08)
-        doc.kv([("P(stable)", fmt_p(r.p_stable)),
-                (f"{r.confidence:.0%} confidence interval", f"[{fmt_p(r.lower)}, {fmt_p(r.upper)}]"),
-                ("required (lower bound must clear)", fmt_p(r.required)),
-                ("posterior draws", str(r.n_draws)),
-                ("sampling (independent draws)", r.sampling or "—"),
-                (f"worst-case margin over the {r.credible:.0%} credible region", fmt(r.worst_case_margin)),
-                ("critical band", fmt_band(r.critical_band_rad_s)),
-                ("method", r.method or "—")])
-        if r.worst_case_parameters:
-            doc.subheading("Worst-case parameters")
-            doc.kv([(k, fmt(v)) for k, v in r.worst_case_parameters.items()])
-    if cert.identification is not None:
-        doc.new_page("identification")
-        doc.heading(SECTION_TITLES["identification"])
-        show_truth = any(p.truth is not None for i in cert.identification for p in i.parameters)
-        for ident in cert.identification:
-            doc.subheading(f"{ident.model} — " + ("converged" if ident.converged else "NOT converged"))
-            doc.para(f"record {ident.record}" + (f" · {ident.reason}" if ident.reason else ""), 9, color="#444444")
-            hdr = ["parameter", "unit", "mean", "median", "q05", "q95", "std", "LS std", "CRB std"]
-            if show_truth:
-                hdr.append("truth")
-            rows = []
-            for p in ident.parameters:
-                row = [p.name, p.unit, fmt(p.mean), fmt(p.median), fmt(p.q05), fmt(p.q95), fmt(p.std), fmt(p.ls_std),
-                       fmt(p.crb_std)]
-                if show_truth:
-                    row.append(fmt(p.truth))
-                rows.append(row)
-            doc.table(hdr, rows)
-            if ident.diagnostics:
-                doc.subheading("Diagnostics", 10)
-                doc.kv([(k, fmt(v)) for k, v in ident.diagnostics.items()], size=8)
-    if cert.design is not None:
-        d = cert.design
-        doc.new_page("design")
-        doc.heading(SECTION_TITLES["design"])
-        doc.kv([("free parameter", d.parameter + (f" [{d.unit}]" if d.unit else "")),
-                ("current value", _value_unit(d.current, d.unit)),
-                ("largest value meeting the requirement", _value_unit(d.max_value, d.unit)),
-                ("P(stable) at that value", fmt_p(d.probability_at_max)),
-                ("required", fmt_p(d.required))] + ([("headroom", _headroom(d))] if _headroom(d) else []))
-        if d.note:
-            doc.para(d.note, 9)
-    if cert.witness is not None:
-        w = cert.witness
-        doc.new_page("witness")
-        doc.heading(SECTION_TITLES["witness"])
-        doc.para("A set of passive terminations under which the network delivers energy, with its simulation.", 9)
-        doc.kv([("drive frequency", fmt_freq(w.drive_frequency_rad_s)), ("band", fmt_band(w.band_rad_s)),
-                ("margin", fmt(w.margin))])
-        doc.subheading("Terminations")
-        doc.kv([(k, fmt(v)) for k, v in w.terminations.items()] or [("—", "—")])
-        if w.simulation:
-            doc.subheading("Simulation outcome")
-            doc.kv([(k, fmt(v)) for k, v in w.simulation.items()])
-    if cert.energy is not None:
-        doc.new_page("energy")
-        doc.heading(SECTION_TITLES["energy"])
-        doc.table(["experiment", "port", "record", "E_s < 0", "min E_s", "noise bound", "first time"],
-                  [[e.experiment, e.port, e.record, "YES" if e.went_negative else "no", fmt(e.min_energy), fmt(e.bound),
-                    fmt(e.first_time)] for e in cert.energy],
-                  [[None, None, None, OUTCOME_STYLE["FAIL" if e.went_negative else "PASS"][1], None, None, None]
-                   for e in cert.energy])
-    if cert.multiport is not None:
-        mp = cert.multiport
-        doc.new_page("multiport")
-        doc.heading(SECTION_TITLES["multiport"])
-        doc.kv([("ports", str(len(mp.ports))), ("DOFs per port", ", ".join(str(p) for p in mp.ports) or "—"),
-                ("total DOFs", str(mp.dof_total)), ("symmetrization", mp.symmetrization or "—")])
+def _pdf_section(doc: _PdfDoc, cert: Certificate, sec: Section, carried: list[Series] | None = None
+                 ) -> list[Series]:
+    """One section in the flow. A figure that does not fit on the current page floats: the
+    following tables and paragraphs come first (those of this section, then of the next one),
+    the figure as soon as it fits, and at the latest at the end of the next section, so no page is
+    left mostly empty. Returns this section's figures still floating."""
+    carried = list(carried or [])
+    pending: list[Series] = []
+
+    def place(force: bool = False) -> None:
+        for queue in (carried, pending):
+            while queue and (force or doc.fits(queue[0])):
+                doc.figure(queue.pop(0))
+
+    doc.heading(sec.title, 13)
+    for b in sec.blocks:
+        if b.kind == "figure" and b.plot in cert.plots:
+            s = cert.plots[b.plot]
+            if carried or pending or not doc.fits(s):
+                pending.append(s)
+            else:
+                doc.figure(s)
+            continue
+        _pdf_block(doc, cert, b)
+        place()
+    while carried:
+        doc.figure(carried.pop(0))
+    place()
+    return pending
 
 
-def _headroom(d: Any) -> str:
-    if d.current is None or d.max_value is None or not math.isfinite(d.max_value) or d.max_value == 0:
-        return ""
-    ratio = d.current / d.max_value
-    return f"current is {ratio:.0%} of the largest value" + (" (EXCEEDS it)" if ratio > 1 else "")
+def _pdf_block(doc: _PdfDoc, cert: Certificate, b: Any) -> None:
+    if b.kind == "para":
+        if b.style.startswith("strong-"):
+            o = b.style.split("-", 1)[1]
+            doc.para(b.text, 9.5, weight="bold", color=_outcome_text_colour(o))
+        else:
+            doc.para(b.text, 8.5 if b.style == "muted" else 9, color="#444444" if b.style == "muted" else "#000000")
+    elif b.kind == "h3":
+        doc.subheading(b.text, 10)
+    elif b.kind == "table" and b.table is not None:
+        doc.model_table(b.table)
+    elif b.kind == "gauge" and cert.robust is not None:
+        doc.pstable(cert)
+
+
+def draw_pstable(ax: Any, cert: Certificate) -> None:
+    """The P(stable) figure: the estimate and its confidence interval against the required level
+    (the lower bound must clear it), on an axis zoomed on [a, 1]."""
+    r = cert.robust
+    assert r is not None
+    status, _ = robust_status(cert)
+    colour = {"PASS": "#1b7f3b", "MARGINAL": "#f2a900", "FAIL": "#c62828"}[status]
+    vals = [v for v in (r.lower, r.p_stable, r.required) if math.isfinite(v)]
+    lo = min(vals) if vals else 0.0
+    a = max(0.0, lo - max(0.25 * (1.0 - lo), 0.005))
+    ax.barh([0], [r.upper - r.lower], left=[r.lower], height=0.5, color=colour, alpha=0.35, edgecolor=colour,
+            label=f"{r.confidence:.0%} interval [{fmt_p(r.lower)}, {fmt_p(r.upper)}]")
+    ax.plot([r.p_stable], [0], "o", color=colour, markersize=9, label=f"P̂ = {fmt_p(r.p_stable)}")
+    ax.axvline(r.required, color="#1d2733", linestyle="--", linewidth=1.5, label=f"required {fmt_p(r.required)}")
+    ax.set_xlim(a, 1.0 + 0.02 * (1.0 - a))
+    ax.set_ylim(-0.8, 0.8)
+    ax.set_yticks([])
+    ax.set_xlabel("P(stable) [1]", fontsize=9)
+    ax.set_title(f"P(stable) against the requirement: {status}", fontsize=10)
+    ax.tick_params(labelsize=8)
+    ax.grid(True, axis="x", alpha=0.3)
+    ax.legend(loc="upper left", fontsize=7, ncol=3, framealpha=0.9)
 
 
 def _status_outcome(status: str) -> str | None:
@@ -920,46 +1140,6 @@ def _outcome_text_colour(o: str) -> str:
     return {"PASS": "#1b7f3b", "FAIL": "#c62828", "MARGINAL": "#9a6b00", "ERROR": "#6a3d9a"}.get(o, "#1d2733")
 
 
-def _pdf_plots(doc: _PdfDoc, cert: Certificate) -> None:
-    if not cert.plots:
-        return
-    doc.new_page("plots")
-    doc.heading(SECTION_TITLES["plots"])
-    for s in cert.plots.values():
-        doc.figure(s)
-
-
-def _pdf_signature(doc: _PdfDoc, cert: Certificate) -> None:
-    doc.new_page("signature")
-    doc.heading("Review and signature")
-    bg, fg = doc.style[1:]
-    st = doc.integrity
-    doc.y -= 0.3
-    doc._t(doc.ML, doc.y, "Decision:", 12)
-    doc._t(doc.ML + 1.0, doc.y + 0.04, f"  {cert.decision}  ", 14, weight="bold", color=fg, va="center",
-           bbox={"boxstyle": "round,pad=0.3", "facecolor": bg, "edgecolor": "none"})
-    doc.y -= 0.25
-    doc.subheading("Integrity", 10)
-    doc.kv([("digest (sha256, hil-c14n/1)", _digest_text(st)), ("electronic signature", st.signature_text())],
-           size=8)
-    if cert.evidence:
-        doc.table(["evidence", "role", "bytes", "sha256"], [[e.path, e.role, str(e.bytes), e.sha256]
-                                                             for e in cert.evidence], size=7)
-    doc.para(_evidence_note(st), 8, color="#444444" if st.valid else "#8e1616")
-    doc.space(0.1)
-    doc.para(f"I have reviewed this certificate for scene {cert.scene.name} (scene sha256 {cert.scene.sha256}; "
-             f"digest {st.recorded_digest or 'none'}) and its evidence, and I accept the decision above.", 10)
-    doc.space(0.3)
-    for role in ("Reviewed by", "Approved by"):
-        doc.ensure(1.9)
-        doc.subheading(role)
-        for label in ("Name", "Date", "Signature"):
-            doc.y -= 0.48
-            doc._t(doc.ML, doc.y + 0.03, label, 10, color="#333333")
-            doc._hrule(doc.y, "#222222", 0.8, doc.ML + 1.1, doc.W - doc.MR)
-        doc.space(0.35)
-
-
 def render_pdf(cert: Certificate, out_path: str | os.PathLike[str], *,
                integrity: IntegrityStatus | None = None) -> Path:
     """Write the certificate as a PDF for signing (matplotlib ``PdfPages`` only); returns its path.
@@ -985,10 +1165,8 @@ def render_pdf(cert: Certificate, out_path: str | os.PathLike[str], *,
         try:
             with PdfPages(tmp, metadata=meta) as pdf:
                 doc = _PdfDoc(pdf, cert, st)
-                _pdf_title(doc, cert)
-                _pdf_sections(doc, cert)
-                _pdf_plots(doc, cert)
-                _pdf_signature(doc, cert)
+                _pdf_summary(doc, cert)
+                _pdf_block_flow(doc, cert)
                 doc.flush()
             os.replace(tmp, out)
         except OSError as exc:

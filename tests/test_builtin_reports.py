@@ -9,11 +9,12 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from test_report import _chromium_shot, _console_errors, _png_stats, _tool
+from test_report import _chromium_shot, _console_errors, _png_stats, _tool, assert_pages_carry_content
 
 from hil.certificate import Certificate
 from hil.pipeline import certify_scene
 from hil.report import build_reports
+from hil.report_model import missing_units
 from hil.scene import builtin_scenes, load_scene
 
 SCENES = [n for n, _ in builtin_scenes()]
@@ -67,3 +68,12 @@ def test_builtin_scene_report_renders(name, reports, tmp_path):
     # scene has its posterior and design guidance
     if name.startswith("sdea"):
         assert cert.multiport is None and cert.identification and cert.design is not None
+    # issue 18: units on every table column, number and plot axis; pages that carry content;
+    # the stability plot of a NO-GO shows its violation
+    assert missing_units(cert) == [], missing_units(cert)
+    assert_pages_carry_content(Path(files["pdf"]))
+    if cert.decision == "NO-GO" and "decided" in cert.plots:
+        curve = [v for v in next(iter(cert.plots["decided"].lines.values())) if v is not None]
+        assert min(curve) < 0, name
+    if cert.witness is not None and cert.witness.simulation.get("simulated"):
+        assert cert.witness.growth_rate_1_s is not None and cert.witness.closed_loop_poles

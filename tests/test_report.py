@@ -34,6 +34,7 @@ from hil.report import (
     report_main,
     write_json,
 )
+from hil.report_model import DEFINITIONS_DOC
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = ROOT / "docs" / "certificate.schema.json"
@@ -58,7 +59,7 @@ COLOURS = {"GO": (0x1B, 0x7F, 0x3B), "NO-GO": (0xC6, 0x28, 0x28), "ERROR": (0x6A
 def _base(decision: str, scene: str, **kw) -> dict:
     return {"created_utc": "2026-11-22T10:00:00Z", "software": {"hil-certify": "0.1.0", "python": "3.11"},
             "scene": {"name": scene, "sha256": "ab" * 32, "description": f"{scene} on the mocked bench",
-                      "source": f"builtin:{scene}"},
+                      "source": f"builtin:{scene}", "units": "rotary" if scene.startswith("sdea") else "linear"},
             "decision": decision, "policy": {"required_probability": 0.95, "confidence": 0.95, "credible": 0.9}, **kw}
 
 
@@ -116,11 +117,11 @@ def sdea_go() -> Certificate:
                 "note": "largest virtual-coupler stiffness keeping the lower bound of P(stable) ≥ 0.95"},
         plots={
             "bode": {"title": "Bode magnitude with 90% credible band", "x": w.tolist(), "x_label": "ω [rad/s]",
-                     "y_label": "|G| [dB]", "log_x": True, "lines": {"posterior mean": mag.tolist(),
+                     "y_label": "|G| [dB re 1 N.m.s/rad]", "log_x": True, "lines": {"posterior mean": mag.tolist(),
                                                                       "measured H1": (mag + 0.3).tolist()},
                      "bands": {"posterior mean": ((mag - 1.5).tolist(), (mag + 1.5).tolist())}},
             "margin": {"title": "Passivity margin vs frequency", "x": w.tolist(), "x_label": "ω [rad/s]",
-                       "y_label": "normalized margin", "log_x": True, "lines": {"margin": margin.tolist()},
+                       "y_label": "normalized margin [1]", "log_x": True, "lines": {"margin": margin.tolist()},
                        "points": {"worst": (float(w[i_worst]), float(margin[i_worst]))}, "hline": 0.0},
             "corner": {"title": "Posterior draws: K_f vs B_f ($ literal)", "x": k_draws.tolist(),
                        "x_label": "K_f [N m/rad]", "y_label": "B_f [N m s/rad]", "lines": {"draws": b_draws.tolist()},
@@ -146,7 +147,7 @@ def two_port_nogo() -> Certificate:
         ],
         nominal={"network": "bilateral_2dof", "criterion": "absolute_stability", "verdict": "potentially_unstable",
                  "margin": -0.21, "worst_frequency": 12.5, "failed_condition": "B2", "weak": False,
-                 "parameters": {"m1": 1.0, "m2": 1.0}, "conditions": [
+                 "parameters": {"mm_yy": 1.0, "ms_yy": 1.0}, "conditions": [
                      {"name": "A", "label": "cycle products", "status": "satisfied", "margin": 0.5,
                       "worst_frequency": 3.0},
                      {"name": "B2", "label": "η(ω) ≥ 1 on block 2", "status": "violated", "margin": -0.21,
@@ -182,7 +183,7 @@ def error_cert() -> Certificate:
 CERTS = {"go": sdea_go, "nogo": two_port_nogo, "error": error_cert}
 PRESENT = {
     "go": {"nominal", "robust", "identification", "design", "plots"},
-    "nogo": {"nominal", "witness", "energy", "multiport", "plots"},
+    "nogo": {"nominal", "witness", "energy", "multiport"},  # its energy plot sits in the energy section
     "error": {"errors"},
 }
 
@@ -298,7 +299,8 @@ def test_html_is_self_contained_and_escaped(built):
     for paths in built.values():
         html = paths["html"].read_text(encoding="utf-8")
         for attr in re.findall(r'(?:src|href)\s*=\s*"([^"]*)"', html):
-            assert attr.startswith(("data:", "#")), attr
+            # inline data, in-page anchors, and the links of numbers to their definitions
+            assert attr.startswith(("data:", "#", f"{DEFINITIONS_DOC}#")), attr
         assert "<link" not in html and "<script" not in html and "@import" not in html
         assert not re.search(r"url\((?!\s*['\"]?(data:|#))", html)
     html = built["error"]["html"].read_text(encoding="utf-8")
@@ -309,12 +311,12 @@ def test_html_details(built):
     html = built["go"]["html"].read_text(encoding="utf-8")
     assert 'class="o-marginal">MARGINAL<' in html and 'class="o-pass">PASS<' in html
     assert ">0.9992<" in html and "[0.9981, 0.9998]" in html  # P(stable) and its interval
-    assert "40 … 95 rad/s" in html  # critical band
+    assert "<td>40 … 95</td><td>rad/s</td>" in html  # critical band, its unit in the unit column
     assert ">truth<" in html and "CRB std" in html
     assert "current is 80% of the largest value" in html
     assert "line &#39;broken&#39; left out: 2 values for 200 x values" in html  # broken plot noted, not fatal
     nogo = built["nogo"]["html"].read_text(encoding="utf-8")
-    assert "9 … inf rad/s" in nogo and "12.5 rad/s (1.989 Hz)" in nogo
+    assert "<td>9 … inf</td><td>rad/s</td>" in nogo and "<td>12.5 (1.989 Hz)</td><td>rad/s</td>" in nogo
     assert 'class="o-fail">YES<' in nogo and 'class="o-fail">violated<' in nogo
     err = built["error"]["html"].read_text(encoding="utf-8")
     assert "has no channel motor.velocity" in err and ">NaN<" in err
@@ -389,13 +391,66 @@ def test_pdf_rasterizes(built, key, tmp_path):
     subprocess.run([exe, "-png", "-r", "50", str(built[key]["pdf"]), str(tmp_path / "page")], check=True,
                    timeout=60, capture_output=True)
     pages = sorted(tmp_path.glob("page-*.png"))
-    expected = 2 + len(PRESENT[key] - {"errors"})  # title + sections (+ plots) + signature, at least
-    assert len(pages) >= max(2, expected)
+    assert len(pages) >= 2  # the signable summary, then the evidence flowing on the next pages
     for pg in pages:
         assert pg.stat().st_size > 3000
         assert _png_stats(pg)[0] > 0.02
     _, title = _png_stats(pages[0])
     assert _colour_pixels(title, COLOURS[CERTS[key]().decision], 0.08) > 100  # decision badge on page 1
+
+
+#: a page (other than the last) must be filled at least this far down by content: sections flow
+#: onto pages (a figure that does not fit floats after the next tables, or shrinks to 72 %), so a
+#: page is only cut short when a whole figure plus the table rows around it cannot fill it
+MIN_PAGE_FILL = 0.6
+#: the last page holds at least the end of the evidence table (the integrity block)
+MIN_LAST_PAGE_FILL = 0.12
+
+
+def page_fills(pdf: Path, top_in: float = 0.7, bottom_in: float = 0.7) -> list[float]:
+    """Per page, how far down the body (between the running header and footer, ``top_in`` and
+    ``bottom_in`` inches from the edges) its content reaches, as a fraction of the body height: the
+    lowest word that pdftotext finds (tables, paragraphs and the tick labels of figures are text)."""
+    exe = _tool("pdftotext")
+    xml = subprocess.run([exe, "-bbox", str(pdf), "-"], capture_output=True, text=True, timeout=60,
+                         check=True).stdout
+    out = []
+    for _w, h, body in re.findall(r'<page width="([\d.]+)" height="([\d.]+)">(.*?)</page>', xml, re.S):
+        t0, t1 = top_in * 72, float(h) - bottom_in * 72
+        ys = [(float(a), float(b)) for a, b in re.findall(r'yMin="([\d.]+)" xMax="[\d.]+" yMax="([\d.]+)"', body)]
+        ys = [(a, b) for a, b in ys if a > t0 and b < t1]
+        out.append(0.0 if not ys else (max(b for _, b in ys) - t0) / (t1 - t0))
+    return out
+
+
+def assert_pages_carry_content(pdf: Path) -> list[float]:
+    fills = page_fills(pdf)
+    assert fills, "no pages"
+    for i, f in enumerate(fills[:-1]):
+        assert f >= MIN_PAGE_FILL, f"page {i + 1} of {len(fills)} is only {f:.0%} full: {fills}"
+    assert fills[-1] >= MIN_LAST_PAGE_FILL, fills
+    return fills
+
+
+def test_page_fill_detects_a_near_empty_page(tmp_path):
+    from matplotlib.backends.backend_pdf import PdfPages
+    from matplotlib.figure import Figure
+
+    pdf = tmp_path / "two.pdf"
+    with PdfPages(pdf) as pp:
+        for frac in (0.95, 0.2):
+            fig = Figure(figsize=(8.27, 11.69))
+            for k in range(12):
+                y = 11.69 - 0.9 - k * (11.69 - 1.6) * frac / 11
+                fig.text(0.1, y / 11.69, f"line {k}")
+            pp.savefig(fig)
+    fills = page_fills(pdf)
+    assert fills[0] > 0.9 and fills[1] < 0.25, fills
+
+
+@pytest.mark.parametrize("key", list(CERTS))
+def test_pdf_pages_carry_content(built, key):
+    assert_pages_carry_content(built[key]["pdf"])
 
 
 def test_pdf_paginates_a_long_measurement_table(tmp_path):

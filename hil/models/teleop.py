@@ -10,6 +10,7 @@ say what was assumed.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 import numpy as np
@@ -169,6 +170,22 @@ def _robot_matrix(r: Mapping[str, float], prefix: str) -> list[list[Rational]]:
     return [[z("yy"), z("yz")], [z("yz"), z("zz")]]
 
 
+def _table2_name(gm: Mapping[str, float], gs: Mapping[str, float]) -> str:
+    """The Table II set a gain mapping equals on both sides (zy = yz), e.g. "B (Table II)"; else "custom"."""
+    for set_name, t in TWO_DOF_TABLE2.items():
+        ok = True
+        for side, g in (("m", gm), ("s", gs)):
+            for k, v in t.items():
+                key = k[:3] + side + k[3:]
+                alt = key[:-2] + "zy" if key.endswith("yz") else None
+                if not math.isclose(float(g.get(key, math.nan)), float(v), rel_tol=1e-12) or (
+                        alt is not None and alt in g and not math.isclose(float(g[alt]), float(v), rel_tol=1e-12)):
+                    ok = False
+        if ok:
+            return f"{set_name} (Table II)"
+    return "custom"
+
+
 def bilateral_2dof(gains: str | Mapping[str, float] = "A1", params: Mapping[str, float] | None = None,
                    **kw: float) -> TransferMatrix:
     """Paper 000 eq. (44): [F_h; F_e] = [[C_m + Z_m, -C_m], [-C_s, C_s + Z_s]] [V_h; V_e], a 2-port
@@ -197,7 +214,7 @@ def bilateral_2dof(gains: str | Mapping[str, float] = "A1", params: Mapping[str,
     Zm, Zs = _robot_matrix(rob, "m"), _robot_matrix(rob, "s")
     rows = [[Cm[i][j] + Zm[i][j] for j in range(2)] + [-Cm[i][j] for j in range(2)] for i in range(2)]
     rows += [[-Cs[i][j] for j in range(2)] + [Cs[i][j] + Zs[i][j] for j in range(2)] for i in range(2)]
-    name = f"bilateral_2dof (000 eq. 44, gains {gains if isinstance(gains, str) else 'custom'})"
+    name = f"bilateral_2dof (000 eq. 44, gains {gains if isinstance(gains, str) else _table2_name(gm, gs)})"
     return TransferMatrix(rows, "impedance", (2, 2), name)
 
 

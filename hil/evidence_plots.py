@@ -1,0 +1,361 @@
+"""Evidence plots and the witness response, as certificate data (:class:`hil.certificate.Series`).
+
+Called by the plot builders of :mod:`hil.pipeline` (one line each); rendered by :mod:`hil.report`.
+Every axis label ends with its SI unit in brackets (``[1]`` for a dimensionless quantity), from
+the scene's ``units`` (:mod:`hil.report_units`).
+
+* :func:`identification_plots` -- per FRF output: magnitude (measured H1 with its confidence band
+  from the coherence, the posterior median and its 90 % band), phase, coherence and normalized
+  residuals stacked; a corner plot of the posterior (``corner`` package, ``report`` extra).
+* :func:`decided_plot` -- the decisive frequency condition of the criterion (the failing one
+  with the smallest margin for a NO-GO, the one with the smallest margin otherwise), its negative
+  region shaded and its worst frequency marked; imaginary-axis and infinity conditions (which
+  have no frequency curve) as bars of their residue margins.
+* :func:`witness_response` -- the closed-loop poles a destabilizing termination creates, the
+  growth rate, and the exact simulation of the driven port until it crosses the bench's safety
+  limits (time to the limit and the port energy then), instead of an energy from a diverging
+  simulation.
+
+Confidence band of the measured FRF (Bendat & Piersol, random error of an H1 estimate with
+``n_d`` averages and squared coherence γ²): ε = √(1 − γ²) / (|γ| √(2 n_d)); the band is
+|H1|·(1 ± 2ε) (≈ 95 %), clipped at a factor 10⁻³ below.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+from typing import Any
+
+import numpy as np
+
+from hil.certificate import Series
+from hil.errors import HilError
+from hil.report_units import frf_unit, parameter_unit, quantity_unit
+
+log = logging.getLogger(__name__)
+
+__all__ = ["decided_plot", "decisive_condition", "identification_plots", "immittance_db_label", "witness_response"]
+
+
+def _clean(a: Any) -> list[float | None]:
+    return [float(x) if math.isfinite(x) else None for x in np.asarray(a, float)]
+
+
+def _db(a: Any) -> list[float | None]:
+    """20 log10 |a| (a real or complex)."""
+    return _clean(20 * np.log10(np.maximum(np.abs(np.asarray(a)), 1e-300)))
+
+
+def immittance_db_label(kind: str, units: str | None) -> str:
+    """The y label of an immittance magnitude in dB: ``|Z| [dB re 1 N.s/m]`` (a hybrid (1,1)
+    entry is an impedance)."""
+    q = "admittance" if kind == "admittance" else "impedance"
+    return f"|{kind} entry (1,1)| [dB re 1 {quantity_unit(q, units)}]"
+
+
+# ---------------------------------------------------------------------------------------------
+# identification
+
+
+def identification_plots(plots: dict[str, Series], name: str, res: Any, seed: int, units: str | None) -> None:
+    """FRF evidence per output (first input) and the posterior corner plot (see the module docstring)."""
+    est, mdl = res.frf, res.model
+    samp = np.asarray(res.posterior.samples)[:, : mdl.n_params]
+    rng = np.random.default_rng(seed + 2)
+    pick = samp[rng.choice(samp.shape[0], size=min(150, samp.shape[0]), replace=False)]
+    Hd = mdl.frf(pick, est.w)
+    Hm = mdl.frf(np.median(samp, axis=0), est.w)
+    no = est.H.shape[1]
+    f = est.f.tolist()
+    n_avg = max(float(est.n_avg), 1.0)
+    for o in range(min(no, 2)):
+        i = 0
+        H = est.H[:, o, i]
+        ins = est.input_names[i] if est.input_names else "input"
+        outs = est.output_names[o] if est.output_names else f"output {o}"
+        u = frf_unit(outs, ins, units) or "1"
+        g2 = np.clip(np.asarray(est.coherence[:, o], float), 1e-12, 1.0)
+        eps = np.sqrt(1.0 - g2) / (np.sqrt(g2) * math.sqrt(2.0 * n_avg))
+        lo_m, hi_m = np.abs(H) * np.maximum(1.0 - 2.0 * eps, 1e-3), np.abs(H) * (1.0 + 2.0 * eps)
+        q05, q95 = np.quantile(np.abs(Hd[:, :, o, i]), [0.05, 0.95], axis=0)
+        ph_d = np.degrees(np.unwrap(np.angle(Hd[:, :, o, i]), axis=1))
+        ph_m = np.degrees(np.unwrap(np.angle(Hm[:, o, i])))
+        ph_h = np.degrees(np.unwrap(np.angle(H)))
+        ph_h += 360.0 * np.round((np.median(ph_m - ph_h)) / 360.0)  # same branch as the model
+        p05, p95 = np.quantile(ph_d, [0.05, 0.95], axis=0)
+        shift = 360.0 * np.round(np.median(ph_m - np.median(ph_d, axis=0)) / 360.0)
+        sig = np.asarray(est.sigma[:, o, i], float)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r = (Hm[:, o, i] - H) / np.where(sig > 0, sig, np.nan)
+        n = len(f)
+        plots[f"frf_{name}_{o}"] = Series(
+            title=f"FRF fit ({name}): {ins} → {outs}", x=f, x_label="f [Hz]",
+            y_label=f"|H| [dB re 1 {u}]" if u != "1" else "|H| [dB re 1]",
+            log_x=True,
+            lines={"posterior median": _db(Hm[:, o, i]), "measured H1": _db(H)},
+            bands={"posterior median": (_db(q05), _db(q95)), "measured H1": (_db(lo_m), _db(hi_m))},
+            panels=[
+                Series(title="phase", x=f, x_label="f [Hz]", y_label="phase [deg]", log_x=True,
+                       lines={"posterior median": _clean(ph_m), "measured H1": _clean(ph_h)},
+                       bands={"posterior median": (_clean(p05 + shift), _clean(p95 + shift))}),
+                Series(title="coherence", x=f, x_label="f [Hz]", y_label="γ² [1]", log_x=True,
+                       lines={"coherence γ²": _clean(g2)}),
+                Series(title="normalized residual (posterior median − H1)/σ", x=f, x_label="f [Hz]",
+                       y_label="residual [1]", log_x=True,
+                       lines={"real part": _clean(r.real), "imaginary part": _clean(r.imag)},
+                       bands={"±2 (95 %)": ([-2.0] * n, [2.0] * n)}, hline=0.0),
+            ])
+    names = list(res.names)[: samp.shape[1]]
+    if samp.shape[1] >= 2:
+        units_of = dict(zip(mdl.names, mdl.units, strict=False))
+        sub = samp[:: max(1, samp.shape[0] // 1500)]
+        plots[f"corner_{name}"] = Series(
+            title=f"Posterior of the identified parameters ({name})", kind="corner",
+            x=[float(k) for k in range(sub.shape[0])], x_label="draw [1]", y_label="value [parameter units]",
+            lines={f"{p} [{units_of.get(p) or parameter_unit(p, units) or '1'}]": sub[:, k].tolist()
+                   for k, p in enumerate(names)})
+
+
+# ---------------------------------------------------------------------------------------------
+# the decisive condition
+
+
+def decisive_condition(r: Any) -> Any:
+    """The condition that decides: of a potentially unstable result, the violated one with the
+    smallest margin; otherwise the one with the smallest finite margin (preconditions A, B, A*
+    excluded). None when no condition has a finite margin."""
+    conds = [c for c in r.conditions if c.margin is not None and math.isfinite(c.margin)
+             and c.name not in ("A", "B", "A*")]
+    failed = [c for c in conds if c.status == "violated"]
+    pool = failed or conds
+    return min(pool, key=lambda c: c.margin) if pool else None
+
+
+def _is_frequency(c: Any) -> bool:
+    return c.name.startswith("E")
+
+
+def _indices(name: str) -> list[int] | None:
+    m = re.search(r"[{\[]([\d,\s]+)[}\]]", name)
+    return [int(t) - 1 for t in m.group(1).split(",")] if m else None
+
+
+def _condition_curve(tm: Any, r: Any, c: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(ω [rad/s], the normalized margin function of condition ``c``) on a grid over the network's
+    poles and zeros: the same ratio the criterion minimizes (hil.stability.criteria)."""
+    from hil.stability import criteria as C
+
+    tmn, w0 = C._normalized(tm)
+    lo, hi = C._freq_range(tmn.entries)
+    w = np.geomspace(lo, hi, 800)
+    idx = _indices(c.name)
+    if idx is None:
+        raise HilError(f"condition {c.name}: no index set")
+    entries = tmn.entries
+    if "Z'" in c.label:  # Theorem 1: minors of the symmetrized Z'
+        entries = _symmetrized(tmn, idx) or entries
+        if entries is not tmn.entries:
+            idx = list(range(len(idx))) if len(entries) == len(idx) else idx
+    sub = [[entries[a][b] for b in idx] for a in idx]
+    if "Llewellyn" in c.label and len(idx) == 2:
+        fn = C._eta_ratio(sub)
+    else:
+        try:
+            fn = C._hermitian_ratio(sub, C._regular_part(sub))
+        except Exception:  # the regular part needs exact arithmetic; the plain ratio has the same sign
+            fn = C._hermitian_ratio(sub)
+    with np.errstate(all="ignore"):
+        y = np.asarray(fn(w), float)
+    return w * w0, y
+
+
+def _symmetrized(tmn: Any, idx: list[int]) -> list[list[Any]] | None:
+    """Z' (z'_ij = γ_ij √(z_ij z_ji)) restricted to the index set ``idx`` when it is rational, as
+    the criterion forms it; None otherwise."""
+    from hil.stability import criteria as C
+
+    n = tmn.n
+    W = {}
+    for i in range(n):
+        for j in range(i + 1, n):
+            if i in idx and j in idx and not (tmn[i, j].is_zero or tmn[j, i].is_zero):
+                rt = C._rational_sqrt(tmn[i, j], tmn[j, i])
+                if rt is None:
+                    return None
+                W[(i, j)] = rt
+    try:
+        Zs = C._symmetrize(tmn, sorted(idx), W)
+    except Exception:
+        return None
+    return Zs
+
+
+def decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
+    """The ``decided`` plot (see the module docstring)."""
+    dec = decisive_condition(r)
+    freq = [c for c in r.conditions if _is_frequency(c) and c.margin is not None and math.isfinite(c.margin)]
+    shown = dec if dec is not None and _is_frequency(dec) else None
+    if shown is None and freq:
+        failed = [c for c in freq if c.status == "violated"]
+        shown = min(failed or freq, key=lambda c: c.margin)
+    residues = {c.name: float(c.margin) for c in r.conditions
+                if (c.name.startswith(("C", "D"))) and c.margin is not None and math.isfinite(c.margin)}
+    if shown is None:
+        plots["decided"] = Series(title=f"Decisive condition ({r.criterion}): {dec.name if dec else '—'}",
+                                  x=[], x_label="ω [rad/s]", y_label="normalized margin [1]", bars=residues)
+        return
+    w, y = _condition_curve(tm, r, shown)
+    pts: dict[str, tuple[float, float]] = {}
+    vl: dict[str, float] = {}
+    wf = shown.worst_frequency
+    if wf is not None and math.isfinite(wf) and wf > 0:
+        pts[f"worst: {shown.name} = {shown.margin:.3g} at ω = {wf:.4g} rad/s"] = (float(wf), float(shown.margin))
+        vl["worst frequency"] = float(wf)
+    if shown is dec:
+        title = f"Decisive condition {shown.name} ({r.criterion})"
+    else:
+        title = (f"Decisive condition {dec.name}: a residue (bars, right)\nfrequency condition with the "
+                 f"{'most negative' if shown.status == 'violated' else 'smallest'} margin: {shown.name}")
+    plots["decided"] = Series(
+        title=title, x=_clean(w), x_label="ω [rad/s]",
+        y_label="normalized margin [1]", log_x=True, lines={f"{shown.name}: {shown.label}": _clean(y)},
+        points=pts, vlines=vl, hline=0.0, shade_negative=True, bars=residues)
+
+
+# ---------------------------------------------------------------------------------------------
+# witness
+
+
+def witness_response(w: Any, plots: dict[str, Series], scene: Any = None) -> dict[str, Any]:
+    """Closed-loop poles of the terminated network driven by a force at the operator port (the
+    poles of Y_in = Z_in⁻¹), the growth rate σ = max Re p [1/s], and the exact-ZOH simulation of
+    V = Y_in F under F = F0 d sin(ωt) (F0 = 1 N or N.m, d the most non-passive direction) until
+    the velocity, position (∫V) or port energy crosses the scene's safety limits. Returns the
+    simulation summary; the keys in ``witness_response.FIELDS`` are Witness fields."""
+    from hil.mocks.lti import StateSpace, tf_matrix
+
+    y = w.z_in.to("admittance")
+    m = y.n
+    units = getattr(scene, "units", None)
+    poles = np.asarray(y.poles(), complex)
+    order = np.argsort(-poles.real)
+    poles = poles[order]
+    growth = float(poles.real.max()) if poles.size else None
+    out: dict[str, Any] = {"closed_loop_poles": [(float(p.real), float(p.imag)) for p in poles[:12]],
+                           "growth_rate_1_s": growth}
+    try:
+        ss: StateSpace = tf_matrix([[None if e.is_zero else (e.num[::-1].tolist(), e.den[::-1].tolist())
+                                     for e in row] for row in y.entries])
+    except HilError as exc:  # an improper admittance cannot be simulated as given
+        return {**out, "simulated": False, "reason": f"admittance not realizable: {exc}"}
+    safety = getattr(scene, "safety", None)
+    limits: dict[str, float] = {}
+    if safety is not None:
+        limits["max_velocity"] = float(safety.max_velocity)
+        if safety.position_limits is not None:
+            limits["max_position"] = float(min(abs(safety.position_limits[0]), abs(safety.position_limits[1])))
+        limits["max_energy"] = float(safety.max_energy)
+    wd = float(w.drive_frequency)
+    period = 2 * math.pi / wd
+    dt = min(1e-3, period / 200)
+    t_end = min(max(40 * period, 30.0 / growth if growth and growth > 0 else 0.0), 120.0)
+    n = int(min(t_end / dt, 300_000))
+    t = np.arange(n) * dt
+    d = np.asarray(w.direction, float).reshape(-1)[:m]
+    d = d / (np.linalg.norm(d) or 1.0)
+    F0 = 1.0
+    F = F0 * np.outer(np.sin(wd * t), d)
+    with np.errstate(all="ignore"):
+        _, V = ss.discretize(dt).simulate(F)
+        V = np.asarray(V).reshape(n, -1)[:, :m]
+        X = np.cumsum(V, axis=0) * dt
+        power = np.einsum("ij,ij->i", F, V)
+        E = np.concatenate([[0.0], np.cumsum(0.5 * (power[1:] + power[:-1]) * dt)])
+        vmag = np.max(np.abs(V), axis=1)
+        xmag = np.max(np.abs(X), axis=1)
+    finite = np.isfinite(vmag) & np.isfinite(E) & np.isfinite(xmag)
+    n_ok = int(np.argmin(finite)) if not finite.all() else n
+    crossed: dict[str, int] = {}
+    if limits:
+        for key, arr in (("max_velocity", vmag), ("max_position", xmag), ("max_energy", np.abs(E))):
+            if key in limits:
+                hit = np.nonzero(arr[:n_ok] > limits[key])[0]
+                if hit.size:
+                    crossed[key] = int(hit[0])
+    else:
+        ref = float(np.max(vmag[: max(1, n_ok // 10)]))
+        hit = np.nonzero(vmag[:n_ok] > 1e3 * max(ref, 1e-12))[0]
+        if hit.size:
+            crossed["1000 × the initial velocity"] = int(hit[0])
+    first = min(crossed, key=crossed.get) if crossed else None
+    n_keep = (crossed[first] + 1) if first else n_ok
+    n_keep = max(2, min(n_keep, n_ok))
+    t, E, vmag = t[:n_keep], E[:n_keep], vmag[:n_keep]
+    step = max(1, n_keep // 800)
+    vu, eu = quantity_unit("velocity", units), quantity_unit("effort", units)
+    panels = [Series(title="port energy", x=t[::step].tolist(), x_label="t [s]", y_label="E_s [J]",
+                     lines={"E_s = ∫ F·V dt": _clean(E[::step])}, hline=0.0)]
+    plots["witness_energy"] = Series(
+        title=f"Witness: response to a {F0:g} {eu} drive at {wd:.4g} rad/s under the destabilizing termination",
+        x=t[::step].tolist(), x_label="t [s]", y_label=f"|V| [{vu}]", log_y=True,
+        lines={"|V|": _clean(vmag[::step])},
+        hline=limits.get("max_velocity"), panels=panels,
+        vlines={f"{first} exceeded": float(t[-1])} if first else {})
+    out.update({"simulated": True, "duration_s": float(t[-1]), "drive_frequency_rad_s": wd,
+                "drive_amplitude": F0, "limits": limits, "limit_exceeded": first,
+                "time_to_limit_s": float(t[-1]) if first else None,
+                "energy_to_limit_J": float(E[-1]) if first else None,
+                "min_energy": float(np.min(E)), "went_negative": bool(np.min(E) < 0),
+                "diverged": bool(growth is not None and growth > 0),
+                "method": "exact-ZOH simulation (hil.mocks.lti) of V = Y_in F"})
+    return out
+
+
+witness_response.FIELDS = ("closed_loop_poles", "growth_rate_1_s", "drive_amplitude", "limits",  # type: ignore[attr-defined]
+                           "limit_exceeded", "time_to_limit_s", "energy_to_limit_J")
+
+
+
+# ---------------------------------------------------------------------------------------------
+# design headroom
+
+
+def headroom_plot(plots: dict[str, Series], cert_cfg: Any, params: Any, draws: Any, policy: Any,
+                  design: Any, n_grid: int = 41) -> None:
+    """P(stable) and its lower confidence bound against the SDEA design parameter (k22 or b22)
+    over the scene's design range, with the requirement, the current value and the largest value
+    meeting the requirement (where the lower bound crosses it: the headroom) marked."""
+    from hil.certify import probability_of_stability
+    from hil.stability.batch import sdea_passivity_batch
+
+    d = cert_cfg.design
+    if cert_cfg.model != "sdea" or d is None or d.parameter not in ("k22", "b22") or design is None:
+        return
+    fixed = {k: float(v) for k, v in params.items() if isinstance(v, int | float)}
+    n = len(next(iter(draws.values())))
+    xs = np.linspace(float(d.range[0]), float(d.range[1]), n_grid)
+    if design.max_value is not None and math.isfinite(design.max_value):
+        xs = np.unique(np.concatenate([xs, [design.max_value]]))
+    phat, lower = [], []
+    for x in xs:
+        dd = dict(draws)
+        dd[d.parameter] = np.full(n, x)
+        p, lo, _ = probability_of_stability(sdea_passivity_batch(dd, fixed=fixed)["passive"], policy.confidence)
+        phat.append(p)
+        lower.append(lo)
+    unit = design.unit or parameter_unit(d.parameter, "rotary", "sdea")
+    pts: dict[str, tuple[float, float]] = {}
+    vl: dict[str, float] = {}
+    if design.max_value is not None and math.isfinite(design.max_value):
+        pts[f"requirement crossing: {d.parameter} = {design.max_value:.4g} {unit}"] = (
+            float(design.max_value), float(policy.required_probability))
+    if design.current is not None:
+        vl[f"current {d.parameter}"] = float(design.current)
+    plots["headroom"] = Series(
+        title=f"Headroom: P(stable) against {d.parameter} (the lower {policy.confidence:.0%} bound must stay "
+              f"≥ {policy.required_probability})", x=xs.tolist(), x_label=f"{d.parameter} [{unit}]",
+        y_label="P(stable) [1]", lines={"P̂(stable)": _clean(phat), f"lower {policy.confidence:.0%} bound":
+                                        _clean(lower)},
+        points=pts, vlines=vl, hline=float(policy.required_probability))

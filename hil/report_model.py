@@ -1,0 +1,568 @@
+"""The report model: what the HTML and the PDF show, as sections of tables, paragraphs and figures.
+
+Both renderers of :mod:`hil.report` draw this one model, so a test can walk it: every table
+column carries its unit (:class:`Column`; ``"1"`` for a dimensionless number, ``"—"`` for a text
+column, ``"per row"`` when a ``unit`` column next to it gives each row's unit), every number in a
+key-value table has its unit in that row, and every plot axis label ends with ``[unit]``.
+
+Numbers link to their definitions: :data:`DEFINITIONS` is the ONE mapping from a certificate field
+path (``robust.p_stable``) to its anchor in ``docs/CERTIFICATION.md`` (one heading per field); the
+renderers turn it into a link (:func:`definition_link`).
+
+Units come from the scene's ``units`` (``cert.scene.units``: linear or rotary, SI) through
+:mod:`hil.report_units`. No heavy imports.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Any
+
+from hil.certificate import Certificate, Series
+from hil.report_units import parameter_unit, termination_units
+
+__all__ = ["DEFINITIONS", "DEFINITIONS_DOC", "Column", "Section", "Table", "definition_link", "plot_sections",
+           "report_sections"]
+
+#: where the definitions live (relative to the repository root)
+DEFINITIONS_DOC = "docs/CERTIFICATION.md"
+
+#: certificate field path -> anchor of its heading in docs/CERTIFICATION.md. The ONE place the
+#: report links numbers to definitions: align the anchors here when the document's headings change.
+DEFINITIONS: dict[str, str] = {
+    "decision": "decision",
+    "policy.required_probability": "policyrequired_probability",
+    "policy.confidence": "policyconfidence",
+    "policy.credible": "policycredible",
+    "measurements": "measurements",
+    "nominal.network": "nominalnetwork",
+    "nominal.criterion": "nominalcriterion",
+    "nominal.verdict": "nominalverdict",
+    "nominal.margin": "nominalmargin",
+    "nominal.worst_frequency": "nominalworst_frequency",
+    "nominal.failed_condition": "nominalfailed_condition",
+    "nominal.parameters": "nominalparameters",
+    "nominal.conditions": "nominalconditions",
+    "robust.p_stable": "robustp_stable",
+    "robust.lower": "robustlower",
+    "robust.upper": "robustupper",
+    "robust.required": "robustrequired",
+    "robust.n_draws": "robustn_draws",
+    "robust.sampling": "robustsampling",
+    "robust.worst_case_margin": "robustworst_case_margin",
+    "robust.worst_case_parameters": "robustworst_case_parameters",
+    "robust.critical_band_rad_s": "robustcritical_band_rad_s",
+    "robust.method": "robustmethod",
+    "identification.parameters": "identificationparameters",
+    "identification.diagnostics": "identificationdiagnostics",
+    "design.current": "designcurrent",
+    "design.max_value": "designmax_value",
+    "design.probability_at_max": "designprobability_at_max",
+    "witness.terminations": "witnessterminations",
+    "witness.drive_frequency_rad_s": "witnessdrive_frequency_rad_s",
+    "witness.band_rad_s": "witnessband_rad_s",
+    "witness.margin": "witnessmargin",
+    "witness.closed_loop_poles": "witnessclosed_loop_poles",
+    "witness.growth_rate_1_s": "witnessgrowth_rate_1_s",
+    "witness.time_to_limit_s": "witnesstime_to_limit_s",
+    "witness.energy_to_limit_J": "witnessenergy_to_limit_j",
+    "energy.min_energy": "energymin_energy",
+    "energy.bound": "energybound",
+    "energy.first_time": "energyfirst_time",
+}
+
+
+def definition_link(path: str | None) -> str | None:
+    """``docs/CERTIFICATION.md#<anchor>`` of a field path, or None when it has no entry."""
+    if not path or path not in DEFINITIONS:
+        return None
+    return f"{DEFINITIONS_DOC}#{DEFINITIONS[path]}"
+
+
+# ---------------------------------------------------------------------------------------------
+# model
+
+
+@dataclass
+class Column:
+    """A table column: its name, its unit (see the module docstring), a definition link, and
+    whether it is numeric (right-aligned) or must never wrap (condition names)."""
+
+    name: str
+    unit: str
+    field: str | None = None
+    num: bool = False
+    nowrap: bool = False
+
+    @property
+    def header(self) -> str:
+        return self.name if self.unit in ("—", "per row") else f"{self.name} [{self.unit}]"
+
+    @property
+    def link(self) -> str | None:
+        return definition_link(self.field)
+
+
+@dataclass
+class Table:
+    columns: list[Column]
+    rows: list[list[str]]
+    colours: list[list[str | None]] | None = None  # outcome names per cell (None: plain)
+    row_fields: list[str | None] | None = None  # definition field per row (key-value tables)
+    kv: bool = False
+    size: float = 8.0
+
+
+@dataclass
+class Block:
+    kind: str  # "para" | "h3" | "table" | "figure" | "gauge"
+    text: str = ""
+    table: Table | None = None
+    plot: str = ""  # key into cert.plots
+    style: str = ""  # para: "muted" | "strong-<OUTCOME>" | ""
+
+
+@dataclass
+class Section:
+    key: str
+    title: str
+    blocks: list[Block] = field(default_factory=list)
+
+
+# ---------------------------------------------------------------------------------------------
+# formatting (shared with hil.report)
+
+
+def fmt(v: Any, digits: int = 4) -> str:
+    """A value as a short human-readable string (None -> an em dash, NaN/inf spelled out)."""
+    if v is None:
+        return "—"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "NaN"
+        if math.isinf(v):
+            return "∞" if v > 0 else "−∞"
+        if v == 0.0:
+            return "0"
+        return f"{v:.{digits}g}"
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(fmt(x, digits) for x in v) + "]"
+    if isinstance(v, dict):
+        s = "{" + ", ".join(f"{k}: {fmt(x, digits)}" for k, x in v.items()) + "}"
+        return s if len(s) <= 240 else s[:237] + "…"
+    return str(v)
+
+
+def fmt_p(v: float | None) -> str:
+    """A probability with enough digits that a value below 1 never prints as 1."""
+    if v is None or not isinstance(v, int | float) or not math.isfinite(v):
+        return fmt(v)
+    if v in (0.0, 1.0):
+        return f"{v:.0f}"
+    for d in range(4, 10):
+        s = f"{v:.{d}f}"
+        if float(s) not in (0.0, 1.0):
+            return s
+    return f"{v:.3g}"
+
+
+def fmt_w(w: Any) -> str:
+    """A frequency in rad/s (the unit is the column's) with Hz in parentheses; strings as given."""
+    if isinstance(w, int | float) and not isinstance(w, bool) and math.isfinite(w):
+        return f"{fmt(float(w))} ({fmt(float(w) / (2 * math.pi))} Hz)"
+    return fmt(w)
+
+
+def fmt_range(lo: Any, hi: Any) -> str:
+    """``lo … hi`` with enough digits that two different ends never print alike."""
+    if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in (lo, hi)):
+        return f"{fmt(lo)} … {fmt(hi)}"
+    for d in range(4, 12):
+        a, b = fmt(float(lo), d), fmt(float(hi), d)
+        if a != b or lo == hi:
+            return f"{a} … {b}"
+    return f"{fmt(lo)} … {fmt(hi)}"
+
+
+def is_number_text(s: str) -> bool:
+    """True if a cell's text is (or starts with) a number: then its unit must be stated."""
+    return bool(re.match(r"^\s*[\[(]?\s*[−\-+]?(\d|∞|NaN)", s))
+
+
+def _kv(rows: list[tuple[str, str, str, str | None]]) -> Table:
+    """A quantity | value | unit table; rows (label, value, unit, field path)."""
+    return Table([Column("quantity", "—"), Column("value", "per row", num=False), Column("unit", "—")],
+                 [[a, b, c] for a, b, c, _ in rows], row_fields=[f for *_, f in rows], kv=True, size=9.0)
+
+
+def _u(unit: str) -> str:
+    return unit or "?"
+
+
+# ---------------------------------------------------------------------------------------------
+# plots per section
+
+_PLOT_SECTION = (("frf_", "identification"), ("corner_", "identification"), ("decided", "nominal"),
+                 ("bode", "robust"), ("critical_band", "robust"), ("headroom", "design"), ("witness", "witness"),
+                 ("energy", "energy"))
+
+
+def plot_sections(cert: Certificate) -> dict[str, list[str]]:
+    """Plot keys per section key (a plot whose section is absent goes to ``plots``)."""
+    present = {k for k in ("nominal", "robust", "identification", "design", "witness", "energy")
+               if getattr(cert, k) is not None}
+    out: dict[str, list[str]] = {}
+    for key in cert.plots:
+        sec = next((s for p, s in _PLOT_SECTION if key.startswith(p)), "plots")
+        out.setdefault(sec if sec in present else "plots", []).append(key)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# sections
+
+
+def _status_outcome(status: str) -> str | None:
+    s = str(status).strip().lower()
+    if s in ("pass", "ok", "holds", "satisfied", "equality", "stable", "true"):
+        return "PASS"
+    if s in ("fail", "failed", "violated", "potentially_unstable", "unstable", "false"):
+        return "FAIL"
+    if s in ("marginal", "weak"):
+        return "MARGINAL"
+    if s in ("error", "not_applicable", "undecided"):
+        return "ERROR"
+    return None
+
+
+def robust_status(cert: Certificate) -> tuple[str, str]:
+    """(outcome, sentence) of the robust result against the required level."""
+    r = cert.robust
+    assert r is not None
+    if r.lower >= r.required:
+        return "PASS", (f"the lower {r.confidence:.0%} bound {fmt_p(r.lower)} clears the required "
+                        f"{fmt_p(r.required)}")
+    if r.p_stable >= r.required:
+        return "MARGINAL", (f"the estimate {fmt_p(r.p_stable)} clears the required {fmt_p(r.required)} "
+                            f"but its lower {r.confidence:.0%} bound {fmt_p(r.lower)} does not")
+    return "FAIL", f"P(stable) = {fmt_p(r.p_stable)} is below the required {fmt_p(r.required)}"
+
+
+def headroom(d: Any) -> str:
+    if d.current is None or d.max_value is None or not math.isfinite(d.max_value) or d.max_value == 0:
+        return ""
+    ratio = d.current / d.max_value
+    return f"current is {ratio:.0%} of the largest value" + (" (EXCEEDS it)" if ratio > 1 else "")
+
+
+def policy_label(key: str) -> str:
+    return {"required_probability": "required P(stable)", "confidence": "confidence of the P(stable) interval",
+            "credible": "credible region (worst case)"}.get(key, key.replace("_", " "))
+
+
+def limits_text(lower: float | None, upper: float | None) -> str:
+    if lower is not None and upper is not None:
+        return f"{fmt(lower)} … {fmt(upper)}"
+    if lower is not None:
+        return f"≥ {fmt(lower)}"
+    if upper is not None:
+        return f"≤ {fmt(upper)}"
+    return "—"
+
+
+def measurement_unit(m: Any) -> str:
+    """The unit of a measurement value: its own, '1' for a dimensionless number, '—' for text."""
+    if m.unit:
+        return m.unit
+    if isinstance(m.value, bool | str) or m.value is None:
+        return "—"
+    return "1"
+
+
+def measurements_table(cert: Certificate) -> Table:
+    rows, colours = [], []
+    for m in cert.measurements:
+        rows.append([m.name, fmt(m.value), limits_text(m.lower, m.upper), measurement_unit(m), m.outcome,
+                     m.description])
+        colours.append([None, None, None, None, m.outcome, None])
+    return Table([Column("measurement", "—", "measurements"), Column("value", "per row", num=True),
+                  Column("limits", "per row", num=True), Column("unit", "—"), Column("outcome", "—"),
+                  Column("description", "—")], rows, colours)
+
+
+def _units(cert: Certificate) -> str | None:
+    return cert.scene.units
+
+
+def _param_rows(params: dict[str, float], cert: Certificate, model: str, field: str
+                ) -> list[tuple[str, str, str, str | None]]:
+    u = _units(cert)
+    return [(k, fmt(v), _u(parameter_unit(k, u, model)), field) for k, v in params.items()]
+
+
+def report_sections(cert: Certificate) -> list[Section]:
+    """The evidence sections present in the record, in reading order (the summary, policy and
+    measurements, and the signature are laid out by the renderers themselves)."""
+    out: list[Section] = []
+    figs = plot_sections(cert)
+    u = _units(cert)
+
+    def figures(sec: Section) -> None:
+        for k in figs.get(sec.key, []):
+            sec.blocks.append(Block("figure", plot=k))
+
+    if cert.nominal is not None:
+        n = cert.nominal
+        s = Section("nominal", "Nominal verdict")
+        s.blocks.append(Block("para", "The criterion on the nominal network (posterior-mean parameters and the "
+                                      f"scene's gains): {n.verdict}" + (" (weak: a condition holds only with "
+                                                                        "equality)" if n.weak else "") + "."))
+        s.blocks.append(Block("table", table=_kv([
+            ("network", n.network, "—", "nominal.network"), ("criterion", n.criterion, "—", "nominal.criterion"),
+            ("verdict", n.verdict + (" (weak)" if n.weak else ""), "—", "nominal.verdict"),
+            ("margin (normalized)", fmt(n.margin), "1", "nominal.margin"),
+            ("worst frequency", fmt_w(n.worst_frequency), "rad/s", "nominal.worst_frequency"),
+            ("failed condition", fmt(n.failed_condition), "—", "nominal.failed_condition")])))
+        if n.parameters:
+            s.blocks.append(Block("h3", "Nominal parameters"))
+            s.blocks.append(Block("table", table=_kv(_param_rows(n.parameters, cert, n.network,
+                                                                 "nominal.parameters"))))
+        if n.conditions:
+            s.blocks.append(Block("h3", "Conditions"))
+            s.blocks.append(Block("table", table=Table(
+                [Column("condition", "—", "nominal.conditions", nowrap=True), Column("label", "—"),
+                 Column("status", "—"), Column("margin", "1", "nominal.margin", num=True),
+                 Column("worst frequency", "rad/s", "nominal.worst_frequency", num=True), Column("detail", "—")],
+                [[c.name, c.label, c.status, fmt(c.margin), fmt_w(c.worst_frequency), c.detail]
+                 for c in n.conditions],
+                [[None, None, _status_outcome(c.status), None, None, None] for c in n.conditions])))
+        figures(s)
+        out.append(s)
+    if cert.robust is not None:
+        r = cert.robust
+        status, sentence = robust_status(cert)
+        s = Section("robust", "Robust certification")
+        s.blocks.append(Block("para", f"{status}: {sentence}.", style=f"strong-{status}"))
+        s.blocks.append(Block("gauge"))
+        band = r.critical_band_rad_s
+        s.blocks.append(Block("table", table=_kv([
+            ("P(stable)", fmt_p(r.p_stable), "1", "robust.p_stable"),
+            (f"{r.confidence:.0%} confidence interval (Clopper-Pearson)", f"[{fmt_p(r.lower)}, {fmt_p(r.upper)}]",
+             "1", "robust.lower"),
+            ("required (the lower bound must clear it)", fmt_p(r.required), "1", "robust.required"),
+            ("posterior draws", str(r.n_draws), "1", "robust.n_draws"),
+            ("sampling (independent draws)", r.sampling or "—", "—", "robust.sampling"),
+            (f"worst-case margin over the {r.credible:.0%} credible region", fmt(r.worst_case_margin), "1",
+             "robust.worst_case_margin"),
+            ("critical band", "—" if band is None else fmt_range(*band), "rad/s", "robust.critical_band_rad_s"),
+            ("method", r.method or "—", "—", "robust.method")])))
+        if r.worst_case_parameters:
+            s.blocks.append(Block("h3", "Worst-case parameters"))
+            model = cert.nominal.network if cert.nominal is not None else ""
+            s.blocks.append(Block("table", table=_kv(_param_rows(r.worst_case_parameters, cert, model,
+                                                                 "robust.worst_case_parameters"))))
+        figures(s)
+        out.append(s)
+    if cert.identification is not None:
+        s = Section("identification", "Identification")
+        show_truth = any(p.truth is not None for i in cert.identification for p in i.parameters)
+        for ident in cert.identification:
+            s.blocks.append(Block("h3", f"{ident.model} — " + ("converged" if ident.converged else "NOT converged")))
+            s.blocks.append(Block("para", f"record {ident.record}" + (f" · {ident.reason}" if ident.reason else ""),
+                                  style="muted"))
+            cols = [Column("parameter", "—", "identification.parameters", nowrap=True), Column("unit", "—")]
+            cols += [Column(h, "per row", "identification.parameters", num=True)
+                     for h in ("mean", "median", "q05", "q95", "std", "LS std", "CRB std")]
+            if show_truth:
+                cols.append(Column("truth", "per row", num=True))
+            rows = []
+            for p in ident.parameters:
+                row = [p.name, _u(p.unit or parameter_unit(p.name, u)), fmt(p.mean), fmt(p.median), fmt(p.q05),
+                       fmt(p.q95), fmt(p.std), fmt(p.ls_std), fmt(p.crb_std)]
+                if show_truth:
+                    row.append(fmt(p.truth))
+                rows.append(row)
+            s.blocks.append(Block("table", table=Table(cols, rows)))
+            if ident.diagnostics:
+                s.blocks.append(Block("h3", "Diagnostics"))
+                s.blocks.append(Block("table", table=_kv([(k, fmt(v), _diag_unit(k, v), "identification.diagnostics")
+                                                          for k, v in ident.diagnostics.items()])))
+        figures(s)
+        out.append(s)
+    if cert.design is not None:
+        d = cert.design
+        s = Section("design", "Design guidance")
+        du = _u(d.unit or parameter_unit(d.parameter, u))
+        rows = [("free parameter", d.parameter, "—", None),
+                ("current value", fmt(d.current), du, "design.current"),
+                ("largest value meeting the requirement", fmt(d.max_value), du, "design.max_value"),
+                ("P(stable) at that value", fmt_p(d.probability_at_max), "1", "design.probability_at_max"),
+                ("required", fmt_p(d.required), "1", "robust.required")]
+        if headroom(d):
+            rows.append(("headroom", headroom(d), "—", "design.max_value"))
+        s.blocks.append(Block("table", table=_kv(rows)))
+        if d.note:
+            s.blocks.append(Block("para", d.note))
+        figures(s)
+        out.append(s)
+    if cert.witness is not None:
+        out.append(_witness_section(cert, figs))
+    if cert.energy is not None:
+        s = Section("energy", "Energy evidence")
+        s.blocks.append(Block("para", "Port energy E_s(t) = ∫ F·V dt of the energy-injection experiments; negative "
+                                      "beyond the noise bound means the network delivered energy."))
+        s.blocks.append(Block("table", table=Table(
+            [Column("experiment", "—"), Column("port", "—"), Column("record", "—"), Column("E_s < 0", "—"),
+             Column("min E_s", "J", "energy.min_energy", num=True),
+             Column("noise bound", "J", "energy.bound", num=True),
+             Column("first time", "s", "energy.first_time", num=True)],
+            [[e.experiment, e.port, e.record, "YES" if e.went_negative else "no", fmt(e.min_energy), fmt(e.bound),
+              fmt(e.first_time)] for e in cert.energy],
+            [[None, None, None, "FAIL" if e.went_negative else "PASS", None, None, None] for e in cert.energy])))
+        figures(s)
+        out.append(s)
+    if cert.multiport is not None:
+        mp = cert.multiport
+        s = Section("multiport", "Multi-port network")
+        s.blocks.append(Block("table", table=_kv([
+            ("ports", str(len(mp.ports)), "1", None), ("DOFs per port", ", ".join(str(p) for p in mp.ports) or "—",
+                                                       "1", None),
+            ("total DOFs", str(mp.dof_total), "1", None), ("symmetrization", mp.symmetrization or "—", "—", None)])))
+        out.append(s)
+    if figs.get("plots"):
+        s = Section("plots", "Plots")
+        figures(s)
+        out.append(s)
+    return out
+
+
+def _diag_unit(key: str, v: Any) -> str:
+    if key.endswith("_s"):
+        return "s"
+    if isinstance(v, bool | str) or (isinstance(v, list) and v and isinstance(v[0], str)):
+        return "—"
+    if isinstance(v, int | float | list):
+        return "1"  # counts, fractions, τ in steps, R̂
+    return "—"
+
+
+def _witness_section(cert: Certificate, figs: dict[str, list[str]]) -> Section:
+    w = cert.witness
+    assert w is not None
+    u = w.units or cert.scene.units
+    s = Section("witness", "Instability witness")
+    s.blocks.append(Block("para", "A passive termination under which the network delivers energy at the operator "
+                                  "port, what it does to the closed loop, and how soon the bench would reach its "
+                                  "safety limits."))
+    trows = []
+    for port, t in w.terminations.items():
+        if isinstance(t, dict) and "params" in t:
+            tu = termination_units(t.get("params", {}), u)
+            for k, v in t.get("params", {}).items():
+                trows.append([f"port {int(port) + 1 if str(port).isdigit() else port}", str(t.get("kind", "—")), k,
+                              fmt(v), _u(tu.get(k, ""))])
+            if t.get("coupling"):
+                trows.append([f"port {port}", str(t.get("kind", "—")), "coupling", fmt(t["coupling"]), "1"])
+        else:
+            trows.append([str(port), "—", "—", fmt(t), "—"])
+    s.blocks.append(Block("h3", "Destabilizing termination"))
+    s.blocks.append(Block("table", table=Table([Column("terminated port", "—", "witness.terminations"),
+                                                Column("kind", "—"), Column("parameter", "—"),
+                                                Column("value", "per row", num=True), Column("unit", "—")], trows)))
+    poles = w.closed_loop_poles
+    rhp = [p for p in poles if p[0] > 0]
+    rows = [("drive frequency (most negative Re Z_in)", fmt_w(w.drive_frequency_rad_s), "rad/s",
+             "witness.drive_frequency_rad_s"),
+            ("band where Re Z_in < 0", "—" if w.band_rad_s is None else fmt_range(*w.band_rad_s), "rad/s",
+             "witness.band_rad_s"),
+            ("positive-realness margin of Z_in", fmt(w.margin), "1", "witness.margin")]
+    if w.growth_rate_1_s is not None:
+        rows.append(("growth rate σ = max Re(pole)", fmt(w.growth_rate_1_s), "1/s", "witness.growth_rate_1_s"))
+        if w.growth_rate_1_s > 0:
+            rows.append(("e-folding time 1/σ", fmt(1.0 / w.growth_rate_1_s), "s", "witness.growth_rate_1_s"))
+        rows.append(("right-half-plane closed-loop poles", ", ".join(_pole(p) for p in rhp) or "none", "1/s",
+                     "witness.closed_loop_poles"))
+    if w.drive_amplitude is not None:
+        rows.append(("simulated drive amplitude", fmt(w.drive_amplitude), "N.m" if u == "rotary" else "N", None))
+    for k, v in w.limits.items():
+        unit = {"max_velocity": "rad/s" if u == "rotary" else "m/s", "max_position": "rad" if u == "rotary" else "m",
+                "max_energy": "J"}.get(k, "—")
+        rows.append((f"bench limit {k.replace('_', ' ')}", fmt(v), unit, None))
+    if w.limit_exceeded is not None:
+        rows.append(("first limit exceeded", w.limit_exceeded.replace("_", " "), "—", "witness.time_to_limit_s"))
+        rows.append(("time to exceed it", fmt(w.time_to_limit_s), "s", "witness.time_to_limit_s"))
+        rows.append(("port energy E_s at that time", fmt(w.energy_to_limit_J), "J", "witness.energy_to_limit_J"))
+    elif w.simulation.get("simulated") and w.limits:
+        rows.append(("limits exceeded in the simulated time", f"none in {fmt(w.simulation.get('duration_s'))}", "s",
+                     "witness.time_to_limit_s"))
+    elif w.simulation and not w.simulation.get("simulated", True):
+        rows.append(("simulation", str(w.simulation.get("reason", "not simulated")), "—", None))
+    s.blocks.append(Block("h3", "What it does"))
+    s.blocks.append(Block("table", table=_kv(rows)))
+    if len(poles) > len(rhp):
+        s.blocks.append(Block("para", "All closed-loop poles [1/s] (right-half plane first): "
+                              + ", ".join(_pole(p) for p in poles), style="muted"))
+    for k in figs.get("witness", []):
+        s.blocks.append(Block("figure", plot=k))
+    return s
+
+
+def _pole(p: tuple[float, float]) -> str:
+    re_, im = p
+    if abs(im) < 1e-12 * max(1.0, abs(re_)):
+        return fmt(re_)
+    return f"{fmt(re_)} {'+' if im >= 0 else '−'} {fmt(abs(im))}j"
+
+
+# ---------------------------------------------------------------------------------------------
+# units check (used by the tests; also handy for a new section)
+
+
+def _axis_ok(label: str) -> bool:
+    return bool(re.search(r"\[[^\[\]]+\]\s*$", label))
+
+
+def missing_units(cert: Certificate, sections: list[Section] | None = None) -> list[str]:
+    """Every column, key-value number and plot axis without a unit (empty when all have one)."""
+    bad: list[str] = []
+    for sec in sections if sections is not None else report_sections(cert):
+        for b in sec.blocks:
+            if b.table is None:
+                continue
+            t = b.table
+            for c in t.columns:
+                if not c.unit or c.unit == "?":
+                    bad.append(f"{sec.key}: column {c.name!r} has no unit")
+            for j, c in enumerate(t.columns):
+                if c.unit != "per row":
+                    continue
+                ucol = next((k for k, cc in enumerate(t.columns) if cc.name == "unit"), None)
+                for row in t.rows:
+                    if is_number_text(row[j]) and (ucol is None or row[ucol] in ("", "?")):
+                        bad.append(f"{sec.key}: {row[0]!r} = {row[j]} has no unit")
+    for t in [measurements_table(cert)]:
+        for row in t.rows:
+            if is_number_text(row[1]) and row[3] in ("", "?", "—"):
+                bad.append(f"measurements: {row[0]!r} = {row[1]} has no unit")
+
+    def walk(name: str, s: Series) -> None:
+        if s.kind == "corner":
+            for ln in s.lines:
+                if not _axis_ok(ln):
+                    bad.append(f"plot {name}: corner axis {ln!r} has no unit")
+            return
+        for what, label in (("x", s.x_label), ("y", s.y_label)):
+            if not _axis_ok(label):
+                bad.append(f"plot {name}: {what} axis {label!r} has no unit")
+        for i, p in enumerate(s.panels):
+            walk(f"{name}/panel {i + 1}", p)
+
+    for name, s in cert.plots.items():
+        walk(name, s)
+    return bad
