@@ -702,7 +702,8 @@ class Bench:
                 d.sim = SimODrive(point, ch, int(params.get("node_id", 0)), "virtual",
                                   gear_ratio=float(params.get("gear_ratio", 1.0)),
                                   linear_scale=params.get("linear_scale"), faults=faults, seed=seed, sync=True,
-                                  heartbeat_every=max(1, round(0.01 * self.scene.rate_hz)), dt=self.dt)
+                                  heartbeat_every=max(1, round(0.01 * self.scene.rate_hz)), dt=self.dt,
+                                  firmware=str(params.get("firmware", "0.6")))
                 params.setdefault("watchdog_endpoints", dict(SIM_WATCHDOG_ENDPOINTS))
                 if params.get("feedback") == "cyclic":
                     d.sim.encoder_every = 1
@@ -951,7 +952,8 @@ class SimulatedScene(Bench):
         if drv == "odrive_can":
             d.sim = SimODrive(d.point, ch, int(params.get("node_id", 0)), iface,
                               gear_ratio=float(params.get("gear_ratio", 1.0)),
-                              linear_scale=params.get("linear_scale"), faults=faults, seed=seed, dt=self.dt)
+                              linear_scale=params.get("linear_scale"), faults=faults, seed=seed, dt=self.dt,
+                              firmware=str(params.get("firmware", "0.6")))
             if params.get("feedback") == "cyclic":
                 d.sim.encoder_every = 1
         else:
