@@ -453,10 +453,17 @@ class SimCubeMars(SimCanNode):
     Commands arrive on id ``motor_id``; every command (and each special frame) is answered with a
     state frame on id ``reply_id`` whose first byte is ``motor_id``. The impedance law
     ``tau = kp*(p_des - q) + kd*(v_des - qd) + t_ff`` is evaluated once per command from the
-    current state and held until the next command (the real drive re-evaluates it at its own
-    loop rate; torque-only control with kp = kd = 0 is exact). Torque is clamped to the model's T
-    range. Positions/velocities outside the model range saturate in the reply.
-    ``temperature`` is reported in byte 6, injected error codes in byte 7 (and disable torque).
+    current state (``q`` in the motor's wrapped frame) and held until the next command (the real
+    drive re-evaluates it at its own loop rate; torque-only control with kp = kd = 0 is exact).
+    Torque is clamped to the model's T range. ``temperature`` is reported in byte 6, injected
+    error codes in byte 7 (and disable torque).
+
+    As the real motor (AK manual, 5.3 MIT mode; see the adapter's docstring): control commands
+    received before "enter motor mode" (rest mode) are ignored (answered with the state, no
+    torque: enabling later does not apply a stale command); the reported position wraps modulo
+    the P span (``p_max - p_min`` = 25 rad) instead of saturating; after "set zero" the motor
+    answers nothing for ``zero_silence_s`` (default 1 s, on ``clock``: wall time by default, the
+    firmware's flash write does not follow a simulated clock).
     """
 
     kind = "cubemars"
@@ -468,10 +475,12 @@ class SimCubeMars(SimCanNode):
         motor_id: int = 1,
         interface: str = "virtual",
         *,
-        model: str = "AK80-9",
+        model: str | cm.MitLimits = "AK80-9",
         reply_id: int = 0,
         temperature: int = 30,
         short_reply: bool = False,
+        zero_silence_s: float = cm.ZERO_SILENCE_S,
+        clock: Any = time.monotonic,
         **kw: Any,
     ) -> None:
         self.motor_id = motor_id
@@ -482,6 +491,10 @@ class SimCubeMars(SimCanNode):
         self.enabled = False
         self.zero_offset = 0.0
         self.torque = 0.0
+        self.zero_silence_s = float(zero_silence_s)
+        self._clock = clock
+        self._silent_until = -math.inf
+        self.ignored_in_rest = 0  # control commands received before enter-motor-mode
         self.commands: deque[tuple[int, cm.MitCommand]] = deque(maxlen=LOG_LEN)
         super().__init__(joints, channel, interface, **kw)
 
@@ -492,11 +505,16 @@ class SimCubeMars(SimCanNode):
         tau = self.torque if (self.enabled and not self._error()) else 0.0
         self.joints.apply_effort(np.full(self.joints.dof, tau))
 
-    def _send_state(self) -> None:
+    def wrapped_position(self) -> float:
+        """Output position relative to the zero, wrapped into [p_min, p_max) as the motor reports it."""
+        lim = self.limits
         q = float(self.joints.position()[0]) - self.zero_offset
+        return (q - lim.p_min) % (lim.p_max - lim.p_min) + lim.p_min
+
+    def _send_state(self) -> None:
         v = float(self.joints.velocity()[0])
         tau = self.torque if (self.enabled and not self._error()) else 0.0
-        reply = cm.MitReply(self.motor_id, q, v, tau, self.temperature, self._error())
+        reply = cm.MitReply(self.motor_id, self.wrapped_position(), v, tau, self.temperature, self._error())
         data = cm.pack_reply(reply, self.limits, short=self.short_reply)
         self.send(self.reply_id, data, stale_key=0x10000 + self.motor_id)
 
@@ -506,6 +524,8 @@ class SimCubeMars(SimCanNode):
         data = bytes(msg.data)
         if len(data) != 8:
             return
+        if self._clock() < self._silent_until:
+            return  # storing the new origin: deaf and silent
         special = cm.SPECIAL_FRAMES_INV.get(data)
         if special == "enter":
             self.enabled = True
@@ -514,14 +534,19 @@ class SimCubeMars(SimCanNode):
             self.torque = 0.0
         elif special == "zero":
             self.zero_offset = float(self.joints.position()[0])
+            self._silent_until = self._clock() + self.zero_silence_s
+            return
         else:
             c = cm.unpack_command(data, self.limits)
             self.commands.append((self.tick_count, c))
             self.commands_total += 1
-            q = float(self.joints.position()[0]) - self.zero_offset
-            v = float(self.joints.velocity()[0])
-            tau = c.kp * (c.p_des - q) + c.kd * (c.v_des - v) + c.t_ff
-            self.torque = min(max(tau, self.limits.t_min), self.limits.t_max)
+            if self.enabled:
+                q = self.wrapped_position()
+                v = float(self.joints.velocity()[0])
+                tau = c.kp * (c.p_des - q) + c.kd * (c.v_des - v) + c.t_ff
+                self.torque = min(max(tau, self.limits.t_min), self.limits.t_max)
+            else:
+                self.ignored_in_rest += 1
         self._apply()
         self._send_state()
 
