@@ -785,7 +785,9 @@ class Bench:
                              f"got {ids}")
         points = [x.point for x in group]
         joints = points[0] if len(points) == 1 else _Concat(points)
-        chain = DynamixelChain(joints, ids, faults=faults, seed=seed, clock=self._clock)
+        # the servos run at the scene's baudrate (configured servos; a factory one is at 57 600)
+        baud = int(group[0].cfg.params.get("baudrate", 57_600))
+        chain = DynamixelChain(joints, ids, faults=faults, seed=seed, clock=self._clock, baudrate=baud)
         d.sim = chain  # owned (closed) by the first device of the group
         return chain
 
