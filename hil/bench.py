@@ -712,9 +712,15 @@ class Bench:
                                     model=params.get("model", "AK80-9"), faults=faults, seed=seed, sync=True)
         elif drv == "bota_serial":
             from hil.mocks.serial_devices import SimBota
+            from hil.protocols.link_budget import BOTA_DEFAULT_BAUD, bota_sinc_length
 
-            d.sim = SimBota(point, period_s=self.dt, faults=faults, seed=seed, axes=tuple(cfg.wrench_axes))
-            params.update(url=d.sim.path, period_s=self.dt, clock=clock, timeout=self.timeout)
+            # the sensor samples at 51200 / sinc_length Hz on the simulated clock (not once per tick)
+            # and its line carries baud/10 bytes per simulated second; the adapter configures it
+            sinc = bota_sinc_length(params)
+            d.sim = SimBota(point, sinc_length=sinc, tick_s=self.dt, faults=faults, seed=seed,
+                            axes=tuple(cfg.wrench_axes), baudrate=int(params.get("baudrate", BOTA_DEFAULT_BAUD)))
+            params.pop("period_s", None)
+            params.update(url=d.sim.path, sinc_length=sinc, clock=clock, timeout=self.timeout)
         elif drv in ("robotiq_ft300", "robotiq_ft300_stream"):
             axes = cfg.wrench_axes
 
