@@ -738,7 +738,8 @@ class Bench:
             else:  # serial line on a pty; lockstep: one frame per control period (emit())
                 from hil.mocks.ft300_stream import SimFT300Stream
 
-                d.sim = SimFT300Stream(wrench, faults=faults, seed=seed, slave=int(params.get("slave", 9)))
+                d.sim = SimFT300Stream(wrench, faults=faults, seed=seed, slave=int(params.get("slave", 9)),
+                                       tick_s=self.dt)  # 100 Hz frames on the simulated clock
                 params.update(url=d.sim.path, clock=clock, timeout=self.timeout)
         elif drv == "dynamixel_x":
             d.chain = self._dynamixel_chain(index, d, faults, seed)

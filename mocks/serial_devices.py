@@ -235,7 +235,7 @@ class SimBota:
         data = self._frame_faults.bytes_to_send(frame, t)
         if data is None:
             return
-        if not self.link.take(len(data)):
+        if not self.link.take(len(frame)):  # line noise (garbage) is not sent by the sensor
             self.stats["link_dropped"] += 1  # the line cannot carry it
             return
         self._write(data)
