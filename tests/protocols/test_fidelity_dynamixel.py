@@ -25,6 +25,15 @@ def _port(chain: DynamixelChain, bps: int):
     return port, sdk.PacketHandler(2.0)
 
 
+@pytest.fixture(autouse=True)
+def _patient_sdk(monkeypatch):
+    """The stock SDK waits 2 x 16 ms (its USB latency timer) + 2 ms for a status packet; a loaded
+    CI machine can take longer to schedule the simulator's thread: wait 2 x 100 ms instead."""
+    import dynamixel_sdk.port_handler as ph
+
+    monkeypatch.setattr(ph, "LATENCY_TIMER", 100)
+
+
 def test_factory_servo_answers_the_raw_sdk_at_57600_only():
     """Spec: factory Baud Rate(8) = 1 -> 57 600 bps, Return Delay Time(9) = 250. The SDK's own
     default of 1 Mbps gets no answer (as on a real factory servo)."""
