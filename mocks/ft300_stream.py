@@ -196,6 +196,8 @@ class SimFT300Stream:
         if self._emitter.running:
             return
         self._emitter.period = 1.0 / (rate_hz or self.rate_hz)
+        if self.tick_s is not None:  # free running: each call stands for one thread period of time
+            self.tick_s = self._emitter.period
         self._emitter.start()
 
     def stop(self) -> None:

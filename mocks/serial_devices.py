@@ -251,6 +251,8 @@ class SimBota:
         if self._emitter.running:
             return
         self._emitter.period = 1.0 / rate_hz if rate_hz else self.period_s
+        if self.tick_s is not None:  # free running: each call stands for one thread period of time
+            self.tick_s = self._emitter.period
         self._emitter.start()
 
     def stop(self) -> None:

@@ -113,3 +113,17 @@ def test_raw_pymodbus_client_reads_the_simulated_polled_sensor():
             assert not fw.isError() and chr(fw.registers[0] >> 8) == "F"  # "FTS..." (rq_sensor_com.c)
         finally:
             client.close()
+
+
+def test_free_running_stream_keeps_the_sensors_100_hz():
+    """A stream simulator built for a lockstep bench (tick_s = 0.5 ms) and then started free
+    running (hil mock serve): each thread call stands for its own period, so the sensor clock
+    follows the thread and the frames come at the sensor's rate, not at tick_s per call."""
+    with SimFT300Stream(lambda: WRENCH, streaming=True, tick_s=0.0005) as sim:
+        sim.start(200.0)
+        assert sim.tick_s == pytest.approx(1 / 200)
+        sim.stop()
+    with SimFT300Stream(lambda: WRENCH, streaming=True, tick_s=0.0005) as sim:
+        for _ in range(40):  # 40 x 0.5 ms = 20 ms of simulated time: frames at 0 and 10 ms
+            sim.emit()
+        assert sim.stats["frames"] == 2
