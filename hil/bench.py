@@ -705,7 +705,8 @@ class Bench:
                 d.sim = SimODrive(point, ch, int(params.get("node_id", 0)), "virtual",
                                   gear_ratio=float(params.get("gear_ratio", 1.0)),
                                   linear_scale=params.get("linear_scale"), faults=faults, seed=seed, sync=True,
-                                  heartbeat_every=max(1, round(0.01 * self.scene.rate_hz)), dt=self.dt)
+                                  heartbeat_every=max(1, round(0.01 * self.scene.rate_hz)), dt=self.dt,
+                                  firmware=str(params.get("firmware", "0.6")))
                 params.setdefault("watchdog_endpoints", dict(SIM_WATCHDOG_ENDPOINTS))
                 if params.get("feedback") == "cyclic":
                     d.sim.encoder_every = 1
@@ -714,9 +715,15 @@ class Bench:
                                     model=params.get("model", "AK80-9"), faults=faults, seed=seed, sync=True)
         elif drv == "bota_serial":
             from hil.mocks.serial_devices import SimBota
+            from hil.protocols.link_budget import BOTA_DEFAULT_BAUD, bota_sinc_length
 
-            d.sim = SimBota(point, period_s=self.dt, faults=faults, seed=seed, axes=tuple(cfg.wrench_axes))
-            params.update(url=d.sim.path, period_s=self.dt, clock=clock, timeout=self.timeout)
+            # the sensor samples at 51200 / sinc_length Hz on the simulated clock (not once per tick)
+            # and its line carries baud/10 bytes per simulated second; the adapter configures it
+            sinc = bota_sinc_length(params)
+            d.sim = SimBota(point, sinc_length=sinc, tick_s=self.dt, faults=faults, seed=seed,
+                            axes=tuple(cfg.wrench_axes), baudrate=int(params.get("baudrate", BOTA_DEFAULT_BAUD)))
+            params.pop("period_s", None)
+            params.update(url=d.sim.path, sinc_length=sinc, clock=clock, timeout=self.timeout)
         elif drv in ("robotiq_ft300", "robotiq_ft300_stream"):
             axes = cfg.wrench_axes
 
@@ -734,7 +741,8 @@ class Bench:
             else:  # serial line on a pty; lockstep: one frame per control period (emit())
                 from hil.mocks.ft300_stream import SimFT300Stream
 
-                d.sim = SimFT300Stream(wrench, faults=faults, seed=seed, slave=int(params.get("slave", 9)))
+                d.sim = SimFT300Stream(wrench, faults=faults, seed=seed, slave=int(params.get("slave", 9)),
+                                       tick_s=self.dt)  # 100 Hz frames on the simulated clock
                 params.update(url=d.sim.path, clock=clock, timeout=self.timeout)
         elif drv == "dynamixel_x":
             d.chain = self._dynamixel_chain(index, d, faults, seed)
@@ -794,7 +802,9 @@ class Bench:
                              f"got {ids}")
         points = [x.point for x in group]
         joints = points[0] if len(points) == 1 else _Concat(points)
-        chain = DynamixelChain(joints, ids, faults=faults, seed=seed, clock=self._clock)
+        # the servos run at the scene's baudrate (configured servos; a factory one is at 57 600)
+        baud = int(group[0].cfg.params.get("baudrate", 57_600))
+        chain = DynamixelChain(joints, ids, faults=faults, seed=seed, clock=self._clock, baudrate=baud)
         d.sim = chain  # owned (closed) by the first device of the group
         return chain
 
@@ -963,7 +973,8 @@ class SimulatedScene(Bench):
         elif drv == "odrive_can":
             d.sim = SimODrive(d.point, ch, int(params.get("node_id", 0)), iface,
                               gear_ratio=float(params.get("gear_ratio", 1.0)),
-                              linear_scale=params.get("linear_scale"), faults=faults, seed=seed, dt=self.dt)
+                              linear_scale=params.get("linear_scale"), faults=faults, seed=seed, dt=self.dt,
+                              firmware=str(params.get("firmware", "0.6")))
             if params.get("feedback") == "cyclic":
                 d.sim.encoder_every = 1
         else:

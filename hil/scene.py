@@ -1112,6 +1112,18 @@ def _cross_check(sc: Scene) -> None:
         _check_simulation(sc, sc.simulation)
     if sc.certification is not None:
         _check_certification(sc, sc.certification)
+    _check_link_budgets(sc)
+
+
+def _check_link_budgets(sc: Scene) -> None:
+    """Refuse a scene whose buses cannot carry the traffic it asks for: serial lines at baud/10
+    bytes/s, CAN at the bit rate with worst-case stuffed frames (formulas and per-driver traffic:
+    :mod:`hil.protocols.link_budget`)."""
+    from hil.protocols.link_budget import over_budget
+
+    for use in over_budget(sc.devices, sc.rate_hz):
+        i = next(k for k, d in enumerate(sc.devices) if d.name == use.devices[0])
+        raise _Where(f"devices[{i}].params", f"link budget exceeded: {use.message()}")
 
 
 def _check_simulation(sc: Scene, sim: Simulation) -> None:

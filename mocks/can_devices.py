@@ -52,7 +52,7 @@ from hil.protocols import can_odrive as od
 
 log = logging.getLogger(__name__)
 
-AXIS_ERROR_WATCHDOG_TIMER_EXPIRED = 0x1000000
+AXIS_ERROR_WATCHDOG_TIMER_EXPIRED = od.AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
 
 #: RxSdo endpoint ids the simulated ODrive answers for its watchdog configuration (a real drive's
 #: ids come from its firmware's flat_endpoints.json; these are the simulator's own).
@@ -259,17 +259,27 @@ class SimODrive(SimCanNode):
     ``gear_ratio`` / ``linear_scale`` must match the adapter's: the node converts the joint state
     to motor turns and the motor torque to joint effort with them. The drive applies torque only
     in CLOSED_LOOP_CONTROL with TORQUE_CONTROL and no (injected or latched) axis error.
-    ``heartbeat_every`` / ``encoder_every``: period of the cyclic frames in ticks (0 = off).
     Injected error codes are OR-ed into ``axis_error`` and disarm the axis while active.
-    ``watchdog_ticks``: the drive's own CAN watchdog (ODrive ``axis.config.watchdog_timeout``):
-    when no Set_Input_Torque arrives for that many ticks while armed, the axis drops to IDLE with
-    zero torque -- and, once the host configured the watchdog over RxSdo, latches
-    WATCHDOG_TIMER_EXPIRED in ``axis_error`` (reported in the heartbeat, as the drive does; the
-    built-in default only idles the axis, a safety net for a vanished host) -- what keeps a real
-    rig safe when the host or the bus dies (0 = off). The host can configure
-    it through RxSdo endpoint writes (firmware 0.6) to the ids in ``watchdog_endpoints`` (default
-    :data:`SIM_WATCHDOG_ENDPOINTS`): ``watchdog_timeout`` (float32 s, converted with ``dt`` s per
-    tick) and ``enable_watchdog`` (0/1).
+
+    Defaults are a factory ODrive's (firmware 0.6 docs, "CAN Protocol" and ``odrive-interface``
+    ``config.can``; ODrive firmware sources ``Firmware/communication/can/can_simple.cpp`` and
+    ``Firmware/MotorControl/axis.cpp``); a bench or scene may override them:
+
+    * ``heartbeat_every`` (ticks, 0 = off; ``None`` = the default ``heartbeat_msg_rate_ms`` = 100 ms,
+      i.e. ``round(0.1 / dt)`` ticks); ``encoder_every`` (ticks, 0 = off: a factory drive's
+      ``encoder_msg_rate_ms`` is 10 ms on 0.6, 0 on 0.5.x; the adapter polls by default).
+    * watchdog (``axis.config.enable_watchdog`` = False, ``watchdog_timeout`` = 0 by default):
+      ``watchdog_ticks`` = 0 means off. When on, *every* CAN message addressed to this node feeds
+      it (``can_simple.cpp`` calls ``axis.watchdog_feed()`` for each message of the node before
+      dispatching the command); when no message arrives for ``watchdog_ticks`` ticks in
+      CLOSED_LOOP_CONTROL the axis latches WATCHDOG_TIMER_EXPIRED (0x01000000) in ``axis_error``
+      and drops to IDLE with zero torque (``axis.cpp``: ``if (!watchdog_check()) error |=
+      ERROR_WATCHDOG_TIMER_EXPIRED``); Clear_Errors clears it. The host configures it through
+      RxSdo endpoint writes (firmware 0.6) to the ids in ``watchdog_endpoints`` (default
+      :data:`SIM_WATCHDOG_ENDPOINTS`): ``watchdog_timeout`` (float32 s, converted with ``dt`` s per
+      tick) and ``enable_watchdog`` (0/1).
+    * ``firmware``: ``"0.6"`` (default: cmd 0x1C is Get_Torques, Clear_Errors carries an identify
+      byte) or ``"0.5"`` (0x1C is Get_ADC_Voltage: float32 volts; there is no Get_Torques).
     """
 
     kind = "odrive"
@@ -283,19 +293,27 @@ class SimODrive(SimCanNode):
         *,
         gear_ratio: float = 1.0,
         linear_scale: float | None = None,
-        heartbeat_every: int = 1,
+        heartbeat_every: int | None = None,
         encoder_every: int = 0,
-        watchdog_ticks: int = 20,
+        watchdog_ticks: int = 0,
         dt: float = 0.001,
         watchdog_endpoints: dict[str, int] | None = None,
+        firmware: str = "0.6",
+        adc_voltage: float = 0.0,
         **kw: Any,
     ) -> None:
+        if firmware not in od.FIRMWARES:
+            raise ValueError(f"firmware must be one of {list(od.FIRMWARES)}, got {firmware!r}")
         self.node_id = node_id
+        self.firmware = firmware
+        self.adc_voltage = float(adc_voltage)
         self.watchdog_ticks = int(watchdog_ticks)
         self._last_torque_tick = 0
         self.gear_ratio = gear_ratio
         self.linear_scale = linear_scale
-        self.heartbeat_every = heartbeat_every
+        if heartbeat_every is None:  # factory heartbeat_msg_rate_ms = 100
+            heartbeat_every = max(1, round(od.DEFAULT_HEARTBEAT_S / float(dt)))
+        self.heartbeat_every = int(heartbeat_every)
         self.encoder_every = encoder_every
         self.axis_state = int(od.AxisState.IDLE)
         self.control_mode = int(od.ControlMode.VOLTAGE_CONTROL)
@@ -305,7 +323,7 @@ class SimODrive(SimCanNode):
         self.commands: deque[tuple[int, float]] = deque(maxlen=LOG_LEN)  # newest (tick, motor torque)
         self.dt = float(dt)
         self.watchdog_endpoints = dict(watchdog_endpoints or SIM_WATCHDOG_ENDPOINTS)
-        self.watchdog_enabled = watchdog_ticks > 0  # armed by default (0: off) or over RxSdo
+        self.watchdog_enabled = watchdog_ticks > 0  # off by default (as shipped), or armed over RxSdo
         self.watchdog_expired = 0  # times the drive's own watchdog idled the axis
         self.watchdog_configured = False  # set by an RxSdo write from the host
         super().__init__(joints, channel, interface, **kw)
@@ -378,15 +396,14 @@ class SimODrive(SimCanNode):
             return
         data = bytes(msg.data)
         is_request = msg.is_remote_frame or len(data) == 0
+        self._last_torque_tick = self.tick_count  # can_simple.cpp: every message of the node feeds the watchdog
         if cmd == od.CMD_SET_INPUT_TORQUE and len(data) >= 4:
             self.input_torque = od.struct.unpack_from("<f", data)[0]
             self.commands.append((self.tick_count, self.input_torque))
             self.commands_total += 1
-            self._last_torque_tick = self.tick_count
             self._apply()
         elif cmd == od.CMD_SET_AXIS_STATE and len(data) >= 4:
             req = od.struct.unpack_from("<I", data)[0]
-            self._last_torque_tick = self.tick_count  # arming feeds the watchdog
             if req == od.AxisState.CLOSED_LOOP_CONTROL and self.axis_error:
                 req = od.AxisState.IDLE  # refuses to arm while in error
             self.axis_state = int(req)
@@ -404,8 +421,11 @@ class SimODrive(SimCanNode):
             self._sdo(data)
         elif cmd == od.CMD_GET_ENCODER_ESTIMATES and is_request:
             self._reply_estimate()
-        elif cmd == od.CMD_GET_TORQUES and is_request:
-            self._reply(cmd, od.encode_f32x2(self.input_torque, self.applied_motor_torque()))
+        elif cmd == od.CMD_GET_TORQUES and is_request:  # 0x1C: Get_Torques (0.6) / Get_ADC_Voltage (0.5.x)
+            if self.firmware == "0.5":
+                self._reply(cmd, od.encode_f32(self.adc_voltage))
+            else:
+                self._reply(cmd, od.encode_f32x2(self.input_torque, self.applied_motor_torque()))
         elif cmd == od.CMD_HEARTBEAT and is_request:
             self._reply(cmd, od.encode_heartbeat(self.axis_error, self.axis_state))
 
@@ -414,11 +434,10 @@ class SimODrive(SimCanNode):
             self.axis_state = int(od.AxisState.IDLE)  # a fault disarms the axis
         if (self.watchdog_enabled and self.watchdog_ticks and self.axis_state == od.AxisState.CLOSED_LOOP_CONTROL
                 and self.tick_count - self._last_torque_tick > self.watchdog_ticks):
-            log.warning("odrive node %d: CAN watchdog expired, axis idle", self.node_id)
-            self.axis_state = int(od.AxisState.IDLE)  # the drive's own watchdog
+            log.warning("odrive node %d: CAN watchdog expired: WATCHDOG_TIMER_EXPIRED, axis idle", self.node_id)
+            self.axis_state = int(od.AxisState.IDLE)  # the drive's own watchdog (axis.cpp)
             self.input_torque = 0.0
-            if self.watchdog_configured:  # armed by the host over RxSdo: report it as the drive does
-                self.latched_error |= AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
+            self.latched_error |= AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
             self.watchdog_expired += 1
         self._apply()
         t = self.tick_count
@@ -434,10 +453,17 @@ class SimCubeMars(SimCanNode):
     Commands arrive on id ``motor_id``; every command (and each special frame) is answered with a
     state frame on id ``reply_id`` whose first byte is ``motor_id``. The impedance law
     ``tau = kp*(p_des - q) + kd*(v_des - qd) + t_ff`` is evaluated once per command from the
-    current state and held until the next command (the real drive re-evaluates it at its own
-    loop rate; torque-only control with kp = kd = 0 is exact). Torque is clamped to the model's T
-    range. Positions/velocities outside the model range saturate in the reply.
-    ``temperature`` is reported in byte 6, injected error codes in byte 7 (and disable torque).
+    current state (``q`` in the motor's wrapped frame) and held until the next command (the real
+    drive re-evaluates it at its own loop rate; torque-only control with kp = kd = 0 is exact).
+    Torque is clamped to the model's T range. ``temperature`` is reported in byte 6, injected
+    error codes in byte 7 (and disable torque).
+
+    As the real motor (AK manual, 5.3 MIT mode; see the adapter's docstring): control commands
+    received before "enter motor mode" (rest mode) are ignored (answered with the state, no
+    torque: enabling later does not apply a stale command); the reported position wraps modulo
+    the P span (``p_max - p_min`` = 25 rad) instead of saturating; after "set zero" the motor
+    answers nothing for ``zero_silence_s`` (default 1 s, on ``clock``: wall time by default, the
+    firmware's flash write does not follow a simulated clock).
     """
 
     kind = "cubemars"
@@ -449,10 +475,12 @@ class SimCubeMars(SimCanNode):
         motor_id: int = 1,
         interface: str = "virtual",
         *,
-        model: str = "AK80-9",
+        model: str | cm.MitLimits = "AK80-9",
         reply_id: int = 0,
         temperature: int = 30,
         short_reply: bool = False,
+        zero_silence_s: float = cm.ZERO_SILENCE_S,
+        clock: Any = time.monotonic,
         **kw: Any,
     ) -> None:
         self.motor_id = motor_id
@@ -463,6 +491,10 @@ class SimCubeMars(SimCanNode):
         self.enabled = False
         self.zero_offset = 0.0
         self.torque = 0.0
+        self.zero_silence_s = float(zero_silence_s)
+        self._clock = clock
+        self._silent_until = -math.inf
+        self.ignored_in_rest = 0  # control commands received before enter-motor-mode
         self.commands: deque[tuple[int, cm.MitCommand]] = deque(maxlen=LOG_LEN)
         super().__init__(joints, channel, interface, **kw)
 
@@ -473,11 +505,16 @@ class SimCubeMars(SimCanNode):
         tau = self.torque if (self.enabled and not self._error()) else 0.0
         self.joints.apply_effort(np.full(self.joints.dof, tau))
 
-    def _send_state(self) -> None:
+    def wrapped_position(self) -> float:
+        """Output position relative to the zero, wrapped into [p_min, p_max) as the motor reports it."""
+        lim = self.limits
         q = float(self.joints.position()[0]) - self.zero_offset
+        return (q - lim.p_min) % (lim.p_max - lim.p_min) + lim.p_min
+
+    def _send_state(self) -> None:
         v = float(self.joints.velocity()[0])
         tau = self.torque if (self.enabled and not self._error()) else 0.0
-        reply = cm.MitReply(self.motor_id, q, v, tau, self.temperature, self._error())
+        reply = cm.MitReply(self.motor_id, self.wrapped_position(), v, tau, self.temperature, self._error())
         data = cm.pack_reply(reply, self.limits, short=self.short_reply)
         self.send(self.reply_id, data, stale_key=0x10000 + self.motor_id)
 
@@ -487,6 +524,8 @@ class SimCubeMars(SimCanNode):
         data = bytes(msg.data)
         if len(data) != 8:
             return
+        if self._clock() < self._silent_until:
+            return  # storing the new origin: deaf and silent
         special = cm.SPECIAL_FRAMES_INV.get(data)
         if special == "enter":
             self.enabled = True
@@ -495,14 +534,19 @@ class SimCubeMars(SimCanNode):
             self.torque = 0.0
         elif special == "zero":
             self.zero_offset = float(self.joints.position()[0])
+            self._silent_until = self._clock() + self.zero_silence_s
+            return
         else:
             c = cm.unpack_command(data, self.limits)
             self.commands.append((self.tick_count, c))
             self.commands_total += 1
-            q = float(self.joints.position()[0]) - self.zero_offset
-            v = float(self.joints.velocity()[0])
-            tau = c.kp * (c.p_des - q) + c.kd * (c.v_des - v) + c.t_ff
-            self.torque = min(max(tau, self.limits.t_min), self.limits.t_max)
+            if self.enabled:
+                q = self.wrapped_position()
+                v = float(self.joints.velocity()[0])
+                tau = c.kp * (c.p_des - q) + c.kd * (c.v_des - v) + c.t_ff
+                self.torque = min(max(tau, self.limits.t_min), self.limits.t_max)
+            else:
+                self.ignored_in_rest += 1
         self._apply()
         self._send_state()
 

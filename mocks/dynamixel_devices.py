@@ -25,6 +25,16 @@ hardware error status(70,1), goal current(102,2, signed, 2.69 mA), present curre
 present velocity(128,4, signed, 0.229 rev/min), present position(132,4, signed, 4096 ticks/rev).
 Writes to the EEPROM area (< 64) while torque is on fail with error 7 (access), as on the servo.
 
+**Factory defaults** (XM430-W350 e-manual, control table "Initial Value" column): Baud Rate(8) = 1
+(57 600 bps), Return Delay Time(9) = 250 (x 2 us = 500 us), ID(7) = 1, Operating Mode(11) = 3.
+A chain can be built with other values (``baud_index``, ``return_delay``: a bench whose servos were
+configured). The servo only understands the host at its own baud rate: the chain reads the line
+speed the host set on the pty (termios of the slave end; pyserial sets it) and ignores packets sent
+at another standard rate (counted in ``baud_mismatch``; a custom rate it cannot read is accepted).
+Writing Baud Rate(8) takes effect at once, as on the servo. Each status packet is sent after the
+servo's Return Delay Time (wall clock: a host that cares for speed writes 0 there, as the adapter
+does by default).
+
 **Physics (lockstep).** Servo ``ids[i]`` is joint ``i`` of the :class:`SimulatedJoints` handle.
 Whenever a goal current or the torque enable changes, the chain applies
 ``effort_i = goal_current_i * 2.69 mA * torque_constant`` (N.m) to the plant (0 when torque is
@@ -70,6 +80,7 @@ from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 from hil.mocks.pty import close_fds, host_writes, open_raw_pty
 from hil.protocols.crc import crc16_dynamixel
+from hil.protocols.dynamixel_x import BAUD_RATES as _BAUD_RATES
 
 log = logging.getLogger(__name__)
 
@@ -119,6 +130,33 @@ READ_ONLY = {*range(0, 7), 69, 70, *range(120, 148)}
 CURRENT_UNIT_A = 0.00269
 VELOCITY_UNIT_RPM = 0.229
 TICKS_PER_REV = 4096
+
+BAUD_RATES = _BAUD_RATES  # Baud Rate(8) index -> bps (X-series e-manual), shared with the adapter
+FACTORY_BAUD_INDEX = 1
+FACTORY_RETURN_DELAY = 250  # x 2 us
+RETURN_DELAY_UNIT_S = 2e-6
+
+
+def baud_index(bps: int) -> int:
+    """Baud Rate(8) index of a line speed (ValueError if the X series has no such rate)."""
+    for k, v in BAUD_RATES.items():
+        if v == int(bps):
+            return k
+    raise ValueError(f"DYNAMIXEL X has no baud rate {bps}; choose one of {sorted(BAUD_RATES.values())}")
+
+
+def _termios_bps(fd: int) -> int | None:
+    """Line speed (bps) set on a tty, or None when unknown (custom speed, closed fd)."""
+    import termios
+
+    try:
+        speed = termios.tcgetattr(fd)[5]
+    except (termios.error, OSError):
+        return None
+    for bps in BAUD_RATES.values():
+        if getattr(termios, f"B{bps}", None) == speed:
+            return bps
+    return None
 
 
 # ------------------------------------------------------------------------------------------------
@@ -249,14 +287,15 @@ class ServoModel:
 class SimulatedServo:
     """Control-table memory of one servo."""
 
-    def __init__(self, dxl_id: int, model: ServoModel) -> None:
+    def __init__(self, dxl_id: int, model: ServoModel, baud: int = FACTORY_BAUD_INDEX,
+                 return_delay: int = FACTORY_RETURN_DELAY) -> None:
         self.table = bytearray(TABLE_SIZE)
         self.model = model
         self._set(ADDR_MODEL_NUMBER, 2, model.model_number)
         self._set(ADDR_FIRMWARE_VERSION, 1, model.firmware_version)
         self._set(ADDR_ID, 1, dxl_id)
-        self._set(ADDR_BAUD_RATE, 1, 3)  # 1 Mbps
-        self._set(ADDR_RETURN_DELAY, 1, 0)
+        self._set(ADDR_BAUD_RATE, 1, baud)  # factory: 1 = 57 600 bps
+        self._set(ADDR_RETURN_DELAY, 1, return_delay)  # factory: 250 x 2 us
         self._set(ADDR_OPERATING_MODE, 1, 3)  # position control (factory default)
         self._set(13, 1, 2)  # protocol version
         self._set(ADDR_CURRENT_LIMIT, 2, model.current_limit)
@@ -319,6 +358,8 @@ class DynamixelChain:
         faults: FaultPlan | FaultInjector | None = None,
         seed: int | None = 0,
         clock: Callable[[], float] = time.monotonic,
+        baudrate: int = BAUD_RATES[FACTORY_BAUD_INDEX],
+        return_delay: int = FACTORY_RETURN_DELAY,
     ) -> None:
         if joints.dof != len(ids):
             raise ValueError(f"joints.dof={joints.dof} but {len(ids)} servo ids")
@@ -326,7 +367,11 @@ class DynamixelChain:
             raise ValueError(f"servo ids must be unique and in 0..252, got {ids}")
         self.joints = joints
         self.model = model or ServoModel()
-        self.servos = {i: SimulatedServo(i, self.model) for i in ids}
+        index = baud_index(baudrate)
+        if not 0 <= int(return_delay) <= 254:
+            raise ValueError(f"return_delay must be 0..254 (x 2 us), got {return_delay}")
+        self.servos = {i: SimulatedServo(i, self.model, index, int(return_delay)) for i in ids}
+        self.baud_mismatch = 0  # packets sent at another line speed than the servos' (ignored)
         self.ids = list(ids)
         self.injector = faults if isinstance(faults, FaultInjector) else FaultInjector(faults, seed)
         self._master, self._slave, self.port = open_raw_pty(nonblocking_master=False)
@@ -427,6 +472,11 @@ class DynamixelChain:
                 continue
             if pkt is None:
                 return bytes(out)
+            host_bps = _termios_bps(self._slave)
+            if host_bps is not None and all(BAUD_RATES.get(sv.table[ADDR_BAUD_RATE]) != host_bps
+                                            for sv in self.servos.values()):
+                self.baud_mismatch += 1  # framing errors on the servo's UART: nothing understood
+                continue
             self._check_watchdog()  # the interval that ends with this packet
             self._last_instruction = self.clock()
             self.tick += 1
@@ -452,6 +502,9 @@ class DynamixelChain:
         if inj.is_disconnected(tick) or inj.should_drop(tick):
             self.replies_dropped += 1
             return b""
+        delay = servo.table[ADDR_RETURN_DELAY] * RETURN_DELAY_UNIT_S
+        if delay > 0:
+            time.sleep(delay)  # Return Delay Time(9): the servo waits before its status packet
         pkt = build_status(servo.dxl_id, error, params)
         if inj.should_corrupt(tick):
             pkt = inj.corrupt(pkt, start=8)

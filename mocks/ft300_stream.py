@@ -34,6 +34,7 @@ replies are never faulted. :meth:`hangup` closes the pty (the adapter gets an I/
 from __future__ import annotations
 
 import logging
+import math
 import struct
 import threading
 import time
@@ -52,7 +53,7 @@ from hil.mocks.modbus_devices import (
     wrench_to_registers,
 )
 from hil.mocks.periodic import PeriodicThread
-from hil.mocks.pty import close_fds, host_writes, open_raw_pty, write_dropping
+from hil.mocks.pty import LinkBudget, close_fds, host_writes, open_raw_pty, write_dropping
 from hil.protocols.crc import crc16_modbus
 from hil.protocols.modbus_robotiq import (
     DEFAULT_SLAVE_ID,
@@ -95,8 +96,18 @@ class SimFT300Stream:
         serial: tuple[str, int] = ("SIM", 1),
         production_year: int = 2024,
         streaming: bool = False,
+        tick_s: float | None = None,
+        baudrate: int = 19_200,
     ) -> None:
         self.rate_hz = float(rate_hz)
+        # tick_s None: each emit() is one stream frame (1/rate_hz of simulated time); given (a
+        # lockstep bench's control period): each emit() advances the sensor clock by tick_s and
+        # sends the frames due at rate_hz. The line carries at most baudrate/10 bytes per
+        # simulated second (LinkBudget): frames beyond it are lost (stats["link_dropped"]).
+        self.tick_s = None if tick_s is None else float(tick_s)
+        self.link = LinkBudget(baudrate)
+        self._time = 0.0
+        self._samples = 0
         self.slave = int(slave)
         self.injector = faults if isinstance(faults, FaultInjector) else FaultInjector(faults, seed)
         self.jam_bytes = int(jam_bytes)
@@ -147,28 +158,46 @@ class SimFT300Stream:
         return w
 
     def emit(self) -> bool:
-        """Write one stream frame now (lockstep). False (and no tick) when not streaming."""
+        """One lockstep call of the sensor's clock: write the stream frame(s) due (one per call
+        without ``tick_s``). False (and no tick) when not streaming."""
         with self._lock:
             if self._closed or not self._streaming:
                 return False
-            self.tick_count += 1
-            t = self.tick_count
-            inj = self.injector
-            if inj.is_disconnected(t):
-                self.stats["silent"] += 1
-                return True
-            data = self._frame_faults.bytes_to_send(encode_stream_frame(self.wrench()), t)
-            if data is None:
-                return True
-            self._write(data)
-            self.stats["frames"] += 1
+            period = 1.0 / self.rate_hz
+            step = period if self.tick_s is None else self.tick_s
+            now = self._time
+            self._time += step
+            self.link.advance(step)
+            due = 1 if self.tick_s is None else max(0, math.floor(now / period + 1e-9) + 1 - self._samples)
+            for _ in range(due):
+                self._samples += 1
+                self._emit_frame()
             return True
+
+    def _emit_frame(self) -> None:
+        self.tick_count += 1
+        t = self.tick_count
+        inj = self.injector
+        if inj.is_disconnected(t):
+            self.stats["silent"] += 1
+            return
+        frame = encode_stream_frame(self.wrench())
+        data = self._frame_faults.bytes_to_send(frame, t)
+        if data is None:
+            return
+        if not self.link.take(len(frame)):  # line noise (garbage) is not sent by the sensor
+            self.stats["link_dropped"] += 1  # the 19 200 baud line cannot carry it
+            return
+        self._write(data)
+        self.stats["frames"] += 1
 
     def start(self, rate_hz: float | None = None) -> None:
         """Emit frames from a thread at ``rate_hz`` (default :attr:`rate_hz`) while streaming."""
         if self._emitter.running:
             return
         self._emitter.period = 1.0 / (rate_hz or self.rate_hz)
+        if self.tick_s is not None:  # free running: each call stands for one thread period of time
+            self.tick_s = self._emitter.period
         self._emitter.start()
 
     def stop(self) -> None:

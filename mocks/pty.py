@@ -74,3 +74,39 @@ def host_writes(fd: int, stop: threading.Event, poll_s: float = 0.05) -> Iterato
             continue
         if data:
             yield data
+
+
+class LinkBudget:
+    """What a simulated serial line can still carry: ``baud / 10`` bytes per *simulated* second
+    (8N1: 10 bit times per byte; :mod:`hil.protocols.link_budget`).
+
+    The device calls :meth:`advance` with the simulated time that passed (a lockstep tick, or the
+    period of its free-running thread) and :meth:`take` before writing a frame: a frame that does
+    not fit in the bytes accumulated so far is not sent (the UART could not have sent it in that
+    time). Nothing sleeps: lockstep runs are not slowed down, and the result does not depend on
+    the machine. Up to ``burst_s`` seconds of unused capacity (plus 64 bytes) are kept, so that
+    frames produced in bursts by the tick discretization pass when the average rate fits.
+    """
+
+    def __init__(self, baud: float, burst_s: float = 0.02) -> None:
+        if not baud > 0:
+            raise ValueError(f"baud must be > 0, got {baud!r}")
+        self.baud = float(baud)
+        self.bytes_per_s = self.baud / 10.0
+        self.cap = self.bytes_per_s * float(burst_s) + 64.0
+        self.credit = self.cap
+        self.refused_frames = 0
+        self.refused_bytes = 0
+
+    def advance(self, seconds: float) -> None:
+        """``seconds`` of simulated time passed: add their capacity (up to the cap)."""
+        self.credit = min(self.cap, self.credit + self.bytes_per_s * max(0.0, float(seconds)))
+
+    def take(self, n: int) -> bool:
+        """True (and the bytes are used) if ``n`` more bytes fit now; else count the refusal."""
+        if n <= self.credit:
+            self.credit -= n
+            return True
+        self.refused_frames += 1
+        self.refused_bytes += n
+        return False

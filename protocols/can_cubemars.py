@@ -30,6 +30,21 @@ as 0x7FF = -0.0044 N.m on an AK80-9: zero is not representable with an even numb
 Units: position rad, velocity rad/s, torque N.m, all at the output shaft (the motor reports output
 quantities). Positive torque accelerates towards positive position.
 
+Position range and unwrapping: the 16-bit position field covers ``[p_min, p_max]`` = +-12.5 rad
+(4 output turns), and the motor's position *wraps* in that field (it counts modulo the span, it does
+not stop at the end: the reply after +12.5 rad reads -12.5 rad). The adapter unwraps it (``unwrap``,
+default on): a jump between consecutive replies larger than half the span (12.5 rad; at the
+velocity limit of <= 76 rad/s that would take > 160 ms between replies) is taken as one wrap, so
+``JointSample.position`` is continuous beyond two output turns. ``command_mit``'s ``p_des`` is in the
+motor's own wrapped frame.
+
+Rest mode and set-zero (manual, 5.3 "MIT mode": enter motor mode before control; "set zero" stores
+the current position as the origin): the motor ignores control commands until "enter motor mode";
+after "set zero" it is silent for about 1 s (it writes the origin to flash) and answers no frame.
+:meth:`CubeMarsMIT.set_zero` therefore waits up to ``zero_timeout`` (default 1.5 s) re-sending
+"enter motor mode" (idempotent) every 0.1 s until the motor answers again; the unwrap count is
+reset there.
+
 Freshness: a reply carries no timestamp or counter; ``JointSample.produced_at`` is the arrival
 of the state reply (adapter clock, when it was taken off the bus) and ``seq`` advances with each
 new reply. :meth:`CubeMarsMIT.read` uses the reply to the latest command if one arrived since the
@@ -41,6 +56,7 @@ destroyed reply), ``decode_errors``, ``skipped`` (replies superseded before a re
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import math
 import time
@@ -75,16 +91,34 @@ class MitLimits:
     kd_max: float = 5.0
 
 
-#: Per-model ranges (manual / TMotorCANControl ``MIT_Params``). P is +-12.5 rad for all.
+#: Per-model ranges. P is +-12.5 rad for all, KP 0..500 N.m/rad, KD 0..5 N.m.s/rad. The V and T
+#: ranges depend on model *and firmware* (the driver table is compiled into each firmware); the
+#: source of each row is in :data:`MODEL_SOURCES`. A motor whose firmware uses other ranges needs
+#: ``model=MitLimits(...)`` with its own values (they are printed in CubeMars' upper computer).
 MODEL_LIMITS: dict[str, MitLimits] = {
     #            P            V            T
     "AK10-9": MitLimits(-12.5, 12.5, -50.0, 50.0, -65.0, 65.0),
-    "AK60-6": MitLimits(-12.5, 12.5, -50.0, 50.0, -15.0, 15.0),
+    "AK60-6": MitLimits(-12.5, 12.5, -45.0, 45.0, -15.0, 15.0),
     "AK70-10": MitLimits(-12.5, 12.5, -50.0, 50.0, -25.0, 25.0),
     "AK80-6": MitLimits(-12.5, 12.5, -76.0, 76.0, -12.0, 12.0),
     "AK80-9": MitLimits(-12.5, 12.5, -50.0, 50.0, -18.0, 18.0),
     "AK80-64": MitLimits(-12.5, 12.5, -8.0, 8.0, -144.0, 144.0),
 }
+
+_MANUAL = "CubeMars AK Series Module Driver User Manual, 5.3 MIT mode, range table"
+_TMCC = "neurobionics/TMotorCANControl mit_can.py MIT_Params"
+#: Where each row of :data:`MODEL_LIMITS` comes from.
+MODEL_SOURCES: dict[str, str] = {
+    "AK10-9": f"{_TMCC} (= {_MANUAL})",
+    "AK60-6": f"{_MANUAL}: V +-45 rad/s (TMotorCANControl lists +-50, an older firmware's table)",
+    "AK70-10": f"{_TMCC} (= {_MANUAL})",
+    "AK80-6": f"{_TMCC} (= {_MANUAL})",
+    "AK80-9": f"{_TMCC} (= {_MANUAL})",
+    "AK80-64": f"{_TMCC} (= {_MANUAL})",
+}
+
+#: Silence of the motor after "set zero" (s, manual: about 1 s while the origin is stored).
+ZERO_SILENCE_S = 1.0
 
 #: MIT-mode error codes (byte 7 of the reply).
 ERROR_CODES: dict[int, str] = {
@@ -209,7 +243,9 @@ class CubeMarsMIT(Actuator):
     reply_id: arbitration id of the replies (``None``: accept any id and match byte 0).
     channel, interface, bitrate, bus, clock: as for :class:`hil.protocols.can_odrive.ODriveCAN`.
     enable: send "enter motor mode" on open and "exit motor mode" on close.
-    zero_on_open: send "set zero" after entering motor mode.
+    zero_on_open: send "set zero" after entering motor mode (waits for the motor's ~1 s silence).
+    unwrap: unwrap the +-12.5 rad position field across wraps (see the module docstring).
+    zero_timeout: how long :meth:`set_zero` waits for the motor to answer again (s).
 
     :meth:`command_effort` sends a torque-only command (kp = kd = 0, t_ff = effort);
     :meth:`command_mit` exposes the full impedance command. Each command is answered by the motor;
@@ -234,9 +270,15 @@ class CubeMarsMIT(Actuator):
         zero_on_open: bool = False,
         clock: Callable[[], float] = time.monotonic,
         timeout: float = 0.1,
+        unwrap: bool = True,
+        zero_timeout: float = ZERO_SILENCE_S + 0.5,
         **bus_kwargs: Any,
     ) -> None:
         self.motor_id = int(motor_id)
+        self.unwrap = bool(unwrap)
+        self.zero_timeout = float(zero_timeout)
+        self._wraps = 0
+        self._prev_raw: float | None = None
         self.limits = model_limits(model)
         self.reply_id = reply_id
         self.clock = clock
@@ -270,7 +312,7 @@ class CubeMarsMIT(Actuator):
             try:
                 self.enter_motor_mode(timeout)
                 if zero_on_open:
-                    self.set_zero(timeout)
+                    self.set_zero()
             except Exception:
                 self.close()
                 raise
@@ -305,10 +347,25 @@ class CubeMarsMIT(Actuator):
         except ProtocolError:
             self.decode_errors += 1
             return False
+        if self.unwrap:
+            reply = dataclasses.replace(reply, position=self._unwrapped(reply.position))
         if self._fresh is not None:
             self._skipped += 1
         self._fresh, self._fresh_at = reply, self.clock()
         return True
+
+    def _unwrapped(self, raw: float) -> float:
+        """Continuous position from the wrapped field: a step larger than half the span between
+        consecutive replies is one wrap of ``p_max - p_min``."""
+        span = self.limits.p_max - self.limits.p_min
+        if self._prev_raw is not None:
+            step = raw - self._prev_raw
+            if step > span / 2:
+                self._wraps -= 1
+            elif step < -span / 2:
+                self._wraps += 1
+        self._prev_raw = raw
+        return raw + self._wraps * span
 
     def counters(self) -> dict[str, int]:
         """error_frames, decode_errors, skipped, timeouts (see the module docstring)."""
@@ -344,8 +401,30 @@ class CubeMarsMIT(Actuator):
     def exit_motor_mode(self, timeout: float = 0.1) -> None:
         self._send(SPECIAL_FRAMES["exit"], timeout)
 
-    def set_zero(self, timeout: float = 0.1) -> MitReply:
-        return self._transact(SPECIAL_FRAMES["zero"], timeout)
+    def set_zero(self, timeout: float | None = None) -> MitReply:
+        """Send "set zero", then wait up to ``timeout`` (default ``zero_timeout``) s for the motor
+        to answer again after its ~1 s silence, re-sending "enter motor mode" every 0.1 s. Returns
+        the first reply (position ~0); DeviceTimeout if the motor stays silent."""
+        limit = self.zero_timeout if timeout is None else float(timeout)
+        deadline = time.monotonic() + limit
+        self._drain()
+        self._fresh = None
+        self._wraps, self._prev_raw = 0, None
+        self._send(SPECIAL_FRAMES["zero"], min(0.1, limit))
+        while True:
+            until = min(deadline, time.monotonic() + 0.1)
+            while self._fresh is None and (remaining := until - time.monotonic()) > 0:
+                msg = self._recv(remaining)
+                if msg is not None:
+                    self._handle(msg)
+            if self._fresh is not None:
+                reply, self._fresh = self._fresh, None
+                return reply
+            if time.monotonic() >= deadline:
+                self._timeouts += 1
+                raise DeviceTimeout(f"CubeMars {self.motor_id}: no reply within {limit:.2f} s after set zero (the "
+                                    f"motor is silent ~{ZERO_SILENCE_S:.0f} s while it stores the origin)")
+            self._send(SPECIAL_FRAMES["enter"], 0.1)  # idempotent: elicits a reply once the motor is back
 
     def command_mit(
         self, p_des: float, v_des: float, kp: float, kd: float, t_ff: float, timeout: float = 0.1

@@ -20,8 +20,14 @@ and the ``odrive-messages`` crate, all consulted through the search tool):
                                          (PASSTHROUGH=1)
   0x0E  Set_Input_Torque       ->drive   input_torque f32 [N.m at the motor]
   0x18  Clear_Errors           ->drive   identify u8 (firmware 0.6; older firmware: empty)
-  0x1C  Get_Torques            drive->   torque_target f32, torque_estimate f32 [N.m]
+  0x1C  Get_Torques            drive->   torque_target f32, torque_estimate f32 [N.m] (firmware
+                                         0.6 only; on 0.5.x 0x1C is Get_ADC_Voltage, float32 V)
   ====  =====================  ========  =========================================================
+
+  Firmware (``firmware`` parameter, from the scene): ``"0.6"`` (ODrive Pro / S1 and 0.6 on v3.6,
+  default) or ``"0.5"`` (0.5.x on ODrive v3.x, ``Firmware/communication/can/can_simple.hpp`` of
+  the 0.5 branch: ``MSG_GET_ADC_VOLTAGE = 0x1C``, no Get_Torques; Clear_Errors without payload).
+  ``read_torque`` needs 0.6: on 0.5 it is refused at open instead of decoding a voltage as torque.
 
   Example (conformance vector): Set_Input_Torque to node 3 with 1.5 N.m is id 0x6E, data
   ``00 00 C0 3F``.
@@ -56,6 +62,16 @@ Counters (:meth:`ODriveCAN.counters`): ``error_frames`` (CAN error frames: a fra
 CRC/stuffing error), ``stale`` (reads without a new estimate), ``late`` (poll answers that arrived
 after their request had been given up, discarded), ``retries``, ``timeouts``.
 
+Closed loop is checked, not assumed: after requesting CLOSED_LOOP_CONTROL on open the adapter
+waits (``state_timeout``, default 0.5 s: longer than the default 100 ms heartbeat period) for a
+heartbeat sent after the request (it also asks for one with an RTR frame, which firmware 0.6
+answers; 0.5.x sends its cyclic one) and raises :class:`hil.errors.DeviceFault` when the heartbeat
+carries an axis_error (code = axis_error; the drive refuses to arm in error, call
+:meth:`ODriveCAN.clear_errors`) or the axis did not enter CLOSED_LOOP_CONTROL, and
+:class:`hil.errors.DeviceTimeout` when no heartbeat arrives at all. Later, a heartbeat showing the
+axis out of CLOSED_LOOP_CONTROL (it fell to IDLE: watchdog, estop, a fault) makes every
+:meth:`ODriveCAN.read` raise DeviceFault: efforts would silently not be applied.
+
 Drive watchdog (firmware 0.6 ``axis.config.watchdog_timeout`` / ``enable_watchdog``): CANSimple
 has no dedicated message for it, but firmware 0.6 has generic endpoint access (RxSdo 0x04 ->
 TxSdo 0x05: ``opcode u8 (0 read, 1 write), endpoint_id u16, reserved u8, value``). Endpoint ids
@@ -63,8 +79,10 @@ are *not* stable: they come from the ``flat_endpoints.json`` of the exact firmwa
 drive, so the adapter arms the watchdog only when given them: ``watchdog_s`` (s) together with
 ``watchdog_endpoints={"watchdog_timeout": id, "enable_watchdog": id}``. It then writes
 watchdog_timeout (float32) and enable_watchdog = 1 on open. Without the ids the drive's own
-watchdog is left as configured (a warning is logged). The drive is assumed to feed the watchdog on
-every Set_Input_Torque (what the simulator does).
+watchdog is left as configured (a warning is logged; a factory drive has it off). The drive feeds
+the watchdog on every CAN message addressed to the node (``can_simple.cpp``; what the simulator
+does), and on expiry latches WATCHDOG_TIMER_EXPIRED (0x01000000) and goes IDLE: the next heartbeat
+makes :meth:`ODriveCAN.read` raise DeviceFault.
 """
 
 from __future__ import annotations
@@ -97,7 +115,14 @@ CMD_GET_ENCODER_ESTIMATES = 0x09
 CMD_SET_CONTROLLER_MODE = 0x0B
 CMD_SET_INPUT_TORQUE = 0x0E
 CMD_CLEAR_ERRORS = 0x18
-CMD_GET_TORQUES = 0x1C
+CMD_GET_TORQUES = 0x1C  # firmware 0.6; the same id is Get_ADC_Voltage on 0.5.x
+CMD_GET_ADC_VOLTAGE_05 = 0x1C
+
+#: Firmware families with different CANSimple tables (see the module docstring).
+FIRMWARES = ("0.6", "0.5")
+#: Factory ``config.can.heartbeat_msg_rate_ms`` (100 ms) in seconds.
+DEFAULT_HEARTBEAT_S = 0.100
+AXIS_ERROR_WATCHDOG_TIMER_EXPIRED = 0x01000000
 
 
 class AxisState(IntEnum):
@@ -144,6 +169,13 @@ AXIS_ERROR_NAMES = {
     0x10000000: "THERMISTOR_DISCONNECTED",
     0x40000000: "CALIBRATION_ERROR",
 }
+
+
+def _state_name(state: int | None) -> str:
+    try:
+        return AxisState(int(state)).name  # type: ignore[arg-type]
+    except (ValueError, TypeError):
+        return str(state)
 
 
 def describe_axis_error(code: int) -> str:
@@ -246,7 +278,12 @@ class ODriveCAN(Actuator):
     gear_ratio: motor turns per joint turn (rotary).
     linear_scale: metres of joint travel per motor turn; makes the joint linear (units "linear").
     feedback: ``"poll"`` (RTR request per read) or ``"cyclic"`` (drive broadcasts estimates).
-    read_torque: also poll Get_Torques (0x1C) and report ``effort`` = torque estimate (joint units).
+    read_torque: also poll Get_Torques (0x1C) and report ``effort`` = torque estimate (joint units);
+        firmware 0.6 only.
+    firmware: ``"0.6"`` (default) or ``"0.5"``: which CANSimple table the drive speaks.
+    state_timeout: how long (s) open waits for a heartbeat confirming CLOSED_LOOP_CONTROL; ``None``:
+        do not wait (a node stepped by hand that answers only on its next tick), :meth:`read`
+        checks the state from the next heartbeat on.
     effort_limit: symmetric clamp on commanded joint effort (N or N.m), ``None`` = no clamp.
     enable: on open, set TORQUE_CONTROL/PASSTHROUGH and request CLOSED_LOOP_CONTROL; on close,
         command zero torque and request IDLE.
@@ -274,8 +311,20 @@ class ODriveCAN(Actuator):
         retries: int = 1,
         watchdog_s: float | None = None,
         watchdog_endpoints: dict[str, int] | None = None,
+        firmware: str = "0.6",
+        state_timeout: float | None = 0.5,
         **bus_kwargs: Any,
     ) -> None:
+        firmware = str(firmware)
+        if firmware not in FIRMWARES:
+            raise ValueError(f"firmware must be one of {', '.join(FIRMWARES)}, got {firmware!r}")
+        if read_torque and firmware == "0.5":
+            raise ValueError("read_torque needs firmware 0.6: on 0.5.x cmd 0x1C is Get_ADC_Voltage, "
+                             "not Get_Torques")
+        self.firmware = firmware
+        self.state_timeout = None if state_timeout is None else float(state_timeout)
+        self._expect_closed_loop = False
+        self._hb_count = 0
         if feedback not in ("poll", "cyclic"):
             raise ValueError(f"feedback must be 'poll' or 'cyclic', got {feedback!r}")
         if gear_ratio == 0 or (linear_scale is not None and linear_scale == 0):
@@ -318,6 +367,7 @@ class ODriveCAN(Actuator):
             transport=f"can:{interface}:{channel}" if bus is None else f"can:{bus.channel_info}",
             vendor="ODrive Robotics",
             model="CANSimple axis",
+            firmware=firmware,
             extra={"node_id": self.node_id, "gear_ratio": self.gear_ratio, "linear_scale": self.linear_scale},
         )
         self.watchdog_armed = False
@@ -327,6 +377,10 @@ class ODriveCAN(Actuator):
                     self.arm_watchdog(float(watchdog_s), watchdog_endpoints)
                 self.set_controller_mode(ControlMode.TORQUE_CONTROL, InputMode.PASSTHROUGH)
                 self.set_axis_state(AxisState.CLOSED_LOOP_CONTROL)
+                if self.state_timeout is None:  # no wait at open: read() checks from the next heartbeat on
+                    self._expect_closed_loop = True
+                else:
+                    self.confirm_closed_loop(self.state_timeout)
             except Exception:
                 self.close()
                 raise
@@ -408,6 +462,7 @@ class ODriveCAN(Actuator):
                 else:
                     log.info("ODrive node %d: axis_error cleared", node)
             self._fault, self.axis_state = err, state
+            self._hb_count += 1
         elif cmd == CMD_GET_ENCODER_ESTIMATES:
             self._estimate = (*decode_f32x2(msg.data), self.clock())
             self._last_rx_wall = time.monotonic()
@@ -426,6 +481,41 @@ class ODriveCAN(Actuator):
                 f"({describe_axis_error(self._fault)})",
                 code=self._fault,
             )
+        if (self._expect_closed_loop and self.axis_state is not None
+                and self.axis_state != AxisState.CLOSED_LOOP_CONTROL):
+            raise DeviceFault(f"ODrive node {self.node_id}: axis_state {_state_name(self.axis_state)}, not "
+                              f"CLOSED_LOOP_CONTROL: efforts are not applied", code=self._fault)
+
+    def confirm_closed_loop(self, timeout: float = 0.5) -> None:
+        """Wait up to ``timeout`` s for a heartbeat, sent after this call, showing
+        CLOSED_LOOP_CONTROL without axis_error (asks for one with an RTR frame: firmware 0.6 answers
+        it, 0.5.x sends its cyclic one). DeviceFault on an axis_error or another state, DeviceTimeout
+        when no heartbeat arrives; from then on :meth:`read` checks the state of every heartbeat."""
+        self._drain()
+        seen = self._hb_count
+        with contextlib.suppress(DeviceTimeout):
+            self._send(CMD_HEARTBEAT, remote=True, timeout=timeout)
+        deadline = time.monotonic() + timeout
+        while True:
+            if self._hb_count > seen and (self._fault or self.axis_state == AxisState.CLOSED_LOOP_CONTROL):
+                break
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                break
+            msg = self._recv(remaining)
+            if msg is not None:
+                self._handle(msg)
+        if self._hb_count == seen:
+            raise DeviceTimeout(f"ODrive node {self.node_id}: no heartbeat within {timeout:.3f} s after requesting "
+                                f"CLOSED_LOOP_CONTROL")
+        if self._fault:
+            raise DeviceFault(f"ODrive node {self.node_id}: did not enter CLOSED_LOOP_CONTROL: axis_error "
+                              f"0x{self._fault:X} ({describe_axis_error(self._fault)}); clear_errors() first",
+                              code=self._fault)
+        if self.axis_state != AxisState.CLOSED_LOOP_CONTROL:
+            raise DeviceFault(f"ODrive node {self.node_id}: did not enter CLOSED_LOOP_CONTROL within {timeout:.3f} s "
+                              f"(heartbeat axis_state {_state_name(self.axis_state)})", code=self._fault)
+        self._expect_closed_loop = True
 
     def _wait_for(self, cmd: int, deadline: float) -> None:
         while True:
@@ -438,6 +528,10 @@ class ODriveCAN(Actuator):
 
     # -- commands -----------------------------------------------------------------------------
     def set_axis_state(self, state: int, timeout: float = 0.1) -> None:
+        """Set_Axis_State (0x07). Requesting any state but CLOSED_LOOP_CONTROL ends the closed-loop
+        check of :meth:`read` (call :meth:`confirm_closed_loop` after re-arming)."""
+        if int(state) != AxisState.CLOSED_LOOP_CONTROL:
+            self._expect_closed_loop = False
         self._send(CMD_SET_AXIS_STATE, encode_u32(int(state)), timeout=timeout)
 
     def set_controller_mode(self, control_mode: int, input_mode: int, timeout: float = 0.1) -> None:
@@ -453,7 +547,8 @@ class ODriveCAN(Actuator):
         self._send(CMD_ESTOP, b"", timeout=timeout)
 
     def clear_errors(self, timeout: float = 0.1) -> None:
-        self._send(CMD_CLEAR_ERRORS, b"\x00", timeout=timeout)
+        """Clear_Errors (0x18): an ``identify`` byte (0) on firmware 0.6, no payload on 0.5.x."""
+        self._send(CMD_CLEAR_ERRORS, b"\x00" if self.firmware == "0.6" else b"", timeout=timeout)
         self._fault = 0
 
     def command_effort(self, effort: np.ndarray, timeout: float = 0.1) -> None:
@@ -541,6 +636,7 @@ class ODriveCAN(Actuator):
 
     def safe_stop(self) -> None:
         """Zero torque, then request IDLE. Never raises."""
+        self._expect_closed_loop = False
         with contextlib.suppress(Exception):
             self.set_input_torque(0.0, 0.05)
         with contextlib.suppress(Exception):

@@ -25,6 +25,16 @@ Present Velocity             128     4      signed, 0.229 rev/min
 Present Position             132     4      signed, 4096 ticks per revolution
 ============================ ======= ====== ===================================================
 
+Factory-new servos (e-manual "Initial Value"): Baud Rate(8) = 1, i.e. **57 600 bps**, Return
+Delay Time(9) = 250 (500 us), ID 1. The adapter's default ``baudrate`` is that 57 600 bps; when the
+first id does not answer a ping at ``baudrate`` and ``scan_baudrates`` is on (default), it pings
+it at every other X-series rate (9 600 ... 4.5 Mbps, :data:`BAUD_RATES`) and continues at the rate
+that answers, with a warning naming it (set ``baudrate`` in the scene to skip the scan). A fast
+loop needs a faster bus than 57 600 bps (see the link budget in ``hil.scene``): configure the
+servos (e.g. with DYNAMIXEL Wizard) and give their rate as ``baudrate``. On open the adapter writes
+Return Delay Time(9) = ``return_delay`` (default 0, in 2 us units; ``None`` leaves it): a factory
+servo otherwise waits 0.5 ms before every status packet.
+
 Conversions (SI, per joint, ``d = directions[i]`` = +1 or -1):
 
 * ``position [rad] = d * (ticks - zero_ticks) * 2 pi / 4096``
@@ -80,6 +90,8 @@ log = logging.getLogger(__name__)
 
 ADDR_MODEL_NUMBER = 0
 ADDR_FIRMWARE_VERSION = 6
+ADDR_BAUD_RATE = 8
+ADDR_RETURN_DELAY = 9
 ADDR_OPERATING_MODE = 11
 ADDR_CURRENT_LIMIT = 38
 ADDR_TORQUE_ENABLE = 64
@@ -94,6 +106,10 @@ ADDR_PRESENT_VELOCITY = 128
 ADDR_PRESENT_POSITION = 132
 PRESENT_BLOCK_LEN = 10  # 126..135
 MODE_CURRENT = 0
+
+#: Baud Rate(8) index -> bps (X-series e-manual, "Baud Rate(8)"); factory index 1 = 57 600 bps.
+BAUD_RATES = {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_000_000, 5: 3_000_000, 6: 4_000_000,
+              7: 4_500_000}
 ERRBIT_ALERT = 0x80
 
 CURRENT_UNIT_A = 2.69e-3
@@ -214,7 +230,9 @@ class DynamixelX(Actuator):
         port: str,
         ids: Sequence[int] = (1,),
         *,
-        baudrate: int = 1_000_000,
+        baudrate: int = 57_600,
+        scan_baudrates: bool = True,
+        return_delay: int | None = 0,
         model: str | XModel = "XM430-W350",
         torque_constant: float | Sequence[float] | None = None,
         current_limit: int | Sequence[int] | None = None,
@@ -257,6 +275,11 @@ class DynamixelX(Actuator):
             driver="dynamixel_x", transport="dynamixel2-serial", vendor="ROBOTIS", model=self.model.name,
             extra={"port": port, "ids": list(self.ids), "baudrate": baudrate},
         )
+        self.baudrate = int(baudrate)
+        self.scan_baudrates = bool(scan_baudrates)
+        if return_delay is not None and not 0 <= int(return_delay) <= 254:
+            raise ValueError(f"return_delay must be 0..254 (x 2 us) or None, got {return_delay}")
+        self.return_delay = None if return_delay is None else int(return_delay)
         self._port = _make_port_handler(port)
         self._ph = PacketHandler(2.0)
         try:
@@ -395,10 +418,35 @@ class DynamixelX(Actuator):
             log.debug("error closing %s", self.port_name, exc_info=True)
 
     # -- internals --------------------------------------------------------------------------------
+    def _find_baudrate(self) -> tuple[int, int, int]:
+        """Ping the first id at ``baudrate``; if it does not answer and ``scan_baudrates`` is on,
+        at every other X-series rate, and keep the first that answers. Returns the SDK's
+        ``(model_number, result, error)`` of the last ping."""
+        from dynamixel_sdk import COMM_SUCCESS
+
+        first = self.ids[0]
+        answer = self._ph.ping(self._port, first)
+        if answer[1] == COMM_SUCCESS or not self.scan_baudrates:
+            return answer
+        for bps in BAUD_RATES.values():
+            if bps == self.baudrate:
+                continue
+            self._port.setBaudRate(bps)
+            found = self._ph.ping(self._port, first)
+            if found[1] == COMM_SUCCESS:
+                log.warning("DYNAMIXEL id %d answers at %d bps, not %d: continuing at %d bps (set baudrate: %d "
+                            "in the scene)", first, bps, self.baudrate, bps, bps)
+                self.baudrate = bps
+                self.info.extra["baudrate"] = bps
+                return found
+        self._port.setBaudRate(self.baudrate)  # nobody answers: report the failure at the given rate
+        return answer
+
     def _init_servos(self, enable: bool) -> None:
         limits = []
+        first = self._find_baudrate()
         for i in self.ids:
-            model_number, result, error = self._ph.ping(self._port, i)
+            model_number, result, error = first if i == self.ids[0] else self._ph.ping(self._port, i)
             self._check_comm(result, f"ping id {i}")
             self._raise_for_error(i, error, None)
             if model_number != self.model.model_number:
@@ -412,6 +460,8 @@ class DynamixelX(Actuator):
         self.info.firmware = ",".join(str(v) for v in fw)
         for i in self.ids:
             self._write(i, ADDR_TORQUE_ENABLE, 1, 0, None)
+            if self.return_delay is not None and self._read(i, ADDR_RETURN_DELAY, 1, None) != self.return_delay:
+                self._write(i, ADDR_RETURN_DELAY, 1, self.return_delay, None)  # EEPROM: torque is off
             self._write(i, ADDR_OPERATING_MODE, 1, MODE_CURRENT, None)
             self._write(i, ADDR_BUS_WATCHDOG, 1, 0, None)  # off; also clears a Bus Watchdog Error
             self._write(i, ADDR_GOAL_CURRENT, 2, 0, None)

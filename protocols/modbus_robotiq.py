@@ -17,6 +17,10 @@ communication / Modbus RTU"; firmware and serial-number layout as decoded by Rob
   frames ``20 4E  Fx_lo Fx_hi ... Mz_lo Mz_hi  CRC_lo CRC_hi`` (int16 little-endian, same scaling
   as the registers). The CRC is CRC-16/MODBUS over the first 14 bytes (header included), sent
   low byte first. The stream is stopped by sending about 50 bytes of 0xFF (~0.5 s).
+* a sensor left streaming (a previous program, or its power-up in stream mode) does not answer
+  Modbus: on a serial line the polled adapter first listens, and jams a running stream as
+  Robotiq's ``rq_sensor_com.c`` does (``stop_stream_on_line``: 0xFF until the line is quiet, up
+  to :data:`STREAM_STOP_S` = 0.5 s, then 0.1 s before the first Modbus request);
 
 Transport URL scheme (only the URL differs between a bench and a simulated device):
 
@@ -244,6 +248,47 @@ def check_wrench_range(wrench: np.ndarray, max_force: float, max_torque: float) 
                             f"+-{max_force:g} N, +-{max_torque:g} N.m (damaged reply?)")
 
 
+#: How long the stream stop sends the jam and waits for the line to go quiet (s; manual: ~0.5 s).
+STREAM_STOP_S = 0.5
+#: Pause after the stream stopped before the first Modbus request (Robotiq's rq_sensor_com.c:
+#: ``usleep(100000)`` "give some time to the sensor to switch to modbus").
+STREAM_TO_MODBUS_S = 0.1
+
+
+def stop_stream_on_line(ser: Any, *, listen_s: float = 0.05, stop_s: float = STREAM_STOP_S,
+                        quiet_s: float = 0.05) -> bool | None:
+    """Stop an FT-300 stream left running on an open serial line, as Robotiq's driver does after
+    boot (``rq_com_tentative_connexion`` / ``rq_com_stop_stream_after_boot``): listen for
+    ``listen_s``; if bytes arrive, send the 0xFF jam (:data:`STREAM_STOP_JAM`, again every 0.1 s)
+    until no byte arrives for ``quiet_s``, for at most ``stop_s``, then wait
+    :data:`STREAM_TO_MODBUS_S`. Returns None if the line was quiet (no stream), True if a stream
+    was stopped, False if it was still streaming after ``stop_s``."""
+    deadline = time.monotonic() + listen_s
+    heard = False
+    while time.monotonic() < deadline and not heard:
+        heard = bool(ser.read(ser.in_waiting or 1))
+    if not heard:
+        return None
+    log.info("FT-300: a data stream is running; jamming it with 0xFF (Robotiq's stop sequence)")
+    end = time.monotonic() + stop_s
+    next_jam = 0.0
+    quiet_since = time.monotonic()
+    while True:
+        now = time.monotonic()
+        if now >= next_jam:
+            ser.write(STREAM_STOP_JAM)
+            ser.flush()
+            next_jam = now + 0.1
+        if ser.read(ser.in_waiting or 1):
+            quiet_since = time.monotonic()
+        elif time.monotonic() - quiet_since >= quiet_s:
+            time.sleep(STREAM_TO_MODBUS_S)
+            ser.reset_input_buffer()
+            return True
+        if time.monotonic() >= end:
+            return False
+
+
 class RobotiqFT300(ForceSensor):
     """Robotiq FT-300 polled over Modbus: one FC03 read of registers 180-185 per :meth:`read`.
 
@@ -285,6 +330,7 @@ class RobotiqFT300(ForceSensor):
         retries: int = 1,
         max_force: float = RATED_FORCE,
         max_torque: float = RATED_TORQUE,
+        stop_stream: bool = True,
     ) -> None:
         from pymodbus import FramerType
         from pymodbus.client import ModbusSerialClient, ModbusTcpClient
@@ -305,6 +351,9 @@ class RobotiqFT300(ForceSensor):
                         "exceptions": 0, "retries": 0, "timeouts": 0}
         ep = self.endpoint
         client: Any
+        self.stream_stopped: bool | None = None
+        if ep.kind == "rtu" and stop_stream:
+            self.stream_stopped = self._stop_stream(ep)
         if ep.kind == "rtu":
             client = ModbusSerialClient(
                 ep.device, framer=FramerType.RTU, baudrate=ep.baudrate, bytesize=8, parity="N",
@@ -330,6 +379,22 @@ class RobotiqFT300(ForceSensor):
             self.close()
             raise
         log.info("FT-300 opened on %s (slave %d, %s)", url, self.slave, self.info.firmware or "fw ?")
+
+    def _stop_stream(self, ep: ModbusEndpoint) -> bool | None:
+        """Open the serial line raw and stop a data stream left running (:func:`stop_stream_on_line`);
+        a sensor still streaming after the jam is a ProtocolError."""
+        import serial
+
+        try:
+            with serial.Serial(ep.device, ep.baudrate, bytesize=8, parity="N", stopbits=1, timeout=0.01,
+                               write_timeout=0.5) as ser:
+                stopped = stop_stream_on_line(ser)
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceDisconnected(f"FT-300: cannot open {ep.device}: {exc}") from exc
+        if stopped is False:
+            raise ProtocolError(f"FT-300 on {ep.device}: the data stream did not stop after "
+                                f"{STREAM_STOP_S:.1f} s of 0xFF jam")
+        return stopped
 
     # -- ForceSensor ------------------------------------------------------------------------------
     def read(self, timeout: float | None = None) -> WrenchSample:
@@ -558,7 +623,7 @@ class RobotiqFT300Stream(StreamingSensor):
         on_crc_error: str = "count",
         clock: Callable[[], float] = time.monotonic,
         poll_s: float = 0.002,
-        stop_timeout: float = 0.3,
+        stop_timeout: float = STREAM_STOP_S,
         quiet_s: float = 0.05,
     ) -> None:
         import serial  # optional dependency (extra "serial")

@@ -15,8 +15,19 @@ repository, as vendored in ``tud-phi/bota_ft_sensors``, and the ArduPilot BotaSy
   not state the unit); only differences are used (gap detection), modulo 2**32.
 * ``temperature`` in deg C.
 
-The sensor must already be in RUN mode with binary output (its power-up state once configured;
-the ASCII configuration commands ``C``/``c,...``/``f,...``/``R`` are not sent by this adapter).
+Configuration (as Bota's ``bota_serial_example.py`` does on start; ``configure=True``, default):
+the adapter sends ``C`` (CONFIG mode) and waits for ``r,0,C,0``, then the communication setup
+``c,TEMP_COMPENSATION,USE_CALIBRATION,DATA_FORMAT,BAUD_CODE`` (``r,0,c,0``; data format 0 =
+binary, baud code 0..4 = 9 600, 57 600, 115 200, 230 400, 460 800: :data:`BOTA_BAUD_CODES`), the
+filter setup ``f,SINC_LENGTH,CHOP_ENABLE,FAST_ENABLE,FIR_DISABLE`` (``r,0,f,0``) and ``R`` (RUN
+mode, ``r,0,R,0``), each reply within ``config_timeout``, else DeviceTimeout naming the command.
+The sample period is ``SINC_LENGTH / 51200`` s (the example's ``time_step = 0.00001953125 *
+SINC_LENGTH``); ``sinc_length`` defaults to ``round(51200 * period_s)`` when ``period_s`` is
+given, else the example's 512 (100 Hz). Defaults follow the example (no temperature compensation,
+calibration on, binary, chop off, fast off, FIR disabled). A reply ``r,0,X,N`` with N != 0 is
+taken as a refusal (DeviceError; assumption: the example only ever checks for ``,0``). The frame
+rate must fit the line: 37 bytes per frame at ``baudrate / 10`` bytes/s carries at most 1 245
+frames/s at 460 800 baud (checked for scenes by :mod:`hil.protocols.link_budget`).
 
 Error handling (documented behaviour):
 
@@ -58,7 +69,7 @@ from typing import Literal
 import numpy as np
 import serial
 
-from hil.errors import ChecksumError, DeviceDisconnected, DeviceFault, DeviceTimeout
+from hil.errors import ChecksumError, DeviceDisconnected, DeviceError, DeviceFault, DeviceTimeout
 from hil.protocols.base import DeviceInfo, StreamingSensor, WrenchSample, repeat_sample
 from hil.protocols.crc import crc16_x25
 
@@ -72,6 +83,11 @@ STATUS_APP_TOOK_TOO_LONG = 0x1
 STATUS_OVERRANGE = 0x2
 STATUS_INVALID = 0x4
 STATUS_RAW = 0x8
+
+#: Baud codes of the ``c,...`` command (Bota's example: 0: 9600, 1: 57600, 2: 115200, 3: 230400, 4: 460800).
+BOTA_BAUD_CODES = {0: 9600, 1: 57600, 2: 115200, 3: 230400, 4: 460800}
+#: Sample rate base: period = sinc_length / BOTA_BASE_HZ (s).
+BOTA_BASE_HZ = 51200.0
 
 
 @dataclass(frozen=True)
@@ -144,6 +160,10 @@ class BotaSerial(StreamingSensor):
     on_crc_error: ``"count"`` (default, a recorded gap) or ``"raise"`` (ChecksumError).
     clock: time source for ``WrenchSample.t``.
     poll_s: granularity of blocking reads (never exceeds the call's timeout).
+    configure: send the example's configuration sequence on open (see the module docstring).
+    sinc_length, chop_enable, fast_enable, fir_disable, temp_compensation, use_calibration: the
+        configuration sent (``sinc_length`` default: from ``period_s``, else 512).
+    config_timeout: seconds to wait for each configuration reply.
     """
 
     axes = 6
@@ -159,9 +179,25 @@ class BotaSerial(StreamingSensor):
         clock: Callable[[], float] = time.monotonic,
         poll_s: float = 0.002,
         timeout: float = 0.1,
+        configure: bool = True,
+        sinc_length: int | None = None,
+        chop_enable: int = 0,
+        fast_enable: int = 0,
+        fir_disable: int = 1,
+        temp_compensation: int = 0,
+        use_calibration: int = 1,
+        config_timeout: float = 1.0,
     ) -> None:
         if on_crc_error not in ("count", "raise"):
             raise ValueError("on_crc_error must be 'count' or 'raise'")
+        codes = {v: k for k, v in BOTA_BAUD_CODES.items()}
+        if configure and int(baudrate) not in codes:
+            raise ValueError(f"Bota baud rate must be one of {sorted(codes)}, got {baudrate}")
+        if sinc_length is None:
+            sinc_length = max(1, round(BOTA_BASE_HZ * period_s)) if period_s is not None else 512
+        self.sinc_length = int(sinc_length)
+        if configure and period_s is None:
+            period_s = self.sinc_length / BOTA_BASE_HZ
         self.url = url
         self.period_s = period_s
         self._learned_period = False
@@ -186,7 +222,48 @@ class BotaSerial(StreamingSensor):
             self._ser = serial.serial_for_url(url, baudrate=baudrate, timeout=poll_s, write_timeout=timeout)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DeviceDisconnected(f"cannot open {url!r}: {exc}") from exc
-        self.info = DeviceInfo(driver="bota_serial", transport=f"serial:{url}", vendor="Bota Systems")
+        self.info = DeviceInfo(driver="bota_serial", transport=f"serial:{url}", vendor="Bota Systems",
+                               extra={"sinc_length": self.sinc_length, "baudrate": int(baudrate)})
+        if configure:
+            setup = [
+                "C",
+                f"c,{int(temp_compensation)},{int(use_calibration)},0,{codes[int(baudrate)]}",
+                f"f,{self.sinc_length},{int(chop_enable)},{int(fast_enable)},{int(fir_disable)}",
+                "R",
+            ]
+            try:
+                for cmd in setup:
+                    self._command(cmd, float(config_timeout))
+            except BaseException:
+                self.close()
+                raise
+
+    def _command(self, cmd: str, timeout: float) -> None:
+        """Send one ASCII configuration command and wait for its ``r,0,X,N`` reply; bytes after the
+        reply go to the frame parser."""
+        try:
+            self._ser.write(cmd.encode("ascii"))
+            self._ser.flush()
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceDisconnected(f"{self.url}: port lost: {exc}") from exc
+        token = f"r,0,{cmd[0]},".encode("ascii")
+        buf = bytearray()
+        deadline = time.monotonic() + timeout
+        while True:
+            k = buf.find(token)
+            if k >= 0 and len(buf) > k + len(token):
+                code = buf[k + len(token)]
+                rest = bytes(buf[k + len(token) + 1 :])
+                if cmd[0] == "R":
+                    self._pending += self.parser.feed(rest)
+                if code != ord("0"):
+                    reply = bytes(buf[k : k + len(token) + 1])
+                    raise DeviceError(f"{self.url}: Bota sensor refused {cmd!r} (reply {reply!r})")
+                return
+            if time.monotonic() >= deadline:
+                raise DeviceTimeout(f"{self.url}: no {token.decode()}0 reply to {cmd!r} within {timeout:.2f} s "
+                                    f"(is it a Bota serial sensor at this baud rate?)")
+            buf += self._read_bytes(block=True)
 
     @property
     def stats(self) -> Counter[str]:

@@ -202,6 +202,11 @@ def test_cyclic_stale_odrive_via_cli_exit_20_naming_the_device(tmp_path, capsys)
 # -- fault counters ---------------------------------------------------------------------------------
 def test_device_counters_are_per_device_ints_that_count_injected_faults():
     def edit(d):
+        # 1 kHz loop: the Bota (sinc 51, 1004 Hz) then sends exactly one frame per tick over these 30
+        # ticks (its first second frame in one tick comes at ~255 ms), so each fault tick hits a frame
+        d["rate_hz"] = 1000
+        d["experiments"] = [e for e in d["experiments"] if e["type"] == "static_hold"]  # chirps need 2 kHz
+        d.pop("certification")
         d["devices"][1]["sim"] = {"measure": "body", "faults": {"corrupt_ticks": [5, 9], "stale_at_tick": 20,
                                                                  "stale_until_tick": 23}}
 

@@ -121,7 +121,7 @@ def chain_and_port():
     plant = FreeJoints(dof=2)
     with DynamixelChain(plant, ids=[1, 2]) as chain:
         port = sdk.PortHandler(chain.port)
-        assert port.openPort() and port.setBaudRate(1_000_000)
+        assert port.openPort() and port.setBaudRate(57_600)  # a factory servo's rate
         try:
             yield plant, chain, port, sdk.PacketHandler(2.0)
         finally:
@@ -191,7 +191,7 @@ def test_bad_crc_instruction_gets_crc_error_status(chain_and_port) -> None:
 # ---- faults through the SDK -------------------------------------------------------------------
 def _sdk(chain: DynamixelChain):
     port = sdk.PortHandler(chain.port)
-    assert port.openPort()
+    assert port.openPort() and port.setBaudRate(57_600)  # the SDK opens at 1 Mbps; a factory servo is at 57 600
     return port, sdk.PacketHandler(2.0)
 
 

@@ -107,7 +107,8 @@ def test_linear_scale():
 def test_cyclic_feedback_lockstep_without_sync():
     ch = channel()
     j = FreeJoints()
-    with SimODrive(j, ch, node_id=2, encoder_every=1) as node, ODriveCAN(2, ch, "virtual", feedback="cyclic") as dev:
+    with SimODrive(j, ch, node_id=2, encoder_every=1) as node, \
+            ODriveCAN(2, ch, "virtual", feedback="cyclic", state_timeout=None) as dev:
         node.tick()  # handles mode/state commands, publishes heartbeat + estimate
         dev.read()
         dev.command_effort(np.array([1.0]))
@@ -124,7 +125,8 @@ def test_cyclic_feedback_lockstep_without_sync():
 def test_cyclic_first_read_without_estimate_times_out():
     ch = channel()
     j = FreeJoints()
-    with SimODrive(j, ch, node_id=2, encoder_every=0) as node, ODriveCAN(2, ch, "virtual", feedback="cyclic") as dev:
+    with SimODrive(j, ch, node_id=2, encoder_every=0) as node, \
+            ODriveCAN(2, ch, "virtual", feedback="cyclic", state_timeout=None) as dev:
         node.tick()
         with pytest.raises(DeviceTimeout):
             dev.read(timeout=0.01)
@@ -184,7 +186,9 @@ def test_error_code_raises_device_fault_and_disarms():
     ch = channel()
     j = FreeJoints()
     plan = FaultPlan(error_code=0x2000, error_at_tick=3)  # MOTOR_OVER_TEMP
-    with SimODrive(j, ch, node_id=1, sync=True, faults=plan) as node, ODriveCAN(1, ch, "virtual") as dev:
+    # heartbeat every tick (the factory rate is 100 ms): the error shows up on the next tick
+    with SimODrive(j, ch, node_id=1, sync=True, faults=plan, heartbeat_every=1) as node, \
+            ODriveCAN(1, ch, "virtual") as dev:
         for _ in range(2):
             node.tick()
             dev.command_effort(np.array([1.0]))
@@ -200,7 +204,7 @@ def test_error_code_raises_device_fault_and_disarms():
 def test_estop_latches_fault():
     ch = channel()
     j = FreeJoints()
-    with SimODrive(j, ch, node_id=7, sync=True) as node, ODriveCAN(7, ch, "virtual") as dev:
+    with SimODrive(j, ch, node_id=7, sync=True, heartbeat_every=1) as node, ODriveCAN(7, ch, "virtual") as dev:
         dev.estop()
         node.tick()
         with pytest.raises(DeviceFault) as ei:
@@ -208,6 +212,10 @@ def test_estop_latches_fault():
         assert ei.value.code & od.AXIS_ERROR_ESTOP_REQUESTED
         dev.clear_errors()
         node.tick()
+        with pytest.raises(DeviceFault, match="IDLE, not CLOSED_LOOP_CONTROL"):
+            dev.read()  # the estop disarmed the axis: efforts would not be applied
+        dev.set_axis_state(od.AxisState.CLOSED_LOOP_CONTROL)
+        dev.confirm_closed_loop(0.5)
         dev.read()
 
 
@@ -246,7 +254,7 @@ def test_late_answer_is_discarded_not_mistaken():
     j = FreeJoints()
     plan = FaultPlan(late_prob=1.0, late_ticks=1)
     with SimODrive(j, ch, node_id=1, sync=True, faults=plan, heartbeat_every=0) as node, ODriveCAN(
-        1, ch, "virtual"
+        1, ch, "virtual", state_timeout=None  # every answer is late, the heartbeat too
     ) as dev:
         with pytest.raises(DeviceTimeout):
             dev.read(timeout=0.02)

@@ -170,7 +170,7 @@ def test_faults_during_open_surface_as_exceptions(plan: FaultPlan, exc: type[Exc
     with DynamixelChain(FreeJoints(1), ids=[1], faults=plan) as chain:
         t0 = time.monotonic()
         with pytest.raises(exc):
-            DynamixelX(chain.port, ids=[1], timeout=0.05)
+            DynamixelX(chain.port, ids=[1], timeout=0.05, scan_baudrates=False)  # no second ping
         assert time.monotonic() - t0 < 2.0
 
 
@@ -181,9 +181,9 @@ def _opened(plan: FaultPlan, ids=(1, 2)):
     return plant, chain, dx
 
 
-# open(): ping, read limit, read firmware, torque off, mode, Bus Watchdog off, zero goal, torque on
-# = 8 packets per servo
-OPEN_TICKS = 16
+# open(): ping, read limit, read firmware, torque off, read Return Delay Time, write it (factory
+# 250 -> 0), mode, Bus Watchdog off, zero goal, torque on = 10 packets per servo
+OPEN_TICKS = 20
 
 
 def test_read_faults_surface_as_exceptions_and_recover() -> None:
