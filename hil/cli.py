@@ -557,6 +557,12 @@ def _cmd_keygen(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_check_realtime(args: argparse.Namespace) -> int:
+    from hil.realtime import check_realtime
+
+    return check_realtime(args.rate, args.seconds, rt=not args.no_rt, as_json=args.json)
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
     from hil.record import replay_main
 
@@ -659,6 +665,15 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("record")
     rp.add_argument("--json", action="store_true")
     rp.set_defaults(func=_cmd_replay)
+
+    from hil.inputs import number_type
+
+    cr = add("check-realtime", help="the machine's wake-up latency (cyclictest's way) and the loop rates it holds")
+    cr.add_argument("--rate", type=number_type("positive"), default=2000.0, help="loop rate to check [Hz]")
+    cr.add_argument("--seconds", type=number_type("positive"), default=5.0, help="seconds per measurement")
+    cr.add_argument("--no-rt", action="store_true", help="without SCHED_FIFO / mlockall / CPU affinity")
+    cr.add_argument("--json", action="store_true")
+    cr.set_defaults(func=_cmd_check_realtime)
 
     im = add("import", help="convert a CSV or MATLAB .mat run into a run record (HDF5)")
     im.add_argument("file", help="CSV (header row) or .mat file")

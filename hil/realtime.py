@@ -21,7 +21,7 @@ Pieces (each usable on its own; :class:`hil.runner.Runner` uses them in realtime
   periodic absolute-deadline sleeps (``clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME)`` through
   libc, else ``time.sleep``), lateness of each wake-up; :func:`run_cyclictest` runs rt-tests'
   ``cyclictest`` when it is installed; :func:`holdable_rates` says which loop rates the
-  measured latency allows; :func:`check_realtime_main` is ``hil check-realtime``.
+  measured latency allows; :func:`check_realtime` is ``hil check-realtime``.
 * :func:`lateness_measurements` -- the certificate rows (p50/p99/max lateness, overruns, sample
   timing) of the experiments' outcomes, with limits from the scene.
 
@@ -61,7 +61,7 @@ __all__ = [
     "Pacer",
     "Scheduling",
     "WakeupStats",
-    "check_realtime_main",
+    "check_realtime",
     "gc_paused",
     "holdable_rates",
     "lateness_measurements",
@@ -417,22 +417,15 @@ def holdable_rates(stats: WakeupStats, rates: Sequence[float] = CANDIDATE_RATES)
     return {float(r): bool(p99 <= P99_FRACTION / r and stats.max < 1.0 / r) for r in rates}
 
 
-def check_realtime_main(argv: Sequence[str] | None = None) -> int:
-    """``hil check-realtime [--rate HZ] [--seconds S] [--json]``: the machine's wake-up latency
-    (absolute-deadline sleeps, and the loop's hybrid wait) under the scheduling the loop would get,
-    cyclictest's figures side by side when installed, and which loop rates it can hold. Exit 0 when
-    ``--rate`` is held, 1 when not."""
-    import argparse
+def check_realtime(rate_hz: float = 2000.0, seconds: float = 5.0, *, rt: bool = True, as_json: bool = False) -> int:
+    """``hil check-realtime [--rate HZ] [--seconds S] [--no-rt] [--json]``: the machine's wake-up
+    latency (absolute-deadline sleeps, and the loop's hybrid wait) under the scheduling the loop
+    would get, cyclictest's figures side by side when installed, and which loop rates it can hold
+    (:func:`holdable_rates`, judged on the hybrid wait). Prints a table (or one JSON object);
+    exit 0 when ``rate_hz`` is held, 1 when not."""
     import json
 
-    from hil.inputs import number_type
-
-    p = argparse.ArgumentParser(prog="hil check-realtime", description=check_realtime_main.__doc__.split("\n")[0])
-    p.add_argument("--rate", type=number_type("positive"), default=2000.0, help="loop rate to check [Hz]")
-    p.add_argument("--seconds", type=number_type("positive"), default=5.0, help="seconds per measurement")
-    p.add_argument("--no-rt", action="store_true", help="measure without SCHED_FIFO / mlockall / affinity")
-    p.add_argument("--json", action="store_true")
-    a = p.parse_args(argv)
+    a = argparse_namespace(rate=float(rate_hz), seconds=float(seconds), no_rt=not rt, json=as_json)
     with realtime_scheduling(enabled=not a.no_rt) as sched:
         rows = [measure_wakeup(a.rate, a.seconds, method="sleep"), measure_wakeup(a.rate, a.seconds, method="hybrid")]
     cyc = run_cyclictest(a.rate, a.seconds)
@@ -442,7 +435,7 @@ def check_realtime_main(argv: Sequence[str] | None = None) -> int:
     else:
         rows.append(cyc)
     held = holdable_rates(rows[1])  # the loop waits with the hybrid wait
-    ok = held.get(float(a.rate), holdable_rates(rows[1], [a.rate])[float(a.rate)])
+    ok = holdable_rates(rows[1], [a.rate])[float(a.rate)]
     if a.json:
         print(json.dumps({"scheduling": sched.to_dict(), "rows": [r.to_dict() for r in rows], "note": note,
                           "holdable": {f"{r:g}": v for r, v in held.items()}, "rate_held": ok}))
@@ -457,12 +450,13 @@ def check_realtime_main(argv: Sequence[str] | None = None) -> int:
     tab = Table(title=f"wake-up lateness at {a.rate:g} Hz, {a.seconds:g} s", header_style="bold")
     for col in ("method", "wake-ups", "p50 µs", "p99 µs", "max µs", "overruns"):
         tab.add_column(col, justify="left" if col == "method" else "right")
-    label = {"sleep": "absolute sleep (cyclictest's way)", "hybrid": "sleep + spin (the loop's wait)",
-             "cyclictest": "cyclictest (rt-tests; p50 = its Avg)"}
+    label = {"sleep": "abs. sleep", "hybrid": "sleep+spin", "cyclictest": "cyclictest"}
     for r in rows:
         tab.add_row(label[r.method], str(r.samples), f"{1e6 * r.p50:.1f}",
                     "—" if math.isnan(r.p99) else f"{1e6 * r.p99:.1f}", f"{1e6 * r.max:.1f}", str(r.overruns))
     con.print(tab)
+    con.print("abs. sleep: clock_nanosleep to each absolute deadline (cyclictest's measurement); sleep+spin: the "
+              "loop's wait (sleep, then spin the last 200 µs); cyclictest: its Avg in the p50 column", highlight=False)
     if note:
         con.print(note, highlight=False)
     good = [f"{r:g}" for r, v in held.items() if v]
@@ -471,6 +465,13 @@ def check_realtime_main(argv: Sequence[str] | None = None) -> int:
               highlight=False)
     con.print(f"{a.rate:g} Hz: {'held' if ok else 'NOT held'}", highlight=False)
     return 0 if ok else 1
+
+
+def argparse_namespace(**kw: Any) -> Any:
+    """A plain attribute bag (what argparse would give)."""
+    import types
+
+    return types.SimpleNamespace(**kw)
 
 
 # ---------------------------------------------------------------------------------------------
