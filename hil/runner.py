@@ -332,7 +332,8 @@ class Runner:
     Realtime options: ``clock_ns`` / ``sleep`` (the loop's clock in ns and its sleep in s; defaults
     ``time.perf_counter_ns`` / ``time.sleep``; tests inject a fake clock), ``rt_scheduling``
     (False: no SCHED_FIFO / mlockall / affinity, e.g. in tests), ``gc_pause`` (False: leave the
-    garbage collector alone). The default bench of a simulated scene in realtime mode serves its
+    garbage collector alone), ``spin_ns`` (the hybrid wait's spin window, default 200 µs; 0: sleep
+    only). The default bench of a simulated scene in realtime mode serves its
     devices from another process (:class:`hil.bench.ProcessSimBench`).
     """
 
@@ -340,7 +341,7 @@ class Runner:
                  realtime: bool | None = None, progress: Callable[[str, int, int], None] | None = None,
                  max_ticks: int | None = None, overwrite: bool = False,
                  clock_ns: Callable[[], int] | None = None, sleep: Callable[[float], Any] | None = None,
-                 rt_scheduling: bool = True, gc_pause: bool = True) -> None:
+                 rt_scheduling: bool = True, gc_pause: bool = True, spin_ns: int | None = None) -> None:
         self.scene = scene
         #: replace an existing record of the same name (``hil run --overwrite``); refused otherwise
         self.overwrite = bool(overwrite)
@@ -364,6 +365,7 @@ class Runner:
         self.sleep = sleep
         self.rt_scheduling = bool(rt_scheduling)
         self.gc_pause = bool(gc_pause)
+        self.spin_ns = spin_ns
         self.progress = progress
         self.max_ticks = max_ticks
         self.devices = {d.name: d for d in scene.devices}
@@ -512,7 +514,8 @@ class Runner:
                     self._append_event(writer, 0.0, "realtime", f"loop scheduling: {sched.describe()}"
                                        + (f"; warning: {sched.warning}" if sched.warning else ""))
                     rt.enter_context(gc_paused(self.gc_pause))
-                    pacer = Pacer(self.rate_hz, clock_ns=self.clock_ns, sleep=self.sleep)
+                    pacer = Pacer(self.rate_hz, clock_ns=self.clock_ns, sleep=self.sleep,
+                                  **({} if self.spin_ns is None else {"spin_ns": self.spin_ns}))
                     guard = LatenessGuard(self.rate_hz, safety.max_lateness_s, safety.max_overrun_fraction)
                     pacer.start()
                 for k in range(n):
