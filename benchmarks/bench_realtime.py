@@ -10,7 +10,12 @@ For each rate (500 Hz, 1 kHz, 2 kHz), ``sdea_bench``'s locked chirp (f1 capped a
 * ``without``: the devices served from another process (:class:`hil.bench.ProcessSimBench`, as at
   a real bench), sleep-only wait, no realtime scheduling, garbage collector on;
 * ``with``: the same external devices, the hybrid wait (sleep, then spin the last 200 µs),
-  SCHED_FIFO 80 + mlockall + the loop pinned to its own CPU (where permitted), gc frozen/disabled.
+  SCHED_FIFO 80 + mlockall + the loop pinned to its own CPU (where permitted), gc frozen/disabled;
+* ``stream``: as ``with``, and the ODrive streams its encoder estimates (``feedback: cyclic``) and
+  every read takes the newest sample without waiting for a fresh one (``Runner(read_timeout=0)``;
+  a device that stops sending is caught by the watchdog on the samples' ``produced_at``). The
+  other rows' reads wait for a fresh frame or reply (up to ``watchdog_ms``), which locks each tick
+  to the devices' streams.
 
 The late-loop safe stop is relaxed for the benchmark (``max_lateness_ms`` 10 s, overrun fraction
 1) so the whole distribution is measured; the device watchdog (50 ms) still applies: a row whose
@@ -45,11 +50,15 @@ CONFIGS = {
     "before": {"bench": Bench, "rt_scheduling": False, "gc_pause": False, "spin_ns": 0},
     "without": {"bench": ProcessSimBench, "rt_scheduling": False, "gc_pause": False, "spin_ns": 0},
     "with": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None},
+    "stream": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None,
+               "feedback": "cyclic", "read_timeout": 0.0},
 }
 
 
-def _scene(rate: float) -> Any:
+def _scene(rate: float, feedback: str = "poll") -> Any:
     d = yaml.safe_load(load_scene("sdea_bench").source_text)
+    if feedback == "cyclic":
+        d["devices"][0]["params"]["feedback"] = "cyclic"
     d["rate_hz"] = rate
     d["experiments"] = d["experiments"][:1]
     d["experiments"][0]["f1"] = min(200.0, rate / 10.0)  # the scene's check: f1 <= Nyquist / 5
@@ -60,12 +69,13 @@ def _scene(rate: float) -> Any:
 
 def loop_row(rate: float, seconds: float, config: str, tmp: Path) -> dict[str, Any]:
     c = CONFIGS[config]
-    sc = _scene(rate)
+    sc = _scene(rate, c.get("feedback", "poll"))
     n = round(seconds * rate)
     t0 = time.perf_counter()
     r = Runner(sc, tmp / f"{config}-{rate:g}", realtime=True, max_ticks=n,
                bench_factory=lambda v: c["bench"](sc, seed=sc.seed, variant=v),
-               rt_scheduling=c["rt_scheduling"], gc_pause=c["gc_pause"], spin_ns=c["spin_ns"])
+               rt_scheduling=c["rt_scheduling"], gc_pause=c["gc_pause"], spin_ns=c["spin_ns"],
+               read_timeout=c.get("read_timeout"))
     o = r.run(select=[0])[0]
     wall = time.perf_counter() - t0
     row = {"config": config, "rate": rate, "ticks": o.stats.get("ticks", 0), "status": o.status,

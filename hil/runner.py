@@ -333,7 +333,8 @@ class Runner:
     ``time.perf_counter_ns`` / ``time.sleep``; tests inject a fake clock), ``rt_scheduling``
     (False: no SCHED_FIFO / mlockall / affinity, e.g. in tests), ``gc_pause`` (False: leave the
     garbage collector alone), ``spin_ns`` (the hybrid wait's spin window, default 200 µs; 0: sleep
-    only). The default bench of a simulated scene in realtime mode serves its
+    only), ``read_timeout`` (s, passed to every tick's ``bench.read``; None: the bench's own,
+    ``watchdog_ms`` on hardware). The default bench of a simulated scene in realtime mode serves its
     devices from another process (:class:`hil.bench.ProcessSimBench`).
     """
 
@@ -341,7 +342,8 @@ class Runner:
                  realtime: bool | None = None, progress: Callable[[str, int, int], None] | None = None,
                  max_ticks: int | None = None, overwrite: bool = False,
                  clock_ns: Callable[[], int] | None = None, sleep: Callable[[float], Any] | None = None,
-                 rt_scheduling: bool = True, gc_pause: bool = True, spin_ns: int | None = None) -> None:
+                 rt_scheduling: bool = True, gc_pause: bool = True, spin_ns: int | None = None,
+                 read_timeout: float | None = None) -> None:
         self.scene = scene
         #: replace an existing record of the same name (``hil run --overwrite``); refused otherwise
         self.overwrite = bool(overwrite)
@@ -366,6 +368,7 @@ class Runner:
         self.rt_scheduling = bool(rt_scheduling)
         self.gc_pause = bool(gc_pause)
         self.spin_ns = spin_ns
+        self.read_timeout = read_timeout
         self.progress = progress
         self.max_ticks = max_ticks
         self.devices = {d.name: d for d in scene.devices}
@@ -536,7 +539,8 @@ class Runner:
                             self._append(writer, t, {"loop.late": late, "loop.tick_start": start})
                             stats.ticks = k + 1
                             raise
-                    meas = self.bench.read()  # DeviceTimeout/Disconnected -> "watchdog: ...", faults -> "device: ..."
+                    # DeviceTimeout/Disconnected -> "watchdog: ...", faults -> "device: ..."
+                    meas = self.bench.read() if self.read_timeout is None else self.bench.read(self.read_timeout)
                     try:
                         safety.check_finite(k, t, meas)
                     except SafetyStop:  # the breach sample goes into the record (nothing computed from it)
