@@ -189,6 +189,7 @@ class Scheduling:
 
 
 _MCL_CURRENT, _MCL_FUTURE = 1, 2
+_WARNED: set[str] = set()
 
 
 def _libc() -> Any:
@@ -213,7 +214,9 @@ def realtime_scheduling(*, enabled: bool = True, priority: int = FIFO_PRIORITY,
     ``cpu`` (-1: :func:`loop_cpu`; None: no pinning) for the block; restore all three after it.
 
     What is refused (no CAP_SYS_NICE / rtprio limit, RLIMIT_MEMLOCK, not Linux) is skipped with ONE
-    warning line listing it and how to grant it. ``enabled=False`` changes nothing (tests)."""
+    warning line listing it and how to grant it (logged once per process; always in
+    :attr:`Scheduling.warning`, which the runner records as a ``realtime`` event). ``enabled=False``
+    changes nothing (tests)."""
     got = Scheduling()
     if not enabled:
         yield got
@@ -252,7 +255,9 @@ def realtime_scheduling(*, enabled: bool = True, priority: int = FIFO_PRIORITY,
     if missing:
         got.warning = (f"realtime loop without {', '.join(missing)}: lateness is not bounded by the scheduler "
                        "(grant CAP_SYS_NICE and CAP_IPC_LOCK, or rtprio/memlock in /etc/security/limits.conf)")
-        log.warning("%s", got.warning)
+        if got.warning not in _WARNED:  # one line per process, not one per experiment
+            _WARNED.add(got.warning)
+            log.warning("%s", got.warning)
     try:
         yield got
     finally:

@@ -1074,7 +1074,8 @@ class RunRecord:
         ``loop.overrun`` / ``loop.latency`` / ``loop.late`` channels exist, loop timing statistics
         (``loop.late``: tick start after its deadline [s]; ``late_over_period`` counts ticks later than
         one period); ``device_counters``: the per-device fault counters (see
-        :meth:`RecordWriter.set_device_counters`)."""
+        :meth:`RecordWriter.set_device_counters`); ``lateness``: :func:`lateness_distribution` of
+        ``loop.late`` for realtime records (p50/p99/max, overruns, histogram)."""
         n = self.t.size
         duration = float(self.t[-1] - self.t[0]) if n > 1 else 0.0
         chans: dict[str, Any] = {}

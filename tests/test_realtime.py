@@ -288,12 +288,16 @@ def test_refused_scheduling_gives_one_warning_line_and_restores(monkeypatch, cap
     monkeypatch.setattr("hil.realtime._libc", lambda: None)
     monkeypatch.setattr(os, "sched_setaffinity", lambda pid, cpus: calls.append(set(cpus)))
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
-    with caplog.at_level(logging.WARNING, logger="hil.realtime"), realtime_scheduling(cpu=1) as got:
-        assert got.policy == "SCHED_OTHER" and not got.memlock
+    monkeypatch.setattr("hil.realtime._WARNED", set())
+    with caplog.at_level(logging.WARNING, logger="hil.realtime"):
+        with realtime_scheduling(cpu=1) as got:
+            assert got.policy == "SCHED_OTHER" and not got.memlock
+        with realtime_scheduling(cpu=1) as again:  # the next experiment: recorded, not logged again
+            assert again.warning == got.warning
     msgs = [r.getMessage() for r in caplog.records if r.name == "hil.realtime"]
     assert len(msgs) == 1 and "\n" not in msgs[0] and "SCHED_FIFO (denied)" in msgs[0] and "mlockall" in msgs[0]
     assert got.warning == msgs[0]
-    assert calls == [{1}, {0, 1}]  # pinned for the block, restored after
+    assert calls == [{1}, {0, 1}] * 2  # pinned for the block, restored after
 
 
 def test_gc_paused_disables_and_restores():
