@@ -317,7 +317,8 @@ class WakeupStats:
                    float(a.max()), int(np.count_nonzero(a > 1.0 / rate_hz)))
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        """JSON-ready (an unknown statistic, e.g. cyclictest's p99, is None)."""
+        return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in dataclasses.asdict(self).items()}
 
 
 class _Timespec(ctypes.Structure):

@@ -348,6 +348,7 @@ def test_cyclictest_missing_is_said_in_one_line_and_its_output_is_parsed():
                         run=lambda cmd, **kw: seen.setdefault("cmd", cmd) and CP())
     assert st.method == "cyclictest" and st.p50 == pytest.approx(6e-6) and st.max == pytest.approx(42e-6)
     assert seen["cmd"][1:] == ["-m", "-q", "-p", "80", "-i", "1000", "-l", "1000"]
+    assert st.to_dict()["p99"] is None  # cyclictest gives no p99: JSON null, not NaN
 
 
 def test_check_realtime_prints_a_table(capsys, monkeypatch):
