@@ -26,6 +26,7 @@ Exit codes (documented in README.md):
 13    evidence missing or broken (ERROR)
 20    ``hil run``: a safe stop ended the run (limit breach, non-finite feedback, watchdog, device
       failure, record write error, SIGTERM/SIGHUP); no later experiment started
+21    ``hil check-realtime``: this machine cannot hold ``--rate`` (wake-up latency, see hil.realtime)
 130   interrupted (Ctrl-C / SIGINT); the records keep every sample taken
 1     unexpected internal error (a bug: one line; rerun with ``hil --debug ...`` and report the traceback)
 ====  ==============================================================

@@ -407,6 +407,8 @@ def run_cyclictest(rate_hz: float, seconds: float, *, which: Callable[[str], str
                        int(mx > 1.0 / rate_hz))
 
 
+#: exit code of ``hil check-realtime`` when the machine cannot hold ``--rate``
+EXIT_NOT_HELD = 21
 #: loop rates :func:`holdable_rates` judges [Hz]
 CANDIDATE_RATES = (250.0, 500.0, 1000.0, 2000.0, 4000.0, 8000.0)
 #: a rate is held when the p99 wake-up lateness is at most this fraction of its period ...
@@ -428,7 +430,7 @@ def check_realtime(rate_hz: float = 2000.0, seconds: float = 5.0, *, rt: bool = 
     latency (absolute-deadline sleeps, and the loop's hybrid wait) under the scheduling the loop
     would get, cyclictest's figures side by side when installed, and which loop rates it can hold
     (:func:`holdable_rates`, judged on the hybrid wait). Prints a table (or one JSON object);
-    exit 0 when ``rate_hz`` is held, 1 when not."""
+    exit 0 when ``rate_hz`` is held, :data:`EXIT_NOT_HELD` (21) when not."""
     import json
 
     a = argparse_namespace(rate=float(rate_hz), seconds=float(seconds), no_rt=not rt, json=as_json)
@@ -445,7 +447,7 @@ def check_realtime(rate_hz: float = 2000.0, seconds: float = 5.0, *, rt: bool = 
     if a.json:
         print(json.dumps({"scheduling": sched.to_dict(), "rows": [r.to_dict() for r in rows], "note": note,
                           "holdable": {f"{r:g}": v for r, v in held.items()}, "rate_held": ok}))
-        return 0 if ok else 1
+        return 0 if ok else EXIT_NOT_HELD
     from rich.console import Console
     from rich.table import Table
 
@@ -470,7 +472,7 @@ def check_realtime(rate_hz: float = 2000.0, seconds: float = 5.0, *, rt: bool = 
               f"{', '.join(good) + ' Hz' if good else 'none of ' + ', '.join(f'{r:g}' for r in held) + ' Hz'}",
               highlight=False)
     con.print(f"{a.rate:g} Hz: {'held' if ok else 'NOT held'}", highlight=False)
-    return 0 if ok else 1
+    return 0 if ok else EXIT_NOT_HELD
 
 
 def argparse_namespace(**kw: Any) -> Any:
