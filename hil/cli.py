@@ -24,7 +24,7 @@ Exit codes (documented in README.md):
 11    potentially unstable (NO-GO)
 12    criterion not applicable (e.g. Theorem 1's symmetrization fails)
 13    evidence missing or broken (ERROR)
-20    ``hil run``: a safe stop ended the run (limit breach, non-finite feedback, watchdog, device
+20    ``hil run``: a safe stop ended the run (limit breach, non-finite feedback, watchdog, late loop, device
       failure, record write error, SIGTERM/SIGHUP); no later experiment started
 21    ``hil check-realtime``: this machine cannot hold ``--rate`` (wake-up latency, see hil.realtime)
 130   interrupted (Ctrl-C / SIGINT); the records keep every sample taken
