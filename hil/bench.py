@@ -64,7 +64,8 @@ from hil.scene import (
 )
 from hil.stopflag import STOP
 
-__all__ = ["LOCKSTEP_WAIT_FACTOR", "SIMULATED_DRIVERS", "Bench", "Measurements", "SimEndpoint", "SimulatedScene"]
+__all__ = ["LOCKSTEP_WAIT_FACTOR", "SIMULATED_DRIVERS", "Bench", "Measurements", "ProcessSimBench", "SimEndpoint",
+           "SimulatedScene"]
 
 logger = logging.getLogger(__name__)
 
@@ -1054,3 +1055,162 @@ def _group_sample(samples: list[Any]) -> Any:
                        position=np.concatenate([s.position for s in samples]),
                        velocity=np.concatenate([s.velocity for s in samples]), effort=eff,
                        fault=next((s.fault for s in samples if s.fault), 0))
+
+
+# ---------------------------------------------------------------------------------------------
+# realtime mode of a simulated scene: the devices in another process (issue 17)
+
+
+def _free_udp_port() -> int:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("", 0))
+        return int(s.getsockname()[1])
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child between fork and exec
+    """The served devices end when the bench process dies (Linux PR_SET_PDEATHSIG = SIGTERM)."""
+    import ctypes
+    import ctypes.util
+    import signal
+
+    with contextlib.suppress(Exception):
+        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").prctl(1, int(signal.SIGTERM))
+
+
+class ProcessSimBench(Bench):
+    """A simulated scene whose devices run in a separate process, as a real bench's devices are external.
+
+    What the runner uses in realtime mode for a simulated scene: a child process (multiprocessing,
+    ``spawn``; pinned to the CPUs the loop does not use) runs the scene's :class:`SimulatedScene`
+    (plant stepped at the scene's rate against the wall clock; CAN nodes on python-can's UDP
+    multicast bus with this bench's own multicast group and UDP port, Bota/FT-300 streams and
+    DYNAMIXEL chains on ptys, Modbus on loopback TCP), and this process opens the real adapters on
+    those endpoints exactly as on hardware: no lockstep, :meth:`advance` is a no-op, sample ages
+    are judged on the adapters' monotonic clock, timeouts are ``watchdog_ms``. The simulated
+    operator (``set_human_force``) is not reachable across the process boundary (ignored, as on a
+    real bench). :meth:`close` closes the adapters, then stops the child.
+    """
+
+    #: seconds to wait for the child to report its endpoints (start + imports on a loaded machine)
+    START_TIMEOUT_S = 60.0
+
+    def __init__(self, scene: Scene, *, seed: int | None = None, variant: str | None = None,
+                 timeout: float | None = None, cpus: list[int] | None = None) -> None:
+        import json
+        import os
+        import secrets
+        import select
+        import subprocess
+        import sys
+        import tempfile
+        from pathlib import Path
+
+        if scene.simulation is None:
+            raise SceneError(f"{scene.path or scene.name}: no 'simulation' block: nothing to serve")
+        if cpus is None:
+            from hil.realtime import loop_cpu
+
+            lc = loop_cpu()
+            with contextlib.suppress(OSError, AttributeError):
+                cpus = sorted(set(os.sched_getaffinity(0)) - ({lc} if lc is not None else set())) or None
+        self._proc: Any = None
+        self._tmp = tempfile.TemporaryDirectory(prefix="hil-sim-")
+        port = _free_udp_port()
+        chans = sorted({str(d.params.get("channel", "hil0")) for d in scene.devices
+                        if d.driver in ("odrive_can", "cubemars_mit")})
+        # a private multicast group per scene channel (239.255/16: site-local scope) on a private UDP port
+        groups = {ch: f"239.255.{secrets.randbelow(254) + 1}.{secrets.randbelow(254) + 1}" for ch in chans}
+        src = Path(self._tmp.name) / f"{scene.name}.yaml"
+        src.write_text(scene.source_text, encoding="utf-8")
+        cmd = [sys.executable, "-m", "hil.mocks.serve", str(src), "--json", "--can-interface", "udp_multicast",
+               "--seed", str(scene.seed if seed is None else seed)]
+        cmd += [a for ch, g in groups.items() for a in ("--can-channel", f"{ch}={g}")]
+        if variant is not None:
+            cmd += ["--variant", variant]
+        env = {**os.environ, "CAN_CONFIG": json.dumps({"port": port})}  # python-can: the served buses' UDP port
+        self._err = open(Path(self._tmp.name) / "stderr.txt", "w+b")  # noqa: SIM115 - closed in _stop_child
+        try:
+            self._proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=self._err,
+                                          env=env, start_new_session=True,  # Ctrl-C reaches the bench only
+                                          preexec_fn=_die_with_parent)
+            if cpus:
+                with contextlib.suppress(OSError, AttributeError):
+                    os.sched_setaffinity(self._proc.pid, set(cpus))  # its threads inherit it
+            ready, _, _ = select.select([self._proc.stdout], [], [], self.START_TIMEOUT_S)
+            line = self._proc.stdout.readline() if ready else b""
+            if not line:
+                self._err.seek(0)
+                why = " ".join(self._err.read().decode(errors="replace").split())[-300:] or "no output"
+                raise HilError(f"simulated devices of {scene.name!r} did not start in another process: {why}")
+            report = json.loads(line)
+        except BaseException:
+            self._stop_child()
+            raise
+        self._endpoint_params = {d["name"]: (d["driver"], d["params"]) for d in report["devices"]}
+        self._can_port = port
+        self._sim_scene = scene
+        hardware = scene.model_copy(update={"simulation": None})  # private attrs (source text) are copied
+        try:
+            super().__init__(hardware, seed=seed, variant=variant, timeout=timeout)
+            self._warm_up()
+        except BaseException:
+            self._stop_child()
+            raise
+
+    def _warm_up(self, attempts: int = 5) -> None:
+        """First reads with a generous timeout: the served devices answer once their threads run."""
+        for i in range(attempts):
+            try:
+                self.read(timeout=1.0)
+                return
+            except (DeviceTimeout, DeviceDisconnected):
+                if i == attempts - 1:
+                    raise
+
+    def _open_devices(self) -> None:
+        from hil.protocols.registry import open_device
+
+        sc = self.scene
+        self._devs = [_Dev(cfg.name, cfg) for cfg in sc.devices]
+        for i, d in enumerate(self._devs):
+            driver, params = self._endpoint_params[d.name]
+            params = dict(params)
+            if driver in ("odrive_can", "cubemars_mit"):
+                params["port"] = self._can_port
+            params.setdefault("timeout", self.timeout)
+            self._device_watchdog_params(d.cfg.driver, params)
+            try:
+                d.adapter = open_device(d.cfg.driver, **params)
+            except HilError:
+                raise
+            except (TypeError, ValueError) as exc:
+                raise SceneError(f"{sc.path or sc.name}: devices[{i}].params: {exc}") from None
+
+    def _stop_child(self) -> None:
+        """SIGTERM the serving process (it closes every thread, pty, socket and bus), wait, kill if stuck."""
+        import subprocess
+
+        proc, self._proc = self._proc, None
+        if proc is not None:
+            with contextlib.suppress(OSError):
+                proc.terminate()
+            try:
+                proc.wait(5.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(2.0)
+            with contextlib.suppress(OSError):
+                proc.stdout.close()
+        with contextlib.suppress(Exception):
+            self._err.close()
+        with contextlib.suppress(Exception):
+            self._tmp.cleanup()
+
+    def close(self) -> None:
+        """Close the adapters, then stop the devices' process. Idempotent, never raises."""
+        try:
+            super().close()
+        finally:
+            self._stop_child()

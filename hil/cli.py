@@ -24,8 +24,9 @@ Exit codes (documented in README.md):
 11    potentially unstable (NO-GO)
 12    criterion not applicable (e.g. Theorem 1's symmetrization fails)
 13    evidence missing or broken (ERROR)
-20    ``hil run``: a safe stop ended the run (limit breach, non-finite feedback, watchdog, device
+20    ``hil run``: a safe stop ended the run (limit breach, non-finite feedback, watchdog, late loop, device
       failure, record write error, SIGTERM/SIGHUP); no later experiment started
+21    ``hil check-realtime``: this machine cannot hold ``--rate`` (wake-up latency, see hil.realtime)
 130   interrupted (Ctrl-C / SIGINT); the records keep every sample taken
 1     unexpected internal error (a bug: one line; rerun with ``hil --debug ...`` and report the traceback)
 ====  ==============================================================
@@ -753,6 +754,12 @@ def _cmd_keygen(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_check_realtime(args: argparse.Namespace) -> int:
+    from hil.realtime import check_realtime
+
+    return check_realtime(args.rate, args.seconds, rt=not args.no_rt, as_json=args.json)
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
     from hil.record import replay_main
 
@@ -900,6 +907,15 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("record")
     rp.add_argument("--json", action="store_true")
     rp.set_defaults(func=_cmd_replay)
+
+    from hil.inputs import number_type
+
+    cr = add("check-realtime", help="the machine's wake-up latency (cyclictest's way) and the loop rates it holds")
+    cr.add_argument("--rate", type=number_type("positive"), default=2000.0, help="loop rate to check [Hz]")
+    cr.add_argument("--seconds", type=number_type("positive"), default=5.0, help="seconds per measurement")
+    cr.add_argument("--no-rt", action="store_true", help="without SCHED_FIFO / mlockall / CPU affinity")
+    cr.add_argument("--json", action="store_true")
+    cr.set_defaults(func=_cmd_check_realtime)
 
     im = add("import", help="convert a CSV or MATLAB .mat run into a run record (HDF5)")
     im.add_argument("file", help="CSV (header row) or .mat file")

@@ -324,6 +324,10 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                                     runner.stop_status or "safety_stop")
             _fault_measurements(outcomes, measurements)
 
+    from hil.realtime import lateness_measurements  # realtime runs: loop lateness and sample timing rows
+
+    measurements += lateness_measurements(outcomes, scene)
+
     # 2. identification ----------------------------------------------------------------------
     draws: dict[str, np.ndarray] = {}
     thinning: list[str] = []  # how each identification's chain became independent draws

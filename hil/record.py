@@ -1074,7 +1074,8 @@ class RunRecord:
         ``loop.overrun`` / ``loop.latency`` / ``loop.late`` channels exist, loop timing statistics
         (``loop.late``: tick start after its deadline [s]; ``late_over_period`` counts ticks later than
         one period); ``device_counters``: the per-device fault counters (see
-        :meth:`RecordWriter.set_device_counters`)."""
+        :meth:`RecordWriter.set_device_counters`); ``lateness``: :func:`lateness_distribution` of
+        ``loop.late`` for realtime records (p50/p99/max, overruns, histogram)."""
         n = self.t.size
         duration = float(self.t[-1] - self.t[0]) if n > 1 else 0.0
         chans: dict[str, Any] = {}
@@ -1138,6 +1139,8 @@ class RunRecord:
                 loop["late_p99_s"] = float(np.percentile(late, 99))
                 loop["late_max_s"] = float(np.max(late))
                 loop["late_over_period"] = int(np.count_nonzero(late > dt))
+                if self.meta.get("mode") == "realtime" or np.any(late > 0):
+                    out["lateness"] = lateness_distribution(late, self.rate_hz)
         if loop:
             out["loop"] = loop
         return out
@@ -1164,6 +1167,37 @@ class RunRecord:
         if meta:
             m.update(meta)
         return {"t": self.t[keep], "signals": signals, "meta": m}
+
+
+#: upper edges [s] of the lateness histogram of ``hil replay`` (the last bin is open)
+LATENESS_BINS_S = (1e-5, 1e-4, 1e-3, 1e-2)
+
+
+def lateness_distribution(late_s: np.ndarray, rate_hz: float) -> dict[str, Any]:
+    """The distribution of per-tick lateness ``late_s`` [s] (the ``loop.late`` channel): ``ticks``,
+    ``p50_s`` / ``p99_s`` (``numpy.percentile``, linear interpolation), ``max_s``, ``overruns`` (ticks
+    later than one period ``1 / rate_hz``), ``overrun_fraction`` (overruns / ticks) and ``histogram``:
+    ``[[label, count], ...]`` over :data:`LATENESS_BINS_S` (bin i holds edge[i-1] < late <= edge[i])."""
+    a = np.asarray(late_s, dtype=float).reshape(-1)
+    a = a[np.isfinite(a)]
+    dt = 1.0 / rate_hz if rate_hz > 0 else math.inf
+    if a.size == 0:
+        return {"ticks": 0, "p50_s": None, "p99_s": None, "max_s": None, "overruns": 0, "overrun_fraction": 0.0,
+                "histogram": []}
+    edges = np.asarray(LATENESS_BINS_S)
+    counts = np.bincount(np.searchsorted(edges, a, side="left"), minlength=edges.size + 1)
+    from itertools import pairwise
+
+    names = [f"≤ {_fmt_s(edges[0])}"] + [f"{_fmt_s(lo)} – {_fmt_s(hi)}" for lo, hi in pairwise(edges)]
+    names.append(f"> {_fmt_s(edges[-1])}")
+    over = int(np.count_nonzero(a > dt))
+    return {"ticks": int(a.size), "p50_s": float(np.percentile(a, 50)), "p99_s": float(np.percentile(a, 99)),
+            "max_s": float(a.max()), "overruns": over, "overrun_fraction": over / a.size,
+            "histogram": [[n, int(c)] for n, c in zip(names, counts, strict=True)]}
+
+
+def _fmt_s(x: float) -> str:
+    return f"{x * 1e6:g} µs" if x < 1e-3 else f"{x * 1e3:g} ms"
 
 
 def _count(items: Any) -> dict[str, int]:
@@ -1207,6 +1241,15 @@ def _print_summary(s: Mapping[str, Any]) -> None:
     con.print(f"events: {s['events']}" + (f" ({kinds})" if kinds else ""))
     if "loop" in s:
         con.print("loop: " + "  ".join(f"{k}={_fmt(v)}" for k, v in s["loop"].items()))
+    lat = s.get("lateness")
+    if lat and lat["ticks"]:
+        con.print(f"lateness (tick start after its deadline, {lat['ticks']} ticks): p50 {_fmt_s(lat['p50_s'])}  "
+                  f"p99 {_fmt_s(lat['p99_s'])}  max {_fmt_s(lat['max_s'])}  overruns {lat['overruns']} "
+                  f"({100 * lat['overrun_fraction']:.2f} %, ticks later than one period)", highlight=False)
+        width = lat["ticks"]
+        for label, c in lat["histogram"]:
+            bar = "#" * (round(40 * c / width) if c else 0)
+            con.print(f"  {label:>17s} {c:9d} {bar}", highlight=False, markup=False)
     counters = s.get("device_counters") or {}
     if counters:
         con.print("device counters:")

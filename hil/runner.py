@@ -10,8 +10,19 @@ One tick (period dt = 1/rate_hz):
 4. safety check (non-finite feedback, effort, velocity, position, injected port energy, stale
    feedback, loop overrun); a breach raises :class:`hil.errors.SafetyStop`;
 5. command the actuators, set the simulated human's active force;
-6. lockstep: advance the simulated plant by exactly dt; realtime: sleep until the next absolute
-   deadline (monotonic nanosecond clock) and account overruns and jitter.
+6. lockstep: advance the simulated plant by exactly dt.
+
+Realtime mode (:mod:`hil.realtime`): before step 0 of each tick the loop waits for the tick's
+absolute deadline (``t0 + k / rate_hz`` on ``time.perf_counter_ns``; sleep, then spin for the last
+200 µs); the tick's actual start (``loop.tick_start``, s since t0) and lateness (``loop.late``, s)
+go into the record. A tick later than ``safety.max_lateness_ms`` (default ``watchdog_ms``), or
+more than ``max_overrun_fraction`` of a 1 s window of ticks overrunning (later than one period),
+is a safe stop ("late loop: ..."; the late tick's timing is in the record, its device channels
+NaN). The loop runs with SCHED_FIFO, locked memory and its own CPU where permitted (one warning
+line otherwise, also a ``realtime`` event in the record), and without garbage collection (frozen
+and disabled during an experiment, collected between experiments). A simulated scene in
+realtime mode serves its devices from a separate process (:class:`hil.bench.ProcessSimBench`),
+so the loop under test talks to external devices as at a real bench.
 
 Everything runs inside :func:`safe_stop_context`: on a limit breach, watchdog miss, signal, device
 failure (DeviceFault, CRC/protocol error past the adapter's tolerance, timeout, OSError or termios
@@ -38,7 +49,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -87,6 +97,10 @@ class SafetyMonitor:
         self.pos_lo, self.pos_hi = (float(lim[0]), float(lim[1])) if lim else (-math.inf, math.inf)
         self.max_energy = float(s.get("max_energy", math.inf) or math.inf)
         self.watchdog_s = float(s.get("watchdog_ms", 100.0)) / 1000.0
+        ml = s.get("max_lateness_ms")
+        self.max_lateness_s = float(ml) / 1000.0 if ml else self.watchdog_s
+        self.max_overrun_fraction = float(s.get("max_overrun_fraction", 0.01) if s.get("max_overrun_fraction")
+                                          is not None else 0.01)
         self.dt = 1.0 / rate_hz
         self._last_seq: dict[str, tuple[int, float]] = {}
 
@@ -161,8 +175,10 @@ class SafetyMonitor:
                                  if math.isfinite(e) else f"fault: non-finite energy at port {port!r} ({e})")
 
     def check_overrun(self, late_s: float) -> None:
-        if not late_s <= self.watchdog_s:
-            raise SafetyStop(f"watchdog: loop tick {1e3 * late_s:.1f} ms late (limit {1e3 * self.watchdog_s:.0f} ms)")
+        """A tick later than ``max_lateness_ms`` (default ``watchdog_ms``) is a stop (NaN-safe)."""
+        if not late_s <= self.max_lateness_s:
+            raise SafetyStop(f"late loop: tick {1e3 * late_s:.1f} ms late "
+                             f"(limit max_lateness_ms = {1e3 * self.max_lateness_s:g} ms)")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -243,6 +259,8 @@ class LoopStats:
 
     ticks: int = 0
     overruns: int = 0
+    mode: str = "lockstep"
+    scheduling: str = ""
     late_n: int = 0
     late_max: float = 0.0
     hist: np.ndarray = field(default_factory=lambda: np.zeros(9 * _LATE_BINS_PER_DECADE + 2, dtype=np.int64))
@@ -265,10 +283,15 @@ class LoopStats:
         lo = _LATE_MIN_S * 10 ** ((i - 1) / _LATE_BINS_PER_DECADE)  # geometric bin centre
         return min(self.late_max, lo * 10 ** (0.5 / _LATE_BINS_PER_DECADE))
 
-    def summary(self) -> dict[str, float]:
+    def summary(self) -> dict[str, Any]:
+        """``ticks``, ``overruns``, ``mode``; realtime: ``scheduling`` and ``late_p50_us`` /
+        ``late_p99_us`` / ``late_max_us`` (µs)."""
+        out: dict[str, Any] = {"ticks": self.ticks, "overruns": self.overruns, "mode": self.mode}
+        if self.scheduling:
+            out["scheduling"] = self.scheduling
         if not self.late_n:
-            return {"ticks": self.ticks, "overruns": self.overruns}
-        return {"ticks": self.ticks, "overruns": self.overruns, "late_p50_us": 1e6 * self._percentile(50),
+            return out
+        return {**out, "late_p50_us": 1e6 * self._percentile(50),
                 "late_p99_us": 1e6 * self._percentile(99), "late_max_us": 1e6 * self.late_max}
 
 
@@ -305,19 +328,34 @@ class Runner:
 
     ``realtime=None`` takes the scene's mode (lockstep for simulated benches). ``progress`` is a
     callable ``(name, k, n)`` called every ~0.1 s of run time (the CLI draws a progress bar).
+
+    Realtime options: ``clock_ns`` / ``sleep`` (the loop's clock in ns and its sleep in s; defaults
+    ``time.perf_counter_ns`` / ``time.sleep``; tests inject a fake clock), ``rt_scheduling``
+    (False: no SCHED_FIFO / mlockall / affinity, e.g. in tests), ``gc_pause`` (False: leave the
+    garbage collector alone), ``spin_ns`` (the hybrid wait's spin window, default 200 µs; 0: sleep
+    only), ``read_timeout`` (s, passed to every tick's ``bench.read``; None: the bench's own,
+    ``watchdog_ms`` on hardware). The default bench of a simulated scene in realtime mode serves its
+    devices from another process (:class:`hil.bench.ProcessSimBench`).
     """
 
     def __init__(self, scene: Any, out_dir: str | Path, *, bench_factory: Callable[[str | None], Any] | None = None,
                  realtime: bool | None = None, progress: Callable[[str, int, int], None] | None = None,
-                 max_ticks: int | None = None, overwrite: bool = False) -> None:
+                 max_ticks: int | None = None, overwrite: bool = False,
+                 clock_ns: Callable[[], int] | None = None, sleep: Callable[[float], Any] | None = None,
+                 rt_scheduling: bool = True, gc_pause: bool = True, spin_ns: int | None = None,
+                 read_timeout: float | None = None) -> None:
         self.scene = scene
         #: replace an existing record of the same name (``hil run --overwrite``); refused otherwise
         self.overwrite = bool(overwrite)
+        mode = getattr(scene, "mode", None) or ("lockstep" if getattr(scene, "simulation", None) else "realtime")
+        self.realtime = (mode == "realtime") if realtime is None else realtime
         if bench_factory is None:
-            from hil.bench import Bench
+            from hil.bench import Bench, ProcessSimBench
+
+            cls = ProcessSimBench if self.realtime and getattr(scene, "simulation", None) is not None else Bench
 
             def bench_factory(variant: str | None) -> Any:
-                return Bench(scene, seed=scene.seed, variant=variant)
+                return cls(scene, seed=scene.seed, variant=variant)
 
         self.bench_factory = bench_factory
         self.bench: Any = None
@@ -325,8 +363,12 @@ class Runner:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.rate_hz = float(scene.rate_hz)
         self.dt = 1.0 / self.rate_hz
-        mode = getattr(scene, "mode", None) or ("lockstep" if getattr(scene, "simulation", None) else "realtime")
-        self.realtime = (mode == "realtime") if realtime is None else realtime
+        self.clock_ns = clock_ns
+        self.sleep = sleep
+        self.rt_scheduling = bool(rt_scheduling)
+        self.gc_pause = bool(gc_pause)
+        self.spin_ns = spin_ns
+        self.read_timeout = read_timeout
         self.progress = progress
         self.max_ticks = max_ticks
         self.devices = {d.name: d for d in scene.devices}
@@ -361,7 +403,9 @@ class Runner:
             if getattr(p, "force_sensor", None):
                 ch[f"{p.name}.energy"] = ChannelSpec((1,), "J", "E_s(t) = ∫ F_port·V dt into the device at the port")
                 ch[f"{p.name}.human"] = ChannelSpec((int(p.dofs),), fu, "active force of the simulated operator")
-        ch["loop.late"] = ChannelSpec((1,), "s", "tick start after its deadline (realtime mode)")
+        ch["loop.late"] = ChannelSpec((1,), "s", "tick start after its deadline (realtime mode; 0 in lockstep)")
+        ch["loop.tick_start"] = ChannelSpec((1,), "s", "actual start of the tick on the loop's monotonic clock, "
+                                            "since the deadline of tick 0 (lockstep: the simulated time)")
         return ch
 
     # -- one experiment --------------------------------------------------------------------------
@@ -391,6 +435,14 @@ class Runner:
             finally:
                 self.bench = None
 
+    @staticmethod
+    def _append_event(writer: Any, t: float, kind: str, message: str) -> None:
+        """An event in the record; a write error is a safe stop (as for samples)."""
+        try:
+            writer.event(t, kind, message)
+        except (HilError, OSError) as exc:
+            raise SafetyStop(f"record: {one_line(exc)}") from exc
+
     def _append(self, writer: Any, t: float, values: Mapping[str, Any]) -> None:
         """Append one sample; a record write error (RecordError, OSError: full disk, ...) is a safe stop."""
         try:
@@ -415,7 +467,7 @@ class Runner:
         safety = SafetyMonitor(_dump(getattr(self.scene, "safety", None)), self.rate_hz)
         path = self.out_dir / f"{name}.h5"
         state = {"status": "completed", "reason": "completed"}
-        stats = LoopStats()
+        stats = LoopStats(mode="realtime" if self.realtime else "lockstep")
         held: list[Any] = []  # the record writer, once created
         energy = {p.name: 0.0 for p in self.ports if getattr(p, "force_sensor", None)}
         last_power: dict[str, float] = {}
@@ -455,40 +507,52 @@ class Runner:
         held.append(writer)
         no_exc = _NoExcitation()
         try:
-            with safe_stop_context(stop, on_stop):
-                t0 = time.monotonic_ns()
-                period_ns = round(1e9 / self.rate_hz)
+            with contextlib.ExitStack() as rt, safe_stop_context(stop, on_stop):
+                pacer = guard = None
+                if self.realtime:
+                    from hil.realtime import LatenessGuard, Pacer, gc_paused, realtime_scheduling
+
+                    sched = rt.enter_context(realtime_scheduling(enabled=self.rt_scheduling))
+                    stats.scheduling = sched.describe()
+                    self._append_event(writer, 0.0, "realtime", f"loop scheduling: {sched.describe()}"
+                                       + (f"; warning: {sched.warning}" if sched.warning else ""))
+                    rt.enter_context(gc_paused(self.gc_pause))
+                    pacer = Pacer(self.rate_hz, clock_ns=self.clock_ns, sleep=self.sleep,
+                                  **({} if self.spin_ns is None else {"spin_ns": self.spin_ns}))
+                    guard = LatenessGuard(self.rate_hz, safety.max_lateness_s, safety.max_overrun_fraction)
+                    pacer.start()
                 for k in range(n):
                     t = k * self.dt
                     now["t"] = t
                     STOP.check()  # the safe point of a stop request (signal)
                     late = 0.0
-                    if self.realtime:
-                        deadline = t0 + k * period_ns
-                        now = time.monotonic_ns()
-                        while now < deadline:
-                            rem = deadline - now
-                            if rem > 2_000_000:
-                                time.sleep((rem - 1_000_000) / 1e9)
-                            now = time.monotonic_ns()
-                        late = (now - deadline) / 1e9
+                    start = t
+                    if pacer is not None:
+                        late = pacer.wait(k) * 1e-9
+                        start = (pacer.start_ns - pacer.t0) * 1e-9
                         stats.add_late(late)
                         if late > self.dt:
                             stats.overruns += 1
-                        safety.check_overrun(late)
-                    meas = self.bench.read()  # DeviceTimeout/Disconnected -> "watchdog: ...", faults -> "device: ..."
+                        try:
+                            guard.check(k, late)
+                        except SafetyStop:  # the late tick's timing is in the record (device channels NaN)
+                            self._append(writer, t, {"loop.late": late, "loop.tick_start": start})
+                            stats.ticks = k + 1
+                            raise
+                    # DeviceTimeout/Disconnected -> "watchdog: ...", faults -> "device: ..."
+                    meas = self.bench.read() if self.read_timeout is None else self.bench.read(self.read_timeout)
                     try:
                         safety.check_finite(k, t, meas)
                     except SafetyStop:  # the breach sample goes into the record (nothing computed from it)
                         nan_u = {a.name: np.full(int(a.dof), np.nan) for a in self._actuator_like()}
-                        self._append(writer, t, self._sample_values(meas, nan_u, no_exc, late))
+                        self._append(writer, t, self._sample_values(meas, nan_u, no_exc, late, start))
                         stats.ticks = k + 1
                         raise
                     u = {key: np.asarray(v, float).copy() for key, v in ctrl.update(t, self.dt, meas).items()}
                     exc = exp.excitation(k, t, meas)
                     for key, v in (exc.effort or {}).items():
                         u[key] = u.get(key, np.zeros_like(np.asarray(v, float))) + np.asarray(v, float)
-                    values = self._sample_values(meas, u, exc, late)
+                    values = self._sample_values(meas, u, exc, late, start)
                     self._port_energy(k, meas, exc, energy, last_power, values)
                     self._append(writer, t, values)  # before the checks: a breach sample is recorded
                     stats.ticks = k + 1
@@ -559,9 +623,9 @@ class Runner:
             return {"error": one_line(exc)}
 
     def _sample_values(self, meas: Mapping[str, Any], u: Mapping[str, np.ndarray], exc: Any,
-                       late: float) -> dict[str, Any]:
+                       late: float, start: float) -> dict[str, Any]:
         """The record row of one tick (device channels; ports are added by :meth:`_port_energy`)."""
-        values: dict[str, Any] = {"loop.late": late}
+        values: dict[str, Any] = {"loop.late": late, "loop.tick_start": start}
         for dname, s in meas.items():
             d = self.devices[dname]
             n = int(d.dof)

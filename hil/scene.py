@@ -632,13 +632,19 @@ Controller = Annotated[NoController | PdPositionPosition | Mcet | DualMaster | V
 
 class Safety(_Strict):
     """Limits checked every tick (per DOF, SI): effort N or N.m, velocity m/s or rad/s, position
-    m or rad, energy J (|E_s| at any port), watchdog ms."""
+    m or rad, energy J (|E_s| at any port), watchdog ms; realtime loop: ``max_lateness_ms`` (default
+    ``watchdog_ms``) and ``max_overrun_fraction`` (see :mod:`hil.realtime`)."""
 
     max_effort: Annotated[float, BeforeValidator(lambda v: _number(v, "N or N.m")), Field(gt=0)] = 5.0
     max_velocity: Annotated[float, BeforeValidator(lambda v: _number(v, "m/s or rad/s")), Field(gt=0)] = 20.0
     position_limits: tuple[Position, Position] | None = None
     max_energy: Annotated[float, BeforeValidator(lambda v: _number(v, "J")), Field(gt=0)] = 50.0
     watchdog_ms: Annotated[float, BeforeValidator(lambda v: _number(v, "ms")), Field(gt=0)] = 50.0
+    #: realtime loop: a tick starting later than this after its deadline is a safe stop (None: watchdog_ms)
+    max_lateness_ms: Annotated[float, BeforeValidator(lambda v: _number(v, "ms")), Field(gt=0)] | None = None
+    #: realtime loop: more overruns (ticks later than one period) than this fraction of any 1 s window: a safe stop
+    max_overrun_fraction: Annotated[float, BeforeValidator(lambda v: _number(v, "fraction")),
+                                    Field(ge=0, le=1)] = 0.01
 
     @field_validator("position_limits")
     @classmethod

@@ -36,6 +36,7 @@ __all__ = [
     "check_dead",
     "check_excitation",
     "check_finite",
+    "check_sample_times",
     "check_saturation",
     "check_timestamps",
     "run_checks",
@@ -294,3 +295,51 @@ def run_checks(
     for d in diags:
         logger.warning("data check: %s", d.message)
     return DataReport(diags)
+
+
+#: :func:`check_sample_times`: largest tolerated departure of a tick's start from a constant delay
+#: after its nominal time, as a fraction of the period (10 %: at a tenth of the sample rate, a
+#: timing error of 0.1 period shifts the phase by at most 2π · 0.1 · 0.1 ≈ 3.6°)
+SAMPLE_TIME_TOLERANCE = 0.1
+
+
+def check_sample_times(
+    t: ArrayLike, tick_start: ArrayLike, *, rate_hz: float, tolerance: float = SAMPLE_TIME_TOLERANCE
+) -> list[Diagnosis]:
+    """Recorded sample times against the rate the identification assumes.
+
+    ``t``: nominal sample times ``k / rate_hz`` [s] (the record's ``/t``); ``tick_start``: when
+    each tick actually started on the loop's clock, same origin [s] (``loop.tick_start``). The
+    departure of tick k is ``d_k = (tick_start_k - t_k) - median(tick_start - t)`` (a constant delay
+    is removed: every channel of a tick shares it). A record whose ``max |d_k|`` exceeds
+    ``tolerance / rate_hz`` is flagged (``nonuniform_sampling``, error): treating it as uniformly
+    sampled at ``rate_hz`` would bias the frequency response. NaN starts (ticks never timed) are
+    ignored; none at all: no diagnosis.
+    """
+    tt = np.asarray(t, float).reshape(-1)
+    ts = np.asarray(tick_start, float).reshape(-1)
+    if tt.size != ts.size:
+        return [Diagnosis("gaps", "error", f"loop.tick_start has {ts.size} samples, t has {tt.size}")]
+    d = ts - tt
+    d = d[np.isfinite(d)]
+    if d.size == 0:
+        return []
+    dt = 1.0 / float(rate_hz)
+    dev = np.abs(d - np.median(d))
+    worst = float(dev.max())
+    if worst <= tolerance * dt:
+        return []
+    k = int(np.argmax(dev))
+    n_bad = int(np.count_nonzero(dev > tolerance * dt))
+    return [
+        Diagnosis(
+            "nonuniform_sampling",
+            "error",
+            f"sample timing departs from {rate_hz:g} Hz: {n_bad} of {d.size} ticks off their nominal time by more "
+            f"than {tolerance:.0%} of the period (worst {worst / dt:.2f} periods = {1e6 * worst:.0f} µs at sample "
+            f"{k}); the identification assumes uniform sampling",
+            channel="loop.tick_start",
+            details={"max_rel_deviation": worst / dt, "n_bad": n_bad, "p99_rel_deviation": float(
+                np.percentile(dev, 99) / dt), "tolerance": tolerance},
+        )
+    ]
