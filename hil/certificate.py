@@ -22,7 +22,10 @@ with their SHA-256, size in bytes and a path relative to the certificate's folde
 
 1. take every field of the validated certificate except ``integrity`` itself, as JSON values
    (exactly what ``certificate.json`` stores: tuples become arrays, and a non-finite float --
-   NaN, +inf, -inf -- becomes ``null``, as pydantic writes it; JSON has no NaN);
+   NaN, +inf, -inf -- becomes ``null``, as pydantic writes it; JSON has no NaN), leaving out, at
+   every level, a field added after schema 1.1 (marked ``"since": "1.2"`` in the JSON schema)
+   while it holds its default value -- so a certificate written by an earlier version, read by
+   this one (which fills those fields with their defaults), keeps its digest;
 2. serialize them as JSON with object keys sorted by Unicode code point at every level, no
    whitespace at all (separators ``,`` and ``:``), strings with every non-ASCII character
    escaped as ``\\uXXXX`` (UTF-16 surrogate pairs above U+FFFF), so the bytes are pure ASCII;
@@ -45,8 +48,11 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-SCHEMA_VERSION = "1.1"
+SCHEMA_VERSION = "1.2"
 CANONICALIZATION = "hil-c14n/1"
+#: marks a field added after schema 1.1 (``Field(json_schema_extra=SINCE_1_2)``): left out of the
+#: canonical content while it holds its default, so certificates written before it still verify
+SINCE_1_2: dict[str, Any] = {"since": "1.2"}
 _HEX64 = r"^[0-9a-f]{64}$"
 
 Outcome = Literal["PASS", "FAIL", "MARGINAL", "ERROR", "INFO"]
@@ -98,13 +104,18 @@ class Series(_M):
     points: dict[str, tuple[float, float]] = Field(default_factory=dict)
     hline: float | None = None
     # (additive, report issue 18) axis labels end with their unit in brackets: "ω [rad/s]", "[1]"
-    kind: Literal["xy", "corner"] = Field(default="xy", description="xy: lines over x; corner: a corner plot of "
+    kind: Literal["xy", "corner"] = Field(
+        json_schema_extra=SINCE_1_2, default="xy", description="xy: lines over x; corner: a corner plot of "
                                           "the ``lines`` (each a parameter's posterior draws, named 'p [unit]')")
-    shade_negative: bool = Field(default=False, description="shade where the first line is below 0 (a violation)")
-    vlines: dict[str, float] = Field(default_factory=dict, description="named x positions marked by vertical lines")
-    bars: dict[str, float] = Field(default_factory=dict, description="named values drawn as a bar chart panel (e.g. "
+    shade_negative: bool = Field(
+        json_schema_extra=SINCE_1_2, default=False, description="shade where the first line is below 0 (a violation)")
+    vlines: dict[str, float] = Field(
+        json_schema_extra=SINCE_1_2, default_factory=dict, description="named x positions marked by vertical lines")
+    bars: dict[str, float] = Field(
+        json_schema_extra=SINCE_1_2, default_factory=dict, description="named values drawn as a bar chart panel (e.g. "
                                    "imaginary-axis and infinity residue margins) beside the curve")
-    panels: list[Series] = Field(default_factory=list, description="further axes stacked beneath, sharing x")
+    panels: list[Series] = Field(
+        json_schema_extra=SINCE_1_2, default_factory=list, description="further axes stacked beneath, sharing x")
 
 
 class SceneInfo(_M):
@@ -112,7 +123,8 @@ class SceneInfo(_M):
     sha256: str
     description: str = ""
     source: str = ""
-    units: Literal["linear", "rotary"] | None = Field(default=None, description="the scene's units: linear (N, m, "
+    units: Literal["linear", "rotary"] | None = Field(
+        json_schema_extra=SINCE_1_2, default=None, description="the scene's units: linear (N, m, "
                                                        "m/s) or rotary (N.m, rad, rad/s); SI throughout")
 
 
@@ -212,19 +224,26 @@ class Witness(_M):
     margin: float
     simulation: dict[str, Any] = Field(default_factory=dict)
     # (additive, report issue 18) what the destabilizing termination does, in SI units
-    units: Literal["linear", "rotary"] | None = None
-    closed_loop_poles: list[tuple[float, float]] = Field(default_factory=list, description="poles (re, im) [1/s] "
+    units: Literal["linear", "rotary"] | None = Field(default=None, json_schema_extra=SINCE_1_2)
+    closed_loop_poles: list[tuple[float, float]] = Field(
+        json_schema_extra=SINCE_1_2, default_factory=list, description="poles (re, im) [1/s] "
                                                          "of the terminated network driven by a force at the operator "
                                                          "port (poles of Y_in = Z_in⁻¹), right-half plane first")
-    growth_rate_1_s: float | None = Field(default=None, description="largest real part of the closed-loop poles [1/s] "
+    growth_rate_1_s: float | None = Field(
+        json_schema_extra=SINCE_1_2, default=None, description="largest real part of the closed-loop poles [1/s] "
                                           "(> 0: the response grows as e^(σt))")
-    drive_amplitude: float | None = Field(default=None, description="amplitude of the simulated drive force [N or N.m]")
-    limits: dict[str, float] = Field(default_factory=dict, description="the bench's safety limits compared against "
+    drive_amplitude: float | None = Field(
+        json_schema_extra=SINCE_1_2, default=None, description="amplitude of the simulated drive force [N or N.m]")
+    limits: dict[str, float] = Field(
+        json_schema_extra=SINCE_1_2, default_factory=dict, description="the bench's safety limits compared against "
                                      "(max_velocity [m/s or rad/s], max_position [m or rad], max_energy [J])")
-    limit_exceeded: str | None = Field(default=None, description="which limit the simulated response crosses first")
-    time_to_limit_s: float | None = Field(default=None, description="simulated time until the first limit is "
+    limit_exceeded: str | None = Field(
+        json_schema_extra=SINCE_1_2, default=None, description="which limit the simulated response crosses first")
+    time_to_limit_s: float | None = Field(
+        json_schema_extra=SINCE_1_2, default=None, description="simulated time until the first limit is "
                                           "exceeded [s]")
-    energy_to_limit_J: float | None = Field(default=None, description="port energy E_s = ∫ F·V dt at that time [J] "
+    energy_to_limit_J: float | None = Field(
+        json_schema_extra=SINCE_1_2, default=None, description="port energy E_s = ∫ F·V dt at that time [J] "
                                             "(negative: delivered by the network)")
 
 
@@ -309,9 +328,47 @@ def canonical_json(value: Any) -> bytes:
                       allow_nan=False).encode("ascii")
 
 
+def _is_default(f: Any, value: Any) -> bool:
+    try:
+        return bool(value == f.get_default(call_default_factory=True))
+    except Exception:  # pragma: no cover - a default that cannot be built or compared
+        return False
+
+
+def _drop_new_defaults(model: BaseModel, data: Any) -> None:
+    """Remove, in place, the JSON of fields added after their model's first schema (marked with
+    ``since`` in ``json_schema_extra``) that hold their default value, at every level."""
+    if not isinstance(data, dict):
+        return
+    for name, f in type(model).model_fields.items():
+        key = f.serialization_alias or f.alias or name
+        if key not in data:
+            continue
+        value = getattr(model, name)
+        extra = f.json_schema_extra if isinstance(f.json_schema_extra, dict) else {}
+        if "since" in extra and _is_default(f, value):
+            del data[key]
+            continue
+        _drop_in_value(value, data[key])
+
+
+def _drop_in_value(value: Any, data: Any) -> None:
+    if isinstance(value, BaseModel):
+        _drop_new_defaults(value, data)
+    elif isinstance(value, list | tuple) and isinstance(data, list):
+        for v, d in zip(value, data, strict=False):
+            _drop_in_value(v, d)
+    elif isinstance(value, dict) and isinstance(data, dict):
+        for k, v in value.items():
+            if str(k) in data:
+                _drop_in_value(v, data[str(k)])
+
+
 def canonical_bytes(cert: Certificate) -> bytes:
-    """The canonical content of a certificate: every field except ``integrity``, as stored in JSON."""
+    """The canonical content of a certificate: every field except ``integrity``, as stored in JSON,
+    without the fields added after schema 1.1 that hold their default (module docstring)."""
     data = json.loads(cert.model_dump_json(exclude={"integrity"}))
+    _drop_new_defaults(cert, data)
     return canonical_json(data)
 
 

@@ -488,7 +488,13 @@ def _plots_png(cert: Certificate, dpi: int = 110) -> dict[str, _Plot]:
 
 
 def _canonical_json(cert: Certificate) -> str:
-    return cert.model_dump_json(indent=2) + "\n"
+    """The stored text: every field, except those added after schema 1.1 while at their default
+    (so the file minus ``integrity`` is exactly the digested content, hil-c14n/1)."""
+    from hil.certificate import _drop_new_defaults
+
+    data = json.loads(cert.model_dump_json())
+    _drop_new_defaults(cert, data)
+    return json.dumps(data, indent=2, ensure_ascii=False) + "\n"
 
 
 def _atomic_write(path: Path, data: bytes) -> Path:
