@@ -209,3 +209,54 @@ def sdea_record() -> SimRecord:
 @pytest.fixture(scope="session")
 def mbk_records() -> list[SimRecord]:
     return make_mbk_records(seed=4321)
+
+
+# ------------------------------------------------------------------ non-periodic records (issue 12)
+NONPERIODIC_SETUP = {
+    "fs": 5000.0,
+    "duration": 4.0,  # s of record
+    "pre_roll": 0.1,  # s simulated before the record starts (the record begins mid-motion)
+    "f0": 1.0,
+    "f1": 400.0,  # log chirp f0 -> f1 over pre_roll + duration (not periodic, stops mid-sweep end)
+    "amplitude": 0.5,  # N.m
+    "band": (1.0, 1000.0),
+}
+
+
+def make_nonperiodic_record(
+    ss: Sequence[NDArray],
+    seed: int,
+    noise: float,
+    *,
+    n_in: int = 1,
+    **override: float,
+) -> SimRecord:
+    """One-shot (non-periodic) logarithmic chirp through the plant ``ss`` behind a zero-order hold at
+    ``fs``, simulated with the suite's exact ZOH discretization (:mod:`hil.mocks.lti`, independent of
+    the identification models' modal formulas). With ``n_in`` > 1 every input gets its own chirp
+    (sweeps of different phase and direction, so the inputs are not collinear). ``noise``: white
+    Gaussian noise std as a fraction of each noise-free output's RMS."""
+    from hil.mocks.lti import StateSpace
+
+    cfg = {**NONPERIODIC_SETUP, **override}
+    rng = np.random.default_rng(seed)
+    fs = float(cfg["fs"])
+    n_pre = round(cfg["pre_roll"] * fs)
+    n = round(cfg["duration"] * fs)
+    t_all = np.arange(n_pre + n) / fs
+    T = t_all[-1]
+    cols = []
+    for i in range(n_in):
+        if i % 2 == 0:
+            cols.append(cfg["amplitude"] * signal.chirp(t_all, cfg["f0"], T, cfg["f1"], method="logarithmic",
+                                                        phi=-90 + 60 * i))
+        else:  # downward sweep
+            cols.append(cfg["amplitude"] * signal.chirp(T - t_all, cfg["f0"], T, cfg["f1"], method="logarithmic",
+                                                        phi=30 * i))
+    u_all = np.column_stack(cols)
+    A, Bm, C, D = ss
+    _, y_all = StateSpace(A, Bm, C, D).discretize(1.0 / fs, "zoh").simulate(u_all)
+    u, y_clean = u_all[n_pre:], y_all[n_pre:]
+    sd = noise * np.sqrt(np.mean(y_clean**2, axis=0))
+    y = y_clean + rng.standard_normal(y_clean.shape) * sd
+    return SimRecord(np.arange(n) / fs, u, y, fs, sd)
