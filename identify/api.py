@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from hil.errors import HilError
+from hil.identify.adequacy import AdequacyReport, check_frf_fit, check_ml_fit
 from hil.identify.diagnostics import DataReport, Diagnosis, check_excitation, run_checks
 from hil.identify.errors import (
     ConvergenceError,
@@ -48,11 +49,19 @@ from hil.identify.errors import (
     ModelSpecError,
     NotIdentifiableError,
 )
-from hil.identify.fisher import IdentifiabilityReport, check_identifiability, crb, fisher_information
+from hil.identify.fisher import IdentifiabilityReport, check_identifiability, crb
 from hil.identify.fit import LsResult, fit_least_squares
 from hil.identify.frf import FrfEstimate, Resolution, estimate_frf
 from hil.identify.models import GreyBoxModel, make_model
 from hil.identify.posterior import LogPosterior, PosteriorResult, sample_posterior
+from hil.identify.timedomain import (
+    MlLogPosterior,
+    dft_records,
+    fisher_dft,
+    fit_ml,
+    is_periodic,
+    laplace_posterior,
+)
 from hil.inputs import number_type, seed_type
 
 logger = logging.getLogger(__name__)
@@ -84,6 +93,19 @@ class IdentificationResult:
     data_report: DataReport
     timings: dict[str, float] = field(default_factory=dict)
     record: dict[str, Any] = field(default_factory=dict)  # where the data came from (records: channel mapping)
+    #: "frf" (periodic H1 path) or "ml" (output-error ML on the exact sampled model); see api docstring
+    method: str = "frf"
+    #: residual whiteness, input-residual correlation, reduced chi^2 (:mod:`hil.identify.adequacy`)
+    adequacy: AdequacyReport | None = None
+    #: the misfit was accepted by the caller (``accept_misfit=True`` / ``--accept-misfit``)
+    misfit_accepted: bool = False
+    #: output-error ML details (noise std per output, transient), ``None`` on the FRF path
+    ml: dict[str, Any] | None = None
+
+    @property
+    def misfit(self) -> bool:
+        """True when an adequacy test failed: the model does not describe the data."""
+        return bool(self.adequacy is not None and self.adequacy.misfit)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -94,7 +116,11 @@ class IdentificationResult:
         return self.posterior.converged
 
     def summary(self) -> dict[str, dict[str, float]]:
-        """Per parameter: mean, median, q05, q95, std, ls, ls_std, crb_std (physical units)."""
+        """Per parameter: mean, median, q05, q95, std (posterior); ``ls`` the point estimate (LS on the
+        FRF, or the output-error ML); ``ls_std`` its std from the fit's curvature with the data's own
+        noise estimate (FRF variance, or the ML residual variance); ``crb_std`` the Cramér-Rao bound:
+        sqrt diag of the inverse Fisher information of the model under the fitted noise model, for
+        the recorded excitation (:mod:`hil.identify.timedomain`). Physical units."""
         return self.posterior.summary(self.ls.std, self.crb_std, self.ls.theta)
 
     def derived_summary(self) -> dict[str, dict[str, float | str]]:
@@ -133,6 +159,11 @@ class IdentificationResult:
             "seed": self.posterior.seed,
             "least_squares": self.ls.to_dict(),
             "cramer_rao_std": dict(zip(self.model.names, map(float, self.crb_std), strict=True)),
+            "method": self.method,
+            "misfit": self.misfit,
+            "misfit_accepted": self.misfit_accepted,
+            "adequacy": None if self.adequacy is None else self.adequacy.to_dict(),
+            "output_error_ml": self.ml,
             "identifiability": self.identifiability.to_dict(),
             "frf": {
                 "f_min": float(self.frf.f[0]),
@@ -193,6 +224,9 @@ def identify_experiments(
     resolution: Resolution | Sequence[Resolution] = "float32",
     input_resolution: Resolution | Sequence[Resolution] = "float32",
     sampling: str = "continuous",
+    method: str = "auto",
+    posterior: str = "emcee",
+    accept_misfit: bool = False,
 ) -> IdentificationResult:
     """Identify ``model`` from experiments ``[{"t": t, "inputs": ..., "outputs": ...}, ...]``.
 
@@ -207,6 +241,12 @@ def identify_experiments(
     instance must then have been built with ``zoh_fs``). ``theta0`` (default: the model's
     data-derived :meth:`~hil.identify.models.GreyBoxModel.initial_guess`, else its nominal values)
     is where the identifiability check runs and the LS fit starts.
+    ``method``: ``auto`` (default: the H1-FRF path for periodic records -- a ``period`` is given and the
+    input repeats with it -- else output-error ML, :mod:`hil.identify.timedomain`), ``frf`` or ``ml``.
+    ``posterior`` (ML path): ``emcee`` on the ML likelihood, or ``laplace`` (Gaussian at the ML
+    estimate with the inverse Fisher covariance; fast). The fit's adequacy is always tested
+    (:mod:`hil.identify.adequacy`): ``result.misfit``; ``accept_misfit`` only records that the caller
+    accepts it (``result.misfit_accepted``).
     Returns an :class:`IdentificationResult` (raise on data/identifiability errors).
     """
     timings: dict[str, float] = {}
@@ -254,6 +294,7 @@ def identify_experiments(
     if max(fs_all) / min(fs_all) - 1 > 1e-6:
         raise DataQualityError(f"experiments sampled at different rates {fs_all}")
     n_min = min(p[0].shape[0] for p in pairs)
+    chosen = _choose_method(method, pairs, period, fs)
     nps = int(nperseg) if nperseg else (round(period * fs) if period else max(n_min // 16, 16))
     est = estimate_frf(
         pairs,
@@ -265,6 +306,9 @@ def identify_experiments(
         resolution=resolution,
         input_resolution=input_resolution,
     )
+    if band is None and chosen == "ml":
+        band = _excited_band(est)
+        logger.info("analysis band %.3g..%.3g Hz: where the recorded input carries power", *band)
     est = est.band(*(band or (fs / nps, 0.45 * fs)))
     exc = check_excitation(est)
     report.diagnoses += exc
@@ -285,9 +329,13 @@ def identify_experiments(
     t1 = time.perf_counter()
     ls = fit_least_squares(mdl, est, x0=th0, n_starts=n_starts, seed=seed)
     timings["least_squares"] = time.perf_counter() - t1
-    F = fisher_information(mdl, ls.theta, est.w, est.sigma)
-    _, crb_std = crb(mdl, ls.theta, F)
     ident = check_identifiability(mdl, ls.theta, w=est.w, sigma=est.sigma)
+    if chosen == "ml":
+        return _identify_ml(mdl, pairs, fs, band or (fs / nps, 0.45 * fs), est, ls, ident, report, timings, t0,
+                            seed=seed, posterior=posterior, n_walkers=n_walkers, max_steps=max_steps,
+                            max_seconds=max_seconds, accept_misfit=accept_misfit)
+    crb_std = _frf_path_crb(mdl, ls.theta, pairs, fs, est)
+    adequacy = check_frf_fit(mdl, est, ls.theta)
     t2 = time.perf_counter()
     lp = LogPosterior(mdl, est, noise=noise)
     post = sample_posterior(
@@ -295,11 +343,108 @@ def identify_experiments(
     )
     timings["posterior"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
-    res = IdentificationResult(mdl, est, ls, crb_std, ident, post, report, timings)
+    res = IdentificationResult(mdl, est, ls, crb_std, ident, post, report, timings, method="frf",
+                               adequacy=adequacy, misfit_accepted=bool(accept_misfit and adequacy.misfit))
     if not res.converged:
         logger.warning(
             "identification of %s: posterior NOT converged (%s)", mdl.name, "; ".join(post.diagnostics.reasons)
         )
+    return res
+
+
+def _choose_method(method: str, pairs: Sequence[tuple[np.ndarray, np.ndarray]], period: float | None,
+                   fs: float) -> str:
+    """The documented rule (:mod:`hil.identify.timedomain`): ``auto`` -> ``frf`` when a ``period`` is
+    known and every experiment's input repeats with it over >= 2 periods, else ``ml``."""
+    if method not in ("auto", "frf", "ml"):
+        raise ModelSpecError(f"method must be 'auto', 'frf' or 'ml', got {method!r}")
+    if method != "auto":
+        return method
+    if period and all(is_periodic(u, round(period * fs)) for u, _ in pairs):
+        return "frf"
+    logger.info("non-periodic record%s: output-error ML on the exact sampled model",
+                "" if period is None else f" (input does not repeat with period {period:g} s)")
+    return "ml"
+
+
+def _excited_band(est: FrfEstimate, rel: float = 1e-4) -> tuple[float, float]:
+    """Frequencies [Hz] between the first and last bin where some input's power is at least ``rel``
+    of its peak (DC excluded): the range the excitation actually covers."""
+    pw = np.real(np.diagonal(est.Gxx, axis1=1, axis2=2))  # (nf, ni)
+    on = np.any(pw >= rel * np.maximum(np.max(pw, axis=0), 1e-300), axis=1) & (est.f > 0)
+    if not np.any(on):
+        return float(est.f[1]), float(est.f[-1])
+    f_on = est.f[on]
+    return float(f_on[0]), float(f_on[-1])
+
+
+def _frf_path_crb(mdl: GreyBoxModel, theta: np.ndarray, pairs: Sequence[tuple[np.ndarray, np.ndarray]],
+                  fs: float, est: FrfEstimate) -> np.ndarray:
+    """Cramér-Rao std of the periodic path: Fisher information of the DFT of the records themselves
+    (actual excitation), steady state, noise model = the H1 residual spectrum ``Gvv`` (a one-sided
+    density: ``E|V_k|^2 = N fs Gvv / 2``) plus the known rounding floor of the outputs (and of the
+    inputs through ``|H|^2``), on the analysis band."""
+    recs = dft_records(pairs, fs, (float(est.f[0]), float(est.f[-1])))
+    rv = est.meta.get("rounding_variance") or {}
+    qo = np.asarray(rv.get("outputs", np.zeros(len(mdl.output_names))), float)
+    qi = np.asarray(rv.get("inputs", np.zeros(len(mdl.input_names))), float)
+    noise_var = []
+    for r in recs:
+        gvv = np.column_stack([np.interp(r.f, est.f, est.Gvv[:, o]) for o in range(est.Gvv.shape[1])])
+        H = mdl.frf(theta, r.w)
+        floor = qo[None, :] + np.einsum("koi,i->ko", np.abs(H) ** 2, qi)
+        v = r.n * (fs * gvv / 2.0 + floor)
+        noise_var.append(np.maximum(v, 1e-300))
+    F = fisher_dft(mdl, recs, theta, noise_var, transient=False)
+    return crb(mdl, theta, F)[1]
+
+
+def _identify_ml(
+    mdl: GreyBoxModel,
+    pairs: Sequence[tuple[np.ndarray, np.ndarray]],
+    fs: float,
+    band: tuple[float, float],
+    est: FrfEstimate,
+    ls0: LsResult,
+    ident: IdentifiabilityReport,
+    report: DataReport,
+    timings: dict[str, float],
+    t0: float,
+    *,
+    seed: int,
+    posterior: str,
+    n_walkers: int | None,
+    max_steps: int,
+    max_seconds: float | None,
+    accept_misfit: bool,
+) -> IdentificationResult:
+    """Output-error ML from the H1-LS start, adequacy tests, then the posterior (emcee on the same
+    likelihood, or its Laplace approximation)."""
+    t1 = time.perf_counter()
+    recs = dft_records(pairs, fs, band)
+    ml = fit_ml(mdl, recs, ls0.theta)
+    timings["ml"] = time.perf_counter() - t1
+    ls = LsResult(names=mdl.names, theta=ml.theta, z=ml.z, cov_z=ml.cov_z, cov_theta=ml.cov_theta, std=ml.crb_std,
+                  chi2=ml.chi2, dof=ml.dof, success=ml.success, message=ml.message, n_starts=1)
+    adequacy = check_ml_fit(mdl, recs, ml.theta, ml.sigma)
+    t2 = time.perf_counter()
+    if posterior == "laplace":
+        post = laplace_posterior(mdl, ml, seed=seed)
+    elif posterior == "emcee":
+        lp = MlLogPosterior(mdl, recs, ml.sigma)
+        post = sample_posterior(lp, ml.z, ml.cov_z, seed=seed, n_walkers=n_walkers, max_steps=max_steps,  # type: ignore[arg-type]
+                                max_seconds=max_seconds)
+    else:
+        raise ModelSpecError(f"posterior must be 'emcee' or 'laplace', got {posterior!r}")
+    timings["posterior"] = time.perf_counter() - t2
+    timings["total"] = time.perf_counter() - t0
+    info = {"noise_std": dict(zip(mdl.output_names, map(float, ml.sigma), strict=True)), "band_hz": list(band),
+            "n_bins": ml.n_bins, "posterior": posterior, "start": "least squares on the H1 FRF"}
+    res = IdentificationResult(mdl, est, ls, ml.crb_std, ident, post, report, timings, method="ml",
+                               adequacy=adequacy, misfit_accepted=bool(accept_misfit and adequacy.misfit), ml=info)
+    if not res.converged:
+        logger.warning("identification of %s: posterior NOT converged (%s)", mdl.name,
+                       "; ".join(post.diagnostics.reasons))
     return res
 
 
@@ -335,6 +480,9 @@ _META_KW = (
     "resolution",
     "input_resolution",
     "sampling",
+    "method",
+    "posterior",
+    "accept_misfit",
 )
 
 
