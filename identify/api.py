@@ -14,8 +14,8 @@
   (``/identification/<model>``, :func:`hil.record.store_identification`); :func:`load_identification`.
 * :func:`main` -- ``hil identify RECORD [--model NAME] [--json] ...``. Exit codes (the CLI's): 0 ok;
   2 usage or input error (unreadable file, unknown model, missing channel); 13 the data cannot
-  give a trustworthy estimate (data quality, not identifiable, posterior not converged), with a
-  one-line message; 1 only for bugs.
+  give a trustworthy estimate (data quality, not identifiable, posterior not converged, model misfit
+  unless ``--accept-misfit``), with a one-line message; 1 only for bugs.
 
 Pipeline order matters: the identifiability (Fisher rank) check runs BEFORE any fitting, at the
 model's nominal parameters with the data's own FRF variance, and raises
@@ -699,7 +699,8 @@ def _theta0(items: Sequence[str] | None) -> dict[str, float] | None:
 
 def _print_table(res: IdentificationResult) -> None:
     units = dict(zip(res.model.names, res.model.units, strict=True))
-    print(f"model {res.model.name}; converged: {res.converged}")
+    print(f"model {res.model.name}; method {res.method}; converged: {res.converged}; "
+          f"misfit: {res.misfit}{' (accepted)' if res.misfit_accepted else ''}")
     for note in res.record.get("mapping", {}).get("notes", []):
         print(f"  {note}")
     print(f"{'param':>10} {'median':>12} {'q05':>12} {'q95':>12} {'std':>10} {'ls_std':>10} {'crb_std':>10}  unit")
@@ -710,6 +711,11 @@ def _print_table(res: IdentificationResult) -> None:
         )
     for n, r in res.derived_summary().items():
         print(f"{n:>10} {r['median']:12.5g} {r['q05']:12.5g} {r['q95']:12.5g} {r['std']:10.3g}  (derived)  {r['unit']}")
+    if res.adequacy is not None:
+        for t in res.adequacy.tests:
+            rng = f" expected {t.expected[0]:.3g}..{t.expected[1]:.3g}" if t.expected else ""
+            pv = f" p={t.p_value:.2g}" if t.p_value is not None else ""
+            print(f"  adequacy {t.name} ({t.channel}): {t.statistic:.4g}{rng}{pv} {'ok' if t.passed else 'FAIL'}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -743,6 +749,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--set", action="append", metavar="PARAM=VALUE", help="starting value of a parameter (theta0)")
     p.add_argument("--seed", type=seed_type, default=None)
     p.add_argument("--max-seconds", type=number_type("positive"), default=None, help="time budget of the sampler [s]")
+    p.add_argument("--method", choices=["auto", "frf", "ml"], default=None,
+                   help="estimator: auto (H1 FRF for periodic records, output-error ML otherwise), frf, ml")
+    p.add_argument("--posterior", choices=["emcee", "laplace"], default=None,
+                   help="ML path: emcee on the ML likelihood (default) or its Laplace approximation (fast)")
+    p.add_argument("--accept-misfit", action="store_true",
+                   help="exit 0 although an adequacy test flags a model misfit (the result stays flagged)")
     p.add_argument("--json", action="store_true", help="print the full result as JSON")
     p.add_argument("--no-store", action="store_true", help="do not write the posterior into the record")
     p.add_argument("--out", default=None, help="for .csv/.mat input: keep the imported record (with the result) here")
@@ -786,7 +798,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             rec = load_record(a.record)
         kw = {"model": a.model, "band": a.band, "period": a.period, "seed": a.seed, "skip": a.skip,
-              "noise": a.noise, "max_seconds": a.max_seconds, "theta0": theta0, "sampling": a.sampling}
+              "noise": a.noise, "max_seconds": a.max_seconds, "theta0": theta0, "sampling": a.sampling,
+              "method": a.method, "posterior": a.posterior, "accept_misfit": a.accept_misfit or None}
         if a.resolution is not None:
             kw["resolution"] = kw["input_resolution"] = res_spec
         if isinstance(rec, Mapping):  # .npz record dict
@@ -820,5 +833,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not res.converged:
         reasons = "; ".join(res.posterior.diagnostics.reasons)
         print(f"hil identify: ConvergenceError: posterior not converged: {reasons}", file=sys.stderr)
+        return EXIT_ERROR
+    if res.misfit and not a.accept_misfit:
+        print(f"hil identify: ModelMisfit: the model does not describe the data ({'; '.join(res.adequacy.reasons)}); "
+              "use a richer model, or --accept-misfit", file=sys.stderr)
         return EXIT_ERROR
     return EXIT_OK

@@ -260,3 +260,21 @@ def make_nonperiodic_record(
     sd = noise * np.sqrt(np.mean(y_clean**2, axis=0))
     y = y_clean + rng.standard_normal(y_clean.shape) * sd
     return SimRecord(np.arange(n) / fs, u, y, fs, sd)
+
+
+def sdea_compliant_mount_ss(
+    K_f: float, B_f: float, M: float, B: float, *, m_e: float = 2e-3, f_e: float = 300.0, zeta: float = 0.02
+) -> tuple[NDArray, ...]:
+    """The "locked" SDEA whose end-effector is in fact held by a compliant mount: an end mass ``m_e``
+    on a spring to ground resonating at ``f_e`` [Hz] with damping ratio ``zeta`` -- a resonance the
+    locked-output model does not have. State [x_motor, x_end, v_motor, v_end]; outputs [v_motor,
+    F = K_f (x_m - x_e) + B_f (v_m - v_e)]."""
+    k_e = m_e * (2 * np.pi * f_e) ** 2
+    b_e = 2 * zeta * np.sqrt(k_e * m_e)
+    A = np.zeros((4, 4))
+    A[0, 2] = A[1, 3] = 1.0
+    A[2] = [-K_f / M, K_f / M, -(B + B_f) / M, B_f / M]
+    A[3] = [K_f / m_e, -(K_f + k_e) / m_e, B_f / m_e, -(B_f + b_e) / m_e]
+    Bm = np.array([[0.0], [0.0], [1.0 / M], [0.0]])
+    C = np.array([[0.0, 0.0, 1.0, 0.0], [K_f, -K_f, B_f, -B_f]])
+    return A, Bm, C, np.zeros((2, 1))
