@@ -231,16 +231,25 @@ class _Problem:
         E, _ = self.residuals(th)
         return sum(np.sum(np.abs(e) ** 2, axis=-2) for e in E)
 
-    def _modal(self, th: NDArray[np.float64]) -> tuple[list[NDArray[np.complex128]], NDArray, NDArray]:
-        """Per record the modal transient coefficients ``coef`` (..., m, n) (``z/(z - mu_i)`` or
-        ``1/(jw - l_i)``), and ``C V`` times the sensor gains (..., no, n) and ``W = V^-1``: the
-        transient basis is ``B_k = (CV diag(coef_k)) W``."""
+    def _modal(self, th: NDArray[np.float64]) -> tuple[list[NDArray[np.complex128]], NDArray, NDArray, NDArray]:
+        """Modal form, per record: the transient coefficients ``coef`` (..., m, n) (``z/(z - mu_i)``, or
+        ``1/(jw - l_i)`` for continuous models), ``C V`` times the sensor gains (..., no, n), ``W = V^-1``
+        and the input map ``g W B`` (..., n, ni) with ``g_i = (e^{l_i T} - 1)/l_i`` (ZOH) or 1: the
+        transient basis is ``B_k = (CV diag(coef_k)) W`` and ``G(z_k) = CV diag(coef_k / z_k) g W B``
+        (the model's exact sampled FRF, :meth:`GreyBoxModel._zoh_frf`)."""
         m = self.model
-        A, _, C = m.state_space(th)
+        A, Bm, C = m.state_space(th)
         lam, V = np.linalg.eig(A)
         W = np.linalg.inv(V)
         CV = (C @ V) * self._gain(th)[..., :, None]
+        WB = W @ Bm
         coefs = []
+        if m.zoh_fs is not None:
+            T = 1.0 / m.zoh_fs
+            lt = lam * T
+            small = np.abs(lt) < 1e-8
+            g = np.where(small, T * (1 + lt / 2), np.expm1(np.where(small, 1.0, lt)) / np.where(small, 1.0, lam))
+            WB = WB * g[..., :, None]
         for r in self.recs:
             if m.zoh_fs is not None:
                 z = np.exp(1j * r.w / m.zoh_fs)
@@ -248,7 +257,22 @@ class _Problem:
                 coefs.append(z[:, None] / (z[:, None] - mu[..., None, :]))
             else:
                 coefs.append(1.0 / (1j * r.w[:, None] - lam[..., None, :]))
-        return coefs, CV, W
+        return coefs, CV, W, WB
+
+    def _fast_predictions(self, th: NDArray[np.float64], coefs: list, CV: NDArray, WB: NDArray) -> list:
+        """``G(theta) U`` per record from the modal form (no delay nuisance; else :meth:`prediction`)."""
+        if self.model.has_delay:
+            return self.prediction(th)
+        out = []
+        CVT = np.swapaxes(CV, -1, -2)  # (..., n, no)
+        WBT = np.swapaxes(WB, -1, -2)  # (..., ni, n)
+        for r, coef in zip(self.recs, coefs, strict=True):
+            uw = r.U @ WBT  # (..., m, n)
+            a = coef * uw
+            if self.model.zoh_fs is not None:
+                a = a * np.exp(-1j * r.w / self.model.zoh_fs)[:, None]
+            out.append(a @ CVT)
+        return out
 
     def rss_weighted(self, th: NDArray[np.float64], sigma: NDArray[np.float64]) -> NDArray[np.float64]:
         """Per-output RSS (..., n_out) of the residual with the transient fitted by ``sigma``-weighted
@@ -257,10 +281,11 @@ class _Problem:
         the MCMC hot path (same result as :meth:`residuals`, checked in the tests)."""
         wgt = 1.0 / np.asarray(sigma, float)
         total = np.zeros((*th.shape[:-1], self.no))
-        coefs, CV, W = self._modal(th)
+        coefs, CV, W, WB = self._modal(th)
         CVw = CV * wgt[:, None]
         WH = np.swapaxes(W, -1, -2).conj()[..., None, :, :]  # (..., 1, n, n)
-        for r, P, coef in zip(self.recs, self.prediction(th), coefs, strict=True):
+        preds = self._fast_predictions(th, coefs, CV, WB)
+        for r, P, coef in zip(self.recs, preds, coefs, strict=True):
             E0 = (r.Y - P) * wgt  # (..., m, no)
             cH = np.swapaxes(coef, -1, -2).conj()  # (..., n, m)
             S = cH @ coef  # (..., n, n)
