@@ -51,7 +51,7 @@ from hil.identify.errors import (
 )
 from hil.identify.fisher import IdentifiabilityReport, check_identifiability, crb
 from hil.identify.fit import LsResult, fit_least_squares
-from hil.identify.frf import FrfEstimate, Resolution, estimate_frf
+from hil.identify.frf import FrfEstimate, Resolution, estimate_frf, lpm_frf
 from hil.identify.models import GreyBoxModel, make_model
 from hil.identify.posterior import LogPosterior, PosteriorResult, sample_posterior
 from hil.identify.timedomain import (
@@ -296,6 +296,10 @@ def identify_experiments(
     n_min = min(p[0].shape[0] for p in pairs)
     chosen = _choose_method(method, pairs, period, fs)
     nps = int(nperseg) if nperseg else (round(period * fs) if period else max(n_min // 16, 16))
+    if chosen == "ml" and not nperseg and window == "boxcar":
+        # the H1 estimate only gives the ML fit its start and the data checks: Hann segments (half
+        # overlap) of 1/8 of the record leak far less than rectangular ones on a non-periodic record
+        window, nps = "hann", max(n_min // 8, 16)
     est = estimate_frf(
         pairs,
         fs,
@@ -315,25 +319,29 @@ def identify_experiments(
     report.raise_if_failed()
     timings["frf"] = time.perf_counter() - t0
 
+    # the ML path starts from an LS fit on the transient-free local-polynomial FRF when every record
+    # excites every input (else on the H1 estimate)
+    start_est = (_lpm_estimate(mdl, pairs, fs, band or (fs / nps, 0.45 * fs)) if chosen == "ml" else None) or est
     # --- identifiability BEFORE fitting: nominal parameters, data-derived FRF variance
     if isinstance(theta0, Mapping):
         th0 = mdl.vector(dict(theta0))
     elif theta0 is not None:
         th0 = np.asarray(theta0, float)
     else:
-        guess = mdl.initial_guess(est)
+        guess = mdl.initial_guess(start_est)
         th0 = mdl.nominal if guess is None else guess
     # at the initial guess: its messages are in the error it may raise; the check at the fit below warns
     pre = check_identifiability(mdl, th0, w=est.w, sigma=est.sigma, log_level=logging.DEBUG)
     pre.raise_if_not_identifiable()
     t1 = time.perf_counter()
-    ls = fit_least_squares(mdl, est, x0=th0, n_starts=n_starts, seed=seed)
+    ls = fit_least_squares(mdl, start_est, x0=th0, n_starts=n_starts, seed=seed)
     timings["least_squares"] = time.perf_counter() - t1
     ident = check_identifiability(mdl, ls.theta, w=est.w, sigma=est.sigma)
     if chosen == "ml":
         return _identify_ml(mdl, pairs, fs, band or (fs / nps, 0.45 * fs), est, ls, ident, report, timings, t0,
                             seed=seed, posterior=posterior, n_walkers=n_walkers, max_steps=max_steps,
-                            max_seconds=max_seconds, accept_misfit=accept_misfit)
+                            max_seconds=max_seconds, accept_misfit=accept_misfit,
+                            start="local-polynomial" if start_est is not est else "H1")
     crb_std = _frf_path_crb(mdl, ls.theta, pairs, fs, est)
     adequacy = check_frf_fit(mdl, est, ls.theta)
     t2 = time.perf_counter()
@@ -378,6 +386,33 @@ def _excited_band(est: FrfEstimate, rel: float = 1e-4) -> tuple[float, float]:
     return float(f_on[0]), float(f_on[-1])
 
 
+def _lpm_estimate(mdl: GreyBoxModel, pairs: Sequence[tuple[np.ndarray, np.ndarray]], fs: float,
+                  band: tuple[float, float]) -> FrfEstimate | None:
+    """Local-polynomial FRF (:func:`hil.identify.frf.lpm_frf`) of every record on ``band``, pooled and
+    sorted by frequency, as an :class:`FrfEstimate` for the start of the ML fit; None when a record
+    leaves an input idle (the LPM needs every input in every record) or too few bins remain."""
+    fs_l, G_l, sd_l = [], [], []
+    for r in dft_records(pairs, fs, band):
+        if np.any(np.sum(np.abs(r.U) ** 2, axis=0) <= 0):
+            return None
+        fc, G, sd = lpm_frf(r.U, r.Y, r.f)
+        fs_l.append(fc)
+        G_l.append(G)
+        sd_l.append(sd)
+    f = np.concatenate(fs_l)
+    G = np.concatenate(G_l)
+    sd = np.concatenate(sd_l)
+    ok = np.all(np.isfinite(G), axis=(1, 2)) & np.all(sd > 0, axis=(1, 2))
+    if 2 * ok.sum() * len(mdl.output_names) * len(mdl.input_names) < 4 * mdl.n_params:
+        return None
+    o = np.argsort(f[ok])
+    n, no, ni = int(ok.sum()), len(mdl.output_names), len(mdl.input_names)
+    return FrfEstimate(f=f[ok][o], H=G[ok][o], coherence=np.ones((n, no)), sigma=sd[ok][o],
+                       Gxx=np.zeros((n, ni, ni), complex), Gyy=np.zeros((n, no)), Gvv=np.zeros((n, no)), n_avg=1.0,
+                       dof=8.0, fs=fs, nperseg=int(pairs[0][0].shape[0]), input_names=mdl.input_names,
+                       output_names=mdl.output_names, meta={"estimator": "local polynomial method"})
+
+
 def _frf_path_crb(mdl: GreyBoxModel, theta: np.ndarray, pairs: Sequence[tuple[np.ndarray, np.ndarray]],
                   fs: float, est: FrfEstimate) -> np.ndarray:
     """Cramér-Rao std of the periodic path: Fisher information of the DFT of the records themselves
@@ -417,6 +452,7 @@ def _identify_ml(
     max_steps: int,
     max_seconds: float | None,
     accept_misfit: bool,
+    start: str = "H1",
 ) -> IdentificationResult:
     """Output-error ML from the H1-LS start, adequacy tests, then the posterior (emcee on the same
     likelihood, or its Laplace approximation)."""
@@ -439,7 +475,8 @@ def _identify_ml(
     timings["posterior"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
     info = {"noise_std": dict(zip(mdl.output_names, map(float, ml.sigma), strict=True)), "band_hz": list(band),
-            "n_bins": ml.n_bins, "posterior": posterior, "start": "least squares on the H1 FRF"}
+            "n_bins": ml.n_bins, "posterior": posterior,
+            "start": f"least squares on the {start} FRF"}
     res = IdentificationResult(mdl, est, ls, ml.crb_std, ident, post, report, timings, method="ml",
                                adequacy=adequacy, misfit_accepted=bool(accept_misfit and adequacy.misfit), ml=info)
     if not res.converged:
