@@ -296,10 +296,6 @@ def identify_experiments(
     n_min = min(p[0].shape[0] for p in pairs)
     chosen = _choose_method(method, pairs, period, fs)
     nps = int(nperseg) if nperseg else (round(period * fs) if period else max(n_min // 16, 16))
-    if chosen == "ml" and not nperseg and window == "boxcar":
-        # the H1 estimate only gives the ML fit its start and the data checks: Hann segments (half
-        # overlap) of 1/8 of the record leak far less than rectangular ones on a non-periodic record
-        window, nps = "hann", max(n_min // 8, 16)
     est = estimate_frf(
         pairs,
         fs,
@@ -319,29 +315,26 @@ def identify_experiments(
     report.raise_if_failed()
     timings["frf"] = time.perf_counter() - t0
 
-    # the ML path starts from an LS fit on the transient-free local-polynomial FRF when every record
-    # excites every input (else on the H1 estimate)
-    start_est = (_lpm_estimate(mdl, pairs, fs, band or (fs / nps, 0.45 * fs)) if chosen == "ml" else None) or est
     # --- identifiability BEFORE fitting: nominal parameters, data-derived FRF variance
     if isinstance(theta0, Mapping):
         th0 = mdl.vector(dict(theta0))
     elif theta0 is not None:
         th0 = np.asarray(theta0, float)
     else:
-        guess = mdl.initial_guess(start_est)
+        guess = mdl.initial_guess(est)  # equation error on the (many) H1 bins
         th0 = mdl.nominal if guess is None else guess
     # at the initial guess: its messages are in the error it may raise; the check at the fit below warns
     pre = check_identifiability(mdl, th0, w=est.w, sigma=est.sigma, log_level=logging.DEBUG)
     pre.raise_if_not_identifiable()
     t1 = time.perf_counter()
-    ls = fit_least_squares(mdl, start_est, x0=th0, n_starts=n_starts, seed=seed)
+    ls = fit_least_squares(mdl, est, x0=th0, n_starts=n_starts, seed=seed)
     timings["least_squares"] = time.perf_counter() - t1
     ident = check_identifiability(mdl, ls.theta, w=est.w, sigma=est.sigma)
     if chosen == "ml":
         return _identify_ml(mdl, pairs, fs, band or (fs / nps, 0.45 * fs), est, ls, ident, report, timings, t0,
                             seed=seed, posterior=posterior, n_walkers=n_walkers, max_steps=max_steps,
                             max_seconds=max_seconds, accept_misfit=accept_misfit,
-                            start="local-polynomial" if start_est is not est else "H1")
+                            alt_start=lambda: _lpm_start(mdl, pairs, fs, band or (fs / nps, 0.45 * fs), th0))
     crb_std = _frf_path_crb(mdl, ls.theta, pairs, fs, est)
     adequacy = check_frf_fit(mdl, est, ls.theta)
     t2 = time.perf_counter()
@@ -413,6 +406,13 @@ def _lpm_estimate(mdl: GreyBoxModel, pairs: Sequence[tuple[np.ndarray, np.ndarra
                        output_names=mdl.output_names, meta={"estimator": "local polynomial method"})
 
 
+def _lpm_start(mdl: GreyBoxModel, pairs: Sequence[tuple[np.ndarray, np.ndarray]], fs: float,
+               band: tuple[float, float], x0: np.ndarray) -> np.ndarray | None:
+    """LS fit on the local-polynomial FRF from ``x0``: the second ML start (None without an LPM FRF)."""
+    lest = _lpm_estimate(mdl, pairs, fs, band)
+    return None if lest is None else fit_least_squares(mdl, lest, x0=x0, n_starts=4, seed=0).theta
+
+
 def _frf_path_crb(mdl: GreyBoxModel, theta: np.ndarray, pairs: Sequence[tuple[np.ndarray, np.ndarray]],
                   fs: float, est: FrfEstimate) -> np.ndarray:
     """Cramér-Rao std of the periodic path: Fisher information of the DFT of the records themselves
@@ -452,17 +452,31 @@ def _identify_ml(
     max_steps: int,
     max_seconds: float | None,
     accept_misfit: bool,
-    start: str = "H1",
+    alt_start: Any = None,
 ) -> IdentificationResult:
     """Output-error ML from the H1-LS start, adequacy tests, then the posterior (emcee on the same
     likelihood, or its Laplace approximation)."""
     t1 = time.perf_counter()
+    start = "H1"
     recs = dft_records(pairs, fs, band)
     ml = fit_ml(mdl, recs, ls0.theta)
+    adequacy = check_ml_fit(mdl, recs, ml.theta, ml.sigma)
+    if adequacy.misfit and alt_start is not None:
+        # a local optimum also fails the adequacy tests: refit from an LS fit on the transient-free
+        # local-polynomial FRF, keep the likelier fit
+        # (profile likelihood -sum_o m_o log RSS_o; every output has the same number of bins)
+        try:
+            x2 = alt_start()
+            ml2 = fit_ml(mdl, recs, x2) if x2 is not None else None
+        except HilError as exc:
+            ml2 = None
+            logger.debug("second ML start failed: %s", exc)
+        if ml2 is not None and np.sum(np.log(ml2.sigma)) < np.sum(np.log(ml.sigma)):
+            ml, start = ml2, "local-polynomial"
+            adequacy = check_ml_fit(mdl, recs, ml.theta, ml.sigma)
     timings["ml"] = time.perf_counter() - t1
     ls = LsResult(names=mdl.names, theta=ml.theta, z=ml.z, cov_z=ml.cov_z, cov_theta=ml.cov_theta, std=ml.crb_std,
                   chi2=ml.chi2, dof=ml.dof, success=ml.success, message=ml.message, n_starts=1)
-    adequacy = check_ml_fit(mdl, recs, ml.theta, ml.sigma)
     t2 = time.perf_counter()
     if posterior == "laplace":
         post = laplace_posterior(mdl, ml, seed=seed)

@@ -177,7 +177,7 @@ def test_cli_exits_13_on_misfit_unless_accepted(tmp_path, capsys) -> None:
 def test_mbk_cross_coupled_from_simultaneous_nonperiodic_chirps() -> None:
     # 2-DOF M, B, K with off-diagonal coupling, both inputs driven at once by different one-shot chirps
     rec = make_nonperiodic_record(mbk_ss(MBK_TRUTH["M"], MBK_TRUTH["B"], MBK_TRUTH["K"]), 3, 0.01, n_in=2, fs=500.0,
-                                  duration=6.0, pre_roll=1.0, f0=0.5, f1=60.0, amplitude=20.0)
+                                  duration=10.0, pre_roll=1.0, f0=0.5, f1=60.0, amplitude=20.0)
     res = identify_arrays(rec.t, {"force_0": rec.u[:, 0], "force_1": rec.u[:, 1]},
                           {"velocity_0": rec.y[:, 0], "velocity_1": rec.y[:, 1]}, model="mbk",
                           model_options={"n_dof": 2}, sampling="zoh", posterior="laplace")
