@@ -6,6 +6,12 @@ the full pipeline (checks -> H1 -> Fisher -> LS -> emcee until converged or budg
 max relative error of the posterior medians, max |median - truth| / posterior std, mean relative
 90 % interval width, converged flag, steps, total fit time and its ratio to the baseline measured in
 the same run. Targets: 4-parameter SDEA converged in < 10 s; 2-DOF cross-coupled device in < 2 min.
+
+``--nonperiodic [--seeds N]`` (issue 12): on one-shot (non-periodic) log-chirp records, the bias /
+90 % coverage / sd over the Cramér-Rao bound / scatter over the bound per noise level for the
+output-error ML path against the old H1 path; error and posterior sd against record length
+(periodic H1 and non-periodic ML paths) and against sampler steps (wall-clock); the 2-DOF
+cross-coupled M, B, K table. Numbers in docs/BENCHMARKS.md.
 """
 
 from __future__ import annotations
