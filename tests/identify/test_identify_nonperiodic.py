@@ -189,3 +189,35 @@ def test_mbk_cross_coupled_from_simultaneous_nonperiodic_chirps() -> None:
     d = res.derived_summary()
     for key, i, j in (("K_01", 0, 1), ("B_01", 0, 1), ("M_01", 0, 1)):
         assert abs(d[key]["median"] - MBK_TRUTH[key[0]][i, j]) < 4.5 * d[key]["std"], (key, d[key])
+
+
+def test_a_misfit_identification_makes_the_certificate_error(tmp_path, monkeypatch) -> None:
+    # the mocked SDEA bench (whose model fits, GO in tests/test_certify_pipeline.py) with the
+    # identification's adequacy forced to fail: the certificate must not be GO, and must say why
+    import yaml
+
+    import hil.identify.api as api
+    from hil.identify.adequacy import AdequacyReport, AdequacyTest
+    from hil.pipeline import certify_scene
+    from hil.runner import Runner
+    from hil.scene import load_scene, scene_from_dict
+
+    d = yaml.safe_load(load_scene("sdea_bench").source_text)
+    d["experiments"] = [e for e in d["experiments"] if e.get("name") == "chirp_locked"]
+    d["experiments"][0].update(duration=4.0, f0=2.0)
+    d["controller"]["k22"] = 300.0
+    sc = scene_from_dict(d, label="sdea_bench-misfit")
+    outs = Runner(sc, tmp_path / "run").run()
+    real = api.identify_record
+
+    def misfit(*a, **kw):
+        res = real(*a, **kw)
+        res.adequacy = AdequacyReport([AdequacyTest("whiteness", "force", 1e3, False, 1e-50)])
+        return res
+
+    monkeypatch.setattr(api, "identify_record", misfit)
+    (o,) = outs
+    assert o.status == "completed", o.stop_reason
+    c = certify_scene(sc, tmp_path / "cert", outcomes={"chirp_locked": o})
+    assert c.decision == "ERROR"
+    assert any("model misfit" in e and "whiteness of force" in e for e in c.errors), c.errors
