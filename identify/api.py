@@ -17,6 +17,14 @@
   give a trustworthy estimate (data quality, not identifiable, posterior not converged, model misfit
   unless ``--accept-misfit``), with a one-line message; 1 only for bugs.
 
+Estimator rule (``method="auto"``): a record with a known ``period`` whose input repeats with it keeps
+the H1-FRF path (LS on the FRF, emcee on the FRF likelihood); every other record (one-shot chirps from
+other tools, imported CSV/.mat) is identified by output-error maximum likelihood on the exact sampled
+model with the record's transient estimated (:mod:`hil.identify.timedomain`), then emcee on the same
+likelihood (or ``posterior="laplace"``). Both paths report the Cramér-Rao bound for the recorded
+excitation under the fitted noise model (``crb_std``) and the adequacy tests of
+:mod:`hil.identify.adequacy` (``result.misfit``).
+
 Pipeline order matters: the identifiability (Fisher rank) check runs BEFORE any fitting, at the
 model's nominal parameters with the data's own FRF variance, and raises
 :class:`~hil.identify.errors.NotIdentifiableError` with the fix; data problems raise
