@@ -349,6 +349,10 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                 except HilError as exc:
                     errors.append(f"identification from {spec.experiment}: {exc}")
                     continue
+                if getattr(res, "misfit", False):  # a misfit model never feeds a GO (issue 12)
+                    why = "; ".join(res.adequacy.reasons)
+                    errors.append(f"identification from {spec.experiment}: model misfit: {why}")
+                    continue
                 converged = converged and res.converged
                 summ = res.summary()
                 units = dict(zip(res.model.names, res.model.units, strict=True))

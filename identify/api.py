@@ -14,8 +14,16 @@
   (``/identification/<model>``, :func:`hil.record.store_identification`); :func:`load_identification`.
 * :func:`main` -- ``hil identify RECORD [--model NAME] [--json] ...``. Exit codes (the CLI's): 0 ok;
   2 usage or input error (unreadable file, unknown model, missing channel); 13 the data cannot
-  give a trustworthy estimate (data quality, not identifiable, posterior not converged), with a
-  one-line message; 1 only for bugs.
+  give a trustworthy estimate (data quality, not identifiable, posterior not converged, model misfit
+  unless ``--accept-misfit``), with a one-line message; 1 only for bugs.
+
+Estimator rule (``method="auto"``): a record with a known ``period`` whose input repeats with it keeps
+the H1-FRF path (LS on the FRF, emcee on the FRF likelihood); every other record (one-shot chirps from
+other tools, imported CSV/.mat) is identified by output-error maximum likelihood on the exact sampled
+model with the record's transient estimated (:mod:`hil.identify.timedomain`), then emcee on the same
+likelihood (or ``posterior="laplace"``). Both paths report the Cramér-Rao bound for the recorded
+excitation under the fitted noise model (``crb_std``) and the adequacy tests of
+:mod:`hil.identify.adequacy` (``result.misfit``).
 
 Pipeline order matters: the identifiability (Fisher rank) check runs BEFORE any fitting, at the
 model's nominal parameters with the data's own FRF variance, and raises
@@ -41,6 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from hil.errors import HilError
+from hil.identify.adequacy import AdequacyReport, check_frf_fit, check_ml_fit
 from hil.identify.diagnostics import DataReport, Diagnosis, check_excitation, run_checks
 from hil.identify.errors import (
     ConvergenceError,
@@ -48,11 +57,19 @@ from hil.identify.errors import (
     ModelSpecError,
     NotIdentifiableError,
 )
-from hil.identify.fisher import IdentifiabilityReport, check_identifiability, crb, fisher_information
+from hil.identify.fisher import IdentifiabilityReport, check_identifiability, crb
 from hil.identify.fit import LsResult, fit_least_squares
-from hil.identify.frf import FrfEstimate, Resolution, estimate_frf
+from hil.identify.frf import FrfEstimate, Resolution, estimate_frf, lpm_frf
 from hil.identify.models import GreyBoxModel, make_model
 from hil.identify.posterior import LogPosterior, PosteriorResult, sample_posterior
+from hil.identify.timedomain import (
+    MlLogPosterior,
+    dft_records,
+    fisher_dft,
+    fit_ml,
+    is_periodic,
+    laplace_posterior,
+)
 from hil.inputs import number_type, seed_type
 
 logger = logging.getLogger(__name__)
@@ -84,6 +101,19 @@ class IdentificationResult:
     data_report: DataReport
     timings: dict[str, float] = field(default_factory=dict)
     record: dict[str, Any] = field(default_factory=dict)  # where the data came from (records: channel mapping)
+    #: "frf" (periodic H1 path) or "ml" (output-error ML on the exact sampled model); see api docstring
+    method: str = "frf"
+    #: residual whiteness, input-residual correlation, reduced chi^2 (:mod:`hil.identify.adequacy`)
+    adequacy: AdequacyReport | None = None
+    #: the misfit was accepted by the caller (``accept_misfit=True`` / ``--accept-misfit``)
+    misfit_accepted: bool = False
+    #: output-error ML details (noise std per output, transient), ``None`` on the FRF path
+    ml: dict[str, Any] | None = None
+
+    @property
+    def misfit(self) -> bool:
+        """True when an adequacy test failed: the model does not describe the data."""
+        return bool(self.adequacy is not None and self.adequacy.misfit)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -94,7 +124,11 @@ class IdentificationResult:
         return self.posterior.converged
 
     def summary(self) -> dict[str, dict[str, float]]:
-        """Per parameter: mean, median, q05, q95, std, ls, ls_std, crb_std (physical units)."""
+        """Per parameter: mean, median, q05, q95, std (posterior); ``ls`` the point estimate (LS on the
+        FRF, or the output-error ML); ``ls_std`` its std from the fit's curvature with the data's own
+        noise estimate (FRF variance, or the ML residual variance); ``crb_std`` the Cramér-Rao bound:
+        sqrt diag of the inverse Fisher information of the model under the fitted noise model, for
+        the recorded excitation (:mod:`hil.identify.timedomain`). Physical units."""
         return self.posterior.summary(self.ls.std, self.crb_std, self.ls.theta)
 
     def derived_summary(self) -> dict[str, dict[str, float | str]]:
@@ -133,6 +167,11 @@ class IdentificationResult:
             "seed": self.posterior.seed,
             "least_squares": self.ls.to_dict(),
             "cramer_rao_std": dict(zip(self.model.names, map(float, self.crb_std), strict=True)),
+            "method": self.method,
+            "misfit": self.misfit,
+            "misfit_accepted": self.misfit_accepted,
+            "adequacy": None if self.adequacy is None else self.adequacy.to_dict(),
+            "output_error_ml": self.ml,
             "identifiability": self.identifiability.to_dict(),
             "frf": {
                 "f_min": float(self.frf.f[0]),
@@ -194,6 +233,9 @@ def identify_experiments(
     input_resolution: Resolution | Sequence[Resolution] = "float32",
     sampling: str = "continuous",
     excitation: str = "refuse",
+    method: str = "auto",
+    posterior: str = "emcee",
+    accept_misfit: bool = False,
 ) -> IdentificationResult:
     """Identify ``model`` from experiments ``[{"t": t, "inputs": ..., "outputs": ...}, ...]``.
 
@@ -209,6 +251,12 @@ def identify_experiments(
     data-derived :meth:`~hil.identify.models.GreyBoxModel.initial_guess`, else its nominal values)
     is where the identifiability check runs and the LS fit starts.
     ``excitation``: ``refuse`` (default) or ``warn`` when the band cannot pin a parameter (hil.identify.excitation).
+    ``method``: ``auto`` (default: the H1-FRF path for periodic records -- a ``period`` is given and the
+    input repeats with it -- else output-error ML, :mod:`hil.identify.timedomain`), ``frf`` or ``ml``.
+    ``posterior`` (ML path): ``emcee`` on the ML likelihood, or ``laplace`` (Gaussian at the ML
+    estimate with the inverse Fisher covariance; fast). The fit's adequacy is always tested
+    (:mod:`hil.identify.adequacy`): ``result.misfit``; ``accept_misfit`` only records that the caller
+    accepts it (``result.misfit_accepted``).
     Returns an :class:`IdentificationResult` (raise on data/identifiability errors).
     """
     timings: dict[str, float] = {}
@@ -256,6 +304,7 @@ def identify_experiments(
     if max(fs_all) / min(fs_all) - 1 > 1e-6:
         raise DataQualityError(f"experiments sampled at different rates {fs_all}")
     n_min = min(p[0].shape[0] for p in pairs)
+    chosen = _choose_method(method, pairs, period, fs)
     nps = int(nperseg) if nperseg else (round(period * fs) if period else max(n_min // 16, 16))
     est = estimate_frf(
         pairs,
@@ -267,6 +316,9 @@ def identify_experiments(
         resolution=resolution,
         input_resolution=input_resolution,
     )
+    if band is None and chosen == "ml":
+        band = _excited_band(est)
+        logger.info("analysis band %.3g..%.3g Hz: where the recorded input carries power", *band)
     est = est.band(*(band or (fs / nps, 0.45 * fs)))
     exc = check_excitation(est)
     report.diagnoses += exc
@@ -279,7 +331,7 @@ def identify_experiments(
     elif theta0 is not None:
         th0 = np.asarray(theta0, float)
     else:
-        guess = mdl.initial_guess(est)
+        guess = mdl.initial_guess(est)  # equation error on the (many) H1 bins
         th0 = mdl.nominal if guess is None else guess
     # at the initial guess: its messages are in the error it may raise; the check at the fit below warns
     pre = check_identifiability(mdl, th0, w=est.w, sigma=est.sigma, log_level=logging.DEBUG)
@@ -290,9 +342,14 @@ def identify_experiments(
     t1 = time.perf_counter()
     ls = fit_least_squares(mdl, est, x0=th0, n_starts=n_starts, seed=seed)
     timings["least_squares"] = time.perf_counter() - t1
-    F = fisher_information(mdl, ls.theta, est.w, est.sigma)
-    _, crb_std = crb(mdl, ls.theta, F)
     ident = check_identifiability(mdl, ls.theta, w=est.w, sigma=est.sigma)
+    if chosen == "ml":
+        return _identify_ml(mdl, pairs, fs, band or (fs / nps, 0.45 * fs), est, ls, ident, report, timings, t0,
+                            seed=seed, posterior=posterior, n_walkers=n_walkers, max_steps=max_steps,
+                            max_seconds=max_seconds, accept_misfit=accept_misfit,
+                            alt_start=lambda: _lpm_start(mdl, pairs, fs, band or (fs / nps, 0.45 * fs), th0))
+    crb_std = _frf_path_crb(mdl, ls.theta, pairs, fs, est)
+    adequacy = check_frf_fit(mdl, est, ls.theta)
     t2 = time.perf_counter()
     lp = LogPosterior(mdl, est, noise=noise)
     post = sample_posterior(
@@ -300,11 +357,158 @@ def identify_experiments(
     )
     timings["posterior"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
-    res = IdentificationResult(mdl, est, ls, crb_std, ident, post, report, timings)
+    res = IdentificationResult(mdl, est, ls, crb_std, ident, post, report, timings, method="frf",
+                               adequacy=adequacy, misfit_accepted=bool(accept_misfit and adequacy.misfit))
     if not res.converged:
         logger.warning(
             "identification of %s: posterior NOT converged (%s)", mdl.name, "; ".join(post.diagnostics.reasons)
         )
+    return res
+
+
+def _choose_method(method: str, pairs: Sequence[tuple[np.ndarray, np.ndarray]], period: float | None,
+                   fs: float) -> str:
+    """The documented rule (:mod:`hil.identify.timedomain`): ``auto`` -> ``frf`` when a ``period`` is
+    known and every experiment's input repeats with it over >= 2 periods, else ``ml``."""
+    if method not in ("auto", "frf", "ml"):
+        raise ModelSpecError(f"method must be 'auto', 'frf' or 'ml', got {method!r}")
+    if method != "auto":
+        return method
+    if period and all(is_periodic(u, round(period * fs)) for u, _ in pairs):
+        return "frf"
+    logger.info("non-periodic record%s: output-error ML on the exact sampled model",
+                "" if period is None else f" (input does not repeat with period {period:g} s)")
+    return "ml"
+
+
+def _excited_band(est: FrfEstimate, rel: float = 1e-4) -> tuple[float, float]:
+    """Frequencies [Hz] between the first and last bin where some input's power is at least ``rel``
+    of its peak (DC excluded): the range the excitation actually covers."""
+    pw = np.real(np.diagonal(est.Gxx, axis1=1, axis2=2))  # (nf, ni)
+    on = np.any(pw >= rel * np.maximum(np.max(pw, axis=0), 1e-300), axis=1) & (est.f > 0)
+    if not np.any(on):
+        return float(est.f[1]), float(est.f[-1])
+    f_on = est.f[on]
+    return float(f_on[0]), float(f_on[-1])
+
+
+def _lpm_estimate(mdl: GreyBoxModel, pairs: Sequence[tuple[np.ndarray, np.ndarray]], fs: float,
+                  band: tuple[float, float]) -> FrfEstimate | None:
+    """Local-polynomial FRF (:func:`hil.identify.frf.lpm_frf`) of every record on ``band``, pooled and
+    sorted by frequency, as an :class:`FrfEstimate` for the start of the ML fit; None when a record
+    leaves an input idle (the LPM needs every input in every record) or too few bins remain."""
+    fs_l, G_l, sd_l = [], [], []
+    for r in dft_records(pairs, fs, band):
+        if np.any(np.sum(np.abs(r.U) ** 2, axis=0) <= 0):
+            return None
+        fc, G, sd = lpm_frf(r.U, r.Y, r.f)
+        fs_l.append(fc)
+        G_l.append(G)
+        sd_l.append(sd)
+    f = np.concatenate(fs_l)
+    G = np.concatenate(G_l)
+    sd = np.concatenate(sd_l)
+    ok = np.all(np.isfinite(G), axis=(1, 2)) & np.all(sd > 0, axis=(1, 2))
+    if 2 * ok.sum() * len(mdl.output_names) * len(mdl.input_names) < 4 * mdl.n_params:
+        return None
+    o = np.argsort(f[ok])
+    n, no, ni = int(ok.sum()), len(mdl.output_names), len(mdl.input_names)
+    return FrfEstimate(f=f[ok][o], H=G[ok][o], coherence=np.ones((n, no)), sigma=sd[ok][o],
+                       Gxx=np.zeros((n, ni, ni), complex), Gyy=np.zeros((n, no)), Gvv=np.zeros((n, no)), n_avg=1.0,
+                       dof=8.0, fs=fs, nperseg=int(pairs[0][0].shape[0]), input_names=mdl.input_names,
+                       output_names=mdl.output_names, meta={"estimator": "local polynomial method"})
+
+
+def _lpm_start(mdl: GreyBoxModel, pairs: Sequence[tuple[np.ndarray, np.ndarray]], fs: float,
+               band: tuple[float, float], x0: np.ndarray) -> np.ndarray | None:
+    """LS fit on the local-polynomial FRF from ``x0``: the second ML start (None without an LPM FRF)."""
+    lest = _lpm_estimate(mdl, pairs, fs, band)
+    return None if lest is None else fit_least_squares(mdl, lest, x0=x0, n_starts=4, seed=0).theta
+
+
+def _frf_path_crb(mdl: GreyBoxModel, theta: np.ndarray, pairs: Sequence[tuple[np.ndarray, np.ndarray]],
+                  fs: float, est: FrfEstimate) -> np.ndarray:
+    """Cramér-Rao std of the periodic path: Fisher information of the DFT of the records themselves
+    (actual excitation), steady state, noise model = the H1 residual spectrum ``Gvv`` (a one-sided
+    density: ``E|V_k|^2 = N fs Gvv / 2``) plus the known rounding floor of the outputs (and of the
+    inputs through ``|H|^2``), on the analysis band."""
+    recs = dft_records(pairs, fs, (float(est.f[0]), float(est.f[-1])))
+    rv = est.meta.get("rounding_variance") or {}
+    qo = np.asarray(rv.get("outputs", np.zeros(len(mdl.output_names))), float)
+    qi = np.asarray(rv.get("inputs", np.zeros(len(mdl.input_names))), float)
+    noise_var = []
+    for r in recs:
+        gvv = np.column_stack([np.interp(r.f, est.f, est.Gvv[:, o]) for o in range(est.Gvv.shape[1])])
+        H = mdl.frf(theta, r.w)
+        floor = qo[None, :] + np.einsum("koi,i->ko", np.abs(H) ** 2, qi)
+        v = r.n * (fs * gvv / 2.0 + floor)
+        noise_var.append(np.maximum(v, 1e-300))
+    F = fisher_dft(mdl, recs, theta, noise_var, transient=False)
+    return crb(mdl, theta, F)[1]
+
+
+def _identify_ml(
+    mdl: GreyBoxModel,
+    pairs: Sequence[tuple[np.ndarray, np.ndarray]],
+    fs: float,
+    band: tuple[float, float],
+    est: FrfEstimate,
+    ls0: LsResult,
+    ident: IdentifiabilityReport,
+    report: DataReport,
+    timings: dict[str, float],
+    t0: float,
+    *,
+    seed: int,
+    posterior: str,
+    n_walkers: int | None,
+    max_steps: int,
+    max_seconds: float | None,
+    accept_misfit: bool,
+    alt_start: Any = None,
+) -> IdentificationResult:
+    """Output-error ML from the H1-LS start, adequacy tests, then the posterior (emcee on the same
+    likelihood, or its Laplace approximation)."""
+    t1 = time.perf_counter()
+    start = "H1"
+    recs = dft_records(pairs, fs, band)
+    ml = fit_ml(mdl, recs, ls0.theta)
+    adequacy = check_ml_fit(mdl, recs, ml.theta, ml.sigma)
+    if adequacy.misfit and alt_start is not None:
+        # a local optimum also fails the adequacy tests: refit from an LS fit on the transient-free
+        # local-polynomial FRF, keep the likelier fit
+        # (profile likelihood -sum_o m_o log RSS_o; every output has the same number of bins)
+        try:
+            x2 = alt_start()
+            ml2 = fit_ml(mdl, recs, x2) if x2 is not None else None
+        except HilError as exc:
+            ml2 = None
+            logger.debug("second ML start failed: %s", exc)
+        if ml2 is not None and np.sum(np.log(ml2.sigma)) < np.sum(np.log(ml.sigma)):
+            ml, start = ml2, "local-polynomial"
+            adequacy = check_ml_fit(mdl, recs, ml.theta, ml.sigma)
+    timings["ml"] = time.perf_counter() - t1
+    ls = LsResult(names=mdl.names, theta=ml.theta, z=ml.z, cov_z=ml.cov_z, cov_theta=ml.cov_theta, std=ml.crb_std,
+                  chi2=ml.chi2, dof=ml.dof, success=ml.success, message=ml.message, n_starts=1)
+    t2 = time.perf_counter()
+    if posterior == "laplace":
+        post = laplace_posterior(mdl, ml, seed=seed)
+    elif posterior == "emcee":
+        lp = MlLogPosterior(mdl, recs, ml.sigma)
+        post = sample_posterior(lp, ml.z, ml.cov_z, seed=seed, n_walkers=n_walkers, max_steps=max_steps,  # type: ignore[arg-type]
+                                max_seconds=max_seconds)
+    else:
+        raise ModelSpecError(f"posterior must be 'emcee' or 'laplace', got {posterior!r}")
+    timings["posterior"] = time.perf_counter() - t2
+    timings["total"] = time.perf_counter() - t0
+    info = {"noise_std": dict(zip(mdl.output_names, map(float, ml.sigma), strict=True)), "band_hz": list(band),
+            "n_bins": ml.n_bins, "posterior": posterior,
+            "start": f"least squares on the {start} FRF"}
+    res = IdentificationResult(mdl, est, ls, ml.crb_std, ident, post, report, timings, method="ml",
+                               adequacy=adequacy, misfit_accepted=bool(accept_misfit and adequacy.misfit), ml=info)
+    if not res.converged:
+        logger.warning("identification of %s: posterior NOT converged (%s)", mdl.name,
+                       "; ".join(post.diagnostics.reasons))
     return res
 
 
@@ -341,6 +545,9 @@ _META_KW = (
     "input_resolution",
     "sampling",
     "excitation",
+    "method",
+    "posterior",
+    "accept_misfit",
 )
 
 
@@ -557,7 +764,8 @@ def _theta0(items: Sequence[str] | None) -> dict[str, float] | None:
 
 def _print_table(res: IdentificationResult) -> None:
     units = dict(zip(res.model.names, res.model.units, strict=True))
-    print(f"model {res.model.name}; converged: {res.converged}")
+    print(f"model {res.model.name}; method {res.method}; converged: {res.converged}; "
+          f"misfit: {res.misfit}{' (accepted)' if res.misfit_accepted else ''}")
     for note in res.record.get("mapping", {}).get("notes", []):
         print(f"  {note}")
     print(f"{'param':>10} {'median':>12} {'q05':>12} {'q95':>12} {'std':>10} {'ls_std':>10} {'crb_std':>10}  unit")
@@ -568,6 +776,11 @@ def _print_table(res: IdentificationResult) -> None:
         )
     for n, r in res.derived_summary().items():
         print(f"{n:>10} {r['median']:12.5g} {r['q05']:12.5g} {r['q95']:12.5g} {r['std']:10.3g}  (derived)  {r['unit']}")
+    if res.adequacy is not None:
+        for t in res.adequacy.tests:
+            rng = f" expected {t.expected[0]:.3g}..{t.expected[1]:.3g}" if t.expected else ""
+            pv = f" p={t.p_value:.2g}" if t.p_value is not None else ""
+            print(f"  adequacy {t.name} ({t.channel}): {t.statistic:.4g}{rng}{pv} {'ok' if t.passed else 'FAIL'}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -603,6 +816,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--max-seconds", type=number_type("positive"), default=None, help="time budget of the sampler [s]")
     p.add_argument("--excitation", choices=["refuse", "warn"], default=None, help="a band that cannot pin a parameter: "
                    "refuse (default, exit 13) or warn and fit anyway (hil.identify.excitation)")
+    p.add_argument("--method", choices=["auto", "frf", "ml"], default=None,
+                   help="estimator: auto (H1 FRF for periodic records, output-error ML otherwise), frf, ml")
+    p.add_argument("--posterior", choices=["emcee", "laplace"], default=None,
+                   help="ML path: emcee on the ML likelihood (default) or its Laplace approximation (fast)")
+    p.add_argument("--accept-misfit", action="store_true",
+                   help="exit 0 although an adequacy test flags a model misfit (the result stays flagged)")
     p.add_argument("--json", action="store_true", help="print the full result as JSON")
     p.add_argument("--no-store", action="store_true", help="do not write the posterior into the record")
     p.add_argument("--out", default=None, help="for .csv/.mat input: keep the imported record (with the result) here")
@@ -646,7 +865,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             rec = load_record(a.record)
         kw = {"model": a.model, "band": a.band, "period": a.period, "seed": a.seed, "skip": a.skip,
-              "noise": a.noise, "max_seconds": a.max_seconds, "theta0": theta0, "sampling": a.sampling}
+              "noise": a.noise, "max_seconds": a.max_seconds, "theta0": theta0, "sampling": a.sampling,
+              "method": a.method, "posterior": a.posterior, "accept_misfit": a.accept_misfit or None}
         kw["excitation"] = a.excitation
         if a.resolution is not None:
             kw["resolution"] = kw["input_resolution"] = res_spec
@@ -681,5 +901,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not res.converged:
         reasons = "; ".join(res.posterior.diagnostics.reasons)
         print(f"hil identify: ConvergenceError: posterior not converged: {reasons}", file=sys.stderr)
+        return EXIT_ERROR
+    if res.misfit and not a.accept_misfit:
+        print(f"hil identify: ModelMisfit: the model does not describe the data ({'; '.join(res.adequacy.reasons)}); "
+              "use a richer model, or --accept-misfit", file=sys.stderr)
         return EXIT_ERROR
     return EXIT_OK

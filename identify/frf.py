@@ -436,3 +436,45 @@ def harmonic_distortion(
         else f"harmonic distortion {hdr:.2%} > {threshold:.0%} at {f0:g} Hz: response is not linear at this amplitude"
     )
     return LinearityReport(ok, hdr, threshold, msg, {f"A{k}": float(a) for k, a in zip(ks, amps, strict=True)})
+
+
+# ---------------------------------------------------------------------------------------------- LPM
+def lpm_frf(
+    U: ArrayLike, Y: ArrayLike, f: ArrayLike, *, order: int = 2, extra: int = 8
+) -> tuple[NDArray[np.float64], NDArray[np.complex128], NDArray[np.float64]]:
+    """Local polynomial method (Pintelon, Schoukens et al., MSSP 24 (2010) 573-595) on consecutive
+    DFT bins of ONE record: ``U`` (m, n_in), ``Y`` (m, n_out), bin frequencies ``f`` (m,) [Hz].
+
+    In disjoint windows of ``w = (n_in + 1)(order + 1) + extra`` bins (odd), ``Y_{k+r} = G_k U_{k+r} +
+    T_k`` with ``G`` and the transient ``T`` polynomials of degree ``order`` in ``r``, solved by least
+    squares for all outputs at once: the transient (leakage) of a non-periodic record is removed,
+    not windowed. Returns the window-centre frequencies (n_w,), ``G`` (n_w, n_out, n_in) and the
+    per-component (real/imag) std of ``G`` from the local residual variance (n_w, n_out, n_in)."""
+    Ua = np.asarray(U, complex)
+    Ya = np.asarray(Y, complex)
+    ff = np.asarray(f, float)
+    Ua = Ua[:, None] if Ua.ndim == 1 else Ua
+    Ya = Ya[:, None] if Ya.ndim == 1 else Ya
+    ni, no = Ua.shape[1], Ya.shape[1]
+    w = (ni + 1) * (order + 1) + extra
+    w += 1 - w % 2
+    n_win = Ya.shape[0] // w
+    r = np.arange(w) - w // 2
+    P = (r[:, None] / max(w // 2, 1)) ** np.arange(order + 1)[None, :]
+    fc = np.empty(n_win)
+    G = np.full((n_win, no, ni), np.nan + 0j)
+    sd = np.full((n_win, no, ni), np.nan)
+    for k in range(n_win):
+        sl = slice(k * w, (k + 1) * w)
+        X = np.concatenate([Ua[sl, i : i + 1] * P for i in range(ni)] + [P.astype(complex)], axis=1)
+        fc[k] = ff[k * w + w // 2]
+        sol, _, rank, _ = np.linalg.lstsq(X, Ya[sl], rcond=1e-10)
+        q = w - rank
+        if rank < X.shape[1] or q <= 0:
+            continue
+        s2 = np.sum(np.abs(Ya[sl] - X @ sol) ** 2, axis=0) / q  # (no,) complex noise variance
+        XtXi = np.linalg.inv(X.conj().T @ X)
+        idx = [i * (order + 1) for i in range(ni)]  # the r^0 coefficient of each input's G polynomial
+        G[k] = sol[idx].T
+        sd[k] = np.sqrt(np.clip(s2[:, None] * np.real(np.diag(XtXi))[idx][None, :] / 2.0, 0, None))
+    return fc, G, sd

@@ -209,3 +209,72 @@ def sdea_record() -> SimRecord:
 @pytest.fixture(scope="session")
 def mbk_records() -> list[SimRecord]:
     return make_mbk_records(seed=4321)
+
+
+# ------------------------------------------------------------------ non-periodic records (issue 12)
+NONPERIODIC_SETUP = {
+    "fs": 5000.0,
+    "duration": 4.0,  # s of record
+    "pre_roll": 0.1,  # s simulated before the record starts (the record begins mid-motion)
+    "f0": 1.0,
+    "f1": 400.0,  # log chirp f0 -> f1 over pre_roll + duration (not periodic, stops mid-sweep end)
+    "amplitude": 0.5,  # N.m
+    "band": (1.0, 1000.0),
+}
+
+
+def make_nonperiodic_record(
+    ss: Sequence[NDArray],
+    seed: int,
+    noise: float,
+    *,
+    n_in: int = 1,
+    **override: float,
+) -> SimRecord:
+    """One-shot (non-periodic) logarithmic chirp through the plant ``ss`` behind a zero-order hold at
+    ``fs``, simulated with the suite's exact ZOH discretization (:mod:`hil.mocks.lti`, independent of
+    the identification models' modal formulas). With ``n_in`` > 1 every input gets its own chirp
+    (sweeps of different phase and direction, so the inputs are not collinear). ``noise``: white
+    Gaussian noise std as a fraction of each noise-free output's RMS."""
+    from hil.mocks.lti import StateSpace
+
+    cfg = {**NONPERIODIC_SETUP, **override}
+    rng = np.random.default_rng(seed)
+    fs = float(cfg["fs"])
+    n_pre = round(cfg["pre_roll"] * fs)
+    n = round(cfg["duration"] * fs)
+    t_all = np.arange(n_pre + n) / fs
+    T = t_all[-1]
+    cols = []
+    for i in range(n_in):
+        if i % 2 == 0:
+            cols.append(cfg["amplitude"] * signal.chirp(t_all, cfg["f0"], T, cfg["f1"], method="logarithmic",
+                                                        phi=-90 + 60 * i))
+        else:  # downward sweep
+            cols.append(cfg["amplitude"] * signal.chirp(T - t_all, cfg["f0"], T, cfg["f1"], method="logarithmic",
+                                                        phi=30 * i))
+    u_all = np.column_stack(cols)
+    A, Bm, C, D = ss
+    _, y_all = StateSpace(A, Bm, C, D).discretize(1.0 / fs, "zoh").simulate(u_all)
+    u, y_clean = u_all[n_pre:], y_all[n_pre:]
+    sd = noise * np.sqrt(np.mean(y_clean**2, axis=0))
+    y = y_clean + rng.standard_normal(y_clean.shape) * sd
+    return SimRecord(np.arange(n) / fs, u, y, fs, sd)
+
+
+def sdea_compliant_mount_ss(
+    K_f: float, B_f: float, M: float, B: float, *, m_e: float = 2e-3, f_e: float = 300.0, zeta: float = 0.02
+) -> tuple[NDArray, ...]:
+    """The "locked" SDEA whose end-effector is in fact held by a compliant mount: an end mass ``m_e``
+    on a spring to ground resonating at ``f_e`` [Hz] with damping ratio ``zeta`` -- a resonance the
+    locked-output model does not have. State [x_motor, x_end, v_motor, v_end]; outputs [v_motor,
+    F = K_f (x_m - x_e) + B_f (v_m - v_e)]."""
+    k_e = m_e * (2 * np.pi * f_e) ** 2
+    b_e = 2 * zeta * np.sqrt(k_e * m_e)
+    A = np.zeros((4, 4))
+    A[0, 2] = A[1, 3] = 1.0
+    A[2] = [-K_f / M, K_f / M, -(B + B_f) / M, B_f / M]
+    A[3] = [K_f / m_e, -(K_f + k_e) / m_e, B_f / m_e, -(B_f + b_e) / m_e]
+    Bm = np.array([[0.0], [0.0], [1.0 / M], [0.0]])
+    C = np.array([[0.0, 0.0, 1.0, 0.0], [K_f, -K_f, B_f, -B_f]])
+    return A, Bm, C, np.zeros((2, 1))
