@@ -316,6 +316,18 @@ def identify_experiments(
         resolution=resolution,
         input_resolution=input_resolution,
     )
+    from hil.identify.sensor_hold import compensate_frf, held_outputs  # outputs of a slower sensor
+
+    held = held_outputs(pairs, mdl.output_names)
+    if held and chosen == "frf":
+        est = compensate_frf(est, held, fs)
+    for name in held:
+        report.diagnoses.append(Diagnosis(
+            "sample_and_hold", "warning" if chosen == "ml" else "info",
+            f"output {name} repeats its previous value in {100 * (1 - held[name][0]):.0f} % of the samples "
+            f"(a sensor slower than the {fs:g} Hz loop): "
+            + ("the FRF is compensated for the hold" if chosen == "frf" else
+               "the ML path does not model the hold (use periodic excitation for this sensor)"), channel=name))
     if band is None and chosen == "ml":
         band = _excited_band(est)
         logger.info("analysis band %.3g..%.3g Hz: where the recorded input carries power", *band)

@@ -475,11 +475,16 @@ class CubeMarsMIT(Actuator):
     def close(self) -> None:
         if self._closed:
             return
-        if self._enable:
-            self.safe_stop()
-            with contextlib.suppress(Exception):
-                self.exit_motor_mode(0.05)
-        self._closed = True
+        try:
+            if self._enable:
+                self.safe_stop()
+                with contextlib.suppress(Exception):
+                    self.exit_motor_mode(0.05)
+        finally:  # a failed final stop still releases the bus (and the caller sees the failure)
+            self._closed = True
+            self._release_bus()
+
+    def _release_bus(self) -> None:
         if self._own_bus:
             try:
                 self._bus.shutdown()

@@ -645,9 +645,14 @@ class ODriveCAN(Actuator):
     def close(self) -> None:
         if self._closed:
             return
-        if self._enable:
-            self.safe_stop()
-        self._closed = True
+        try:
+            if self._enable:
+                self.safe_stop()
+        finally:  # a failed final stop still releases the bus (and the caller sees the failure)
+            self._closed = True
+            self._release_bus()
+
+    def _release_bus(self) -> None:
         if self._own_bus:
             try:
                 self._bus.shutdown()

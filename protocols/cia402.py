@@ -495,11 +495,16 @@ class CiA402Drive(Actuator):
         """Safe stop (if enabled), NMT pre-operational, stop the receive thread, release the bus."""
         if self._closed:
             return
-        if self._enable:
-            self.safe_stop()
-            with contextlib.suppress(Exception):
-                self.node.nmt.state = "PRE-OPERATIONAL"
-        self._closed = True
+        try:
+            if self._enable:
+                self.safe_stop()
+                with contextlib.suppress(Exception):
+                    self.node.nmt.state = "PRE-OPERATIONAL"
+        finally:  # a failed final stop still releases the bus (and the caller sees the failure)
+            self._closed = True
+            self._release_bus()
+
+    def _release_bus(self) -> None:
         with contextlib.suppress(Exception):
             if self.network.notifier is not None:
                 self.network.notifier.stop(1.0)

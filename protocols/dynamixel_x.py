@@ -409,9 +409,14 @@ class DynamixelX(Actuator):
     def close(self) -> None:
         if self._closed:
             return
-        if self._enabled:
-            self.safe_stop()
-        self._closed = True
+        try:
+            if self._enabled:
+                self.safe_stop()
+        finally:  # a failed final stop still closes the port (and the caller sees the failure)
+            self._closed = True
+            self._release_port()
+
+    def _release_port(self) -> None:
         try:
             self._port.closePort()
         except Exception:
