@@ -100,7 +100,7 @@ class ISResult:
     n: int
     n_fail: int
     ess: float  # effective sample size of the weights of the failing samples, (Σw)²/Σw²
-    reliable: bool  # at least MIN_FAILURES failing samples: the standard error is meaningful
+    reliable: bool  # ≥ MIN_FAILURES failing samples and ESS ≥ MIN_ESS: the standard error is meaningful
 
     @property
     def p_stable(self) -> float:
@@ -113,6 +113,9 @@ class ISResult:
 
 #: fewer failing proposal samples than this: the IS standard error is not trusted
 MIN_FAILURES = 10
+#: a smaller effective sample size of the failing samples' weights: a few samples carry the
+#: estimate (the failure set has mass far from the design point, e.g. around a sphere): not trusted
+MIN_ESS = 30.0
 
 
 class _Counted:
@@ -272,7 +275,8 @@ def importance_sampling(stable_fn: StableFn, design_point_u: np.ndarray, n: int 
     """P_f = P(``stable_fn`` False) for u ~ N(0, I) by importance sampling from N(u*, I) (module
     docstring). Interval: p̂ ± z·se, z the two-sided normal quantile at ``confidence``, se the
     standard error of the weighted indicator, clipped to [0, 1]; asymptotic (CLT), flagged
-    unreliable with fewer than :data:`MIN_FAILURES` failing samples (the interval is then [0, 1])."""
+    unreliable with fewer than :data:`MIN_FAILURES` failing samples or an effective sample size
+    of their weights below :data:`MIN_ESS` (the interval is then [0, 1]: nothing certified)."""
     from scipy.stats import norm
 
     u_star = np.asarray(design_point_u, float).reshape(-1)
@@ -286,9 +290,10 @@ def importance_sampling(stable_fn: StableFn, design_point_u: np.ndarray, n: int 
     p = float(Y.mean())
     se = float(Y.std(ddof=1) / math.sqrt(n)) if n > 1 else math.inf
     k = int(fail.sum())
-    wf = w[fail]
+    lf = logw[fail]
+    wf = np.exp(lf - lf.max()) if k else lf  # scale-free: the ESS does not change with a common factor
     ess = float(wf.sum() ** 2 / (wf * wf).sum()) if k else 0.0
     z = float(norm.ppf(0.5 + confidence / 2))
-    reliable = k >= MIN_FAILURES
+    reliable = k >= MIN_FAILURES and ess >= MIN_ESS
     lo, hi = (max(0.0, p - z * se), min(1.0, p + z * se)) if reliable else (0.0, 1.0)
     return ISResult(p, se, lo, hi, confidence, n, k, ess, reliable)
