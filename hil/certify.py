@@ -25,7 +25,7 @@ defined in docs/CERTIFICATION.md):
 
 * **ERROR** when the evidence is missing or broken: no draws, NaN/inf in draws, β or headroom, a
   failed identification. NaN never yields GO.
-* **GO** when the nominal verdict is stable (not weak), the posterior converged, the lower
+* **GO** when the nominal verdict is stable (weak included), the posterior converged, the lower
   confidence bound of P(stable) (Clopper-Pearson on independent draws, or importance sampling on
   the rare-event path) clears ``required_probability``, the reliability index β ≥ Φ⁻¹(required),
   and, where a design parameter exists, its headroom is positive at the nominal plant and over
@@ -303,8 +303,8 @@ def decide(nominal_verdict: str | None, stable_draws: np.ndarray | None, policy:
     """Apply the verdict policy (docs/CERTIFICATION.md "decision"); returns (decision, reasons,
     probability summary).
 
-    Inputs, each a defined quantity: the nominal verdict (and whether it is weak, i.e. touches the
-    boundary), the stability of every independent posterior draw (its Clopper-Pearson interval),
+    Inputs, each a defined quantity: the nominal verdict (``nominal_weak``: a condition holds with
+    equality; the criterion's ≥ 0 allows it, so it is reported, not blocking), the stability of every independent posterior draw (its Clopper-Pearson interval),
     or, on the rare-event path, ``rare_event`` = (lower, upper) of P(stable) by importance sampling
     (then that interval decides), the reliability index ``beta`` (GO needs β ≥ Φ⁻¹(required); when
     ``require_beta`` and β is missing, no GO), and the parametric headroom of a design parameter at
@@ -315,7 +315,7 @@ def decide(nominal_verdict: str | None, stable_draws: np.ndarray | None, policy:
       a non-finite β or headroom, a criterion that does not apply;
     * NO-GO: the nominal network is potentially unstable, its headroom is negative, or the upper
       bound of P(stable) is below the requirement;
-    * GO: nominal stable (not weak), converged, lower bound ≥ required, β ≥ Φ⁻¹(required),
+    * GO: nominal stable (weak included), converged, lower bound ≥ required, β ≥ Φ⁻¹(required),
       headrooms > 0;
     * MARGINAL: anything else (the reasons say which condition was not met).
     """
@@ -357,7 +357,7 @@ def decide(nominal_verdict: str | None, stable_draws: np.ndarray | None, policy:
     b_req = beta_required(req)
     checks = {
         "converged": converged,
-        "nominal stable": nominal_verdict == "stable" and not nominal_weak,
+        "nominal stable": nominal_verdict == "stable",
         "P(stable) bound": lo >= req,
         "β": (beta is not None and beta >= b_req) or (beta is None and not require_beta),
         "nominal headroom": headroom_nominal is None or headroom_nominal > 0,
@@ -365,6 +365,9 @@ def decide(nominal_verdict: str | None, stable_draws: np.ndarray | None, policy:
     }
     if all(checks.values()):
         reasons.append(f"P(stable) ≥ {lo:.6g} (lower {policy.confidence:.0%} bound, {method}) clears {req:.6g}")
+        if nominal_weak:
+            reasons.append("the nominal network is stable (weak: a condition holds with equality, as the "
+                           "criterion allows; β measures how far instability is)")
         if beta is not None:
             reasons.append(f"reliability index β = {beta:.3g} ≥ Φ⁻¹({req:.6g}) = {b_req:.3g}")
         if headroom_posterior is not None:
@@ -376,8 +379,6 @@ def decide(nominal_verdict: str | None, stable_draws: np.ndarray | None, policy:
         reasons.append("the posterior did not converge: evidence insufficient")
     if nominal_verdict == "marginal":
         reasons.append("the nominal verdict is marginal: the rounding bound of its condition straddles zero")
-    elif nominal_verdict == "stable" and nominal_weak:
-        reasons.append("the nominal network is stable only weakly (a condition holds with equality)")
     if not checks["P(stable) bound"]:
         reasons.append(f"P(stable) = {p:.4f} with {policy.confidence:.0%} interval [{lo:.4g}, {hi:.4g}] ({method}) "
                        f"straddles {req:.6g}: near the boundary (more draws or data may settle it)")

@@ -729,8 +729,10 @@ def _exact_margin_fn(model: str, criterion: str, params: Mapping[str, Any],
 
 def _verdict_fn(model: str, criterion: str, params: Mapping[str, Any], names: list[str],
                 fast: bool) -> Callable[[np.ndarray], np.ndarray]:
-    """θ rows (columns ``names``) → stable (bool): the SDEA's vectorized verdict (exact fallback near
-    the boundary) or the exact criterion per point (a network that cannot be built is not stable)."""
+    """θ rows (columns ``names``) → stable (bool): the SDEA's vectorized closed-form verdict (its
+    sign also within round-off of the boundary, where a bisection converges: the design point is
+    then checked with the exact criterion) or the exact criterion per point (a network that cannot
+    be built is not stable)."""
     if fast:
         from hil.stability.batch import sdea_passivity_batch
 
@@ -738,7 +740,8 @@ def _verdict_fn(model: str, criterion: str, params: Mapping[str, Any], names: li
 
         def vec(T: np.ndarray) -> np.ndarray:
             T = np.atleast_2d(T)
-            return sdea_passivity_batch(dict(zip(names, T.T, strict=True)), fixed=fixed, band=False)["passive"]
+            return sdea_passivity_batch(dict(zip(names, T.T, strict=True)), fixed=fixed, band=False,
+                                        exact_fallback=False)["passive"]
 
         return vec
 

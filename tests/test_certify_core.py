@@ -68,7 +68,7 @@ _ALL = np.ones(500, bool)
     (("potentially_unstable", _ALL), {"beta": 3.0}, Decision.NO_GO),
     (("stable", _ALL), {"beta": 3.0, "converged": False}, Decision.MARGINAL),
     (("marginal", _ALL), {"beta": 3.0}, Decision.MARGINAL),
-    (("stable", _ALL), {"beta": 3.0, "nominal_weak": True}, Decision.MARGINAL),  # equality: not GO
+    (("stable", _ALL), {"beta": 3.0, "nominal_weak": True}, Decision.GO),  # equality is allowed by ≥ 0
     (("stable", _ALL), {"beta": 1.6}, Decision.MARGINAL),  # β below Φ⁻¹(0.95) = 1.645
     (("stable", _ALL), {}, Decision.MARGINAL),  # β required but missing
     (("stable", _ALL), {"require_beta": False}, Decision.GO),
