@@ -146,7 +146,7 @@ class Reliability(_M):
                                                 "distances along u*'s ray")
     evaluations: int = Field(default=0, description="verdicts evaluated by the search")
     verified: bool | None = Field(default=None, description="the exact criterion (check) confirms the verdicts "
-                                  "on both sides of the design point")
+                                  "at 0.95·u* and 1.05·u* (None: it calls a side marginal)")
     coordinates: str = "posterior mean and Cholesky factor of the posterior covariance of the independent draws"
     method: str = ""
 

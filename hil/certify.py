@@ -303,13 +303,17 @@ def decide(nominal_verdict: str | None, stable_draws: np.ndarray | None, policy:
     """Apply the verdict policy (docs/CERTIFICATION.md "decision"); returns (decision, reasons,
     probability summary).
 
-    Inputs, each a defined quantity: the nominal verdict (``nominal_weak``: a condition holds with
-    equality; the criterion's ≥ 0 allows it, so it is reported, not blocking), the stability of every independent posterior draw (its Clopper-Pearson interval),
-    or, on the rare-event path, ``rare_event`` = (lower, upper) of P(stable) by importance sampling
-    (then that interval decides), the reliability index ``beta`` (GO needs β ≥ Φ⁻¹(required); when
-    ``require_beta`` and β is missing, no GO), and the parametric headroom of a design parameter at
-    the nominal plant and over the posterior (GO needs both > 0 where given; a negative nominal
-    headroom is NO-GO).
+    Inputs, each a defined quantity:
+
+    * the nominal verdict; ``nominal_weak``: a condition holds with equality (the criterion's ≥ 0
+      allows it, so it is reported, not blocking);
+    * the stability of every independent posterior draw (its Clopper-Pearson interval), or, on the
+      rare-event path, ``rare_event`` = (lower, upper) of P(stable) by importance sampling (then
+      that interval decides);
+    * the reliability index ``beta``: GO needs β ≥ Φ⁻¹(required); with ``require_beta`` and no β,
+      no GO;
+    * the parametric headroom of a design parameter at the nominal plant and over the posterior:
+      GO needs both > 0 where given; a negative nominal headroom is NO-GO.
 
     * ERROR: evidence errors, no nominal verdict, no draws, undefined (NaN) stability of a draw or
       a non-finite β or headroom, a criterion that does not apply;

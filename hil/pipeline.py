@@ -760,6 +760,9 @@ def _verdict_fn(model: str, criterion: str, params: Mapping[str, Any], names: li
     return one
 
 
+#: the design point is checked with the exact criterion at (1 ∓ this)·u*
+VERIFY_OFFSET = 0.05
+
 #: importance-sampling sample sizes of the rare-event path (vectorized SDEA path, general path)
 IS_SAMPLES = (20000, 300)
 
@@ -803,8 +806,9 @@ def _reliability_stage(model: str, criterion: str, params: Mapping[str, Any], na
     if not fr.censored:
         u = fr.design_point_u
         # the exact criterion on both sides of the design point (the search's verdict may be the
-        # vectorized one), 0.1 % of β inside and outside along its ray
-        inner, outer = st.to_theta(u * (1 - 1e-3)), st.to_theta(u * (1 + 1e-3))
+        # vectorized closed form, whose sign within ~1e-8 of the boundary is round-off), 5 % of β
+        # inside and outside along its ray
+        inner, outer = st.to_theta(u * (1 - VERIFY_OFFSET)), st.to_theta(u * (1 + VERIFY_OFFSET))
         def exact(T: np.ndarray) -> str:
             q = dict(params)
             q.update({k: float(v) for k, v in zip(names, np.atleast_2d(T)[0], strict=True)})
