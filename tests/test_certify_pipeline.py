@@ -123,8 +123,6 @@ def test_sdea_near_the_limit_is_MARGINAL(sdea_run, tmp_path):
     lo, hi = beta_dist.ppf(0.0005, k, n - k + 1), beta_dist.ppf(0.9995, k + 1, n - k)
     assert lo <= r.reliability.phi_beta <= hi, (r.reliability, r.p_stable)
     assert r.worst_case_margin <= c.nominal.margin
-    # the design point is where the exact criterion's verdict changes (when it is not marginal there)
-    assert r.reliability.verified in (True, None)
 
 
 @pytest.mark.slow
