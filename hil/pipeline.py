@@ -12,8 +12,12 @@ Stages (timed; ``Certificate.measurements`` records what each produced):
    verdict-only, for other networks), P(stable) with a Clopper-Pearson interval, the worst-case
    margin over the credible ellipsoid (optimized), the critical band (where the binding condition is
    within 10 % of its minimum; README "Definitions of the robust numbers"); P(stable) counts only
-   independent draws: each emcee chain is thinned by its autocorrelation time first;
-5. **design** guidance for a free parameter (the largest value keeping the required probability);
+   independent draws: each emcee chain is thinned by its autocorrelation time first; the worst case
+   minimizes the nominal margin's own function (the exact criterion's margin), so worst ≤ nominal;
+   the reliability index β (FORM) with its design point, and, when plain Monte Carlo cannot reach
+   the requirement, P(stable) by importance sampling around it (docs/CERTIFICATION.md);
+5. **design** guidance for a free parameter (the largest value keeping the required probability),
+   and for the SDEA's k22 the headroom at the nominal plant and over the posterior;
 6. **witness**: when the nominal network is potentially unstable, a passive termination set that
    makes the operator-port impedance non-positive-real, simulated with the exact-ZOH engine (the
    coupled system diverges, or E_s(t) = ∫ F·V dt goes negative under a sinusoidal force);
