@@ -65,6 +65,8 @@ __all__ = [
     "Evidence",
     "Integrity",
     "Measurement",
+    "RareEvent",
+    "Reliability",
     "Series",
     "Signature",
     "canonical_bytes",
@@ -151,6 +153,42 @@ class Nominal(_M):
     conditions: list[ConditionRow]
 
 
+class Reliability(_M):
+    """The first-order reliability index (docs/CERTIFICATION.md#reliability-index-β)."""
+
+    beta: float = Field(description="signed distance, in posterior-standardized coordinates u = L⁻¹(θ − μ), "
+                        "from the posterior centre to the nearest parameter set whose verdict differs from the "
+                        "centre's (negative when the centre is not stable)")
+    phi_beta: float = Field(description="Φ(β): the first-order approximation of P(stable)")
+    required_beta: float = Field(description="Φ⁻¹(required probability): the β a GO needs")
+    design_point: dict[str, float] = Field(description="the nearest such parameter set θ* = μ + L u*")
+    design_point_u: list[float] = Field(description="u*, in the order of design_point's keys")
+    censored: bool = Field(default=False, description="no such point within the search radius: β ≥ |beta|")
+    bracket: tuple[float, float] | None = Field(default=None, description="the crossing lies between these "
+                                                "distances along u*'s ray")
+    evaluations: int = Field(default=0, description="verdicts evaluated by the search")
+    verified: bool | None = Field(default=None, description="the exact criterion (check) confirms the verdicts "
+                                  "at 0.95·u* and 1.05·u* (None: it calls a side marginal)")
+    coordinates: str = "posterior mean and Cholesky factor of the posterior covariance of the independent draws"
+    method: str = ""
+
+
+class RareEvent(_M):
+    """P(stable) by importance sampling around the FORM design point (the rare-event path)."""
+
+    method: str
+    n: int
+    n_fail: int
+    p_failure: float
+    std_error: float
+    p_stable: float
+    lower: float = Field(description="lower confidence bound of P(stable)")
+    upper: float = Field(description="upper confidence bound of P(stable)")
+    confidence: float
+    ess: float = Field(description="effective sample size of the failing samples' weights")
+    reliable: bool = Field(description="at least 10 failing samples: the standard error is meaningful")
+
+
 class Robust(_M):
     """The criterion over the posterior."""
 
@@ -169,6 +207,13 @@ class Robust(_M):
     n_independent: int | None = Field(default=None, description="independent posterior draws available after "
                                       "thinning the MCMC chain by its autocorrelation time")
     sampling: str = Field(default="", description="how the draws were obtained (thinning, shortfall)")
+    worst_case_quantity: str = Field(default="", description="the function minimized over the credible region "
+                                     "(the nominal margin's function)")
+    reliability: Reliability | None = None
+    rare_event: RareEvent | None = None
+    p_stable_method: Literal["monte_carlo", "importance_sampling"] = Field(
+        default="monte_carlo", description="which estimate's confidence interval the decision used: Clopper-Pearson "
+        "on the independent draws (lower/upper above) or importance sampling (rare_event)")
 
 
 class ParameterSummary(_M):
@@ -203,6 +248,13 @@ class Design(_M):
     probability_at_max: float | None
     required: float
     note: str = ""
+    nominal_limit: float | None = Field(default=None, description="largest passive value at the nominal plant "
+                                        "(hil.stability.design.k22_max)")
+    nominal_headroom: float | None = Field(default=None, description="nominal_limit / current − 1")
+    posterior_limit: float | None = Field(default=None, description="value where the lower bound of P(stable) "
+                                          "crosses the requirement")
+    posterior_limit_kind: Literal["exact", "at_least", "at_most"] | None = None
+    posterior_headroom: float | None = Field(default=None, description="posterior_limit / current − 1")
 
 
 class EnergyEvidence(_M):

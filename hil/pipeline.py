@@ -12,8 +12,12 @@ Stages (timed; ``Certificate.measurements`` records what each produced):
    verdict-only, for other networks), P(stable) with a Clopper-Pearson interval, the worst-case
    margin over the credible ellipsoid (optimized), the critical band (where the binding condition is
    within 10 % of its minimum; README "Definitions of the robust numbers"); P(stable) counts only
-   independent draws: each emcee chain is thinned by its autocorrelation time first;
-5. **design** guidance for a free parameter (the largest value keeping the required probability);
+   independent draws: each emcee chain is thinned by its autocorrelation time first; the worst case
+   minimizes the nominal margin's own function (the exact criterion's margin), so worst ≤ nominal;
+   the reliability index β (FORM) with its design point, and, when plain Monte Carlo cannot reach
+   the requirement, P(stable) by importance sampling around it (docs/CERTIFICATION.md);
+5. **design** guidance for a free parameter (the largest value keeping the required probability),
+   and for the SDEA's k22 the headroom at the nominal plant and over the posterior;
 6. **witness**: when the nominal network is potentially unstable, a passive termination set that
    makes the operator-port impedance non-positive-real, simulated with the exact-ZOH engine (the
    coupled system diverges, or E_s(t) = ∫ F·V dt goes negative under a sinusoidal force);
@@ -433,21 +437,33 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
     # 4. robust ---------------------------------------------------------------------------------
     robust = None
     stable_draws: np.ndarray | None = None
+    form_res = None
+    rare = None
     if draws and not errors:
         with stage("robust"):
-            stable_draws, margin_fn, method, band = _robust_eval(cert.model, criterion, params, draws)
+            stable_draws, proxy_fn, method, band = _robust_eval(cert.model, criterion, params, draws)
             fast = method.startswith("vectorized")
             p, lo, hi = probability_of_stability(stable_draws, policy.confidence)
             names = sorted(draws)
             X = np.column_stack([draws[k] for k in names])
+            # the nominal point exactly as the nominal stage built it (worst ≤ nominal by construction)
+            centre = np.array([nominal_params[k] for k in names], float)
+            exact_margin = _exact_margin_fn(cert.model, criterion, params, names)
             wc, theta = (None, None)
-            if margin_fn is not None and X.shape[0] > X.shape[1] + 2:
+            if X.shape[0] > X.shape[1] + 2:
                 try:
-                    # the general criterion costs ~0.1 s per point: fewer, shorter local searches there
-                    wc_v, th = worst_case_margin(lambda T: margin_fn(dict(zip(names, T.T, strict=True))), X,
-                                                 credible=policy.credible, n_starts=6 if fast else 2, seed=seed,
-                                                 maxiter=80 if fast else 8, axis_starts=fast)
-                    wc, theta = float(wc_v), {k: float(v) for k, v in zip(names, th, strict=True)}
+                    # the exact criterion's margin (the nominal margin's function) costs ~10-100 ms per
+                    # point: the vectorized proxy screens the draws, short local searches from the lowest
+                    wc_v, th = worst_case_margin(
+                        exact_margin, X, credible=policy.credible, n_starts=4 if fast else 2, seed=seed,
+                        maxiter=6 if fast else 4, axis_starts=True, centre=centre,
+                        rank_fn=None if proxy_fn is None else
+                        (lambda T: proxy_fn(dict(zip(names, T.T, strict=True)))),
+                        n_screen=24, n_local=3 if fast else 1)
+                    wc, theta = _f(wc_v), {k: float(v) for k, v in zip(names, th, strict=True)}
+                    if nominal_res is not None and _f(nominal_res.margin) is not None and wc is not None and \
+                            wc > float(nominal_res.margin):  # cannot happen: the centre is a candidate
+                        errors.append(f"worst-case margin {wc} exceeds the nominal {nominal_res.margin}")
                 except HilError as exc:
                     log.warning("worst-case search skipped: %s", exc)
             if band is None and nominal_res is not None and nominal_res.worst_frequency not in (None, 0.0) and \
@@ -455,23 +471,51 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                 w = float(nominal_res.worst_frequency)
                 band = (w / 2.0, w * 2.0)
             sampling = "; ".join(thinning)
+            nominal_unstable = nominal_res is not None and str(nominal_res.verdict) == "potentially_unstable"
+            reliability, form_res, rare = None, None, None
+            if X.shape[0] > X.shape[1] + 2 and (fast or not nominal_unstable):
+                reliability, form_res, rare = _reliability_stage(cert.model, criterion, params, names, X, centre,
+                                                                 stable_draws, policy, fast, seed, theta)
+            p_method = "importance_sampling" if rare is not None and rare.reliable else "monte_carlo"
             robust = Robust(n_draws=int(stable_draws.size), p_stable=p, lower=lo, upper=hi,
                             confidence=policy.confidence, required=policy.required_probability,
                             credible=policy.credible, worst_case_margin=wc, worst_case_parameters=theta,
                             critical_band_rad_s=band, method=method, n_requested=int(cert.draws),
-                            n_independent=n_independent, sampling=sampling)
+                            n_independent=n_independent, sampling=sampling,
+                            worst_case_quantity=f"the exact criterion's margin, check(network(θ), {criterion!r})"
+                                                ".margin, the nominal margin's function; the posterior centre is "
+                                                "a candidate",
+                            reliability=reliability, rare_event=rare, p_stable_method=p_method)
             measurements.append(Measurement(name="P(stable), lower confidence bound", value=lo,
                                             lower=policy.required_probability,
                                             outcome="PASS" if lo >= policy.required_probability else (
-                                                "MARGINAL" if p >= policy.required_probability else "FAIL"),
+                                                "MARGINAL" if hi >= policy.required_probability else "FAIL"),
                                             description=f"P̂ = {p:.4f} over {stable_draws.size} independent draws "
                                                         f"({policy.confidence:.0%} Clopper-Pearson on the "
                                                         f"thinned chain: {sampling})"))
+            if rare is not None:
+                measurements.append(Measurement(
+                    name="P(stable), lower confidence bound (importance sampling)", value=rare.lower,
+                    lower=policy.required_probability,
+                    outcome=("ERROR" if not rare.reliable else "PASS" if rare.lower >= policy.required_probability
+                             else "MARGINAL" if rare.upper >= policy.required_probability else "FAIL"),
+                    description=f"P_f = {rare.p_failure:.3g} ± {rare.std_error:.2g} from {rare.n} samples "
+                                f"({rare.n_fail} failing) of N(u*, I) around the FORM design point, Gaussian "
+                                f"approximation of the posterior; {policy.confidence:.0%} normal interval"))
+            if reliability is not None:
+                measurements.append(Measurement(
+                    name="reliability index β", value=reliability.beta, lower=reliability.required_beta,
+                    outcome="PASS" if reliability.beta >= reliability.required_beta else "FAIL",
+                    description=f"Φ(β) = {reliability.phi_beta:.6g} (sampled P̂ = {p:.4f}); distance in "
+                                f"posterior-standardized coordinates to the nearest non-stable parameter set"
+                                + (" (none within the search radius: β is at least this)" if reliability.censored
+                                   else "")))
             if wc is not None:
                 measurements.append(Measurement(name=f"worst-case margin over the {policy.credible:.0%} credible "
                                                      "region", value=wc, lower=0.0,
                                                 outcome=_margin_outcome(wc),
-                                                description="minimum of the margin by optimization"))
+                                                description="minimum of the nominal margin's function (exact "
+                                                            "criterion) over the region; ≤ the nominal margin"))
             opt.run("plots (posterior Bode)", _bode_plot, plots, cert.model, params, draws, seed, scene.units)
             if fast and band is not None:
                 opt.run("plots (critical band)", _critical_band_plot, plots, params, draws, band)
@@ -480,19 +524,32 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
     design = None
     if cert.design is not None and draws and not errors:
         with stage("design"):
-            design = _design(cert, params, draws, policy)
+            design = _design(cert, params, draws, policy, nominal_params)
             if design is not None:
                 measurements.append(Measurement(name=f"largest {design.parameter} at P ≥ {policy.required_probability}",
                                                 value=design.max_value, outcome="INFO", unit=design.unit,
                                                 description=design.note))
+                for key, what in (("nominal_headroom", "at the nominal plant"),
+                                  ("posterior_headroom", f"over the posterior at P ≥ {policy.required_probability}")):
+                    h = getattr(design, key)
+                    if h is not None:
+                        measurements.append(Measurement(
+                            name=f"{design.parameter} headroom {what}", value=h, lower=0.0,
+                            outcome=_margin_outcome(h, tol=HEADROOM_TOL),
+                            description=f"limit / current {design.parameter} − 1 (0 at the stability boundary)"))
                 opt.run("plots (headroom)", _headroom_plot, plots, cert, params, draws, policy, design)
 
     # 7. decision ---------------------------------------------------------------------------------
     dec, reasons, _prob = decide(None if nominal_res is None else str(nominal_res.verdict),
-                                 None if nominal_res is None else nominal_res.margin,
                                  stable_draws if draws else (np.array([nominal_res.verdict == "stable"])
                                                              if nominal_res is not None else None),
-                                 policy, converged=converged, evidence_errors=errors or None)
+                                 policy, converged=converged, evidence_errors=errors or None,
+                                 nominal_weak=bool(nominal_res is not None and nominal_res.weak),
+                                 beta=None if form_res is None else float(form_res.beta),
+                                 headroom_nominal=None if design is None else design.nominal_headroom,
+                                 headroom_posterior=None if design is None else design.posterior_headroom,
+                                 rare_event=(rare.lower, rare.upper) if rare is not None and rare.reliable else None,
+                                 require_beta=bool(draws))
     if any(e.went_negative for e in energy) and dec == Decision.GO:
         dec = Decision.MARGINAL
         reasons.append("energy injection: E_s(t) went below its noise bound although the criterion passed")
@@ -551,18 +608,22 @@ def _f(v: Any) -> float | None:
 MARGIN_TOL = 1e-9
 
 
-def _margin_outcome(margin: Any, verdict: str | None = None) -> str:
-    """OpenHTF-style outcome of a margin against its limit 0: FAIL below -``MARGIN_TOL`` (or when the
-    verdict is potentially unstable), MARGINAL only within ``MARGIN_TOL`` of 0 (or when the verdict
-    is marginal), PASS above; ERROR when the margin is missing or not finite."""
+#: a headroom within this of zero is MARGINAL (the relative tolerance of the limit searches)
+HEADROOM_TOL = 1e-6
+
+
+def _margin_outcome(margin: Any, verdict: str | None = None, tol: float = MARGIN_TOL) -> str:
+    """OpenHTF-style outcome of a margin (or headroom) against its limit 0: FAIL below -``tol`` (or
+    when the verdict is potentially unstable), MARGINAL only within ``tol`` of 0 (or when the
+    verdict is marginal), PASS above; ERROR when the margin is missing or not finite."""
     m = _f(margin)
     if verdict == "potentially_unstable":
         return "FAIL"
     if m is None:
         return "ERROR"
-    if m < -MARGIN_TOL:
+    if m < -tol:
         return "FAIL"
-    if verdict == "marginal" or m <= MARGIN_TOL:
+    if verdict == "marginal" or m <= tol:
         return "MARGINAL"
     return "PASS"
 
@@ -626,7 +687,8 @@ def _nominal_section(model: str, r: Any, params: Mapping[str, Any]) -> Nominal:
 def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray]
                  ) -> tuple[np.ndarray, Callable[[Mapping[str, np.ndarray]], np.ndarray] | None, str,
                             tuple[float, float] | None]:
-    """Stability of every draw, a vectorized margin function for the worst-case search, the method,
+    """Stability of every draw, a cheap vectorized proxy margin that ranks parameter sets from
+    least to most stable (the SDEA's closed-form margin; None on the general path), the method,
     and the critical band (5 % quantile of the draws' lower edges to 95 % of their upper edges, see
     hil.stability.batch) (None when the path does not provide it)."""
     n = len(next(iter(draws.values())))
@@ -636,7 +698,7 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
         fixed = {k: float(v) for k, v in params.items() if isinstance(v, int | float)}
 
         def margin(d: Mapping[str, np.ndarray]) -> np.ndarray:
-            return sdea_passivity_batch(d, fixed=fixed)["margin"]
+            return sdea_passivity_batch(d, fixed=fixed, band=False)["margin"]
 
         res = sdea_passivity_batch(draws, fixed=fixed)
         # the critical band (hil.stability.batch): per draw, where the coupler condition (c-ii) is
@@ -654,21 +716,150 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
             stable[i] = str(_check(_build(model, q), criterion, margins=False).verdict) == "stable"
         except HilError:
             stable[i] = False
+    return stable, None, "general exact criterion per draw", None
 
-    def margin_general(d: Mapping[str, np.ndarray]) -> np.ndarray:
-        m = len(next(iter(d.values())))
-        out = np.empty(m)
-        for i in range(m):
+
+def _exact_margin_fn(model: str, criterion: str, params: Mapping[str, Any],
+                     names: list[str]) -> Callable[[np.ndarray], np.ndarray]:
+    """θ rows (columns ``names``) → the exact criterion's margin, ``check(network(θ), criterion).margin``,
+    the same function that gives the nominal margin at the posterior centre. A parameter set whose
+    network cannot be built (HilError) or whose margin is not finite gets -1, the bottom of the
+    normalized scale."""
+    def fn(T: np.ndarray) -> np.ndarray:
+        T = np.atleast_2d(T)
+        out = np.empty(T.shape[0])
+        for i, row in enumerate(T):
             q = dict(params)
-            q.update({k: float(v[i]) for k, v in d.items()})
-            r = _check(_build(model, q), criterion)
-            out[i] = r.margin if math.isfinite(r.margin) else -1.0
+            q.update({k: float(v) for k, v in zip(names, row, strict=True)})
+            try:
+                m = float(_check(_build(model, q), criterion).margin)
+            except HilError:
+                m = -1.0
+            out[i] = m if math.isfinite(m) else -1.0
         return out
 
-    return stable, margin_general, "general exact criterion per draw", None
+    return fn
 
 
-def _design(cert: Any, params: Mapping[str, Any], draws: Mapping[str, np.ndarray], policy: Policy) -> Design | None:
+def _verdict_fn(model: str, criterion: str, params: Mapping[str, Any], names: list[str],
+                fast: bool) -> Callable[[np.ndarray], np.ndarray]:
+    """θ rows (columns ``names``) → stable (bool): the SDEA's vectorized closed-form verdict (its
+    sign also within round-off of the boundary, where a bisection converges: the design point is
+    then checked with the exact criterion) or the exact criterion per point (a network that cannot
+    be built is not stable)."""
+    if fast:
+        from hil.stability.batch import sdea_passivity_batch
+
+        fixed = {k: float(v) for k, v in params.items() if isinstance(v, int | float)}
+
+        def vec(T: np.ndarray) -> np.ndarray:
+            T = np.atleast_2d(T)
+            return sdea_passivity_batch(dict(zip(names, T.T, strict=True)), fixed=fixed, band=False,
+                                        exact_fallback=False)["passive"]
+
+        return vec
+
+    def one(T: np.ndarray) -> np.ndarray:
+        T = np.atleast_2d(T)
+        out = np.zeros(T.shape[0], bool)
+        for i, row in enumerate(T):
+            q = dict(params)
+            q.update({k: float(v) for k, v in zip(names, row, strict=True)})
+            try:
+                out[i] = str(_check(_build(model, q), criterion, margins=False).verdict) == "stable"
+            except HilError:
+                out[i] = False
+        return out
+
+    return one
+
+
+#: the design point is checked with the exact criterion at (1 ∓ this)·u*
+VERIFY_OFFSET = 0.05
+
+#: importance-sampling sample sizes of the rare-event path (vectorized SDEA path, general path)
+IS_SAMPLES = (20000, 300)
+
+
+def _reliability_stage(model: str, criterion: str, params: Mapping[str, Any], names: list[str], X: np.ndarray,
+                       centre: np.ndarray, stable_draws: np.ndarray, policy: Policy, fast: bool, seed: int,
+                       worst_theta: Mapping[str, float] | None) -> tuple[Any, Any, Any]:
+    """β by FORM in posterior-standardized coordinates (hil.stability.reliability) around the
+    posterior centre (the nominal point), and, when plain Monte Carlo on the available draws
+    cannot reach the requirement even with every draw stable, P(stable) by importance sampling
+    around the design point. Returns (Reliability, FormResult, RareEvent) (None where not made)."""
+    from scipy.stats import norm
+
+    from hil.certificate import RareEvent, Reliability
+    from hil.certify import beta_required
+    from hil.stability.reliability import Standardization, form, importance_sampling
+
+    st = Standardization.from_draws(X)
+    st = Standardization(centre, st.L)  # centred exactly on the nominal point
+    verdict = _verdict_fn(model, criterion, params, names, fast)
+
+    def stable_u(U: np.ndarray) -> np.ndarray:
+        return verdict(st.to_theta(U))
+
+    hints = []
+    bad = ~np.asarray(stable_draws, bool)
+    if bad.any():
+        Ub = st.to_u(X[bad])
+        hints += list(Ub[np.argsort(np.linalg.norm(Ub, axis=1))[:8]])
+    if worst_theta is not None:
+        hints.append(st.to_u(np.array([[worst_theta[k] for k in names]]))[0])
+    b_req = beta_required(policy.required_probability)
+    r_max = max(8.0, b_req + 3.0)
+    d = len(names)
+    kw: dict[str, Any] = {} if fast else {"n_random": 0, "n_grid": 6, "n_bisect": 7, "refine_iter": 1,
+                                          "n_refine_starts": 1, "budget": 40 * d}
+    if fast:  # cheap verdicts: a tight posterior's β is measured, not only bounded by r_max
+        kw["r_limit"] = 8 ** 4 * r_max
+    fr = form(stable_u, d, hints=hints, r_max=r_max, seed=seed, **kw)
+    verified = None
+    if not fr.censored:
+        u = fr.design_point_u
+        # the exact criterion on both sides of the design point (the search's verdict may be the
+        # vectorized closed form, whose sign within ~1e-8 of the boundary is round-off), 5 % of β
+        # inside and outside along its ray
+        inner, outer = st.to_theta(u * (1 - VERIFY_OFFSET)), st.to_theta(u * (1 + VERIFY_OFFSET))
+        def exact(T: np.ndarray) -> str:
+            q = dict(params)
+            q.update({k: float(v) for k, v in zip(names, np.atleast_2d(T)[0], strict=True)})
+            try:
+                return str(_check(_build(model, q), criterion, margins=False).verdict)
+            except HilError:
+                return "potentially_unstable"
+
+        centre_ok = fr.beta > 0
+        vi, vo = exact(inner), exact(outer)
+        # None: the exact criterion calls a side marginal (its rounding bound straddles zero there)
+        verified = None if "marginal" in (vi, vo) else bool((vi == "stable") == centre_ok
+                                                           and (vo == "stable") != centre_ok)
+    theta_star = st.to_theta(fr.design_point_u)[0]
+    rel = Reliability(beta=float(fr.beta), phi_beta=float(norm.cdf(fr.beta)), required_beta=b_req,
+                      design_point={k: float(v) for k, v in zip(names, theta_star, strict=True)},
+                      design_point_u=[float(v) for v in fr.design_point_u], censored=fr.censored,
+                      bracket=(float(fr.bracket[0]), float(fr.bracket[1])) if math.isfinite(fr.bracket[1]) else None,
+                      evaluations=fr.evaluations, verified=verified,
+                      method=("FORM by verdict-only ray search (axes, random and hint directions; tangent-plane "
+                              "refinement)" + ("" if fast else f", budget {40 * d} exact verdicts")))
+    rare = None
+    n = int(np.asarray(stable_draws).size)
+    best_mc_lower = (0.5 * (1 - policy.confidence)) ** (1.0 / n)  # Clopper-Pearson lower bound when k = n
+    if best_mc_lower < policy.required_probability and fr.beta > 0 and not fr.censored:
+        isr = importance_sampling(stable_u, fr.design_point_u, n=IS_SAMPLES[0] if fast else IS_SAMPLES[1],
+                                  confidence=policy.confidence, seed=seed + 7)
+        rare = RareEvent(method="importance sampling, proposal N(u*, I) around the FORM design point, on the "
+                                "Gaussian approximation N(μ, Σ) of the posterior; normal-approximation interval",
+                         n=isr.n, n_fail=isr.n_fail, p_failure=isr.p_failure, std_error=isr.std_error,
+                         p_stable=isr.p_stable, lower=1.0 - isr.upper, upper=1.0 - isr.lower,
+                         confidence=isr.confidence, ess=isr.ess, reliable=isr.reliable)
+    return rel, fr, rare
+
+
+def _design(cert: Any, params: Mapping[str, Any], draws: Mapping[str, np.ndarray], policy: Policy,
+            nominal_params: Mapping[str, Any] | None = None) -> Design | None:
     d = cert.design
     if cert.model != "sdea" or d.parameter not in ("k22", "b22"):
         return Design(parameter=d.parameter, max_value=None, probability_at_max=None,
@@ -681,14 +872,30 @@ def _design(cert: Any, params: Mapping[str, Any], draws: Mapping[str, np.ndarray
     def stable(x: float) -> np.ndarray:
         dd = dict(draws)
         dd[d.parameter] = np.full(len(next(iter(draws.values()))), x)
-        return sdea_passivity_batch(dd, fixed=fixed)["passive"]
+        return sdea_passivity_batch(dd, fixed=fixed, band=False)["passive"]
 
     x, p = max_safe_parameter(stable, d.range[0], d.range[1], policy.required_probability, policy.confidence)
     unit = "N.m/rad" if d.parameter == "k22" else "N.m.s/rad"
-    return Design(parameter=d.parameter, unit=unit, current=fixed.get(d.parameter), max_value=_f(x),
+    head: dict[str, Any] = {}
+    cur = fixed.get(d.parameter)
+    if d.parameter == "k22" and cur is not None and cur > 0:
+        # parametric headroom (docs/CERTIFICATION.md): k22_max/k22 − 1 at the nominal plant, and the
+        # posterior limit (lower bound of P(stable) = required) / k22 − 1
+        from hil.certify import posterior_limit
+        from hil.models.sdea import SDEA_TABLE1
+        from hil.stability.design import k22_headroom
+
+        plant = {k: float(v) for k, v in (nominal_params or params).items()
+                 if k in SDEA_TABLE1 and isinstance(v, int | float)}
+        base = {**SDEA_TABLE1, **plant}
+        km, hn = k22_headroom(cur, base["b22"], base["alpha"], "passivity", plant)
+        xl, kind = posterior_limit(stable, cur, policy.required_probability, policy.confidence)
+        head = {"nominal_limit": km, "nominal_headroom": hn, "posterior_limit": xl, "posterior_limit_kind": kind,
+                "posterior_headroom": xl / cur - 1.0}
+    return Design(parameter=d.parameter, unit=unit, current=cur, max_value=_f(x),
                   probability_at_max=_f(p), required=policy.required_probability,
                   note=f"largest {d.parameter} in [{d.range[0]:g}, {d.range[1]:g}] whose lower "
-                       f"{policy.confidence:.0%} bound of P(stable) stays ≥ {policy.required_probability}")
+                       f"{policy.confidence:.0%} bound of P(stable) stays ≥ {policy.required_probability}", **head)
 
 
 def _witness(tm: Any, plots: dict[str, Series], opt: _Optional, scene: Any = None) -> Witness | None:

@@ -57,22 +57,61 @@ def test_max_safe_parameter_bisection():
     assert x < np.quantile(kmax_draws, 0.1)  # conservative with respect to the point estimate
 
 
+_ALL = np.ones(500, bool)
+
+
 @pytest.mark.parametrize("args,kw,expected", [
-    (("stable", 0.1, np.ones(500, bool)), {}, Decision.GO),
-    (("stable", 0.1, np.r_[np.ones(480, bool), np.zeros(20, bool)]), {}, Decision.MARGINAL),  # p=.96, lower<.95
-    (("stable", 0.1, np.r_[np.ones(400, bool), np.zeros(100, bool)]), {}, Decision.NO_GO),  # CI below .95
-    (("stable", 0.1, np.r_[np.ones(470, bool), np.zeros(30, bool)]), {}, Decision.MARGINAL),  # p=.94, CI straddles
-    (("potentially_unstable", -0.1, np.ones(500, bool)), {}, Decision.NO_GO),
-    (("stable", 0.1, np.ones(500, bool)), {"converged": False}, Decision.MARGINAL),
-    (("marginal", 0.0, np.ones(500, bool)), {}, Decision.MARGINAL),
-    (("stable", float("nan"), np.ones(500, bool)), {}, Decision.ERROR),
-    (("stable", 0.1, np.array([])), {}, Decision.ERROR),
-    (("stable", 0.1, np.array([1.0, np.nan])), {}, Decision.ERROR),
-    (("stable", 0.1, np.ones(500, bool)), {"evidence_errors": ["identification failed"]}, Decision.ERROR),
+    (("stable", _ALL), {"beta": 3.0}, Decision.GO),
+    (("stable", np.r_[np.ones(480, bool), np.zeros(20, bool)]), {"beta": 3.0}, Decision.MARGINAL),  # lower<.95
+    (("stable", np.r_[np.ones(400, bool), np.zeros(100, bool)]), {"beta": 3.0}, Decision.NO_GO),  # CI below .95
+    (("stable", np.r_[np.ones(470, bool), np.zeros(30, bool)]), {"beta": 3.0}, Decision.MARGINAL),  # straddles
+    (("potentially_unstable", _ALL), {"beta": 3.0}, Decision.NO_GO),
+    (("stable", _ALL), {"beta": 3.0, "converged": False}, Decision.MARGINAL),
+    (("marginal", _ALL), {"beta": 3.0}, Decision.MARGINAL),
+    (("stable", _ALL), {"beta": 3.0, "nominal_weak": True}, Decision.GO),  # equality is allowed by ≥ 0
+    (("stable", _ALL), {"beta": 1.6}, Decision.MARGINAL),  # β below Φ⁻¹(0.95) = 1.645
+    (("stable", _ALL), {}, Decision.MARGINAL),  # β required but missing
+    (("stable", _ALL), {"require_beta": False}, Decision.GO),
+    (("stable", _ALL), {"beta": float("nan")}, Decision.ERROR),
+    (("stable", _ALL), {"beta": 3.0, "headroom_nominal": 0.3, "headroom_posterior": 0.2}, Decision.GO),
+    (("stable", _ALL), {"beta": 3.0, "headroom_nominal": 0.3, "headroom_posterior": 0.0}, Decision.MARGINAL),
+    (("stable", _ALL), {"beta": 3.0, "headroom_nominal": -0.01, "headroom_posterior": -0.02}, Decision.NO_GO),
+    (("stable", _ALL), {"beta": 3.0, "headroom_nominal": float("inf")}, Decision.ERROR),
+    # the rare-event interval replaces the Monte Carlo one: 500 stable draws cannot certify 1 - 1e-6
+    (("stable", _ALL), {"beta": 6.0, "policy": Policy(1 - 1e-6, 0.95)}, Decision.MARGINAL),
+    (("stable", _ALL), {"beta": 6.0, "policy": Policy(1 - 1e-6, 0.95), "rare_event": (1 - 2e-7, 1 - 1e-8)},
+     Decision.GO),
+    (("stable", _ALL), {"beta": 6.0, "policy": Policy(1 - 1e-6, 0.95), "rare_event": (1 - 5e-6, 1 - 2e-6)},
+     Decision.NO_GO),
+    (("stable", _ALL), {"beta": 4.0, "policy": Policy(1 - 1e-6, 0.95), "rare_event": (1 - 2e-7, 1 - 1e-8)},
+     Decision.MARGINAL),  # β = 4 < Φ⁻¹(1 - 1e-6) = 4.75
+    ((None, _ALL), {}, Decision.ERROR),
+    (("stable", np.array([])), {}, Decision.ERROR),
+    (("stable", np.array([1.0, np.nan])), {}, Decision.ERROR),
+    (("stable", _ALL), {"beta": 3.0, "evidence_errors": ["identification failed"]}, Decision.ERROR),
 ])
 def test_policy(args, kw, expected):
-    d, reasons, _ = decide(*args, policy=Policy(0.95, 0.95), **kw)
+    kw = {"policy": Policy(0.95, 0.95), **kw}
+    d, reasons, _ = decide(*args, **kw)
     assert d == expected and reasons
+
+
+def test_go_rule_ignores_the_frequency_margin():
+    """Defect 6: the GO rule does not take the nominal margin at all (its inputs are the verdict,
+    the P(stable) bound, β and the headroom)."""
+    import inspect
+
+    assert "margin" not in inspect.signature(decide).parameters
+
+
+def test_beta_required_is_the_normal_quantile():
+    from scipy.stats import norm
+
+    from hil.certify import beta_required
+
+    for p in (0.9, 0.95, 0.999, 1 - 1e-6):
+        assert norm.cdf(beta_required(p)) == pytest.approx(p, rel=1e-12)
+    assert beta_required(0.95) == pytest.approx(1.6448536269514722, rel=1e-12)
 
 
 def test_policy_validates_levels():

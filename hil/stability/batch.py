@@ -81,14 +81,19 @@ def _cubic_min(p3: np.ndarray, p2: np.ndarray, p1: np.ndarray,
 
 
 def sdea_passivity_batch(draws: Mapping[str, np.ndarray] | np.ndarray, tol: float = 1e-9,
-                         fixed: Mapping[str, float] | None = None) -> dict[str, np.ndarray]:
+                         fixed: Mapping[str, float] | None = None, band: bool = True,
+                         exact_fallback: bool = True) -> dict[str, np.ndarray]:
     """Two-port passivity of the SDEA for N parameter draws at once.
 
     ``draws`` maps parameter names (those of :data:`SDEA_TABLE1`) to arrays of length N; missing
     parameters take ``fixed`` values or the Table I defaults. Returns ``passive`` (bool, N),
     ``margin`` (the smallest normalized deciding value: t_min / scale etc.), ``exact_rechecked``
     (bool, N: decided by the exact criterion because the closed form was within ``tol``),
-    ``worst_omega`` (rad/s, N: where the coupler condition (c-ii) is smallest).
+    ``worst_omega`` (rad/s, N: where the coupler condition (c-ii) is smallest) and the critical
+    band's edges ``band_lo``, ``band_hi`` (rad/s); ``band=False`` skips these three (verdicts only,
+    e.g. inside a search). ``exact_fallback=False`` keeps the closed form's sign for the draws
+    within ``tol`` of the boundary (still flagged in ``exact_rechecked``): for searches that
+    converge onto the boundary (FORM), whose end points the caller checks exactly.
     """
     base = {**SDEA_TABLE1, **(fixed or {})}
     d = dict(draws)
@@ -117,7 +122,7 @@ def sdea_passivity_batch(draws: Mapping[str, np.ndarray] | np.ndarray, tol: floa
     # b22 within tol of 4 B_f: the sign of t3 is not resolved by the float coefficients
     edge = np.abs(4 * Bf - b22) <= tol * np.abs(4 * Bf + b22)
     ambiguous = (np.abs(margin) <= tol) | ~np.isfinite(margin) | edge
-    if np.any(ambiguous):
+    if exact_fallback and np.any(ambiguous):
         from hil.models.sdea import sdea_vsic
         from hil.stability.criteria import two_port_passivity
 
@@ -126,6 +131,8 @@ def sdea_passivity_batch(draws: Mapping[str, np.ndarray] | np.ndarray, tol: floa
             passive[i] = r.verdict == "stable"
     # where the coupler-dependent passivity condition (c-ii) is closest to failing, and the band
     # around it (module docstring): g(ω) = t(x)/|t|(x), x = ω²
+    if not band:
+        return {"passive": passive, "margin": margin, "exact_rechecked": ambiguous}
     worst, lo, hi = critical_band((t0, t1, t2, t3))
     return {"passive": passive, "margin": margin, "exact_rechecked": ambiguous, "worst_omega": worst,
             "band_lo": lo, "band_hi": hi}

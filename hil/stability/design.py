@@ -37,7 +37,7 @@ from hil.stability.exact import DEFAULT_TOL, decide_nonnegative
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DESIGN_FIXED", "K22Design", "check_design_inputs", "k22_max", "optimize_coupler"]
+__all__ = ["DESIGN_FIXED", "K22Design", "check_design_inputs", "k22_headroom", "k22_max", "optimize_coupler"]
 
 
 @dataclass
@@ -137,6 +137,19 @@ def k22_max(b22: float, alpha: float = 1.0, criterion: str = "passivity", params
         else:
             hi = mid
     return K22Design(criterion, alpha, b22, lo, cnt.n)
+
+
+def k22_headroom(k22: float, b22: float, alpha: float = 1.0, criterion: str = "passivity",
+                 params: Mapping[str, float] | None = None, rtol: float = 1e-7) -> tuple[float, float]:
+    """Parametric headroom of the coupler stiffness at a plant: (k22_max, k22_max/k22 − 1), with
+    k22_max from :func:`k22_max` (bisection to ``rtol``) at the given b22, alpha and plant
+    ``params``. Dimensionless: 0 at the stability boundary (k22 = k22_max), > 0 when k22 could grow
+    by that fraction and stay passive, < 0 (down to -1) when k22 must shrink by that fraction.
+    Its sign agrees with the exact verdict except within ``rtol`` of the boundary."""
+    if not (math.isfinite(k22) and k22 > 0):
+        raise ModelError(f"k22 must be a finite positive stiffness [N.m/rad], got {_plain(k22)}")
+    r = k22_max(b22, alpha, criterion, params, rtol=rtol)
+    return r.k22_max, r.k22_max / k22 - 1.0
 
 
 def optimize_coupler(criterion: str = "passivity", alpha: float | None = 1.0,
