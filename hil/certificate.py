@@ -207,11 +207,13 @@ class Robust(_M):
     n_independent: int | None = Field(default=None, description="independent posterior draws available after "
                                       "thinning the MCMC chain by its autocorrelation time")
     sampling: str = Field(default="", description="how the draws were obtained (thinning, shortfall)")
-    worst_case_quantity: str = Field(default="", description="the function minimized over the credible region "
+    worst_case_quantity: str = Field(
+        json_schema_extra=SINCE_1_2, default="", description="the function minimized over the credible region "
                                      "(the nominal margin's function)")
-    reliability: Reliability | None = None
-    rare_event: RareEvent | None = None
+    reliability: Reliability | None = Field(default=None, json_schema_extra=SINCE_1_2)
+    rare_event: RareEvent | None = Field(default=None, json_schema_extra=SINCE_1_2)
     p_stable_method: Literal["monte_carlo", "importance_sampling"] = Field(
+        json_schema_extra=SINCE_1_2,
         default="monte_carlo", description="which estimate's confidence interval the decision used: Clopper-Pearson "
         "on the independent draws (lower/upper above) or importance sampling (rare_event)")
 
@@ -248,13 +250,18 @@ class Design(_M):
     probability_at_max: float | None
     required: float
     note: str = ""
-    nominal_limit: float | None = Field(default=None, description="largest passive value at the nominal plant "
+    nominal_limit: float | None = Field(
+        json_schema_extra=SINCE_1_2, default=None, description="largest passive value at the nominal plant "
                                         "(hil.stability.design.k22_max)")
-    nominal_headroom: float | None = Field(default=None, description="nominal_limit / current − 1")
-    posterior_limit: float | None = Field(default=None, description="value where the lower bound of P(stable) "
+    nominal_headroom: float | None = Field(
+        json_schema_extra=SINCE_1_2, default=None, description="nominal_limit / current − 1")
+    posterior_limit: float | None = Field(
+        json_schema_extra=SINCE_1_2, default=None, description="value where the lower bound of P(stable) "
                                           "crosses the requirement")
-    posterior_limit_kind: Literal["exact", "at_least", "at_most"] | None = None
-    posterior_headroom: float | None = Field(default=None, description="posterior_limit / current − 1")
+    posterior_limit_kind: Literal["exact", "at_least", "at_most"] | None = Field(default=None,
+                                                                             json_schema_extra=SINCE_1_2)
+    posterior_headroom: float | None = Field(
+        json_schema_extra=SINCE_1_2, default=None, description="posterior_limit / current − 1")
 
 
 class EnergyEvidence(_M):

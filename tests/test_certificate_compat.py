@@ -62,6 +62,8 @@ def test_every_field_added_after_1_1_is_marked_since() -> None:
     missing = []
     for name, m in _models(Certificate, {}).items():
         props = old["properties"] if name == "Certificate" else old["$defs"].get(name, {}).get("properties")
+        if props is None:  # a model new in 1.2: only reachable through a field that is marked itself
+            continue
         for fname, f in m.model_fields.items():
             key = f.alias or fname
             if props is not None and key in props:
