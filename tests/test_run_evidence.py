@@ -65,6 +65,21 @@ def test_fault_counters_become_info_measurements():
     assert z.value == 0 and "none on 2 device(s)" in z.description
 
 
+def test_stale_reads_are_not_faults():
+    """A sensor slower than the loop leaves ticks without a new sample: listed, not counted."""
+    from types import SimpleNamespace
+
+    from hil.pipeline import _fault_measurements
+
+    slow = SimpleNamespace(results={"device_counters": {"spring_ft": {"crc_errors": 1, "stale": 15937}}})
+    ms: list = []
+    _fault_measurements({"chirp_locked": slow}, ms)
+    (m,) = ms
+    assert m.value == 1
+    assert "crc_errors=1" in m.description and "reads without a new sample (held, not counted): spring_ft=15937" \
+        in m.description
+
+
 @pytest.mark.timeout(180)
 @pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 20)])
 def test_a_signal_during_the_runs_of_certify_ends_the_command(tmp_path, sig, code):
