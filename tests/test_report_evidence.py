@@ -309,3 +309,23 @@ def test_identification_plots_show_magnitude_phase_coherence_residuals_and_the_c
                                        "decision": "GO", "reasons": [], "policy": {}, "measurements": [],
                                        "plots": {k: v.model_dump() for k, v in plots.items()}})
     assert missing_units(cert) == []
+
+
+def test_every_definition_link_points_at_a_heading_of_certification_md() -> None:
+    """The report's links (hil.report_model.DEFINITIONS) land on headings of docs/CERTIFICATION.md
+    (GitHub anchors: lower case, spaces to '-'), and every field path of the document's index that
+    the report model links is mapped to that path's section."""
+    import re
+    from pathlib import Path
+
+    from hil.report_model import DEFINITIONS, DEFINITIONS_DOC
+
+    doc = (Path(__file__).resolve().parents[1] / DEFINITIONS_DOC).read_text(encoding="utf-8")
+    anchors = {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-")
+               for h in re.findall(r"^#{2,3} (.+)$", doc, flags=re.M)}
+    bad = {k: v for k, v in DEFINITIONS.items() if v not in anchors}
+    assert not bad, f"links to missing headings: {bad}"
+    index = dict(re.findall(r"^\| `([\w.\[\]]+)`[^|]*\| \[#([\w-]+)\]", doc, flags=re.M))
+    for path, anchor in index.items():
+        if path in DEFINITIONS:
+            assert DEFINITIONS[path] == anchor, (path, DEFINITIONS[path], anchor)
