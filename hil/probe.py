@@ -378,8 +378,17 @@ def scene_stub(found: list[Found], name: str = "probed_bench") -> dict[str, Any]
         if f.role == "force_sensor":
             dev["axes"] = [2]
         devices.append(dev)
+    from types import SimpleNamespace
+
+    from hil.protocols.link_budget import over_budget
+
+    rate = 1000
+    while rate > 100 and over_budget([SimpleNamespace(**{"sim": None, **d}) for d in devices], rate):
+        rate //= 2  # the links found (at their factory bit/baud rates) carry the loop at this rate
+    note = "" if rate == 1000 else (f" (rate_hz {rate}: what the links carry at their current bit/baud rates; "
+                                   "raise them to run faster)")
     return {"name": name, "description": "scene stub written by hil probe: add the bodies, safety limits, "
-            "controller and experiments", "seed": 0, "rate_hz": 1000, "mode": "realtime", "units": "rotary",
+            f"controller and experiments{note}", "seed": 0, "rate_hz": rate, "mode": "realtime", "units": "rotary",
             "devices": devices,
             "safety": {"max_effort": 0.1, "max_velocity": 1.0, "position_limits": [-0.5, 0.5], "max_energy": 1.0,
                        "watchdog_ms": 50},

@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 log = logging.getLogger(__name__)
 
-__all__ = ["HELD_FRACTION", "MAX_AGE", "age_distribution", "compensate_frf", "hold_response", "held_outputs"]
+__all__ = ["HELD_FRACTION", "MAX_AGE", "age_distribution", "compensate_frf", "held_outputs", "hold_response"]
 
 #: fraction of exact repeats above which a channel is treated as sampled-and-held
 HELD_FRACTION = 0.05
