@@ -84,7 +84,12 @@ def locked_result(sdea_runs):
 def _known_noise_sigma(res, rec: RunRecord, noise_std: dict[str, float]) -> np.ndarray:
     """Per-bin FRF std of a SISO record from the KNOWN noise (not the data's estimate): white output noise
     of the scene's std averaged over the periods, plus the float32 rounding of the recorded outputs and
-    of the applied command (repeated identically in every period: not averaged)."""
+    of the applied command (repeated identically in every period: not averaged). A held output (a
+    sensor slower than the loop, hil.identify.sensor_hold) carries only the fraction p_0 of new
+    samples, so its white noise has 1/p_0 times the variance per FRF bin once the hold is divided
+    out (the repeats add no information)."""
+    from hil.identify.sensor_hold import age_distribution
+
     est, mdl = res.frf, res.model
     plan = res.record["mapping"]
     t = rec.t
@@ -96,9 +101,12 @@ def _known_noise_sigma(res, rec: RunRecord, noise_std: dict[str, float]) -> np.n
     out = np.empty(est.H.shape)
     for o, name in enumerate(mdl.output_names):
         y = sig[plan["outputs"][name]][keep]
+        p = age_distribution(y)
+        hold = 1.0 if p is None else 1.0 / p[0]
         q_y = rounding_variance(y, "float32")
         # |H1| in the input-rounding term: far more precise than that term needs
-        g = (2.0 / est.fs) * (noise_std.get(name, 0.0) ** 2 / est.n_avg + q_y + np.abs(est.H[:, o, 0]) ** 2 * q_u)
+        g = (2.0 / est.fs) * (hold * noise_std.get(name, 0.0) ** 2 / est.n_avg + q_y
+                              + np.abs(est.H[:, o, 0]) ** 2 * q_u)
         out[:, o, 0] = np.sqrt(g / Gxx / 2.0)
     return out
 
