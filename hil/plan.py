@@ -127,6 +127,9 @@ def _nominal_model(scene: Any, exp: Any) -> tuple[Any, dict[str, float]]:
                 raise PlanError(f"experiment {exp.name}: free-output variant but simulation.sdea.m_out is null")
             mdl = SdeaFreeOutput(chans, m_h=None, nominal={**nom, "m_h": sdea.m_out}, zoh_fs=rate)
         out = {"velocity": noise.velocity_std, "force": noise.force_std}
+        # a force sensor slower than the loop holds its samples: only the fraction r/rate of the
+        # ticks carries new noise (hil.identify.sensor_hold), so its noise counts rate/r times
+        out["force"] *= math.sqrt(max(1.0, rate / _sensor_rate(scene, rate)))
         return mdl, {c: float(out[c]) for c in chans}
     dev = scene.device(exp.target)
     body = next((b for b in sim.bodies if b.name == dev.body), None)
@@ -383,3 +386,14 @@ def plan_scene(scene: Any, *, experiments: Sequence[str] | None = None,
         raise PlanError(f"--precision {unknown[0]}: no planned experiment identifies it (parameters: "
                         f"{', '.join(sorted(known))})")
     return out
+
+
+def _sensor_rate(scene: Any, rate: float) -> float:
+    """Sample rate [Hz] of the scene's first force sensor (the loop rate unless its driver streams
+    slower, e.g. a Bota serial sensor at 51200/sinc Hz)."""
+    from hil.protocols.link_budget import bota_rate_hz
+
+    for d in scene.devices:
+        if d.role == "force_sensor" and d.driver.startswith("bota"):
+            return min(rate, float(bota_rate_hz(d.params)))
+    return rate
