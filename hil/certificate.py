@@ -394,7 +394,7 @@ def _is_default(f: Any, value: Any) -> bool:
         return False
 
 
-def _drop_new_defaults(model: BaseModel, data: Any) -> None:
+def drop_new_defaults(model: BaseModel, data: Any) -> None:
     """Remove, in place, the JSON of fields added after their model's first schema (marked with
     ``since`` in ``json_schema_extra``) that hold their default value, at every level."""
     if not isinstance(data, dict):
@@ -413,7 +413,7 @@ def _drop_new_defaults(model: BaseModel, data: Any) -> None:
 
 def _drop_in_value(value: Any, data: Any) -> None:
     if isinstance(value, BaseModel):
-        _drop_new_defaults(value, data)
+        drop_new_defaults(value, data)
     elif isinstance(value, list | tuple) and isinstance(data, list):
         for v, d in zip(value, data, strict=False):
             _drop_in_value(v, d)
@@ -427,7 +427,7 @@ def canonical_bytes(cert: Certificate) -> bytes:
     """The canonical content of a certificate: every field except ``integrity``, as stored in JSON,
     without the fields added after schema 1.1 that hold their default (module docstring)."""
     data = json.loads(cert.model_dump_json(exclude={"integrity"}))
-    _drop_new_defaults(cert, data)
+    drop_new_defaults(cert, data)
     return canonical_json(data)
 
 

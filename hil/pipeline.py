@@ -69,7 +69,7 @@ from hil.errors import HilError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["certify_scene", "model_params_from_scene"]
+__all__ = ["build_network", "certify_scene", "model_params_from_scene"]
 
 Progress = Callable[[str], None]
 
@@ -142,11 +142,17 @@ def model_params_from_scene(scene: Any) -> dict[str, Any]:
     return p
 
 
-def _build(model: str, params: Mapping[str, Any]) -> Any:
+def build_network(model: str, params: Mapping[str, Any]) -> Any:
+    """The network (immittance matrix) of built-in ``model`` with ``params``. A gain table
+    (``gains``: a mapping, as a scene's controller gives it) takes any of its entries given at the
+    top level too (``k_pmyz=...``: a swept or overridden gain)."""
     from hil.models import get_model
 
     m = get_model(model)
     q = dict(params)
+    gains = q.get("gains")
+    if isinstance(gains, Mapping):
+        q["gains"] = {**gains, **{k: q.pop(k) for k in list(q) if k in gains}}
     if model == "bilateral_2dof":
         gains = q.pop("gains", "A1")
         from hil.models.teleop import bilateral_2dof
@@ -419,7 +425,7 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
     nominal_res = None
     with stage("nominal"):
         try:
-            tm = _build(cert.model, nominal_params)
+            tm = build_network(cert.model, nominal_params)
             nominal_res = _check(tm, criterion)
             nominal = _nominal_section(cert.model, nominal_res, nominal_params)
             measurements.append(Measurement(
@@ -713,7 +719,7 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
         q = dict(params)
         q.update({k: float(v[i]) for k, v in draws.items()})
         try:
-            stable[i] = str(_check(_build(model, q), criterion, margins=False).verdict) == "stable"
+            stable[i] = str(_check(build_network(model, q), criterion, margins=False).verdict) == "stable"
         except HilError:
             stable[i] = False
     return stable, None, "general exact criterion per draw", None
@@ -732,7 +738,7 @@ def _exact_margin_fn(model: str, criterion: str, params: Mapping[str, Any],
             q = dict(params)
             q.update({k: float(v) for k, v in zip(names, row, strict=True)})
             try:
-                m = float(_check(_build(model, q), criterion).margin)
+                m = float(_check(build_network(model, q), criterion).margin)
             except HilError:
                 m = -1.0
             out[i] = m if math.isfinite(m) else -1.0
@@ -766,7 +772,7 @@ def _verdict_fn(model: str, criterion: str, params: Mapping[str, Any], names: li
             q = dict(params)
             q.update({k: float(v) for k, v in zip(names, row, strict=True)})
             try:
-                out[i] = str(_check(_build(model, q), criterion, margins=False).verdict) == "stable"
+                out[i] = str(_check(build_network(model, q), criterion, margins=False).verdict) == "stable"
             except HilError:
                 out[i] = False
         return out
@@ -827,7 +833,7 @@ def _reliability_stage(model: str, criterion: str, params: Mapping[str, Any], na
             q = dict(params)
             q.update({k: float(v) for k, v in zip(names, np.atleast_2d(T)[0], strict=True)})
             try:
-                return str(_check(_build(model, q), criterion, margins=False).verdict)
+                return str(_check(build_network(model, q), criterion, margins=False).verdict)
             except HilError:
                 return "potentially_unstable"
 
@@ -1070,7 +1076,7 @@ def _bode_plot(plots: dict[str, Series], model: str, params: Mapping[str, Any], 
     n = len(next(iter(draws.values())))
     pick = rng.choice(n, size=min(60, n), replace=False)
     try:
-        tm0 = _build(model, {**params, **{k: float(np.mean(v)) for k, v in draws.items()}})
+        tm0 = build_network(model, {**params, **{k: float(np.mean(v)) for k, v in draws.items()}})
     except HilError:
         return
     from hil.stability.criteria import _freq_range
@@ -1082,7 +1088,7 @@ def _bode_plot(plots: dict[str, Series], model: str, params: Mapping[str, Any], 
         q = dict(params)
         q.update({k: float(v[i]) for k, v in draws.items()})
         try:
-            mags.append(np.abs(_build(model, q)[0, 0].freq(w)))
+            mags.append(np.abs(build_network(model, q)[0, 0].freq(w)))
         except HilError:
             continue
     if not mags:

@@ -58,6 +58,7 @@ from hil.inputs import read_text_file
 from hil.report_model import (
     Section,
     Table,
+    _status_outcome,
     definition_link,
     fmt,
     fmt_p,
@@ -490,10 +491,10 @@ def _plots_png(cert: Certificate, dpi: int = 110) -> dict[str, _Plot]:
 def _canonical_json(cert: Certificate) -> str:
     """The stored text: every field, except those added after schema 1.1 while at their default
     (so the file minus ``integrity`` is exactly the digested content, hil-c14n/1)."""
-    from hil.certificate import _drop_new_defaults
+    from hil.certificate import drop_new_defaults
 
     data = json.loads(cert.model_dump_json())
-    _drop_new_defaults(cert, data)
+    drop_new_defaults(cert, data)
     return json.dumps(data, indent=2, ensure_ascii=False) + "\n"
 
 
@@ -1116,20 +1117,6 @@ def draw_pstable(ax: Any, cert: Certificate) -> None:
     ax.tick_params(labelsize=8)
     ax.grid(True, axis="x", alpha=0.3)
     ax.legend(loc="upper left", fontsize=7, ncol=3, framealpha=0.9)
-
-
-def _status_outcome(status: str) -> str | None:
-    """The outcome colour class of a condition status (free text in the record)."""
-    s = str(status).strip().lower()
-    if s in ("pass", "ok", "holds", "satisfied", "equality", "stable", "true"):
-        return "PASS"
-    if s in ("fail", "failed", "violated", "potentially_unstable", "unstable", "false"):
-        return "FAIL"
-    if s in ("marginal", "weak"):
-        return "MARGINAL"
-    if s in ("error", "not_applicable", "undecided"):
-        return "ERROR"
-    return None
 
 
 def _status_class(status: str) -> str:

@@ -1401,12 +1401,12 @@ def _check_network_builds(sc: Scene, cert: CertificationCfg) -> None:
     ``parameters``, the uncertain values; identified ones at the model defaults) and check that
     the criterion applies to its shape."""
     from hil.errors import HilError
-    from hil.pipeline import _build, model_params_from_scene
+    from hil.pipeline import build_network, model_params_from_scene
 
     q = model_params_from_scene(sc)
     q.update({k: u.value for k, u in cert.uncertain.items()})
     try:
-        tm = _build(cert.model, q)
+        tm = build_network(cert.model, q)
     except (HilError, ValueError, TypeError, KeyError, ArithmeticError) as exc:
         msg = " ".join(str(exc).split()) or type(exc).__name__
         raise _Where("certification", f"the network model {cert.model} cannot be built from this scene: {msg}"

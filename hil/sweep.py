@@ -247,16 +247,11 @@ def _draw_subset(posterior: Mapping[str, np.ndarray], n: int, seed_text: str) ->
 
 
 def build_network(model: str, params: Mapping[str, Any]) -> Any:
-    """The network of a built-in model (the certification pipeline's builder, which also takes a
-    scene's controller gains, e.g. a bilateral_2dof gain dict)."""
-    from hil.pipeline import _build
+    """The network of a built-in model: :func:`hil.pipeline.build_network` (which also takes a
+    scene's gain table, with swept gains given at the top level)."""
+    from hil.pipeline import build_network as build
 
-    gains = params.get("gains")
-    if isinstance(gains, Mapping):  # a scene's gain table: swept gains replace their entries
-        moved = {k: v for k, v in params.items() if k in gains}
-        if moved:
-            params = {k: v for k, v in params.items() if k not in moved} | {"gains": {**gains, **moved}}
-    return _build(model, params)
+    return build(model, params)
 
 
 def _p_stable(model: str, criterion: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray]) -> float:

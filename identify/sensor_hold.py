@@ -109,30 +109,3 @@ def compensate_frf(est: Any, held: Mapping[str, NDArray[np.float64]], fs: float)
                      float(np.arange(held[name].size) @ held[name]))
     return dataclasses.replace(est, H=H, sigma=sigma)
 
-
-def quantization_step(y: ArrayLike, min_levels: int = 8) -> float | None:
-    """The step q of a channel whose values all lie on a grid k·q far coarser than float32 (an
-    integer device unit: counts/s of a drive's velocity, a 12-bit ADC, ...), or None.
-
-    q is the smallest positive difference between distinct values; the channel counts as
-    quantized when every value is an integer multiple of q to 1e-3 of q, it takes at least
-    ``min_levels`` distinct values, and q exceeds 1000 float32 spacings of its largest value
-    (finer grids are float rounding, which the default resolution already covers). Periodic
-    averaging does not reduce such a rounding error (it repeats with the excitation), so
-    identification must use it as the channel's noise floor."""
-    a = np.asarray(y, dtype=float).ravel()
-    a = a[np.isfinite(a)]
-    if a.size < 16:
-        return None
-    u = np.unique(a)
-    if u.size < min_levels:
-        return None
-    d = np.diff(u)
-    q = float(d.min())
-    big = float(np.max(np.abs(u)))
-    if q <= 1000 * float(np.spacing(np.float32(big))):
-        return None
-    k = a / q
-    if np.max(np.abs(k - np.round(k))) > 1e-3:
-        return None
-    return q

@@ -78,10 +78,10 @@ def test_a_new_field_with_a_value_is_covered_by_the_digest() -> None:
     """Left out only at its default: set, it is part of the content like any other field."""
     base = Series(title="t", x=[1.0, 2.0], x_label="x [1]", y_label="y [1]", lines={"a": [0.0, 1.0]})
     marked = base.model_copy(update={"shade_negative": True})
-    from hil.certificate import _drop_new_defaults
+    from hil.certificate import drop_new_defaults
 
     d0 = json.loads(base.model_dump_json())
     d1 = json.loads(marked.model_dump_json())
-    _drop_new_defaults(base, d0)
-    _drop_new_defaults(marked, d1)
+    drop_new_defaults(base, d0)
+    drop_new_defaults(marked, d1)
     assert "shade_negative" not in d0 and d1["shade_negative"] is True

@@ -23,7 +23,7 @@ from hil.stability.witness import find_witness, termination_family
 def _nominal(name: str):
     sc = load_scene(name)
     cert = sc.certification
-    tm = pl._build(cert.model, pl.model_params_from_scene(sc))
+    tm = pl.build_network(cert.model, pl.model_params_from_scene(sc))
     return sc, tm, pl._check(tm, pl._criterion(cert.model, cert.criterion))
 
 

@@ -360,15 +360,7 @@ def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL, margin: bool = True,
     depths = [_band_min(ratio, a, b, cc, m)[1] for a, b in bands]
     margin_v, worst_x = math.nan, math.nan
     if margin:
-        worst_x, margin_v = _global_min(rep, cc, m_rep, extra=[x for x, _, _ in roots_info])
-        for a, b in bands:
-            bx, bv = _band_min(rep, a, b, cc, m_rep)
-            if bv < margin_v:
-                margin_v, worst_x = bv, bx
-        for x in touching:
-            v = float(rep(x)[0])
-            if v < margin_v:
-                margin_v, worst_x = v, x
+        margin_v, worst_x = _margin_min(rep, cc, m_rep, bands, touching, [x for x, _, _ in roots_info])
     if any(d < -tol for d in depths):
         status: Status = "violated"
     elif bands or touching:
@@ -491,6 +483,22 @@ def _band_min(ratio: _Ratio, a: float, b: float, cc: np.ndarray, m: np.ndarray) 
         if lim0 < bv:
             bx, bv = 0.0, lim0
     return bx, bv
+
+
+def _margin_min(rep: _Ratio, c: np.ndarray, m: np.ndarray, bands: Sequence[tuple[float, float]],
+                touching: Sequence[float], extra: list[float]) -> tuple[float, float]:
+    """(margin, x where it is attained): the smallest value of the normalized condition ``rep``
+    over x ≥ 0 -- its global minimum, each negative band's minimum and the touching points."""
+    worst_x, margin_v = _global_min(rep, c, m, extra=extra)
+    for a, b in bands:
+        bx, bv = _band_min(rep, a, b, c, m)
+        if bv < margin_v:
+            margin_v, worst_x = bv, bx
+    for x in touching:
+        v = float(rep(x)[0])
+        if v < margin_v:
+            margin_v, worst_x = v, x
+    return margin_v, worst_x
 
 
 def _critical_points(cc: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -783,16 +791,7 @@ def decide_exact(p, m: np.ndarray | None = None, margin: bool = True) -> SignDec
         bands.append((seg, math.inf))
     margin_v, worst_x = math.nan, math.nan
     if margin:
-        rep = _Ratio(c, m_rep)
-        worst_x, margin_v = _global_min(rep, c, m_rep, extra=[x for x, _ in events])
-        for lo, hi in bands:
-            bx, bv = _band_min(rep, lo, hi, c, m_rep)
-            if bv < margin_v:
-                margin_v, worst_x = bv, bx
-        for x in touching:
-            v = float(rep(x)[0])
-            if v < margin_v:
-                margin_v, worst_x = v, x
+        margin_v, worst_x = _margin_min(_Ratio(c, m_rep), c, m_rep, bands, touching, [x for x, _ in events])
     d = SignDecision(status_map[es.status], float(margin_v), float(worst_x), bands, [math.nan] * len(bands),
                      touching, len(events), "exact (Arb isolation over Q)", c)  # type: ignore[arg-type]
     _exact_depths(p, d, mm, m_rep, margin)

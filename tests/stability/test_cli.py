@@ -108,16 +108,8 @@ def test_passive_t_network_file_is_stable_in_every_form(tmp_path, capsys, kind):
     # issue 11, defect 3: the hybrid form used to crash ("entry denominator does not divide the
     # common denominator", exit 2) and the inverse hybrid was called potentially unstable
     # T-network z1 = 1, z2 = 2s, z3 = 3/s in its four forms, derived by hand (as in test_verdicts)
-    T_FORMS = {
-        "impedance": [[{"num": [1, 3], "den": [1, 0]}, {"num": [3], "den": [1, 0]}],
-                      [{"num": [3], "den": [1, 0]}, {"num": [2, 0, 3], "den": [1, 0]}]],
-        "admittance": [[{"num": [2, 0, 3], "den": [2, 6, 3]}, {"num": [-3], "den": [2, 6, 3]}],
-                       [{"num": [-3], "den": [2, 6, 3]}, {"num": [1, 3], "den": [2, 6, 3]}]],
-        "hybrid": [[{"num": [2, 6, 3], "den": [2, 0, 3]}, {"num": [3], "den": [2, 0, 3]}],
-                   [{"num": [-3], "den": [2, 0, 3]}, {"num": [1, 0], "den": [2, 0, 3]}]],
-        "inverse_hybrid": [[{"num": [1, 0], "den": [1, 3]}, {"num": [-3], "den": [1, 3]}],
-                           [{"num": [3], "den": [1, 3]}, {"num": [2, 6, 3], "den": [1, 3]}]],
-    }
+    from test_verdicts import T_FORMS
+
     f = tmp_path / f"t_{kind}.json"
     f.write_text(json.dumps({"type": kind, "ports": [1, 1], "matrix": T_FORMS[kind]}))
     for crit in ("passivity", "llewellyn"):
