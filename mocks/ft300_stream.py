@@ -54,8 +54,8 @@ from hil.mocks.modbus_devices import (
 )
 from hil.mocks.periodic import PeriodicThread
 from hil.mocks.pty import LinkBudget, close_fds, host_writes, open_raw_pty, write_dropping
-from hil.protocols.crc import crc16_modbus
-from hil.protocols.modbus_robotiq import (
+from hil.protocols.codecs.crc import crc16_modbus
+from hil.protocols.codecs.robotiq import (
     DEFAULT_SLAVE_ID,
     REG_OUTPUT_SELECT,
     REG_WRENCH,
