@@ -31,11 +31,11 @@ import math
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Literal, Self
+from typing import Literal, Self, TypeVar
 
 import numpy as np
 
-from hil.errors import DeviceDisconnected
+from hil.errors import DeviceDisconnected, DeviceTimeout
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +75,9 @@ class WrenchSample:
     def age(self) -> float:
         """``t - produced_at`` (s): how old the data was when read (0 when unknown)."""
         return sample_age(self)
+
+
+SampleT = TypeVar("SampleT", JointSample, WrenchSample)
 
 
 def sample_age(sample: object) -> float:
@@ -129,6 +132,8 @@ class Device(abc.ABC):
     label: str = ""
     _closed: bool = False  # class defaults: a constructor that fails early can still close()
     _seq: int = 0
+    _stale_reads: int = 0
+    _timeouts: int = 0
 
     @property
     def closed(self) -> bool:
@@ -172,6 +177,16 @@ class Device(abc.ABC):
     def _next_seq(self) -> int:
         self._seq += 1
         return self._seq
+
+    def _stale(self, last: SampleT | None, t: float, why: str) -> SampleT:
+        """A read that found no new data: the previous sample again, read at ``t`` (a *stale*
+        sample, counted in ``_stale_reads``), or, before the first sample, DeviceTimeout(``why``)
+        (counted in ``_timeouts``)."""
+        if last is None:
+            self._timeouts += 1
+            raise DeviceTimeout(why)
+        self._stale_reads += 1
+        return dataclasses.replace(last, t=t)
 
     def _timeout(self, timeout: float | None) -> float:
         t = float(self.timeout if timeout is None else timeout)

@@ -69,6 +69,7 @@ from hil.errors import DeviceFault, DeviceTimeout, ProtocolError
 from hil.protocols.base import DeviceInfo, JointSample, StopStep
 from hil.protocols.can_common import CanActuator
 from hil.protocols.codecs import cubemars as _wire
+from hil.protocols.codecs import forwarder
 from hil.protocols.codecs.cubemars import (
     ERROR_CODES,
     SPECIAL_FRAMES,
@@ -307,9 +308,5 @@ class CubeMarsMIT(CanActuator):
         return bool(self._enable)
 
 
-def __getattr__(name: str) -> Any:
-    """Names of the wire format, importable from here as before (:mod:`hil.protocols.codecs.cubemars`)."""
-    try:
-        return getattr(_wire, name)
-    except AttributeError:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+#: the wire-format names (:mod:`hil.protocols.codecs`) stay importable from this module
+__getattr__ = forwarder(_wire, __name__)

@@ -98,9 +98,10 @@ import can
 import numpy as np
 
 from hil.errors import DeviceFault, DeviceTimeout
-from hil.protocols.base import DeviceInfo, JointSample, StopStep, repeat_sample
+from hil.protocols.base import DeviceInfo, JointSample, StopStep
 from hil.protocols.can_common import CanActuator
 from hil.protocols.can_common import open_can_bus as open_can_bus  # re-export (old path)
+from hil.protocols.codecs import forwarder
 from hil.protocols.codecs import odrive as _wire
 from hil.protocols.codecs.odrive import (
     CMD_CLEAR_ERRORS,
@@ -130,6 +131,7 @@ from hil.protocols.codecs.odrive import (
 )
 
 log = logging.getLogger(__name__)
+
 
 class ODriveCAN(CanActuator):
     """One ODrive axis (one CANSimple node) in torque control; ``dof`` = 1.
@@ -423,11 +425,8 @@ class ODriveCAN(CanActuator):
         self._raise_if_fault()
         est = self._estimate
         if est is None:
-            if self._last is None:
-                self._timeouts += 1
-                raise DeviceTimeout(f"ODrive node {self.node_id}: no encoder estimate within {timeout:.3f} s")
-            self._stale_reads += 1
-            return repeat_sample(self._last, self.clock())
+            return self._stale(self._last, self.clock(),
+                               f"ODrive node {self.node_id}: no encoder estimate within {timeout:.3f} s")
         self._estimate = None
         effort = None
         if self._torques is not None:
@@ -503,9 +502,5 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    """Names of the wire format, importable from here as before (:mod:`hil.protocols.codecs.odrive`)."""
-    try:
-        return getattr(_wire, name)
-    except AttributeError:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+#: the wire-format names (:mod:`hil.protocols.codecs`) stay importable from this module
+__getattr__ = forwarder(_wire, __name__)

@@ -84,6 +84,7 @@ import numpy as np
 from hil.errors import ChecksumError, DeviceDisconnected, DeviceError, DeviceFault, DeviceTimeout, ProtocolError
 from hil.protocols.base import Actuator, DeviceInfo, JointSample, StopStep
 from hil.protocols.codecs import dynamixel as _wire
+from hil.protocols.codecs import forwarder
 from hil.protocols.codecs.dynamixel import (
     ADDR_BUS_WATCHDOG,
     ADDR_CURRENT_LIMIT,
@@ -112,6 +113,7 @@ from hil.protocols.codecs.dynamixel import (
 )
 
 log = logging.getLogger(__name__)
+
 
 # ------------------------------------------------------------------------------------------------
 # SDK port with real timeouts
@@ -440,9 +442,5 @@ class DynamixelX(Actuator):
         self._raise_for_error(dxl_id, error, timeout)
 
 
-def __getattr__(name: str) -> Any:
-    """Names of the wire format, importable from here as before (:mod:`hil.protocols.codecs.dynamixel`)."""
-    try:
-        return getattr(_wire, name)
-    except AttributeError:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+#: the wire-format names (:mod:`hil.protocols.codecs`) stay importable from this module
+__getattr__ = forwarder(_wire, __name__)

@@ -71,7 +71,8 @@ from hil.errors import (
     DeviceTimeout,
     ProtocolError,
 )
-from hil.protocols.base import DeviceInfo, ForceSensor, StreamingSensor, WrenchSample, repeat_sample
+from hil.protocols.base import DeviceInfo, ForceSensor, StreamingSensor, WrenchSample
+from hil.protocols.codecs import forwarder
 from hil.protocols.codecs import robotiq as _wire
 from hil.protocols.codecs.robotiq import (
     DEFAULT_BAUDRATE,
@@ -107,6 +108,7 @@ from hil.protocols.codecs.robotiq import (
 )
 
 log = logging.getLogger(__name__)
+
 
 def stop_stream_on_line(ser: Any, *, listen_s: float = 0.05, stop_s: float = STREAM_STOP_S,
                         quiet_s: float = 0.05) -> bool | None:
@@ -483,15 +485,9 @@ class RobotiqFT300Stream(StreamingSensor):
             deadline = min(deadline, self._last_rx + t)
         self._pump(block=False)
         while self._pending is None:
-            if self._last is not None and self.max_age > 0 and time.monotonic() - self._last_rx <= self.max_age:
-                self._stale_reads += 1
-                return repeat_sample(self._last, self._clock())
-            if time.monotonic() >= deadline:
-                if self._last is None:
-                    self._timeouts += 1
-                    raise DeviceTimeout(f"FT-300 stream on {self.url}: no frame within {t:.3f} s")
-                self._stale_reads += 1
-                return repeat_sample(self._last, self._clock())
+            young = self._last is not None and self.max_age > 0 and time.monotonic() - self._last_rx <= self.max_age
+            if young or time.monotonic() >= deadline:
+                return self._stale(self._last, self._clock(), f"FT-300 stream on {self.url}: no frame within {t:.3f} s")
             self._pump(block=True)
         wrench, self._pending = self._pending, None
         self._last = WrenchSample(t=self._clock(), seq=self._next_seq(), wrench=wrench - self._offset,
@@ -666,9 +662,5 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    """Names of the wire format, importable from here as before (:mod:`hil.protocols.codecs.robotiq`)."""
-    try:
-        return getattr(_wire, name)
-    except AttributeError:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+#: the wire-format names (:mod:`hil.protocols.codecs`) stay importable from this module
+__getattr__ = forwarder(_wire, __name__)

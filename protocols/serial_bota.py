@@ -62,14 +62,15 @@ import logging
 import time
 from collections import Counter
 from collections.abc import Callable
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 import serial
 
 from hil.errors import ChecksumError, DeviceDisconnected, DeviceError, DeviceFault, DeviceTimeout
-from hil.protocols.base import DeviceInfo, StreamingSensor, WrenchSample, repeat_sample
+from hil.protocols.base import DeviceInfo, StreamingSensor, WrenchSample
 from hil.protocols.codecs import bota as _wire
+from hil.protocols.codecs import forwarder
 from hil.protocols.codecs.bota import (
     BOTA_BASE_HZ,
     BOTA_BAUD_CODES,
@@ -80,6 +81,7 @@ from hil.protocols.codecs.bota import (
 )
 
 log = logging.getLogger(__name__)
+
 
 class BotaSerial(StreamingSensor):
     """A Bota serial F/T sensor streaming binary frames; 6 axes (Fx, Fy, Fz, Tx, Ty, Tz).
@@ -278,11 +280,7 @@ class BotaSerial(StreamingSensor):
             self._pump(block=True)
             frame = self._take()
         if frame is None:
-            if self._last is None:
-                self._timeouts += 1
-                raise DeviceTimeout(f"{self.url}: no fresh frame within {timeout:.3f} s")
-            self._stale_reads += 1
-            return repeat_sample(self._last, self.clock())
+            return self._stale(self._last, self.clock(), f"{self.url}: no fresh frame within {timeout:.3f} s")
         self._last_rx_wall = time.monotonic()
         produced = self.clock()
         self.last_frame = frame
@@ -301,9 +299,5 @@ class BotaSerial(StreamingSensor):
         self._ser.close()
 
 
-def __getattr__(name: str) -> Any:
-    """Names of the wire format, importable from here as before (:mod:`hil.protocols.codecs.bota`)."""
-    try:
-        return getattr(_wire, name)
-    except AttributeError:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+#: the wire-format names (:mod:`hil.protocols.codecs`) stay importable from this module
+__getattr__ = forwarder(_wire, __name__)
