@@ -453,7 +453,8 @@ class Bench:
         out: dict[str, dict[str, Any]] = {}
         for d in self._devs:
             info = getattr(d.adapter, "info", None)
-            rec = dataclasses.asdict(info) if dataclasses.is_dataclass(info) else {"driver": d.cfg.driver}
+            rec = (dataclasses.asdict(info) if dataclasses.is_dataclass(info) and not isinstance(info, type)
+                   else {"driver": d.cfg.driver})
             rec["role"] = d.cfg.role
             rec["simulated"] = self.simulated
             out[d.name] = _jsonable(rec)
@@ -508,9 +509,9 @@ class Bench:
                 return name
         with contextlib.suppress(KeyError):
             port = self.scene.port(key)
-            body = self.scene.device(port.actuator).body
+            held = self.scene.device(port.actuator).body
             for name, (b, _, _) in self._humans.items():
-                if b == body:
+                if b == held:
                     return name
         raise ValueError(f"no simulated human at {key!r}; humans: "
                          f"{ {n: b for n, (b, _, _) in self._humans.items()} }")
@@ -543,9 +544,9 @@ class Bench:
                 return body if dofs is None else (body, list(dofs))
 
             for i, sp in enumerate(sim.springs):
-                a = port(sp.a, sp.a_dofs, f"simulation.springs[{i}].a")
-                b = None if sp.b is None else port(sp.b, sp.b_dofs, f"simulation.springs[{i}].b")
-                ps.add_spring(a, b, _arr(sp.stiffness), _arr(sp.damping), name=sp.name or f"spring{i}")
+                pa = port(sp.a, sp.a_dofs, f"simulation.springs[{i}].a")
+                pb = None if sp.b is None else port(sp.b, sp.b_dofs, f"simulation.springs[{i}].b")
+                ps.add_spring(pa, pb, _arr(sp.stiffness), _arr(sp.damping), name=sp.name or f"spring{i}")
             for i, t in enumerate(sim.terminations):
                 p = port(t.port, t.dofs, f"simulation.terminations[{i}].port")
                 tname = t.name if not isinstance(t, NamedTermination) else f"{t.name}_{t.port}"
@@ -586,6 +587,7 @@ class Bench:
                              f"configuration (variant {self.variant!r})")
         drive = self._drives[cfg.body]
         sel = list(cfg.dofs) if cfg.dofs is not None else list(range(drive.handle.dof))
+        assert sim is not None  # only a simulated bench has measurement points
         noise = sim.sensor_noise
         dev_seed = cfg.sim.seed if cfg.sim.seed is not None else _seed_for(self.seed, 100 + index)
         if cfg.role == "force_sensor":

@@ -193,7 +193,7 @@ class CiA402Drive(Actuator):
             self._bus, self._own_bus = bus, False
         self.network = canopen.Network(self._bus)
         self.network.NOTIFIER_CYCLE = 0.05  # receive-thread poll period: bounds how long close() waits
-        self.network.listeners.append(self._errors)
+        self.network.listeners.append(self._errors)  # type: ignore[arg-type]  # canopen types these as its own MessageListener; a can.Listener is what python-can's Notifier calls
         od = canopen.import_od(default_eds() if eds is None else eds, self.node_id)
         self.node = canopen.RemoteNode(self.node_id, od)
         self.node.sdo.RESPONSE_TIMEOUT = self.timeout
@@ -291,10 +291,10 @@ class CiA402Drive(Actuator):
         node = self.node
 
         def configure() -> None:
-            node.rpdo.read()
-            node.tpdo.read()
+            node.rpdo.read()  # type: ignore[no-untyped-call]  # canopen's PdoBase.read has no annotations
+            node.tpdo.read()  # type: ignore[no-untyped-call]  # (same)
             for maps in (node.rpdo.map, node.tpdo.map):
-                for m in maps.values():
+                for m in (maps or {}).values():
                     m.enabled = False
             r1 = node.rpdo[1]
             r1.clear()
@@ -307,8 +307,8 @@ class CiA402Drive(Actuator):
                 for index in objs:
                     t.add_variable(index)
                 t.cob_id, t.trans_type, t.enabled = cob + self.node_id, 1, True
-            node.rpdo.save()
-            node.tpdo.save()
+            node.rpdo.save()  # type: ignore[no-untyped-call]  # canopen's PdoBase.save has no annotations
+            node.tpdo.save()  # type: ignore[no-untyped-call]  # (same)
 
         self._sdo(configure, "PDO mapping")
         node.tpdo[1].add_callback(lambda m: self._on_tpdo(0))

@@ -73,6 +73,7 @@ whose watchdog expired. Counters: ``crc_errors``, ``timeouts``, ``bus_watchdog_e
 
 from __future__ import annotations
 
+import functools
 import logging
 import select
 import time
@@ -121,7 +122,7 @@ log = logging.getLogger(__name__)
 def _make_port_handler(port_name: str) -> Any:
     from dynamixel_sdk import PortHandler
 
-    class TimedPortHandler(PortHandler):  # type: ignore[misc, valid-type]
+    class TimedPortHandler(PortHandler):  # type: ignore[misc]  # dynamixel_sdk has no type hints (Any)
         """``PortHandler`` whose packet timeout is the adapter's call timeout and whose read
         waits in ``select`` (the stock one polls a non-blocking port in a busy loop)."""
 
@@ -139,11 +140,12 @@ def _make_port_handler(port_name: str) -> Any:
                 left = self.packet_timeout - self.getTimeSinceStart()
                 if left > 0:
                     select.select([self.ser.fileno()], [], [], min(left, 5.0) / 1000.0)
-            return self.ser.read(length)
+            data: bytes = self.ser.read(length)
+            return data
 
         def writePort(self, packet: Any) -> int:
-            n = self.ser.write(packet)
-            self.tx_bytes += n or 0
+            n: int = self.ser.write(packet) or 0
+            self.tx_bytes += n
             return n
 
     return TimedPortHandler(port_name)
@@ -329,7 +331,7 @@ class DynamixelX(Actuator):
     def _stop_steps(self) -> list[StopStep]:
         """Safe stop: zero current, then torque off on every servo (each attempted)."""
         steps: list[StopStep] = [lambda: self.command_effort(np.zeros(self.dof), timeout=0.05)]
-        steps += [lambda i=i: self._write(i, ADDR_TORQUE_ENABLE, 1, 0, 0.05) for i in self.ids]
+        steps += [functools.partial(self._write, i, ADDR_TORQUE_ENABLE, 1, 0, 0.05) for i in self.ids]
         steps.append(lambda: setattr(self, "_enabled", False))
         return steps
 
@@ -347,14 +349,14 @@ class DynamixelX(Actuator):
         from dynamixel_sdk import COMM_SUCCESS
 
         first = self.ids[0]
-        answer = self._ph.ping(self._port, first)
+        answer: tuple[int, int, int] = self._ph.ping(self._port, first)
         if answer[1] == COMM_SUCCESS or not self.scan_baudrates:
             return answer
         for bps in BAUD_RATES.values():
             if bps == self.baudrate:
                 continue
             self._port.setBaudRate(bps)
-            found = self._ph.ping(self._port, first)
+            found: tuple[int, int, int] = self._ph.ping(self._port, first)
             if found[1] == COMM_SUCCESS:
                 log.warning("DYNAMIXEL id %d answers at %d bps, not %d: continuing at %d bps (set baudrate: %d "
                             "in the scene)", first, bps, self.baudrate, bps, bps)

@@ -237,7 +237,7 @@ class BotaSerial(StreamingSensor):
                 if dt == 0:
                     st["stale"] += 1
                     continue
-                if self._learned_period and dt * 1e-6 < self.period_s:
+                if self._learned_period and self.period_s is not None and dt * 1e-6 < self.period_s:
                     self.period_s = dt * 1e-6  # learned period: keep the smallest step seen
                 if self.period_s is None:
                     self.period_s = dt * 1e-6

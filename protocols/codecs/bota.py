@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import struct
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 from hil.protocols.codecs.crc import crc16_x25
@@ -31,7 +32,7 @@ class BotaFrame:
     temperature: float
 
 
-def encode_frame(status: int, wrench, timestamp: int, temperature: float) -> bytes:
+def encode_frame(status: int, wrench: Iterable[float], timestamp: int, temperature: float) -> bytes:
     """One binary frame (header, payload, CRC-16/X-25 little endian)."""
     payload = PAYLOAD.pack(status & 0xFFFF, *(float(w) for w in wrench), timestamp & 0xFFFFFFFF, temperature)
     return bytes((HEADER,)) + payload + struct.pack("<H", crc16_x25(payload))

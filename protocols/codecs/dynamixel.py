@@ -80,7 +80,8 @@ def effort_to_current_raw(
 ) -> np.ndarray:
     """Effort (N.m) -> Goal Current register values (signed ints), clamped to +-limit."""
     raw = np.rint(directions * np.asarray(effort, dtype=float) / torque_constant / CURRENT_UNIT_A)
-    return np.clip(raw, -limit_raw, limit_raw).astype(np.int64)
+    out: np.ndarray = np.clip(raw, -limit_raw, limit_raw).astype(np.int64)
+    return out
 
 
 def bus_watchdog_units(seconds: float) -> int:

@@ -37,7 +37,8 @@ def registers_to_wrench(registers: list[int] | tuple[int, ...]) -> np.ndarray:
         raise ProtocolError(f"expected 6 registers, got {len(registers)}")
     raw = np.array([int(r) & 0xFFFF for r in registers], dtype=np.int64)
     signed = np.where(raw >= 0x8000, raw - 0x10000, raw)
-    return signed / WRENCH_SCALES
+    wrench: np.ndarray = signed / WRENCH_SCALES
+    return wrench
 
 
 def decode_firmware(registers: list[int]) -> str:
@@ -73,7 +74,8 @@ def decode_stream_frame(frame: bytes) -> np.ndarray:
     (crc,) = struct.unpack_from("<H", frame, 14)
     if crc16_modbus(frame[:14]) != crc:
         raise ChecksumError("FT-300 stream frame CRC mismatch")
-    return np.array(struct.unpack_from("<6h", frame, 2), dtype=float) / WRENCH_SCALES
+    wrench: np.ndarray = np.array(struct.unpack_from("<6h", frame, 2), dtype=float) / WRENCH_SCALES
+    return wrench
 
 
 class StreamParser:
