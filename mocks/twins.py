@@ -107,6 +107,9 @@ def _can_params(ctx: TwinContext, params: dict[str, Any]) -> str:
 class CanTwin(Twin):
     """A simulated CAN node (python-can bus, lockstep tick per control period)."""
 
+    #: the adapter parameter naming the node, how addresses call it, and its default
+    node_param, node_word, node_default = "node_id", "node", 1
+
     def tick(self, sim: Any) -> None:
         sim.tick()
 
@@ -120,12 +123,14 @@ class CanTwin(Twin):
         sim.start(rate_hz)
 
     def address(self, driver: str, params: dict[str, Any]) -> tuple[str, bool]:
-        return (f"can {params['interface']}:{params['channel']} node {params.get('node_id', 1)}",
-                params["interface"] != "virtual")
+        node = params.get(self.node_param, self.node_default)
+        iface = params["interface"]
+        return f"can {iface}:{params['channel']} {self.node_word} {node}", iface != "virtual"
 
 
 class ODriveTwin(CanTwin):
     udp_multicast = True
+    node_default = 0
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         from hil.mocks.can_devices import SIM_WATCHDOG_ENDPOINTS, SimODrive
@@ -149,13 +154,11 @@ class ODriveTwin(CanTwin):
         if sim.encoder_every:  # cyclic estimates
             sim.publish_estimate()
 
-    def address(self, driver: str, params: dict[str, Any]) -> tuple[str, bool]:
-        return (f"can {params['interface']}:{params['channel']} node {params.get('node_id', 0)}",
-                params["interface"] != "virtual")
 
 
 class CubeMarsTwin(CanTwin):
     udp_multicast = True
+    node_param, node_word = "motor_id", "motor"
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         from hil.mocks.can_devices import SimCubeMars
@@ -166,9 +169,6 @@ class CubeMarsTwin(CanTwin):
                           **({"sync": True} if ctx.lockstep else {}))
         return sim, params
 
-    def address(self, driver: str, params: dict[str, Any]) -> tuple[str, bool]:
-        return (f"can {params['interface']}:{params['channel']} motor {params.get('motor_id', 1)}",
-                params["interface"] != "virtual")
 
 
 class CiA402Twin(CanTwin):
