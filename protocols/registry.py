@@ -1,8 +1,13 @@
 """Driver registry: a scene names a driver, the registry imports only that driver's module.
 
-Modelled on python-can's backend registry: each name maps to a ``"module:Class"`` string that is
-resolved with :mod:`importlib` on first use, so a scene using only CAN never imports
-``pymodbus`` or ``dynamixel_sdk``.
+Modelled on python-can's backend registry (and its ``can.interface`` entry points): one
+:class:`DeviceKind` per device kind names the adapter (``"module:Class"``), its simulated twin
+(``"module:attribute"``, a :class:`hil.mocks.twins.Twin`: what :mod:`hil.bench` needs to start,
+tick, flush and serve it), its transport and its optional imports; the strings are resolved with
+:mod:`importlib` on first use, so a scene using only CAN never imports ``pymodbus`` or
+``dynamixel_sdk``. Another distribution adds a device with an entry point in the
+``hil_certify.devices`` group naming a :class:`DeviceKind` (read on first lookup,
+:func:`load_entry_points`).
 
 >>> from hil.protocols.registry import open_device
 >>> dev = open_device("odrive_can", interface="virtual", channel="bench0", node_id=3)  # doctest: +SKIP
