@@ -54,7 +54,9 @@ from typing import Any
 import numpy as np
 
 from hil.errors import DeviceDisconnected, DeviceTimeout, HilError, ModelError, SceneError
+from hil.mocks.twins import Twin, TwinContext
 from hil.protocols.base import JointSample, WrenchSample
+from hil.protocols.registry import device_kind, open_device, resolve_twin, simulated_drivers
 from hil.scene import (
     HumanCfg,
     ImpedanceTermination,
@@ -72,12 +74,10 @@ logger = logging.getLogger(__name__)
 #: Device name -> latest sample (JointSample for actuators, WrenchSample for force sensors).
 Measurements = dict[str, JointSample | WrenchSample]
 
-#: Drivers for which the bench has a simulated counterpart.
-SIMULATED_DRIVERS = ("odrive_can", "cubemars_mit", "bota_serial", "robotiq_ft300", "robotiq_ft300_stream",
-                     "dynamixel_x", "cia402")
-
-#: simulated CAN nodes (python-can virtual bus, lockstep tick per control period)
-_CAN_SIMS = ("SimODrive", "SimCubeMars", "SimCiA402")
+#: Drivers for which the bench has a simulated counterpart (registered with a twin in
+#: :mod:`hil.protocols.registry`; :func:`hil.protocols.registry.simulated_drivers` includes the
+#: kinds registered later or through entry points).
+SIMULATED_DRIVERS = tuple(simulated_drivers())
 
 #: Wall-clock wait for a simulated device's reply, in units of ``watchdog_ms`` (see :class:`Bench`).
 LOCKSTEP_WAIT_FACTOR = 20.0
@@ -171,29 +171,6 @@ class SimPoint:
         return self._read("force", self._force_fn)
 
 
-class _Concat:
-    """Several :class:`SimPoint` s seen as one SimulatedJoints (a bus serving several devices)."""
-
-    def __init__(self, points: list[SimPoint]) -> None:
-        self.points = points
-        self.dof = sum(p.dof for p in points)
-        self._split = np.cumsum([p.dof for p in points])[:-1]
-
-    def apply_effort(self, effort: np.ndarray) -> None:
-        for p, e in zip(self.points, np.split(np.asarray(effort, dtype=float).reshape(self.dof), self._split),
-                        strict=True):
-            p.apply_effort(e)
-
-    def position(self) -> np.ndarray:
-        return np.concatenate([p.position() for p in self.points])
-
-    def velocity(self) -> np.ndarray:
-        return np.concatenate([p.velocity() for p in self.points])
-
-    def measured_force(self) -> np.ndarray:
-        return np.concatenate([p.measured_force() for p in self.points])
-
-
 @dataclasses.dataclass
 class _Dev:
     """One opened device: scene config, adapter and (simulated bench) its counterpart."""
@@ -201,9 +178,15 @@ class _Dev:
     name: str
     cfg: Any
     adapter: Any = None
-    sim: Any = None  # simulated device object (node / SimBota / SimulatedFT300 / DynamixelChain)
+    sim: Any = None  # simulated device owned by this device (node / SimBota / SimulatedFT300 / DynamixelChain)
     point: SimPoint | None = None
-    chain: Any = None  # DYNAMIXEL chain serving this device (possibly shared with others)
+    twin: Twin | None = None  # its kind's simulated twin (hil.mocks.twins)
+    host: Any = None  # the simulated device serving it (its own sim, or one shared with other devices)
+
+    @property
+    def chain(self) -> Any:
+        """The simulated device serving this one (a DYNAMIXEL chain may serve several)."""
+        return self.host
 
 
 class Bench:
@@ -427,15 +410,8 @@ class Bench:
         self._flush_devices()
         self.simulator.tick()
         for d in self._devs:
-            kind = type(d.sim).__name__
-            if kind in _CAN_SIMS:
-                d.sim.tick()
-            elif kind in ("SimBota", "SimFT300Stream"):
-                d.sim.emit()
-            elif kind == "SimulatedFT300":
-                d.sim.update()
-        for chain in {id(d.chain): d.chain for d in self._devs if d.chain is not None}.values():
-            chain.check_watchdog()  # Bus Watchdog(98) on the simulated clock
+            if d.sim is not None and d.twin is not None:
+                d.twin.tick(d.sim)
 
     def safe_stop(self) -> dict[str, str]:
         """Zero effort on every actuator (and disable where the adapter does so). Never raises.
@@ -477,7 +453,8 @@ class Bench:
         out: dict[str, dict[str, Any]] = {}
         for d in self._devs:
             info = getattr(d.adapter, "info", None)
-            rec = dataclasses.asdict(info) if dataclasses.is_dataclass(info) else {"driver": d.cfg.driver}
+            rec = (dataclasses.asdict(info) if dataclasses.is_dataclass(info) and not isinstance(info, type)
+                   else {"driver": d.cfg.driver})
             rec["role"] = d.cfg.role
             rec["simulated"] = self.simulated
             out[d.name] = _jsonable(rec)
@@ -532,9 +509,9 @@ class Bench:
                 return name
         with contextlib.suppress(KeyError):
             port = self.scene.port(key)
-            body = self.scene.device(port.actuator).body
+            held = self.scene.device(port.actuator).body
             for name, (b, _, _) in self._humans.items():
-                if b == body:
+                if b == held:
                     return name
         raise ValueError(f"no simulated human at {key!r}; humans: "
                          f"{ {n: b for n, (b, _, _) in self._humans.items()} }")
@@ -567,9 +544,9 @@ class Bench:
                 return body if dofs is None else (body, list(dofs))
 
             for i, sp in enumerate(sim.springs):
-                a = port(sp.a, sp.a_dofs, f"simulation.springs[{i}].a")
-                b = None if sp.b is None else port(sp.b, sp.b_dofs, f"simulation.springs[{i}].b")
-                ps.add_spring(a, b, _arr(sp.stiffness), _arr(sp.damping), name=sp.name or f"spring{i}")
+                pa = port(sp.a, sp.a_dofs, f"simulation.springs[{i}].a")
+                pb = None if sp.b is None else port(sp.b, sp.b_dofs, f"simulation.springs[{i}].b")
+                ps.add_spring(pa, pb, _arr(sp.stiffness), _arr(sp.damping), name=sp.name or f"spring{i}")
             for i, t in enumerate(sim.terminations):
                 p = port(t.port, t.dofs, f"simulation.terminations[{i}].port")
                 tname = t.name if not isinstance(t, NamedTermination) else f"{t.name}_{t.port}"
@@ -610,6 +587,7 @@ class Bench:
                              f"configuration (variant {self.variant!r})")
         drive = self._drives[cfg.body]
         sel = list(cfg.dofs) if cfg.dofs is not None else list(range(drive.handle.dof))
+        assert sim is not None  # only a simulated bench has measurement points
         noise = sim.sensor_noise
         dev_seed = cfg.sim.seed if cfg.sim.seed is not None else _seed_for(self.seed, 100 + index)
         if cfg.role == "force_sensor":
@@ -645,8 +623,6 @@ class Bench:
     # -- internals: devices ---------------------------------------------------------------------
 
     def _open_devices(self) -> None:
-        from hil.protocols.registry import open_device
-
         sc = self.scene
         channels: dict[tuple[str, str], str] = {}
         self._devs = [_Dev(cfg.name, cfg) for cfg in sc.devices]
@@ -660,7 +636,7 @@ class Bench:
                 params = self._start_sim(i, d, params, channels)
             else:
                 params.setdefault("timeout", self.timeout)
-            self._device_watchdog_params(cfg.driver, params)
+            device_kind(cfg.driver).watchdog_params(params, self.watchdog_s, self.simulated)
             try:
                 d.adapter = open_device(cfg.driver, **params)
             except HilError:
@@ -670,106 +646,35 @@ class Bench:
             if self.simulated:
                 self._flush_devices()
         if self.simulated:
-            # first samples: publish the state at t = 0
-            for d in self._devs:
-                kind = type(d.sim).__name__
-                if kind == "SimODrive" and d.sim.encoder_every:  # cyclic estimates
-                    d.sim.publish_estimate()
-                elif kind in ("SimBota", "SimFT300Stream"):
-                    d.sim.emit()
-                elif kind == "SimulatedFT300":
-                    d.sim.update()
+            for d in self._devs:  # first samples: publish the state at t = 0
+                if d.sim is not None and d.twin is not None:
+                    d.twin.publish(d.sim)
 
     def _start_sim(self, index: int, d: _Dev, params: dict[str, Any],
                    channels: dict[tuple[str, str], str]) -> dict[str, Any]:
-        """Start the simulated counterpart of device ``d``; return the adapter params."""
+        """Start the simulated counterpart of device ``d`` (its kind's twin); return the adapter params."""
         cfg = d.cfg
         label = self.scene.path or self.scene.name
+        sims = simulated_drivers()
+        if cfg.driver not in sims:
+            raise SceneError(f"{label}: devices[{index}].driver: no simulated counterpart for driver {cfg.driver!r} "
+                             f"(simulated: {', '.join(sims)})")
         seed, faults = self._sim_seed_faults(index, cfg)
-        point = d.point
-        assert point is not None
-        clock = self._clock
-        drv = cfg.driver
-        if drv in ("odrive_can", "cubemars_mit"):
-            from hil.mocks.can_devices import SimCubeMars, SimODrive
-
-            scene_ch = str(params.get("channel", "hil0"))
-            iface = str(params.get("interface", "virtual"))
-            ch = channels.setdefault((iface, scene_ch), f"{scene_ch}.bench{self._bench_id}")
-            params.update(interface="virtual", channel=ch, clock=clock, timeout=self.timeout)
-            params.pop("bus", None)
-            if drv == "odrive_can":
-                from hil.mocks.can_devices import SIM_WATCHDOG_ENDPOINTS
-
-                # heartbeat every 10 ms (a real ODrive sends one every 100 ms by default): on the
-                # simulated bus every frame is copied to every node, so fewer frames = faster runs
-                d.sim = SimODrive(point, ch, int(params.get("node_id", 0)), "virtual",
-                                  gear_ratio=float(params.get("gear_ratio", 1.0)),
-                                  linear_scale=params.get("linear_scale"), faults=faults, seed=seed, sync=True,
-                                  heartbeat_every=max(1, round(0.01 * self.scene.rate_hz)), dt=self.dt,
-                                  firmware=str(params.get("firmware", "0.6")))
-                params.setdefault("watchdog_endpoints", dict(SIM_WATCHDOG_ENDPOINTS))
-                if params.get("feedback") == "cyclic":
-                    d.sim.encoder_every = 1
-            else:
-                d.sim = SimCubeMars(point, ch, int(params.get("motor_id", 1)), "virtual",
-                                    model=params.get("model", "AK80-9"), faults=faults, seed=seed, sync=True)
-        elif drv == "bota_serial":
-            from hil.mocks.serial_devices import SimBota
-            from hil.protocols.link_budget import BOTA_DEFAULT_BAUD, bota_sinc_length
-
-            # the sensor samples at 51200 / sinc_length Hz on the simulated clock (not once per tick)
-            # and its line carries baud/10 bytes per simulated second; the adapter configures it
-            sinc = bota_sinc_length(params)
-            d.sim = SimBota(point, sinc_length=sinc, tick_s=self.dt, faults=faults, seed=seed,
-                            axes=tuple(cfg.wrench_axes), baudrate=int(params.get("baudrate", BOTA_DEFAULT_BAUD)))
-            params.pop("period_s", None)
-            params.update(url=d.sim.path, sinc_length=sinc, clock=clock, timeout=self.timeout)
-        elif drv in ("robotiq_ft300", "robotiq_ft300_stream"):
-            axes = cfg.wrench_axes
-
-            def wrench() -> np.ndarray:
-                w = np.zeros(6)
-                w[axes] = point.measured_force()
-                return w
-
-            if drv == "robotiq_ft300":
-                from hil.mocks.modbus_devices import SimulatedFT300
-
-                d.sim = SimulatedFT300(wrench, framing=cfg.sim.framing, port=0, faults=faults, seed=seed,
-                                       auto_update=False, slave=int(params.get("slave", 9)))
-                params.update(url=d.sim.url, clock=clock, timeout=self.timeout)
-            else:  # serial line on a pty; lockstep: one frame per control period (emit())
-                from hil.mocks.ft300_stream import SimFT300Stream
-
-                d.sim = SimFT300Stream(wrench, faults=faults, seed=seed, slave=int(params.get("slave", 9)),
-                                       tick_s=self.dt)  # 100 Hz frames on the simulated clock
-                params.update(url=d.sim.path, clock=clock, timeout=self.timeout)
-        elif drv == "dynamixel_x":
-            d.chain = self._dynamixel_chain(index, d, faults, seed)
-            params.update(port=d.chain.port, clock=clock, timeout=self.timeout)
-        elif drv == "cia402":  # CiA 402 drive: canopen LocalNode on a private virtual CAN channel
-            scene_ch = str(params.get("channel", "hil0"))
-            ch = channels.setdefault((str(params.get("interface", "virtual")), scene_ch),
-                                     f"{scene_ch}.bench{self._bench_id}")
-            params.update(interface="virtual", channel=ch, clock=clock, timeout=self.timeout)
-            params.pop("bus", None)
-            d.sim = _sim_cia402(point, ch, params, faults, seed, self.dt, sync=True)
-        else:
-            raise SceneError(f"{label}: devices[{index}].driver: no simulated counterpart for driver {drv!r} "
-                             f"(simulated: {', '.join(SIMULATED_DRIVERS)})")
-        logger.debug("simulated %s for device %s (seed %d)", type(d.sim).__name__, cfg.name, seed)
+        ctx = self._twin_context(index, d, seed, faults, channels)
+        d.twin = resolve_twin(cfg.driver)
+        d.sim, params = d.twin.start(ctx, params)
+        d.host = d.twin.host(ctx, d.sim)
+        logger.debug("simulated %s for device %s (seed %d)", type(d.host).__name__, cfg.name, seed)
         return params
 
-    def _device_watchdog_params(self, driver: str, params: dict[str, Any]) -> None:
-        """Arm a device's own watchdog from the scene's ``watchdog_ms`` where it has one (unless the
-        scene's params set it): DYNAMIXEL X Bus Watchdog(98); ODrive axis watchdog over RxSdo
-        (firmware 0.6; needs the endpoint ids, see :mod:`hil.protocols.can_odrive`). CubeMars
-        MIT, Bota and Robotiq FT-300 have none."""
-        if driver == "dynamixel_x":
-            params.setdefault("bus_watchdog_s", self.watchdog_s)
-        elif driver == "odrive_can" and (self.simulated or params.get("watchdog_endpoints")):
-            params.setdefault("watchdog_s", self.watchdog_s)
+    def _twin_context(self, index: int, d: _Dev, seed: int, faults: Any,
+                      channels: dict[tuple[str, str], str]) -> TwinContext:
+        """Lockstep: CAN nodes on python-can's virtual bus, one private channel per scene channel
+        and bench; the adapters read the simulated clock."""
+        return TwinContext(index, d.cfg, d.point, seed, faults, self.dt, float(self.scene.rate_hz), self._clock,
+                           self.timeout, True, "virtual",
+                           lambda iface, ch: channels.setdefault((iface, ch), f"{ch}.bench{self._bench_id}"),
+                           self._devs, str(self.scene.path or self.scene.name))
 
     def _sim_seed_faults(self, index: int, cfg: Any) -> tuple[int, Any]:
         """Seed and :class:`hil.mocks.faults.FaultPlan` of the simulated counterpart of device
@@ -779,51 +684,16 @@ class Bench:
         seed = cfg.sim.seed if cfg.sim.seed is not None else _seed_for(self.seed, 200 + index)
         return seed, FaultPlan.from_dict(cfg.sim.faults)
 
-    def _dynamixel_chain(self, index: int, d: _Dev, faults: Any, seed: int) -> Any:
-        """The simulated chain serving device ``d``: devices whose scene ``params.port`` is the same
-        share one chain (one bus), each servo id driving its device's DOFs."""
-        from hil.mocks.dynamixel_devices import DynamixelChain
-
-        label = self.scene.path or self.scene.name
-        key = str(d.cfg.params.get("port", f"#{index}"))
-        group = [x for x in self._devs if x.cfg.driver == "dynamixel_x" and
-                 str(x.cfg.params.get("port", "")) == key] or [d]
-        for x in group:
-            if x.chain is not None:
-                return x.chain
-        ids: list[int] = []
-        for x in group:
-            xi = [int(v) for v in x.cfg.params.get("ids", [1])]
-            if len(xi) != x.cfg.dof:
-                j = self._devs.index(x)
-                raise SceneError(f"{label}: devices[{j}].params.ids: {len(xi)} servo ids for dof {x.cfg.dof}")
-            ids += xi
-        if len(set(ids)) != len(ids):
-            raise SceneError(f"{label}: devices[{index}].params.ids: servo ids on port {key!r} must be unique, "
-                             f"got {ids}")
-        points = [x.point for x in group]
-        joints = points[0] if len(points) == 1 else _Concat(points)
-        # the servos run at the scene's baudrate (configured servos; a factory one is at 57 600)
-        baud = int(group[0].cfg.params.get("baudrate", 57_600))
-        chain = DynamixelChain(joints, ids, faults=faults, seed=seed, clock=self._clock, baudrate=baud)
-        d.sim = chain  # owned (closed) by the first device of the group
-        return chain
-
     def _clock(self) -> float:
         return self.simulator.time if self.simulator is not None else 0.0
 
     def _flush_devices(self) -> None:
-        """Let simulated devices process what the host has sent (DYNAMIXEL sync writes get no
-        reply: wait until the chain has consumed every byte the adapters on it wrote)."""
-        chains: dict[int, tuple[Any, int]] = {}
+        """Let simulated devices process what the host has sent (each twin's ``flush``; e.g. a
+        DYNAMIXEL chain waits until it consumed every byte the adapters on it wrote)."""
         for d in self._devs:
-            if d.chain is not None and d.adapter is not None:
-                c, n = chains.get(id(d.chain), (d.chain, 0))
-                chains[id(d.chain)] = (c, n + d.adapter.tx_bytes)
-            elif d.sim is not None and type(d.sim).__name__ in _CAN_SIMS:
-                d.sim.process_pending()
-        for chain, n in chains.values():
-            chain.sync(n, timeout=max(1.0, 10 * self.timeout))
+            if d.sim is not None and d.twin is not None:
+                adapters = [x.adapter for x in self._devs if x.host is d.sim and x.adapter is not None]
+                d.twin.flush(d.sim, adapters, max(1.0, 10 * self.timeout))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -892,11 +762,8 @@ class SimulatedScene(Bench):
             return
         rate = float(self.scene.rate_hz)
         for d in self._devs:
-            kind = type(d.sim).__name__
-            if kind in (*_CAN_SIMS, "SimBota"):
-                d.sim.start(rate)
-            elif kind == "SimFT300Stream":
-                d.sim.start(self.stream_rate_hz)
+            if d.sim is not None and d.twin is not None:
+                d.twin.run_free(d.sim, rate, self.stream_rate_hz)
         self._stepper = threading.Thread(target=self._run, name=f"sim-scene-{self.scene.name}", daemon=True)
         self._stepper.start()
 
@@ -951,37 +818,15 @@ class SimulatedScene(Bench):
                 params.pop(host_side, None)
             self.endpoints.append(self._endpoint(d, params))
 
-    def _start_sim(self, index: int, d: _Dev, params: dict[str, Any],
-                   channels: dict[tuple[str, str], str]) -> dict[str, Any]:
-        drv = d.cfg.driver
-        if drv not in ("odrive_can", "cubemars_mit", "cia402"):
-            params = super()._start_sim(index, d, params, channels)
-            if type(d.sim).__name__ == "SimulatedFT300":
-                d.sim.auto_update = True  # free-running: registers refreshed on every request
-            return params
-        from hil.mocks.can_devices import SimCubeMars, SimODrive
-
-        seed, faults = self._sim_seed_faults(index, d.cfg)
-        scene_ch = str(params.get("channel", "hil0"))
-        key = (str(params.get("interface", "virtual")), scene_ch)
-        if key not in channels:
-            channels[key] = self._can_channel(scene_ch, len(channels))
-        ch, iface = channels[key], self.can_interface
-        params.update(interface=iface, channel=ch)
-        params.pop("bus", None)
-        if drv == "cia402":
-            d.sim = _sim_cia402(d.point, ch, params, faults, seed, self.dt, interface=iface)
-        elif drv == "odrive_can":
-            d.sim = SimODrive(d.point, ch, int(params.get("node_id", 0)), iface,
-                              gear_ratio=float(params.get("gear_ratio", 1.0)),
-                              linear_scale=params.get("linear_scale"), faults=faults, seed=seed, dt=self.dt,
-                              firmware=str(params.get("firmware", "0.6")))
-            if params.get("feedback") == "cyclic":
-                d.sim.encoder_every = 1
-        else:
-            d.sim = SimCubeMars(d.point, ch, int(params.get("motor_id", 1)), iface,
-                                model=params.get("model", "AK80-9"), faults=faults, seed=seed)
-        return params
+    def _twin_context(self, index: int, d: _Dev, seed: int, faults: Any,
+                      channels: dict[tuple[str, str], str]) -> TwinContext:
+        """Free-running: CAN nodes on ``can_interface`` (channels from ``can_channels`` or one
+        multicast group each), devices answering as requests arrive."""
+        ctx = super()._twin_context(index, d, seed, faults, channels)
+        ctx.lockstep = False
+        ctx.can_interface = self.can_interface
+        ctx.channel = lambda iface, ch: channels.setdefault((iface, ch), self._can_channel(ch, len(channels)))
+        return ctx
 
     def _can_channel(self, scene_ch: str, k: int) -> str:
         if scene_ch in self._can_map:
@@ -991,29 +836,9 @@ class SimulatedScene(Bench):
         return scene_ch
 
     def _endpoint(self, d: _Dev, params: dict[str, Any]) -> SimEndpoint:
-        drv = d.cfg.driver
-        cross = True
-        if drv in ("odrive_can", "cubemars_mit", "cia402"):
-            ident = (f"motor {params.get('motor_id', 1)}" if drv == "cubemars_mit"
-                     else f"node {params.get('node_id', 0 if drv == 'odrive_can' else 1)}")
-            address = f"can {params['interface']}:{params['channel']} {ident}"
-            cross = params["interface"] != "virtual"
-        elif drv == "dynamixel_x":
-            address = f"{params['port']} ids {list(params.get('ids', [1]))}"
-        else:
-            address = str(params.get("url", ""))
-        return SimEndpoint(d.name, drv, d.cfg.role, _jsonable(params), address, cross)
-
-
-def _sim_cia402(point: Any, channel: str, params: dict[str, Any], faults: Any, seed: int, dt: float, *,
-                interface: str = "virtual", sync: bool = False) -> Any:
-    """The simulated CiA 402 drive of a scene device (its ``params``: node_id, gear_ratio,
-    counts_per_rev, rated_torque_mNm, heartbeat_ms as the adapter's)."""
-    from hil.mocks.cia402_drive import SimCiA402
-
-    kw = {k: params[k] for k in ("counts_per_rev", "rated_torque_mNm", "heartbeat_ms") if params.get(k) is not None}
-    return SimCiA402(point, channel, int(params.get("node_id", 1)), interface,
-                     gear_ratio=float(params.get("gear_ratio", 1.0)), faults=faults, seed=seed, sync=sync, dt=dt, **kw)
+        assert d.twin is not None
+        address, cross = d.twin.address(d.cfg.driver, params)
+        return SimEndpoint(d.name, d.cfg.driver, d.cfg.role, _jsonable(params), address, cross)
 
 
 def _arr(value: Any) -> Any:
@@ -1119,7 +944,7 @@ class ProcessSimBench(Bench):
         self._tmp = tempfile.TemporaryDirectory(prefix="hil-sim-")
         port = _free_udp_port()
         chans = sorted({str(d.params.get("channel", "hil0")) for d in scene.devices
-                        if d.driver in ("odrive_can", "cubemars_mit")})
+                        if resolve_twin(d.driver).udp_multicast})
         # a private multicast group per scene channel (239.255/16: site-local scope) on a private UDP port
         groups = {ch: f"239.255.{secrets.randbelow(254) + 1}.{secrets.randbelow(254) + 1}" for ch in chans}
         src = Path(self._tmp.name) / f"{scene.name}.yaml"
@@ -1170,17 +995,15 @@ class ProcessSimBench(Bench):
                     raise
 
     def _open_devices(self) -> None:
-        from hil.protocols.registry import open_device
-
         sc = self.scene
         self._devs = [_Dev(cfg.name, cfg) for cfg in sc.devices]
         for i, d in enumerate(self._devs):
             driver, params = self._endpoint_params[d.name]
             params = dict(params)
-            if driver in ("odrive_can", "cubemars_mit"):
+            if resolve_twin(driver).udp_multicast:
                 params["port"] = self._can_port
             params.setdefault("timeout", self.timeout)
-            self._device_watchdog_params(d.cfg.driver, params)
+            device_kind(d.cfg.driver).watchdog_params(params, self.watchdog_s, self.simulated)
             try:
                 d.adapter = open_device(d.cfg.driver, **params)
             except HilError:

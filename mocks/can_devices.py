@@ -47,8 +47,8 @@ import numpy as np
 
 from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
-from hil.protocols import can_cubemars as cm
-from hil.protocols import can_odrive as od
+from hil.protocols.codecs import cubemars as cm
+from hil.protocols.codecs import odrive as od
 
 log = logging.getLogger(__name__)
 

@@ -79,8 +79,8 @@ import numpy as np
 from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 from hil.mocks.pty import close_fds, host_writes, open_raw_pty
-from hil.protocols.crc import crc16_dynamixel
-from hil.protocols.dynamixel_x import BAUD_RATES as _BAUD_RATES
+from hil.protocols.codecs.crc import crc16_dynamixel
+from hil.protocols.codecs.dynamixel import BAUD_RATES as _BAUD_RATES
 
 log = logging.getLogger(__name__)
 

@@ -54,8 +54,8 @@ from hil.mocks.modbus_devices import (
 )
 from hil.mocks.periodic import PeriodicThread
 from hil.mocks.pty import LinkBudget, close_fds, host_writes, open_raw_pty, write_dropping
-from hil.protocols.crc import crc16_modbus
-from hil.protocols.modbus_robotiq import (
+from hil.protocols.codecs.crc import crc16_modbus
+from hil.protocols.codecs.robotiq import (
     DEFAULT_SLAVE_ID,
     REG_OUTPUT_SELECT,
     REG_WRENCH,
@@ -318,10 +318,10 @@ class SimFT300Stream:
             if not 1 <= count <= 125:
                 return bytes([fc | 0x80, EXC_ILLEGAL_VALUE]), False
             regs = wrench_to_registers(self.wrench())
-            values = [self._register(a, regs) for a in range(addr, addr + count)]
-            if any(v is None for v in values):
+            found = [self._register(a, regs) for a in range(addr, addr + count)]
+            if any(v is None for v in found):
                 return bytes([fc | 0x80, EXC_ILLEGAL_ADDRESS]), False
-            return bytes([fc, 2 * count]) + struct.pack(f">{count}H", *values), False
+            return bytes([fc, 2 * count]) + struct.pack(f">{count}H", *found), False
         if fc == 6:
             addr, value = struct.unpack_from(">HH", pdu, 1)
             values = [value]

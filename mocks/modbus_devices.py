@@ -202,7 +202,8 @@ class SimulatedFT300:
         if self._start_error is not None:
             self.close()
             raise RuntimeError(f"simulated FT-300 server failed: {self._start_error}")
-        self.port: int = self._server.transport.sockets[0].getsockname()[1]
+        server: Any = self._server  # set by the server thread before _ready
+        self.port: int = server.transport.sockets[0].getsockname()[1]
         if not auto_update:
             self.update()
         log.debug("simulated FT-300 (%s framing) on %s:%d", framing, host, self.port)

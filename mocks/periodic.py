@@ -12,7 +12,7 @@ class PeriodicThread:
     """Call ``fn()`` every ``period`` seconds until :meth:`stop`. If it falls more than ten periods
     behind (a stalled process), it resynchronises instead of bursting to catch up."""
 
-    def __init__(self, fn: Callable[[], None], period: float, name: str) -> None:
+    def __init__(self, fn: Callable[[], object], period: float, name: str) -> None:
         self.fn = fn
         self.period = float(period)
         self.name = name

@@ -181,7 +181,7 @@ class Scene:
         spring; ``a`` receives its negative, ``b`` receives it). Returns the element name.
         """
         Ga, ba = self._port(a)
-        bodies = (ba,)
+        bodies: tuple[str, ...] = (ba,)
         if b is not None:
             Gb, bb = self._port(b)
             if Gb.shape[0] != Ga.shape[0]:

@@ -41,8 +41,7 @@ from hil.mocks.faults import ByteStreamFaults, FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 from hil.mocks.periodic import PeriodicThread
 from hil.mocks.pty import LinkBudget, close_fds, host_writes, open_raw_pty, write_dropping
-from hil.protocols.link_budget import BOTA_BASE_HZ
-from hil.protocols.serial_bota import BOTA_BAUD_CODES, STATUS_RAW, encode_frame
+from hil.protocols.codecs.bota import BOTA_BASE_HZ, BOTA_BAUD_CODES, STATUS_RAW, encode_frame
 
 log = logging.getLogger(__name__)
 

@@ -129,6 +129,7 @@ def _make(spec: dict[str, Any]) -> tuple[Endpoint, float]:
     from hil.mocks.serial_devices import SimBota
 
     s = dict(spec)
+    dev: Any  # the simulated device of this kind
     kind = s.pop("kind")
     seed = s.pop("seed", 0)
     faults = FaultPlan.from_dict(s.pop("faults", None))
@@ -229,7 +230,7 @@ def load_spec(text_or_path: str) -> list[dict[str, Any]]:
     if p.suffix in (".json", ".yaml", ".yml") and p.exists():
         text = p.read_text()
         if p.suffix != ".json":
-            import yaml
+            import yaml  # type: ignore[import-untyped]  # PyYAML ships no type hints
 
             data = yaml.safe_load(text)
         else:

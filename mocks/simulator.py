@@ -285,6 +285,7 @@ def simulate(plant: Plant, dt: float, efforts: EffortFn | ArrayLike | None, n_st
         elif arr is not None:
             e = arr[k]
         else:
+            assert callable(efforts)
             x = sim._x
             e = np.asarray(efforts(sim.time, x[:N].copy(), x[N : 2 * N].copy()), dtype=float).reshape(N)
         for h in handles:

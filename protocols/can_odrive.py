@@ -90,183 +90,50 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import struct
 import time
 from collections.abc import Callable
-from enum import IntEnum
 from typing import Any, Literal
 
 import can
 import numpy as np
 
-from hil.errors import DeviceDisconnected, DeviceFault, DeviceTimeout, ProtocolError
-from hil.protocols import can_common
-from hil.protocols.base import Actuator, DeviceInfo, JointSample, repeat_sample
+from hil.errors import DeviceFault, DeviceTimeout
+from hil.protocols.base import DeviceInfo, JointSample, StopStep
+from hil.protocols.can_common import CanActuator
+from hil.protocols.can_common import open_can_bus as open_can_bus  # re-export (old path)
+from hil.protocols.codecs import forwarder
+from hil.protocols.codecs import odrive as _wire
+from hil.protocols.codecs.odrive import (
+    CMD_CLEAR_ERRORS,
+    CMD_ESTOP,
+    CMD_GET_ENCODER_ESTIMATES,
+    CMD_GET_TORQUES,
+    CMD_HEARTBEAT,
+    CMD_RX_SDO,
+    CMD_SET_AXIS_STATE,
+    CMD_SET_CONTROLLER_MODE,
+    CMD_SET_INPUT_TORQUE,
+    CMD_TX_SDO,
+    FIRMWARES,
+    AxisState,
+    ControlMode,
+    InputMode,
+    _state_name,
+    arbitration_id,
+    decode_f32x2,
+    decode_heartbeat,
+    describe_axis_error,
+    encode_controller_mode,
+    encode_f32,
+    encode_sdo_write,
+    encode_u32,
+    split_id,
+)
 
 log = logging.getLogger(__name__)
 
-# -- command ids ----------------------------------------------------------------------------
-CMD_HEARTBEAT = 0x01
-CMD_ESTOP = 0x02
-CMD_RX_SDO = 0x04
-CMD_TX_SDO = 0x05
-CMD_SET_AXIS_STATE = 0x07
-CMD_GET_ENCODER_ESTIMATES = 0x09
-CMD_SET_CONTROLLER_MODE = 0x0B
-CMD_SET_INPUT_TORQUE = 0x0E
-CMD_CLEAR_ERRORS = 0x18
-CMD_GET_TORQUES = 0x1C  # firmware 0.6; the same id is Get_ADC_Voltage on 0.5.x
-CMD_GET_ADC_VOLTAGE_05 = 0x1C
 
-#: Firmware families with different CANSimple tables (see the module docstring).
-FIRMWARES = ("0.6", "0.5")
-#: Factory ``config.can.heartbeat_msg_rate_ms`` (100 ms) in seconds.
-DEFAULT_HEARTBEAT_S = 0.100
-AXIS_ERROR_WATCHDOG_TIMER_EXPIRED = 0x01000000
-
-
-class AxisState(IntEnum):
-    UNDEFINED = 0
-    IDLE = 1
-    CLOSED_LOOP_CONTROL = 8
-
-
-class ControlMode(IntEnum):
-    VOLTAGE_CONTROL = 0
-    TORQUE_CONTROL = 1
-    VELOCITY_CONTROL = 2
-    POSITION_CONTROL = 3
-
-
-class InputMode(IntEnum):
-    INACTIVE = 0
-    PASSTHROUGH = 1
-
-
-# ODrive Pro / S1 (firmware 0.6) axis_error bits used by the simulator and in messages
-AXIS_ERROR_ESTOP_REQUESTED = 0x02000000
-AXIS_ERROR_NAMES = {
-    0x1: "INITIALIZING",
-    0x2: "SYSTEM_LEVEL",
-    0x4: "TIMING_ERROR",
-    0x8: "MISSING_ESTIMATE",
-    0x10: "BAD_CONFIG",
-    0x20: "DRV_FAULT",
-    0x40: "MISSING_INPUT",
-    0x100: "DC_BUS_OVER_VOLTAGE",
-    0x200: "DC_BUS_UNDER_VOLTAGE",
-    0x400: "DC_BUS_OVER_CURRENT",
-    0x800: "DC_BUS_OVER_REGEN_CURRENT",
-    0x1000: "CURRENT_LIMIT_VIOLATION",
-    0x2000: "MOTOR_OVER_TEMP",
-    0x4000: "INVERTER_OVER_TEMP",
-    0x8000: "VELOCITY_LIMIT_VIOLATION",
-    0x10000: "POSITION_LIMIT_VIOLATION",
-    0x1000000: "WATCHDOG_TIMER_EXPIRED",
-    0x2000000: "ESTOP_REQUESTED",
-    0x4000000: "SPINOUT_DETECTED",
-    0x8000000: "BRAKE_RESISTOR_DISARMED",
-    0x10000000: "THERMISTOR_DISCONNECTED",
-    0x40000000: "CALIBRATION_ERROR",
-}
-
-
-def _state_name(state: int | None) -> str:
-    try:
-        return AxisState(int(state)).name  # type: ignore[arg-type]
-    except (ValueError, TypeError):
-        return str(state)
-
-
-def describe_axis_error(code: int) -> str:
-    names = [n for bit, n in AXIS_ERROR_NAMES.items() if code & bit]
-    unknown = code & ~sum(AXIS_ERROR_NAMES)
-    if unknown:
-        names.append(f"0x{unknown:X}")
-    return "|".join(names) or "NONE"
-
-
-# -- pure wire helpers (shared with the simulator) ------------------------------------------
-def arbitration_id(node_id: int, cmd_id: int) -> int:
-    """CANSimple id: upper 6 bits node id, lower 5 bits command id."""
-    if not 0 <= node_id <= 0x3F or not 0 <= cmd_id <= 0x1F:
-        raise ValueError(f"node_id 0..63 and cmd_id 0..31 required, got {node_id}, {cmd_id}")
-    return (node_id << 5) | cmd_id
-
-
-def split_id(arb_id: int) -> tuple[int, int]:
-    """(node_id, cmd_id) of a CANSimple id."""
-    return (arb_id >> 5) & 0x3F, arb_id & 0x1F
-
-
-def encode_f32(x: float) -> bytes:
-    return struct.pack("<f", x)
-
-
-def encode_f32x2(a: float, b: float) -> bytes:
-    return struct.pack("<ff", a, b)
-
-
-def decode_f32x2(data: bytes | bytearray) -> tuple[float, float]:
-    if len(data) < 8:
-        raise ProtocolError(f"expected 8 data bytes, got {len(data)}")
-    a, b = struct.unpack_from("<ff", bytes(data))
-    return a, b
-
-
-def encode_u32(x: int) -> bytes:
-    return struct.pack("<I", x)
-
-
-SDO_READ = 0
-SDO_WRITE = 1
-
-
-def encode_sdo_write(endpoint_id: int, value: bytes) -> bytes:
-    """RxSdo (0x04) payload writing ``value`` (1..4 bytes, little endian) to ``endpoint_id``."""
-    if not 0 <= endpoint_id <= 0xFFFF or not 1 <= len(value) <= 4:
-        raise ValueError(f"endpoint id 0..65535 and 1..4 value bytes required, got {endpoint_id}, {len(value)}")
-    return struct.pack("<BHB", SDO_WRITE, endpoint_id, 0) + bytes(value)
-
-
-def decode_sdo(data: bytes | bytearray) -> tuple[int, int, bytes]:
-    """(opcode, endpoint_id, value bytes) of an RxSdo/TxSdo payload."""
-    if len(data) < 4:
-        raise ProtocolError(f"SDO needs >= 4 bytes, got {len(data)}")
-    op, ep, _ = struct.unpack_from("<BHB", bytes(data))
-    return op, ep, bytes(data[4:])
-
-
-def encode_controller_mode(control_mode: int, input_mode: int) -> bytes:
-    return struct.pack("<II", control_mode, input_mode)
-
-
-def encode_heartbeat(axis_error: int, axis_state: int, procedure: int = 0, traj_done: int = 0) -> bytes:
-    return struct.pack("<IBBBx", axis_error, axis_state, procedure, traj_done)
-
-
-def decode_heartbeat(data: bytes | bytearray) -> tuple[int, int]:
-    """(axis_error, axis_state) of a Heartbeat payload (at least 5 bytes)."""
-    if len(data) < 5:
-        raise ProtocolError(f"heartbeat needs >= 5 bytes, got {len(data)}")
-    err, state = struct.unpack_from("<IB", bytes(data))
-    return err, state
-
-
-def open_can_bus(
-    interface: str, channel: str, bitrate: int | None, filters: list[dict] | None, **kw: Any
-) -> can.BusABC:
-    """Open a python-can bus, mapping failures to :class:`hil.errors.DeviceDisconnected`."""
-    kwargs: dict[str, Any] = dict(kw)
-    if bitrate is not None:
-        kwargs["bitrate"] = bitrate
-    try:
-        return can.Bus(interface=interface, channel=channel, can_filters=filters, **kwargs)
-    except (can.CanError, OSError, ValueError) as exc:
-        raise DeviceDisconnected(f"cannot open CAN bus {interface}:{channel}: {exc}") from exc
-
-
-class ODriveCAN(Actuator):
+class ODriveCAN(CanActuator):
     """One ODrive axis (one CANSimple node) in torque control; ``dof`` = 1.
 
     Parameters
@@ -340,8 +207,7 @@ class ODriveCAN(Actuator):
         self.clock = clock
         self.timeout = timeout
         self._enable = enable
-        self._seq = 0
-        self._closed = False
+        self.label = f"ODrive node {self.node_id}"
         self._fault = 0
         self.axis_state: int | None = None
         self.retries = max(0, int(retries))
@@ -355,13 +221,7 @@ class ODriveCAN(Actuator):
         self._last_rx_wall = -math.inf  # host monotonic time of the newest estimate frame
         self._torques: tuple[float, float] | None = None
         # no acceptance filter: error frames (id 0) must reach us too; node filtering is done in _handle
-        filters = None
-        if bus is None:
-            self._bus = open_can_bus(interface, channel, bitrate, filters, **bus_kwargs)
-            self._own_bus = True
-        else:
-            self._bus = bus
-            self._own_bus = False
+        self._open_bus(interface, channel, bitrate, bus, bus_kwargs)
         self.info = DeviceInfo(
             driver="odrive_can",
             transport=f"can:{interface}:{channel}" if bus is None else f"can:{bus.channel_info}",
@@ -427,8 +287,6 @@ class ODriveCAN(Actuator):
 
     # -- low level ----------------------------------------------------------------------------
     def _send(self, cmd: int, data: bytes = b"", remote: bool = False, timeout: float | None = None) -> None:
-        if self._closed:
-            raise DeviceDisconnected("ODriveCAN is closed")
         msg = can.Message(
             arbitration_id=arbitration_id(self.node_id, cmd),
             data=data,
@@ -436,13 +294,7 @@ class ODriveCAN(Actuator):
             is_remote_frame=remote,
             dlc=8 if remote else len(data),
         )
-        can_common.send(self._bus, msg, self.timeout if timeout is None else timeout, f"ODrive node {self.node_id}",
-                        f"send of cmd 0x{cmd:02X}")
-
-    def _recv(self, timeout: float) -> can.Message | None:
-        if self._closed:
-            raise DeviceDisconnected("ODriveCAN is closed")
-        return can_common.recv(self._bus, timeout, f"ODrive node {self.node_id}")
+        self._send_frame(msg, self.timeout if timeout is None else timeout, f"send of cmd 0x{cmd:02X}")
 
     def _handle(self, msg: can.Message) -> int | None:
         """Digest one received frame; return its cmd id (None if not ours / a request)."""
@@ -469,10 +321,6 @@ class ODriveCAN(Actuator):
         elif cmd == CMD_GET_TORQUES:
             self._torques = decode_f32x2(msg.data)
         return cmd
-
-    def _drain(self) -> None:
-        while (msg := self._recv(0.0)) is not None:
-            self._handle(msg)
 
     def _raise_if_fault(self) -> None:
         if self._fault:
@@ -551,17 +399,12 @@ class ODriveCAN(Actuator):
         self._send(CMD_CLEAR_ERRORS, b"\x00" if self.firmware == "0.6" else b"", timeout=timeout)
         self._fault = 0
 
-    def command_effort(self, effort: np.ndarray, timeout: float = 0.1) -> None:
-        """Command joint effort (N.m rotary / N linear), converted to motor torque (see module doc)."""
-        u = float(np.asarray(effort, dtype=float).reshape(-1)[0])
-        if not math.isfinite(u):
-            raise ValueError(f"non-finite effort {u!r}")
-        if self.effort_limit is not None:
-            u = min(max(u, -self.effort_limit), self.effort_limit)
-        self.set_input_torque(self.joint_effort_to_motor_torque(u), timeout=timeout)
+    def _send_effort(self, effort: np.ndarray, timeout: float) -> None:
+        """Joint effort (N.m rotary / N linear), converted to motor torque (see module doc)."""
+        self.set_input_torque(self.joint_effort_to_motor_torque(float(effort[0])), timeout=timeout)
 
     # -- feedback -----------------------------------------------------------------------------
-    def read(self, timeout: float = 0.1) -> JointSample:
+    def _read_sample(self, timeout: float) -> JointSample:
         """Newest encoder estimate as a JointSample (rad, rad/s or m, m/s); see "Freshness" in the
         module docstring for what a read without a new frame returns.
 
@@ -582,19 +425,15 @@ class ODriveCAN(Actuator):
         self._raise_if_fault()
         est = self._estimate
         if est is None:
-            if self._last is None:
-                self._timeouts += 1
-                raise DeviceTimeout(f"ODrive node {self.node_id}: no encoder estimate within {timeout:.3f} s")
-            self._stale_reads += 1
-            return repeat_sample(self._last, self.clock())
+            return self._stale(self._last, self.clock(),
+                               f"ODrive node {self.node_id}: no encoder estimate within {timeout:.3f} s")
         self._estimate = None
         effort = None
         if self._torques is not None:
             effort = np.array([self._motor_torque_to_joint(self._torques[1])])
-        self._seq += 1
         self._last = JointSample(
             t=self.clock(),
-            seq=self._seq,
+            seq=self._next_seq(),
             position=np.array([self._turns_to_joint(est[0])]),
             velocity=np.array([self._turns_to_joint(est[1])]),
             effort=effort,
@@ -634,30 +473,14 @@ class ODriveCAN(Actuator):
                 self._timeouts += 1
                 raise
 
-    def safe_stop(self) -> None:
-        """Zero torque, then request IDLE. Never raises."""
-        self._expect_closed_loop = False
-        with contextlib.suppress(Exception):
-            self.set_input_torque(0.0, 0.05)
-        with contextlib.suppress(Exception):
-            self.set_axis_state(AxisState.IDLE, 0.05)
+    def _stop_steps(self) -> tuple[StopStep, ...]:
+        """Safe stop: zero torque, then request IDLE (the closed-loop check of :meth:`read` ends)."""
+        return (lambda: setattr(self, "_expect_closed_loop", False),
+                lambda: self.set_input_torque(0.0, 0.05),
+                lambda: self.set_axis_state(AxisState.IDLE, 0.05))
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        try:
-            if self._enable:
-                self.safe_stop()
-        finally:  # a failed final stop still releases the bus (and the caller sees the failure)
-            self._closed = True
-            self._release_bus()
-
-    def _release_bus(self) -> None:
-        if self._own_bus:
-            try:
-                self._bus.shutdown()
-            except (can.CanError, OSError) as exc:  # pragma: no cover
-                log.debug("bus shutdown failed: %s", exc)
+    def _armed(self) -> bool:
+        return bool(self._enable)
 
 
 __all__ = [
@@ -677,3 +500,7 @@ __all__ = [
     "arbitration_id",
     "split_id",
 ]
+
+
+#: the wire-format names (:mod:`hil.protocols.codecs`) stay importable from this module
+__getattr__ = forwarder(_wire, __name__)

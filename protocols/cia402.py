@@ -170,8 +170,7 @@ class CiA402Drive(Actuator):
         self.clock = clock
         self.timeout = float(timeout)
         self._enable = enable
-        self._closed = False
-        self._seq = 0
+        self.label = f"CiA 402 node {self.node_id}"
         self._timeouts = 0
         self._emcy_count = 0
         self._hb_count = 0
@@ -194,7 +193,7 @@ class CiA402Drive(Actuator):
             self._bus, self._own_bus = bus, False
         self.network = canopen.Network(self._bus)
         self.network.NOTIFIER_CYCLE = 0.05  # receive-thread poll period: bounds how long close() waits
-        self.network.listeners.append(self._errors)
+        self.network.listeners.append(self._errors)  # type: ignore[arg-type]  # canopen types these as its own MessageListener; a can.Listener is what python-can's Notifier calls
         od = canopen.import_od(default_eds() if eds is None else eds, self.node_id)
         self.node = canopen.RemoteNode(self.node_id, od)
         self.node.sdo.RESPONSE_TIMEOUT = self.timeout
@@ -218,8 +217,7 @@ class CiA402Drive(Actuator):
         return v if sub is None else v[sub]
 
     def _sdo(self, fn: Callable[[], Any], what: str) -> Any:
-        if self._closed:
-            raise DeviceDisconnected(f"CiA 402 node {self.node_id} is closed")
+        self._check_open()
         try:
             return fn()
         except canopen.SdoAbortedError as exc:
@@ -242,8 +240,7 @@ class CiA402Drive(Actuator):
         self._sdo(w, f"SDO write 0x{index:04X}" + (f":{sub}" if sub else ""))
 
     def _send(self, fn: Callable[[], None], what: str) -> None:
-        if self._closed:
-            raise DeviceDisconnected(f"CiA 402 node {self.node_id} is closed")
+        self._check_open()
         try:
             fn()
         except can.CanOperationError as exc:
@@ -294,10 +291,10 @@ class CiA402Drive(Actuator):
         node = self.node
 
         def configure() -> None:
-            node.rpdo.read()
-            node.tpdo.read()
+            node.rpdo.read()  # type: ignore[no-untyped-call]  # canopen's PdoBase.read has no annotations
+            node.tpdo.read()  # type: ignore[no-untyped-call]  # (same)
             for maps in (node.rpdo.map, node.tpdo.map):
-                for m in maps.values():
+                for m in (maps or {}).values():
                     m.enabled = False
             r1 = node.rpdo[1]
             r1.clear()
@@ -310,8 +307,8 @@ class CiA402Drive(Actuator):
                 for index in objs:
                     t.add_variable(index)
                 t.cob_id, t.trans_type, t.enabled = cob + self.node_id, 1, True
-            node.rpdo.save()
-            node.tpdo.save()
+            node.rpdo.save()  # type: ignore[no-untyped-call]  # canopen's PdoBase.save has no annotations
+            node.tpdo.save()  # type: ignore[no-untyped-call]  # (same)
 
         self._sdo(configure, "PDO mapping")
         node.tpdo[1].add_callback(lambda m: self._on_tpdo(0))
@@ -388,7 +385,7 @@ class CiA402Drive(Actuator):
     def counts_to_rad(self, counts: float) -> float:
         return 2.0 * math.pi * counts / (self.counts_per_rev * self.gear_ratio)
 
-    def command_effort(self, effort: np.ndarray, timeout: float = 0.1) -> None:
+    def _send_effort(self, effort: np.ndarray, timeout: float) -> None:
         """Joint torque (N.m) as target torque in RPDO1 (controlword Enable operation)."""
         u = float(np.asarray(effort, dtype=float).reshape(-1)[0])
         if not math.isfinite(u):
@@ -429,7 +426,7 @@ class CiA402Drive(Actuator):
                 raise DeviceFault(f"CiA 402 node {self.node_id}: drive left OPERATION ENABLED (statusword "
                                   f"0x{statusword:04X}: {st}): torque commands are not applied", code=statusword)
 
-    def read(self, timeout: float = 0.1) -> JointSample:
+    def _read_sample(self, timeout: float) -> JointSample:
         """SYNC, then TPDO1 + TPDO2 as a JointSample (rad, rad/s, N.m). DeviceTimeout when they do
         not arrive within ``timeout``; DeviceFault on EMCY, Fault, lost heartbeat or a state other
         than Operation enabled."""
@@ -466,8 +463,11 @@ class CiA402Drive(Actuator):
             st = state_of(sw)
         return st
 
-    def safe_stop(self) -> None:
-        """Zero torque, Quick stop, then Disable voltage if still in Quick stop active (module
+    def _stop_steps(self) -> tuple[Callable[[], object], ...]:
+        return (self._stop_sequence,)
+
+    def _stop_sequence(self) -> None:
+        """The safe stop: zero torque, Quick stop, then Disable voltage if still in Quick stop active (module
         docstring). Never raises; ``last_stop`` records what was reached."""
         rec: dict[str, Any] = {}
         old = self.node.sdo.RESPONSE_TIMEOUT
@@ -491,20 +491,15 @@ class CiA402Drive(Actuator):
         self.last_stop = rec
         log.info("CiA 402 node %d: safe stop %s", self.node_id, rec)
 
-    def close(self) -> None:
-        """Safe stop (if enabled), NMT pre-operational, stop the receive thread, release the bus."""
-        if self._closed:
-            return
-        try:
-            if self._enable:
-                self.safe_stop()
-                with contextlib.suppress(Exception):
-                    self.node.nmt.state = "PRE-OPERATIONAL"
-        finally:  # a failed final stop still releases the bus (and the caller sees the failure)
-            self._closed = True
-            self._release_bus()
+    def _armed(self) -> bool:
+        return bool(self._enable)
 
-    def _release_bus(self) -> None:
+    def _close_steps(self) -> tuple[Callable[[], object], ...]:
+        """After the safe stop on close: NMT pre-operational (then the receive thread stops and the
+        bus is released, :meth:`_release`)."""
+        return (lambda: setattr(self.node.nmt, "state", "PRE-OPERATIONAL"),)
+
+    def _release(self) -> None:
         with contextlib.suppress(Exception):
             if self.network.notifier is not None:
                 self.network.notifier.stop(1.0)

@@ -73,110 +73,47 @@ whose watchdog expired. Counters: ``crc_errors``, ``timeouts``, ``bus_watchdog_e
 
 from __future__ import annotations
 
+import functools
 import logging
-import math
 import select
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from hil.errors import ChecksumError, DeviceDisconnected, DeviceError, DeviceFault, DeviceTimeout, ProtocolError
-from hil.protocols.base import Actuator, DeviceInfo, JointSample
+from hil.protocols.base import Actuator, DeviceInfo, JointSample, StopStep
+from hil.protocols.codecs import dynamixel as _wire
+from hil.protocols.codecs import forwarder
+from hil.protocols.codecs.dynamixel import (
+    ADDR_BUS_WATCHDOG,
+    ADDR_CURRENT_LIMIT,
+    ADDR_FIRMWARE_VERSION,
+    ADDR_GOAL_CURRENT,
+    ADDR_HARDWARE_ERROR,
+    ADDR_OPERATING_MODE,
+    ADDR_PRESENT_CURRENT,
+    ADDR_RETURN_DELAY,
+    ADDR_TORQUE_ENABLE,
+    BAUD_RATES,
+    BUS_WATCHDOG_ERROR,
+    CURRENT_UNIT_A,
+    ERRBIT_ALERT,
+    FAULT_BUS_WATCHDOG,
+    MODE_CURRENT,
+    MODELS,
+    PRESENT_BLOCK_LEN,
+    RAD_PER_TICK,
+    VELOCITY_UNIT_RAD_S,
+    XModel,
+    bus_watchdog_units,
+    decode_present_block,
+    effort_to_current_raw,
+    to_unsigned,
+)
 
 log = logging.getLogger(__name__)
-
-ADDR_MODEL_NUMBER = 0
-ADDR_FIRMWARE_VERSION = 6
-ADDR_BAUD_RATE = 8
-ADDR_RETURN_DELAY = 9
-ADDR_OPERATING_MODE = 11
-ADDR_CURRENT_LIMIT = 38
-ADDR_TORQUE_ENABLE = 64
-ADDR_HARDWARE_ERROR = 70
-ADDR_BUS_WATCHDOG = 98
-BUS_WATCHDOG_UNIT_S = 0.020
-BUS_WATCHDOG_ERROR = 0xFF
-FAULT_BUS_WATCHDOG = 0x200
-ADDR_GOAL_CURRENT = 102
-ADDR_PRESENT_CURRENT = 126
-ADDR_PRESENT_VELOCITY = 128
-ADDR_PRESENT_POSITION = 132
-PRESENT_BLOCK_LEN = 10  # 126..135
-MODE_CURRENT = 0
-
-#: Baud Rate(8) index -> bps (X-series e-manual, "Baud Rate(8)"); factory index 1 = 57 600 bps.
-BAUD_RATES = {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_000_000, 5: 3_000_000, 6: 4_000_000,
-              7: 4_500_000}
-ERRBIT_ALERT = 0x80
-
-CURRENT_UNIT_A = 2.69e-3
-VELOCITY_UNIT_RAD_S = 0.229 * 2.0 * math.pi / 60.0
-TICKS_PER_REV = 4096
-RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
-
-
-@dataclass(frozen=True)
-class XModel:
-    """Constants of one X-series model."""
-
-    name: str
-    model_number: int
-    torque_constant: float  # N.m per A (output side)
-    current_limit: int  # Current Limit(38) factory value, units of 2.69 mA
-
-
-MODELS: dict[str, XModel] = {
-    # e-manual: stall torque 4.1 N.m @ 12 V, 2.3 A -> 1.78 N.m/A; Current Limit initial value 1193
-    "XM430-W350": XModel("XM430-W350", 1020, 4.1 / 2.3, 1193),
-}
-
-
-# ------------------------------------------------------------------------------------------------
-# pure conversions
-# ------------------------------------------------------------------------------------------------
-def to_signed(value: int, nbytes: int) -> int:
-    """Two's complement: unsigned ``nbytes`` integer -> signed."""
-    bits = 8 * nbytes
-    value = int(value) & ((1 << bits) - 1)
-    return value - (1 << bits) if value >= 1 << (bits - 1) else value
-
-
-def to_unsigned(value: int, nbytes: int) -> int:
-    """Signed integer -> its ``nbytes`` two's complement (raises if it does not fit)."""
-    bits = 8 * nbytes
-    if not -(1 << (bits - 1)) <= int(value) < (1 << bits):
-        raise OverflowError(f"{value} does not fit in {nbytes} bytes")
-    return int(value) & ((1 << bits) - 1)
-
-
-def effort_to_current_raw(
-    effort: np.ndarray, torque_constant: np.ndarray, limit_raw: np.ndarray, directions: np.ndarray
-) -> np.ndarray:
-    """Effort (N.m) -> Goal Current register values (signed ints), clamped to +-limit."""
-    raw = np.rint(directions * np.asarray(effort, dtype=float) / torque_constant / CURRENT_UNIT_A)
-    return np.clip(raw, -limit_raw, limit_raw).astype(np.int64)
-
-
-def bus_watchdog_units(seconds: float) -> int:
-    """Bus Watchdog(98) value for a timeout of ``seconds``: rounded *up* to the 20 ms unit, in
-    1..127 (so the servo never stops earlier than asked; at most 2.54 s)."""
-    if not (math.isfinite(seconds) and seconds > 0):
-        raise ValueError(f"bus watchdog timeout must be > 0 s, got {seconds!r}")
-    return int(min(127, max(1, math.ceil(seconds / BUS_WATCHDOG_UNIT_S - 1e-9))))
-
-
-def decode_present_block(block: bytes | Sequence[int]) -> tuple[int, int, int]:
-    """The 10-byte block read at 126 -> (current, velocity, position) raw signed integers."""
-    b = bytes(block)
-    if len(b) != PRESENT_BLOCK_LEN:
-        raise ProtocolError(f"present block must be {PRESENT_BLOCK_LEN} bytes, got {len(b)}")
-    cur = to_signed(int.from_bytes(b[0:2], "little"), 2)
-    vel = to_signed(int.from_bytes(b[2:6], "little"), 4)
-    pos = to_signed(int.from_bytes(b[6:10], "little"), 4)
-    return cur, vel, pos
 
 
 # ------------------------------------------------------------------------------------------------
@@ -185,7 +122,7 @@ def decode_present_block(block: bytes | Sequence[int]) -> tuple[int, int, int]:
 def _make_port_handler(port_name: str) -> Any:
     from dynamixel_sdk import PortHandler
 
-    class TimedPortHandler(PortHandler):  # type: ignore[misc, valid-type]
+    class TimedPortHandler(PortHandler):  # type: ignore[misc]  # dynamixel_sdk has no type hints (Any)
         """``PortHandler`` whose packet timeout is the adapter's call timeout and whose read
         waits in ``select`` (the stock one polls a non-blocking port in a busy loop)."""
 
@@ -203,11 +140,12 @@ def _make_port_handler(port_name: str) -> Any:
                 left = self.packet_timeout - self.getTimeSinceStart()
                 if left > 0:
                     select.select([self.ser.fileno()], [], [], min(left, 5.0) / 1000.0)
-            return self.ser.read(length)
+            data: bytes = self.ser.read(length)
+            return data
 
         def writePort(self, packet: Any) -> int:
-            n = self.ser.write(packet)
-            self.tx_bytes += n or 0
+            n: int = self.ser.write(packet) or 0
+            self.tx_bytes += n
             return n
 
     return TimedPortHandler(port_name)
@@ -267,10 +205,9 @@ class DynamixelX(Actuator):
         self.watchdog_check_every = max(1, int(watchdog_check_every))
         self._counts = {"crc_errors": 0, "timeouts": 0, "bus_watchdog_errors": 0}
         self._reads = 0
-        self._seq = 0
-        self._closed = False
         self._enabled = False
         self.port_name = port
+        self.label = f"DYNAMIXEL ids {self.ids} on {port}"
         self.info = DeviceInfo(
             driver="dynamixel_x", transport="dynamixel2-serial", vendor="ROBOTIS", model=self.model.name,
             extra={"port": port, "ids": list(self.ids), "baudrate": baudrate},
@@ -291,7 +228,7 @@ class DynamixelX(Actuator):
         try:
             self._init_servos(enable)
         except BaseException:
-            self._closed = True
+            self._closed = True  # torque was never enabled: nothing to stop
             self._port.closePort()
             raise
         self._gsw = GroupSyncWrite(self._port, self._ph, ADDR_GOAL_CURRENT, 2)
@@ -316,9 +253,8 @@ class DynamixelX(Actuator):
         e = np.asarray(effort, dtype=float).reshape(self.dof)
         return effort_to_current_raw(e, self.torque_constant, self.current_limit, self.directions)
 
-    def command_effort(self, effort: np.ndarray, timeout: float = 0.1) -> None:
+    def _send_effort(self, effort: np.ndarray, timeout: float) -> None:
         """Sync-write Goal Current for every joint (no reply on the bus, so it never waits)."""
-        self._check_open()
         raw = self.current_command(effort)
         for i, r in zip(self.ids, raw, strict=True):
             u = to_unsigned(int(r), 2)
@@ -326,9 +262,8 @@ class DynamixelX(Actuator):
         self._port.call_timeout_ms = 1000.0 * timeout
         self._check_comm(self._gsw.txPacket(), "sync write Goal Current")
 
-    def read(self, timeout: float = 0.1) -> JointSample:
+    def _read_sample(self, timeout: float) -> JointSample:
         """Sync-read Present Current/Velocity/Position of every joint."""
-        self._check_open()
         from dynamixel_sdk import COMM_SUCCESS
 
         self._port.call_timeout_ms = 1000.0 * timeout
@@ -346,13 +281,13 @@ class DynamixelX(Actuator):
         cur, vel, pos = (np.array(v, dtype=float) for v in zip(*map(decode_present_block, blocks), strict=True))
         produced = self._clock()
         d = self.directions
-        self._seq += 1
+        seq = self._next_seq()
         self._reads += 1
         if self.bus_watchdog_units and self._reads % self.watchdog_check_every == 0:
             self._raise_if_watchdog_expired(timeout)
         return JointSample(
             t=produced,
-            seq=self._seq,
+            seq=seq,
             position=d * (pos - self.zero_ticks) * RAD_PER_TICK,
             velocity=d * vel * VELOCITY_UNIT_RAD_S,
             effort=d * cur * CURRENT_UNIT_A * self.torque_constant,
@@ -393,34 +328,18 @@ class DynamixelX(Actuator):
             self._write(i, ADDR_TORQUE_ENABLE, 1, int(on), timeout)
         self._enabled = on
 
-    def safe_stop(self) -> None:
-        """Zero current, then torque off. Never raises."""
-        try:
-            self.command_effort(np.zeros(self.dof), timeout=0.05)
-        except Exception:
-            log.debug("safe_stop: zero command failed", exc_info=True)
-        for i in self.ids:
-            try:
-                self._write(i, ADDR_TORQUE_ENABLE, 1, 0, 0.05)
-            except Exception:
-                log.debug("safe_stop: torque off failed for id %d", i, exc_info=True)
-        self._enabled = False
+    def _stop_steps(self) -> list[StopStep]:
+        """Safe stop: zero current, then torque off on every servo (each attempted)."""
+        steps: list[StopStep] = [lambda: self.command_effort(np.zeros(self.dof), timeout=0.05)]
+        steps += [functools.partial(self._write, i, ADDR_TORQUE_ENABLE, 1, 0, 0.05) for i in self.ids]
+        steps.append(lambda: setattr(self, "_enabled", False))
+        return steps
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        try:
-            if self._enabled:
-                self.safe_stop()
-        finally:  # a failed final stop still closes the port (and the caller sees the failure)
-            self._closed = True
-            self._release_port()
+    def _armed(self) -> bool:
+        return self._enabled
 
-    def _release_port(self) -> None:
-        try:
-            self._port.closePort()
-        except Exception:
-            log.debug("error closing %s", self.port_name, exc_info=True)
+    def _release(self) -> None:
+        self._port.closePort()
 
     # -- internals --------------------------------------------------------------------------------
     def _find_baudrate(self) -> tuple[int, int, int]:
@@ -430,14 +349,14 @@ class DynamixelX(Actuator):
         from dynamixel_sdk import COMM_SUCCESS
 
         first = self.ids[0]
-        answer = self._ph.ping(self._port, first)
+        answer: tuple[int, int, int] = self._ph.ping(self._port, first)
         if answer[1] == COMM_SUCCESS or not self.scan_baudrates:
             return answer
         for bps in BAUD_RATES.values():
             if bps == self.baudrate:
                 continue
             self._port.setBaudRate(bps)
-            found = self._ph.ping(self._port, first)
+            found: tuple[int, int, int] = self._ph.ping(self._port, first)
             if found[1] == COMM_SUCCESS:
                 log.warning("DYNAMIXEL id %d answers at %d bps, not %d: continuing at %d bps (set baudrate: %d "
                             "in the scene)", first, bps, self.baudrate, bps, bps)
@@ -476,10 +395,6 @@ class DynamixelX(Actuator):
                 for i in self.ids:
                     self._write(i, ADDR_BUS_WATCHDOG, 1, self.bus_watchdog_units, None)
                 log.info("DYNAMIXEL ids %s: Bus Watchdog armed (%d ms)", self.ids, 20 * self.bus_watchdog_units)
-
-    def _check_open(self) -> None:
-        if self._closed:
-            raise DeviceDisconnected("DYNAMIXEL adapter is closed")
 
     def _check_comm(self, result: int, what: str) -> None:
         from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, COMM_TX_FAIL
@@ -527,3 +442,7 @@ class DynamixelX(Actuator):
         result, error = self._ph.writeTxRx(self._port, dxl_id, addr, size, list(u.to_bytes(size, "little")))
         self._check_comm(result, f"write {addr} of id {dxl_id}")
         self._raise_for_error(dxl_id, error, timeout)
+
+
+#: the wire-format names (:mod:`hil.protocols.codecs`) stay importable from this module
+__getattr__ = forwarder(_wire, __name__)

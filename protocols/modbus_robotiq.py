@@ -60,9 +60,7 @@ import logging
 import struct
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
-from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
@@ -73,186 +71,43 @@ from hil.errors import (
     DeviceTimeout,
     ProtocolError,
 )
-from hil.protocols.base import DeviceInfo, ForceSensor, StreamingSensor, WrenchSample, repeat_sample
-from hil.protocols.crc import crc16_modbus
+from hil.protocols.base import DeviceInfo, ForceSensor, StreamingSensor, WrenchSample
+from hil.protocols.codecs import forwarder
+from hil.protocols.codecs import robotiq as _wire
+from hil.protocols.codecs.robotiq import (
+    DEFAULT_BAUDRATE,
+    DEFAULT_SLAVE_ID,
+    FC_READ_HOLDING,
+    FC_WRITE_MULTIPLE,
+    GATEWAY_EXCEPTION_CODES,
+    MODBUS_EXCEPTION_CODES,
+    RATED_FORCE,
+    RATED_TORQUE,
+    REG_FIRMWARE,
+    REG_OUTPUT_SELECT,
+    REG_PRODUCTION_YEAR,
+    REG_SERIAL,
+    REG_WRENCH,
+    STREAM_START_VALUE,
+    STREAM_STOP_JAM,
+    STREAM_STOP_S,
+    STREAM_TO_MODBUS_S,
+    GatewayError,
+    ModbusEndpoint,
+    StreamParser,
+    _modbus_crc_ok,
+    _parse_rtu_reply,
+    check_wrench_range,
+    decode_firmware,
+    decode_serial,
+    decode_stream_frame,
+    encode_stream_frame,
+    registers_to_wrench,
+    rtu_frame,
+    stream_start_request,
+)
 
 log = logging.getLogger(__name__)
-
-DEFAULT_SLAVE_ID = 9
-DEFAULT_BAUDRATE = 19200
-REG_WRENCH = 180
-REG_OUTPUT_SELECT = 410
-REG_FIRMWARE = 500
-REG_SERIAL = 510
-REG_PRODUCTION_YEAR = 514
-STREAM_START_VALUE = 0x0200
-STREAM_HEADER = b"\x20\x4e"
-STREAM_FRAME_LEN = 16
-STREAM_STOP_JAM = b"\xff" * 50
-FORCE_SCALE = 100.0
-TORQUE_SCALE = 1000.0
-WRENCH_SCALES = np.array([FORCE_SCALE] * 3 + [TORQUE_SCALE] * 3)
-
-
-# ------------------------------------------------------------------------------------------------
-# pure conversions
-# ------------------------------------------------------------------------------------------------
-def registers_to_wrench(registers: list[int] | tuple[int, ...]) -> np.ndarray:
-    """Six raw 16-bit registers (180..185) -> wrench in N / N.m (signed, scaled)."""
-    if len(registers) != 6:
-        raise ProtocolError(f"expected 6 registers, got {len(registers)}")
-    raw = np.array([int(r) & 0xFFFF for r in registers], dtype=np.int64)
-    signed = np.where(raw >= 0x8000, raw - 0x10000, raw)
-    return signed / WRENCH_SCALES
-
-
-def decode_firmware(registers: list[int]) -> str:
-    """Registers 500..502 -> e.g. ``"FTS-1.0.3"`` (layout of Robotiq's reference driver)."""
-    r = [int(x) & 0xFFFF for x in registers[:3]]
-    chars = bytes([r[0] >> 8, r[0] & 0xFF, r[1] >> 8]).decode("ascii", errors="replace")
-    return f"{chars}-{r[1] & 0xFF}.{r[2] >> 8}.{r[2] & 0xFF}"
-
-
-def decode_serial(registers: list[int]) -> str:
-    """Registers 510..513 -> e.g. ``"SIM-0001"``; ``"UNKNOWN"`` when the number is 0."""
-    r = [int(x) & 0xFFFF for x in registers[:4]]
-    number = (r[3] << 16) | r[2]
-    if number == 0:
-        return "UNKNOWN"
-    chars = bytes([r[0] >> 8, r[0] & 0xFF, r[1] >> 8]).decode("ascii", errors="replace")
-    return f"{chars}-{number:04d}"
-
-
-def encode_stream_frame(wrench: np.ndarray) -> bytes:
-    """One 16-byte stream frame for ``wrench`` (N, N.m), saturated to the int16 range."""
-    counts = np.clip(np.rint(np.asarray(wrench, dtype=float).reshape(6) * WRENCH_SCALES), -32768, 32767)
-    body = STREAM_HEADER + struct.pack("<6h", *(int(c) for c in counts))
-    return body + struct.pack("<H", crc16_modbus(body))
-
-
-def decode_stream_frame(frame: bytes) -> np.ndarray:
-    """Decode one complete 16-byte frame; raises :class:`ProtocolError` / :class:`ChecksumError`."""
-    if len(frame) != STREAM_FRAME_LEN:
-        raise ProtocolError(f"stream frame must be {STREAM_FRAME_LEN} bytes, got {len(frame)}")
-    if frame[:2] != STREAM_HEADER:
-        raise ProtocolError(f"bad stream header {frame[:2].hex()}")
-    (crc,) = struct.unpack_from("<H", frame, 14)
-    if crc16_modbus(frame[:14]) != crc:
-        raise ChecksumError("FT-300 stream frame CRC mismatch")
-    return np.array(struct.unpack_from("<6h", frame, 2), dtype=float) / WRENCH_SCALES
-
-
-class StreamParser:
-    """Incremental parser of the FT-300 byte stream: resynchronises on the 0x20 0x4E header.
-
-    ``feed(data)`` returns the decoded wrenches of every complete, CRC-valid frame; bytes that do
-    not start a valid frame are skipped (counted in ``skipped_bytes``), frames with a bad CRC are
-    counted in ``crc_errors`` and skipped by one byte so a header hidden inside them is found.
-    """
-
-    def __init__(self) -> None:
-        self._buf = bytearray()
-        self.frames = 0
-        self.crc_errors = 0
-        self.skipped_bytes = 0
-
-    def feed(self, data: bytes) -> list[np.ndarray]:
-        self._buf += data
-        out: list[np.ndarray] = []
-        buf = self._buf
-        while True:
-            i = buf.find(STREAM_HEADER)
-            if i < 0:
-                keep = 1 if buf[-1:] == STREAM_HEADER[:1] else 0
-                self.skipped_bytes += len(buf) - keep
-                del buf[: len(buf) - keep]
-                break
-            if i:
-                self.skipped_bytes += i
-                del buf[:i]
-            if len(buf) < STREAM_FRAME_LEN:
-                break
-            frame = bytes(buf[:STREAM_FRAME_LEN])
-            try:
-                out.append(decode_stream_frame(frame))
-            except ChecksumError:
-                self.crc_errors += 1
-                self.skipped_bytes += 1
-                del buf[:1]
-                continue
-            self.frames += 1
-            del buf[:STREAM_FRAME_LEN]
-        return out
-
-
-# ------------------------------------------------------------------------------------------------
-# transport selection
-# ------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ModbusEndpoint:
-    """A parsed transport URL (see the module docstring)."""
-
-    kind: str  # "tcp" | "rtu-over-tcp" | "rtu"
-    host: str = ""
-    port: int = 502
-    device: str = ""
-    baudrate: int = DEFAULT_BAUDRATE
-
-    @classmethod
-    def parse(cls, url: str) -> ModbusEndpoint:
-        if "://" not in url:
-            return cls(kind="rtu", device=url)
-        parts = urlsplit(url)
-        scheme = parts.scheme.lower()
-        if scheme in ("tcp", "modbus+tcp", "rtu-over-tcp"):
-            if not parts.hostname:
-                raise ValueError(f"{url!r}: missing host")
-            kind = "tcp" if scheme != "rtu-over-tcp" else "rtu-over-tcp"
-            return cls(kind=kind, host=parts.hostname, port=parts.port or 502)
-        if scheme == "rtu":
-            query = parse_qs(parts.query)
-            baud = int(query.get("baudrate", [DEFAULT_BAUDRATE])[0])
-            device = parts.path or parts.netloc
-            if not device:
-                raise ValueError(f"{url!r}: missing serial device path")
-            return cls(kind="rtu", device=device, baudrate=baud)
-        raise ValueError(f"unsupported Modbus URL scheme {scheme!r} in {url!r}")
-
-
-def _modbus_crc_ok(frame: bytes) -> bool:
-    return len(frame) >= 4 and crc16_modbus(frame[:-2]) == int.from_bytes(frame[-2:], "little")
-
-
-#: Exception codes a Modbus server may answer with (Modbus Application Protocol v1.1b3, 7).
-MODBUS_EXCEPTION_CODES = frozenset({1, 2, 3, 4, 5, 6, 8, 10, 11})
-#: Gateway exceptions: 10 path unavailable, 11 target device failed to respond (its reply was
-#: missing or failed the serial CRC): a missed reply, not a device fault.
-GATEWAY_EXCEPTION_CODES = frozenset({10, 11})
-
-
-class GatewayError(ProtocolError):
-    """A Modbus gateway answered exception 10/11: the sensor behind it gave no valid reply."""
-
-
-#: FT-300 rated measuring range: |Fx|, |Fy|, |Fz| <= 300 N, |Mx|, |My|, |Mz| <= 30 N.m.
-RATED_FORCE = 300.0
-RATED_TORQUE = 30.0
-
-
-def check_wrench_range(wrench: np.ndarray, max_force: float, max_torque: float) -> None:
-    """Raise :class:`ProtocolError` if a decoded wrench lies outside the sensor's range (a
-    damaged reply on a transport without a CRC, e.g. Modbus/TCP)."""
-    w = np.asarray(wrench, dtype=float).reshape(6)
-    if np.any(np.abs(w[:3]) > max_force) or np.any(np.abs(w[3:]) > max_torque):
-        raise ProtocolError(f"FT-300: wrench {np.round(w, 3).tolist()} outside the range "
-                            f"+-{max_force:g} N, +-{max_torque:g} N.m (damaged reply?)")
-
-
-#: How long the stream stop sends the jam and waits for the line to go quiet (s; manual: ~0.5 s).
-STREAM_STOP_S = 0.5
-#: Pause after the stream stopped before the first Modbus request (Robotiq's rq_sensor_com.c:
-#: ``usleep(100000)`` "give some time to the sensor to switch to modbus").
-STREAM_TO_MODBUS_S = 0.1
 
 
 def stop_stream_on_line(ser: Any, *, listen_s: float = 0.05, stop_s: float = STREAM_STOP_S,
@@ -340,9 +195,8 @@ class RobotiqFT300(ForceSensor):
         self.slave = int(slave)
         self.timeout = float(timeout)
         self._clock = clock
-        self._seq = 0
+        self.label = f"FT-300 on {url}"
         self._offset = np.zeros(6)
-        self._closed = False
         self._rx = b""
         self.retries = max(0, int(retries))
         self.max_force = float(max_force)
@@ -397,13 +251,12 @@ class RobotiqFT300(ForceSensor):
         return stopped
 
     # -- ForceSensor ------------------------------------------------------------------------------
-    def read(self, timeout: float | None = None) -> WrenchSample:
+    def _read_sample(self, timeout: float) -> WrenchSample:
         """Poll Fx..Mz once (validated, see the class doc). Raises DeviceTimeout / ChecksumError /
         ProtocolError / DeviceFault."""
         raw = self._read_wrench(timeout)
         produced = self._clock()
-        self._seq += 1
-        return WrenchSample(t=produced, seq=self._seq, wrench=raw - self._offset, produced_at=produced)
+        return WrenchSample(t=produced, seq=self._next_seq(), wrench=raw - self._offset, produced_at=produced)
 
     def counters(self) -> dict[str, int]:
         """crc_errors, invalid_replies, out_of_range, gateway_errors, exceptions, retries, timeouts."""
@@ -436,14 +289,8 @@ class RobotiqFT300(ForceSensor):
         longer answers Modbus until jammed with 0xFF bytes (see :data:`STREAM_STOP_JAM`)."""
         self._write_register(REG_OUTPUT_SELECT, STREAM_START_VALUE, timeout)
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            self._client.close()
-        except Exception:
-            log.debug("FT-300: error while closing the client", exc_info=True)
+    def _release(self) -> None:
+        self._client.close()
 
     # -- internals --------------------------------------------------------------------------------
     def _read_info(self) -> None:
@@ -461,8 +308,7 @@ class RobotiqFT300(ForceSensor):
     def _call(self, fn: Callable[..., Any], timeout: float | None, *args: Any, **kw: Any) -> Any:
         from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
-        if self._closed:
-            raise DeviceDisconnected("FT-300 adapter is closed")
+        self._check_open()
         t = self.timeout if timeout is None else float(timeout)
         self._client.comm_params.timeout_connect = t
         self._rx = b""
@@ -519,62 +365,6 @@ class RobotiqFT300(ForceSensor):
 # ------------------------------------------------------------------------------------------------
 # Modbus RTU on a raw byte stream (what stream mode needs: the same serial line carries both)
 # ------------------------------------------------------------------------------------------------
-FC_READ_HOLDING = 0x03
-FC_READ_INPUT = 0x04
-FC_WRITE_SINGLE = 0x06
-FC_WRITE_MULTIPLE = 0x10
-
-
-def rtu_frame(slave: int, pdu: bytes) -> bytes:
-    """``slave | pdu | CRC-16/MODBUS`` (CRC low byte first): one Modbus RTU frame."""
-    body = bytes([slave & 0xFF]) + bytes(pdu)
-    return body + struct.pack("<H", crc16_modbus(body))
-
-
-def stream_start_request(slave: int = DEFAULT_SLAVE_ID) -> bytes:
-    """The RTU request that starts the data stream: FC16, register 410, one register, 0x0200
-    (as Robotiq's ``rq_com_start_stream`` sends it)."""
-    pdu = struct.pack(">BHHBH", FC_WRITE_MULTIPLE, REG_OUTPUT_SELECT, 1, 2, STREAM_START_VALUE)
-    return rtu_frame(slave, pdu)
-
-
-def _rtu_reply_length(buf: bytes | bytearray, i: int, fc: int) -> int | None:
-    """Expected length of the RTU reply to function ``fc`` starting at ``buf[i]`` (None: need more
-    bytes to tell)."""
-    if len(buf) - i < 3:
-        return None
-    if buf[i + 1] == (fc | 0x80):
-        return 5  # slave, fc | 0x80, exception code, CRC
-    if fc in (FC_READ_HOLDING, FC_READ_INPUT):
-        return 5 + buf[i + 2]
-    return 8  # FC06 / FC16 echo: slave, fc, address, value or count, CRC
-
-
-def _parse_rtu_reply(buf: bytearray, slave: int, fc: int) -> tuple[bytes | None, int, bool]:
-    """Find the reply of ``slave`` to ``fc`` in ``buf``: (frame or None, end index, bad CRC seen).
-
-    Bytes before a candidate (line noise, the tail of a stream) are skipped; a candidate whose CRC
-    fails is skipped too (a real master would discard it) but reported.
-    """
-    bad_crc = False
-    start = 0
-    while True:
-        i = buf.find(bytes([slave & 0xFF]), start)
-        if i < 0 or len(buf) - i < 2:
-            return None, 0, bad_crc
-        if buf[i + 1] not in (fc, fc | 0x80):
-            start = i + 1
-            continue
-        n = _rtu_reply_length(buf, i, fc)
-        if n is None or len(buf) - i < n:
-            return None, 0, bad_crc
-        frame = bytes(buf[i : i + n])
-        if _modbus_crc_ok(frame):
-            return frame, i + n, bad_crc
-        bad_crc = True
-        start = i + 1
-
-
 class RobotiqFT300Stream(StreamingSensor):
     """Robotiq FT-300 in data-stream mode on a serial line (see the module docstring).
 
@@ -640,7 +430,7 @@ class RobotiqFT300Stream(StreamingSensor):
         self._clock = clock
         self._serial_errors = (serial.SerialException, OSError)
         self.parser = StreamParser()
-        self._seq = 0
+        self.label = f"FT-300 stream on {url}"
         self._offset = np.zeros(6)
         self._pending: np.ndarray | None = None
         self._last: WrenchSample | None = None
@@ -651,7 +441,6 @@ class RobotiqFT300Stream(StreamingSensor):
         self._timeouts = 0
         self._crc_seen = 0
         self._skipped = 0
-        self._closed = False
         self.streaming = False
         self.stream_stopped: bool | None = None
         port_url, baud = self._port_url(url, baudrate)
@@ -665,7 +454,7 @@ class RobotiqFT300Stream(StreamingSensor):
                 write_timeout=max(self.timeout, 0.05),
             )
         except (serial.SerialException, OSError, ValueError) as exc:
-            self._closed = True
+            self._closed = True  # nothing to release
             raise DeviceDisconnected(f"FT-300: cannot open {url!r}: {exc}") from exc
         try:
             self._start(read_info, probe_s)
@@ -689,27 +478,19 @@ class RobotiqFT300Stream(StreamingSensor):
         return {"crc_errors": p.crc_errors, "resync_bytes": p.skipped_bytes, "skipped": self._skipped,
                 "stale": self._stale_reads, "timeouts": self._timeouts}
 
-    def read(self, timeout: float | None = None) -> WrenchSample:
+    def _read_sample(self, t: float) -> WrenchSample:
         """Newest stream sample (N, N.m); see the class doc for freshness and waiting."""
-        t = self.timeout if timeout is None else float(timeout)
         deadline = time.monotonic() + t
         if self._last is not None:
             deadline = min(deadline, self._last_rx + t)
         self._pump(block=False)
         while self._pending is None:
-            if self._last is not None and self.max_age > 0 and time.monotonic() - self._last_rx <= self.max_age:
-                self._stale_reads += 1
-                return repeat_sample(self._last, self._clock())
-            if time.monotonic() >= deadline:
-                if self._last is None:
-                    self._timeouts += 1
-                    raise DeviceTimeout(f"FT-300 stream on {self.url}: no frame within {t:.3f} s")
-                self._stale_reads += 1
-                return repeat_sample(self._last, self._clock())
+            young = self._last is not None and self.max_age > 0 and time.monotonic() - self._last_rx <= self.max_age
+            if young or time.monotonic() >= deadline:
+                return self._stale(self._last, self._clock(), f"FT-300 stream on {self.url}: no frame within {t:.3f} s")
             self._pump(block=True)
         wrench, self._pending = self._pending, None
-        self._seq += 1
-        self._last = WrenchSample(t=self._clock(), seq=self._seq, wrench=wrench - self._offset,
+        self._last = WrenchSample(t=self._clock(), seq=self._next_seq(), wrench=wrench - self._offset,
                                   produced_at=self._pending_at)
         return self._last
 
@@ -748,19 +529,12 @@ class RobotiqFT300Stream(StreamingSensor):
         self.stream_stopped = stopped
         return stopped
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        ser = getattr(self, "_ser", None)
-        if ser is None:
-            return
+    def _on_close(self) -> None:
         if self.streaming or self.info.extra.get("start") is None:
             self.stop_stream()  # also after a failed start: the sensor may have switched anyway
-        try:
-            ser.close()
-        except Exception:  # pragma: no cover
-            log.debug("FT-300: error closing %s", self.url, exc_info=True)
+
+    def _release(self) -> None:
+        self._ser.close()
 
     # -- internals --------------------------------------------------------------------------------
     @staticmethod
@@ -778,8 +552,7 @@ class RobotiqFT300Stream(StreamingSensor):
         return DeviceDisconnected(f"FT-300 on {self.url}: port lost: {exc}")
 
     def _recv(self, block: bool) -> bytes:
-        if self._closed:
-            raise DeviceDisconnected("FT-300 stream adapter is closed")
+        self._check_open()
         try:
             n = self._ser.in_waiting
             data = self._ser.read(n) if n else (self._ser.read(1) if block else b"")
@@ -887,3 +660,7 @@ __all__ = [
     "rtu_frame",
     "stream_start_request",
 ]
+
+
+#: the wire-format names (:mod:`hil.protocols.codecs`) stay importable from this module
+__getattr__ = forwarder(_wire, __name__)

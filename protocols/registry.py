@@ -1,8 +1,13 @@
 """Driver registry: a scene names a driver, the registry imports only that driver's module.
 
-Modelled on python-can's backend registry: each name maps to a ``"module:Class"`` string that is
-resolved with :mod:`importlib` on first use, so a scene using only CAN never imports
-``pymodbus`` or ``dynamixel_sdk``.
+Modelled on python-can's backend registry (and its ``can.interface`` entry points): one
+:class:`DeviceKind` per device kind names the adapter (``"module:Class"``), its simulated twin
+(``"module:attribute"``, a :class:`hil.mocks.twins.Twin`: what :mod:`hil.bench` needs to start,
+tick, flush and serve it), its transport and its optional imports; the strings are resolved with
+:mod:`importlib` on first use, so a scene using only CAN never imports ``pymodbus`` or
+``dynamixel_sdk``. Another distribution adds a device with an entry point in the
+``hil_certify.devices`` group naming a :class:`DeviceKind` (read on first lookup,
+:func:`load_entry_points`).
 
 >>> from hil.protocols.registry import open_device
 >>> dev = open_device("odrive_can", interface="virtual", channel="bench0", node_id=3)  # doctest: +SKIP
@@ -15,8 +20,10 @@ the extra, before a command creates anything on disk.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import importlib
+import importlib.metadata
 import importlib.util
 import logging
 import sys
@@ -36,29 +43,143 @@ class UnknownDriverError(DeviceError, KeyError):
         return str(self.args[0]) if self.args else ""
 
 
-_DRIVERS: dict[str, str] = {
-    "odrive_can": "hil.protocols.can_odrive:ODriveCAN",
-    "cubemars_mit": "hil.protocols.can_cubemars:CubeMarsMIT",
-    "bota_serial": "hil.protocols.serial_bota:BotaSerial",
-    # implemented by another engineer (same registry, lazily imported as well)
-    "robotiq_ft300": "hil.protocols.modbus_robotiq:RobotiqFT300",
-    "robotiq_ft300_stream": "hil.protocols.modbus_robotiq:RobotiqFT300Stream",
-    "dynamixel_x": "hil.protocols.dynamixel_x:DynamixelX",
-    "cia402": "hil.protocols.cia402:CiA402Drive",
-}
+@dataclass(frozen=True)
+class DeviceKind:
+    """One registration per device kind (python-can's backend table, plus the simulated twin).
+
+    ``name``: the scene's ``devices[].driver``; ``adapter``: ``"module:Class"`` of the adapter
+    (imported on first use); ``transport``: ``"can"``, ``"serial"``, ``"modbus"`` or
+    ``"dynamixel"`` (or another word for a third-party transport); ``twin``: ``"module:attribute"``
+    of its :class:`hil.mocks.twins.Twin` (None: no simulated counterpart); ``label``: how messages
+    name it; ``adapter_requires`` / ``simulator_requires``: the optional imports of the adapter and
+    of the twin (:class:`Requirement`); ``watchdog_param``: the adapter parameter (seconds) that
+    arms the device's own watchdog from the scene's ``watchdog_ms`` (None: it has none), and
+    ``watchdog_needs``: a parameter that must be set on a real bench for that (ODrive: the
+    endpoint ids), on a simulated bench the twin provides it."""
+
+    name: str
+    adapter: str
+    transport: str
+    twin: str | None = None
+    label: str = ""
+    adapter_requires: tuple[Requirement, ...] = ()
+    simulator_requires: tuple[Requirement, ...] = ()
+    watchdog_param: str | None = None
+    watchdog_needs: str | None = None
+
+    def __post_init__(self) -> None:
+        for what, target in (("adapter", self.adapter), ("twin", self.twin)):
+            if target is not None and ":" not in target:
+                raise ValueError(f"device kind {self.name!r}: {what} must look like 'module:attribute', got {target!r}")
+
+    def watchdog_params(self, params: dict[str, Any], watchdog_s: float, simulated: bool) -> None:
+        """Arm the device's own watchdog (``watchdog_param`` = ``watchdog_s``) unless the scene's
+        params set it, where it has one."""
+        if self.watchdog_param is None:
+            return
+        if self.watchdog_needs is None or simulated or params.get(self.watchdog_needs):
+            params.setdefault(self.watchdog_param, watchdog_s)
+
+
+_KINDS: dict[str, DeviceKind] = {}
+#: ``name -> "module:Class"`` of every registered adapter (a view kept for old callers)
+_DRIVERS: dict[str, str] = {}
+ENTRY_POINT_GROUP = "hil_certify.devices"
+_entry_points_loaded = False
+
+
+def register_device(kind: DeviceKind, *, replace: bool = False) -> DeviceKind:
+    """Register a device kind (its adapter, simulated twin, transport, extras). A name already
+    registered differently is a ValueError unless ``replace``."""
+    old = _KINDS.get(kind.name)
+    if old is not None and old != kind and not replace:
+        raise ValueError(f"device kind {kind.name!r} already registered as {old.adapter!r}")
+    _KINDS[kind.name] = kind
+    _DRIVERS[kind.name] = kind.adapter
+    ADAPTER_REQUIRES[kind.name] = kind.adapter_requires
+    SIMULATOR_REQUIRES[kind.name] = kind.simulator_requires
+    DEVICE_LABELS[kind.name] = kind.label or f"driver {kind.name!r}"
+    return kind
 
 
 def register_driver(name: str, target: str, *, replace: bool = False) -> None:
-    """Register ``name`` -> ``"package.module:ClassName"`` (not imported until opened)."""
+    """Register ``name`` -> ``"package.module:ClassName"`` (not imported until opened), without a
+    simulated twin (see :func:`register_device`)."""
     if ":" not in target:
         raise ValueError(f"driver target must look like 'module:Class', got {target!r}")
     if name in _DRIVERS and not replace and _DRIVERS[name] != target:
         raise ValueError(f"driver {name!r} already registered as {_DRIVERS[name]!r}")
-    _DRIVERS[name] = target
+    old = _KINDS.get(name)
+    register_device(dataclasses.replace(old, adapter=target) if old is not None
+                    else DeviceKind(name, target, "other"), replace=True)
+
+
+def load_entry_points() -> list[str]:
+    """Register the device kinds other distributions declare in the ``hil_certify.devices``
+    entry-point group (each entry point loads a :class:`DeviceKind`, or a callable returning one).
+    Runs once (later calls return []); a broken entry point is logged and skipped. Returns the
+    names registered."""
+    global _entry_points_loaded
+    if _entry_points_loaded:
+        return []
+    _entry_points_loaded = True
+    out: list[str] = []
+    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        try:
+            obj = ep.load()
+            kind = obj() if callable(obj) and not isinstance(obj, DeviceKind) else obj
+            if not isinstance(kind, DeviceKind):
+                raise TypeError(f"{ep.value} is not a DeviceKind")
+            register_device(kind)
+            out.append(kind.name)
+        except Exception:
+            log.warning("device entry point %r (%s) could not be registered", ep.name, ep.value, exc_info=True)
+    return out
+
+
+def device_kind(name: str) -> DeviceKind:
+    """The registration of ``name`` (entry points included); UnknownDriverError otherwise."""
+    load_entry_points()
+    try:
+        return _KINDS[name]
+    except KeyError:
+        raise _unknown(name) from None
+
+
+def simulated_drivers() -> list[str]:
+    """Sorted names of the device kinds with a simulated twin."""
+    load_entry_points()
+    return sorted(n for n, k in _KINDS.items() if k.twin is not None)
+
+
+def resolve_twin(name: str) -> Any:
+    """Import and return the :class:`hil.mocks.twins.Twin` of device kind ``name``; DeviceError
+    when it has none or its module cannot be imported."""
+    kind = device_kind(name)
+    if kind.twin is None:
+        raise DeviceError(f"driver {name!r} has no simulated counterpart (simulated: {', '.join(simulated_drivers())})")
+    return _import_target(name, kind.twin, kind.simulator_requires)
+
+
+def _import_target(name: str, target: str, requires: tuple[Requirement, ...], what: str = "attribute") -> Any:
+    module_name, _, attr = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        extras = ",".join(dict.fromkeys(r.extra for r in requires)) or "devices"
+        raise DeviceError(
+            f"driver {name!r} needs module {module_name!r} which failed to import ({exc}); "
+            f"pip install 'hil-certify[{extras}]'"
+        ) from exc
+    try:
+        return getattr(module, attr)
+    except AttributeError:
+        raise DeviceError(f"driver {name!r}: {module_name} has no {what} {attr!r}") from None
 
 
 def available_drivers() -> list[str]:
     """Sorted names of all registered drivers (whether or not their dependencies are installed)."""
+    load_entry_points()
     return sorted(_DRIVERS)
 
 
@@ -75,23 +196,9 @@ def resolve_driver(name: str) -> type:
     Raises :class:`UnknownDriverError` for unregistered names and :class:`hil.errors.DeviceError`
     when the driver's module or its optional dependency cannot be imported.
     """
-    try:
-        target = _DRIVERS[name]
-    except KeyError:
-        raise _unknown(name) from None
-    module_name, _, cls_name = target.partition(":")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        extras = ",".join(dict.fromkeys(r.extra for r in ADAPTER_REQUIRES.get(name, ()))) or "devices"
-        raise DeviceError(
-            f"driver {name!r} needs module {module_name!r} which failed to import ({exc}); "
-            f"pip install 'hil-certify[{extras}]'"
-        ) from exc
-    try:
-        return getattr(module, cls_name)
-    except AttributeError:
-        raise DeviceError(f"driver {name!r}: {module_name} has no class {cls_name!r}") from None
+    kind = device_kind(name)
+    cls: type = _import_target(name, kind.adapter, kind.adapter_requires, "class")
+    return cls
 
 
 def open_device(driver: str, **params: Any) -> Any:
@@ -124,35 +231,31 @@ DYNAMIXEL_SERIAL = Requirement("serial", "pyserial", "dynamixel")  # dynamixel-s
 REPORT = (Requirement("matplotlib", "matplotlib", "report"), Requirement("jinja2", "jinja2", "report"))
 
 #: what a driver's adapter imports (hil.protocols): needed by ``hil run`` / ``hil certify``, real or simulated
-ADAPTER_REQUIRES: dict[str, tuple[Requirement, ...]] = {
-    "odrive_can": (CAN,),
-    "cubemars_mit": (CAN,),
-    "bota_serial": (SERIAL,),
-    "robotiq_ft300": (MODBUS,),
-    "robotiq_ft300_stream": (SERIAL,),
-    "dynamixel_x": (DYNAMIXEL_SDK, DYNAMIXEL_SERIAL),
-    "cia402": (CAN, CANOPEN),
-}
+ADAPTER_REQUIRES: dict[str, tuple[Requirement, ...]] = {}
 #: what a driver's simulated counterpart imports (hil.mocks): needed on a simulated bench and by
 #: ``hil mock serve`` (the DYNAMIXEL chain and the FT-300 stream are plain ptys)
-SIMULATOR_REQUIRES: dict[str, tuple[Requirement, ...]] = {
-    "odrive_can": (CAN,),
-    "cubemars_mit": (CAN,),
-    "bota_serial": (SERIAL,),  # the simulator frames with hil.protocols.serial_bota
-    "robotiq_ft300": (MODBUS,),
-    "robotiq_ft300_stream": (),
-    "dynamixel_x": (),
-    "cia402": (CAN, CANOPEN),  # the simulated drive is a canopen LocalNode
-}
-DEVICE_LABELS: dict[str, str] = {
-    "odrive_can": "ODrive",
-    "cubemars_mit": "CubeMars motor",
-    "bota_serial": "Bota F/T sensor",
-    "robotiq_ft300": "Robotiq FT-300 (Modbus)",
-    "robotiq_ft300_stream": "Robotiq FT-300 (stream)",
-    "dynamixel_x": "DYNAMIXEL servo",
-    "cia402": "CiA 402 drive",
-}
+SIMULATOR_REQUIRES: dict[str, tuple[Requirement, ...]] = {}
+DEVICE_LABELS: dict[str, str] = {}
+
+# -- the built-in device kinds (one registration each) --------------------------------------------
+for _kind in (
+    DeviceKind("odrive_can", "hil.protocols.can_odrive:ODriveCAN", "can", "hil.mocks.twins:ODRIVE", "ODrive",
+               (CAN,), (CAN,), watchdog_param="watchdog_s", watchdog_needs="watchdog_endpoints"),
+    DeviceKind("cubemars_mit", "hil.protocols.can_cubemars:CubeMarsMIT", "can", "hil.mocks.twins:CUBEMARS",
+               "CubeMars motor", (CAN,), (CAN,)),
+    DeviceKind("bota_serial", "hil.protocols.serial_bota:BotaSerial", "serial", "hil.mocks.twins:BOTA",
+               "Bota F/T sensor", (SERIAL,), (SERIAL,)),
+    DeviceKind("robotiq_ft300", "hil.protocols.modbus_robotiq:RobotiqFT300", "modbus", "hil.mocks.twins:FT300",
+               "Robotiq FT-300 (Modbus)", (MODBUS,), (MODBUS,)),
+    DeviceKind("robotiq_ft300_stream", "hil.protocols.modbus_robotiq:RobotiqFT300Stream", "serial",
+               "hil.mocks.twins:FT300_STREAM", "Robotiq FT-300 (stream)", (SERIAL,), ()),
+    DeviceKind("dynamixel_x", "hil.protocols.dynamixel_x:DynamixelX", "dynamixel", "hil.mocks.twins:DYNAMIXEL",
+               "DYNAMIXEL servo", (DYNAMIXEL_SDK, DYNAMIXEL_SERIAL), (), watchdog_param="bus_watchdog_s"),
+    # the simulated drive is a canopen LocalNode
+    DeviceKind("cia402", "hil.protocols.cia402:CiA402Drive", "can", "hil.mocks.twins:CIA402", "CiA 402 drive",
+               (CAN, CANOPEN), (CAN, CANOPEN)),
+):
+    register_device(_kind)
 
 
 def importable(module: str) -> bool:

@@ -59,92 +59,28 @@ Error handling (documented behaviour):
 from __future__ import annotations
 
 import logging
-import struct
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 import serial
 
 from hil.errors import ChecksumError, DeviceDisconnected, DeviceError, DeviceFault, DeviceTimeout
-from hil.protocols.base import DeviceInfo, StreamingSensor, WrenchSample, repeat_sample
-from hil.protocols.crc import crc16_x25
+from hil.protocols.base import DeviceInfo, StreamingSensor, WrenchSample
+from hil.protocols.codecs import bota as _wire
+from hil.protocols.codecs import forwarder
+from hil.protocols.codecs.bota import (
+    BOTA_BASE_HZ,
+    BOTA_BAUD_CODES,
+    STATUS_INVALID,
+    STATUS_OVERRANGE,
+    BotaFrame,
+    FrameParser,
+)
 
 log = logging.getLogger(__name__)
-
-HEADER = 0xAA
-PAYLOAD = struct.Struct("<H6fIf")  # 34 bytes
-FRAME_LEN = 1 + PAYLOAD.size + 2  # 37
-
-STATUS_APP_TOOK_TOO_LONG = 0x1
-STATUS_OVERRANGE = 0x2
-STATUS_INVALID = 0x4
-STATUS_RAW = 0x8
-
-#: Baud codes of the ``c,...`` command (Bota's example: 0: 9600, 1: 57600, 2: 115200, 3: 230400, 4: 460800).
-BOTA_BAUD_CODES = {0: 9600, 1: 57600, 2: 115200, 3: 230400, 4: 460800}
-#: Sample rate base: period = sinc_length / BOTA_BASE_HZ (s).
-BOTA_BASE_HZ = 51200.0
-
-
-@dataclass(frozen=True)
-class BotaFrame:
-    status: int
-    wrench: tuple[float, float, float, float, float, float]
-    timestamp: int
-    temperature: float
-
-
-def encode_frame(status: int, wrench, timestamp: int, temperature: float) -> bytes:
-    """One binary frame (header, payload, CRC-16/X-25 little endian)."""
-    payload = PAYLOAD.pack(status & 0xFFFF, *(float(w) for w in wrench), timestamp & 0xFFFFFFFF, temperature)
-    return bytes((HEADER,)) + payload + struct.pack("<H", crc16_x25(payload))
-
-
-def decode_payload(payload: bytes) -> BotaFrame:
-    status, fx, fy, fz, tx, ty, tz, ts, temp = PAYLOAD.unpack(payload)
-    return BotaFrame(status, (fx, fy, fz, tx, ty, tz), ts, temp)
-
-
-class FrameParser:
-    """Incremental parser: :meth:`feed` bytes, get the valid frames; never raises on bad data."""
-
-    def __init__(self) -> None:
-        self._buf = bytearray()
-        self.stats: Counter[str] = Counter()
-
-    def feed(self, data: bytes) -> list[BotaFrame]:
-        buf = self._buf
-        buf += data
-        out: list[BotaFrame] = []
-        i = 0
-        n = len(buf)
-        while True:
-            j = buf.find(HEADER, i)
-            if j < 0:
-                self.stats["resync_bytes"] += n - i
-                i = n
-                break
-            if j > i:
-                self.stats["resync_bytes"] += j - i
-            i = j
-            if n - i < FRAME_LEN:
-                break
-            payload = bytes(buf[i + 1 : i + 1 + PAYLOAD.size])
-            (crc,) = struct.unpack_from("<H", buf, i + 1 + PAYLOAD.size)
-            if crc16_x25(payload) == crc:
-                out.append(decode_payload(payload))
-                self.stats["frames"] += 1
-                i += FRAME_LEN
-            else:
-                self.stats["crc_errors"] += 1
-                self.stats["resync_bytes"] += 1
-                i += 1  # resynchronise: look for the next header after this one
-        del buf[:i]
-        return out
 
 
 class BotaSerial(StreamingSensor):
@@ -206,8 +142,7 @@ class BotaSerial(StreamingSensor):
         self.clock = clock
         self.timeout = timeout
         self.parser = FrameParser()
-        self._closed = False
-        self._seq = 0
+        self.label = f"Bota sensor on {url}"
         self._last_ts: int | None = None
         self._offset = np.zeros(6)
         self._crc_seen = 0
@@ -280,8 +215,7 @@ class BotaSerial(StreamingSensor):
                 "stale": self._stale_reads, "timeouts": self._timeouts}
 
     def _read_bytes(self, block: bool) -> bytes:
-        if self._closed:
-            raise DeviceDisconnected("BotaSerial is closed")
+        self._check_open()
         try:
             n = self._ser.in_waiting
             data = self._ser.read(n) if n else (self._ser.read(1) if block else b"")
@@ -303,7 +237,7 @@ class BotaSerial(StreamingSensor):
                 if dt == 0:
                     st["stale"] += 1
                     continue
-                if self._learned_period and dt * 1e-6 < self.period_s:
+                if self._learned_period and self.period_s is not None and dt * 1e-6 < self.period_s:
                     self.period_s = dt * 1e-6  # learned period: keep the smallest step seen
                 if self.period_s is None:
                     self.period_s = dt * 1e-6
@@ -333,7 +267,7 @@ class BotaSerial(StreamingSensor):
         self._check_crc()
         return frame
 
-    def read(self, timeout: float = 0.1) -> WrenchSample:
+    def _read_sample(self, timeout: float) -> WrenchSample:
         """Newest wrench (N, N.m) with a new device timestamp; see "Freshness" in the module
         docstring for what a read without one returns."""
         now = time.monotonic()
@@ -346,18 +280,13 @@ class BotaSerial(StreamingSensor):
             self._pump(block=True)
             frame = self._take()
         if frame is None:
-            if self._last is None:
-                self._timeouts += 1
-                raise DeviceTimeout(f"{self.url}: no fresh frame within {timeout:.3f} s")
-            self._stale_reads += 1
-            return repeat_sample(self._last, self.clock())
+            return self._stale(self._last, self.clock(), f"{self.url}: no fresh frame within {timeout:.3f} s")
         self._last_rx_wall = time.monotonic()
         produced = self.clock()
         self.last_frame = frame
         if frame.status & self.fault_mask:
             raise DeviceFault(f"{self.url}: sensor status 0x{frame.status:04X}", code=frame.status)
-        self._seq += 1
-        self._last = WrenchSample(t=produced, seq=self._seq, wrench=np.asarray(frame.wrench) - self._offset,
+        self._last = WrenchSample(t=produced, seq=self._next_seq(), wrench=np.asarray(frame.wrench) - self._offset,
                                   status=frame.status, produced_at=produced)
         return self._last
 
@@ -366,11 +295,9 @@ class BotaSerial(StreamingSensor):
         self._offset = np.zeros(6)
         self._offset = self.read(timeout).wrench.copy()
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            self._ser.close()
-        except (serial.SerialException, OSError) as exc:  # pragma: no cover
-            log.debug("close failed: %s", exc)
+    def _release(self) -> None:
+        self._ser.close()
+
+
+#: the wire-format names (:mod:`hil.protocols.codecs`) stay importable from this module
+__getattr__ = forwarder(_wire, __name__)

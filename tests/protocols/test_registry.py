@@ -37,8 +37,14 @@ def test_unknown_driver_without_close_match():
     assert "did you mean" not in str(ei.value).lower()
 
 
+def isolate_registry(monkeypatch) -> None:
+    """Registrations made by a test stay in it (copies of every registry table)."""
+    for table in ("_KINDS", "_DRIVERS", "ADAPTER_REQUIRES", "SIMULATOR_REQUIRES", "DEVICE_LABELS"):
+        monkeypatch.setattr(registry, table, dict(getattr(registry, table)))
+
+
 def test_register_and_resolve(monkeypatch):
-    monkeypatch.setattr(registry, "_DRIVERS", dict(registry._DRIVERS))
+    isolate_registry(monkeypatch)
     registry.register_driver("fake", "collections:OrderedDict")
     assert open_device("fake", a=1) == {"a": 1}
     with pytest.raises(ValueError):

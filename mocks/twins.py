@@ -1,0 +1,335 @@
+"""Simulated twins: what a bench needs of each device kind's simulated counterpart.
+
+A device kind registered in :mod:`hil.protocols.registry` names, next to its adapter, a *twin*
+(``"module:attribute"``, an instance of a :class:`Twin` subclass). :class:`hil.bench.Bench` and
+:class:`hil.bench.SimulatedScene` call only these methods, so they have no per-kind branches:
+
+* :meth:`Twin.start` builds the simulated device on its transport for one scene device (the
+  :class:`TwinContext` carries its measurement point, seed, fault plan, clock, private channel
+  names, ...) and returns the adapter parameters that reach it;
+* :meth:`Twin.publish` (first samples at t = 0), :meth:`Twin.tick` (once per lockstep period,
+  after the plant stepped), :meth:`Twin.flush` (let it process what the host sent) and
+  :meth:`Twin.run_free` (``hil mock serve``: own threads at the scene's rate);
+* :meth:`Twin.address` (where a served device listens, for people).
+
+A device with a simulated twin is one module with its simulated device and one ``Twin``
+subclass, plus one registration (:func:`hil.protocols.registry.register_device`, or the
+``hil_certify.devices`` entry-point group for another distribution).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hil.errors import SceneError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class TwinContext:
+    """What a twin gets from the bench to start the simulated counterpart of one scene device.
+
+    ``index``/``cfg``: the scene's ``devices[index]``; ``point``: the SimulatedJoints of its body's
+    DOFs (noise included); ``seed``/``faults``: its generator seed and
+    :class:`hil.mocks.faults.FaultPlan`; ``dt`` (s) and ``rate_hz``: the control period;
+    ``clock``: the simulated clock (s) for the adapter; ``timeout`` (s): the adapter's per-call
+    timeout; ``lockstep``: True on a :class:`hil.bench.Bench` (the bench ticks the device), False
+    when served free-running; ``can_interface``: the python-can interface the simulated CAN nodes
+    use; ``channel(interface, scene_channel)``: the private channel standing for a scene channel;
+    ``devices``: every opened device record of the bench (``.cfg``, ``.point``, ``.host``), for
+    twins that serve several devices on one transport; ``label``: the scene file or name."""
+
+    index: int
+    cfg: Any
+    point: Any
+    seed: int
+    faults: Any
+    dt: float
+    rate_hz: float
+    clock: Callable[[], float]
+    timeout: float
+    lockstep: bool
+    can_interface: str
+    channel: Callable[[str, str], str]
+    devices: Sequence[Any] = field(default_factory=list)
+    label: str = ""
+
+
+class Twin:
+    """The simulated counterpart of one device kind (see the module docstring). Defaults: nothing
+    to publish, tick, flush or run."""
+
+    #: served over python-can's UDP multicast in another process with a ``port`` parameter
+    udp_multicast: bool = False
+
+    def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+        """Build the simulated device for ``ctx``; return it (None when another device's twin
+        serves this one too, see :meth:`host`) and the adapter parameters (``params`` updated)."""
+        raise NotImplementedError
+
+    def host(self, ctx: TwinContext, sim: Any) -> Any:
+        """The simulated object serving this device (default: its own)."""
+        return sim
+
+    def publish(self, sim: Any) -> None:
+        """First samples, at t = 0 (default: the same as :meth:`tick`)."""
+        self.tick(sim)
+
+    def tick(self, sim: Any) -> None:
+        """Once per lockstep period, after the plant stepped."""
+
+    def flush(self, sim: Any, adapters: Sequence[Any], timeout: float) -> None:
+        """Let the simulated device process what the host's ``adapters`` sent."""
+
+    def run_free(self, sim: Any, rate_hz: float, stream_rate_hz: float) -> None:
+        """Start the device's own threads (``hil mock serve``)."""
+
+    def address(self, driver: str, params: dict[str, Any]) -> tuple[str, bool]:
+        """(where it listens, for people; whether another process can reach it)."""
+        return str(params.get("url", "")), True
+
+
+def _can_params(ctx: TwinContext, params: dict[str, Any]) -> str:
+    """Point the adapter at the private channel of its scene channel; returns that channel."""
+    scene_ch = str(params.get("channel", "hil0"))
+    ch = ctx.channel(str(params.get("interface", "virtual")), scene_ch)
+    params.update(interface=ctx.can_interface, channel=ch, clock=ctx.clock, timeout=ctx.timeout)
+    params.pop("bus", None)
+    return ch
+
+
+class CanTwin(Twin):
+    """A simulated CAN node (python-can bus, lockstep tick per control period)."""
+
+    #: the adapter parameter naming the node, how addresses call it, and its default
+    node_param, node_word, node_default = "node_id", "node", 1
+
+    def tick(self, sim: Any) -> None:
+        sim.tick()
+
+    def publish(self, sim: Any) -> None:
+        """CAN nodes answer requests; nothing to publish at t = 0."""
+
+    def flush(self, sim: Any, adapters: Sequence[Any], timeout: float) -> None:
+        sim.process_pending()
+
+    def run_free(self, sim: Any, rate_hz: float, stream_rate_hz: float) -> None:
+        sim.start(rate_hz)
+
+    def address(self, driver: str, params: dict[str, Any]) -> tuple[str, bool]:
+        node = params.get(self.node_param, self.node_default)
+        iface = params["interface"]
+        return f"can {iface}:{params['channel']} {self.node_word} {node}", iface != "virtual"
+
+
+class ODriveTwin(CanTwin):
+    udp_multicast = True
+    node_default = 0
+
+    def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+        from hil.mocks.can_devices import SIM_WATCHDOG_ENDPOINTS, SimODrive
+
+        ch = _can_params(ctx, params)
+        kw: dict[str, Any] = {}
+        if ctx.lockstep:
+            # heartbeat every 10 ms (a real ODrive sends one every 100 ms by default): on the
+            # simulated bus every frame is copied to every node, so fewer frames = faster runs
+            kw = {"sync": True, "heartbeat_every": max(1, round(0.01 * ctx.rate_hz))}
+            params.setdefault("watchdog_endpoints", dict(SIM_WATCHDOG_ENDPOINTS))
+        sim = SimODrive(ctx.point, ch, int(params.get("node_id", 0)), ctx.can_interface,
+                        gear_ratio=float(params.get("gear_ratio", 1.0)), linear_scale=params.get("linear_scale"),
+                        faults=ctx.faults, seed=ctx.seed, dt=ctx.dt, firmware=str(params.get("firmware", "0.6")),
+                        **kw)
+        if params.get("feedback") == "cyclic":
+            sim.encoder_every = 1
+        return sim, params
+
+    def publish(self, sim: Any) -> None:
+        if sim.encoder_every:  # cyclic estimates
+            sim.publish_estimate()
+
+
+
+class CubeMarsTwin(CanTwin):
+    udp_multicast = True
+    node_param, node_word = "motor_id", "motor"
+
+    def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+        from hil.mocks.can_devices import SimCubeMars
+
+        ch = _can_params(ctx, params)
+        sim = SimCubeMars(ctx.point, ch, int(params.get("motor_id", 1)), ctx.can_interface,
+                          model=params.get("model", "AK80-9"), faults=ctx.faults, seed=ctx.seed,
+                          **({"sync": True} if ctx.lockstep else {}))
+        return sim, params
+
+
+
+class CiA402Twin(CanTwin):
+    """A canopen LocalNode on a private CAN channel."""
+
+    def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+        from hil.mocks.cia402_drive import SimCiA402
+
+        ch = _can_params(ctx, params)
+        kw = {k: params[k] for k in ("counts_per_rev", "rated_torque_mNm", "heartbeat_ms") if params.get(k) is not None}
+        sim = SimCiA402(ctx.point, ch, int(params.get("node_id", 1)), ctx.can_interface,
+                        gear_ratio=float(params.get("gear_ratio", 1.0)), faults=ctx.faults, seed=ctx.seed,
+                        sync=ctx.lockstep, dt=ctx.dt, **kw)
+        return sim, params
+
+
+class StreamTwin(Twin):
+    """A sensor streaming frames into a pty: one frame per lockstep period (``emit``)."""
+
+    def tick(self, sim: Any) -> None:
+        sim.emit()
+
+
+class BotaTwin(StreamTwin):
+    def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+        from hil.mocks.serial_devices import SimBota
+        from hil.protocols.link_budget import BOTA_DEFAULT_BAUD, bota_sinc_length
+
+        # the sensor samples at 51200 / sinc_length Hz on the simulated clock (not once per tick)
+        # and its line carries baud/10 bytes per simulated second; the adapter configures it
+        sinc = bota_sinc_length(params)
+        sim = SimBota(ctx.point, sinc_length=sinc, tick_s=ctx.dt, faults=ctx.faults, seed=ctx.seed,
+                      axes=tuple(ctx.cfg.wrench_axes), baudrate=int(params.get("baudrate", BOTA_DEFAULT_BAUD)))
+        params.pop("period_s", None)
+        params.update(url=sim.path, sinc_length=sinc, clock=ctx.clock, timeout=ctx.timeout)
+        return sim, params
+
+    def run_free(self, sim: Any, rate_hz: float, stream_rate_hz: float) -> None:
+        sim.start(rate_hz)
+
+
+def _wrench_fn(ctx: TwinContext) -> Callable[[], np.ndarray]:
+    axes = ctx.cfg.wrench_axes
+    point = ctx.point
+
+    def wrench() -> np.ndarray:
+        w = np.zeros(6)
+        w[axes] = point.measured_force()
+        return w
+
+    return wrench
+
+
+class FT300StreamTwin(StreamTwin):
+    def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+        from hil.mocks.ft300_stream import SimFT300Stream
+
+        sim = SimFT300Stream(_wrench_fn(ctx), faults=ctx.faults, seed=ctx.seed, slave=int(params.get("slave", 9)),
+                             tick_s=ctx.dt)  # 100 Hz frames on the simulated clock
+        params.update(url=sim.path, clock=ctx.clock, timeout=ctx.timeout)
+        return sim, params
+
+    def run_free(self, sim: Any, rate_hz: float, stream_rate_hz: float) -> None:
+        sim.start(stream_rate_hz)
+
+
+class FT300ModbusTwin(Twin):
+    """A pymodbus server on a free loopback port; registers refreshed once per lockstep period
+    (free-running: on every request)."""
+
+    def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+        from hil.mocks.modbus_devices import SimulatedFT300
+
+        sim = SimulatedFT300(_wrench_fn(ctx), framing=ctx.cfg.sim.framing, port=0, faults=ctx.faults,
+                             seed=ctx.seed, auto_update=not ctx.lockstep, slave=int(params.get("slave", 9)))
+        params.update(url=sim.url, clock=ctx.clock, timeout=ctx.timeout)
+        return sim, params
+
+    def tick(self, sim: Any) -> None:
+        sim.update()
+
+
+class Concat:
+    """Several SimulatedJoints seen as one (a bus serving several devices, e.g. a DYNAMIXEL chain)."""
+
+    def __init__(self, points: list[Any]) -> None:
+        self.points = points
+        self.dof = sum(p.dof for p in points)
+        self._split = np.cumsum([p.dof for p in points])[:-1]
+
+    def apply_effort(self, effort: np.ndarray) -> None:
+        for p, e in zip(self.points, np.split(np.asarray(effort, dtype=float).reshape(self.dof), self._split),
+                        strict=True):
+            p.apply_effort(e)
+
+    def position(self) -> np.ndarray:
+        return np.concatenate([p.position() for p in self.points])
+
+    def velocity(self) -> np.ndarray:
+        return np.concatenate([p.velocity() for p in self.points])
+
+    def measured_force(self) -> np.ndarray:
+        return np.concatenate([p.measured_force() for p in self.points])
+
+
+class DynamixelTwin(Twin):
+    """A DYNAMIXEL chain on a pty: the scene devices with the same ``params.port`` share one
+    chain (one bus), each servo id driving its device's DOFs."""
+
+    def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+        from hil.mocks.dynamixel_devices import DynamixelChain
+
+        me = ctx.devices[ctx.index]
+        key = str(ctx.cfg.params.get("port", f"#{ctx.index}"))
+        group = [x for x in ctx.devices if x.cfg.driver == ctx.cfg.driver and
+                 str(x.cfg.params.get("port", "")) == key] or [me]
+        chain = next((x.host for x in group if x.host is not None), None)
+        sim = None
+        if chain is None:
+            ids: list[int] = []
+            for x in group:
+                xi = [int(v) for v in x.cfg.params.get("ids", [1])]
+                if len(xi) != x.cfg.dof:
+                    j = list(ctx.devices).index(x)
+                    raise SceneError(f"{ctx.label}: devices[{j}].params.ids: {len(xi)} servo ids for dof {x.cfg.dof}")
+                ids += xi
+            if len(set(ids)) != len(ids):
+                raise SceneError(f"{ctx.label}: devices[{ctx.index}].params.ids: servo ids on port {key!r} must be "
+                                 f"unique, got {ids}")
+            points = [x.point for x in group]
+            joints = points[0] if len(points) == 1 else Concat(points)
+            # the servos run at the scene's baudrate (configured servos; a factory one is at 57 600)
+            baud = int(group[0].cfg.params.get("baudrate", 57_600))
+            chain = sim = DynamixelChain(joints, ids, faults=ctx.faults, seed=ctx.seed, clock=ctx.clock,
+                                         baudrate=baud)  # owned (closed, ticked) by the first device of the group
+        me.host = chain
+        params.update(port=chain.port, clock=ctx.clock, timeout=ctx.timeout)
+        return sim, params
+
+    def host(self, ctx: TwinContext, sim: Any) -> Any:
+        return ctx.devices[ctx.index].host
+
+    def publish(self, sim: Any) -> None:
+        """The servos answer requests; nothing to publish."""
+
+    def tick(self, sim: Any) -> None:
+        sim.check_watchdog()  # Bus Watchdog(98) on the simulated clock
+
+    def flush(self, sim: Any, adapters: Sequence[Any], timeout: float) -> None:
+        """Sync writes get no reply: wait until the chain consumed every byte the adapters wrote."""
+        if adapters:
+            sim.sync(sum(int(a.tx_bytes) for a in adapters), timeout=timeout)
+
+    def address(self, driver: str, params: dict[str, Any]) -> tuple[str, bool]:
+        return f"{params['port']} ids {list(params.get('ids', [1]))}", True
+
+
+ODRIVE = ODriveTwin()
+CUBEMARS = CubeMarsTwin()
+CIA402 = CiA402Twin()
+BOTA = BotaTwin()
+FT300 = FT300ModbusTwin()
+FT300_STREAM = FT300StreamTwin()
+DYNAMIXEL = DynamixelTwin()
