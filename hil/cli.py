@@ -13,23 +13,8 @@ file that is not UTF-8 text, a bad flag or value) prints exactly one line on std
 one line pointing at ``--debug`` and exit 1. ``--debug`` adds the traceback (and debug logs).
 Output folders never overwrite: see :mod:`hil.outdir` (``--overwrite``).
 
-Exit codes (documented in README.md):
-
-====  ==============================================================
-0     stable (GO); ``hil verify``: the certificate and its evidence match
-2     usage or input error (bad arguments, malformed file, unknown model, an output folder that
-      exists): one-line message; ``hil verify`` / ``hil report``: the certificate does not match
-      its digest, an evidence file or its signature (one line naming what)
-10    marginal (MARGINAL)
-11    potentially unstable (NO-GO)
-12    criterion not applicable (e.g. Theorem 1's symmetrization fails)
-13    evidence missing or broken (ERROR)
-20    ``hil run``: a safe stop ended the run (limit breach, non-finite feedback, watchdog, late loop, device
-      failure, record write error, SIGTERM/SIGHUP); no later experiment started
-21    ``hil check-realtime``: this machine cannot hold ``--rate`` (wake-up latency, see hil.realtime)
-130   interrupted (Ctrl-C / SIGINT); the records keep every sample taken
-1     unexpected internal error (a bug: one line; rerun with ``hil --debug ...`` and report the traceback)
-====  ==============================================================
+Exit codes: one table, :class:`hil.errors.ExitCode` with :data:`hil.errors.EXIT_MEANINGS` (README.md
+shows it; tests/test_exit_codes.py compares the two).
 """
 
 from __future__ import annotations
@@ -50,22 +35,28 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from hil.errors import HilError
+from hil.errors import (  # the exit codes: one table in hil.errors (re-exported here for callers)
+    DECISION_EXIT,
+    EXIT_ERROR,
+    EXIT_INTERNAL,
+    EXIT_INTERRUPTED,
+    EXIT_MARGINAL,
+    EXIT_NOT_APPLICABLE,
+    EXIT_NOT_HELD,
+    EXIT_OK,
+    EXIT_SAFETY_STOP,
+    EXIT_UNSTABLE,
+    EXIT_USAGE,
+    VERDICT_EXIT,
+    HilError,
+    SafetyStop,
+)
 
-EXIT_OK = 0
-EXIT_INTERNAL = 1
-EXIT_USAGE = 2
-EXIT_MARGINAL = 10
-EXIT_UNSTABLE = 11
-EXIT_NOT_APPLICABLE = 12
-EXIT_ERROR = 13
-EXIT_SAFETY_STOP = 20
-EXIT_INTERRUPTED = 130
+__all__ = ["DECISION_EXIT", "EXIT_ERROR", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "EXIT_MARGINAL", "EXIT_NOT_APPLICABLE",
+           "EXIT_NOT_HELD", "EXIT_OK", "EXIT_SAFETY_STOP", "EXIT_UNSTABLE", "EXIT_USAGE", "VERDICT_EXIT",
+           "OneLineArgumentParser", "UsageError", "build_parser", "main", "one_line"]
 
-VERDICT_EXIT = {"stable": EXIT_OK, "marginal": EXIT_MARGINAL, "potentially_unstable": EXIT_UNSTABLE,
-                "not_applicable": EXIT_NOT_APPLICABLE}
-
-log = logging.getLogger("hil")
+logger = logging.getLogger(__name__)
 
 
 class UsageError(HilError):
@@ -573,9 +564,6 @@ def _cmd_import(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-DECISION_EXIT = {"GO": EXIT_OK, "MARGINAL": EXIT_MARGINAL, "NO-GO": EXIT_UNSTABLE, "ERROR": EXIT_ERROR}
-
-
 def _cmd_certify(args: argparse.Namespace) -> int:
     from hil.pipeline import certify_scene
     from hil.protocols.registry import extras_message
@@ -1055,8 +1043,6 @@ def _numeric_guard(source: str) -> Iterator[None]:
 
 def _describe(exc: BaseException, cmd: str) -> tuple[int, str]:
     """(exit code, one-line message) for an exception that ended a command."""
-    from hil.errors import SafetyStop
-
     if isinstance(exc, SafetyStop):  # e.g. a signal during the runs of hil certify: 130 / 20
         status = getattr(exc, "status", "safety_stop")
         return (EXIT_INTERRUPTED if status == "interrupted" else EXIT_SAFETY_STOP), f"stopped: {one_line(exc)}"
@@ -1189,7 +1175,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _logging(debug: bool) -> None:
     """Warnings of every library; with ``--debug`` also the suite's own debug logs."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    log.setLevel(logging.DEBUG if debug else logging.NOTSET)  # NOTSET: the root's WARNING
+    logging.getLogger("hil").setLevel(logging.DEBUG if debug else logging.NOTSET)  # NOTSET: the root's WARNING
 
 
 if __name__ == "__main__":  # pragma: no cover

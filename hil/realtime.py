@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.errors import SafetyStop
+from hil.errors import EXIT_NOT_HELD, SafetyStop
 
 log = logging.getLogger(__name__)
 
@@ -407,8 +407,6 @@ def run_cyclictest(rate_hz: float, seconds: float, *, which: Callable[[str], str
                        int(mx > 1.0 / rate_hz))
 
 
-#: exit code of ``hil check-realtime`` when the machine cannot hold ``--rate``
-EXIT_NOT_HELD = 21
 #: loop rates :func:`holdable_rates` judges [Hz]
 CANDIDATE_RATES = (250.0, 500.0, 1000.0, 2000.0, 4000.0, 8000.0)
 #: a rate is held when the p99 wake-up lateness is at most this fraction of its period ...
