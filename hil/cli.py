@@ -283,6 +283,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         from hil.scene import load_scene
 
         scene = load_scene(args.scene)
+        if scene.certification is None:
+            raise UsageError(f"--scene {args.scene}: the scene has no certification section (the network to sweep)")
         args.model = scene.certification.model
     try:
         m = get_model(args.model)

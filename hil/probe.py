@@ -252,7 +252,8 @@ def _probe_canopen(bus: Any, where: str, interface: str, channel: str, nodes: di
                              f"node {n}", details, params))
     finally:
         with contextlib.suppress(Exception):
-            network.notifier.stop(1.0)
+            if network.notifier is not None:
+                network.notifier.stop(1.0)
     return out
 
 

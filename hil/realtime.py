@@ -222,7 +222,9 @@ def realtime_scheduling(*, enabled: bool = True, priority: int = FIFO_PRIORITY,
         yield got
         return
     missing: list[str] = []
-    old_policy = old_param = old_aff = None
+    old_policy: int | None = None
+    old_param: os.sched_param | None = None
+    old_aff: set[int] | None = None
     libc = None
     try:
         old_policy, old_param = os.sched_getscheduler(0), os.sched_getparam(0)
@@ -261,7 +263,7 @@ def realtime_scheduling(*, enabled: bool = True, priority: int = FIFO_PRIORITY,
     try:
         yield got
     finally:
-        if old_policy is not None:
+        if old_policy is not None and old_param is not None:
             with contextlib.suppress(OSError):
                 os.sched_setscheduler(0, old_policy, old_param)
         if got.memlock and libc is not None:
@@ -494,7 +496,10 @@ def lateness_measurements(outcomes: Mapping[str, Any], scene: Any) -> list[Any]:
     from hil.certificate import Measurement
 
     safety = getattr(scene, "safety", None)
-    limit = float(getattr(safety, "max_lateness_ms", None) or getattr(safety, "watchdog_ms", 50.0)) / 1e3
+    limit_ms: Any = getattr(safety, "max_lateness_ms", None)
+    if not limit_ms:  # unset: the watchdog's
+        limit_ms = getattr(safety, "watchdog_ms", 50.0)
+    limit = float(limit_ms) / 1e3
     frac = float(getattr(safety, "max_overrun_fraction", DEFAULT_MAX_OVERRUN_FRACTION))
     rows: list[Any] = []
     for name, o in outcomes.items():

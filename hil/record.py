@@ -422,6 +422,11 @@ def _split_arrays(obj: Any, path: tuple[str, ...], arrays: dict[str, np.ndarray]
     raise RecordError(f"result {'/'.join(path) or '<root>'}: {type(obj).__name__} is not JSON-serializable")
 
 
+def _indexed(array: Callable[[Any], Any], index: Mapping[str, Any], key: str) -> Any:
+    """``array(index[key])`` (a ``get`` for :func:`_join_arrays`)."""
+    return array(index[key])
+
+
 def _join_arrays(obj: Any, get: Callable[[str], Any]) -> Any:
     """Inverse of :func:`_split_arrays`: ``get(key)`` returns the array stored under ``key``."""
     if isinstance(obj, dict):
@@ -912,7 +917,8 @@ class RecordWriter:
     def _write_status(self, stop_reason: str, status: str) -> None:
         """Overwrite the fixed ``/status`` bytes with one JSON line (zero padded) and flush. The space
         was allocated at creation, so this cannot run out of disk."""
-        doc = {"stop_reason": stop_reason, "status": status, "closed_utc": _utc_now(), "samples": self.samples}
+        doc: dict[str, Any] = {"stop_reason": stop_reason, "status": status, "closed_utc": _utc_now(),
+                               "samples": self.samples}
         raw = (_to_json(doc, "status") + "\n").encode()
         if len(raw) > _STATUS_BYTES:  # a very long reason: shorten it, keep the line valid JSON
             doc["stop_reason"] = stop_reason[: max(0, len(stop_reason) - (len(raw) - _STATUS_BYTES) - 8)] + "..."
@@ -1033,8 +1039,8 @@ class RunRecord:
                 return np.load(io.BytesIO(bytes(npy[off:off + size])), allow_pickle=False)
 
             for line in _json_lines(bytes(f["results"][:]), p, "results"):
-                index = line.get("arrays", {})
-                results[str(line["experiment"])] = _join_arrays(line["results"], lambda k, i=index: array(i[k]))
+                index: dict[str, Any] = line.get("arrays", {})
+                results[str(line["experiment"])] = _join_arrays(line["results"], functools.partial(_indexed, array, index))
         if isinstance(f.get("status"), h5py.Group):  # format_version 1
             stop_reason = _attr_str(f["status"].attrs["stop_reason"])
             status = _attr_str(f["status"].attrs["status"])

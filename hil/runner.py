@@ -65,6 +65,8 @@ try:  # a vanished serial port raises termios.error (not an OSError) from pyseri
     _PORT_ERRORS: tuple[type[BaseException], ...] = (OSError, termios.error)
 except ImportError:  # pragma: no cover - Windows
     _PORT_ERRORS = (OSError,)
+#: what ends an experiment while the bench opens: a stop request, a device failure, a vanished port
+_OPEN_ERRORS: tuple[type[BaseException], ...] = (SafetyStop, DeviceError, *_PORT_ERRORS)
 
 log = logging.getLogger(__name__)
 
@@ -422,7 +424,7 @@ class Runner:
         name = self._name(index, ecfg)
         try:
             bench = self.bench_factory(ecfg.get("variant"))
-        except (SafetyStop, DeviceError, *_PORT_ERRORS) as exc:
+        except _OPEN_ERRORS as exc:
             status, reason = classify(exc)
             reason = f"{reason} (while the bench was opening)"
             STOP.request(reason, status)
@@ -527,7 +529,7 @@ class Runner:
                     STOP.check()  # the safe point of a stop request (signal)
                     late = 0.0
                     start = t
-                    if pacer is not None:
+                    if pacer is not None and guard is not None:  # realtime: both set together
                         late = pacer.wait(k) * 1e-9
                         start = (pacer.start_ns - pacer.t0) * 1e-9
                         stats.add_late(late)
