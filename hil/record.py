@@ -1040,7 +1040,8 @@ class RunRecord:
 
             for line in _json_lines(bytes(f["results"][:]), p, "results"):
                 index: dict[str, Any] = line.get("arrays", {})
-                results[str(line["experiment"])] = _join_arrays(line["results"], functools.partial(_indexed, array, index))
+                get = functools.partial(_indexed, array, index)
+                results[str(line["experiment"])] = _join_arrays(line["results"], get)
         if isinstance(f.get("status"), h5py.Group):  # format_version 1
             stop_reason = _attr_str(f["status"].attrs["stop_reason"])
             status = _attr_str(f["status"].attrs["status"])
