@@ -237,8 +237,8 @@ def _print_result(result: Any, verbose: bool) -> None:
 
 
 def _cmd_design(args: argparse.Namespace) -> int:
+    from hil.models.design import DESIGN_FIXED, check_design_inputs, k22_max, optimize_coupler
     from hil.models.sdea import SDEA_TABLE1
-    from hil.stability.design import DESIGN_FIXED, check_design_inputs, k22_max, optimize_coupler
 
     params = _parse_set(args.set or [], {k: SDEA_TABLE1[k] for k in DESIGN_FIXED}, "the SDEA design")
     if args.b22 is not None and (not math.isfinite(args.b22) or args.b22 <= 0):

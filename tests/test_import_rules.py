@@ -217,7 +217,8 @@ def test_module_table_covers_the_tree() -> None:
 def test_lower_layers_import_only_what_the_rule_allows() -> None:
     bad = violations()
     new = sorted(bad - KNOWN_VIOLATIONS)
-    assert not new, "imports against the import rule (docs/ARCHITECTURE.md): " + ", ".join(f"{a} -> {b}" for a, b in new)
+    assert not new, ("imports against the import rule (docs/ARCHITECTURE.md): "
+                     + ", ".join(f"{a} -> {b}" for a, b in new))
 
 
 def test_known_violations_only_shrink() -> None:
