@@ -730,9 +730,26 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
-    from hil.verify import verify_main
+    """``hil verify DIR [--public-key PUB]``: exit 0 and ``OK …`` on stdout, or 2 and one line on
+    stderr saying what does not match (hil.verify); a bad input raises (one line, exit 2)."""
+    from hil.report import _resolve, load_certificate
+    from hil.verify import check_certificate, ok_summary
 
-    return int(verify_main([args.path] + (["--public-key", args.public_key] if args.public_key else [])) or 0)
+    where = _resolve(args.path)
+    cert = load_certificate(args.path)
+    key = None
+    if args.public_key:
+        from hil.signing import load_public_key
+
+        key = load_public_key(args.public_key)
+    st = check_certificate(cert, where.parent, key)
+    if key is not None and st.signature == "absent":
+        st.signature, st.signature_detail = "invalid", "the certificate is not signed"
+    if not st.valid:
+        print(f"hil verify: {where}: NOT VALID: {st.reason()}", file=sys.stderr)
+        return EXIT_USAGE
+    print(f"OK {where}: {ok_summary(st)}")
+    return EXIT_OK
 
 
 def _cmd_keygen(args: argparse.Namespace) -> int:
