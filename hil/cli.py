@@ -768,9 +768,9 @@ def _cmd_check_realtime(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from hil.record import replay_main
+    from hil.record import replay
 
-    return int(replay_main([args.record] + (["--json"] if args.json else [])) or 0)
+    return replay(args.record, as_json=args.json)
 
 
 # ---------------------------------------------------------------------------------------------

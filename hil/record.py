@@ -1,6 +1,6 @@
 """Run records: every sample streamed to HDF5 as it is taken, readable even after ``kill -9``.
 
-Writer: :class:`RecordWriter` (context manager). Reader: :class:`RunRecord`. CLI: :func:`replay_main`
+Writer: :class:`RecordWriter` (context manager). Reader: :class:`RunRecord`. CLI: :func:`replay`
 (``hil replay RECORD [--json]``). Importers of other tools' runs: :mod:`hil.importers`.
 
 File layout (format ``hil-record``, ``format_version`` 2; all values SI, time in seconds)::
@@ -69,7 +69,6 @@ All channel values are stored as float64 (booleans and counters too), so a chann
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import dataclasses
 import datetime as _dt
@@ -85,10 +84,9 @@ import platform
 import re
 import shutil
 import signal
-import sys
 import threading
 import warnings
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from importlib import metadata as _metadata
 from pathlib import Path
@@ -110,7 +108,7 @@ __all__ = [
     "RecordWriteError",
     "RecordWriter",
     "RunRecord",
-    "replay_main",
+    "replay",
 ]
 
 FORMAT = "hil-record"
@@ -1273,20 +1271,12 @@ def _print_summary(s: Mapping[str, Any]) -> None:
     con.print(tab)
 
 
-def replay_main(argv: Sequence[str] | None = None) -> int:
-    """``hil replay RECORD [--json]``: print a record's summary. Exit 0, or 2 (one-line error on
-    stderr) when the file is missing or is not a readable run record."""
-    p = argparse.ArgumentParser(prog="hil replay", description="Summarize a run record (HDF5)")
-    p.add_argument("record", help="run record (.h5) written by hil run or hil.importers")
-    p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    a = p.parse_args(argv)
-    try:
-        rec = RunRecord.open(a.record)
-    except RecordError as exc:
-        print(f"hil replay: error: {exc}", file=sys.stderr)
-        return 2
-    s = rec.summary()
-    if a.json:
+def replay(record: str | Path, as_json: bool = False) -> int:
+    """``hil replay RECORD [--json]`` (parsed by hil.cli): print a record's summary and return 0;
+    a missing file or one that is not a readable run record raises :class:`RecordError` (one line,
+    exit 2)."""
+    s = RunRecord.open(record).summary()
+    if as_json:
         print(json.dumps(_jsonable(s), ensure_ascii=False))
     else:
         _print_summary(s)
