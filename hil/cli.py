@@ -945,9 +945,13 @@ def build_parser() -> argparse.ArgumentParser:
     _probe_arguments(pb)
     pb.set_defaults(func=_cmd_probe)
 
-    m = add("mock", help="simulated devices: 'hil mock serve SPEC' starts them and prints endpoints",
-                       parents=[])
-    m.add_argument("rest", nargs=argparse.REMAINDER)
+    m = add("mock", help="simulated devices: 'hil mock serve SPEC' starts them and prints endpoints")
+    msub = m.add_subparsers(dest="mock_cmd", metavar="serve", parser_class=OneLineArgumentParser, required=True)
+    ms = msub.add_parser("serve", parents=[common], help="start simulated devices and print their endpoints",
+                         description="Start a scene's simulated devices (or a spec's, or one --device) on their "
+                                     "own and print where each one listens (hil.mocks.serve).")
+    _mock_serve_arguments(ms)
+    ms.set_defaults(func=_cmd_mock_serve)
     return p
 
 
@@ -957,9 +961,48 @@ def _cmd_probe(args: argparse.Namespace) -> int:
     return run(args)
 
 
-_PASSTHROUGH = {"identify": "hil.identify.api", "mock": "hil.mocks.serve"}
-_MOCK_USAGE = ("usage: hil mock serve SCENE [--duration SECONDS] [--json] [--can-interface udp_multicast] "
-               "| hil mock serve --spec SPEC | hil mock serve --device KIND")
+def _mock_serve_arguments(ap: argparse.ArgumentParser) -> None:
+    """The options of ``hil mock serve`` (checked together by :func:`hil.mocks.serve.run`)."""
+    from hil.inputs import number_type, seed_type
+
+    ap.add_argument("scene", nargs="?", help="scene file or built-in scene name (see 'hil scenes')")
+    ap.add_argument("--spec", help="instead of a scene: JSON string or .json/.yaml file (see hil.mocks.serve)")
+    ap.add_argument("--duration", type=number_type("non-negative"), default=None,
+                    help="seconds to run (default: until Ctrl-C/SIGTERM)")
+    ap.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
+    ap.add_argument("--seed", type=seed_type, default=None,
+                    help="scene: seed of noise and faults (default: the scene's)")
+    ap.add_argument("--variant", choices=["locked", "free"], default=None, help="scene: SDEA plant variant")
+    ap.add_argument("--can-interface", default="virtual",
+                    help="scene: python-can interface of the CAN devices (virtual | udp_multicast | socketcan ...)")
+    ap.add_argument("--can-channel", action="append", default=[], metavar="SCENE_CH=CH",
+                    help="scene: serve scene CAN channel SCENE_CH on channel CH (repeatable)")
+    ap.add_argument("--stream-rate", type=number_type("positive"), default=100.0,
+                    help="scene: frame rate of streaming FT-300 sensors [Hz] (the sensor's is 100)")
+    ap.add_argument("--plant-rate", type=number_type("positive"), default=1000.0,
+                    help="spec: FreeJoints step rate [Hz]")
+    ap.add_argument("--device", default=None, metavar="KIND",
+                    help="serve ONE simulated device of this kind (instead of a scene or --spec): odrive, "
+                         "cubemars, cia402, bota, dynamixel, ft300, ft300_stream")
+    ap.add_argument("--node", type=int, default=None,
+                    help="device: CAN node id (odrive 0..63, cia402 1..127) or CubeMars motor id")
+    ap.add_argument("--ids", default=None, help="device dynamixel: comma-separated servo ids (default 1)")
+    ap.add_argument("--unit", type=int, default=None, help="device ft300 / ft300_stream: Modbus slave id (default 9)")
+    ap.add_argument("--port", type=int, default=None, help="device ft300: TCP port on 127.0.0.1 (default: a free one)")
+    ap.add_argument("--pty", action="store_true",
+                    help="device bota / ft300_stream / dynamixel: serve on a pty (the default and only transport)")
+    ap.add_argument("--rate", type=number_type("positive"), default=None,
+                    help="device: tick / frame rate [Hz] (CAN cyclic frames, Bota frames; default 1000, "
+                         "FT-300 stream 100)")
+
+
+def _cmd_mock_serve(args: argparse.Namespace) -> int:
+    from hil.mocks.serve import run
+
+    return run(args)
+
+
+_PASSTHROUGH = {"identify": "hil.identify.api"}
 
 # ---------------------------------------------------------------------------------------------
 # output folders, progress, numeric guard, error mapping
@@ -1166,11 +1209,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             debug = True
             rest = [a for a in rest if a != "--debug"]
         _logging(debug)
-        if cmd == "mock":
-            if not rest or rest[0] != "serve":
-                print(f"hil mock: error: expected 'serve' ({_MOCK_USAGE})", file=sys.stderr)
-                return EXIT_USAGE
-            rest, cmd = rest[1:], "mock serve"
 
         def passthrough() -> int:
             import importlib
@@ -1188,7 +1226,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return EXIT_USAGE
-    return _guarded(args.cmd, debug, lambda: args.func(args))
+    cmd = " ".join(x for x in (args.cmd, getattr(args, "mock_cmd", None)) if x)
+    return _guarded(cmd, debug, lambda: args.func(args))
 
 
 def _logging(debug: bool) -> None:
