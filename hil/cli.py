@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import difflib
+import importlib
 import json
 import logging
 import math
@@ -31,6 +32,7 @@ import threading
 import time
 import traceback
 import warnings
+from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -120,8 +122,6 @@ def _suggest(name: str, known: Sequence[str]) -> str:
 def _stability_tol(args: argparse.Namespace):
     """Tolerances for ``hil stability``: ``--rtol R`` (relative perturbation of the coefficients;
     then ``marginal`` means the verdict can flip within it, docs/VERDICTS.md)."""
-    import math
-
     from hil.stability.criteria import Tolerances
 
     r = getattr(args, "rtol", None)
@@ -333,8 +333,6 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
     if not args.no_plot and not missing_extras(report=True):
         files["map"] = plot_sweep(res, out / "sweep.png", args.required)
-    from collections import Counter
-
     counts = Counter(r["verdict"] for r in iter_table(res))
     if args.json:
         print(json.dumps({"model": args.model, "criterion": spec.criterion_name, "points": int(res.verdict.size),
@@ -1211,8 +1209,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         _logging(debug)
 
         def passthrough() -> int:
-            import importlib
-
             return int(importlib.import_module(_PASSTHROUGH[argv[0]]).main(rest) or 0)
 
         return _guarded(cmd, debug, passthrough)

@@ -47,9 +47,12 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
-log = logging.getLogger(__name__)
+from hil.errors import DeviceDisconnected, DeviceError, HilError
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["Found", "add_arguments", "probe_can", "probe_modbus", "probe_serial", "run", "scene_stub"]
 
@@ -99,7 +102,7 @@ def _sdo_u(node: Any, index: int, sub: int, fmt: str) -> int | None:
         data = node.sdo.upload(index, sub)
         return struct.unpack_from(fmt, data.ljust(struct.calcsize(fmt), b"\0"))[0]
     except Exception as exc:  # abort or timeout: object absent or node gone
-        log.debug("SDO 0x%04X:%d of node %d: %s", index, sub, node.id, exc)
+        logger.debug("SDO 0x%04X:%d of node %d: %s", index, sub, node.id, exc)
         return None
 
 
@@ -146,10 +149,9 @@ def probe_can(channel: str, interface: str = "socketcan", *, bitrate: int | None
               sdo_scan: bool = False, cubemars_ids: list[int] | tuple[int, ...] = (), cubemars_model: str = "AK80-9",
               timeout: float = 0.1, **bus_kwargs: Any) -> list[Found]:
     """Devices on one CAN channel (module docstring); ``timeout`` (s) per request."""
-    import can
+    import can  # lazy: the 'can' extra
 
-    from hil.errors import DeviceDisconnected
-    from hil.protocols import can_cubemars as cm
+    from hil.protocols import can_cubemars as cm  # lazy: hil probe is parsed by every hil command
     from hil.protocols import can_odrive as od
 
     kw = dict(bus_kwargs)
@@ -263,7 +265,6 @@ def _probe_canopen(bus: Any, where: str, interface: str, channel: str, nodes: di
 
 def probe_modbus(url: str, unit: int = 9, timeout: float = 0.5) -> list[Found]:
     """An FT-300 over Modbus at ``url`` / slave ``unit``: firmware and serial number registers."""
-    from hil.errors import DeviceError
     from hil.protocols.modbus_robotiq import RobotiqFT300
 
     try:
@@ -273,16 +274,15 @@ def probe_modbus(url: str, unit: int = 9, timeout: float = 0.5) -> list[Found]:
                           {"firmware": info.firmware, "serial": info.serial}, {"url": url, "slave": unit},
                           role="force_sensor", dof=6)]
     except DeviceError as exc:
-        log.debug("no FT-300 at %s unit %d: %s", url, unit, exc)
+        logger.debug("no FT-300 at %s unit %d: %s", url, unit, exc)
         return []
 
 
 def probe_serial(port: str, *, baudrates: tuple[int, ...] = (57600, 1000000), listen_s: float = 0.3,
                  unit: int = 9, timeout: float = 0.3) -> list[Found]:
     """Devices on one serial port (module docstring)."""
-    import serial
+    import serial  # lazy: the 'serial' extra
 
-    from hil.errors import DeviceDisconnected
     from hil.protocols.modbus_robotiq import StreamParser
     from hil.protocols.serial_bota import FrameParser
 
@@ -329,7 +329,7 @@ def _dynamixel_ping(port: str, baudrates: tuple[int, ...]) -> list[Found]:
     try:
         import dynamixel_sdk as sdk
     except ImportError:
-        log.info("dynamixel-sdk not installed: no DYNAMIXEL ping")
+        logger.info("dynamixel-sdk not installed: no DYNAMIXEL ping")
         return []
     for baud in baudrates:
         ph_port = sdk.PortHandler(port)
@@ -341,7 +341,7 @@ def _dynamixel_ping(port: str, baudrates: tuple[int, ...]) -> list[Found]:
             ph = sdk.PacketHandler(2.0)
             data, result = ph.broadcastPing(ph_port)
         except Exception as exc:
-            log.debug("DYNAMIXEL ping at %d baud failed: %s", baud, exc)
+            logger.debug("DYNAMIXEL ping at %d baud failed: %s", baud, exc)
             data, result = {}, -1
         finally:
             with contextlib.suppress(Exception):
@@ -379,8 +379,6 @@ def scene_stub(found: list[Found], name: str = "probed_bench") -> dict[str, Any]
         if f.role == "force_sensor":
             dev["axes"] = [2]
         devices.append(dev)
-    from types import SimpleNamespace
-
     from hil.protocols.link_budget import over_budget
 
     rate = 1000
@@ -418,8 +416,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _ints(text: str, flag: str) -> list[int]:
-    from hil.errors import HilError
-
     try:
         return [int(x, 0) for x in text.split(",") if x.strip()]
     except ValueError:
@@ -429,8 +425,6 @@ def _ints(text: str, flag: str) -> list[int]:
 def run(args: argparse.Namespace) -> int:
     """``hil probe``: probe, print, optionally write the scene stub. Exit 0 (even when nothing
     answered: the table says so), 2 on bad input (raised as HilError for the CLI's guard)."""
-    from hil.errors import HilError
-
     for flag, v in (("--listen", args.listen), ("--timeout", args.timeout)):
         if not (v >= 0 and v < 3600):
             raise HilError(f"{flag} must be a number of seconds in [0, 3600), got {v}")
@@ -449,7 +443,7 @@ def run(args: argparse.Namespace) -> int:
         found = probe_modbus(args.modbus, args.unit, args.timeout)
         where = f"modbus {args.modbus} unit {args.unit}"
     if args.scene:
-        import yaml
+        import yaml  # lazy: hil probe is parsed by every hil command
 
         stub = scene_stub(found)
         text = ("# written by hil probe from " + where + ": check every device, then add bodies (simulation),\n"

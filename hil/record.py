@@ -70,6 +70,7 @@ All channel values are stored as float64 (booleans and counters too), so a chann
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import dataclasses
 import datetime as _dt
 import errno
@@ -89,6 +90,7 @@ import warnings
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from importlib import metadata as _metadata
+from itertools import pairwise
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -96,6 +98,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from hil import __version__
 from hil.errors import HilError
 
 logger = logging.getLogger(__name__)
@@ -261,8 +264,6 @@ _SWMR_READ_ATTEMPTS = 8
 def _hdf5_library() -> Any:
     """The libhdf5 that h5py is linked to (ctypes handle), or None when it cannot be located (then
     HDF5's default number of read attempts applies)."""
-    import ctypes
-
     candidates: list[str] = []
     with contextlib.suppress(OSError):  # Linux: the copy already mapped into this process (h5py wheels)
         for line in Path("/proc/self/maps").read_text().splitlines():
@@ -338,9 +339,7 @@ def _utc_now() -> str:
 
 def _software_versions() -> dict[str, str]:
     """Versions of the packages that shape a record's numbers (no heavy imports: read from metadata)."""
-    import hil
-
-    out = {"hil": hil.__version__, "numpy": np.__version__, "h5py": h5py.version.version,
+    out = {"hil": __version__, "numpy": np.__version__, "h5py": h5py.version.version,
            "hdf5": h5py.version.hdf5_version, "python": platform.python_version()}
     try:
         out["scipy"] = _metadata.version("scipy")
@@ -1191,8 +1190,6 @@ def lateness_distribution(late_s: np.ndarray, rate_hz: float) -> dict[str, Any]:
                 "histogram": []}
     edges = np.asarray(LATENESS_BINS_S)
     counts = np.bincount(np.searchsorted(edges, a, side="left"), minlength=edges.size + 1)
-    from itertools import pairwise
-
     names = [f"≤ {_fmt_s(edges[0])}"] + [f"{_fmt_s(lo)} – {_fmt_s(hi)}" for lo, hi in pairwise(edges)]
     names.append(f"> {_fmt_s(edges[-1])}")
     over = int(np.count_nonzero(a > dt))
@@ -1226,7 +1223,7 @@ def _fmt(v: Any) -> str:
 
 
 def _print_summary(s: Mapping[str, Any]) -> None:
-    from rich.console import Console
+    from rich.console import Console  # lazy: only to print (the runner and workers import records)
     from rich.markup import escape
     from rich.table import Table
 

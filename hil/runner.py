@@ -68,7 +68,7 @@ except ImportError:  # pragma: no cover - Windows
 #: what ends an experiment while the bench opens: a stop request, a device failure, a vanished port
 _OPEN_ERRORS: tuple[type[BaseException], ...] = (SafetyStop, DeviceError, *_PORT_ERRORS)
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["ExperimentOutcome", "LoopStats", "Runner", "SafetyMonitor", "one_line", "safe_stop_context"]
 
@@ -428,7 +428,7 @@ class Runner:
             status, reason = classify(exc)
             reason = f"{reason} (while the bench was opening)"
             STOP.request(reason, status)
-            log.warning("%s: safe stop: %s", name, reason)
+            logger.warning("%s: safe stop: %s", name, reason)
             return ExperimentOutcome(name, status, reason, None, {}, {"ticks": 0, "overruns": 0})
         with bench:
             self.bench = bench
@@ -482,7 +482,7 @@ class Runner:
 
         def on_stop(reason: str, status: str) -> None:
             state["status"], state["reason"] = status, reason
-            log.warning("%s: safe stop: %s", name, reason)
+            logger.warning("%s: safe stop: %s", name, reason)
             if held:
                 per = ", ".join(f"{k}: {v}" for k, v in zeroed.items()) or "no actuator"
                 with contextlib.suppress(Exception):
@@ -592,7 +592,7 @@ class Runner:
                 else:
                     state["reason"] = f"{state['reason']}; {reason}"
                 STOP.request(state["reason"], state["status"])
-                log.error("%s: %s", name, reason)
+                logger.error("%s: %s", name, reason)
             if counters:
                 results = {**results, "device_counters": counters}
             return ExperimentOutcome(name, state["status"], state["reason"], path, results, stats.summary())
@@ -609,7 +609,7 @@ class Runner:
         try:
             return {str(d): {str(k): int(v) for k, v in c.items()} for d, c in (get() or {}).items() if c}
         except Exception as exc:  # counters are evidence, never a reason to lose the record
-            log.warning("device counters not read: %s", one_line(exc))
+            logger.warning("device counters not read: %s", one_line(exc))
             return {}
 
     def _finish(self, exp: Any, path: Path, writer: Any, meta: Mapping[str, Any], name: str) -> dict[str, Any]:
@@ -621,7 +621,7 @@ class Runner:
         except HilError as exc:
             return {"error": str(exc)}
         except Exception as exc:  # partial data of a stopped run, an unreadable record: not the loop's concern
-            log.warning("%s: results not computed: %s", name, one_line(exc), exc_info=True)
+            logger.warning("%s: results not computed: %s", name, one_line(exc), exc_info=True)
             return {"error": one_line(exc)}
 
     def _sample_values(self, meas: Mapping[str, Any], u: Mapping[str, np.ndarray], exc: Any,
@@ -680,7 +680,7 @@ class Runner:
                     outcomes.append(ExperimentOutcome(self._name(i, _dump(cfg)), status,
                                                       f"{reason} (before it started)", None, {},
                                                       {"ticks": 0, "overruns": 0}))
-                    log.warning("%s not started: %s", outcomes[-1].name, reason)
+                    logger.warning("%s not started: %s", outcomes[-1].name, reason)
                     break
                 out = self.run_experiment(i, cfg)
                 outcomes.append(out)

@@ -27,8 +27,9 @@ from typing import Any, Literal
 
 from hil.certificate import Certificate, Evidence, content_digest
 from hil.errors import HilError
+from hil.signing import verify_signature
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["IntegrityStatus", "VerifyError", "check_certificate", "check_evidence", "file_evidence", "file_sha256",
            "ok_summary"]
@@ -163,8 +164,6 @@ def check_certificate(cert: Certificate, folder: str | os.PathLike[str] | None =
         st.signer, st.key_fingerprint, st.signed_utc = sig.signer, sig.public_key_sha256, sig.signed_utc
         st.signature = "unchecked"
     if public_key is not None:
-        from hil.signing import verify_signature
-
         ok, detail = verify_signature(cert, public_key)
         st.signature = "valid" if ok else "invalid"
         st.signature_detail = detail

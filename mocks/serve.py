@@ -67,7 +67,7 @@ from hil.errors import EXIT_OK, EXIT_USAGE, HilError
 from hil.mocks.faults import FaultPlan
 from hil.mocks.interfaces import FreeJoints
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 DEFAULT_SPEC: list[dict[str, Any]] = [
     {"kind": "odrive", "channel": "hil0", "node_id": 0},
@@ -206,7 +206,7 @@ def serve(specs: list[dict[str, Any]] | None = None, *, plant_rate_hz: float = 1
             stepper.plants.append(ep.joints)
             if ep.kind not in ("dynamixel", "ft300"):  # those serve from their own threads already
                 ep.device.start(rate)
-            log.info("mock %s listening on %s", ep.kind, ep.address)
+            logger.info("mock %s listening on %s", ep.kind, ep.address)
     except Exception:
         shutdown(endpoints)
         stepper.stop()
