@@ -29,7 +29,7 @@ SUBPACKAGES = ("hil.stability", "hil.models", "hil.identify", "hil.protocols", "
 #: the protocol codec modules (frame layouts, CRCs, link budgets: no transport, no adapter) that the
 #: simulated devices may import to speak the same bytes as the adapters. One table: update it when
 #: codecs move.
-CODEC_MODULES = ("hil.protocols.crc", "hil.protocols.link_budget")
+CODEC_MODULES = ("hil.protocols.codecs", "hil.protocols.crc", "hil.protocols.link_budget")
 
 #: package (prefix) -> what its modules may import from ``hil`` outside the package itself (prefixes)
 MAY_IMPORT: dict[str, tuple[str, ...]] = {
