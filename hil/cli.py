@@ -714,17 +714,18 @@ def _cmd_report(args: argparse.Namespace) -> int:
     if need := extras_message(report=True):
         print(f"hil report {args.path}: {need}", file=sys.stderr)
         return EXIT_USAGE
-    from hil.report import report_main
+    from hil.report import rebuild_reports
+    from hil.verify import MODIFIED
 
     if args.out:  # another folder than the certificate's must be new or empty (or --overwrite)
         src = Path(args.path)
         home = src if src.is_dir() else src.parent
         same = Path(args.out).exists() and home.exists() and Path(args.out).resolve() == home.resolve()
         check_out_dir(args.out, overwrite=args.overwrite or same)
-    argv = [args.path] + (["--out", args.out] if args.out else []) + (
-        ["--public-key", args.public_key] if args.public_key else []) + (
-        ["--allow-modified"] if args.allow_modified else [])
-    return int(report_main(argv) or 0)
+    cert, st, paths = rebuild_reports(args.path, args.out, args.public_key, args.allow_modified)
+    mark = f" [{MODIFIED}]" if not st.valid else ""
+    print(f"{cert.decision} {cert.scene.name}{mark}: {paths['html']} {paths['pdf']}")
+    return EXIT_OK
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
@@ -1214,7 +1215,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _guarded(cmd, debug, passthrough)
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:  # named by the subcommand's parser: "hil report: error: unrecognized arguments: ..."
+            _command_parser(parser, args).error(f"unrecognized arguments: {' '.join(extra)}")
     except SystemExit as exc:
         return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     debug = debug or bool(getattr(args, "debug", False))
@@ -1224,6 +1227,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     cmd = " ".join(x for x in (args.cmd, getattr(args, "mock_cmd", None)) if x)
     return _guarded(cmd, debug, lambda: args.func(args))
+
+
+def _command_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The (sub)parser of the command ``args`` were parsed for (``hil mock serve``: the nested one)."""
+    for dest in ("cmd", "mock_cmd"):
+        name = getattr(args, dest, None)
+        subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        if name is None or not subs:
+            break
+        parser = subs[0].choices[name]
+    return parser
 
 
 def _logging(debug: bool) -> None:
