@@ -53,6 +53,9 @@ from hil.errors import (  # the exit codes: one table in hil.errors (re-exported
     HilError,
     SafetyStop,
 )
+from hil.inputs import number_type, seed_type  # both are needed to build the parser of every command
+from hil.probe import add_arguments as _probe_arguments
+from hil.probe import run as _probe_run
 
 __all__ = ["DECISION_EXIT", "EXIT_ERROR", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "EXIT_MARGINAL", "EXIT_NOT_APPLICABLE",
            "EXIT_NOT_HELD", "EXIT_OK", "EXIT_SAFETY_STOP", "EXIT_UNSTABLE", "EXIT_USAGE", "VERDICT_EXIT",
@@ -914,8 +917,6 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--json", action="store_true")
     rp.set_defaults(func=_cmd_replay)
 
-    from hil.inputs import number_type
-
     cr = add("check-realtime", help="the machine's wake-up latency (cyclictest's way) and the loop rates it holds")
     cr.add_argument("--rate", type=number_type("positive"), default=2000.0, help="loop rate to check [Hz]")
     cr.add_argument("--seconds", type=number_type("positive"), default=5.0, help="seconds per measurement")
@@ -937,8 +938,6 @@ def build_parser() -> argparse.ArgumentParser:
                        add_help=False, parents=[])
     i.add_argument("rest", nargs=argparse.REMAINDER)
 
-    from hil.probe import add_arguments as _probe_arguments
-
     pb = add("probe", help="list what answers on a CAN channel, serial port or Modbus address "
                            "(--scene writes a scene stub)")
     _probe_arguments(pb)
@@ -955,15 +954,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_probe(args: argparse.Namespace) -> int:
-    from hil.probe import run
-
-    return run(args)
+    return _probe_run(args)
 
 
 def _mock_serve_arguments(ap: argparse.ArgumentParser) -> None:
     """The options of ``hil mock serve`` (checked together by :func:`hil.mocks.serve.run`)."""
-    from hil.inputs import number_type, seed_type
-
     ap.add_argument("scene", nargs="?", help="scene file or built-in scene name (see 'hil scenes')")
     ap.add_argument("--spec", help="instead of a scene: JSON string or .json/.yaml file (see hil.mocks.serve)")
     ap.add_argument("--duration", type=number_type("non-negative"), default=None,
