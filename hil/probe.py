@@ -52,7 +52,7 @@ from typing import Any
 
 from hil.errors import DeviceDisconnected, DeviceError, HilError
 
-logger = logging.getLogger(__name__)
+log = logging.getLogger(__name__)
 
 __all__ = ["Found", "add_arguments", "probe_can", "probe_modbus", "probe_serial", "run", "scene_stub"]
 
@@ -102,7 +102,7 @@ def _sdo_u(node: Any, index: int, sub: int, fmt: str) -> int | None:
         data = node.sdo.upload(index, sub)
         return struct.unpack_from(fmt, data.ljust(struct.calcsize(fmt), b"\0"))[0]
     except Exception as exc:  # abort or timeout: object absent or node gone
-        logger.debug("SDO 0x%04X:%d of node %d: %s", index, sub, node.id, exc)
+        log.debug("SDO 0x%04X:%d of node %d: %s", index, sub, node.id, exc)
         return None
 
 
@@ -274,7 +274,7 @@ def probe_modbus(url: str, unit: int = 9, timeout: float = 0.5) -> list[Found]:
                           {"firmware": info.firmware, "serial": info.serial}, {"url": url, "slave": unit},
                           role="force_sensor", dof=6)]
     except DeviceError as exc:
-        logger.debug("no FT-300 at %s unit %d: %s", url, unit, exc)
+        log.debug("no FT-300 at %s unit %d: %s", url, unit, exc)
         return []
 
 
@@ -329,7 +329,7 @@ def _dynamixel_ping(port: str, baudrates: tuple[int, ...]) -> list[Found]:
     try:
         import dynamixel_sdk as sdk
     except ImportError:
-        logger.info("dynamixel-sdk not installed: no DYNAMIXEL ping")
+        log.info("dynamixel-sdk not installed: no DYNAMIXEL ping")
         return []
     for baud in baudrates:
         ph_port = sdk.PortHandler(port)
@@ -341,7 +341,7 @@ def _dynamixel_ping(port: str, baudrates: tuple[int, ...]) -> list[Found]:
             ph = sdk.PacketHandler(2.0)
             data, result = ph.broadcastPing(ph_port)
         except Exception as exc:
-            logger.debug("DYNAMIXEL ping at %d baud failed: %s", baud, exc)
+            log.debug("DYNAMIXEL ping at %d baud failed: %s", baud, exc)
             data, result = {}, -1
         finally:
             with contextlib.suppress(Exception):

@@ -15,9 +15,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 FOLDERS = ("hil", "identify", "protocols", "mocks")
 
-#: modules (paths) that still bind ``log = logging.getLogger(__name__)`` (issue 13, work in progress)
+#: modules (paths) that still bind ``log = logging.getLogger(__name__)`` (issue 13, work in progress;
+#: hil/probe.py: issue 14 adds ``log`` calls to it in parallel)
 KNOWN_OTHER_NAMES = {
     "hil/certify.py", "hil/evidence_plots.py", "hil/fleet.py", "hil/models/design.py", "hil/pipeline.py",
+    "hil/probe.py",
     "hil/stability/criteria.py", "hil/stability/exact.py", "hil/stability/rational.py", "hil/stability/reliability.py",
     "hil/stability/witness.py", "hil/sweep.py", "identify/sensor_hold.py", "mocks/can_devices.py",
     "mocks/cia402_drive.py", "mocks/dynamixel_devices.py", "mocks/faults.py", "mocks/ft300_stream.py",
