@@ -17,10 +17,10 @@ import time
 
 import numpy as np
 
+from hil.models.batch import sdea_passivity_batch
 from hil.models.sdea import SDEA_TABLE1
 from hil.pipeline import certify_scene
 from hil.scene import builtin_scenes, load_scene
-from hil.stability.batch import sdea_passivity_batch
 
 
 def stages() -> None:

@@ -24,9 +24,10 @@ import time
 
 import numpy as np
 
+from hil.models.batch import sdea_passivity_batch
+from hil.models.design import k22_max
 from hil.models.sdea import SDEA_TABLE1, sdea_vsic
 from hil.models.teleop import dual_master_3dof, mcet_trilateral, termination_T1
-from hil.stability.batch import sdea_passivity_batch
 from hil.stability.criteria import (
     _freq_range,
     _hermitian_ratio,
@@ -35,7 +36,6 @@ from hil.stability.criteria import (
     positive_real,
     two_port_passivity,
 )
-from hil.stability.design import k22_max
 from hil.stability.rational import Rational, TransferMatrix
 
 

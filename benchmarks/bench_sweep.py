@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from hil.stability.design import k22_max
+from hil.models.design import k22_max
 from hil.sweep import DaskExecutor, ProcessExecutor, SerialExecutor, SweepSpec, parse_grid, run_sweep
 
 

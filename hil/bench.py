@@ -949,7 +949,7 @@ class ProcessSimBench(Bench):
         groups = {ch: f"239.255.{secrets.randbelow(254) + 1}.{secrets.randbelow(254) + 1}" for ch in chans}
         src = Path(self._tmp.name) / f"{scene.name}.yaml"
         src.write_text(scene.source_text, encoding="utf-8")
-        cmd = [sys.executable, "-m", "hil.mocks.serve", str(src), "--json", "--can-interface", "udp_multicast",
+        cmd = [sys.executable, "-m", "hil", "mock", "serve", str(src), "--json", "--can-interface", "udp_multicast",
                "--seed", str(scene.seed if seed is None else seed)]
         cmd += [a for ch, g in groups.items() for a in ("--can-channel", f"{ch}={g}")]
         if variant is not None:

@@ -252,7 +252,7 @@ class Design(_M):
     note: str = ""
     nominal_limit: float | None = Field(
         json_schema_extra=SINCE_1_2, default=None, description="largest passive value at the nominal plant "
-                                        "(hil.stability.design.k22_max)")
+                                        "(hil.models.design.k22_max)")
     nominal_headroom: float | None = Field(
         json_schema_extra=SINCE_1_2, default=None, description="nominal_limit / current − 1")
     posterior_limit: float | None = Field(

@@ -13,23 +13,8 @@ file that is not UTF-8 text, a bad flag or value) prints exactly one line on std
 one line pointing at ``--debug`` and exit 1. ``--debug`` adds the traceback (and debug logs).
 Output folders never overwrite: see :mod:`hil.outdir` (``--overwrite``).
 
-Exit codes (documented in README.md):
-
-====  ==============================================================
-0     stable (GO); ``hil verify``: the certificate and its evidence match
-2     usage or input error (bad arguments, malformed file, unknown model, an output folder that
-      exists): one-line message; ``hil verify`` / ``hil report``: the certificate does not match
-      its digest, an evidence file or its signature (one line naming what)
-10    marginal (MARGINAL)
-11    potentially unstable (NO-GO)
-12    criterion not applicable (e.g. Theorem 1's symmetrization fails)
-13    evidence missing or broken (ERROR)
-20    ``hil run``: a safe stop ended the run (limit breach, non-finite feedback, watchdog, late loop, device
-      failure, record write error, SIGTERM/SIGHUP); no later experiment started
-21    ``hil check-realtime``: this machine cannot hold ``--rate`` (wake-up latency, see hil.realtime)
-130   interrupted (Ctrl-C / SIGINT); the records keep every sample taken
-1     unexpected internal error (a bug: one line; rerun with ``hil --debug ...`` and report the traceback)
-====  ==============================================================
+Exit codes: one table, :class:`hil.errors.ExitCode` with :data:`hil.errors.EXIT_MEANINGS` (README.md
+shows it; tests/test_exit_codes.py compares the two).
 """
 
 from __future__ import annotations
@@ -37,6 +22,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import difflib
+import importlib
 import json
 import logging
 import math
@@ -46,26 +32,36 @@ import threading
 import time
 import traceback
 import warnings
+from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from hil.errors import HilError
+from hil.errors import (  # the exit codes: one table in hil.errors (re-exported here for callers)
+    DECISION_EXIT,
+    EXIT_ERROR,
+    EXIT_INTERNAL,
+    EXIT_INTERRUPTED,
+    EXIT_MARGINAL,
+    EXIT_NOT_APPLICABLE,
+    EXIT_NOT_HELD,
+    EXIT_OK,
+    EXIT_SAFETY_STOP,
+    EXIT_UNSTABLE,
+    EXIT_USAGE,
+    VERDICT_EXIT,
+    HilError,
+    SafetyStop,
+)
+from hil.inputs import number_type, seed_type  # both are needed to build the parser of every command
+from hil.probe import add_arguments as _probe_arguments
+from hil.probe import run as _probe_run
 
-EXIT_OK = 0
-EXIT_INTERNAL = 1
-EXIT_USAGE = 2
-EXIT_MARGINAL = 10
-EXIT_UNSTABLE = 11
-EXIT_NOT_APPLICABLE = 12
-EXIT_ERROR = 13
-EXIT_SAFETY_STOP = 20
-EXIT_INTERRUPTED = 130
+__all__ = ["DECISION_EXIT", "EXIT_ERROR", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "EXIT_MARGINAL", "EXIT_NOT_APPLICABLE",
+           "EXIT_NOT_HELD", "EXIT_OK", "EXIT_SAFETY_STOP", "EXIT_UNSTABLE", "EXIT_USAGE", "VERDICT_EXIT",
+           "OneLineArgumentParser", "UsageError", "build_parser", "main", "one_line"]
 
-VERDICT_EXIT = {"stable": EXIT_OK, "marginal": EXIT_MARGINAL, "potentially_unstable": EXIT_UNSTABLE,
-                "not_applicable": EXIT_NOT_APPLICABLE}
-
-log = logging.getLogger("hil")
+logger = logging.getLogger(__name__)
 
 
 class UsageError(HilError):
@@ -129,8 +125,6 @@ def _suggest(name: str, known: Sequence[str]) -> str:
 def _stability_tol(args: argparse.Namespace):
     """Tolerances for ``hil stability``: ``--rtol R`` (relative perturbation of the coefficients;
     then ``marginal`` means the verdict can flip within it, docs/VERDICTS.md)."""
-    import math
-
     from hil.stability.criteria import Tolerances
 
     r = getattr(args, "rtol", None)
@@ -246,8 +240,8 @@ def _print_result(result: Any, verbose: bool) -> None:
 
 
 def _cmd_design(args: argparse.Namespace) -> int:
+    from hil.models.design import DESIGN_FIXED, check_design_inputs, k22_max, optimize_coupler
     from hil.models.sdea import SDEA_TABLE1
-    from hil.stability.design import DESIGN_FIXED, check_design_inputs, k22_max, optimize_coupler
 
     params = _parse_set(args.set or [], {k: SDEA_TABLE1[k] for k in DESIGN_FIXED}, "the SDEA design")
     if args.b22 is not None and (not math.isfinite(args.b22) or args.b22 <= 0):
@@ -292,6 +286,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         from hil.scene import load_scene
 
         scene = load_scene(args.scene)
+        if scene.certification is None:
+            raise UsageError(f"--scene {args.scene}: the scene has no certification section (the network to sweep)")
         args.model = scene.certification.model
     try:
         m = get_model(args.model)
@@ -340,8 +336,6 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
     if not args.no_plot and not missing_extras(report=True):
         files["map"] = plot_sweep(res, out / "sweep.png", args.required)
-    from collections import Counter
-
     counts = Counter(r["verdict"] for r in iter_table(res))
     if args.json:
         print(json.dumps({"model": args.model, "criterion": spec.criterion_name, "points": int(res.verdict.size),
@@ -573,9 +567,6 @@ def _cmd_import(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-DECISION_EXIT = {"GO": EXIT_OK, "MARGINAL": EXIT_MARGINAL, "NO-GO": EXIT_UNSTABLE, "ERROR": EXIT_ERROR}
-
-
 def _cmd_certify(args: argparse.Namespace) -> int:
     from hil.pipeline import certify_scene
     from hil.protocols.registry import extras_message
@@ -726,23 +717,41 @@ def _cmd_report(args: argparse.Namespace) -> int:
     if need := extras_message(report=True):
         print(f"hil report {args.path}: {need}", file=sys.stderr)
         return EXIT_USAGE
-    from hil.report import report_main
+    from hil.report import rebuild_reports
+    from hil.verify import MODIFIED
 
     if args.out:  # another folder than the certificate's must be new or empty (or --overwrite)
         src = Path(args.path)
         home = src if src.is_dir() else src.parent
         same = Path(args.out).exists() and home.exists() and Path(args.out).resolve() == home.resolve()
         check_out_dir(args.out, overwrite=args.overwrite or same)
-    argv = [args.path] + (["--out", args.out] if args.out else []) + (
-        ["--public-key", args.public_key] if args.public_key else []) + (
-        ["--allow-modified"] if args.allow_modified else [])
-    return int(report_main(argv) or 0)
+    cert, st, paths = rebuild_reports(args.path, args.out, args.public_key, args.allow_modified)
+    mark = f" [{MODIFIED}]" if not st.valid else ""
+    print(f"{cert.decision} {cert.scene.name}{mark}: {paths['html']} {paths['pdf']}")
+    return EXIT_OK
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
-    from hil.verify import verify_main
+    """``hil verify DIR [--public-key PUB]``: exit 0 and ``OK …`` on stdout, or 2 and one line on
+    stderr saying what does not match (hil.verify); a bad input raises (one line, exit 2)."""
+    from hil.report import _resolve, load_certificate
+    from hil.verify import check_certificate, ok_summary
 
-    return int(verify_main([args.path] + (["--public-key", args.public_key] if args.public_key else [])) or 0)
+    where = _resolve(args.path)
+    cert = load_certificate(args.path)
+    key = None
+    if args.public_key:
+        from hil.signing import load_public_key
+
+        key = load_public_key(args.public_key)
+    st = check_certificate(cert, where.parent, key)
+    if key is not None and st.signature == "absent":
+        st.signature, st.signature_detail = "invalid", "the certificate is not signed"
+    if not st.valid:
+        print(f"hil verify: {where}: NOT VALID: {st.reason()}", file=sys.stderr)
+        return EXIT_USAGE
+    print(f"OK {where}: {ok_summary(st)}")
+    return EXIT_OK
 
 
 def _cmd_keygen(args: argparse.Namespace) -> int:
@@ -761,9 +770,9 @@ def _cmd_check_realtime(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from hil.record import replay_main
+    from hil.record import replay
 
-    return int(replay_main([args.record] + (["--json"] if args.json else [])) or 0)
+    return replay(args.record, as_json=args.json)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -908,8 +917,6 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--json", action="store_true")
     rp.set_defaults(func=_cmd_replay)
 
-    from hil.inputs import number_type
-
     cr = add("check-realtime", help="the machine's wake-up latency (cyclictest's way) and the loop rates it holds")
     cr.add_argument("--rate", type=number_type("positive"), default=2000.0, help="loop rate to check [Hz]")
     cr.add_argument("--seconds", type=number_type("positive"), default=5.0, help="seconds per measurement")
@@ -931,28 +938,65 @@ def build_parser() -> argparse.ArgumentParser:
                        add_help=False, parents=[])
     i.add_argument("rest", nargs=argparse.REMAINDER)
 
-    from hil.probe import add_arguments as _probe_arguments
-
     pb = add("probe", help="list what answers on a CAN channel, serial port or Modbus address "
                            "(--scene writes a scene stub)")
     _probe_arguments(pb)
     pb.set_defaults(func=_cmd_probe)
 
-    m = add("mock", help="simulated devices: 'hil mock serve SPEC' starts them and prints endpoints",
-                       parents=[])
-    m.add_argument("rest", nargs=argparse.REMAINDER)
+    m = add("mock", help="simulated devices: 'hil mock serve SPEC' starts them and prints endpoints")
+    msub = m.add_subparsers(dest="mock_cmd", metavar="serve", parser_class=OneLineArgumentParser, required=True)
+    ms = msub.add_parser("serve", parents=[common], help="start simulated devices and print their endpoints",
+                         description="Start a scene's simulated devices (or a spec's, or one --device) on their "
+                                     "own and print where each one listens (hil.mocks.serve).")
+    _mock_serve_arguments(ms)
+    ms.set_defaults(func=_cmd_mock_serve)
     return p
 
 
 def _cmd_probe(args: argparse.Namespace) -> int:
-    from hil.probe import run
+    return _probe_run(args)
+
+
+def _mock_serve_arguments(ap: argparse.ArgumentParser) -> None:
+    """The options of ``hil mock serve`` (checked together by :func:`hil.mocks.serve.run`)."""
+    ap.add_argument("scene", nargs="?", help="scene file or built-in scene name (see 'hil scenes')")
+    ap.add_argument("--spec", help="instead of a scene: JSON string or .json/.yaml file (see hil.mocks.serve)")
+    ap.add_argument("--duration", type=number_type("non-negative"), default=None,
+                    help="seconds to run (default: until Ctrl-C/SIGTERM)")
+    ap.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
+    ap.add_argument("--seed", type=seed_type, default=None,
+                    help="scene: seed of noise and faults (default: the scene's)")
+    ap.add_argument("--variant", choices=["locked", "free"], default=None, help="scene: SDEA plant variant")
+    ap.add_argument("--can-interface", default="virtual",
+                    help="scene: python-can interface of the CAN devices (virtual | udp_multicast | socketcan ...)")
+    ap.add_argument("--can-channel", action="append", default=[], metavar="SCENE_CH=CH",
+                    help="scene: serve scene CAN channel SCENE_CH on channel CH (repeatable)")
+    ap.add_argument("--stream-rate", type=number_type("positive"), default=100.0,
+                    help="scene: frame rate of streaming FT-300 sensors [Hz] (the sensor's is 100)")
+    ap.add_argument("--plant-rate", type=number_type("positive"), default=1000.0,
+                    help="spec: FreeJoints step rate [Hz]")
+    ap.add_argument("--device", default=None, metavar="KIND",
+                    help="serve ONE simulated device of this kind (instead of a scene or --spec): odrive, "
+                         "cubemars, cia402, bota, dynamixel, ft300, ft300_stream")
+    ap.add_argument("--node", type=int, default=None,
+                    help="device: CAN node id (odrive 0..63, cia402 1..127) or CubeMars motor id")
+    ap.add_argument("--ids", default=None, help="device dynamixel: comma-separated servo ids (default 1)")
+    ap.add_argument("--unit", type=int, default=None, help="device ft300 / ft300_stream: Modbus slave id (default 9)")
+    ap.add_argument("--port", type=int, default=None, help="device ft300: TCP port on 127.0.0.1 (default: a free one)")
+    ap.add_argument("--pty", action="store_true",
+                    help="device bota / ft300_stream / dynamixel: serve on a pty (the default and only transport)")
+    ap.add_argument("--rate", type=number_type("positive"), default=None,
+                    help="device: tick / frame rate [Hz] (CAN cyclic frames, Bota frames; default 1000, "
+                         "FT-300 stream 100)")
+
+
+def _cmd_mock_serve(args: argparse.Namespace) -> int:
+    from hil.mocks.serve import run
 
     return run(args)
 
 
-_PASSTHROUGH = {"identify": "hil.identify.api", "mock": "hil.mocks.serve"}
-_MOCK_USAGE = ("usage: hil mock serve SCENE [--duration SECONDS] [--json] [--can-interface udp_multicast] "
-               "| hil mock serve --spec SPEC | hil mock serve --device KIND")
+_PASSTHROUGH = {"identify": "hil.identify.api"}
 
 # ---------------------------------------------------------------------------------------------
 # output folders, progress, numeric guard, error mapping
@@ -1055,8 +1099,6 @@ def _numeric_guard(source: str) -> Iterator[None]:
 
 def _describe(exc: BaseException, cmd: str) -> tuple[int, str]:
     """(exit code, one-line message) for an exception that ended a command."""
-    from hil.errors import SafetyStop
-
     if isinstance(exc, SafetyStop):  # e.g. a signal during the runs of hil certify: 130 / 20
         status = getattr(exc, "status", "safety_stop")
         return (EXIT_INTERRUPTED if status == "interrupted" else EXIT_SAFETY_STOP), f"stopped: {one_line(exc)}"
@@ -1161,21 +1203,16 @@ def main(argv: Sequence[str] | None = None) -> int:
             debug = True
             rest = [a for a in rest if a != "--debug"]
         _logging(debug)
-        if cmd == "mock":
-            if not rest or rest[0] != "serve":
-                print(f"hil mock: error: expected 'serve' ({_MOCK_USAGE})", file=sys.stderr)
-                return EXIT_USAGE
-            rest, cmd = rest[1:], "mock serve"
 
         def passthrough() -> int:
-            import importlib
-
             return int(importlib.import_module(_PASSTHROUGH[argv[0]]).main(rest) or 0)
 
         return _guarded(cmd, debug, passthrough)
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:  # named by the subcommand's parser: "hil report: error: unrecognized arguments: ..."
+            _command_parser(parser, args).error(f"unrecognized arguments: {' '.join(extra)}")
     except SystemExit as exc:
         return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     debug = debug or bool(getattr(args, "debug", False))
@@ -1183,13 +1220,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return EXIT_USAGE
-    return _guarded(args.cmd, debug, lambda: args.func(args))
+    cmd = " ".join(x for x in (args.cmd, getattr(args, "mock_cmd", None)) if x)
+    return _guarded(cmd, debug, lambda: args.func(args))
+
+
+def _command_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The (sub)parser of the command ``args`` were parsed for (``hil mock serve``: the nested one)."""
+    for dest in ("cmd", "mock_cmd"):
+        name = getattr(args, dest, None)
+        subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        if name is None or not subs:
+            break
+        parser = subs[0].choices[name]
+    return parser
 
 
 def _logging(debug: bool) -> None:
     """Warnings of every library; with ``--debug`` also the suite's own debug logs."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    log.setLevel(logging.DEBUG if debug else logging.NOTSET)  # NOTSET: the root's WARNING
+    logging.getLogger("hil").setLevel(logging.DEBUG if debug else logging.NOTSET)  # NOTSET: the root's WARNING
 
 
 if __name__ == "__main__":  # pragma: no cover

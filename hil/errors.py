@@ -2,9 +2,14 @@
 
 Errors that have a natural builtin meaning also derive from that builtin, so callers can catch
 them either way (e.g. :class:`DeviceTimeout` is a :class:`TimeoutError`).
+
+It also holds the one table of exit codes (:class:`ExitCode`, :data:`EXIT_MEANINGS`): it sits here,
+at the bottom of the import graph, so every package (identify/ and mocks/ too) can use it.
 """
 
 from __future__ import annotations
+
+from enum import IntEnum
 
 
 class HilError(Exception):
@@ -53,3 +58,57 @@ class DeviceDisconnected(DeviceError, ConnectionError):
 
 class SafetyStop(HilError):
     """An experiment was stopped by a safety limit, the watchdog or a signal."""
+
+
+class ExitCode(IntEnum):
+    """The exit codes of every ``hil`` command: the one table (README.md "exit code | meaning" shows
+    :data:`EXIT_MEANINGS`, and a test compares them)."""
+
+    OK = 0
+    INTERNAL = 1
+    USAGE = 2
+    MARGINAL = 10
+    UNSTABLE = 11
+    NOT_APPLICABLE = 12
+    ERROR = 13
+    SAFETY_STOP = 20
+    NOT_HELD = 21
+    INTERRUPTED = 130
+
+
+#: what each exit code means, word for word as in README.md's exit-code table
+EXIT_MEANINGS: dict[ExitCode, str] = {
+    ExitCode.OK: "stable; `hil certify`: GO; `hil verify`: the certificate and its evidence match",
+    ExitCode.MARGINAL: "marginal: only with `hil stability --rtol R`, the verdict can flip within a relative "
+                       "perturbation R of the coefficients (docs/VERDICTS.md); `hil certify`: MARGINAL",
+    ExitCode.UNSTABLE: "potentially unstable; `hil certify`: NO-GO",
+    ExitCode.ERROR: "`hil certify`: ERROR (evidence missing or broken)",
+    ExitCode.NOT_APPLICABLE: "criterion not applicable (e.g. Theorem 1's symmetrization conditions fail)",
+    ExitCode.SAFETY_STOP: "`hil run`: a safe stop ended the run (limit, non-finite value, watchdog, late loop, "
+                          "device or record failure, SIGTERM/SIGHUP)",
+    ExitCode.NOT_HELD: "`hil check-realtime`: this machine cannot hold `--rate` (see \"Realtime at the bench\")",
+    ExitCode.INTERRUPTED: "`hil run`: interrupted (Ctrl-C / SIGINT); every record is closed with the reason",
+    ExitCode.USAGE: "usage or input error; the message is one line and names the file and field, or the flag; "
+                    "`hil verify` / `hil report`: the certificate does not match its digest, an evidence file or "
+                    "its signature (one line naming what)",
+    ExitCode.INTERNAL: "internal error (a bug: one line; rerun with `hil --debug …` and report the traceback)",
+}
+
+EXIT_OK = ExitCode.OK
+EXIT_INTERNAL = ExitCode.INTERNAL
+EXIT_USAGE = ExitCode.USAGE
+EXIT_MARGINAL = ExitCode.MARGINAL
+EXIT_UNSTABLE = ExitCode.UNSTABLE
+EXIT_NOT_APPLICABLE = ExitCode.NOT_APPLICABLE
+EXIT_ERROR = ExitCode.ERROR
+EXIT_SAFETY_STOP = ExitCode.SAFETY_STOP
+EXIT_NOT_HELD = ExitCode.NOT_HELD
+EXIT_INTERRUPTED = ExitCode.INTERRUPTED
+
+#: ``hil stability``: the exit code of each verdict (docs/VERDICTS.md)
+VERDICT_EXIT: dict[str, ExitCode] = {"stable": ExitCode.OK, "marginal": ExitCode.MARGINAL,
+                                     "potentially_unstable": ExitCode.UNSTABLE,
+                                     "not_applicable": ExitCode.NOT_APPLICABLE}
+#: ``hil certify`` (and a fleet's worst scene): the exit code of each decision
+DECISION_EXIT: dict[str, ExitCode] = {"GO": ExitCode.OK, "MARGINAL": ExitCode.MARGINAL,
+                                      "NO-GO": ExitCode.UNSTABLE, "ERROR": ExitCode.ERROR}

@@ -328,7 +328,7 @@ def headroom_plot(plots: dict[str, Series], cert_cfg: Any, params: Any, draws: A
     over the scene's design range, with the requirement, the current value and the largest value
     meeting the requirement (where the lower bound crosses it: the headroom) marked."""
     from hil.certify import probability_of_stability
-    from hil.stability.batch import sdea_passivity_batch
+    from hil.models.batch import sdea_passivity_batch
 
     d = cert_cfg.design
     if cert_cfg.model != "sdea" or d is None or d.parameter not in ("k22", "b22") or design is None:

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hil.errors import HilError
+from hil.errors import DECISION_EXIT, HilError
 
 log = logging.getLogger(__name__)
 
@@ -34,7 +34,7 @@ __all__ = ["DECISION_ORDER", "FleetEntry", "FleetResult", "certify_fleet", "expa
 
 #: worst last; the fleet's decision is the maximum
 DECISION_ORDER = ("GO", "MARGINAL", "NO-GO", "ERROR")
-_EXIT = {"GO": 0, "MARGINAL": 10, "NO-GO": 11, "ERROR": 13}
+_EXIT = DECISION_EXIT  # the one exit-code table (hil.errors)
 #: device parameters that name a transport endpoint (two real scenes sharing one run in series)
 _ENDPOINT_KEYS = ("channel", "port", "device", "url", "address", "host")
 

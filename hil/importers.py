@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from hil.inputs import read_text_file
 from hil.record import ChannelSpec, RecordError, RecordWriter
@@ -149,8 +150,6 @@ def _load_sidecar(path: str | Path) -> dict[str, Any]:
     if not p.exists():
         raise RecordError(f"{p}: no such sidecar file")
     text = read_text_file(p, "sidecar file", RecordError)
-    import yaml
-
     try:
         data = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
     except (ValueError, yaml.YAMLError) as exc:
@@ -388,7 +387,7 @@ def import_mat(
 
     ``mapping``: as for :func:`import_csv`, naming variables or ``struct.field``; without one, a sidecar
     next to the file, else the variables (or the fields of the only struct) with ``t``/``time`` as time."""
-    from scipy.io import loadmat
+    from scipy.io import loadmat  # lazy: scipy.io only for .mat files
 
     src = Path(path)
     if src.is_dir():

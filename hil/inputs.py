@@ -108,7 +108,7 @@ def unique_key_loader(*, yaml12_floats: bool = False) -> Any:
     intends. ``yaml12_floats``: also read ``1e3`` as a number (network files)."""
     if yaml12_floats in _LOADERS:
         return _LOADERS[yaml12_floats]
-    import yaml
+    import yaml  # lazy: hil.inputs is imported by every hil command's parser; yaml only when a file is read
 
     class UniqueKeyLoader(yaml.SafeLoader):
         def construct_document(self, node: Any) -> Any:

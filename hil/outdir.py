@@ -28,7 +28,7 @@ from pathlib import Path
 
 from hil.errors import HilError
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["OutputPathError", "check_out_dir", "check_out_file", "default_out_dir", "prepare_out_dir",
            "prepare_out_file", "remove_if_empty"]
@@ -102,7 +102,7 @@ def prepare_out_dir(path: str | Path | None, *, default_stem: str, overwrite: bo
                 _mkdir(p, exist_ok=False)
             except FileExistsError:
                 continue
-            log.debug("output folder %s", p)
+            logger.debug("output folder %s", p)
             return p
         raise OutputPathError(f"{default_stem}: cannot find a free output folder name")  # pragma: no cover
     p = check_out_dir(path, overwrite=overwrite)

@@ -610,7 +610,7 @@ def _f(v: Any) -> float | None:
     return x if math.isfinite(x) else None
 
 
-#: a margin within this of zero is MARGINAL (the batch path's round-off tolerance, hil.stability.batch)
+#: a margin within this of zero is MARGINAL (the batch path's round-off tolerance, hil.models.batch)
 MARGIN_TOL = 1e-9
 
 
@@ -696,10 +696,10 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
     """Stability of every draw, a cheap vectorized proxy margin that ranks parameter sets from
     least to most stable (the SDEA's closed-form margin; None on the general path), the method,
     and the critical band (5 % quantile of the draws' lower edges to 95 % of their upper edges, see
-    hil.stability.batch) (None when the path does not provide it)."""
+    hil.models.batch) (None when the path does not provide it)."""
     n = len(next(iter(draws.values())))
     if model == "sdea" and criterion == "passivity":
-        from hil.stability.batch import sdea_passivity_batch
+        from hil.models.batch import sdea_passivity_batch
 
         fixed = {k: float(v) for k, v in params.items() if isinstance(v, int | float)}
 
@@ -707,7 +707,7 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
             return sdea_passivity_batch(d, fixed=fixed, band=False)["margin"]
 
         res = sdea_passivity_batch(draws, fixed=fixed)
-        # the critical band (hil.stability.batch): per draw, where the coupler condition (c-ii) is
+        # the critical band (hil.models.batch): per draw, where the coupler condition (c-ii) is
         # within 10 % of its minimum; over the draws, the 5 % quantile of the lower edges to the 95 %
         # quantile of the upper edges
         lo_e, hi_e = res["band_lo"], res["band_hi"]
@@ -754,7 +754,7 @@ def _verdict_fn(model: str, criterion: str, params: Mapping[str, Any], names: li
     then checked with the exact criterion) or the exact criterion per point (a network that cannot
     be built is not stable)."""
     if fast:
-        from hil.stability.batch import sdea_passivity_batch
+        from hil.models.batch import sdea_passivity_batch
 
         fixed = {k: float(v) for k, v in params.items() if isinstance(v, int | float)}
 
@@ -871,7 +871,7 @@ def _design(cert: Any, params: Mapping[str, Any], draws: Mapping[str, np.ndarray
         return Design(parameter=d.parameter, max_value=None, probability_at_max=None,
                       required=policy.required_probability,
                       note="design search is implemented for the SDEA coupler (k22, b22)")
-    from hil.stability.batch import sdea_passivity_batch
+    from hil.models.batch import sdea_passivity_batch
 
     fixed = {k: float(v) for k, v in params.items() if isinstance(v, int | float)}
 
@@ -888,8 +888,8 @@ def _design(cert: Any, params: Mapping[str, Any], draws: Mapping[str, np.ndarray
         # parametric headroom (docs/CERTIFICATION.md): k22_max/k22 − 1 at the nominal plant, and the
         # posterior limit (lower bound of P(stable) = required) / k22 − 1
         from hil.certify import posterior_limit
+        from hil.models.design import k22_headroom
         from hil.models.sdea import SDEA_TABLE1
-        from hil.stability.design import k22_headroom
 
         plant = {k: float(v) for k, v in (nominal_params or params).items()
                  if k in SDEA_TABLE1 and isinstance(v, int | float)}
@@ -1031,8 +1031,8 @@ def _critical_band_plot(plots: dict[str, Series], params: Mapping[str, Any], dra
     """The SDEA's normalized coupler condition g(ω) = t(ω²)/|t|(ω²) at the posterior mean and its
     5-95 % band over the draws, with the 10 % threshold of the mean and the certificate's critical
     band (over the draws) marked."""
+    from hil.models.batch import BAND_GRID_RAD_S, CRITICAL_BAND_FRACTION
     from hil.models.sdea import SDEA_TABLE1, sdea_polynomials
-    from hil.stability.batch import BAND_GRID_RAD_S, CRITICAL_BAND_FRACTION
 
     base = {**SDEA_TABLE1, **{k: float(v) for k, v in params.items() if isinstance(v, int | float)}}
     n = len(next(iter(draws.values())))

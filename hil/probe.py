@@ -47,7 +47,10 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
+
+from hil.errors import DeviceDisconnected, DeviceError, HilError
 
 log = logging.getLogger(__name__)
 
@@ -146,10 +149,9 @@ def probe_can(channel: str, interface: str = "socketcan", *, bitrate: int | None
               sdo_scan: bool = False, cubemars_ids: list[int] | tuple[int, ...] = (), cubemars_model: str = "AK80-9",
               timeout: float = 0.1, **bus_kwargs: Any) -> list[Found]:
     """Devices on one CAN channel (module docstring); ``timeout`` (s) per request."""
-    import can
+    import can  # lazy: the 'can' extra
 
-    from hil.errors import DeviceDisconnected
-    from hil.protocols import can_cubemars as cm
+    from hil.protocols import can_cubemars as cm  # lazy: hil probe is parsed by every hil command
     from hil.protocols import can_odrive as od
 
     kw = dict(bus_kwargs)
@@ -252,7 +254,8 @@ def _probe_canopen(bus: Any, where: str, interface: str, channel: str, nodes: di
                              f"node {n}", details, params))
     finally:
         with contextlib.suppress(Exception):
-            network.notifier.stop(1.0)
+            if network.notifier is not None:
+                network.notifier.stop(1.0)
     return out
 
 
@@ -262,7 +265,6 @@ def _probe_canopen(bus: Any, where: str, interface: str, channel: str, nodes: di
 
 def probe_modbus(url: str, unit: int = 9, timeout: float = 0.5) -> list[Found]:
     """An FT-300 over Modbus at ``url`` / slave ``unit``: firmware and serial number registers."""
-    from hil.errors import DeviceError
     from hil.protocols.modbus_robotiq import RobotiqFT300
 
     try:
@@ -279,9 +281,8 @@ def probe_modbus(url: str, unit: int = 9, timeout: float = 0.5) -> list[Found]:
 def probe_serial(port: str, *, baudrates: tuple[int, ...] = (57600, 1000000), listen_s: float = 0.3,
                  unit: int = 9, timeout: float = 0.3) -> list[Found]:
     """Devices on one serial port (module docstring)."""
-    import serial
+    import serial  # lazy: the 'serial' extra
 
-    from hil.errors import DeviceDisconnected
     from hil.protocols.modbus_robotiq import StreamParser
     from hil.protocols.serial_bota import FrameParser
 
@@ -378,8 +379,6 @@ def scene_stub(found: list[Found], name: str = "probed_bench") -> dict[str, Any]
         if f.role == "force_sensor":
             dev["axes"] = [2]
         devices.append(dev)
-    from types import SimpleNamespace
-
     from hil.protocols.link_budget import over_budget
 
     rate = 1000
@@ -417,8 +416,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _ints(text: str, flag: str) -> list[int]:
-    from hil.errors import HilError
-
     try:
         return [int(x, 0) for x in text.split(",") if x.strip()]
     except ValueError:
@@ -428,8 +425,6 @@ def _ints(text: str, flag: str) -> list[int]:
 def run(args: argparse.Namespace) -> int:
     """``hil probe``: probe, print, optionally write the scene stub. Exit 0 (even when nothing
     answered: the table says so), 2 on bad input (raised as HilError for the CLI's guard)."""
-    from hil.errors import HilError
-
     for flag, v in (("--listen", args.listen), ("--timeout", args.timeout)):
         if not (v >= 0 and v < 3600):
             raise HilError(f"{flag} must be a number of seconds in [0, 3600), got {v}")
@@ -448,7 +443,7 @@ def run(args: argparse.Namespace) -> int:
         found = probe_modbus(args.modbus, args.unit, args.timeout)
         where = f"modbus {args.modbus} unit {args.unit}"
     if args.scene:
-        import yaml
+        import yaml  # lazy: hil probe is parsed by every hil command
 
         stub = scene_stub(found)
         text = ("# written by hil probe from " + where + ": check every device, then add bodies (simulation),\n"

@@ -48,6 +48,7 @@ def hil_run(tmp_path: Path) -> Callable[..., HilRun]:
 
     def run(scene: str | Path, seed: int | None = None, experiments: list[int] | None = None,
             max_ticks: int | None = None) -> HilRun:
+        # lazy: pytest loads this plugin in every session of an environment with hil installed
         from hil.runner import Runner
         from hil.scene import load_scene
 

@@ -38,21 +38,24 @@ import ctypes
 import ctypes.util
 import dataclasses
 import gc
+import json
 import logging
 import math
 import os
+import re
 import shutil
 import subprocess
 import sys
 import time
+import types
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-from hil.errors import SafetyStop
+from hil.errors import EXIT_NOT_HELD, SafetyStop
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "DEFAULT_MAX_OVERRUN_FRACTION",
@@ -222,7 +225,9 @@ def realtime_scheduling(*, enabled: bool = True, priority: int = FIFO_PRIORITY,
         yield got
         return
     missing: list[str] = []
-    old_policy = old_param = old_aff = None
+    old_policy: int | None = None
+    old_param: os.sched_param | None = None
+    old_aff: set[int] | None = None
     libc = None
     try:
         old_policy, old_param = os.sched_getscheduler(0), os.sched_getparam(0)
@@ -257,11 +262,11 @@ def realtime_scheduling(*, enabled: bool = True, priority: int = FIFO_PRIORITY,
                        "(grant CAP_SYS_NICE and CAP_IPC_LOCK, or rtprio/memlock in /etc/security/limits.conf)")
         if got.warning not in _WARNED:  # one line per process, not one per experiment
             _WARNED.add(got.warning)
-            log.warning("%s", got.warning)
+            logger.warning("%s", got.warning)
     try:
         yield got
     finally:
-        if old_policy is not None:
+        if old_policy is not None and old_param is not None:
             with contextlib.suppress(OSError):
                 os.sched_setscheduler(0, old_policy, old_param)
         if got.memlock and libc is not None:
@@ -396,8 +401,6 @@ def run_cyclictest(rate_hz: float, seconds: float, *, which: Callable[[str], str
         cp = run(cmd, capture_output=True, text=True, timeout=seconds + 30)
     except (OSError, subprocess.SubprocessError) as exc:
         return f"cyclictest failed: {' '.join(str(exc).split())}"
-    import re
-
     m = re.search(r"Min:\s*(\d+)\s+Act:\s*\d+\s+Avg:\s*(\d+)\s+Max:\s*(\d+)", cp.stdout or "")
     if cp.returncode != 0 or m is None:
         err = " ".join((cp.stderr or cp.stdout or "").split())[:200]
@@ -407,8 +410,6 @@ def run_cyclictest(rate_hz: float, seconds: float, *, which: Callable[[str], str
                        int(mx > 1.0 / rate_hz))
 
 
-#: exit code of ``hil check-realtime`` when the machine cannot hold ``--rate``
-EXIT_NOT_HELD = 21
 #: loop rates :func:`holdable_rates` judges [Hz]
 CANDIDATE_RATES = (250.0, 500.0, 1000.0, 2000.0, 4000.0, 8000.0)
 #: a rate is held when the p99 wake-up lateness is at most this fraction of its period ...
@@ -431,9 +432,7 @@ def check_realtime(rate_hz: float = 2000.0, seconds: float = 5.0, *, rt: bool = 
     would get, cyclictest's figures side by side when installed, and which loop rates it can hold
     (:func:`holdable_rates`, judged on the hybrid wait). Prints a table (or one JSON object);
     exit 0 when ``rate_hz`` is held, :data:`EXIT_NOT_HELD` (21) when not."""
-    import json
-
-    a = argparse_namespace(rate=float(rate_hz), seconds=float(seconds), no_rt=not rt, json=as_json)
+    a = types.SimpleNamespace(rate=float(rate_hz), seconds=float(seconds), no_rt=not rt, json=as_json)
     with realtime_scheduling(enabled=not a.no_rt) as sched:
         rows = [measure_wakeup(a.rate, a.seconds, method="sleep"), measure_wakeup(a.rate, a.seconds, method="hybrid")]
     cyc = run_cyclictest(a.rate, a.seconds)
@@ -448,7 +447,7 @@ def check_realtime(rate_hz: float = 2000.0, seconds: float = 5.0, *, rt: bool = 
         print(json.dumps({"scheduling": sched.to_dict(), "rows": [r.to_dict() for r in rows], "note": note,
                           "holdable": {f"{r:g}": v for r, v in held.items()}, "rate_held": ok}))
         return 0 if ok else EXIT_NOT_HELD
-    from rich.console import Console
+    from rich.console import Console  # lazy: only to print (the loop imports this module)
     from rich.table import Table
 
     con = Console()
@@ -475,13 +474,6 @@ def check_realtime(rate_hz: float = 2000.0, seconds: float = 5.0, *, rt: bool = 
     return 0 if ok else EXIT_NOT_HELD
 
 
-def argparse_namespace(**kw: Any) -> Any:
-    """A plain attribute bag (what argparse would give)."""
-    import types
-
-    return types.SimpleNamespace(**kw)
-
-
 # ---------------------------------------------------------------------------------------------
 # certificate rows
 
@@ -496,7 +488,10 @@ def lateness_measurements(outcomes: Mapping[str, Any], scene: Any) -> list[Any]:
     from hil.certificate import Measurement
 
     safety = getattr(scene, "safety", None)
-    limit = float(getattr(safety, "max_lateness_ms", None) or getattr(safety, "watchdog_ms", 50.0)) / 1e3
+    limit_ms: Any = getattr(safety, "max_lateness_ms", None)
+    if not limit_ms:  # unset: the watchdog's
+        limit_ms = getattr(safety, "watchdog_ms", 50.0)
+    limit = float(limit_ms) / 1e3
     frac = float(getattr(safety, "max_overrun_fraction", DEFAULT_MAX_OVERRUN_FRACTION))
     rows: list[Any] = []
     for name, o in outcomes.items():

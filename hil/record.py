@@ -1,6 +1,6 @@
 """Run records: every sample streamed to HDF5 as it is taken, readable even after ``kill -9``.
 
-Writer: :class:`RecordWriter` (context manager). Reader: :class:`RunRecord`. CLI: :func:`replay_main`
+Writer: :class:`RecordWriter` (context manager). Reader: :class:`RunRecord`. CLI: :func:`replay`
 (``hil replay RECORD [--json]``). Importers of other tools' runs: :mod:`hil.importers`.
 
 File layout (format ``hil-record``, ``format_version`` 2; all values SI, time in seconds)::
@@ -69,8 +69,8 @@ All channel values are stored as float64 (booleans and counters too), so a chann
 
 from __future__ import annotations
 
-import argparse
 import contextlib
+import ctypes
 import dataclasses
 import datetime as _dt
 import errno
@@ -85,12 +85,12 @@ import platform
 import re
 import shutil
 import signal
-import sys
 import threading
 import warnings
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from importlib import metadata as _metadata
+from itertools import pairwise
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -98,6 +98,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from hil import __version__
 from hil.errors import HilError
 
 logger = logging.getLogger(__name__)
@@ -110,7 +111,7 @@ __all__ = [
     "RecordWriteError",
     "RecordWriter",
     "RunRecord",
-    "replay_main",
+    "replay",
 ]
 
 FORMAT = "hil-record"
@@ -263,8 +264,6 @@ _SWMR_READ_ATTEMPTS = 8
 def _hdf5_library() -> Any:
     """The libhdf5 that h5py is linked to (ctypes handle), or None when it cannot be located (then
     HDF5's default number of read attempts applies)."""
-    import ctypes
-
     candidates: list[str] = []
     with contextlib.suppress(OSError):  # Linux: the copy already mapped into this process (h5py wheels)
         for line in Path("/proc/self/maps").read_text().splitlines():
@@ -340,9 +339,7 @@ def _utc_now() -> str:
 
 def _software_versions() -> dict[str, str]:
     """Versions of the packages that shape a record's numbers (no heavy imports: read from metadata)."""
-    import hil
-
-    out = {"hil": hil.__version__, "numpy": np.__version__, "h5py": h5py.version.version,
+    out = {"hil": __version__, "numpy": np.__version__, "h5py": h5py.version.version,
            "hdf5": h5py.version.hdf5_version, "python": platform.python_version()}
     try:
         out["scipy"] = _metadata.version("scipy")
@@ -420,6 +417,11 @@ def _split_arrays(obj: Any, path: tuple[str, ...], arrays: dict[str, np.ndarray]
     if isinstance(obj, Path):
         return str(obj)
     raise RecordError(f"result {'/'.join(path) or '<root>'}: {type(obj).__name__} is not JSON-serializable")
+
+
+def _indexed(array: Callable[[Any], Any], index: Mapping[str, Any], key: str) -> Any:
+    """``array(index[key])`` (a ``get`` for :func:`_join_arrays`)."""
+    return array(index[key])
 
 
 def _join_arrays(obj: Any, get: Callable[[str], Any]) -> Any:
@@ -912,7 +914,8 @@ class RecordWriter:
     def _write_status(self, stop_reason: str, status: str) -> None:
         """Overwrite the fixed ``/status`` bytes with one JSON line (zero padded) and flush. The space
         was allocated at creation, so this cannot run out of disk."""
-        doc = {"stop_reason": stop_reason, "status": status, "closed_utc": _utc_now(), "samples": self.samples}
+        doc: dict[str, Any] = {"stop_reason": stop_reason, "status": status, "closed_utc": _utc_now(),
+                               "samples": self.samples}
         raw = (_to_json(doc, "status") + "\n").encode()
         if len(raw) > _STATUS_BYTES:  # a very long reason: shorten it, keep the line valid JSON
             doc["stop_reason"] = stop_reason[: max(0, len(stop_reason) - (len(raw) - _STATUS_BYTES) - 8)] + "..."
@@ -1033,8 +1036,9 @@ class RunRecord:
                 return np.load(io.BytesIO(bytes(npy[off:off + size])), allow_pickle=False)
 
             for line in _json_lines(bytes(f["results"][:]), p, "results"):
-                index = line.get("arrays", {})
-                results[str(line["experiment"])] = _join_arrays(line["results"], lambda k, i=index: array(i[k]))
+                index: dict[str, Any] = line.get("arrays", {})
+                get = functools.partial(_indexed, array, index)
+                results[str(line["experiment"])] = _join_arrays(line["results"], get)
         if isinstance(f.get("status"), h5py.Group):  # format_version 1
             stop_reason = _attr_str(f["status"].attrs["stop_reason"])
             status = _attr_str(f["status"].attrs["status"])
@@ -1186,8 +1190,6 @@ def lateness_distribution(late_s: np.ndarray, rate_hz: float) -> dict[str, Any]:
                 "histogram": []}
     edges = np.asarray(LATENESS_BINS_S)
     counts = np.bincount(np.searchsorted(edges, a, side="left"), minlength=edges.size + 1)
-    from itertools import pairwise
-
     names = [f"≤ {_fmt_s(edges[0])}"] + [f"{_fmt_s(lo)} – {_fmt_s(hi)}" for lo, hi in pairwise(edges)]
     names.append(f"> {_fmt_s(edges[-1])}")
     over = int(np.count_nonzero(a > dt))
@@ -1221,7 +1223,7 @@ def _fmt(v: Any) -> str:
 
 
 def _print_summary(s: Mapping[str, Any]) -> None:
-    from rich.console import Console
+    from rich.console import Console  # lazy: only to print (the runner and workers import records)
     from rich.markup import escape
     from rich.table import Table
 
@@ -1266,20 +1268,12 @@ def _print_summary(s: Mapping[str, Any]) -> None:
     con.print(tab)
 
 
-def replay_main(argv: Sequence[str] | None = None) -> int:
-    """``hil replay RECORD [--json]``: print a record's summary. Exit 0, or 2 (one-line error on
-    stderr) when the file is missing or is not a readable run record."""
-    p = argparse.ArgumentParser(prog="hil replay", description="Summarize a run record (HDF5)")
-    p.add_argument("record", help="run record (.h5) written by hil run or hil.importers")
-    p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    a = p.parse_args(argv)
-    try:
-        rec = RunRecord.open(a.record)
-    except RecordError as exc:
-        print(f"hil replay: error: {exc}", file=sys.stderr)
-        return 2
-    s = rec.summary()
-    if a.json:
+def replay(record: str | Path, as_json: bool = False) -> int:
+    """``hil replay RECORD [--json]`` (parsed by hil.cli): print a record's summary and return 0;
+    a missing file or one that is not a readable run record raises :class:`RecordError` (one line,
+    exit 2)."""
+    s = RunRecord.open(record).summary()
+    if as_json:
         print(json.dumps(_jsonable(s), ensure_ascii=False))
     else:
         _print_summary(s)

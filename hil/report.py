@@ -12,8 +12,8 @@ data series), so ``hil report PATH`` rebuilds both documents later from ``certif
   missing files raise :class:`ReportError` with a one-line message).
 * :func:`build_reports` -- ``certificate.json`` (sealed: it carries its digest), ``report.html``
   and ``report.pdf`` in one folder.
-* :func:`report_main` -- ``hil report PATH [--out DIR] [--public-key PUB] [--allow-modified]``:
-  exit 0, or 2 with a one-line error.
+* :func:`rebuild_reports` -- what ``hil report PATH [--out DIR] [--public-key PUB] [--allow-modified]``
+  does (hil.cli parses it): exit 0, or 2 with a one-line error.
 
 Integrity (see :mod:`hil.verify`): the reports show the certificate's digest, its evidence files
 and, on the signature page/section, who signed and whether the signature holds (when checked with
@@ -38,7 +38,6 @@ the omission is noted under it (the report never fails on a malformed plot).
 
 from __future__ import annotations
 
-import argparse
 import base64
 import io
 import json
@@ -75,9 +74,9 @@ __all__ = [
     "ReportError",
     "build_reports",
     "load_certificate",
+    "rebuild_reports",
     "render_html",
     "render_pdf",
-    "report_main",
     "write_json",
 ]
 
@@ -1191,48 +1190,29 @@ def build_reports(cert: Certificate, out_dir: str | os.PathLike[str], *,
             "pdf": render_pdf(cert, d / "report.pdf", integrity=integrity)}
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> Any:  # one line, exit 2 (instead of usage + message)
-        raise ReportError(f"{self.prog}: {_one_line(message)}")
-
-
-def report_main(argv: Sequence[str] | None = None) -> int:
-    """``hil report PATH [--out DIR] [--public-key PUB] [--allow-modified]``: rebuild report.html
-    and report.pdf from a stored certificate.json (PATH is the file or a folder holding it).
+def rebuild_reports(path: str | Path, out: str | Path | None = None, public_key: str | Path | None = None,
+                    allow_modified: bool = False) -> tuple[Certificate, IntegrityStatus, dict[str, Path]]:
+    """What ``hil report PATH [--out DIR] [--public-key PUB] [--allow-modified]`` does (parsed by
+    hil.cli): rebuild report.html and report.pdf from a stored certificate.json (``path`` is the file
+    or a folder holding it) into ``out`` (default: the certificate's folder). Returns the
+    certificate, its integrity status and the two paths.
 
     A certificate that does not match its digest (or has none), or whose signature fails with
-    ``--public-key``, is refused; ``--allow-modified`` renders it marked MODIFIED: NOT A VALID
-    CERTIFICATE on every page. Exit 0, or 2 with one line."""
-    import sys
+    ``public_key``, raises :class:`ReportError`; ``allow_modified`` renders it marked MODIFIED: NOT
+    A VALID CERTIFICATE on every page."""
+    cert = load_certificate(path)
+    key = None
+    if public_key:
+        from hil.signing import load_public_key
 
-    p = _Parser(prog="hil report", description="Rebuild the HTML and PDF reports from a stored certificate.json.")
-    p.add_argument("path", metavar="PATH", help="certificate.json, or a folder containing it")
-    p.add_argument("--out", metavar="DIR", help="output folder (default: the certificate's folder)")
-    p.add_argument("--public-key", metavar="PUB", help="check the signature with this Ed25519 public key (PEM)")
-    p.add_argument("--allow-modified", action="store_true",
-                   help=f"render a certificate that fails its checks anyway, marked '{MODIFIED}'")
-    try:
-        args = p.parse_args(list(argv) if argv is not None else None)
-        cert = load_certificate(args.path)
-        key = None
-        if args.public_key:
-            from hil.signing import load_public_key
-
-            key = load_public_key(args.public_key)
-        st = check_certificate(cert, public_key=key)
-        if key is not None and st.signature == "absent":
-            st.signature, st.signature_detail = "invalid", "the certificate is not signed"
-        if not st.valid and not args.allow_modified:
-            raise ReportError(f"{_resolve(args.path)}: {st.reason()}; refusing to render it "
-                              f"(--allow-modified renders it marked '{MODIFIED}')")
-        out = Path(args.out) if args.out else _resolve(args.path).parent
-        paths = {"html": render_html(cert, out / "report.html", integrity=st),
-                 "pdf": render_pdf(cert, out / "report.pdf", integrity=st)}
-    except HilError as exc:
-        print(f"hil report: error: {_one_line(exc)}", file=sys.stderr)
-        return 2
-    except SystemExit as exc:  # --help
-        return int(exc.code or 0)
-    mark = f" [{MODIFIED}]" if not st.valid else ""
-    print(f"{cert.decision} {cert.scene.name}{mark}: {paths['html']} {paths['pdf']}")
-    return 0
+        key = load_public_key(public_key)
+    st = check_certificate(cert, public_key=key)
+    if key is not None and st.signature == "absent":
+        st.signature, st.signature_detail = "invalid", "the certificate is not signed"
+    if not st.valid and not allow_modified:
+        raise ReportError(f"{_resolve(path)}: {st.reason()}; refusing to render it "
+                          f"(--allow-modified renders it marked '{MODIFIED}')")
+    folder = Path(out) if out else _resolve(path).parent
+    paths = {"html": render_html(cert, folder / "report.html", integrity=st),
+             "pdf": render_pdf(cert, folder / "report.pdf", integrity=st)}
+    return cert, st, paths

@@ -65,8 +65,10 @@ try:  # a vanished serial port raises termios.error (not an OSError) from pyseri
     _PORT_ERRORS: tuple[type[BaseException], ...] = (OSError, termios.error)
 except ImportError:  # pragma: no cover - Windows
     _PORT_ERRORS = (OSError,)
+#: what ends an experiment while the bench opens: a stop request, a device failure, a vanished port
+_OPEN_ERRORS: tuple[type[BaseException], ...] = (SafetyStop, DeviceError, *_PORT_ERRORS)
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["ExperimentOutcome", "LoopStats", "Runner", "SafetyMonitor", "one_line", "safe_stop_context"]
 
@@ -422,11 +424,11 @@ class Runner:
         name = self._name(index, ecfg)
         try:
             bench = self.bench_factory(ecfg.get("variant"))
-        except (SafetyStop, DeviceError, *_PORT_ERRORS) as exc:
+        except _OPEN_ERRORS as exc:
             status, reason = classify(exc)
             reason = f"{reason} (while the bench was opening)"
             STOP.request(reason, status)
-            log.warning("%s: safe stop: %s", name, reason)
+            logger.warning("%s: safe stop: %s", name, reason)
             return ExperimentOutcome(name, status, reason, None, {}, {"ticks": 0, "overruns": 0})
         with bench:
             self.bench = bench
@@ -480,7 +482,7 @@ class Runner:
 
         def on_stop(reason: str, status: str) -> None:
             state["status"], state["reason"] = status, reason
-            log.warning("%s: safe stop: %s", name, reason)
+            logger.warning("%s: safe stop: %s", name, reason)
             if held:
                 per = ", ".join(f"{k}: {v}" for k, v in zeroed.items()) or "no actuator"
                 with contextlib.suppress(Exception):
@@ -527,7 +529,7 @@ class Runner:
                     STOP.check()  # the safe point of a stop request (signal)
                     late = 0.0
                     start = t
-                    if pacer is not None:
+                    if pacer is not None and guard is not None:  # realtime: both set together
                         late = pacer.wait(k) * 1e-9
                         start = (pacer.start_ns - pacer.t0) * 1e-9
                         stats.add_late(late)
@@ -590,7 +592,7 @@ class Runner:
                 else:
                     state["reason"] = f"{state['reason']}; {reason}"
                 STOP.request(state["reason"], state["status"])
-                log.error("%s: %s", name, reason)
+                logger.error("%s: %s", name, reason)
             if counters:
                 results = {**results, "device_counters": counters}
             return ExperimentOutcome(name, state["status"], state["reason"], path, results, stats.summary())
@@ -607,7 +609,7 @@ class Runner:
         try:
             return {str(d): {str(k): int(v) for k, v in c.items()} for d, c in (get() or {}).items() if c}
         except Exception as exc:  # counters are evidence, never a reason to lose the record
-            log.warning("device counters not read: %s", one_line(exc))
+            logger.warning("device counters not read: %s", one_line(exc))
             return {}
 
     def _finish(self, exp: Any, path: Path, writer: Any, meta: Mapping[str, Any], name: str) -> dict[str, Any]:
@@ -619,7 +621,7 @@ class Runner:
         except HilError as exc:
             return {"error": str(exc)}
         except Exception as exc:  # partial data of a stopped run, an unreadable record: not the loop's concern
-            log.warning("%s: results not computed: %s", name, one_line(exc), exc_info=True)
+            logger.warning("%s: results not computed: %s", name, one_line(exc), exc_info=True)
             return {"error": one_line(exc)}
 
     def _sample_values(self, meas: Mapping[str, Any], u: Mapping[str, np.ndarray], exc: Any,
@@ -678,7 +680,7 @@ class Runner:
                     outcomes.append(ExperimentOutcome(self._name(i, _dump(cfg)), status,
                                                       f"{reason} (before it started)", None, {},
                                                       {"ticks": 0, "overruns": 0}))
-                    log.warning("%s not started: %s", outcomes[-1].name, reason)
+                    logger.warning("%s not started: %s", outcomes[-1].name, reason)
                     break
                 out = self.run_experiment(i, cfg)
                 outcomes.append(out)

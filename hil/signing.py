@@ -30,7 +30,7 @@ from typing import Any
 from hil.certificate import Certificate, Signature, canonical_json, content_digest
 from hil.errors import HilError
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "PRIVATE_NAME",
@@ -181,7 +181,7 @@ def generate_keypair(out_dir: str | os.PathLike[str]) -> tuple[Path, Path]:
         raise SigningError(f"{exc.filename}: already exists; refusing to overwrite a key") from None
     except OSError as exc:
         raise SigningError(f"{d}: cannot write the key files: {exc.strerror or exc}") from None
-    log.info("wrote %s (private, 0600) and %s", priv_p, pub_p)
+    logger.info("wrote %s (private, 0600) and %s", priv_p, pub_p)
     return priv_p, pub_p
 
 

@@ -33,7 +33,7 @@ from typing import Any
 
 from hil.errors import SafetyStop
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["STOP", "StopRequest", "StopRequested"]
 
@@ -83,7 +83,7 @@ class StopRequest:
         """Request a stop (the first request's reason and status are kept)."""
         if not self.requested:
             self.requested, self.reason, self.status = True, str(reason), str(status)
-            log.warning("stop requested: %s", reason)
+            logger.warning("stop requested: %s", reason)
 
     def check(self) -> None:
         """At a safe point: raise :class:`StopRequested` when a stop was requested."""

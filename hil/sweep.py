@@ -257,7 +257,7 @@ def build_network(model: str, params: Mapping[str, Any]) -> Any:
 def _p_stable(model: str, criterion: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray]) -> float:
     n = len(next(iter(draws.values())))
     if model == "sdea" and criterion == "passivity":
-        from hil.stability.batch import sdea_passivity_batch
+        from hil.models.batch import sdea_passivity_batch
 
         fixed = {k: float(v) for k, v in params.items()}
         d = {k: v for k, v in draws.items() if k not in fixed}

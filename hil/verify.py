@@ -10,30 +10,29 @@ Three checks, each answered in the one output line:
 3. **signature** (with ``--public-key PUB``) -- ``integrity.signature`` was made by that key over
    the recorded digest (:func:`hil.signing.verify_signature`; needs the ``sign`` extra).
 
-Exit 0 with one line ``OK …`` on stdout, or 2 with one line on stderr naming what does not match.
-:func:`check_certificate` is the library form (``hil report`` uses it to refuse or mark a
-modified certificate); :func:`file_evidence` hashes a file for the certificate (``hil.pipeline``).
+``hil verify`` (hil.cli) exits 0 with one line ``OK …`` (:func:`ok_summary`) on stdout, or 2 with one
+line on stderr naming what does not match. :func:`check_certificate` is the library form (``hil
+report`` uses it to refuse or mark a modified certificate); :func:`file_evidence` hashes a file for
+the certificate (``hil.pipeline``).
 """
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import logging
 import os
-import sys
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 from hil.certificate import Certificate, Evidence, content_digest
 from hil.errors import HilError
+from hil.signing import verify_signature
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["IntegrityStatus", "VerifyError", "check_certificate", "check_evidence", "file_evidence", "file_sha256",
-           "verify_main"]
+           "ok_summary"]
 
 MODIFIED = "MODIFIED: NOT A VALID CERTIFICATE"
 _CHUNK = 1 << 20
@@ -165,8 +164,6 @@ def check_certificate(cert: Certificate, folder: str | os.PathLike[str] | None =
         st.signer, st.key_fingerprint, st.signed_utc = sig.signer, sig.public_key_sha256, sig.signed_utc
         st.signature = "unchecked"
     if public_key is not None:
-        from hil.signing import verify_signature
-
         ok, detail = verify_signature(cert, public_key)
         st.signature = "valid" if ok else "invalid"
         st.signature_detail = detail
@@ -174,39 +171,8 @@ def check_certificate(cert: Certificate, folder: str | os.PathLike[str] | None =
     return st
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> Any:  # one line, exit 2
-        raise VerifyError(f"{self.prog}: {' '.join(message.split())}")
-
-
-def verify_main(argv: Sequence[str] | None = None) -> int:
-    """``hil verify DIR [--public-key PUB]``: exit 0 and ``OK …`` on stdout, or 2 and one line on
-    stderr saying what does not match (or what input is wrong)."""
-    from hil.report import _resolve, load_certificate
-
-    p = _Parser(prog="hil verify", description="Check a certificate's digest, evidence files and signature.")
-    p.add_argument("path", metavar="DIR", help="the certificate folder (or its certificate.json)")
-    p.add_argument("--public-key", metavar="PUB", help="Ed25519 public key (PEM) the signature must verify with")
-    try:
-        args = p.parse_args(list(argv) if argv is not None else None)
-        where = _resolve(args.path)
-        cert = load_certificate(args.path)
-        key = None
-        if args.public_key:
-            from hil.signing import load_public_key
-
-            key = load_public_key(args.public_key)
-        st = check_certificate(cert, where.parent, key)
-        if key is not None and st.signature == "absent":
-            st.signature, st.signature_detail = "invalid", "the certificate is not signed"
-    except HilError as exc:
-        print(f"hil verify: error: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2
-    except SystemExit as exc:  # --help
-        return int(exc.code or 0)
-    if not st.valid:
-        print(f"hil verify: {where}: NOT VALID: {st.reason()}", file=sys.stderr)
-        return 2
+def ok_summary(st: IntegrityStatus) -> str:
+    """The ``OK`` line's account of a valid certificate: digest, evidence files, signature."""
     parts = [f"digest {st.computed_digest[:16]}… matches",
              f"{st.n_evidence} evidence file{'s match' if st.n_evidence != 1 else ' matches'}"]
     if st.signature == "valid":
@@ -217,5 +183,4 @@ def verify_main(argv: Sequence[str] | None = None) -> int:
                      "signature not checked: give --public-key PUB")
     else:
         parts.append("not signed")
-    print(f"OK {where}: {', '.join(parts)}")
-    return 0
+    return ", ".join(parts)

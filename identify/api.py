@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from hil.errors import HilError
+from hil.errors import ExitCode, HilError
 from hil.identify.adequacy import AdequacyReport, check_frf_fit, check_ml_fit
 from hil.identify.diagnostics import DataReport, Diagnosis, check_excitation, run_checks
 from hil.identify.errors import (
@@ -84,8 +84,8 @@ __all__ = [
     "store_result",
 ]
 
-#: exit codes, as documented by ``hil --help`` (hil.cli)
-EXIT_OK, EXIT_USAGE, EXIT_ERROR = 0, 2, 13
+#: exit codes: the one table (hil.errors.ExitCode)
+EXIT_OK, EXIT_USAGE, EXIT_ERROR = ExitCode.OK, ExitCode.USAGE, ExitCode.ERROR
 
 
 @dataclass

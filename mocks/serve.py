@@ -63,11 +63,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hil.inputs import number_type, seed_type
+from hil.errors import EXIT_OK, EXIT_USAGE, HilError
 from hil.mocks.faults import FaultPlan
 from hil.mocks.interfaces import FreeJoints
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 DEFAULT_SPEC: list[dict[str, Any]] = [
     {"kind": "odrive", "channel": "hil0", "node_id": 0},
@@ -207,7 +207,7 @@ def serve(specs: list[dict[str, Any]] | None = None, *, plant_rate_hz: float = 1
             stepper.plants.append(ep.joints)
             if ep.kind not in ("dynamixel", "ft300"):  # those serve from their own threads already
                 ep.device.start(rate)
-            log.info("mock %s listening on %s", ep.kind, ep.address)
+            logger.info("mock %s listening on %s", ep.kind, ep.address)
     except Exception:
         shutdown(endpoints)
         stepper.stop()
@@ -305,58 +305,27 @@ def _wait(duration: float | None, stop: threading.Event) -> None:
         stop.wait(min(0.2, left))
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``hil mock serve [SCENE | --spec SPEC] [--duration S] [--json] ...``: serve simulated devices
-    and print their endpoints (see the module docstring)."""
-    from hil.cli import OneLineArgumentParser
-
-    ap = OneLineArgumentParser(prog="hil mock serve", description=__doc__.split("\n", 1)[0])
-    ap.add_argument("scene", nargs="?", help="scene file or built-in scene name (see 'hil scenes')")
-    ap.add_argument("--spec", help="instead of a scene: JSON string or .json/.yaml file (see module doc)")
-    ap.add_argument("--duration", type=number_type("non-negative"), default=None,
-                    help="seconds to run (default: until Ctrl-C/SIGTERM)")
-    ap.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
-    ap.add_argument("--seed", type=seed_type, default=None,
-                    help="scene: seed of noise and faults (default: the scene's)")
-    ap.add_argument("--variant", choices=["locked", "free"], default=None, help="scene: SDEA plant variant")
-    ap.add_argument("--can-interface", default="virtual",
-                    help="scene: python-can interface of the CAN devices (virtual | udp_multicast | socketcan ...)")
-    ap.add_argument("--can-channel", action="append", default=[], metavar="SCENE_CH=CH",
-                    help="scene: serve scene CAN channel SCENE_CH on channel CH (repeatable)")
-    ap.add_argument("--stream-rate", type=number_type("positive"), default=100.0,
-                    help="scene: frame rate of streaming FT-300 sensors [Hz] (the sensor's is 100)")
-    ap.add_argument("--plant-rate", type=number_type("positive"), default=1000.0,
-                    help="spec: FreeJoints step rate [Hz]")
-    ap.add_argument("--device", choices=sorted(MOCK_KINDS), default=None,
-                    help="serve ONE simulated device of this kind (instead of a scene or --spec)")
-    ap.add_argument("--node", type=int, default=None,
-                    help="device: CAN node id (odrive 0..63, cia402 1..127) or CubeMars motor id")
-    ap.add_argument("--ids", default=None, help="device dynamixel: comma-separated servo ids (default 1)")
-    ap.add_argument("--unit", type=int, default=None, help="device ft300 / ft300_stream: Modbus slave id (default 9)")
-    ap.add_argument("--port", type=int, default=None, help="device ft300: TCP port on 127.0.0.1 (default: a free one)")
-    ap.add_argument("--pty", action="store_true",
-                    help="device bota / ft300_stream / dynamixel: serve on a pty (the default and only transport)")
-    ap.add_argument("--rate", type=number_type("positive"), default=None,
-                    help="device: tick / frame rate [Hz] (CAN cyclic frames, Bota frames; default 1000, "
-                         "FT-300 stream 100)")
-    args = ap.parse_args(argv)
+def run(args: argparse.Namespace) -> int:
+    """``hil mock serve [SCENE | --spec SPEC | --device KIND] [--duration S] [--json] ...`` (the
+    arguments are parsed by hil.cli): serve simulated devices and print their endpoints (see the
+    module docstring). A bad combination of options raises ValueError (one line, exit 2)."""
     if sum(map(bool, (args.scene, args.spec, args.device))) > 1:
-        ap.error("give one of SCENE, --spec or --device")
+        raise ValueError("give one of SCENE, --spec or --device")
     if args.device:
-        try:
-            args.spec = json.dumps([_device_spec(args)])
-        except ValueError as exc:
-            ap.error(str(exc))
+        if args.device not in MOCK_KINDS:
+            raise ValueError(f"argument --device: invalid choice: {args.device!r} "
+                             f"(choose from {', '.join(sorted(MOCK_KINDS))})")
+        args.spec = json.dumps([_device_spec(args)])
         args.can_channel = []
     for item in args.can_channel:
         scene_ch, sep, ch = item.partition("=")
         if not sep or not scene_ch or not ch:
-            ap.error(f"argument --can-channel: expects SCENE_CHANNEL=CHANNEL, got {item!r}")
+            raise ValueError(f"argument --can-channel: expects SCENE_CHANNEL=CHANNEL, got {item!r}")
     if args.spec:
         try:
             load_spec(args.spec)
         except (ValueError, OSError) as exc:
-            ap.error(f"argument --spec: not a JSON device list or a .json/.yaml spec file ({exc})")
+            raise ValueError(f"argument --spec: not a JSON device list or a .json/.yaml spec file ({exc})") from None
 
     stop = threading.Event()
     previous = None
@@ -413,14 +382,13 @@ def _device_spec(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _serve_scene_main(args: argparse.Namespace, stop: threading.Event) -> int:
-    from hil.errors import HilError
     from hil.protocols.registry import extras_message
     from hil.scene import load_scene
 
     scene = load_scene(args.scene)
     if need := extras_message(scene, adapters=False):  # a base install: name the extra, start nothing
         print(f"hil mock serve {args.scene}: {need}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     try:
         sim = serve_scene(scene, seed=args.seed, variant=args.variant, can_interface=args.can_interface,
                           can_channels=_parse_can_channels(args.can_channel), stream_rate_hz=args.stream_rate)
@@ -428,7 +396,7 @@ def _serve_scene_main(args: argparse.Namespace, stop: threading.Event) -> int:
         raise
     except Exception as exc:  # e.g. a CAN interface python-can cannot open here
         print(f"hil mock serve: error: cannot start the devices of {args.scene!r}: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     t0 = time.monotonic()
     try:
         report = _scene_report(sim)
@@ -451,7 +419,7 @@ def _serve_scene_main(args: argparse.Namespace, stop: threading.Event) -> int:
         sim.close()
     print(f"hil mock serve: stopped after {time.monotonic() - t0:.1f} s ({sim.ticks} plant ticks, "
           f"{sim.overruns} overruns)", file=sys.stderr, flush=True)
-    return 0
+    return EXIT_OK
 
 
 def _serve_spec_main(args: argparse.Namespace, stop: threading.Event) -> int:
@@ -464,12 +432,12 @@ def _serve_spec_main(args: argparse.Namespace, stop: threading.Event) -> int:
     if need:
         print(f"hil mock serve: the simulated devices need {' and '.join(sorted(r.distribution for r in need))}: "
               f"pip install 'hil-certify[{','.join(sorted(r.extra for r in need))}]'", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     try:
         endpoints = serve(specs, plant_rate_hz=args.plant_rate)
     except (ValueError, TypeError, OSError) as exc:
         print(f"hil mock serve: error: cannot start the simulated devices: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     try:
         if args.json:
             print(json.dumps({"pid": os.getpid(), "devices": [
@@ -487,8 +455,5 @@ def _serve_spec_main(args: argparse.Namespace, stop: threading.Event) -> int:
         pass
     finally:
         shutdown(endpoints)
-    return 0
+    return EXIT_OK
 
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

@@ -12,11 +12,11 @@ import yaml
 
 from hil.certificate import Certificate
 from hil.cli import main
+from hil.models.batch import sdea_passivity_batch
 from hil.models.sdea import SDEA_TABLE1
 from hil.pipeline import certify_scene
 from hil.runner import Runner
 from hil.scene import load_scene, scene_from_dict
-from hil.stability.batch import sdea_passivity_batch
 
 
 def _sdea_scene(k22: float | None = None):

@@ -230,7 +230,7 @@ def test_progress_is_silent_for_short_steps(monkeypatch):
 
 
 def test_design_search_reports_progress():
-    from hil.stability.design import optimize_coupler
+    from hil.models.design import optimize_coupler
 
     msgs: list[str] = []
     r = optimize_coupler("passivity", 1.0, progress=msgs.append)

@@ -325,7 +325,7 @@ def test_model_parameters_are_checked_in_the_api_too() -> None:
 
 def test_design_api_refuses_bad_inputs() -> None:
     from hil.errors import ModelError
-    from hil.stability.design import k22_max, optimize_coupler
+    from hil.models.design import k22_max, optimize_coupler
 
     for b22 in (-1.0, 0.0, float("nan"), float("inf")):
         with pytest.raises(ModelError, match="b22"):

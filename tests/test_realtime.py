@@ -19,6 +19,7 @@ import pytest
 import yaml
 
 from hil.bench import Bench
+from hil.cli import main as hil_main
 from hil.errors import SafetyStop
 from hil.identify.diagnostics import check_sample_times
 from hil.realtime import (
@@ -32,7 +33,7 @@ from hil.realtime import (
     realtime_scheduling,
     run_cyclictest,
 )
-from hil.record import RunRecord, lateness_distribution, replay_main
+from hil.record import RunRecord, lateness_distribution
 from hil.runner import Runner
 from hil.scene import load_scene, scene_from_dict
 
@@ -217,7 +218,7 @@ def test_lateness_and_tick_start_in_the_record_and_in_replay(tmp_path, capsys):
     np.testing.assert_allclose(start - rec.t, late, atol=1e-9)  # start = deadline + lateness
     for k, w in jitter.items():  # tick k's work w makes tick k+1 late by w - period (fake clock: exact)
         assert late[k + 1] == pytest.approx(w - 0.0005, abs=5e-6)
-    assert replay_main([str(o.record), "--json"]) == 0
+    assert hil_main(["replay", str(o.record), "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
     lat = s["lateness"]
     assert lat["ticks"] == late.size and lat["max_s"] == pytest.approx(late.max())
@@ -225,7 +226,7 @@ def test_lateness_and_tick_start_in_the_record_and_in_replay(tmp_path, capsys):
         np.percentile(late, 99))
     assert lat["overruns"] == int(np.count_nonzero(late > 0.0005)) == sum(w > 0.001 for w in jitter.values())
     assert sum(c for _, c in lat["histogram"]) == late.size
-    assert replay_main([str(o.record)]) == 0
+    assert hil_main(["replay", str(o.record)]) == 0
     text = capsys.readouterr().out
     assert "lateness (tick start after its deadline" in text and f"overruns {lat['overruns']}" in text
 

@@ -16,7 +16,8 @@ import h5py
 import numpy as np
 import pytest
 
-from hil.record import FORMAT_VERSION, ChannelSpec, RecordError, RecordWriter, RunRecord, replay_main
+from hil.cli import main as hil_main
+from hil.record import FORMAT_VERSION, ChannelSpec, RecordError, RecordWriter, RunRecord
 
 SCENE = "name: bench\n# µ-scene with unicode: Ω\nrate_hz: 1000\n"
 SHA = hashlib.sha256(SCENE.encode()).hexdigest()
@@ -287,24 +288,24 @@ def test_summary_and_identify_dict(tmp_path: Path) -> None:
 
 
 @pytest.mark.timeout(60)
-def test_replay_main(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_hil_replay(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "r.h5"
     _small_record(path)
-    assert replay_main([str(path), "--json"]) == 0
+    assert hil_main(["replay", str(path), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["samples"] == 100 and out["channels"]["motor.position"]["unit"] == "rad"
-    assert replay_main([str(path)]) == 0
+    assert hil_main(["replay", str(path)]) == 0
     text = capsys.readouterr().out
     assert "master.position" in text and "completed" in text
 
-    assert replay_main([str(tmp_path / "missing.h5")]) == 2
+    assert hil_main(["replay", str(tmp_path / "missing.h5")]) == 2
     err = capsys.readouterr().err
     assert "no such file" in err and len(err.strip().splitlines()) == 1
     junk = tmp_path / "junk.h5"
     junk.write_bytes(b"not hdf5 at all")
-    assert replay_main([str(junk)]) == 2
+    assert hil_main(["replay", str(junk)]) == 2
     assert "not an HDF5 file" in capsys.readouterr().err
     with h5py.File(tmp_path / "other.h5", "w") as f:
         f["x"] = 1
-    assert replay_main([str(tmp_path / "other.h5")]) == 2
+    assert hil_main(["replay", str(tmp_path / "other.h5")]) == 2
     assert "not a hil-record file" in capsys.readouterr().err

@@ -25,8 +25,9 @@ import numpy as np
 import pytest
 
 import hil.record as record_mod
+from hil.cli import main as hil_main
 from hil.errors import HilError
-from hil.record import ChannelSpec, RecordError, RecordWriter, RunRecord, replay_main
+from hil.record import ChannelSpec, RecordError, RecordWriter, RunRecord
 
 RATE = 1000.0
 CHANNELS = {"motor.position": ChannelSpec((), "rad"), "master.position": ChannelSpec((2,), "rad")}
@@ -537,9 +538,9 @@ def test_device_counters_are_stored_and_shown_by_replay(tmp_path: Path, capsys: 
     want = {"odrive0": {"crc_errors": 3, "resyncs": 1, "dropped": 0, "late": 2, "stale": 0, "retries": 7},
             "bota": {"crc_errors": 0}}
     assert rec.device_counters == want  # the last snapshot
-    assert replay_main([str(path), "--json"]) == 0
+    assert hil_main(["replay", str(path), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["device_counters"] == want
-    assert replay_main([str(path)]) == 0
+    assert hil_main(["replay", str(path)]) == 0
     text = capsys.readouterr().out
     assert "device counters:" in text
     assert "odrive0: crc_errors=3  resyncs=1  dropped=0  late=2  stale=0  retries=7" in text
@@ -547,7 +548,7 @@ def test_device_counters_are_stored_and_shown_by_replay(tmp_path: Path, capsys: 
     # a record without counters says nothing about them
     _closed_record(tmp_path / "none.h5")
     assert RunRecord.open(tmp_path / "none.h5").device_counters == {}
-    assert replay_main([str(tmp_path / "none.h5")]) == 0
+    assert hil_main(["replay", str(tmp_path / "none.h5")]) == 0
     assert "device counters" not in capsys.readouterr().out
 
 

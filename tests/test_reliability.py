@@ -146,9 +146,9 @@ def test_sdea_worst_case_exact_margin_below_nominal(k22):
 
 
 def test_k22_headroom_zero_at_the_limit_and_signed_by_the_exact_verdict():
+    from hil.models.design import k22_headroom
     from hil.models.sdea import SDEA_TABLE1, sdea_vsic
     from hil.stability.criteria import check
-    from hil.stability.design import k22_headroom
 
     b22, alpha = SDEA_TABLE1["b22"], SDEA_TABLE1["alpha"]
     km, h = k22_headroom(300.0, b22, alpha, params=SDEA_TABLE1)
@@ -198,9 +198,9 @@ def test_sdea_rare_event_path_agrees_with_plain_monte_carlo_on_the_same_gaussian
     P_f agrees with plain Monte Carlo on 4e5 draws of the same N(μ, Σ) (an independent estimate)
     within 4 combined standard errors, and Φ(−β) is within 30 % of it (FORM is first order)."""
     from hil.certify import Policy
+    from hil.models.batch import sdea_passivity_batch
     from hil.models.sdea import SDEA_TABLE1
     from hil.pipeline import _reliability_stage
-    from hil.stability.batch import sdea_passivity_batch
 
     names = ["B", "B_f", "K_f", "M"]
     rng = np.random.default_rng(0)

@@ -24,6 +24,7 @@ pytest.importorskip("matplotlib")
 pytest.importorskip("jinja2")
 
 from hil.certificate import Certificate
+from hil.cli import main as hil_main
 from hil.errors import HilError
 from hil.report import (
     ReportError,
@@ -31,7 +32,6 @@ from hil.report import (
     load_certificate,
     render_html,
     render_pdf,
-    report_main,
     write_json,
 )
 from hil.report_model import DEFINITIONS_DOC
@@ -469,15 +469,15 @@ def test_pdf_paginates_a_long_measurement_table(tmp_path):
 # hil report
 
 
-def test_report_main_rebuilds_from_stored_record(built, tmp_path, capsys):
+def test_hil_report_rebuilds_from_stored_record(built, tmp_path, capsys):
     src = built["nogo"]["json"]
     folder = tmp_path / "stored"
     folder.mkdir()
     shutil.copy(src, folder / "certificate.json")
-    assert report_main([str(folder)]) == 0
+    assert hil_main(["report", str(folder)]) == 0
     assert (folder / "report.html").stat().st_size > 10_000 and (folder / "report.pdf").stat().st_size > 10_000
     out = tmp_path / "elsewhere"
-    assert report_main([str(folder / "certificate.json"), "--out", str(out)]) == 0
+    assert hil_main(["report", str(folder / "certificate.json"), "--out", str(out)]) == 0
     assert (out / "report.html").read_text(encoding="utf-8") == (folder / "report.html").read_text(encoding="utf-8")
     assert "NO-GO bilateral_2dof_B" in capsys.readouterr().out
 
@@ -488,9 +488,9 @@ def test_report_main_rebuilds_from_stored_record(built, tmp_path, capsys):
     lambda d: [],  # no PATH
     lambda d: [str(d), "--bogus"],
 ])
-def test_report_main_errors_exit_2_with_one_line(tmp_path, capsys, argv_fn):
+def test_hil_report_errors_exit_2_with_one_line(tmp_path, capsys, argv_fn):
     (tmp_path / "certificate.json").write_text('{"decision": "GO", "reasons": 3}')
-    assert report_main(argv_fn(tmp_path)) == 2
+    assert hil_main(["report", *argv_fn(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("hil report: error: ") and err.count("\n") == 1, err
     assert not (tmp_path / "report.html").exists()

@@ -10,8 +10,8 @@ import sys
 import numpy as np
 import pytest
 
+from hil.models.design import k22_max
 from hil.models.sdea import SDEA_TABLE1
-from hil.stability.design import k22_max
 from hil.sweep import (
     ProcessExecutor,
     SerialExecutor,

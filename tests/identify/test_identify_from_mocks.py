@@ -24,7 +24,7 @@ from hil.cli import main as hil_main
 from hil.identify.api import identify_record, load_identification, store_result
 from hil.identify.fisher import crb, fisher_information
 from hil.identify.frf import rounding_variance
-from hil.record import RunRecord, replay_main
+from hil.record import RunRecord
 from hil.runner import Runner
 from hil.scene import load_scene, scene_from_dict
 
@@ -232,7 +232,7 @@ def test_posterior_is_stored_in_the_record(sdea_runs, locked_result, tmp_path) -
     assert {"tau", "split_rhat", "acceptance_fraction", "n_steps"} <= set(s["convergence"])
     rec = RunRecord.open(path)  # the run itself is untouched
     assert rec.status == "completed" and rec.t.size == RunRecord.open(sdea_runs["chirp_locked"]).t.size
-    assert replay_main([str(path), "--json"]) == 0
+    assert hil_main(["replay", str(path), "--json"]) == 0
 
 
 def test_cli_exit_codes(sdea_runs, tmp_path, capsys) -> None:

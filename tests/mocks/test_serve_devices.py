@@ -11,7 +11,8 @@ import sys
 import numpy as np
 import pytest
 
-from hil.mocks.serve import MOCK_KINDS, main, serve, shutdown
+from hil.cli import main as hil_main
+from hil.mocks.serve import MOCK_KINDS, serve, shutdown
 from hil.protocols.registry import open_device
 
 pytestmark = pytest.mark.timeout(60)
@@ -125,8 +126,6 @@ def test_cia402_served_alone_over_udp_multicast_reaches_the_adapter_in_another_p
     (["sdea_bench", "--device", "odrive"], "give one of SCENE, --spec or --device"),
 ])
 def test_bad_device_options_one_line(argv, needle, capsys):
-    with pytest.raises(SystemExit) as exc:
-        main(argv)
-    assert exc.value.code == 2
+    assert hil_main(["mock", "serve", *argv]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and needle in err[0], err

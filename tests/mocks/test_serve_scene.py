@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 import yaml
 
-from hil.mocks.serve import main, serve_scene
+from hil.cli import main as hil_main
+from hil.mocks.serve import serve_scene
 from hil.protocols.registry import open_device
 from hil.protocols.serial_bota import FrameParser
 from hil.scene import load_scene
@@ -211,7 +212,7 @@ def test_streaming_ft300_served_in_process_and_nothing_left(tmp_path):
 def test_main_in_process_prints_json_and_cleans_up(capsys):
     threads0, fds0 = threading.active_count(), _fds()
     t0 = time.monotonic()
-    assert main(["sdea_bench", "--duration", "0.3", "--json"]) == 0
+    assert hil_main(["mock", "serve", "sdea_bench", "--duration", "0.3", "--json"]) == 0
     assert time.monotonic() - t0 < 10
     out = capsys.readouterr()
     rep = json.loads(out.out.splitlines()[0])
@@ -223,7 +224,7 @@ def test_main_in_process_prints_json_and_cleans_up(capsys):
 
 @pytest.mark.timeout(30)
 def test_main_text_output_and_errors(capsys):
-    assert main(["sdea_bench", "--duration", "0.1"]) == 0
+    assert hil_main(["mock", "serve", "sdea_bench", "--duration", "0.1"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("scene sdea_bench")
     motor = next(x for x in lines if x.startswith("motor"))
@@ -231,9 +232,8 @@ def test_main_text_output_and_errors(capsys):
     assert "this process only" in motor
     spring = next(x for x in lines if x.startswith("spring_ft"))
     assert "open_device('bota_serial', url='/dev/" in spring
-    with pytest.raises(SystemExit):
-        main(["sdea_bench", "--spec", "[]"])
-    from hil.errors import SceneError
-
-    with pytest.raises(SceneError):
-        main(["no_such_scene", "--duration", "0"])
+    assert hil_main(["mock", "serve", "sdea_bench", "--spec", "[]"]) == 2
+    assert "give one of SCENE, --spec or --device" in capsys.readouterr().err
+    assert hil_main(["mock", "serve", "no_such_scene", "--duration", "0"]) == 2  # a SceneError: one line
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("hil mock serve: error:") and "no_such_scene" in err[0]

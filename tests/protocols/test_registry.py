@@ -91,7 +91,8 @@ def test_open_bota_via_registry():
 def test_mock_serve_endpoints_open_through_registry():
     import numpy as np
 
-    from hil.mocks.serve import main, serve, shutdown
+    from hil.cli import main as hil_main
+    from hil.mocks.serve import serve, shutdown
 
     eps = serve(
         [
@@ -111,4 +112,4 @@ def test_mock_serve_endpoints_open_through_registry():
         shutdown(eps)
     with pytest.raises(ValueError, match="unknown mock kind"):
         serve([{"kind": "nope"}])
-    assert main(["--duration", "0.05", "--spec", '[{"kind": "bota"}]']) == 0
+    assert hil_main(["mock", "serve", "--duration", "0.05", "--spec", '[{"kind": "bota"}]']) == 0

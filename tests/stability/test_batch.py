@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
+from hil.models.batch import sdea_passivity_batch
+from hil.models.design import k22_max
 from hil.models.sdea import SDEA_TABLE1, sdea_vsic
-from hil.stability.batch import sdea_passivity_batch
 from hil.stability.criteria import two_port_passivity
-from hil.stability.design import k22_max
 
 
 def test_batch_matches_general_criterion_on_random_draws():
@@ -57,8 +57,8 @@ def test_critical_band_has_width_and_contains_the_worst_frequency():
     """The critical band at the default scene: where g = t/|t| is within 10 % (of 1 - g_min) of its
     minimum; positive width, contains the minimizer, and g at its edges equals the threshold
     (checked against a dense independent evaluation)."""
+    from hil.models.batch import CRITICAL_BAND_FRACTION
     from hil.models.sdea import sdea_polynomials
-    from hil.stability.batch import CRITICAL_BAND_FRACTION
 
     res = sdea_passivity_batch({"k22": np.array([300.0])})
     lo, hi, w = res["band_lo"][0], res["band_hi"][0], res["worst_omega"][0]

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from hil.models.design import k22_max
 from hil.models.sdea import SDEA_TABLE2_PRINTED, sdea_vsic
-from hil.stability.design import k22_max
 
 
 def _sweep_min(tm, quantity: str) -> float:

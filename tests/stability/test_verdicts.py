@@ -177,8 +177,8 @@ def test_active_two_port_with_tiny_negative_margin_is_potentially_unstable():
 
 
 def test_sdea_just_above_k22_max_is_potentially_unstable_and_just_below_stable():
+    from hil.models.design import k22_max
     from hil.models.sdea import sdea_vsic
-    from hil.stability.design import k22_max
 
     km = k22_max(0.17, 1.0, "passivity").k22_max
     assert str(two_port_passivity(sdea_vsic(k22=km * (1 - 1e-6))).verdict) == "stable"
@@ -368,8 +368,8 @@ def test_margin_is_invariant_under_frequency_and_impedance_scaling(a, b):
 
 
 def test_sdea_margin_tends_to_zero_at_k22_max_and_is_monotone():
+    from hil.models.design import k22_max
     from hil.models.sdea import sdea_vsic
-    from hil.stability.design import k22_max
 
     km = k22_max(0.17, 1.0, "passivity").k22_max
     ks = [50.0, 100.0, 200.0, 300.0, 400.0, km * (1 - 1e-3), km * (1 - 1e-5), km * (1 - 1e-7)]
