@@ -28,7 +28,7 @@ import numpy as np
 
 from hil.errors import SceneError
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 
 @dataclass

@@ -37,7 +37,7 @@ import numpy as np
 
 from hil.errors import DeviceDisconnected, DeviceTimeout
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 Units = Literal["linear", "rotary"]
 
@@ -158,7 +158,7 @@ class Device(abc.ABC):
             try:
                 self._release()
             except Exception:
-                log.debug("%s: releasing the transport failed", self._label(), exc_info=True)
+                logger.debug("%s: releasing the transport failed", self._label(), exc_info=True)
 
     def _on_close(self) -> None:  # noqa: B027 - optional hook (default: nothing to send)
         """Hook: what to send before the transport is released (default nothing)."""
@@ -214,7 +214,7 @@ def run_steps(steps: Iterable[StopStep], who: str) -> None:
         try:
             step()
         except Exception:
-            log.debug("%s: safe-stop step failed", who, exc_info=True)
+            logger.debug("%s: safe-stop step failed", who, exc_info=True)
         except BaseException as exc:  # held, re-raised once every step ran
             interrupted = interrupted or exc
     if interrupted is not None:

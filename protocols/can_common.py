@@ -13,7 +13,7 @@ import can
 from hil.errors import DeviceDisconnected, DeviceTimeout
 from hil.protocols.base import Actuator
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 
 def send(bus: can.BusABC, msg: can.Message, timeout: float, who: str, what: str = "send") -> None:

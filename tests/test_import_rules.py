@@ -49,12 +49,6 @@ KNOWN_VIOLATIONS: set[tuple[str, str]] = {
     ("hil.identify.api", "hil.cli"),
     ("hil.identify.records", "hil.scene"),
     ("hil.identify.timedomain", "hil.mocks.lti"),
-    # mocks/ reach the adapter modules for their codecs (h13a: codecs move to modules of their own)
-    ("hil.mocks.can_devices", "hil.protocols.can_cubemars"),
-    ("hil.mocks.can_devices", "hil.protocols.can_odrive"),
-    ("hil.mocks.dynamixel_devices", "hil.protocols.dynamixel_x"),
-    ("hil.mocks.ft300_stream", "hil.protocols.modbus_robotiq"),
-    ("hil.mocks.serial_devices", "hil.protocols.serial_bota"),
     # mocks/serve.py serves scenes: it belongs with the bench (h13a)
     ("hil.mocks.serve", "hil.bench"),
     ("hil.mocks.serve", "hil.scene"),
