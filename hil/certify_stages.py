@@ -24,8 +24,10 @@ value is judged against; :meth:`MeasurementSpec.measure` derives the outcome fro
 (:func:`judge`):
 
 * no validator: INFO (evidence shown, not judged);
-* a validator that cannot judge the value (missing, NaN) gives ERROR; FAIL means the value is
-  outside a limit (or a categorical result the spec names as failing);
+* a validator that cannot judge the value (missing, NaN) gives ERROR, and so does a value its own
+  estimate declares not meaningful (``invalid``, e.g. an importance-sampling estimate with too
+  few failing samples); FAIL means the value is outside a limit (or a categorical result the spec
+  names as failing);
 * several validators: the worst outcome in the order FAIL > ERROR > MARGINAL > PASS (a failure
   decided by evidence that exists stands even when another validator lacks its evidence).
 """
@@ -178,10 +180,11 @@ class MeasurementSpec:
     def outcome(self, value: object, *, interval: tuple[float, float] | None = None,
                 result: object = _UNSET, invalid: bool = False) -> Outcome:
         """The derived outcome (:func:`judge` over this spec's validators). ``invalid``: the
-        value's own estimate says it is not meaningful (ERROR)."""
-        got: list[Outcome] = []
+        value's own estimate says it is not meaningful: ERROR, whatever the limits say (a value
+        that means nothing cannot fail)."""
         if invalid:
-            got.append("ERROR")
+            return "ERROR"
+        got: list[Outcome] = []
         if self.limit is not None:
             got.append(self.limit.outcome(value, interval))
         if self.expect is not None:

@@ -43,13 +43,14 @@ import math
 import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from hil.certificate import (
     Certificate,
     ConditionRow,
+    DecisionStr,
     Design,
     EnergyEvidence,
     Identification,
@@ -60,6 +61,7 @@ from hil.certificate import (
     Robust,
     SceneInfo,
     Series,
+    VerdictStr,
     Witness,
     seal,
 )
@@ -266,7 +268,7 @@ def _certificate(ctx: Context, sheet: Sheet, verdict: Verdict, *, run: RunOutput
     reasons = list(verdict.reasons) + (list(witness.reasons) if witness is not None else [])
     return Certificate(
         created_utc=_now(), software=_versions(), scene=_scene_info(ctx.scene),
-        decision=str(verdict.decision), reasons=reasons,
+        decision=_DECISIONS[verdict.decision], reasons=reasons,
         policy={"required_probability": policy.required_probability, "confidence": policy.confidence,
                 "credible": policy.credible},
         measurements=sheet.measurements, nominal=None if nominal is None else nominal.section,
@@ -304,7 +306,7 @@ def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_t
                 done[names[i]] = o
                 ok = o.status == "completed"
                 sheet.add(experiment_spec(names[i]).measure(
-                    o.status, description=o.stop_reason if not ok else f"record {o.record.name}"))
+                    o.status, description=o.stop_reason if not ok else f"record {getattr(o.record, 'name', o.record)}"))
                 if o.status == "error":
                     sheet.errors.append(f"experiment {names[i]}: {o.stop_reason}")
                 _energy_stage(sheet, names[i], o, energy, sheet.measurements, sheet.plots)
@@ -483,7 +485,8 @@ def stage_robust(ctx: Context, sheet: Sheet, post: PosteriorDraws, nominal: Nomi
         if X.shape[0] > X.shape[1] + 2 and (fast or not nominal_unstable):
             reliability, form_res, rare = _reliability_stage(ctx.model, criterion, params, names, X, centre,
                                                              stable_draws, policy, fast, seed, theta)
-        p_method = "importance_sampling" if rare is not None and rare.reliable else "monte_carlo"
+        p_method: Literal["monte_carlo", "importance_sampling"] = (
+            "importance_sampling" if rare is not None and rare.reliable else "monte_carlo")
         robust = Robust(n_draws=int(stable_draws.size), p_stable=p, lower=lo, upper=hi,
                         confidence=policy.confidence, required=policy.required_probability,
                         credible=policy.credible, worst_case_margin=wc, worst_case_parameters=theta,
@@ -655,6 +658,12 @@ def _versions() -> dict[str, str]:
             "python": platform.python_version()}
 
 
+_VERDICTS: dict[str, VerdictStr] = {"stable": "stable", "marginal": "marginal",
+                                    "potentially_unstable": "potentially_unstable", "not_applicable": "not_applicable"}
+_DECISIONS: dict[Decision, DecisionStr] = {Decision.GO: "GO", Decision.MARGINAL: "MARGINAL", Decision.NO_GO: "NO-GO",
+                                           Decision.ERROR: "ERROR"}
+
+
 def _nominal_section(model: str, r: Any, params: Mapping[str, Any]) -> Nominal:
     rows = [ConditionRow(name=c.name, label=c.label, status=c.status, margin=_f(c.margin),
                          worst_frequency=None if c.worst_frequency is None else (
@@ -662,7 +671,7 @@ def _nominal_section(model: str, r: Any, params: Mapping[str, Any]) -> Nominal:
             for c in r.conditions]
     wf = r.worst_frequency
     wf_out = None if wf is None else ("inf" if math.isinf(wf) else float(wf))
-    return Nominal(network=r.network.get("name", model), criterion=r.criterion, verdict=str(r.verdict),
+    return Nominal(network=r.network.get("name", model), criterion=r.criterion, verdict=_VERDICTS[str(r.verdict)],
                    margin=_f(r.margin), worst_frequency=wf_out,
                    failed_condition=r.failed_condition, weak=bool(r.weak),
                    parameters={k: float(v) for k, v in params.items() if isinstance(v, int | float)}, conditions=rows)
@@ -906,7 +915,8 @@ def _witness(tm: Any, plots: dict[str, Series], opt: Sheet, scene: Any = None) -
         sim = {"simulated": False, "reason": f"simulation failed: {opt.failed['witness simulation']}"}
     band = None if w.band_rad_s is None else (float(w.band_rad_s[0]),
                                              "inf" if math.isinf(w.band_rad_s[1]) else float(w.band_rad_s[1]))
-    extra = {k: sim.pop(k) for k in list(sim) if k in witness_response.FIELDS}
+    fields: tuple[str, ...] = witness_response.FIELDS  # type: ignore[attr-defined]  # set on the function there
+    extra = {k: sim.pop(k) for k in list(sim) if k in fields}
     return Witness(terminations={str(k): v.to_dict() for k, v in w.terminations.items()},
                    drive_frequency_rad_s=w.drive_frequency, band_rad_s=band, margin=float(w.result.margin),
                    simulation=sim, units=units, **extra)
