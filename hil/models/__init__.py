@@ -48,7 +48,8 @@ class BuiltinModel:
     mapping of gains (whose entries may also be given at the top level); ``batch``: vectorized
     evaluators by criterion name; ``design``: the design parameters those can search;
     ``band_condition(q)``: coefficients (t0, t1, ...) in x = ω² of the normalized condition whose
-    critical band the certificate plots (q: parameter arrays)."""
+    critical band the certificate plots (q: parameter arrays); ``units``: the parameters' units
+    (axis labels)."""
 
     name: str
     description: str
@@ -60,6 +61,7 @@ class BuiltinModel:
     batch: dict[str, BatchCriterion] = field(default_factory=dict)
     design: dict[str, DesignParameter] = field(default_factory=dict)
     band_condition: Callable[[Any], Any] | None = None
+    units: dict[str, str] = field(default_factory=dict)
 
     def check_params(self, params: dict[str, Any], *, allow_unknown: bool = False) -> None:
         """Refuse unknown names (unless ``allow_unknown``: builders such as ``mbk_impedance`` take
@@ -194,6 +196,12 @@ def _t2(**_: Any) -> TransferMatrix:
     return termination_T2()
 
 
+#: units of the SDEA's parameters (rotary SI)
+SDEA_UNITS = {"M": "kg.m²", "B": "N.m.s/rad", "B_f": "N.m.s/rad", "P_m": "N.m.s/rad", "b22": "N.m.s/rad",
+              "K_f": "N.m/rad", "I_m": "N.m/rad", "k22": "N.m/rad", "P_f": "rad/(N.m.s)", "I_f": "rad/(N.m.s²)",
+              "alpha": "1"}
+
+
 def _defaults() -> dict[str, BuiltinModel]:
     from hil.models import scene_params as S
     from hil.models.sdea import SDEA_TABLE1
@@ -204,7 +212,7 @@ def _defaults() -> dict[str, BuiltinModel]:
                              dict(SDEA_TABLE1), _sdea, from_scene=S.sdea_params, batch={"passivity": _sdea_batch},
                              design={"k22": DesignParameter("N.m/rad", _k22_headroom),
                                      "b22": DesignParameter("N.m.s/rad")},
-                             band_condition=_sdea_coupler_condition),
+                             band_condition=_sdea_coupler_condition, units=dict(SDEA_UNITS)),
         "mcet_trilateral": BuiltinModel("mcet_trilateral", "dual-user MCET trilateral system (000 eq. 25, Table I)",
                                         "absolute_stability", dict(MCET_TABLE1), _mcet, from_scene=S.mcet_params),
         "bilateral_2dof": BuiltinModel("bilateral_2dof", "2-DOF bilateral position-position (000 eq. 44, Table II)",
