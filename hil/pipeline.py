@@ -1,7 +1,13 @@
 """``hil certify``: experiments -> identification -> network model over the posterior -> stability
 criteria -> GO / MARGINAL / NO-GO (or ERROR) -> certificate record (and reports).
 
-Stages (timed; ``Certificate.measurements`` records what each produced):
+Stages (timed; ``Certificate.measurements`` records what each produced), each a function
+``stage_<name>`` here taking the :class:`~hil.certify_stages.Context`, the
+:class:`~hil.certify_stages.Sheet` it records on and the earlier stages' outputs, and returning
+its own typed output (:mod:`hil.certify_stages`: the dataclasses and the measurements' declared
+limits); :func:`certify_scene` composes them (decide runs before witness: the witness only adds
+reasons). An exception escaping a stage makes the certificate ERROR with the stage and reason
+recorded, never FAIL:
 
 1. **run** the scene's experiments on its bench (mocked or real) -- records, energy evidence;
 2. **identify** the parameters named in ``certification.identify`` from their records (emcee
