@@ -62,6 +62,8 @@ class BuiltinModel:
     design: dict[str, DesignParameter] = field(default_factory=dict)
     band_condition: Callable[[Any], Any] | None = None
     units: dict[str, str] = field(default_factory=dict)
+    #: allowed values of the string parameters (e.g. the gain sets of a table)
+    choices: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     def check_params(self, params: dict[str, Any], *, allow_unknown: bool = False) -> None:
         """Refuse unknown names (unless ``allow_unknown``: builders such as ``mbk_impedance`` take
@@ -82,15 +84,6 @@ class BuiltinModel:
                 raise ModelError(f"model {self.name}: parameter {k} must be a number, got {v!r}")
             elif not math.isfinite(v):
                 raise ModelError(f"model {self.name}: parameter {k} must be finite, got {float(v)!r}")
-
-    @property
-    def choices(self) -> dict[str, tuple[str, ...]]:
-        """Allowed values of the string parameters (e.g. the gain sets of a table)."""
-        if self.name == "bilateral_2dof":
-            from hil.models.teleop import TWO_DOF_TABLE2
-
-            return {"gains": tuple(TWO_DOF_TABLE2)}
-        return {}
 
     def build(self, **params: Any) -> TransferMatrix:
         assert self._builder is not None
@@ -205,7 +198,14 @@ SDEA_UNITS = {"M": "kg.m²", "B": "N.m.s/rad", "B_f": "N.m.s/rad", "P_m": "N.m.s
 def _defaults() -> dict[str, BuiltinModel]:
     from hil.models import scene_params as S
     from hil.models.sdea import SDEA_TABLE1
-    from hil.models.teleop import BILATERAL_1DOF, DUAL_MASTER_TABLE1, MBK_2DOF, MCET_TABLE1, TWO_DOF_ROBOT
+    from hil.models.teleop import (
+        BILATERAL_1DOF,
+        DUAL_MASTER_TABLE1,
+        MBK_2DOF,
+        MCET_TABLE1,
+        TWO_DOF_ROBOT,
+        TWO_DOF_TABLE2,
+    )
 
     return {
         "sdea": BuiltinModel("sdea", "SDEA under VSIC with virtual coupler (002 eq. 12, Table I)", "passivity",
@@ -219,7 +219,7 @@ def _defaults() -> dict[str, BuiltinModel]:
                                        "absolute_stability",
                                        {"gains": "A1", **{f"k_{p}{a}": None for p in "pv" for a in ("yy", "zz", "yz")},
                                         **TWO_DOF_ROBOT}, _bilateral, from_scene=S.bilateral_2dof_params,
-                                       table="gains"),
+                                       table="gains", choices={"gains": tuple(TWO_DOF_TABLE2)}),
         "bilateral_1dof": BuiltinModel("bilateral_1dof", "1-DOF bilateral position-position (eq. 44, m = 1)",
                                        "llewellyn", dict(BILATERAL_1DOF), _bilateral1,
                                        from_scene=S.bilateral_1dof_params),
