@@ -14,9 +14,10 @@ dataclasses defined here) and returning its own::
     witness(ctx, nominal, verdict)   -> WitnessOutput   a destabilizing passive termination
 
 What the stages measure goes on one :class:`Sheet` (the certificate's measurements, plots and
-errors, the stages' timings). An exception inside a stage -- a defect, not a finding -- ends the
-certification as ERROR with the stage and the reason recorded (:class:`StageFailed`), never as
-FAIL: FAIL is a measured value outside its limits.
+errors, the stages' timings). An unexpected exception inside a stage -- a defect, not a finding
+-- ends the certification as ERROR with the stage and the reason recorded, never as FAIL: FAIL is
+a measured value outside its limits. (A :class:`~hil.errors.HilError` propagates to the caller
+with its exit code.)
 
 Measurements (OpenHTF style, ``openhtf.core.measurements``): a :class:`MeasurementSpec` declares,
 as data, the limits (:class:`Limit`) and the required categorical results (:class:`Expect`) a
@@ -66,7 +67,6 @@ __all__ = [
     "RobustOutput",
     "RunOutput",
     "Sheet",
-    "StageFailed",
     "Verdict",
     "WitnessOutput",
     "judge",
@@ -290,15 +290,6 @@ class Context:
     criterion: str
     params: Mapping[str, Any]
     say: Callable[[str], None]
-
-
-class StageFailed(HilError):
-    """A stage raised: the certification ends as ERROR with ``stage`` and ``reason`` recorded."""
-
-    def __init__(self, stage: str, reason: str) -> None:
-        super().__init__(f"stage {stage} failed: {reason}")
-        self.stage = stage
-        self.reason = reason
 
 
 @dataclass

@@ -245,8 +245,10 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
         verdict = stage_decide(ctx, sheet, run, draws, nominal, robust, design)
         stage = "witness"
         witness = stage_witness(ctx, sheet, nominal)
-    except StopRequested:
-        raise  # the person at the bench asked to stop: no certificate follows
+    except HilError:
+        # one of ours, with its exit code (a device that cannot be opened, a record that cannot be
+        # written, StopRequested: the person at the bench asked to stop): no certificate follows
+        raise
     except Exception as exc:  # a defect in a stage: ERROR with its reason, never FAIL
         reason = one_line(exc)
         log.error("certification stage %s failed: %s", stage, reason, exc_info=True)

@@ -239,3 +239,17 @@ if __name__ == "__main__":  # write the reference certificates (see the module d
             c = _certify(k, Path(tmp))
         (target / f"{k}.json").write_text(json.dumps(_content(c), indent=1, sort_keys=True) + "\n")
         print(k, c.decision)
+
+
+def test_an_error_of_ours_in_a_stage_propagates_with_its_exit_code(monkeypatch, tmp_path):
+    """A HilError (a device that cannot be opened, a record that cannot be written) is not a
+    defect: it reaches the CLI, which maps it to one line and its exit code, as before the stages."""
+    import hil.pipeline as pl
+    from hil.record import RecordError
+
+    def unwritable(*a: Any, **k: Any) -> Any:
+        raise RecordError("x.h5: cannot create record: disk full")
+
+    monkeypatch.setattr(pl, "_robust_eval", unwritable)
+    with pytest.raises(RecordError, match="disk full"):
+        _certify("sdea300", tmp_path)
