@@ -44,12 +44,12 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 SCHEMA_VERSION = "1.2"
-CANONICALIZATION = "hil-c14n/1"
+CANONICALIZATION: Final = "hil-c14n/1"
 #: marks a field added after schema 1.1 (``Field(json_schema_extra=SINCE_1_2)``): left out of the
 #: canonical content while it holds its default, so certificates written before it still verify
 SINCE_1_2: dict[str, Any] = {"since": "1.2"}
@@ -57,6 +57,7 @@ _HEX64 = r"^[0-9a-f]{64}$"
 
 Outcome = Literal["PASS", "FAIL", "MARGINAL", "ERROR", "INFO"]
 DecisionStr = Literal["GO", "MARGINAL", "NO-GO", "ERROR"]
+VerdictStr = Literal["stable", "marginal", "potentially_unstable", "not_applicable"]
 
 __all__ = [
     "CANONICALIZATION",
@@ -144,7 +145,7 @@ class Nominal(_M):
 
     network: str
     criterion: str
-    verdict: Literal["stable", "marginal", "potentially_unstable", "not_applicable"]
+    verdict: VerdictStr
     margin: float | None
     worst_frequency: float | str | None
     failed_condition: str | None

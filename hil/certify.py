@@ -39,10 +39,9 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from enum import StrEnum
-from typing import Any
 
 import numpy as np
 
@@ -51,7 +50,6 @@ from hil.errors import HilError
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "Certificate",
     "Decision",
     "Policy",
     "autocorrelation_time",
@@ -269,24 +267,6 @@ def posterior_limit(stable_fn: Callable[[float], np.ndarray], x0: float, require
     return a, "exact"
 
 
-@dataclass
-class Certificate:
-    """Everything a reviewer needs to sign (or refuse) one network's certificate."""
-
-    decision: Decision
-    reasons: list[str]
-    nominal: dict[str, Any]
-    probability: dict[str, float] | None = None
-    worst_case: dict[str, Any] | None = None
-    design: dict[str, Any] | None = None
-    evidence: dict[str, Any] = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"decision": str(self.decision), "reasons": self.reasons, "nominal": self.nominal,
-                "probability": self.probability, "worst_case": self.worst_case, "design": self.design,
-                "evidence": self.evidence}
-
-
 def beta_required(required: float) -> float:
     """The reliability index a GO needs: Φ⁻¹(required) (1.645 for 0.95, 4.753 for 1 − 10⁻⁶), the β
     at which the first-order approximation Φ(β) of P(stable) equals the requirement."""
@@ -395,13 +375,3 @@ def decide(nominal_verdict: str | None, stable_draws: np.ndarray | None, policy:
         reasons.append(f"the design parameter has no headroom over the posterior ({headroom_posterior:+.3g})")
     return Decision.MARGINAL, reasons or ["near the boundary"], prob
 
-
-def _finite_draws(draws: Mapping[str, np.ndarray]) -> list[str]:
-    errs = []
-    for k, v in draws.items():
-        a = np.asarray(v, float)
-        if a.size == 0:
-            errs.append(f"parameter {k}: no draws")
-        elif not np.all(np.isfinite(a)):
-            errs.append(f"parameter {k}: {int(np.sum(~np.isfinite(a)))} non-finite draws")
-    return errs

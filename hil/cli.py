@@ -779,6 +779,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from hil.stability.criteria import CRITERIA  # the criterion names, from their registry
+
     p = OneLineArgumentParser(
         prog="hil", description="Hardware-in-the-loop identification and stability certification of haptic "
         "devices, teleoperators and series elastic actuators.",
@@ -796,7 +798,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("file", nargs="?", help="network file (YAML or JSON): type, ports, matrix of {num, den}")
     s.add_argument("--model", help="built-in model name (see --list-models)")
     s.add_argument("--set", action="append", metavar="PARAM=VALUE", help="override a model parameter (repeatable)")
-    s.add_argument("--criterion", choices=["auto", "positive_real", "passivity", "llewellyn", "absolute_stability"],
+    s.add_argument("--criterion", choices=["auto", *CRITERIA],
                    help="criterion to apply (default: the file's, or the model's, or auto)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
     s.add_argument("--rtol", type=float, metavar="R",
@@ -822,7 +824,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--grid", action="append", required=True, metavar="NAME=LO:HI:N",
                     help="swept parameter (repeatable, 1-3; NAME=log:LO:HI:N for log spacing)")
     sw.add_argument("--set", action="append", metavar="PARAM=VALUE", help="fix a model parameter (repeatable)")
-    sw.add_argument("--criterion", choices=["positive_real", "passivity", "llewellyn", "absolute_stability"],
+    sw.add_argument("--criterion", choices=list(CRITERIA),
                     help="criterion (default: the model's)")
     sw.add_argument("--no-refine", action="store_true", help="grid only: no bisection of the boundary")
     sw.add_argument("--boundary-tol", type=float, default=1e-4,

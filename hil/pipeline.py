@@ -1,7 +1,13 @@
 """``hil certify``: experiments -> identification -> network model over the posterior -> stability
 criteria -> GO / MARGINAL / NO-GO (or ERROR) -> certificate record (and reports).
 
-Stages (timed; ``Certificate.measurements`` records what each produced):
+Stages (timed; ``Certificate.measurements`` records what each produced), each a function
+``stage_<name>`` here taking the :class:`~hil.certify_stages.Context`, the
+:class:`~hil.certify_stages.Sheet` it records on and the earlier stages' outputs, and returning
+its own typed output (:mod:`hil.certify_stages`: the dataclasses and the measurements' declared
+limits); :func:`certify_scene` composes them (decide runs before witness: the witness only adds
+reasons). An exception escaping a stage makes the certificate ERROR with the stage and reason
+recorded, never FAIL:
 
 1. **run** the scene's experiments on its bench (mocked or real) -- records, energy evidence;
 2. **identify** the parameters named in ``certification.identify`` from their records (emcee
@@ -41,16 +47,16 @@ import datetime as _dt
 import logging
 import math
 import os
-import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from hil.certificate import (
     Certificate,
     ConditionRow,
+    DecisionStr,
     Design,
     EnergyEvidence,
     Identification,
@@ -61,11 +67,36 @@ from hil.certificate import (
     Robust,
     SceneInfo,
     Series,
+    VerdictStr,
     Witness,
     seal,
 )
 from hil.certify import Decision, Policy, decide, max_safe_parameter, probability_of_stability, worst_case_margin
+from hil.certify_stages import (
+    NOMINAL_MARGIN,
+    Context,
+    DesignOutput,
+    NominalOutput,
+    PosteriorDraws,
+    RobustOutput,
+    RunOutput,
+    Sheet,
+    Verdict,
+    WitnessOutput,
+    beta_spec,
+    converged_spec,
+    energy_spec,
+    experiment_spec,
+    headroom_spec,
+    info_spec,
+    nominal_verdict_spec,
+    one_line,
+    p_stable_is_spec,
+    p_stable_spec,
+    worst_case_spec,
+)
 from hil.errors import HilError
+from hil.stopflag import StopRequested
 
 log = logging.getLogger(__name__)
 
@@ -75,69 +106,17 @@ Progress = Callable[[str], None]
 
 
 # ---------------------------------------------------------------------------------------------
-# model parameters
+# model parameters (each model's scene mapping is registered with it, hil.models)
 
 
 def model_params_from_scene(scene: Any) -> dict[str, Any]:
-    """The network model's fixed parameters implied by the scene's controller and simulation,
-    overridden by ``certification.parameters``."""
+    """The network model's fixed parameters implied by the scene's controller and simulation
+    (the model's :meth:`~hil.models.BuiltinModel.params_from_scene`), overridden by
+    ``certification.parameters``."""
+    from hil.models import get_model
+
     cert = scene.certification
-    c = scene.controller_config()
-    p: dict[str, Any] = {}
-    if cert.model == "sdea" and c.get("type") == "vsic":
-        for k in ("P_m", "I_m", "P_f", "I_f", "alpha", "k22", "b22"):
-            if c.get(k) is not None:
-                p[k] = float(c[k])
-        sd = scene.simulation.sdea if scene.simulation is not None else None
-        if sd is not None:
-            p.update({"M": float(sd.M), "B": float(sd.B), "K_f": float(sd.K_f), "B_f": float(sd.B_f)})
-    elif cert.model == "bilateral_2dof" and c.get("type") == "pd_position_position":
-        km, kvm = np.asarray(c["Kp_m"], float), np.asarray(c["Kv_m"], float)
-        ks, kvs = np.asarray(c["Kp_s"], float), np.asarray(c["Kv_s"], float)
-        gains = {}
-        for tag, K, V in (("m", km, kvm), ("s", ks, kvs)):
-            for (i, j), ax in (((0, 0), "yy"), ((1, 1), "zz"), ((0, 1), "yz"), ((1, 0), "zy")):
-                gains[f"k_p{tag}{ax}"] = float(K[i, j])
-                gains[f"k_v{tag}{ax}"] = float(V[i, j])
-        p["gains"] = gains
-        if scene.simulation is not None:
-            bodies = {b.name: b for b in scene.simulation.bodies}
-            for side, body in (("m", c["master"]), ("s", c["slave"])):
-                b = bodies.get(scene.device(body).body or body)
-                if b is None:
-                    continue
-                for key, mat in (("m", b.M), ("b", b.B), ("k", b.K)):
-                    from hil.scene import as_matrix
-
-                    A = as_matrix(mat, 2)
-                    for (i, j), ax in (((0, 0), "yy"), ((1, 1), "zz"), ((0, 1), "yz")):
-                        p[f"{key}{side}_{ax}"] = float(A[i, j])
-    elif cert.model == "bilateral_1dof" and c.get("type") == "pd_position_position":
-        for tag in ("m", "s"):
-            p[f"k_p{tag}"] = float(np.asarray(c[f"Kp_{tag}"], float).reshape(-1)[0])
-            p[f"k_v{tag}"] = float(np.asarray(c[f"Kv_{tag}"], float).reshape(-1)[0])
-    elif cert.model == "dual_master_3dof" and c.get("type") == "dual_master":
-        ax = ("x", "y", "z")
-        for tag, key in (("m", "C_m"), ("4", "C_4"), ("s", "C_s"), ("1", "C_1")):
-            kp, kv = np.asarray(c[key]["kp"], float), np.asarray(c[key]["kv"], float)
-            for i in range(3):
-                for j in range(i, 3):
-                    p[f"k_p{tag}{ax[i]}{ax[j]}"] = float(kp[i, j])
-                    p[f"k_v{tag}{ax[i]}{ax[j]}"] = float(kv[i, j])
-        from hil.models.teleop import DUAL_MASTER_TABLE1
-
-        p = {k: v for k, v in p.items() if k in DUAL_MASTER_TABLE1}
-    elif cert.model == "mcet_trilateral" and c.get("type") == "mcet":
-        for k in ("k_pm1", "k_vm1", "k_pm2", "k_vm2", "k_ps", "k_vs", "alpha"):
-            p[k] = float(c[k])
-        if scene.simulation is not None:
-            bodies = {b.name: b for b in scene.simulation.bodies}
-            for key, dev in (("m_m1", c["masters"][0]), ("m_m2", c["masters"][1]), ("m_s", c["slave"])):
-                b = bodies.get(scene.device(dev).body or dev)
-                if b is not None:
-                    from hil.scene import as_matrix
-
-                    p[key] = float(as_matrix(b.M, 1)[0, 0])
+    p = get_model(cert.model).params_from_scene(scene)
     p.update(cert.parameters)
     return p
 
@@ -145,20 +124,11 @@ def model_params_from_scene(scene: Any) -> dict[str, Any]:
 def build_network(model: str, params: Mapping[str, Any]) -> Any:
     """The network (immittance matrix) of built-in ``model`` with ``params``. A gain table
     (``gains``: a mapping, as a scene's controller gives it) takes any of its entries given at the
-    top level too (``k_pmyz=...``: a swept or overridden gain)."""
+    top level too (``k_pmyz=...``: a swept or overridden gain); see
+    :meth:`hil.models.BuiltinModel.network`."""
     from hil.models import get_model
 
-    m = get_model(model)
-    q = dict(params)
-    gains = q.get("gains")
-    if isinstance(gains, Mapping):
-        q["gains"] = {**gains, **{k: q.pop(k) for k in list(q) if k in gains}}
-    if model == "bilateral_2dof":
-        gains = q.pop("gains", "A1")
-        from hil.models.teleop import bilateral_2dof
-
-        return bilateral_2dof(gains, q)
-    return m.build(**q)
+    return get_model(model).network(params)
 
 
 def _criterion(model: str, cfg: str) -> str:
@@ -184,38 +154,7 @@ def _check(tm: Any, criterion: str, margins: bool = True) -> Any:
 
 
 # ---------------------------------------------------------------------------------------------
-# optional stages
-
-
-class _Optional:
-    """Runs the optional stages (witness, plots, energy evidence): a failure is logged and recorded
-    as one line ``"<stage> failed: <reason>"`` in :attr:`errors`, and the stage yields ``default``."""
-
-    def __init__(self) -> None:
-        self.errors: list[str] = []
-        self.failed: dict[str, str] = {}  # stage -> reason
-
-    def run(self, name: str, fn: Callable[..., Any], *args: Any, default: Any = None) -> Any:
-        try:
-            return fn(*args)
-        except Exception as exc:  # recorded, never swallowed: see the module docstring
-            reason = _one_line(exc)
-            log.warning("optional stage %s failed: %s", name, reason, exc_info=log.isEnabledFor(logging.DEBUG))
-            self.errors.append(f"{name} failed: {reason}")
-            self.failed[name] = reason
-            return default
-
-
-def _one_line(exc: BaseException, limit: int = 300) -> str:
-    """``exc`` as one line: its message (with the exception type unless it is one of ours)."""
-    msg = " ".join(str(exc).split()) or "(no message)"
-    if not isinstance(exc, HilError):
-        msg = f"{type(exc).__name__}: {msg}"
-    return msg if len(msg) <= limit else msg[: limit - 1] + "…"
-
-
-# ---------------------------------------------------------------------------------------------
-# the pipeline
+# the pipeline: certify_scene = seal(compose(run, identify, nominal, robust, design, decide, witness))
 
 
 def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, progress: Progress | None = None,
@@ -223,8 +162,9 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
                   outcomes: Mapping[str, Any] | None = None) -> Certificate:
     """Run the whole pipeline for ``scene`` (see the module docstring). Never raises for bad
     evidence: problems become an ERROR certificate with their reasons (a scene without a
-    ``certification`` section too). ``outcomes`` (experiment name -> ExperimentOutcome) reuses
-    runs already made instead of running the experiments again.
+    ``certification`` section too, and a stage that raised: its name and reason). ``outcomes``
+    (experiment name -> ExperimentOutcome) reuses runs already made instead of running the
+    experiments again.
 
     The certificate comes back sealed: ``evidence`` holds the SHA-256 of the scene text (written
     to ``out_dir/scene.yaml``) and of every record it rests on (the records written under
@@ -262,91 +202,153 @@ def _seal(cert: Certificate, scene: Any, out: Path) -> Certificate:
     return seal(cert.model_copy(update={"evidence": evidence}))
 
 
+def _scene_info(scene: Any) -> SceneInfo:
+    return SceneInfo(name=scene.name, sha256=scene.sha256, description=scene.description, source=scene.path,
+                     units=scene.units)
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+
+
 def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progress: Progress | None = None,
             run_experiments: bool = True, max_ticks: int | None = None,
             outcomes: Mapping[str, Any] | None = None) -> Certificate:
-    """The pipeline proper (:func:`certify_scene` adds the evidence and the digest)."""
+    """The pipeline proper (:func:`certify_scene` adds the evidence and the digest): the stages in
+    order, each a function of the context and the stages' outputs before it."""
     if scene.certification is None:
-        return Certificate(created_utc=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), software=_versions(),
-                           scene=SceneInfo(name=scene.name, sha256=scene.sha256, description=scene.description,
-                                           source=scene.path, units=scene.units),
+        return Certificate(created_utc=_now(), software=_versions(), scene=_scene_info(scene),
                            decision="ERROR", reasons=["the scene has no 'certification' section: nothing to certify"],
                            policy={}, measurements=[], errors=["no certification section"])
     cert = scene.certification
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    say = progress or (lambda msg: log.info(msg))
-    seed = int(scene.seed if seed is None else seed)
     policy = Policy(cert.policy.required_probability, cert.policy.confidence, cert.policy.credible)
-    timings: dict[str, float] = {}
-    errors: list[str] = []
-    measurements: list[Measurement] = []
-    plots: dict[str, Series] = {}
-    opt = _Optional()
-
-    def stage(name: str) -> Any:
-        class _T:
-            def __enter__(self) -> None:
-                self.t0 = time.perf_counter()
-                say(f"{scene.name}: {name} ...")
-
-            def __exit__(self, *exc: Any) -> None:
-                timings[name] = time.perf_counter() - self.t0
-
-        return _T()
-
     # the scene's names and ranges (model, parameters, identify entries, design) were checked by
     # hil.scene at load time
-    params = model_params_from_scene(scene)
-    criterion = _criterion(cert.model, cert.criterion)
+    ctx = Context(scene=scene, cert=cert, out=out, seed=int(scene.seed if seed is None else seed), policy=policy,
+                  model=cert.model, criterion=_criterion(cert.model, cert.criterion),
+                  params=model_params_from_scene(scene), say=progress or (lambda msg: log.info(msg)))
+    sheet = Sheet()
+    stage = "run"
+    try:
+        run = stage_run(ctx, sheet, run_experiments=run_experiments, max_ticks=max_ticks, outcomes=outcomes)
+        stage = "identify"
+        draws = stage_identify(ctx, sheet, run)
+        stage = "nominal"
+        nominal = stage_nominal(ctx, sheet, draws)
+        stage = "robust"
+        robust = stage_robust(ctx, sheet, draws, nominal)
+        stage = "design"
+        design = stage_design(ctx, sheet, draws, nominal)
+        stage = "decide"
+        verdict = stage_decide(ctx, sheet, run, draws, nominal, robust, design)
+        stage = "witness"
+        witness = stage_witness(ctx, sheet, nominal)
+    except HilError:
+        # one of ours, with its exit code (a device that cannot be opened, a record that cannot be
+        # written, StopRequested: the person at the bench asked to stop): no certificate follows
+        raise
+    except Exception as exc:  # a defect in a stage: ERROR with its reason, never FAIL
+        reason = one_line(exc)
+        log.error("certification stage %s failed: %s", stage, reason, exc_info=True)
+        sheet.errors.append(f"stage {stage} failed: {reason}")
+        return _certificate(ctx, sheet, Verdict(Decision.ERROR, (f"stage {stage} failed: {reason}",)))
+    return _certificate(ctx, sheet, verdict, run=run, draws=draws, nominal=nominal, robust=robust, design=design,
+                        witness=witness)
 
-    # 1. experiments -------------------------------------------------------------------------
+
+def _certificate(ctx: Context, sheet: Sheet, verdict: Verdict, *, run: RunOutput | None = None,
+                 draws: PosteriorDraws | None = None, nominal: NominalOutput | None = None,
+                 robust: RobustOutput | None = None, design: DesignOutput | None = None,
+                 witness: WitnessOutput | None = None) -> Certificate:
+    """The certificate record of the stages' outputs (those that ran)."""
+    tm = None if nominal is None else nominal.network
+    multiport = None
+    if tm is not None and (tm.n_ports > 2 or max(tm.port_dofs) > 1):
+        how = ("Theorem 1 of paper 000 (symmetrization conditions A, B checked)"
+               if ctx.criterion == "absolute_stability" else
+               f"{ctx.criterion} of the full {tm.n}x{tm.n} immittance matrix")
+        multiport = MultiPort(ports=list(tm.port_dofs), dof_total=tm.n, symmetrization=how)
+    sheet.add(info_spec("run time", "s").measure(sum(sheet.timings.values()), description=", ".join(
+        f"{k} {v:.1f} s" for k, v in sheet.timings.items())))
+    policy = ctx.policy
+    reasons = list(verdict.reasons) + (list(witness.reasons) if witness is not None else [])
+    return Certificate(
+        created_utc=_now(), software=_versions(), scene=_scene_info(ctx.scene),
+        decision=_DECISIONS[verdict.decision], reasons=reasons,
+        policy={"required_probability": policy.required_probability, "confidence": policy.confidence,
+                "credible": policy.credible},
+        measurements=sheet.measurements, nominal=None if nominal is None else nominal.section,
+        robust=None if robust is None else robust.section,
+        identification=(list(draws.identification) or None) if draws is not None else None,
+        design=None if design is None else design.design, witness=None if witness is None else witness.witness,
+        energy=(list(run.energy) or None) if run is not None else None, multiport=multiport, plots=sheet.plots,
+        errors=sheet.errors + sheet.optional_errors)
+
+
+# ---------------------------------------------------------------------------------------------
+# 1. run
+
+
+def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_ticks: int | None = None,
+              outcomes: Mapping[str, Any] | None = None) -> RunOutput:
+    """Run the scene's experiments (or take ``outcomes`` already made): one measurement per
+    experiment, the energy evidence, fault counters and realtime loop timing."""
+    scene, out = ctx.scene, ctx.out
     energy: list[EnergyEvidence] = []
     given = dict(outcomes or {})
-    outcomes = {}
+    done: dict[str, Any] = {}
     if given:
         for i_name, o in given.items():
-            outcomes[i_name] = o
-            _energy_stage(opt, i_name, o, energy, measurements, plots)
-        _fault_measurements(given, measurements)
+            done[i_name] = o
+            _energy_stage(sheet, i_name, o, energy, sheet.measurements, sheet.plots)
+        _fault_measurements(given, sheet.measurements)
     elif run_experiments and scene.experiments:
         from hil.runner import Runner
 
-        with stage("run"):
+        with sheet.timed("run", ctx.say, scene.name):
             runner = Runner(scene, out / "records", max_ticks=max_ticks)
             names = [e["name"] for e in scene.experiment_configs()]
             for i, o in enumerate(runner.run()):
-                outcomes[names[i]] = o
+                done[names[i]] = o
                 ok = o.status == "completed"
-                measurements.append(Measurement(name=f"experiment {names[i]}", value=o.status, outcome=(
-                    "PASS" if ok else ("FAIL" if o.status == "safety_stop" else "ERROR")),
-                    description=o.stop_reason if not ok else f"record {o.record.name}"))
+                sheet.add(experiment_spec(names[i]).measure(
+                    o.status, description=o.stop_reason if not ok else f"record {getattr(o.record, 'name', o.record)}"))
                 if o.status == "error":
-                    errors.append(f"experiment {names[i]}: {o.stop_reason}")
-                _energy_stage(opt, names[i], o, energy, measurements, plots)
-            if runner.stop_reason and all(o.status == "completed" for o in outcomes.values()):
-                errors.append(f"run stopped: {runner.stop_reason}")  # e.g. a signal after the last experiment
+                    sheet.errors.append(f"experiment {names[i]}: {o.stop_reason}")
+                _energy_stage(sheet, names[i], o, energy, sheet.measurements, sheet.plots)
+            if runner.stop_reason and all(o.status == "completed" for o in done.values()):
+                sheet.errors.append(f"run stopped: {runner.stop_reason}")  # e.g. a signal after the last experiment
             if (runner.stop_reason or "").startswith("signal"):
                 # the person at the bench asked to stop: no identification or certificate follows
-                from hil.stopflag import StopRequested
-
                 raise StopRequested(f"{runner.stop_reason}; the records so far are in {out / 'records'}",
                                     runner.stop_status or "safety_stop")
-            _fault_measurements(outcomes, measurements)
+            _fault_measurements(done, sheet.measurements)
 
     from hil.realtime import lateness_measurements  # realtime runs: loop lateness and sample timing rows
 
-    measurements += lateness_measurements(outcomes, scene)
+    sheet.measurements += lateness_measurements(done, scene)
+    return RunOutput(outcomes=done, energy=tuple(energy))
 
-    # 2. identification ----------------------------------------------------------------------
+
+# ---------------------------------------------------------------------------------------------
+# 2. identify
+
+
+def stage_identify(ctx: Context, sheet: Sheet, run: RunOutput) -> PosteriorDraws:
+    """Identify the parameters named in ``certification.identify`` from their records (independent
+    draws of each thinned emcee chain), draw those in ``certification.uncertain`` log-normally,
+    and subsample to ``certification.draws`` without replacement."""
+    cert, scene, seed, errors = ctx.cert, ctx.scene, ctx.seed, sheet.errors
     draws: dict[str, np.ndarray] = {}
     thinning: list[str] = []  # how each identification's chain became independent draws
     idents: list[Identification] = []
     converged = True
     if cert.identify:
-        with stage("identify"):
+        with sheet.timed("identify", ctx.say, scene.name):
             for spec in cert.identify:
-                o = outcomes.get(spec.experiment)
+                o = run.outcomes.get(spec.experiment)
                 if o is None or o.record is None:
                     errors.append(f"identification: experiment {spec.experiment!r} has no record")
                     continue
@@ -388,12 +390,9 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
                                       f"(have {sorted(available)})")
                         continue
                     draws[dst] = available[src]
-                opt.run(f"plots (identification {spec.experiment})", _identification_plots, plots,
-                        spec.experiment, res, seed, scene.units)
-                measurements.append(Measurement(name=f"posterior converged ({res.model.name})", value=res.converged,
-                                                outcome="PASS" if res.converged else "MARGINAL",
-                                                description="integrated autocorrelation time, ≥ 50 τ, acceptance, "
-                                                            "split-R̂"))
+                sheet.optional(f"plots (identification {spec.experiment})", _identification_plots, sheet.plots,
+                               spec.experiment, res, seed, scene.units)
+                sheet.add(converged_spec(res.model.name).measure(res.converged))
     rng = np.random.default_rng(seed)
     n_draws = cert.draws
     n_independent: int | None = None
@@ -417,186 +416,200 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
     for k, v in draws.items():
         if not np.all(np.isfinite(v)):
             errors.append(f"parameter {k}: non-finite posterior draws")
+    return PosteriorDraws(draws=draws, identification=tuple(idents), converged=converged,
+                          n_independent=n_independent, sampling=tuple(thinning))
 
-    # 3. nominal --------------------------------------------------------------------------------
-    nominal_params = dict(params)
-    nominal_params.update({k: float(np.mean(v)) for k, v in draws.items()})
-    nominal = None
-    nominal_res = None
-    with stage("nominal"):
+
+# ---------------------------------------------------------------------------------------------
+# 3. nominal
+
+
+def stage_nominal(ctx: Context, sheet: Sheet, post: PosteriorDraws) -> NominalOutput:
+    """The network at the posterior means (plus the fixed parameters) through the criterion: its
+    verdict and margin as measurements, the decided condition's plot. A network that cannot be
+    built is an evidence error (ERROR)."""
+    nominal_params = dict(ctx.params)
+    nominal_params.update({k: float(np.mean(v)) for k, v in post.draws.items()})
+    with sheet.timed("nominal", ctx.say, ctx.scene.name):
         try:
-            tm = build_network(cert.model, nominal_params)
-            nominal_res = _check(tm, criterion)
-            nominal = _nominal_section(cert.model, nominal_res, nominal_params)
-            measurements.append(Measurement(
-                name=f"nominal {nominal_res.criterion}", value=str(nominal_res.verdict),
-                outcome={"stable": "PASS", "marginal": "MARGINAL", "potentially_unstable": "FAIL"}.get(
-                    str(nominal_res.verdict), "ERROR"), description=nominal_res.summary()))
-            measurements.append(Measurement(name="nominal margin", value=_f(nominal_res.margin), lower=0.0,
-                                            outcome=_margin_outcome(nominal_res.margin, str(nominal_res.verdict)),
-                                            description="normalized margin of the decisive condition"))
-            opt.run("plots (decided quantities)", _decided_plot, plots, tm, nominal_res)
+            tm = build_network(ctx.model, nominal_params)
+            nominal_res = _check(tm, ctx.criterion)
+            section = _nominal_section(ctx.model, nominal_res, nominal_params)
+            verdict = str(nominal_res.verdict)
+            sheet.add(nominal_verdict_spec(nominal_res.criterion).measure(verdict, description=nominal_res.summary()))
+            sheet.add(NOMINAL_MARGIN.measure(_f(nominal_res.margin), result=verdict))
+            sheet.optional("plots (decided quantities)", _decided_plot, sheet.plots, tm, nominal_res)
         except HilError as exc:
-            errors.append(f"nominal model: {exc}")
-            tm = None
+            sheet.errors.append(f"nominal model: {exc}")
+            return NominalOutput(params=nominal_params)
+    return NominalOutput(params=nominal_params, network=tm, result=nominal_res, section=section)
 
-    # 4. robust ---------------------------------------------------------------------------------
-    robust = None
-    stable_draws: np.ndarray | None = None
-    form_res = None
-    rare = None
-    if draws and not errors:
-        with stage("robust"):
-            stable_draws, proxy_fn, method, band = _robust_eval(cert.model, criterion, params, draws)
-            fast = method.startswith("vectorized")
-            p, lo, hi = probability_of_stability(stable_draws, policy.confidence)
-            names = sorted(draws)
-            X = np.column_stack([draws[k] for k in names])
-            # the nominal point exactly as the nominal stage built it (worst ≤ nominal by construction)
-            centre = np.array([nominal_params[k] for k in names], float)
-            exact_margin = _exact_margin_fn(cert.model, criterion, params, names)
-            wc, theta = (None, None)
-            if X.shape[0] > X.shape[1] + 2:
-                try:
-                    # the exact criterion's margin (the nominal margin's function) costs ~10-100 ms per
-                    # point: the vectorized proxy screens the draws, short local searches from the lowest
-                    wc_v, th = worst_case_margin(
-                        exact_margin, X, credible=policy.credible, n_starts=4 if fast else 2, seed=seed,
-                        maxiter=6 if fast else 4, axis_starts=True, centre=centre,
-                        rank_fn=None if proxy_fn is None else
-                        (lambda T: proxy_fn(dict(zip(names, T.T, strict=True)))),
-                        n_screen=24, n_local=3 if fast else 1)
-                    wc, theta = _f(wc_v), {k: float(v) for k, v in zip(names, th, strict=True)}
-                    if nominal_res is not None and _f(nominal_res.margin) is not None and wc is not None and \
-                            wc > float(nominal_res.margin):  # cannot happen: the centre is a candidate
-                        errors.append(f"worst-case margin {wc} exceeds the nominal {nominal_res.margin}")
-                except HilError as exc:
-                    log.warning("worst-case search skipped: %s", exc)
-            if band is None and nominal_res is not None and nominal_res.worst_frequency not in (None, 0.0) and \
-                    math.isfinite(float(nominal_res.worst_frequency)):
-                w = float(nominal_res.worst_frequency)
-                band = (w / 2.0, w * 2.0)
-            sampling = "; ".join(thinning)
-            nominal_unstable = nominal_res is not None and str(nominal_res.verdict) == "potentially_unstable"
-            reliability, form_res, rare = None, None, None
-            if X.shape[0] > X.shape[1] + 2 and (fast or not nominal_unstable):
-                reliability, form_res, rare = _reliability_stage(cert.model, criterion, params, names, X, centre,
-                                                                 stable_draws, policy, fast, seed, theta)
-            p_method = "importance_sampling" if rare is not None and rare.reliable else "monte_carlo"
-            robust = Robust(n_draws=int(stable_draws.size), p_stable=p, lower=lo, upper=hi,
-                            confidence=policy.confidence, required=policy.required_probability,
-                            credible=policy.credible, worst_case_margin=wc, worst_case_parameters=theta,
-                            critical_band_rad_s=band, method=method, n_requested=int(cert.draws),
-                            n_independent=n_independent, sampling=sampling,
-                            worst_case_quantity=f"the exact criterion's margin, check(network(θ), {criterion!r})"
-                                                ".margin, the nominal margin's function; the posterior centre is "
-                                                "a candidate",
-                            reliability=reliability, rare_event=rare, p_stable_method=p_method)
-            measurements.append(Measurement(name="P(stable), lower confidence bound", value=lo,
-                                            lower=policy.required_probability,
-                                            outcome="PASS" if lo >= policy.required_probability else (
-                                                "MARGINAL" if hi >= policy.required_probability else "FAIL"),
-                                            description=f"P̂ = {p:.4f} over {stable_draws.size} independent draws "
-                                                        f"({policy.confidence:.0%} Clopper-Pearson on the "
-                                                        f"thinned chain: {sampling})"))
-            if rare is not None:
-                measurements.append(Measurement(
-                    name="P(stable), lower confidence bound (importance sampling)", value=rare.lower,
-                    lower=policy.required_probability,
-                    outcome=("ERROR" if not rare.reliable else "PASS" if rare.lower >= policy.required_probability
-                             else "MARGINAL" if rare.upper >= policy.required_probability else "FAIL"),
-                    description=f"P_f = {rare.p_failure:.3g} ± {rare.std_error:.2g} from {rare.n} samples "
-                                f"({rare.n_fail} failing) of N(u*, I) around the FORM design point, Gaussian "
-                                f"approximation of the posterior; {policy.confidence:.0%} normal interval"))
-            if reliability is not None:
-                measurements.append(Measurement(
-                    name="reliability index β", value=reliability.beta, lower=reliability.required_beta,
-                    outcome="PASS" if reliability.beta >= reliability.required_beta else "FAIL",
-                    description=f"Φ(β) = {reliability.phi_beta:.6g} (sampled P̂ = {p:.4f}); distance in "
-                                f"posterior-standardized coordinates to the nearest non-stable parameter set"
-                                + (" (none within the search radius: β is at least this)" if reliability.censored
-                                   else "")))
-            if wc is not None:
-                measurements.append(Measurement(name=f"worst-case margin over the {policy.credible:.0%} credible "
-                                                     "region", value=wc, lower=0.0,
-                                                outcome=_margin_outcome(wc),
-                                                description="minimum of the nominal margin's function (exact "
-                                                            "criterion) over the region; ≤ the nominal margin"))
-            opt.run("plots (posterior Bode)", _bode_plot, plots, cert.model, params, draws, seed, scene.units)
-            if fast and band is not None:
-                opt.run("plots (critical band)", _critical_band_plot, plots, params, draws, band)
 
-    # 5. design -----------------------------------------------------------------------------------
-    design = None
-    if cert.design is not None and draws and not errors:
-        with stage("design"):
-            design = _design(cert, params, draws, policy, nominal_params)
-            if design is not None:
-                measurements.append(Measurement(name=f"largest {design.parameter} at P ≥ {policy.required_probability}",
-                                                value=design.max_value, outcome="INFO", unit=design.unit,
-                                                description=design.note))
-                for key, what in (("nominal_headroom", "at the nominal plant"),
-                                  ("posterior_headroom", f"over the posterior at P ≥ {policy.required_probability}")):
-                    h = getattr(design, key)
-                    if h is not None:
-                        measurements.append(Measurement(
-                            name=f"{design.parameter} headroom {what}", value=h, lower=0.0,
-                            outcome=_margin_outcome(h, tol=HEADROOM_TOL),
-                            description=f"limit / current {design.parameter} − 1 (0 at the stability boundary)"))
-                opt.run("plots (headroom)", _headroom_plot, plots, cert, params, draws, policy, design)
+# ---------------------------------------------------------------------------------------------
+# 4. robust
 
-    # 7. decision ---------------------------------------------------------------------------------
-    dec, reasons, _prob = decide(None if nominal_res is None else str(nominal_res.verdict),
-                                 stable_draws if draws else (np.array([nominal_res.verdict == "stable"])
-                                                             if nominal_res is not None else None),
-                                 policy, converged=converged, evidence_errors=errors or None,
+
+def stage_robust(ctx: Context, sheet: Sheet, post: PosteriorDraws, nominal: NominalOutput) -> RobustOutput:
+    """The criterion over the posterior draws: P(stable) with its interval, the worst-case margin
+    over the credible region, β (FORM) and, where Monte Carlo cannot reach the requirement,
+    P(stable) by importance sampling; skipped without draws or after an evidence error."""
+    draws, policy, params, seed, errors = post.draws, ctx.policy, ctx.params, ctx.seed, sheet.errors
+    if not draws or errors:
+        return RobustOutput()
+    nominal_res, nominal_params, criterion = nominal.result, nominal.params, ctx.criterion
+    with sheet.timed("robust", ctx.say, ctx.scene.name):
+        stable_draws, proxy_fn, method, band = _robust_eval(ctx.model, criterion, params, draws)
+        fast = method.startswith("vectorized")
+        p, lo, hi = probability_of_stability(stable_draws, policy.confidence)
+        names = sorted(draws)
+        X = np.column_stack([draws[k] for k in names])
+        # the nominal point exactly as the nominal stage built it (worst ≤ nominal by construction)
+        centre = np.array([nominal_params[k] for k in names], float)
+        exact_margin = _exact_margin_fn(ctx.model, criterion, params, names)
+        wc, theta = (None, None)
+        if X.shape[0] > X.shape[1] + 2:
+            try:
+                # the exact criterion's margin (the nominal margin's function) costs ~10-100 ms per
+                # point: the vectorized proxy screens the draws, short local searches from the lowest
+                wc_v, th = worst_case_margin(
+                    exact_margin, X, credible=policy.credible, n_starts=4 if fast else 2, seed=seed,
+                    maxiter=6 if fast else 4, axis_starts=True, centre=centre,
+                    rank_fn=None if proxy_fn is None else
+                    (lambda T: proxy_fn(dict(zip(names, T.T, strict=True)))),
+                    n_screen=24, n_local=3 if fast else 1)
+                wc, theta = _f(wc_v), {k: float(v) for k, v in zip(names, th, strict=True)}
+                if nominal_res is not None and _f(nominal_res.margin) is not None and wc is not None and \
+                        wc > float(nominal_res.margin):  # cannot happen: the centre is a candidate
+                    errors.append(f"worst-case margin {wc} exceeds the nominal {nominal_res.margin}")
+            except HilError as exc:
+                log.warning("worst-case search skipped: %s", exc)
+        if band is None and nominal_res is not None and nominal_res.worst_frequency not in (None, 0.0) and \
+                math.isfinite(float(nominal_res.worst_frequency)):
+            w = float(nominal_res.worst_frequency)
+            band = (w / 2.0, w * 2.0)
+        sampling = "; ".join(post.sampling)
+        nominal_unstable = nominal.verdict == "potentially_unstable"
+        reliability, form_res, rare = None, None, None
+        if X.shape[0] > X.shape[1] + 2 and (fast or not nominal_unstable):
+            reliability, form_res, rare = _reliability_stage(ctx.model, criterion, params, names, X, centre,
+                                                             stable_draws, policy, fast, seed, theta)
+        p_method: Literal["monte_carlo", "importance_sampling"] = (
+            "importance_sampling" if rare is not None and rare.reliable else "monte_carlo")
+        robust = Robust(n_draws=int(stable_draws.size), p_stable=p, lower=lo, upper=hi,
+                        confidence=policy.confidence, required=policy.required_probability,
+                        credible=policy.credible, worst_case_margin=wc, worst_case_parameters=theta,
+                        critical_band_rad_s=band, method=method, n_requested=int(ctx.cert.draws),
+                        n_independent=post.n_independent, sampling=sampling,
+                        worst_case_quantity=f"the exact criterion's margin, check(network(θ), {criterion!r})"
+                                            ".margin, the nominal margin's function; the posterior centre is "
+                                            "a candidate",
+                        reliability=reliability, rare_event=rare, p_stable_method=p_method)
+        sheet.add(p_stable_spec(policy).measure(
+            lo, interval=(lo, hi), description=f"P̂ = {p:.4f} over {stable_draws.size} independent draws "
+                                               f"({policy.confidence:.0%} Clopper-Pearson on the "
+                                               f"thinned chain: {sampling})"))
+        if rare is not None:
+            sheet.add(p_stable_is_spec(policy).measure(
+                rare.lower, interval=(rare.lower, rare.upper), invalid=not rare.reliable,
+                description=f"P_f = {rare.p_failure:.3g} ± {rare.std_error:.2g} from {rare.n} samples "
+                            f"({rare.n_fail} failing) of N(u*, I) around the FORM design point, Gaussian "
+                            f"approximation of the posterior; {policy.confidence:.0%} normal interval"))
+        if reliability is not None:
+            sheet.add(beta_spec(reliability.required_beta).measure(
+                reliability.beta,
+                description=f"Φ(β) = {reliability.phi_beta:.6g} (sampled P̂ = {p:.4f}); distance in "
+                            f"posterior-standardized coordinates to the nearest non-stable parameter set"
+                            + (" (none within the search radius: β is at least this)" if reliability.censored
+                               else "")))
+        if wc is not None:
+            sheet.add(worst_case_spec(policy).measure(wc))
+        sheet.optional("plots (posterior Bode)", _bode_plot, sheet.plots, ctx.model, params, draws, seed,
+                       ctx.scene.units)
+        if fast and band is not None:
+            sheet.optional("plots (critical band)", _critical_band_plot, sheet.plots, ctx.model, params, draws, band)
+    return RobustOutput(stable_draws=stable_draws, section=robust, form=form_res, rare=rare)
+
+
+# ---------------------------------------------------------------------------------------------
+# 5. design
+
+
+def stage_design(ctx: Context, sheet: Sheet, post: PosteriorDraws, nominal: NominalOutput) -> DesignOutput:
+    """Design guidance for ``certification.design``'s parameter: the largest value keeping the
+    required probability, and its headroom at the nominal plant and over the posterior."""
+    cert, policy = ctx.cert, ctx.policy
+    if cert.design is None or not post.draws or sheet.errors:
+        return DesignOutput()
+    with sheet.timed("design", ctx.say, ctx.scene.name):
+        design = _design(cert, ctx.params, post.draws, policy, nominal.params)
+        if design is not None:
+            sheet.add(info_spec(f"largest {design.parameter} at P ≥ {policy.required_probability}", design.unit)
+                      .measure(design.max_value, description=design.note))
+            for key, what in (("nominal_headroom", "at the nominal plant"),
+                              ("posterior_headroom", f"over the posterior at P ≥ {policy.required_probability}")):
+                h = getattr(design, key)
+                if h is not None:
+                    sheet.add(headroom_spec(design.parameter, what).measure(h))
+            sheet.optional("plots (headroom)", _headroom_plot, sheet.plots, cert, ctx.params, post.draws, policy,
+                           design)
+    return DesignOutput(design)
+
+
+# ---------------------------------------------------------------------------------------------
+# 6. decide
+
+
+def stage_decide(ctx: Context, sheet: Sheet, run: RunOutput, post: PosteriorDraws, nominal: NominalOutput,
+                 robust: RobustOutput, design: DesignOutput) -> Verdict:
+    """The verdict policy (:func:`hil.certify.decide`) on the stages' findings; evidence errors
+    give ERROR. A GO whose energy evidence went below its bound, or could not be read, becomes
+    MARGINAL."""
+    nominal_res, draws, d = nominal.result, post.draws, design.design
+    rare = robust.rare
+    dec, reasons, _prob = decide(nominal.verdict,
+                                 robust.stable_draws if draws else (np.array([nominal_res.verdict == "stable"])
+                                                                    if nominal_res is not None else None),
+                                 ctx.policy, converged=post.converged, evidence_errors=sheet.errors or None,
                                  nominal_weak=bool(nominal_res is not None and nominal_res.weak),
-                                 beta=None if form_res is None else float(form_res.beta),
-                                 headroom_nominal=None if design is None else design.nominal_headroom,
-                                 headroom_posterior=None if design is None else design.posterior_headroom,
+                                 beta=None if robust.form is None else float(robust.form.beta),
+                                 headroom_nominal=None if d is None else d.nominal_headroom,
+                                 headroom_posterior=None if d is None else d.posterior_headroom,
                                  rare_event=(rare.lower, rare.upper) if rare is not None and rare.reliable else None,
                                  require_beta=bool(draws))
-    if any(e.went_negative for e in energy) and dec == Decision.GO:
+    if any(e.went_negative for e in run.energy) and dec == Decision.GO:
         dec = Decision.MARGINAL
         reasons.append("energy injection: E_s(t) went below its noise bound although the criterion passed")
-    energy_failed = [k for k in opt.failed if k.startswith("energy evidence")]
+    energy_failed = [k for k in sheet.failed if k.startswith("energy evidence")]
     if energy_failed and dec == Decision.GO:
         dec = Decision.MARGINAL
         reasons.append(f"energy injection evidence could not be read ({', '.join(energy_failed)}): not certified "
                        "GO without it")
+    return Verdict(dec, tuple(reasons))
 
-    # 6. witness ----------------------------------------------------------------------------------
+
+# ---------------------------------------------------------------------------------------------
+# 7. witness
+
+
+def stage_witness(ctx: Context, sheet: Sheet, nominal: NominalOutput) -> WitnessOutput:
+    """When the nominal network is potentially unstable, a passive termination set that makes it
+    deliver energy, simulated (optional: a failure is recorded, the decision stands)."""
     witness = None
-    unstable = nominal_res is not None and str(nominal_res.verdict) == "potentially_unstable"
-    if cert.witness and unstable and tm is not None:
-        with stage("witness"):
-            witness = opt.run("witness", _witness, tm, plots, opt, scene)
+    reasons: list[str] = []
+    unstable = nominal.verdict == "potentially_unstable"
+    if ctx.cert.witness and unstable and nominal.network is not None:
+        with sheet.timed("witness", ctx.say, ctx.scene.name):
+            witness = sheet.optional("witness", _witness, nominal.network, sheet.plots, sheet, ctx.scene)
         if witness is None:
-            why = opt.failed.get("witness")
+            why = sheet.failed.get("witness")
             reasons.append(f"no destabilizing passive termination reported: the witness search failed ({why})"
                            if why is not None else
                            "no destabilizing passive termination found among the candidates searched (a finite "
                            "family: the criterion's verdict stands)")
-    elif unstable and not cert.witness:
+    elif unstable and not ctx.cert.witness:
         reasons.append("no destabilizing passive termination reported: the scene disables the witness search "
                        "(certification.witness: false)")
-
-    multiport = None
-    if tm is not None and (tm.n_ports > 2 or max(tm.port_dofs) > 1):
-        how = ("Theorem 1 of paper 000 (symmetrization conditions A, B checked)"
-               if criterion == "absolute_stability" else f"{criterion} of the full {tm.n}x{tm.n} immittance matrix")
-        multiport = MultiPort(ports=list(tm.port_dofs), dof_total=tm.n, symmetrization=how)
-    measurements.append(Measurement(name="run time", value=sum(timings.values()), unit="s", outcome="INFO",
-                                    description=", ".join(f"{k} {v:.1f} s" for k, v in timings.items())))
-    return Certificate(
-        created_utc=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), software=_versions(),
-        scene=SceneInfo(name=scene.name, sha256=scene.sha256, description=scene.description, source=scene.path,
-                        units=scene.units),
-        decision=str(dec), reasons=reasons, policy={"required_probability": policy.required_probability,
-                                                    "confidence": policy.confidence, "credible": policy.credible},
-        measurements=measurements, nominal=nominal, robust=robust, identification=idents or None, design=design,
-        witness=witness, energy=energy or None, multiport=multiport, plots=plots, errors=errors + opt.errors)
-
+    return WitnessOutput(witness, tuple(reasons))
 
 # ---------------------------------------------------------------------------------------------
 # helpers
@@ -608,30 +621,6 @@ def _f(v: Any) -> float | None:
     except (TypeError, ValueError):
         return None
     return x if math.isfinite(x) else None
-
-
-#: a margin within this of zero is MARGINAL (the batch path's round-off tolerance, hil.models.batch)
-MARGIN_TOL = 1e-9
-
-
-#: a headroom within this of zero is MARGINAL (the relative tolerance of the limit searches)
-HEADROOM_TOL = 1e-6
-
-
-def _margin_outcome(margin: Any, verdict: str | None = None, tol: float = MARGIN_TOL) -> str:
-    """OpenHTF-style outcome of a margin (or headroom) against its limit 0: FAIL below -``tol`` (or
-    when the verdict is potentially unstable), MARGINAL only within ``tol`` of 0 (or when the
-    verdict is marginal), PASS above; ERROR when the margin is missing or not finite."""
-    m = _f(margin)
-    if verdict == "potentially_unstable":
-        return "FAIL"
-    if m is None:
-        return "ERROR"
-    if m < -tol:
-        return "FAIL"
-    if verdict == "marginal" or m <= tol:
-        return "MARGINAL"
-    return "PASS"
 
 
 def _independent_samples(res: Any) -> tuple[np.ndarray, str]:
@@ -677,6 +666,12 @@ def _versions() -> dict[str, str]:
             "python": platform.python_version()}
 
 
+_VERDICTS: dict[str, VerdictStr] = {"stable": "stable", "marginal": "marginal",
+                                    "potentially_unstable": "potentially_unstable", "not_applicable": "not_applicable"}
+_DECISIONS: dict[Decision, DecisionStr] = {Decision.GO: "GO", Decision.MARGINAL: "MARGINAL", Decision.NO_GO: "NO-GO",
+                                           Decision.ERROR: "ERROR"}
+
+
 def _nominal_section(model: str, r: Any, params: Mapping[str, Any]) -> Nominal:
     rows = [ConditionRow(name=c.name, label=c.label, status=c.status, margin=_f(c.margin),
                          worst_frequency=None if c.worst_frequency is None else (
@@ -684,7 +679,7 @@ def _nominal_section(model: str, r: Any, params: Mapping[str, Any]) -> Nominal:
             for c in r.conditions]
     wf = r.worst_frequency
     wf_out = None if wf is None else ("inf" if math.isinf(wf) else float(wf))
-    return Nominal(network=r.network.get("name", model), criterion=r.criterion, verdict=str(r.verdict),
+    return Nominal(network=r.network.get("name", model), criterion=r.criterion, verdict=_VERDICTS[str(r.verdict)],
                    margin=_f(r.margin), worst_frequency=wf_out,
                    failed_condition=r.failed_condition, weak=bool(r.weak),
                    parameters={k: float(v) for k, v in params.items() if isinstance(v, int | float)}, conditions=rows)
@@ -694,19 +689,21 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
                  ) -> tuple[np.ndarray, Callable[[Mapping[str, np.ndarray]], np.ndarray] | None, str,
                             tuple[float, float] | None]:
     """Stability of every draw, a cheap vectorized proxy margin that ranks parameter sets from
-    least to most stable (the SDEA's closed-form margin; None on the general path), the method,
+    least to most stable (the model's vectorized criterion, e.g. the SDEA's closed-form margin; None
+    on the general path), the method,
     and the critical band (5 % quantile of the draws' lower edges to 95 % of their upper edges, see
     hil.models.batch) (None when the path does not provide it)."""
-    n = len(next(iter(draws.values())))
-    if model == "sdea" and criterion == "passivity":
-        from hil.models.batch import sdea_passivity_batch
+    from hil.models import get_model
 
+    n = len(next(iter(draws.values())))
+    batch = get_model(model).vectorized(criterion)
+    if batch is not None:
         fixed = {k: float(v) for k, v in params.items() if isinstance(v, int | float)}
 
         def margin(d: Mapping[str, np.ndarray]) -> np.ndarray:
-            return sdea_passivity_batch(d, fixed=fixed, band=False)["margin"]
+            return batch(d, fixed=fixed, band=False)["margin"]
 
-        res = sdea_passivity_batch(draws, fixed=fixed)
+        res = batch(draws, fixed=fixed)
         # the critical band (hil.models.batch): per draw, where the coupler condition (c-ii) is
         # within 10 % of its minimum; over the draws, the 5 % quantile of the lower edges to the 95 %
         # quantile of the upper edges
@@ -753,14 +750,15 @@ def _verdict_fn(model: str, criterion: str, params: Mapping[str, Any], names: li
     sign also within round-off of the boundary, where a bisection converges: the design point is
     then checked with the exact criterion) or the exact criterion per point (a network that cannot
     be built is not stable)."""
-    if fast:
-        from hil.models.batch import sdea_passivity_batch
+    from hil.models import get_model
 
+    batch = get_model(model).vectorized(criterion) if fast else None
+    if batch is not None:
         fixed = {k: float(v) for k, v in params.items() if isinstance(v, int | float)}
 
         def vec(T: np.ndarray) -> np.ndarray:
             T = np.atleast_2d(T)
-            return sdea_passivity_batch(dict(zip(names, T.T, strict=True)), fixed=fixed, band=False,
+            return batch(dict(zip(names, T.T, strict=True)), fixed=fixed, band=False,
                                         exact_fallback=False)["passive"]
 
         return vec
@@ -866,35 +864,37 @@ def _reliability_stage(model: str, criterion: str, params: Mapping[str, Any], na
 
 def _design(cert: Any, params: Mapping[str, Any], draws: Mapping[str, np.ndarray], policy: Policy,
             nominal_params: Mapping[str, Any] | None = None) -> Design | None:
+    from hil.models import get_model
+
     d = cert.design
-    if cert.model != "sdea" or d.parameter not in ("k22", "b22"):
+    m = get_model(cert.model)
+    crit = _criterion(cert.model, cert.criterion)
+    batch = m.vectorized(crit)
+    if batch is None or d.parameter not in m.design:
         return Design(parameter=d.parameter, max_value=None, probability_at_max=None,
                       required=policy.required_probability,
                       note="design search is implemented for the SDEA coupler (k22, b22)")
-    from hil.models.batch import sdea_passivity_batch
+    dp = m.design[d.parameter]
 
     fixed = {k: float(v) for k, v in params.items() if isinstance(v, int | float)}
 
     def stable(x: float) -> np.ndarray:
         dd = dict(draws)
         dd[d.parameter] = np.full(len(next(iter(draws.values()))), x)
-        return sdea_passivity_batch(dd, fixed=fixed, band=False)["passive"]
+        return batch(dd, fixed=fixed, band=False)["passive"]
 
     x, p = max_safe_parameter(stable, d.range[0], d.range[1], policy.required_probability, policy.confidence)
-    unit = "N.m/rad" if d.parameter == "k22" else "N.m.s/rad"
+    unit = dp.unit
     head: dict[str, Any] = {}
     cur = fixed.get(d.parameter)
-    if d.parameter == "k22" and cur is not None and cur > 0:
+    if dp.headroom is not None and cur is not None and cur > 0:
         # parametric headroom (docs/CERTIFICATION.md): k22_max/k22 − 1 at the nominal plant, and the
         # posterior limit (lower bound of P(stable) = required) / k22 − 1
         from hil.certify import posterior_limit
-        from hil.models.design import k22_headroom
-        from hil.models.sdea import SDEA_TABLE1
 
         plant = {k: float(v) for k, v in (nominal_params or params).items()
-                 if k in SDEA_TABLE1 and isinstance(v, int | float)}
-        base = {**SDEA_TABLE1, **plant}
-        km, hn = k22_headroom(cur, base["b22"], base["alpha"], "passivity", plant)
+                 if k in m.defaults and isinstance(v, int | float)}
+        km, hn = dp.headroom(cur, plant)
         xl, kind = posterior_limit(stable, cur, policy.required_probability, policy.confidence)
         head = {"nominal_limit": km, "nominal_headroom": hn, "posterior_limit": xl, "posterior_limit_kind": kind,
                 "posterior_headroom": xl / cur - 1.0}
@@ -904,7 +904,7 @@ def _design(cert: Any, params: Mapping[str, Any], draws: Mapping[str, np.ndarray
                        f"{policy.confidence:.0%} bound of P(stable) stays ≥ {policy.required_probability}", **head)
 
 
-def _witness(tm: Any, plots: dict[str, Series], opt: _Optional, scene: Any = None) -> Witness | None:
+def _witness(tm: Any, plots: dict[str, Series], opt: Sheet, scene: Any = None) -> Witness | None:
     """Search a passive termination set and simulate the driven, terminated one-port exactly
     (a failure of the simulation is recorded by ``opt``; the witness is kept without it). With the
     scene, the witness says what a reader needs: the closed-loop poles the termination creates,
@@ -918,12 +918,13 @@ def _witness(tm: Any, plots: dict[str, Series], opt: _Optional, scene: Any = Non
     if w is None:
         return None
     units = getattr(scene, "units", None)
-    sim = opt.run("witness simulation", _simulate_witness, w, plots, scene)
+    sim = opt.optional("witness simulation", _simulate_witness, w, plots, scene)
     if sim is None:
         sim = {"simulated": False, "reason": f"simulation failed: {opt.failed['witness simulation']}"}
     band = None if w.band_rad_s is None else (float(w.band_rad_s[0]),
                                              "inf" if math.isinf(w.band_rad_s[1]) else float(w.band_rad_s[1]))
-    extra = {k: sim.pop(k) for k in list(sim) if k in witness_response.FIELDS}
+    fields: tuple[str, ...] = witness_response.FIELDS  # type: ignore[attr-defined]  # set on the function there
+    extra = {k: sim.pop(k) for k in list(sim) if k in fields}
     return Witness(terminations={str(k): v.to_dict() for k, v in w.terminations.items()},
                    drive_frequency_rad_s=w.drive_frequency, band_rad_s=band, margin=float(w.result.margin),
                    simulation=sim, units=units, **extra)
@@ -972,16 +973,15 @@ def _fault_measurements(outcomes: Mapping[str, Any], measurements: list[Measurem
         if held:
             detail += "; reads without a new sample (held, not counted): " + ", ".join(
                 f"{dev}={n}" for dev, n in sorted(held.items()))
-        measurements.append(Measurement(
-            name=f"device faults tolerated ({exp_name})", value=float(total), unit="count", outcome="INFO",
-            description=f"adapter counters during the run: {detail}"))
+        measurements.append(info_spec(f"device faults tolerated ({exp_name})", "count").measure(
+            float(total), description=f"adapter counters during the run: {detail}"))
 
 
-def _energy_stage(opt: _Optional, name: str, o: Any, energy: list[EnergyEvidence], measurements: list[Measurement],
+def _energy_stage(opt: Sheet, name: str, o: Any, energy: list[EnergyEvidence], measurements: list[Measurement],
                   plots: dict[str, Series]) -> None:
     """The optional energy-evidence stage of one experiment, and its plot."""
-    if opt.run(f"energy evidence ({name})", _energy_evidence, name, o, energy, measurements, default=False):
-        opt.run(f"plots (energy {name})", _energy_plot, plots, name, o)
+    if opt.optional(f"energy evidence ({name})", _energy_evidence, name, o, energy, measurements, default=False):
+        opt.optional(f"plots (energy {name})", _energy_plot, plots, name, o)
 
 
 def _energy_evidence(name: str, o: Any, energy: list[EnergyEvidence], measurements: list[Measurement]) -> bool:
@@ -993,9 +993,7 @@ def _energy_evidence(name: str, o: Any, energy: list[EnergyEvidence], measuremen
     ev = EnergyEvidence(experiment=name, port=str(r.get("port")), record=str(o.record),
                         went_negative=bool(r["went_negative"]), min_energy=float(r["min_energy"]),
                         bound=bound, first_time=r.get("first_time"))
-    m = Measurement(name=f"E_s(t) ≥ -bound ({name})", value=float(r["min_energy"]), unit="J",
-                    lower=-bound, outcome="FAIL" if r["went_negative"] else "PASS",
-                    description="minimum port energy over the run against its noise bound")
+    m = energy_spec(name).measure(float(r["min_energy"]), result=bool(r["went_negative"]), lower=-bound)
     energy.append(ev)  # both or neither
     measurements.append(m)
     return True
@@ -1026,31 +1024,36 @@ def _decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
 
     decided_plot(plots, tm, r)
 
-def _critical_band_plot(plots: dict[str, Series], params: Mapping[str, Any], draws: Mapping[str, np.ndarray],
-                        band: tuple[float, float]) -> None:
-    """The SDEA's normalized coupler condition g(ω) = t(ω²)/|t|(ω²) at the posterior mean and its
-    5-95 % band over the draws, with the 10 % threshold of the mean and the certificate's critical
-    band (over the draws) marked."""
+def _critical_band_plot(plots: dict[str, Series], model: str, params: Mapping[str, Any],
+                        draws: Mapping[str, np.ndarray], band: tuple[float, float]) -> None:
+    """The model's normalized band condition (the SDEA's coupler condition) g(ω) = t(ω²)/|t|(ω²)
+    at the posterior mean and its 5-95 % band over the draws, with the 10 % threshold of the mean
+    and the certificate's critical band (over the draws) marked; nothing for a model without one."""
+    from hil.models import get_model
     from hil.models.batch import BAND_GRID_RAD_S, CRITICAL_BAND_FRACTION
-    from hil.models.sdea import SDEA_TABLE1, sdea_polynomials
 
-    base = {**SDEA_TABLE1, **{k: float(v) for k, v in params.items() if isinstance(v, int | float)}}
+    m = get_model(model)
+    if m.band_condition is None:
+        return
+    condition = m.band_condition
+    table = m.defaults  # the model's parameter table (Table I for the SDEA)
+    base = {**table, **{k: float(v) for k, v in params.items() if isinstance(v, int | float)}}
     n = len(next(iter(draws.values())))
     sub = slice(None, None, max(1, n // 400))
     w = BAND_GRID_RAD_S
     x = (w * w)[:, None]
 
     def g_of(q: Mapping[str, np.ndarray]) -> np.ndarray:
-        t0, t1, t2, t3 = sdea_polynomials(q)["t"]
+        t0, t1, t2, t3 = condition(q)
         tv = ((t3 * x + t2) * x + t1) * x + t0
         tm = ((np.abs(t3) * x + np.abs(t2)) * x + np.abs(t1)) * x + np.abs(t0)
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(tm > 0, tv / tm, np.nan)
 
     qd = {k: np.asarray(draws[k], float)[sub] if k in draws else np.full(len(range(n)[sub]), base[k])
-          for k in SDEA_TABLE1}
+          for k in table}
     gd = g_of(qd)
-    gm = g_of({k: np.array([float(np.mean(draws[k])) if k in draws else base[k]]) for k in SDEA_TABLE1})[:, 0]
+    gm = g_of({k: np.array([float(np.mean(draws[k])) if k in draws else base[k]]) for k in table})[:, 0]
     q05, q95 = np.nanquantile(gd, [0.05, 0.95], axis=1)
     gmin = float(np.nanmin(gm))
     thr = gmin + CRITICAL_BAND_FRACTION * (1.0 - gmin)

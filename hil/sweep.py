@@ -167,7 +167,7 @@ class SweepSpec:
         for a in self.axes:
             if a.name in self.params:
                 raise SweepError(f"--grid {a.name}: also fixed with --set; drop one")
-            gains = self.scene_params.get("gains")
+            gains = self.scene_params.get(m.table) if m.table is not None else None
             if isinstance(gains, Mapping) and a.name in gains:
                 continue  # a gain of the scene's controller table
             if m.defaults and a.name not in m.defaults:
@@ -255,15 +255,16 @@ def build_network(model: str, params: Mapping[str, Any]) -> Any:
 
 
 def _p_stable(model: str, criterion: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray]) -> float:
-    n = len(next(iter(draws.values())))
-    if model == "sdea" and criterion == "passivity":
-        from hil.models.batch import sdea_passivity_batch
+    from hil.models import get_model
 
+    n = len(next(iter(draws.values())))
+    batch = get_model(model).vectorized(criterion)
+    if batch is not None:
         fixed = {k: float(v) for k, v in params.items()}
         d = {k: v for k, v in draws.items() if k not in fixed}
         if not d:
             d = {next(iter(fixed)): np.full(n, next(iter(fixed.values())))}
-        res = sdea_passivity_batch(d, fixed=fixed)
+        res = batch(d, fixed=fixed)
         return float(np.mean(res["passive"]))
     from hil.stability.criteria import check
 
@@ -860,14 +861,14 @@ def plot_sweep(res: SweepResult, path: str | Path, required: float | None = None
     return path
 
 
-#: units of the built-in models' parameters (for axis labels)
-PARAM_UNITS = {"sdea": {"M": "kg.m²", "B": "N.m.s/rad", "B_f": "N.m.s/rad", "P_m": "N.m.s/rad", "b22": "N.m.s/rad",
-                        "K_f": "N.m/rad", "I_m": "N.m/rad", "k22": "N.m/rad", "P_f": "rad/(N.m.s)",
-                        "I_f": "rad/(N.m.s²)", "alpha": "1"}}
-
-
 def _label(name: str, res: SweepResult) -> str:
-    unit = PARAM_UNITS.get(str(res.spec.get("model")), {}).get(name)
+    """An axis label: the parameter with its unit where the model declares one."""
+    from hil.models import get_model
+
+    try:
+        unit = get_model(str(res.spec.get("model"))).units.get(name)
+    except KeyError:
+        unit = None
     return f"{name} [{unit}]" if unit else name
 
 

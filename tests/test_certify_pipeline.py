@@ -153,16 +153,6 @@ def test_scene_without_certification_is_an_ERROR_certificate(tmp_path):
     assert c.decision == "ERROR" and c.errors
 
 
-@pytest.mark.parametrize("margin,verdict,expected", [
-    (0.3, "stable", "PASS"), (-0.2, None, "FAIL"), (-1e-6, None, "FAIL"), (0.0, "stable", "MARGINAL"),
-    (5e-10, None, "MARGINAL"), (1e-3, "marginal", "MARGINAL"), (0.3, "potentially_unstable", "FAIL"),
-    (float("nan"), None, "ERROR"), (None, None, "ERROR")])
-def test_margin_outcome_negative_is_FAIL_not_MARGINAL(margin, verdict, expected):
-    from hil.pipeline import _margin_outcome
-
-    assert _margin_outcome(margin, verdict) == expected
-
-
 def test_independent_samples_thin_the_chain_without_duplicates():
     """The emcee chain (steps × walkers) is thinned every ⌈τ⌉ steps per walker, in the flat order
     of PosteriorResult.samples; every kept sample is a distinct stored one."""

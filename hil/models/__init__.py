@@ -1,14 +1,20 @@
 """Built-in network models from the papers, selectable by name (``hil stability --model NAME``).
 
-Each entry gives a builder taking keyword parameters, the criterion that fits the network, and
-the parameters it accepts (with their defaults), so the CLI can validate ``--set NAME=VALUE``.
+A model is one registered object (:class:`BuiltinModel`, looked up with :func:`get_model`): the
+builder of its network from keyword parameters (:meth:`BuiltinModel.network`), the criterion that
+fits the network (a name of :func:`hil.stability.criteria.check`), the parameters it accepts with
+their defaults (so the CLI can validate ``--set NAME=VALUE``), how a scene's controller and
+simulation map to those parameters (:meth:`BuiltinModel.params_from_scene`), and, optionally,
+vectorized evaluators of a criterion over many parameter sets and the design parameters they can
+search. ``hil certify`` and ``hil sweep`` use only these: adding a model is one builder, one
+scene mapping and one entry in :func:`_defaults`, with no branch on the model's name elsewhere.
 """
 
 from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -17,16 +23,47 @@ import numpy as np
 from hil.errors import ModelError
 from hil.stability.rational import TransferMatrix
 
-__all__ = ["BUILTIN_MODELS", "BuiltinModel", "get_model"]
+__all__ = ["BUILTIN_MODELS", "BatchCriterion", "BuiltinModel", "DesignParameter", "get_model", "model_names"]
+
+#: a vectorized criterion: (draws: name -> (N,) arrays, fixed: name -> value, band: bool,
+#: exact_fallback: bool) -> {"passive": (N,) bool, "margin": (N,), "band_lo", "band_hi": (N,) rad/s}
+#: (the signature of :func:`hil.models.batch.sdea_passivity_batch`)
+BatchCriterion = Callable[..., dict[str, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class DesignParameter:
+    """A free design parameter a vectorized criterion can search (``hil certify``'s design
+    stage): its unit and, optionally, its parametric headroom at a plant,
+    ``headroom(current, plant params) -> (limit, limit / current − 1)``."""
+
+    unit: str
+    headroom: Callable[[float, dict[str, float]], tuple[float, float]] | None = None
 
 
 @dataclass(frozen=True)
 class BuiltinModel:
+    """A registered network model (module docstring). ``from_scene(scene, controller config)``
+    gives the parameters a scene implies; ``table``: a parameter taking a named gain set or a
+    mapping of gains (whose entries may also be given at the top level); ``batch``: vectorized
+    evaluators by criterion name; ``design``: the design parameters those can search;
+    ``band_condition(q)``: coefficients (t0, t1, ...) in x = ω² of the normalized condition whose
+    critical band the certificate plots (q: parameter arrays); ``units``: the parameters' units
+    (axis labels)."""
+
     name: str
     description: str
     criterion: str
     defaults: dict[str, Any] = field(default_factory=dict)
     _builder: Callable[..., TransferMatrix] | None = None
+    from_scene: Callable[[Any, dict[str, Any]], dict[str, Any]] | None = None
+    table: str | None = None
+    batch: dict[str, BatchCriterion] = field(default_factory=dict)
+    design: dict[str, DesignParameter] = field(default_factory=dict)
+    band_condition: Callable[[Any], Any] | None = None
+    units: dict[str, str] = field(default_factory=dict)
+    #: allowed values of the string parameters (e.g. the gain sets of a table)
+    choices: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     def check_params(self, params: dict[str, Any], *, allow_unknown: bool = False) -> None:
         """Refuse unknown names (unless ``allow_unknown``: builders such as ``mbk_impedance`` take
@@ -48,19 +85,60 @@ class BuiltinModel:
             elif not math.isfinite(v):
                 raise ModelError(f"model {self.name}: parameter {k} must be finite, got {float(v)!r}")
 
-    @property
-    def choices(self) -> dict[str, tuple[str, ...]]:
-        """Allowed values of the string parameters (e.g. the gain sets of a table)."""
-        if self.name == "bilateral_2dof":
-            from hil.models.teleop import TWO_DOF_TABLE2
-
-            return {"gains": tuple(TWO_DOF_TABLE2)}
-        return {}
-
     def build(self, **params: Any) -> TransferMatrix:
         assert self._builder is not None
-        self.check_params(params, allow_unknown=True)
+        table = params.get(self.table) if self.table is not None else None
+        if isinstance(table, Mapping):  # a gain table: checked by the builder
+            rest = {k: v for k, v in params.items() if k != self.table}
+            self.check_params(rest, allow_unknown=True)
+        else:
+            self.check_params(params, allow_unknown=True)
         return self._builder(**params)
+
+    def network(self, params: Mapping[str, Any]) -> TransferMatrix:
+        """The network with ``params``; a gain table (``table``: a mapping, as a scene's
+        controller gives it) takes any of its entries given at the top level too (``k_pmyz=...``:
+        a swept or overridden gain)."""
+        q = dict(params)
+        if self.table is not None:
+            gains = q.get(self.table)
+            if isinstance(gains, Mapping):
+                q[self.table] = {**gains, **{k: q.pop(k) for k in list(q) if k in gains}}
+        return self.build(**q)
+
+    def params_from_scene(self, scene: Any) -> dict[str, Any]:
+        """The parameters ``scene``'s controller and simulation imply (empty when the model has
+        no scene mapping or the scene's controller is not the one it describes); the caller adds
+        ``certification.parameters`` on top."""
+        if self.from_scene is None:
+            return {}
+        return self.from_scene(scene, scene.controller_config())
+
+    def vectorized(self, criterion: str) -> BatchCriterion | None:
+        """The vectorized evaluator of ``criterion`` for this model, or None (then each
+        parameter set goes through the exact criterion)."""
+        return self.batch.get(criterion)
+
+
+def _sdea_batch(*args: Any, **kw: Any) -> dict[str, np.ndarray]:
+    from hil.models.batch import sdea_passivity_batch
+
+    return sdea_passivity_batch(*args, **kw)
+
+
+def _k22_headroom(current: float, plant: dict[str, float]) -> tuple[float, float]:
+    """k22's parametric headroom under passivity at ``plant`` (Table I for what it lacks)."""
+    from hil.models.design import k22_headroom
+    from hil.models.sdea import SDEA_TABLE1
+
+    base = {**SDEA_TABLE1, **plant}
+    return k22_headroom(current, base["b22"], base["alpha"], "passivity", plant)
+
+
+def _sdea_coupler_condition(q: Any) -> Any:
+    from hil.models.sdea import sdea_polynomials
+
+    return sdea_polynomials(q)["t"]
 
 
 def _sdea(**p: Any) -> TransferMatrix:
@@ -111,23 +189,43 @@ def _t2(**_: Any) -> TransferMatrix:
     return termination_T2()
 
 
+#: units of the SDEA's parameters (rotary SI)
+SDEA_UNITS = {"M": "kg.m²", "B": "N.m.s/rad", "B_f": "N.m.s/rad", "P_m": "N.m.s/rad", "b22": "N.m.s/rad",
+              "K_f": "N.m/rad", "I_m": "N.m/rad", "k22": "N.m/rad", "P_f": "rad/(N.m.s)", "I_f": "rad/(N.m.s²)",
+              "alpha": "1"}
+
+
 def _defaults() -> dict[str, BuiltinModel]:
+    from hil.models import scene_params as S
     from hil.models.sdea import SDEA_TABLE1
-    from hil.models.teleop import BILATERAL_1DOF, DUAL_MASTER_TABLE1, MBK_2DOF, MCET_TABLE1, TWO_DOF_ROBOT
+    from hil.models.teleop import (
+        BILATERAL_1DOF,
+        DUAL_MASTER_TABLE1,
+        MBK_2DOF,
+        MCET_TABLE1,
+        TWO_DOF_ROBOT,
+        TWO_DOF_TABLE2,
+    )
 
     return {
         "sdea": BuiltinModel("sdea", "SDEA under VSIC with virtual coupler (002 eq. 12, Table I)", "passivity",
-                             dict(SDEA_TABLE1), _sdea),
+                             dict(SDEA_TABLE1), _sdea, from_scene=S.sdea_params, batch={"passivity": _sdea_batch},
+                             design={"k22": DesignParameter("N.m/rad", _k22_headroom),
+                                     "b22": DesignParameter("N.m.s/rad")},
+                             band_condition=_sdea_coupler_condition, units=dict(SDEA_UNITS)),
         "mcet_trilateral": BuiltinModel("mcet_trilateral", "dual-user MCET trilateral system (000 eq. 25, Table I)",
-                                        "absolute_stability", dict(MCET_TABLE1), _mcet),
+                                        "absolute_stability", dict(MCET_TABLE1), _mcet, from_scene=S.mcet_params),
         "bilateral_2dof": BuiltinModel("bilateral_2dof", "2-DOF bilateral position-position (000 eq. 44, Table II)",
                                        "absolute_stability",
                                        {"gains": "A1", **{f"k_{p}{a}": None for p in "pv" for a in ("yy", "zz", "yz")},
-                                        **TWO_DOF_ROBOT}, _bilateral),
+                                        **TWO_DOF_ROBOT}, _bilateral, from_scene=S.bilateral_2dof_params,
+                                       table="gains", choices={"gains": tuple(TWO_DOF_TABLE2)}),
         "bilateral_1dof": BuiltinModel("bilateral_1dof", "1-DOF bilateral position-position (eq. 44, m = 1)",
-                                       "llewellyn", dict(BILATERAL_1DOF), _bilateral1),
+                                       "llewellyn", dict(BILATERAL_1DOF), _bilateral1,
+                                       from_scene=S.bilateral_1dof_params),
         "dual_master_3dof": BuiltinModel("dual_master_3dof", "dual-master/single-slave 3-DOF (001 eq. 17, Table I)",
-                                         "absolute_stability", dict(DUAL_MASTER_TABLE1), _dual),
+                                         "absolute_stability", dict(DUAL_MASTER_TABLE1), _dual,
+                                         from_scene=S.dual_master_3dof_params),
         "mbk_impedance": BuiltinModel("mbk_impedance", "m-DOF mass-damper-spring device, Z = (M s² + B s + K)/s",
                                       "positive_real", {**MBK_2DOF, "dof": 2}, _mbk),
         "T1": BuiltinModel("T1", "2-DOF termination T1 of 000 eq. (1) (not passive)", "positive_real", {}, _t1),
@@ -149,6 +247,7 @@ def get_model(name: str) -> BuiltinModel:
 
 
 def model_names() -> list[str]:
+    """The names of the registered models."""
     if not BUILTIN_MODELS:
         BUILTIN_MODELS.update(_defaults())
     return list(BUILTIN_MODELS)

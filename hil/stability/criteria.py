@@ -1288,6 +1288,11 @@ def check(tm: TransferMatrix | Rational, criterion: str = "auto", tol: Tolerance
                      "absolute_stability")
 
 
+#: the criteria :func:`check` runs by name (besides ``auto``, which picks one by the network's
+#: size): the one list other modules read (CLI choices, scene and network-file checks)
+CRITERIA: tuple[str, ...] = ("positive_real", "passivity", "llewellyn", "absolute_stability")
+
+
 def margin_curve(g: TransferMatrix | Rational, condition: str = "E{1}"):
     """ω ↦ p(x)/m_r(x) of one frequency condition, the quantity whose minimum is that condition's
     frequency-domain margin (docs/VERDICTS.md), for plots: ω in physical rad/s, values in [-1, 1].
