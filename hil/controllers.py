@@ -58,7 +58,7 @@ import logging
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Protocol, TypeAlias, runtime_checkable
 
 import numpy as np
 from pydantic import BeforeValidator, Field, model_validator
@@ -115,8 +115,8 @@ __all__ = [
     "vsic_controller",
 ]
 
-DeviceSample = JointSample | WrenchSample
-Measurements = Mapping[str, DeviceSample]
+DeviceSample: TypeAlias = JointSample | WrenchSample
+Measurements: TypeAlias = Mapping[str, DeviceSample]
 
 
 @runtime_checkable
@@ -290,7 +290,7 @@ def _dof_of(scene: Scene, name: str) -> int | None:
 class NoController(ControllerConfig):
     """No controller: the experiment's excitation is the only effort."""
 
-    type: Literal["none"]  # type: ignore[assignment]  # narrows the base's str: the discriminator
+    type: Literal["none"]
 
 
 class PdPositionPosition(ControllerConfig):
@@ -299,7 +299,7 @@ class PdPositionPosition(ControllerConfig):
     Gains are dof x dof (N/m, N.s/m or N.m/rad, N.m.s/rad); a number means ``k * I``, a flat list
     a diagonal. ``dof`` (optional) must equal the devices' DOF count."""
 
-    type: Literal["pd_position_position"]  # type: ignore[assignment]  # the discriminator
+    type: Literal["pd_position_position"]
     master: Name
     slave: Name
     Kp_m: StiffMat
@@ -353,7 +353,7 @@ class Mcet(ControllerConfig):
     (default -1: the slave sensor reports the force the slave exerts on the environment), ``dof``
     (optional; the three devices' common DOF count). Gains are numbers (``k I``) or dof x dof."""
 
-    type: Literal["mcet"]  # type: ignore[assignment]  # the discriminator
+    type: Literal["mcet"]
     masters: Annotated[list[Name], Field(min_length=2, max_length=2)]
     slave: Name
     alpha: Fraction
@@ -430,7 +430,7 @@ class DualMaster(ControllerConfig):
     pairs of n x n matrices, n the slave DOF count (a number: ``k I``): master effort
     ``C_4 x_s - C_m x_m``, slave effort ``C_1 x_m - C_s x_s`` (x in the slave DOF order)."""
 
-    type: Literal["dual_master"]  # type: ignore[assignment]  # the discriminator
+    type: Literal["dual_master"]
     masters: Annotated[list[MasterMap], Field(min_length=1)]
     slave: Name
     C_m: PdGain
@@ -509,7 +509,7 @@ class Vsic(ControllerConfig):
     ``force_sign``: +1 or -1 applied to that reading; ``output``: an end-effector encoder device
     (absent: a locked output, ``x_o = v_o = 0``)."""
 
-    type: Literal["vsic"]  # type: ignore[assignment]  # the discriminator
+    type: Literal["vsic"]
     actuator: Name
     force_sensor: Name | None = None
     force_axis: Annotated[int, Field(ge=0, le=5)] | None = None
@@ -927,8 +927,10 @@ register_controller("mcet", Mcet, lambda c, where, scene: mcet_controller(c, whe
 register_controller("dual_master", DualMaster, lambda c, where, scene: dual_master_controller(c, where))
 register_controller("vsic", Vsic, vsic_controller)
 
-#: the units a scene (and everything that reads one) assumes when it names none
-DEFAULT_UNITS = "linear"
+#: what a scene's ``units`` may be: names in messages and records (the laws are unit-agnostic)
+Units: TypeAlias = Literal["linear", "rotary"]
+#: the units a scene (and everything that reads one: runner, records) assumes when it names none
+DEFAULT_UNITS: Units = "linear"
 
 
 def make_controller(cfg: ControllerConfig | Mapping[str, Any] | None, *, units: str = DEFAULT_UNITS,

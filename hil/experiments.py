@@ -187,7 +187,7 @@ class ChirpExperiment(_PeriodicConfig):
     """Swept sine from ``f0`` to ``f1`` (Hz) of ``amplitude`` (N or N.m; m or rad with ``excite:
     motion``) on ``target``'s ``dofs`` (see :class:`Chirp`)."""
 
-    type: Literal["chirp"]  # type: ignore[assignment]  # narrows the base's str: the discriminator
+    type: Literal["chirp"]
     sweep: Literal["log", "linear"] = "log"
     fade: SecondsOrZero = 0.0
     periodic: bool = False
@@ -198,7 +198,7 @@ class MultisineExperiment(_PeriodicConfig):
     """Sum of ``n_lines`` sines per DOF between ``f0`` and ``f1`` (Hz), peak ``amplitude`` (N or
     N.m) on ``target``'s ``dofs`` (see :class:`Multisine`)."""
 
-    type: Literal["multisine"]  # type: ignore[assignment]  # the discriminator
+    type: Literal["multisine"]
     n_lines: int = Field(default=64, ge=1)
     simultaneous: bool = True
     spacing: Literal["linear", "log"] = "linear"
@@ -233,7 +233,7 @@ class EnergyInjectionExperiment(ExperimentConfig):
     """Active force at a network ``port`` for ``duration`` s while ``E_s = ∫ F^T V dt`` at the port
     is tracked (see :class:`EnergyInjection`)."""
 
-    type: Literal["energy_injection"]  # type: ignore[assignment]  # the discriminator
+    type: Literal["energy_injection"]
     port: Name
     duration: Seconds
     profile: ForceProfileCfg
@@ -258,7 +258,7 @@ class StaticHoldExperiment(ExperimentConfig):
     """Constant ``effort`` (N or N.m; one value, or one per DOF) on ``target``'s ``dofs`` for
     ``duration`` s; statistics after ``settle`` s (see :class:`StaticHold`)."""
 
-    type: Literal["static_hold"]  # type: ignore[assignment]  # the discriminator
+    type: Literal["static_hold"]
     target: Name
     dofs: DofList | None = None
     effort: Effort | Annotated[list[Effort], Field(min_length=1)]
@@ -859,8 +859,8 @@ class EnergyInjection(_Base[EnergyInjectionExperiment]):
         self.port = cfg.port
         self.duration = cfg.duration
         self.profile_cfg = cfg.profile
-        #: the profile as recorded in the results
-        self.profile = cfg.profile.model_dump()
+        #: the profile as recorded in the results (``freqs`` only when given: ``multisine`` lines)
+        self.profile = cfg.profile.model_dump(exclude={"freqs"} if cfg.profile.freqs is None else None)
         self.via: str | None = cfg.via
         self.noise_bound: str | float = cfg.noise_bound
         self.k_sigma = cfg.k_sigma

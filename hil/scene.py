@@ -66,6 +66,7 @@ from hil.controllers import (
     NoController,
     PdGain,
     PdPositionPosition,
+    Units,
     Vsic,
     VsicEnvironment,
     controller_schemas,
@@ -340,7 +341,7 @@ class NamedTermination(_TermBase):
     not passive)."""
 
     type: Literal["named"]
-    name: Literal["T1", "T2"]  # type: ignore[assignment]
+    name: Literal["T1", "T2"]
 
 
 Termination = Annotated[ImpedanceTermination | WallTermination | NamedTermination, Field(discriminator="type")]
@@ -553,7 +554,7 @@ class Scene(_Strict):
     seed: Seed = 0
     rate_hz: Annotated[float, BeforeValidator(lambda v: _number(v, "Hz")), Field(gt=0, le=100_000)] = 1000.0
     mode: Literal["lockstep", "realtime"] | None = None
-    units: Literal["rotary", "linear"] = DEFAULT_UNITS  # type: ignore[assignment]  # "linear", a Literal member
+    units: Units = DEFAULT_UNITS
     devices: Annotated[list[Device], Field(min_length=1)]
     groups: list[GroupCfg] = Field(default_factory=list)
     simulation: Simulation | None = None
@@ -807,17 +808,17 @@ def _check_simulation(sc: Scene, sim: Simulation) -> None:
                 raise FieldError(f"simulation.springs[{i}].b", f"ports have {na} and {nb} DOF")
         square(f"simulation.springs[{i}].stiffness", sp.stiffness, na)
         square(f"simulation.springs[{i}].damping", sp.damping, na)
-    for i, t in enumerate(sim.terminations):
-        n = body(f"simulation.terminations[{i}].port", t.port, t.dofs)
-        if isinstance(t, ImpedanceTermination) and len(t.tf) != n:
+    for i, term in enumerate(sim.terminations):
+        n = body(f"simulation.terminations[{i}].port", term.port, term.dofs)
+        if isinstance(term, ImpedanceTermination) and len(term.tf) != n:
             raise FieldError(f"simulation.terminations[{i}].tf", f"expected a {n}x{n} transfer matrix (port DOF), "
-                                                             f"got {len(t.tf)}x{len(t.tf)}")
-        if isinstance(t, WallTermination):
-            square(f"simulation.terminations[{i}].stiffness", t.stiffness, n)
-            square(f"simulation.terminations[{i}].damping", t.damping, n)
-        if isinstance(t, NamedTermination) and NAMED_TERMINATION_DOF[t.name] != n:
+                                                             f"got {len(term.tf)}x{len(term.tf)}")
+        if isinstance(term, WallTermination):
+            square(f"simulation.terminations[{i}].stiffness", term.stiffness, n)
+            square(f"simulation.terminations[{i}].damping", term.damping, n)
+        if isinstance(term, NamedTermination) and NAMED_TERMINATION_DOF[term.name] != n:
             raise FieldError(f"simulation.terminations[{i}].name",
-                         f"{t.name} has {NAMED_TERMINATION_DOF[t.name]} ports, the port has {n} DOF")
+                         f"{term.name} has {NAMED_TERMINATION_DOF[term.name]} ports, the port has {n} DOF")
     hnames: set[str] = set()
     for i, h in enumerate(sim.humans):
         path = "simulation.human" if isinstance(sim.human, HumanCfg) else f"simulation.human[{i}]"
@@ -873,7 +874,7 @@ def _network_parameters(model: str) -> tuple[list[str], Any]:
 
         def ok(k: str) -> bool:
             hit = _MBK_ENTRY.match(k)
-            return bool(hit) and int(hit.group(2)) <= int(hit.group(3))
+            return hit is not None and int(hit.group(2)) <= int(hit.group(3))
 
         return names, ok
     if model == "bilateral_2dof":
@@ -1079,7 +1080,7 @@ def _builtin_dir() -> Path:
 
 def builtin_scenes() -> list[tuple[str, str]]:
     """``(name, description)`` of every built-in scene, sorted by name."""
-    import yaml
+    import yaml  # type: ignore[import-untyped]  # no types-PyYAML in the environment
 
     out = []
     for p in sorted(_builtin_dir().glob("*.yaml")):
