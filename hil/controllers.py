@@ -476,7 +476,8 @@ _ENV_FIELDS = {"none": (), "spring": ("k", "b"), "spring_damper": ("k", "b"), "m
 
 
 class VsicEnvironment(StrictModel):
-    """Virtual environment rendered by the VSIC behind the coupler: ``none`` (no environment:
+    """Virtual environment rendered by the VSIC behind the coupler, by ``type`` (default
+    ``spring``; no ``environment`` at all: ``none``): ``none`` (no environment:
     ``F_ref = 0``), ``spring`` / ``spring_damper`` (spring ``k`` N.m/rad to its rest at 0,
     damper ``b`` N.m.s/rad), ``mass_spring_damper`` (plus the mass ``m`` kg.m^2)."""
 

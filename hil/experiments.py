@@ -256,7 +256,8 @@ class EnergyInjectionExperiment(ExperimentConfig):
 
 class StaticHoldExperiment(ExperimentConfig):
     """Constant ``effort`` (N or N.m; one value, or one per DOF) on ``target``'s ``dofs`` for
-    ``duration`` s; statistics after ``settle`` s (see :class:`StaticHold`)."""
+    ``duration`` s; statistics after ``settle`` s; ``variant``: plant configuration of a simulated
+    SDEA (``locked`` | ``free`` output; recorded) (see :class:`StaticHold`)."""
 
     type: Literal["static_hold"]
     target: Name
