@@ -44,8 +44,16 @@ partner produces a restoring (negative) effort on it.
   coupled to each other, not to the slave; the slave follows the authority-weighted masters.
 * ``dual_master`` (001 eq. 15): ``F_cm = -C_m V_h + C_4 V_e``, ``F_cs = -C_s V_e + C_1 V_h`` with
   ``V_h`` the masters' velocities stacked in the slave's DOF order (master 1 -> x, master 2 ->
-  y, z by default: ``masters: [{name: m1, dofs: [0]}, {name: m2, dofs: [1, 2]}]``) and every
-  ``C = (Kp + Kv s)/s`` a matrix; i.e. ``Kp = [[Kp_m, -Kp_4], [-Kp_1, Kp_s]]``.
+  y, z: ``masters: [{device: m1, slave_dofs: [0]}, {device: m2, slave_dofs: [1, 2]}]``) and every
+  ``C = (Kp + Kv s)/s`` a matrix; i.e. ``Kp = [[C_m.kp, -C_4.kp], [-C_1.kp, C_s.kp]]``.
+
+Configuration
+-------------
+Each controller type has one pydantic schema here (:class:`NoController`, :class:`PdPositionPosition`,
+:class:`Mcet`, :class:`DualMaster`, :class:`Vsic`; their docstrings list every field) and one builder,
+registered in :data:`CONTROLLER_TYPES` (``register_controller``); :mod:`hil.scene` composes the
+scene's ``controller`` block from that registry. :func:`make_controller` takes the validated model
+(or validates a mapping once against the same schema).
 
 SDEA velocity-sourced impedance control (paper 002)
 ---------------------------------------------------

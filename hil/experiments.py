@@ -1,7 +1,11 @@
 """Experiments the runner plays on the bench (``docs/RUNNER_SPEC.md``): chirp, multisine, energy
 injection, static hold.
 
-Each experiment is built from one scene entry by :func:`make_experiment` and then
+Each experiment type has one pydantic schema here (:class:`ChirpExperiment`,
+:class:`MultisineExperiment`, :class:`EnergyInjectionExperiment`, :class:`StaticHoldExperiment`) and
+one implementation, registered in :data:`EXPERIMENT_TYPES` (``register_experiment``); :mod:`hil.scene`
+composes the scene's ``experiments`` list from that registry. Each experiment is built from one
+validated entry by :func:`make_experiment` and then
 
 * ``check(scene)`` -- before anything moves: band below Nyquist/5 (``f1 <= rate_hz / 10``; the
   zero-order hold costs ``ω T/2`` of phase, 18° at that limit), amplitude within

@@ -1,7 +1,11 @@
 """Scene files: what a run talks to (devices), what it simulates, how it is controlled and excited.
 
-A scene is pure data (YAML), never code. See docs/RUNNER_SPEC.md for the format; this module is
-its single source of truth (pydantic models, ``extra="forbid"`` everywhere).
+A scene is pure data (YAML), never code. See docs/RUNNER_SPEC.md for the format. Each block's
+schema (pydantic, ``extra="forbid"`` everywhere, built on :mod:`hil.schema`) lives next to the code
+that uses it: devices, simulation, network, safety and certification here; each experiment type in
+:mod:`hil.experiments` and each controller in :mod:`hil.controllers`, whose registries
+(``EXPERIMENT_TYPES``, ``CONTROLLER_TYPES``: type name -> schema, implementation) this module
+composes into the discriminated unions of ``experiments[]`` and ``controller``.
 
 * :func:`load_scene` takes a YAML path or the name of a built-in scene (``hil/scenes/<name>.yaml``,
   shipped as package data) and returns a validated :class:`Scene` with ``source_text`` (the exact
@@ -25,9 +29,14 @@ Sign conventions: those of :mod:`hil.protocols.base` (positive effort accelerate
 positive direction) and :mod:`hil.mocks.physics` (a termination exerts ``-Z(s) v`` on the device;
 velocities into the ports).
 
-Controller and experiment blocks are validated here but executed elsewhere:
-``hil.controllers.make_controller(scene.controller.model_dump(), units=scene.units)`` and
-``hil.experiments.make_experiment(exp.model_dump(), rate_hz=scene.rate_hz)`` consume plain dicts.
+Loading is three steps: validation (every field, by the schemas), normalization (a model
+validator, ``Scene._final_values``: each block's final values, e.g. the controller's gains as full
+``dof x dof`` matrices; :meth:`hil.controllers.ControllerConfig.normalized`), then pure checks
+(:func:`_cross_check` and the blocks' ``check_scene``, then every experiment and the controller
+built once). The validated models go to the implementations as they are:
+``hil.controllers.make_controller(scene.controller, units=scene.units, scene=scene)`` and
+``hil.experiments.make_experiment(exp, rate_hz=scene.rate_hz)`` for ``exp`` in
+:meth:`Scene.experiment_models`; nothing validates a dict twice.
 
 Additions to the spec (documented in each model): ``devices[].axes`` (wrench components of a
 force sensor that correspond to the body DOFs), ``devices[].sim`` options, ``experiments[].controller``
