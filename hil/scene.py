@@ -140,6 +140,7 @@ __all__ = [
     "check_seed",
     "load_scene",
     "parse_yaml",
+    "refresh_schema",
     "scene_from_dict",
     "unique_key_loader",
     "unknown_key_message",
@@ -682,6 +683,22 @@ class Scene(_Strict):
         self.controller = self.controller.normalized(self)
         self.__dict__.pop("_device_cache", None)  # groups are checked later: look them up afresh
         return self
+
+
+def refresh_schema() -> None:
+    """Recompose :class:`Scene`'s ``experiments`` and ``controller`` unions from the registries of
+    :mod:`hil.experiments` and :mod:`hil.controllers` (they are composed when this module is
+    imported; call this after registering a type later)."""
+    fields = Scene.model_fields
+    # unions built at run time: typed Any (a type checker sees the registries' base classes)
+    union: Any = _discriminated(experiment_schemas(), "experiment")
+    fields["experiments"].annotation = list[union]
+    assert fields["controller"].discriminator == "type"
+    members: Any = Union[tuple(controller_schemas())]  # noqa: UP007
+    fields["controller"].annotation = members
+    Scene.model_rebuild(force=True)
+    logger.debug("scene schema: experiments %s, controllers %s", [c.__name__ for c in experiment_schemas()],
+                 [c.__name__ for c in controller_schemas()])
 
 
 def _default_exp_name(exps: Sequence[Any], i: int) -> str:
