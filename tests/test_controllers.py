@@ -567,7 +567,7 @@ def test_builtin_scenes_build_their_controllers():
 
     for name, _ in builtin_scenes():
         sc = load_scene(name)
-        ctrl = make_controller(sc.controller_config(), units=sc.units, scene=sc)
+        ctrl = make_controller(sc.controller, units=sc.units, scene=sc)
         if isinstance(ctrl, PositionPD):
             assert ctrl.n == sum(idx.size for _, idx in ctrl.layout)
         if name == "sdea_bench":
