@@ -750,7 +750,7 @@ def _cross_check(sc: Scene) -> None:
             s = need(f"network.ports[{i}].force_sensor", p.force_sensor, "force_sensor")
             if s.dof != p.dofs:
                 raise FieldError(f"network.ports[{i}].force_sensor",
-                             f"sensor {s.name!r} measures {s.dof} DOF, the port has {p.dofs}")
+                                 f"sensor {s.name!r} measures {s.dof} DOF, the port has {p.dofs}")
     # the controller and the experiments check their own references (pure)
     sc.controller.check_scene(sc)
     exp_names: dict[str, int] = {}
@@ -844,7 +844,7 @@ def _check_simulation(sc: Scene, sim: Simulation) -> None:
             square(f"simulation.terminations[{i}].damping", term.damping, n)
         if isinstance(term, NamedTermination) and NAMED_TERMINATION_DOF[term.name] != n:
             raise FieldError(f"simulation.terminations[{i}].name",
-                         f"{term.name} has {NAMED_TERMINATION_DOF[term.name]} ports, the port has {n} DOF")
+                             f"{term.name} has {NAMED_TERMINATION_DOF[term.name]} ports, the port has {n} DOF")
     hnames: set[str] = set()
     for i, h in enumerate(sim.humans):
         path = "simulation.human" if isinstance(sim.human, HumanCfg) else f"simulation.human[{i}]"
@@ -975,7 +975,7 @@ def _check_certification(sc: Scene, cert: CertificationCfg) -> None:
         get_model(cert.model)
     except KeyError:
         raise FieldError("certification.model", f"unknown model {cert.model!r}{_hint(cert.model, model_names())}"
-                     ) from None
+                         ) from None
     names, accepts = _network_parameters(cert.model)
 
     def need_param(path: str, k: str) -> None:
@@ -1069,7 +1069,7 @@ def _check_network_builds(sc: Scene, cert: CertificationCfg) -> None:
     except (HilError, ValueError, TypeError, KeyError, ArithmeticError) as exc:
         msg = " ".join(str(exc).split()) or type(exc).__name__
         raise FieldError("certification", f"the network model {cert.model} cannot be built from this scene: {msg}"
-                     ) from None
+                         ) from None
     if cert.criterion == "llewellyn" and not (tm.n == 2 and tm.n_ports == 2):
         raise FieldError("certification.criterion", f"llewellyn applies to 1-DOF two-ports; model {cert.model} is a "
                                                 f"{tm.n_ports}-port with {tm.n} DOF (use absolute_stability or "
