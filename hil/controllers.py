@@ -44,8 +44,16 @@ partner produces a restoring (negative) effort on it.
   coupled to each other, not to the slave; the slave follows the authority-weighted masters.
 * ``dual_master`` (001 eq. 15): ``F_cm = -C_m V_h + C_4 V_e``, ``F_cs = -C_s V_e + C_1 V_h`` with
   ``V_h`` the masters' velocities stacked in the slave's DOF order (master 1 -> x, master 2 ->
-  y, z by default: ``masters: [{name: m1, dofs: [0]}, {name: m2, dofs: [1, 2]}]``) and every
-  ``C = (Kp + Kv s)/s`` a matrix; i.e. ``Kp = [[Kp_m, -Kp_4], [-Kp_1, Kp_s]]``.
+  y, z: ``masters: [{device: m1, slave_dofs: [0]}, {device: m2, slave_dofs: [1, 2]}]``) and every
+  ``C = (Kp + Kv s)/s`` a matrix; i.e. ``Kp = [[C_m.kp, -C_4.kp], [-C_1.kp, C_s.kp]]``.
+
+Configuration
+-------------
+Each controller type has one pydantic schema here (:class:`NoController`, :class:`PdPositionPosition`,
+:class:`Mcet`, :class:`DualMaster`, :class:`Vsic`; their docstrings list every field) and one builder,
+registered in :data:`CONTROLLER_TYPES` (``register_controller``); :mod:`hil.scene` composes the
+scene's ``controller`` block from that registry. :func:`make_controller` takes the validated model
+(or validates a mapping once against the same schema).
 
 SDEA velocity-sourced impedance control (paper 002)
 ---------------------------------------------------
@@ -57,30 +65,66 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, Protocol, runtime_checkable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Protocol, TypeAlias, runtime_checkable
 
 import numpy as np
+from pydantic import BeforeValidator, Field, model_validator
+from pydantic_core import PydanticCustomError
 
 from hil.errors import SceneError
 from hil.protocols.base import JointSample, WrenchSample
+from hil.schema import (
+    DampMat,
+    DampNonneg,
+    DofList,
+    FieldError,
+    Fraction,
+    MatrixValue,
+    Name,
+    StiffMat,
+    StiffNonneg,
+    StrictModel,
+    WrenchAxes,
+    as_matrix,
+    matrix_shape,
+    number,
+    parse_matrix,
+    validate,
+)
+
+if TYPE_CHECKING:
+    from hil.scene import Scene
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
+    "CONTROLLER_TYPES",
     "VSIC",
     "Controller",
+    "ControllerConfig",
+    "ControllerType",
+    "DualMaster",
+    "Mcet",
     "Measurements",
+    "NoController",
     "NullController",
+    "PdPositionPosition",
     "PositionPD",
+    "Vsic",
+    "VsicEnvironment",
+    "controller_schemas",
     "dual_master_controller",
+    "gain_matrix",
     "make_controller",
     "mcet_controller",
     "pd_position_position",
+    "register_controller",
     "vsic_controller",
 ]
 
-DeviceSample = JointSample | WrenchSample
-Measurements = Mapping[str, DeviceSample]
+DeviceSample: TypeAlias = JointSample | WrenchSample
+Measurements: TypeAlias = Mapping[str, DeviceSample]
 
 
 @runtime_checkable
@@ -103,50 +147,47 @@ def _field(where: str, key: str) -> str:
 
 
 def gain_matrix(value: Any, dof: int | None, field: str) -> np.ndarray:
-    """A ``dof x dof`` gain matrix from a scalar (``k I``), a vector (``diag``) or a matrix.
+    """A ``dof x dof`` gain matrix from a scalar (``k I``), a vector (``diag``) or a matrix (as a
+    scene writes it, or a parsed matrix field: :func:`hil.schema.parse_matrix`, the one parser).
 
     Raises :class:`SceneError` naming ``field`` for wrong shapes or non-finite entries. With
     ``dof=None`` a scalar gives a 1x1 matrix.
     """
     try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise SceneError(f"{field}: not a number or matrix ({value!r})") from exc
-    if arr.ndim == 0:
-        arr = float(arr) * np.eye(dof or 1)
-    elif arr.ndim == 1:
-        arr = np.diag(arr)
-    if arr.ndim != 2 or arr.shape[0] != arr.shape[1]:
-        raise SceneError(f"{field}: must be a scalar, a vector or a square matrix, got shape {arr.shape}")
-    if dof is not None and arr.shape[0] != dof:
-        raise SceneError(f"{field}: is {arr.shape[0]}x{arr.shape[1]}, expected {dof}x{dof}")
-    if not np.all(np.isfinite(arr)):
-        raise SceneError(f"{field}: non-finite entries")
-    return arr
+        parsed = parse_matrix(value)
+    except PydanticCustomError as exc:
+        raise SceneError(f"{field}: {exc.message()}") from None
+    shape = matrix_shape(parsed)
+    if shape is not None and shape[0] != shape[1]:
+        raise SceneError(f"{field}: must be a scalar, a vector or a square matrix, got shape {shape}")
+    n = (shape[0] if shape is not None else 1) if dof is None else dof
+    if shape is not None and shape[0] != n:
+        raise SceneError(f"{field}: is {shape[0]}x{shape[1]}, expected {n}x{n}")
+    return as_matrix(parsed, n)
 
 
-def _infer_dof(cfg: Mapping[str, Any], keys: Sequence[str]) -> int:
-    """DOF from ``cfg['dof']`` or from the first non-scalar gain among ``keys`` (default 1)."""
-    if "dof" in cfg:
-        return int(cfg["dof"])
-    for k in keys:
-        if k in cfg:
-            arr = np.asarray(cfg[k], dtype=float)
-            if arr.ndim >= 1:
-                return int(arr.shape[0])
+def _gain_dof(dof: int | None, gains: Sequence[MatrixValue]) -> int:
+    """``dof`` when given, else the size of the first gain that is a matrix (default 1)."""
+    if dof is not None:
+        return dof
+    for g in gains:
+        shape = matrix_shape(g)
+        if shape is not None:
+            return shape[0]
     return 1
 
 
-def _check_keys(cfg: Mapping[str, Any], allowed: set[str], where: str) -> None:
-    unknown = sorted(set(cfg) - allowed - {"type"})
-    if unknown:
-        raise SceneError(f"{where}: unknown field(s) {', '.join(unknown)}; allowed: {', '.join(sorted(allowed))}")
+def _square_gain(path: str, value: MatrixValue, n: int, what: str) -> None:
+    """A pure check: ``value`` is a number (``k I``) or an ``n x n`` matrix."""
+    shape = matrix_shape(value)
+    if shape is not None and shape != (n, n):
+        raise FieldError(path, f"expected a {n}x{n} matrix ({what}), got {shape[0]}x{shape[1]}")
 
 
-def _require(cfg: Mapping[str, Any], key: str, where: str) -> Any:
-    if key not in cfg or cfg[key] is None:
-        raise SceneError(f"{_field(where, key)}: required")
-    return cfg[key]
+def _full(value: MatrixValue, n: int) -> MatrixValue:
+    """A gain as the full ``n x n`` matrix it stands for (scalars expanded: the final values that
+    the scene's dumps, the network models and the records see)."""
+    return as_matrix(value, n).tolist() if matrix_shape(value) is None else value
 
 
 def _joint(meas: Measurements, name: str, field: str) -> JointSample:
@@ -225,13 +266,302 @@ class PositionPD:
         return {dev: u[idx].copy() for dev, idx in self.layout}
 
 
-def pd_position_position(cfg: Mapping[str, Any], where: str = "controller") -> PositionPD:
+# ---------------------------------------------------------------------------------------------
+# schemas: one pydantic model per controller type, validated once (by hil.scene or make_controller)
+
+
+class ControllerConfig(StrictModel):
+    """A scene's ``controller`` block; ``type`` selects the schema (:data:`CONTROLLER_TYPES`).
+
+    Subclasses may add two scene-level steps, both called by :mod:`hil.scene` after validation:
+    :meth:`normalized` (the final values: gains expanded to the devices' sizes) and
+    :meth:`check_scene` (pure: cross-references and shapes; raises :class:`hil.schema.FieldError`)."""
+
+    type: str
+
+    def normalized(self, scene: Scene) -> ControllerConfig:
+        """This configuration with its final values for ``scene`` (a copy; unknown devices are left
+        for :meth:`check_scene` to report)."""
+        return self
+
+    def check_scene(self, scene: Scene) -> None:
+        """Refuse broken references to ``scene``'s devices (pure: changes nothing)."""
+
+
+def _dof_of(scene: Scene, name: str) -> int | None:
+    try:
+        return scene.device(name).dof
+    except KeyError:
+        return None
+
+
+class NoController(ControllerConfig):
+    """No controller: the experiment's excitation is the only effort."""
+
+    type: Literal["none"]
+
+
+class PdPositionPosition(ControllerConfig):
+    """Bilateral position-position PD (paper 000 eq. 42-43): master effort
+    ``-Kp_m (q_m - q_s) - Kv_m (v_m - v_s)``, slave effort ``-Kp_s (q_s - q_m) - Kv_s (v_s - v_m)``.
+    Gains are dof x dof (N/m, N.s/m or N.m/rad, N.m.s/rad); a number means ``k * I``, a flat list
+    a diagonal. ``dof`` (optional) must equal the devices' DOF count."""
+
+    type: Literal["pd_position_position"]
+    master: Name
+    slave: Name
+    Kp_m: StiffMat
+    Kv_m: DampMat
+    Kp_s: StiffMat
+    Kv_s: DampMat
+    dof: int | None = Field(default=None, ge=1, le=6)
+
+    def normalized(self, scene: Scene) -> PdPositionPosition:
+        n = _dof_of(scene, self.master)
+        if n is None:
+            return self
+        return self.model_copy(update={k: _full(getattr(self, k), n) for k in ("Kp_m", "Kv_m", "Kp_s", "Kv_s")})
+
+    def check_scene(self, scene: Scene) -> None:
+        m = scene.require("controller.master", self.master, "actuator")
+        s = scene.require("controller.slave", self.slave, "actuator")
+        if m.dof != s.dof:
+            raise FieldError("controller.slave", f"master {m.name!r} has {m.dof} DOF, slave {s.name!r} has {s.dof}")
+        if self.dof is not None and self.dof != m.dof:
+            raise FieldError("controller.dof", f"is {self.dof}, the devices have {m.dof} DOF")
+        for key in ("Kp_m", "Kv_m", "Kp_s", "Kv_s"):
+            _square_gain(f"controller.{key}", getattr(self, key), m.dof, f"dof x dof of {m.name!r}/{s.name!r}")
+
+
+class McetForceSensors(StrictModel):
+    """Force sensors of the MCET force channels (device names): ``master1`` and ``master2`` read
+    the users' forces on the masters, ``slave`` the force between slave and environment."""
+
+    master1: Name | None = None
+    master2: Name | None = None
+    slave: Name | None = None
+
+
+class McetForceAxes(StrictModel):
+    """Wrench components (indices into Fx..Tz) each MCET force sensor contributes, per DOF."""
+
+    master1: WrenchAxes | None = None
+    master2: WrenchAxes | None = None
+    slave: WrenchAxes | None = None
+
+
+class Mcet(ControllerConfig):
+    """Dual-user MCET four-channel controller (paper 000 eq. 21-25): ``masters: [m1, m2]``,
+    ``slave``, ``alpha`` in [0, 1] (user 1's authority), local PD gains ``k_pm1, k_vm1, k_pm2,
+    k_vm2, k_ps, k_vs``; optional coordinating channels ``k_p4m1, k_v4m1, k_p4m2, k_v4m2``
+    (default -k_pm1, ...: position-position) and ``k_p1, k_v1`` (default k_ps, k_vs); force gains
+    ``c2m1, c2m2, c3, c5, c6m1, c6m2`` (default 0: position-position, eq. 25) with
+    ``force_sensors: {master1, master2, slave}`` (required for the channels those gains use),
+    ``force_axes`` (same keys: the wrench components of each sensor), ``slave_force_sign``
+    (default -1: the slave sensor reports the force the slave exerts on the environment), ``dof``
+    (optional; the three devices' common DOF count). Gains are numbers (``k I``) or dof x dof."""
+
+    type: Literal["mcet"]
+    masters: Annotated[list[Name], Field(min_length=2, max_length=2)]
+    slave: Name
+    alpha: Fraction
+    k_pm1: StiffMat
+    k_vm1: DampMat
+    k_pm2: StiffMat
+    k_vm2: DampMat
+    k_ps: StiffMat
+    k_vs: DampMat
+    k_p4m1: StiffMat | None = None
+    k_v4m1: DampMat | None = None
+    k_p4m2: StiffMat | None = None
+    k_v4m2: DampMat | None = None
+    k_p1: StiffMat | None = None
+    k_v1: DampMat | None = None
+    c2m1: Annotated[float, BeforeValidator(number)] = 0.0
+    c2m2: Annotated[float, BeforeValidator(number)] = 0.0
+    c3: Annotated[float, BeforeValidator(number)] = 0.0
+    c5: Annotated[float, BeforeValidator(number)] = 0.0
+    c6m1: Annotated[float, BeforeValidator(number)] = 0.0
+    c6m2: Annotated[float, BeforeValidator(number)] = 0.0
+    force_sensors: McetForceSensors = Field(default_factory=McetForceSensors)
+    force_axes: McetForceAxes = Field(default_factory=McetForceAxes)
+    slave_force_sign: Literal[1, -1] = -1
+    dof: int | None = Field(default=None, ge=1, le=6)
+
+    GAINS: ClassVar[tuple[str, ...]] = ("k_pm1", "k_vm1", "k_pm2", "k_vm2", "k_ps", "k_vs")
+    CHANNELS: ClassVar[tuple[str, ...]] = ("k_p4m1", "k_v4m1", "k_p4m2", "k_v4m2", "k_p1", "k_v1")
+
+    def check_scene(self, scene: Scene) -> None:
+        devs = [scene.require(f"controller.masters[{k}]", m, "actuator") for k, m in enumerate(self.masters)]
+        devs.append(scene.require("controller.slave", self.slave, "actuator"))
+        d = self.dof if self.dof is not None else devs[0].dof
+        for path, dev in zip(("controller.masters[0]", "controller.masters[1]", "controller.slave"), devs,
+                             strict=True):
+            if dev.dof != d:
+                raise FieldError(path, f"mcet needs robots of equal DOF ({d}); {dev.name!r} has {dev.dof} DOF")
+        for key in (*self.GAINS, *self.CHANNELS):
+            g = getattr(self, key)
+            if g is not None:
+                _square_gain(f"controller.{key}", g, d, "dof x dof of the robots")
+        for role in ("master1", "master2", "slave"):
+            sensor = getattr(self.force_sensors, role)
+            if sensor is not None:
+                sdev = scene.require(f"controller.force_sensors.{role}", sensor, "force_sensor")
+                axes = getattr(self.force_axes, role)
+                if axes is not None and len(axes) != d:
+                    raise FieldError(f"controller.force_axes.{role}", f"lists {len(axes)} wrench components for "
+                                                                      f"{d} DOF")
+                if axes is None and sdev.dof < d:
+                    raise FieldError(f"controller.force_sensors.{role}", f"sensor {sensor!r} measures {sdev.dof} "
+                                                                         f"DOF, the robots have {d}")
+
+
+class PdGain(StrictModel):
+    """A PD gain matrix pair, i.e. the PI velocity controller ``(kp + kv s)/s`` of the papers."""
+
+    kp: StiffMat
+    kv: DampMat
+
+
+class MasterMap(StrictModel):
+    """A master device and the slave DOFs it commands (paper 001: master 1 -> x, master 2 -> y, z)."""
+
+    device: Name
+    slave_dofs: DofList
+
+
+class DualMaster(ControllerConfig):
+    """Dual-master / single-slave cooperative teleoperation (paper 001 eq. 15-17). ``masters:
+    [{device: m1, slave_dofs: [0]}, {device: m2, slave_dofs: [1, 2]}]``: the slave DOFs each
+    master's DOFs map to (together, each of the slave's DOFs exactly once). ``C_m`` (master local),
+    ``C_4`` (slave -> masters), ``C_s`` (slave local), ``C_1`` (masters -> slave) are ``{kp, kv}``
+    pairs of n x n matrices, n the slave DOF count (a number: ``k I``): master effort
+    ``C_4 x_s - C_m x_m``, slave effort ``C_1 x_m - C_s x_s`` (x in the slave DOF order)."""
+
+    type: Literal["dual_master"]
+    masters: Annotated[list[MasterMap], Field(min_length=1)]
+    slave: Name
+    C_m: PdGain
+    C_4: PdGain
+    C_s: PdGain
+    C_1: PdGain
+
+    @property
+    def n(self) -> int:
+        """The slave's DOF count as the masters' maps give it."""
+        return sum(len(m.slave_dofs) for m in self.masters)
+
+    def normalized(self, scene: Scene) -> DualMaster:
+        n = _dof_of(scene, self.slave)
+        if n is None:
+            return self
+        gains = {key: getattr(self, key) for key in ("C_m", "C_4", "C_s", "C_1")}
+        return self.model_copy(update={key: PdGain(kp=_full(g.kp, n), kv=_full(g.kv, n)) for key, g in gains.items()})
+
+    def check_scene(self, scene: Scene) -> None:
+        s = scene.require("controller.slave", self.slave, "actuator")
+        covered: list[int] = []
+        for k, mm in enumerate(self.masters):
+            d = scene.require(f"controller.masters[{k}].device", mm.device, "actuator")
+            if len(mm.slave_dofs) != d.dof:
+                raise FieldError(f"controller.masters[{k}].slave_dofs",
+                                 f"master {d.name!r} has {d.dof} DOF but maps {len(mm.slave_dofs)} slave DOF")
+            bad = [j for j in mm.slave_dofs if j >= s.dof]
+            if bad:
+                raise FieldError(f"controller.masters[{k}].slave_dofs",
+                                 f"slave {s.name!r} has {s.dof} DOF; index {bad[0]} is out of range")
+            covered += mm.slave_dofs
+        if sorted(covered) != list(range(s.dof)):
+            raise FieldError("controller.masters", f"the masters' slave_dofs must cover each of the slave's {s.dof} "
+                                                   f"DOF exactly once, got {covered}")
+        for key in ("C_m", "C_4", "C_s", "C_1"):
+            g = getattr(self, key)
+            _square_gain(f"controller.{key}.kp", g.kp, s.dof, "n x n, n = slave DOF")
+            _square_gain(f"controller.{key}.kv", g.kv, s.dof, "n x n, n = slave DOF")
+
+
+_ENV_FIELDS = {"none": (), "spring": ("k", "b"), "spring_damper": ("k", "b"), "mass_spring_damper": ("m", "k", "b")}
+
+
+class VsicEnvironment(StrictModel):
+    """Virtual environment rendered by the VSIC behind the coupler, by ``type`` (default
+    ``spring``; no ``environment`` at all: ``none``): ``none`` (no environment:
+    ``F_ref = 0``), ``spring`` / ``spring_damper`` (spring ``k`` N.m/rad to its rest at 0,
+    damper ``b`` N.m.s/rad), ``mass_spring_damper`` (plus the mass ``m`` kg.m^2)."""
+
+    type: Literal["none", "spring", "spring_damper", "mass_spring_damper"] = "spring"
+    k: StiffNonneg = 0.0
+    b: DampNonneg = 0.0
+    m: Annotated[float, BeforeValidator(lambda v: number(v, "kg or kg.m^2")), Field(ge=0)] = 0.0
+
+    @model_validator(mode="after")
+    def _fields_of_type(self) -> VsicEnvironment:
+        # a parameter of another type is refused unless it is 0 (a dump lists every field)
+        extra = sorted(k for k in set(self.model_fields_set) - {"type", *_ENV_FIELDS[self.type]} if getattr(self, k))
+        if extra:
+            raise PydanticCustomError("environment", "{key} does not apply to a {t} environment (it takes: {ok})",
+                                      {"key": extra[0], "t": self.type,
+                                       "ok": ", ".join(_ENV_FIELDS[self.type]) or "nothing"})
+        return self
+
+    def parameters(self) -> dict[str, float]:
+        """The parameters given for this type (``k``, ``b``, ``m``)."""
+        return {k: float(getattr(self, k)) for k in ("k", "b", "m") if k in self.model_fields_set}
+
+
+class Vsic(ControllerConfig):
+    """Velocity-sourced impedance control of an SDEA (paper 002; :class:`VSIC`): inner motor
+    velocity PI (``P_m``, ``I_m``), force PI (``P_f``, ``I_f``) on the spring-force error,
+    feed-forward ``1 - alpha`` and a virtual coupler (``k22``, ``b22``) to the ``environment``.
+    ``force_sensor``: the spring-force sensor (absent: the actuator's effort channel);
+    ``force_axis``: its wrench component (default: the sensor's ``axes[0]``, else 0);
+    ``force_sign``: +1 or -1 applied to that reading; ``output``: an end-effector encoder device
+    (absent: a locked output, ``x_o = v_o = 0``)."""
+
+    type: Literal["vsic"]
+    actuator: Name
+    force_sensor: Name | None = None
+    force_axis: Annotated[int, Field(ge=0, le=5)] | None = None
+    force_sign: Literal[1, -1] = 1
+    output: Name | None = None
+    P_m: Annotated[float, BeforeValidator(lambda v: number(v, "N.m.s/rad")), Field(gt=0)]
+    I_m: Annotated[float, BeforeValidator(lambda v: number(v, "N.m/rad")), Field(ge=0)]
+    P_f: Annotated[float, BeforeValidator(lambda v: number(v, "rad/(N.m.s)")), Field(gt=0)]
+    I_f: Annotated[float, BeforeValidator(lambda v: number(v, "rad/(N.m.s^2)")), Field(ge=0)]
+    alpha: Fraction = 1.0
+    k22: Annotated[float, BeforeValidator(lambda v: number(v, "N.m/rad")), Field(ge=0)]
+    b22: Annotated[float, BeforeValidator(lambda v: number(v, "N.m.s/rad")), Field(ge=0)]
+    environment: VsicEnvironment = Field(default_factory=lambda: VsicEnvironment(type="none"))
+
+    @model_validator(mode="after")
+    def _coupler(self) -> Vsic:
+        if self.k22 == 0 and self.b22 == 0:
+            raise PydanticCustomError("coupler", "the virtual coupler needs k22 > 0 or b22 > 0", {"key": "k22"})
+        return self
+
+    def check_scene(self, scene: Scene) -> None:
+        a = scene.require("controller.actuator", self.actuator, "actuator")
+        if a.dof != 1:
+            raise FieldError("controller.actuator", "vsic controls a 1-DOF SDEA (actuator and sensor with dof 1)")
+        if self.force_sensor is not None:
+            f = scene.require("controller.force_sensor", self.force_sensor, "force_sensor")
+            if f.dof != 1:
+                raise FieldError("controller.actuator", "vsic controls a 1-DOF SDEA (actuator and sensor with dof 1)")
+        if self.output is not None:
+            scene.require("controller.output", self.output, "actuator")
+
+
+# ---------------------------------------------------------------------------------------------
+# builders: validated configuration -> controller
+
+
+def pd_position_position(cfg: PdPositionPosition | Mapping[str, Any], where: str = "controller") -> PositionPD:
     """Paper 000 eq. (42)-(43): ``Kp = [[Kp_m, -Kp_m], [-Kp_s, Kp_s]]`` (same for ``Kv``)."""
-    keys = ["Kp_m", "Kv_m", "Kp_s", "Kv_s"]
-    _check_keys(cfg, {"master", "slave", "dof", *keys}, where)
-    master, slave = str(_require(cfg, "master", where)), str(_require(cfg, "slave", where))
-    d = _infer_dof(cfg, keys)
-    Kp_m, Kv_m, Kp_s, Kv_s = (gain_matrix(_require(cfg, k, where), d, _field(where, k)) for k in keys)
+    c = validate(PdPositionPosition, cfg, where)
+    master, slave = c.master, c.slave
+    keys = ("Kp_m", "Kv_m", "Kp_s", "Kv_s")
+    d = _gain_dof(c.dof, [getattr(c, k) for k in keys])
+    Kp_m, Kv_m, Kp_s, Kv_s = (gain_matrix(getattr(c, k), d, _field(where, k)) for k in keys)
     Kp = np.block([[Kp_m, -Kp_m], [-Kp_s, Kp_s]])
     Kv = np.block([[Kv_m, -Kv_m], [-Kv_s, Kv_s]])
     return PositionPD("pd_position_position", [(master, range(d)), (slave, range(d, 2 * d))], Kp, Kv, where)
@@ -283,35 +613,19 @@ class FourChannelMCET:
         return out
 
 
-def mcet_controller(cfg: Mapping[str, Any], where: str = "controller") -> FourChannelMCET:
-    """Paper 000 eq. (21)-(25): the dual-user MCET four-channel controller (:class:`FourChannelMCET`).
-
-    Fields: ``masters: [m1, m2]``, ``slave``, ``alpha`` ∈ [0, 1] (user 1's authority),
-    ``k_pm1, k_vm1, k_pm2, k_vm2, k_ps, k_vs`` (local PD gains); optional channels
-    ``k_p4m1, k_v4m1, k_p4m2, k_v4m2`` (default -k_pm1, -k_vm1, ...: position-position),
-    ``k_p1, k_v1`` (default k_ps, k_vs), force gains ``c2m1, c2m2, c3, c5, c6m1, c6m2`` (default 0),
-    ``force_sensors: {master1, master2, slave}`` (device names; required with force gains),
-    ``force_axes`` (same keys, wrench components), ``slave_force_sign`` (default -1: the slave
-    sensor reports the force the slave exerts on the environment, f_e is its negative), ``dof``.
-    """
-    keys = ["k_pm1", "k_vm1", "k_pm2", "k_vm2", "k_ps", "k_vs"]
-    opt = ["k_p4m1", "k_v4m1", "k_p4m2", "k_v4m2", "k_p1", "k_v1"]
-    forces = ["c2m1", "c2m2", "c3", "c5", "c6m1", "c6m2"]
-    _check_keys(cfg, {"masters", "slave", "alpha", "dof", "force_sensors", "force_axes", "slave_force_sign",
-                      *keys, *opt, *forces}, where)
-    masters = _require(cfg, "masters", where)
-    if isinstance(masters, str) or len(masters) != 2:
-        raise SceneError(f"{_field(where, 'masters')}: exactly two master device names required")
-    m1, m2 = (str(m) for m in masters)
-    slave = str(_require(cfg, "slave", where))
-    a = float(cfg.get("alpha", 0.5))
-    if not 0.0 <= a <= 1.0:
-        raise SceneError(f"{_field(where, 'alpha')}: must lie in [0, 1], got {a}")
-    d = _infer_dof(cfg, keys)
-    kp1, kv1, kp2, kv2, kps, kvs = (gain_matrix(_require(cfg, k, where), d, _field(where, k)) for k in keys)
+def mcet_controller(cfg: Mcet | Mapping[str, Any], where: str = "controller") -> FourChannelMCET:
+    """Paper 000 eq. (21)-(25): the dual-user MCET four-channel controller (:class:`FourChannelMCET`)
+    from a :class:`Mcet` configuration (fields there)."""
+    c = validate(Mcet, cfg, where)
+    m1, m2 = c.masters
+    slave = c.slave
+    a = c.alpha
+    d = _gain_dof(c.dof, [getattr(c, k) for k in Mcet.GAINS])
+    kp1, kv1, kp2, kv2, kps, kvs = (gain_matrix(getattr(c, k), d, _field(where, k)) for k in Mcet.GAINS)
 
     def opt_gain(key: str, default: np.ndarray) -> np.ndarray:
-        return default if cfg.get(key) is None else gain_matrix(cfg[key], d, _field(where, key))
+        v = getattr(c, key)
+        return default if v is None else gain_matrix(v, d, _field(where, key))
 
     kp4m1, kv4m1 = opt_gain("k_p4m1", -kp1), opt_gain("k_v4m1", -kv1)
     kp4m2, kv4m2 = opt_gain("k_p4m2", -kp2), opt_gain("k_v4m2", -kv2)
@@ -326,77 +640,44 @@ def mcet_controller(cfg: Mapping[str, Any], where: str = "controller") -> FourCh
     layout = [(m1, range(d)), (m2, range(d, 2 * d)), (slave, range(2 * d, 3 * d))]
     pd = PositionPD("mcet", layout, block(kp1, kp4m1, kp2, kp4m2, kpc1, kps),
                     block(kv1, kv4m1, kv2, kv4m2, kvc1, kvs), where)
-    g = {k: float(cfg.get(k) or 0.0) for k in forces}
+    g = {k: float(getattr(c, k)) for k in ("c2m1", "c2m2", "c3", "c5", "c6m1", "c6m2")}
     I_ = np.eye(d)
     G = np.block([[g["c6m1"] * I_, Z, -0.5 * g["c2m1"] * I_],
                   [Z, g["c6m2"] * I_, -0.5 * g["c2m2"] * I_],
                   [a * g["c3"] * I_, (1 - a) * g["c3"] * I_, -g["c5"] * I_]])
-    fs = cfg.get("force_sensors") or {}
-    fa = cfg.get("force_axes") or {}
-    sensors = [fs.get("master1"), fs.get("master2"), fs.get("slave")]
+    fs, fa = c.force_sensors, c.force_axes
+    sensors = [fs.master1, fs.master2, fs.slave]
     needs = [bool(g["c6m1"] or g["c3"]), bool(g["c6m2"] or g["c3"]), bool(g["c2m1"] or g["c2m2"] or g["c5"])]
     for name, s_, need in zip(("master1", "master2", "slave"), sensors, needs, strict=True):
         if need and not s_:
             raise SceneError(f"{_field(where, 'force_sensors')}: the force gains need a {name!r} force sensor")
-    signs = [1.0, 1.0, float(cfg.get("slave_force_sign", -1.0))]
-    axes = [fa.get("master1"), fa.get("master2"), fa.get("slave")]
+    signs = [1.0, 1.0, float(c.slave_force_sign)]
+    axes: list[Sequence[int] | None] = [fa.master1, fa.master2, fa.slave]
     return FourChannelMCET(pd, G, sensors, signs, axes, d)
 
 
-def _pair(cfg: Mapping[str, Any], tag: str, n: int, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """Gains of ``C_<tag>``: ``C_<tag>: {kp, kv}`` or flat ``Kp_<tag>``/``Kv_<tag>``."""
-    nested = cfg.get(f"C_{tag}")
-    if nested is not None:
+def dual_master_controller(cfg: DualMaster | Mapping[str, Any], where: str = "controller") -> PositionPD:
+    """Paper 001 eq. (15) with matrix PD gains (module doc) from a :class:`DualMaster` configuration:
+    the stack is the masters' DOFs at their slave DOF indices, then the slave's."""
+    c = validate(DualMaster, cfg, where)
+    n = c.n
+    names = [m.device for m in c.masters]
+    maps = [list(m.slave_dofs) for m in c.masters]
+    slave = c.slave
+
+    def pair(tag: str) -> tuple[np.ndarray, np.ndarray]:
+        g = getattr(c, f"C_{tag}")
         f = _field(where, f"C_{tag}")
-        if not isinstance(nested, Mapping):
-            raise SceneError(f"{f}: must be a mapping {{kp: ..., kv: ...}}")
-        low = {str(k).lower(): v for k, v in nested.items()}
-        return (gain_matrix(_require(low, "kp", f), n, f"{f}.kp"), gain_matrix(_require(low, "kv", f), n, f"{f}.kv"))
-    return (gain_matrix(_require(cfg, f"Kp_{tag}", where), n, _field(where, f"Kp_{tag}")),
-            gain_matrix(_require(cfg, f"Kv_{tag}", where), n, _field(where, f"Kv_{tag}")))
+        return gain_matrix(g.kp, n, f"{f}.kp"), gain_matrix(g.kv, n, f"{f}.kv")
 
-
-def dual_master_controller(cfg: Mapping[str, Any], where: str = "controller") -> PositionPD:
-    """Paper 001 eq. (15) with matrix PD gains (module doc).
-
-    ``masters``: ``[{device: m1, slave_dofs: [0]}, {device: m2, slave_dofs: [1, 2]}]`` (as in
-    :mod:`hil.scene`; ``{name, dofs}`` is accepted too) (slave DOF indices each
-    master's DOFs map to; together they must cover the slave's DOFs exactly once), or names with
-    ``master_dofs: [[0], [1, 2]]``. Gains ``C_m, C_4, C_s, C_1`` as ``{kp, kv}`` mappings or flat
-    ``Kp_m, Kv_m, Kp_4, ...``, all ``n x n`` with ``n`` the slave's DOF count (default 3).
-    """
-    tags = ("m", "4", "s", "1")
-    allowed = {"masters", "master_dofs", "slave", "dof", *(f"C_{t}" for t in tags),
-               *(f"K{x}_{t}" for t in tags for x in "pv")}
-    _check_keys(cfg, allowed, where)
-    masters = _require(cfg, "masters", where)
-    names: list[str] = []
-    maps: list[list[int]] = []
-    if isinstance(masters, str) or not isinstance(masters, Sequence):
-        raise SceneError(f"{_field(where, 'masters')}: a list of master devices required")
-    for i, m in enumerate(masters):
-        if isinstance(m, Mapping):
-            fm = _field(where, f"masters[{i}]")
-            name_key = "device" if "device" in m else "name"  # hil.scene: {device, slave_dofs}
-            dofs_key = "slave_dofs" if "slave_dofs" in m else "dofs"
-            names.append(str(_require(m, name_key, fm)))
-            maps.append([int(j) for j in _require(m, dofs_key, fm)])
-        else:
-            names.append(str(m))
-    if not maps:
-        md = cfg.get("master_dofs", [[0], [1, 2]] if len(names) == 2 else None)
-        if md is None or len(md) != len(names):
-            raise SceneError(f"{_field(where, 'master_dofs')}: one DOF list per master required")
-        maps = [[int(j) for j in row] for row in md]
-    n = int(cfg.get("dof", sum(len(m) for m in maps)))
-    slave = str(_require(cfg, "slave", where))
-    Kp_m, Kv_m = _pair(cfg, "m", n, where)
-    Kp_4, Kv_4 = _pair(cfg, "4", n, where)
-    Kp_s, Kv_s = _pair(cfg, "s", n, where)
-    Kp_1, Kv_1 = _pair(cfg, "1", n, where)
+    Kp_m, Kv_m = pair("m")
+    Kp_4, Kv_4 = pair("4")
+    Kp_s, Kv_s = pair("s")
+    Kp_1, Kv_1 = pair("1")
     Kp = np.block([[Kp_m, -Kp_4], [-Kp_1, Kp_s]])
     Kv = np.block([[Kv_m, -Kv_4], [-Kv_1, Kv_s]])
-    layout = [(nm, mp) for nm, mp in zip(names, maps, strict=True)] + [(slave, range(n, 2 * n))]
+    layout: list[tuple[str, Sequence[int]]] = [(nm, mp) for nm, mp in zip(names, maps, strict=True)]
+    layout.append((slave, range(n, 2 * n)))
     return PositionPD("dual_master", layout, Kp, Kv, where)
 
 
@@ -519,7 +800,7 @@ class VSIC:
     name = "vsic"
 
     def __init__(self, actuator: str, *, P_m: float, I_m: float, P_f: float, I_f: float, alpha: float = 1.0,
-                 k22: float, b22: float, environment: Mapping[str, Any] | None = None,
+                 k22: float, b22: float, environment: VsicEnvironment | Mapping[str, Any] | None = None,
                  force_sensor: str | None = None, force_axis: int = 0, force_sign: float = 1.0,
                  output: str | None = None, force_reference: Callable[[float], float] | None = None,
                  where: str = "controller") -> None:
@@ -537,21 +818,12 @@ class VSIC:
             raise SceneError(f"{_field(where, 'alpha')}: must lie in [0, 1], got {alpha}")
         if k22 == 0 and b22 == 0:
             raise SceneError(f"{_field(where, 'k22')}: the virtual coupler needs k22 > 0 or b22 > 0")
-        env = dict(environment or {"type": "none"})
-        etype = str(env.pop("type", "spring"))
-        allowed = {"none": set(), "spring": {"k", "b"}, "spring_damper": {"k", "b"},
-                   "mass_spring_damper": {"m", "k", "b"}}
-        if etype not in allowed:
-            raise SceneError(f"{_field(where, 'environment.type')}: one of {sorted(allowed)}, got {etype!r}")
-        bad = set(env) - allowed[etype]
-        if bad:
-            raise SceneError(f"{_field(where, 'environment')}: unknown field(s) {sorted(bad)} for {etype}")
-        ev = {k: float(v) for k, v in env.items()}
-        if any(v < 0 or not math.isfinite(v) for v in ev.values()):
-            raise SceneError(f"{_field(where, 'environment')}: parameters must be finite and non-negative")
-        self.environment = {"type": etype, **ev}
+        env = validate(VsicEnvironment, environment if environment is not None else {"type": "none"},
+                       _field(where, "environment"))
+        ev = env.parameters()
+        self.environment: dict[str, Any] = {"type": env.type, **ev}
         self.k22, self.b22 = float(k22), float(b22)
-        self._env_free = etype == "none"
+        self._env_free = env.type == "none"
         self._env = _Trapezoid(*virtual_environment(self.k22, self.b22, ev.get("k", 0.0), ev.get("b", 0.0),
                                                     ev.get("m", 0.0)))
         self._pf = _TrapezoidPI(P_f, I_f)
@@ -605,63 +877,98 @@ class VSIC:
         return {self.actuator: np.array([tau])}
 
 
-def vsic_controller(cfg: Mapping[str, Any], where: str = "controller") -> VSIC:
-    """``type: vsic`` from the scene: ``actuator``, ``force_sensor`` (optional), ``force_axis``,
-    ``force_sign``, ``output`` (optional end-effector encoder device), ``P_m, I_m, P_f, I_f``,
-    ``alpha`` (default 1), ``k22``, ``b22``, ``environment: {type: none|spring|spring_damper|
-    mass_spring_damper, k, b, m}``."""
-    keys = {"actuator", "force_sensor", "force_axis", "force_sign", "output", "P_m", "I_m", "P_f", "I_f",
-            "alpha", "k22", "b22", "environment"}
-    _check_keys(cfg, keys, where)
-    gains = {k: float(_require(cfg, k, where)) for k in ("P_m", "I_m", "P_f", "I_f", "k22", "b22")}
-    env = cfg.get("environment")
-    if env is not None and not isinstance(env, Mapping):
-        raise SceneError(f"{_field(where, 'environment')}: must be a mapping")
-    return VSIC(str(_require(cfg, "actuator", where)), alpha=float(cfg.get("alpha", 1.0)), environment=env,
-                force_sensor=cfg.get("force_sensor"), force_axis=int(cfg.get("force_axis", 0)),
-                force_sign=float(cfg.get("force_sign", 1.0)), output=cfg.get("output"), where=where, **gains)
+def vsic_controller(cfg: Vsic | Mapping[str, Any], where: str = "controller", scene: Any = None) -> VSIC:
+    """:class:`VSIC` from a :class:`Vsic` configuration. Without ``force_axis`` the force sensor's
+    wrench component is the first of its ``axes`` in ``scene`` (a :class:`hil.scene.Scene`), else 0."""
+    c = validate(Vsic, cfg, where)
+    axis = c.force_axis
+    if axis is None and c.force_sensor is not None and scene is not None:
+        try:
+            axes = scene.device(c.force_sensor).axes
+        except (KeyError, AttributeError):
+            axes = None
+        axis = int(axes[0]) if axes else None
+    return VSIC(c.actuator, P_m=c.P_m, I_m=c.I_m, P_f=c.P_f, I_f=c.I_f, alpha=c.alpha, k22=c.k22, b22=c.b22,
+                environment=c.environment, force_sensor=c.force_sensor, force_axis=0 if axis is None else axis,
+                force_sign=float(c.force_sign), output=c.output, where=where)
 
 
 # ---------------------------------------------------------------------------------------------
-# factory
-
-_BUILDERS: dict[str, Callable[[Mapping[str, Any], str], Controller]] = {
-    "pd_position_position": pd_position_position,
-    "mcet": mcet_controller,
-    "dual_master": dual_master_controller,
-    "vsic": vsic_controller,
-}
+# registry and factory
 
 
-def make_controller(cfg: Mapping[str, Any] | None, *, units: str = "linear", scene: Any = None) -> Controller:
-    """Build the scene's ``controller`` mapping (``type``: none | pd_position_position | mcet |
-    dual_master | vsic). ``units`` (``linear`` | ``rotary``) is validated and logged; the laws
-    are unit-agnostic. Raises :class:`SceneError` naming the offending field.
+@dataclass(frozen=True)
+class ControllerType:
+    """One controller type: its scene ``type`` name, its schema and its builder
+    ``build(validated_config, where, scene)``."""
 
-    ``scene`` (optional, a :class:`hil.scene.Scene` or mapping): used to resolve the VSIC force
-    sensor's wrench component (``devices[].axes``) when ``force_axis`` is not given. Without it the
-    VSIC reads wrench component 0 (or the only component)."""
+    name: str
+    schema: type[ControllerConfig]
+    build: Callable[[Any, str, Any], Controller]
+
+
+#: controller type name -> (schema, builder); :mod:`hil.scene` builds its ``controller`` union
+#: from it (register before importing :mod:`hil.scene`)
+CONTROLLER_TYPES: dict[str, ControllerType] = {}
+
+
+def register_controller(name: str, schema: type[ControllerConfig],
+                        build: Callable[[Any, str, Any], Controller]) -> None:
+    """Add a controller type: ``schema`` is a :class:`ControllerConfig` whose ``type`` field is
+    ``Literal[name]``; ``build(cfg, where, scene)`` makes the :class:`Controller` from a validated
+    ``cfg`` (``where``: the field path for messages, ``scene``: the scene or None)."""
+    tag = schema.model_fields["type"].annotation
+    if getattr(tag, "__args__", None) != (name,):
+        raise TypeError(f"{schema.__name__}.type must be Literal[{name!r}], got {tag!r}")
+    if name in CONTROLLER_TYPES and CONTROLLER_TYPES[name].schema is not schema:
+        raise ValueError(f"controller type {name!r} is already registered")
+    CONTROLLER_TYPES[name] = ControllerType(name, schema, build)
+
+
+def controller_schemas() -> tuple[type[ControllerConfig], ...]:
+    """The schemas of every registered controller type (registration order)."""
+    return tuple(t.schema for t in CONTROLLER_TYPES.values())
+
+
+register_controller("none", NoController, lambda c, where, scene: NullController())
+register_controller("pd_position_position", PdPositionPosition, lambda c, where, scene: pd_position_position(c, where))
+register_controller("mcet", Mcet, lambda c, where, scene: mcet_controller(c, where))
+register_controller("dual_master", DualMaster, lambda c, where, scene: dual_master_controller(c, where))
+register_controller("vsic", Vsic, vsic_controller)
+
+#: what a scene's ``units`` may be: names in messages and records (the laws are unit-agnostic)
+Units: TypeAlias = Literal["linear", "rotary"]
+#: the units a scene (and everything that reads one: runner, records) assumes when it names none
+DEFAULT_UNITS: Units = "linear"
+
+
+def make_controller(cfg: ControllerConfig | Mapping[str, Any] | None, *, units: str = DEFAULT_UNITS,
+                    scene: Any = None) -> Controller:
+    """Build the scene's controller from its validated configuration (``scene.controller``), or
+    from a mapping, which is validated here against the schema of its ``type`` (none |
+    pd_position_position | mcet | dual_master | vsic; None: no controller). ``units`` (``linear``
+    | ``rotary``) is validated and logged; the laws are unit-agnostic. Raises :class:`SceneError`
+    naming the offending field.
+
+    ``scene`` (optional, a :class:`hil.scene.Scene`): used to resolve the VSIC force sensor's
+    wrench component (``devices[].axes``) when ``force_axis`` is not given. Without it the VSIC
+    reads wrench component 0 (or the only component)."""
     if units not in ("linear", "rotary"):
         raise SceneError(f"units: must be 'linear' or 'rotary', got {units!r}")
     if cfg is None:
         return NullController()
-    if hasattr(cfg, "model_dump"):  # a pydantic model from hil.scene
-        cfg = cfg.model_dump()
-    ctype = str(cfg.get("type", "none"))
-    if ctype == "none":
-        _check_keys(cfg, set(), "controller")
-        return NullController()
-    try:
-        builder = _BUILDERS[ctype]
-    except KeyError as exc:
-        raise SceneError(f"controller.type: unknown controller {ctype!r}; one of "
-                         f"{['none', *_BUILDERS]}") from exc
-    clean = {k: v for k, v in cfg.items() if v is not None or k == "type"}
-    if ctype == "vsic" and "force_axis" not in clean and clean.get("force_sensor") and scene is not None:
-        for dev in (scene.get("devices") if isinstance(scene, Mapping) else getattr(scene, "devices", None)) or []:
-            get = dev.get if isinstance(dev, Mapping) else (lambda k, d=None, _o=dev: getattr(_o, k, d))
-            if get("name") == clean["force_sensor"] and get("axes") is not None:
-                clean["force_axis"] = int(next(iter(get("axes"))))
-    ctrl = builder(clean, "controller")
+    if isinstance(cfg, ControllerConfig):
+        ctype = cfg.type
+        model: ControllerConfig = cfg
+    else:
+        raw = {k: v for k, v in dict(cfg).items() if v is not None or k == "type"}
+        ctype = str(raw.get("type", "none"))
+        raw["type"] = ctype
+        if ctype not in CONTROLLER_TYPES:
+            raise SceneError(f"controller.type: unknown controller {ctype!r}; one of {list(CONTROLLER_TYPES)}")
+        model = validate(CONTROLLER_TYPES[ctype].schema, raw, "controller")
+    if ctype not in CONTROLLER_TYPES:
+        raise SceneError(f"controller.type: unknown controller {ctype!r}; one of {list(CONTROLLER_TYPES)}")
+    ctrl = CONTROLLER_TYPES[ctype].build(model, "controller", scene)
     logger.info("controller %s (%s units)", ctype, units)
     return ctrl

@@ -1,7 +1,11 @@
 """Experiments the runner plays on the bench (``docs/RUNNER_SPEC.md``): chirp, multisine, energy
 injection, static hold.
 
-Each experiment is built from one scene entry by :func:`make_experiment` and then
+Each experiment type has one pydantic schema here (:class:`ChirpExperiment`,
+:class:`MultisineExperiment`, :class:`EnergyInjectionExperiment`, :class:`StaticHoldExperiment`) and
+one implementation, registered in :data:`EXPERIMENT_TYPES` (``register_experiment``); :mod:`hil.scene`
+composes the scene's ``experiments`` list from that registry. Each experiment is built from one
+validated entry by :func:`make_experiment` and then
 
 * ``check(scene)`` -- before anything moves: band below Nyquist/5 (``f1 <= rate_hz / 10``; the
   zero-order hold costs ``ω T/2`` of phase, 18° at that limit), amplitude within
@@ -24,16 +28,42 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from types import ModuleType
+from typing import TYPE_CHECKING, Annotated, Any, Generic, Literal, Protocol, TypeVar
 
 import numpy as np
+from pydantic import BeforeValidator, Field, model_validator
+from pydantic_core import PydanticCustomError
 
 from hil.errors import SceneError
+from hil.schema import (
+    DampNonneg,
+    DofList,
+    Effort,
+    EffortNonneg,
+    FieldError,
+    Hz,
+    HzOrZero,
+    Name,
+    Number,
+    Positive,
+    Seconds,
+    SecondsOrZero,
+    Seed,
+    StiffPos,
+    StrictModel,
+    near,
+    number,
+    validate,
+)
+
+if TYPE_CHECKING:
+    from hil.scene import Scene
 
 
-def _sps():  # scipy.signal takes seconds to import: only chirps need it
+def _sps() -> ModuleType:  # scipy.signal takes seconds to import: only some profiles need it
     from scipy import signal
 
     return signal
@@ -41,19 +71,30 @@ def _sps():  # scipy.signal takes seconds to import: only chirps need it
 logger = logging.getLogger(__name__)
 
 __all__ = [
+    "EXPERIMENT_TYPES",
     "Chirp",
+    "ChirpExperiment",
     "EnergyInjection",
+    "EnergyInjectionExperiment",
     "EnergyResult",
     "Excitation",
     "Experiment",
+    "ExperimentConfig",
+    "ExperimentType",
+    "ForceProfileCfg",
     "Multisine",
+    "MultisineExperiment",
+    "ServoCfg",
     "StaticHold",
+    "StaticHoldExperiment",
     "chirp_signal",
+    "experiment_schemas",
     "force_profile",
     "make_experiment",
     "multisine_lines",
     "port_energy",
     "raised_cosine_fade",
+    "register_experiment",
     "schroeder_phases",
 ]
 
@@ -71,12 +112,174 @@ class Excitation:
 
 
 class Experiment(Protocol):
+    """What the runner plays: built from one validated scene entry (module doc)."""
+
     name: str
     duration: float
 
     def check(self, scene: Any) -> None: ...
     def excitation(self, k: int, t: float, meas: Mapping[str, Any]) -> Excitation: ...
-    def finish(self, data: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> dict: ...
+    def finish(self, data: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> dict[str, Any]: ...
+
+
+# ---------------------------------------------------------------------------------------------
+# schemas: one pydantic model per experiment type, validated once (by hil.scene or make_experiment)
+
+
+class ExperimentConfig(StrictModel):
+    """Fields every experiment has. ``controller``: ``scene`` runs the scene's controller during
+    the experiment, ``none`` runs it open loop (identification). ``name`` defaults to the type
+    (``<type>_<n>`` when several of one type are unnamed; filled in by :class:`hil.scene.Scene`)."""
+
+    type: str
+    name: Name | None = None
+    controller: Literal["scene", "none"] = "scene"
+
+    def check_scene(self, scene: Scene, path: str) -> None:
+        """Refuse broken references to ``scene`` (pure; ``path``: ``experiments[i]``). The checks
+        that need the control rate run when the experiment is built (:meth:`Experiment.check`)."""
+
+
+def _check_target(cfg: _PeriodicConfig | StaticHoldExperiment, scene: Scene, path: str) -> None:
+    d = scene.require(f"{path}.target", cfg.target, "actuator")
+    if cfg.dofs is not None and max(cfg.dofs) >= d.dof:
+        raise FieldError(f"{path}.dofs", f"device {d.name!r} has {d.dof} DOF")
+    sim = scene.simulation
+    if cfg.variant == "free" and sim is not None and (sim.sdea is None or sim.sdea.m_out is None):
+        raise FieldError(f"{path}.variant", "variant 'free' needs simulation.sdea.m_out (the output inertia)")
+
+
+def _band_ok(f0: float, f1: float) -> None:
+    if not f0 < f1:
+        raise PydanticCustomError("band", "f1 ({f1} Hz) must exceed f0 ({f0} Hz)", {"f0": f0, "f1": f1, "key": "f1"})
+
+
+class ServoCfg(StrictModel):
+    """The experiment's own position servo for ``excite: motion``: ``kp`` (N/m or N.m/rad, > 0)
+    and ``kv`` (N.s/m or N.m.s/rad, >= 0); its effort is added to the controller's."""
+
+    kp: StiffPos
+    kv: DampNonneg = 0.0
+
+
+class _PeriodicConfig(ExperimentConfig):
+    """Fields of the periodic effort signals (chirp, multisine) on one actuator."""
+
+    f0: Hz
+    f1: Hz
+    duration: Seconds
+    amplitude: EffortNonneg
+    target: Name
+    dofs: DofList | None = None
+    excite: Literal["effort", "motion"] = "effort"
+    servo: ServoCfg | None = None
+    periods: int = Field(default=1, ge=1)
+    variant: Literal["locked", "free"] | None = None
+
+    def check_scene(self, scene: Scene, path: str) -> None:
+        _check_target(self, scene, path)
+
+    @model_validator(mode="after")
+    def _band_and_servo(self) -> _PeriodicConfig:
+        _band_ok(self.f0, self.f1)
+        if self.excite == "motion" and self.servo is None:
+            raise PydanticCustomError("servo", "excite: motion needs servo (kp in N/m, kv in N.s/m)", {"key": "servo"})
+        return self
+
+
+class ChirpExperiment(_PeriodicConfig):
+    """Swept sine from ``f0`` to ``f1`` (Hz) of ``amplitude`` (N or N.m; m or rad with ``excite:
+    motion``) on ``target``'s ``dofs`` (see :class:`Chirp`)."""
+
+    type: Literal["chirp"]
+    sweep: Literal["log", "linear"] = "log"
+    fade: SecondsOrZero = 0.0
+    periodic: bool = False
+    simultaneous: bool = False
+
+
+class MultisineExperiment(_PeriodicConfig):
+    """Sum of ``n_lines`` sines per DOF between ``f0`` and ``f1`` (Hz), peak ``amplitude`` (N or
+    N.m) on ``target``'s ``dofs`` (see :class:`Multisine`)."""
+
+    type: Literal["multisine"]
+    n_lines: int = Field(default=64, ge=1)
+    simultaneous: bool = True
+    spacing: Literal["linear", "log"] = "linear"
+    seed: Seed | None = None
+
+
+def _auto_or_joules(value: Any) -> Any:
+    if value == "auto":
+        return value
+    x = number(value, "J (or 'auto')")
+    if x < 0:
+        raise PydanticCustomError("number", "expected 'auto' or a number >= 0 in J, got {got}", {"got": x})
+    return x
+
+
+class ForceProfileCfg(StrictModel):
+    """An active force profile (see :func:`force_profile`): ``kind`` sine | multisine | square |
+    step | noise, ``amplitude`` (N or N.m), ``freq`` (Hz; the noise cutoff), ``phase`` (rad),
+    ``freqs`` (Hz, the lines of ``multisine``), ``direction`` (weights per port DOF, default ones),
+    ``seed`` (noise)."""
+
+    kind: Literal["sine", "multisine", "square", "step", "noise"] = "sine"
+    amplitude: Effort
+    freq: HzOrZero = 1.0
+    phase: Annotated[float, BeforeValidator(lambda v: number(v, "rad"))] = 0.0
+    freqs: Annotated[list[Hz], Field(min_length=1)] | None = None
+    direction: list[Number] | None = None
+    seed: Seed | None = None
+
+
+class EnergyInjectionExperiment(ExperimentConfig):
+    """Active force at a network ``port`` for ``duration`` s while ``E_s = ∫ F^T V dt`` at the port
+    is tracked (see :class:`EnergyInjection`)."""
+
+    type: Literal["energy_injection"]
+    port: Name
+    duration: Seconds
+    profile: ForceProfileCfg
+    noise_bound: Annotated[Literal["auto"] | float, BeforeValidator(_auto_or_joules)] = "auto"
+    via: Literal["human", "actuator"] | None = None
+    force_sign: Literal[1, -1] | None = None
+    k_sigma: Positive = 4.0
+    bound_mode: Literal["final", "running"] = "final"
+
+    def check_scene(self, scene: Scene, path: str) -> None:
+        pnames = sorted(p.name for p in scene.network.ports)
+        if self.port not in pnames:
+            raise FieldError(f"{path}.port", f"unknown port {self.port!r}{near(self.port, pnames)}")
+        port = scene.port(self.port)
+        d = self.profile.direction
+        if d is not None and len(d) != port.dofs:
+            raise FieldError(f"{path}.profile.direction", f"port {port.name!r} has {port.dofs} DOF, direction has "
+                                                          f"{len(d)}")
+
+
+class StaticHoldExperiment(ExperimentConfig):
+    """Constant ``effort`` (N or N.m; one value, or one per DOF) on ``target``'s ``dofs`` for
+    ``duration`` s; statistics after ``settle`` s; ``variant``: plant configuration of a simulated
+    SDEA (``locked`` | ``free`` output; recorded) (see :class:`StaticHold`)."""
+
+    type: Literal["static_hold"]
+    target: Name
+    dofs: DofList | None = None
+    effort: Effort | Annotated[list[Effort], Field(min_length=1)]
+    duration: Seconds
+    settle: SecondsOrZero = 0.0
+    variant: Literal["locked", "free"] | None = None
+
+    def check_scene(self, scene: Scene, path: str) -> None:
+        _check_target(self, scene, path)
+
+    @model_validator(mode="after")
+    def _settle(self) -> StaticHoldExperiment:
+        if self.settle >= self.duration:
+            raise PydanticCustomError("settle", "settle ({s} s) must be shorter than duration ({d} s)",
+                                      {"s": self.settle, "d": self.duration, "key": "settle"})
+        return self
 
 
 # ---------------------------------------------------------------------------------------------
@@ -285,55 +488,27 @@ def noise_std_from_differences(x: np.ndarray) -> float:
 # base class
 
 
-_COMMON = {"type", "name", "controller"}
+C = TypeVar("C", bound=ExperimentConfig)
 
 
-class _Base:
-    """Common configuration handling (unknown keys and bad values raise SceneError)."""
+class _Base(Generic[C]):
+    """Common handling of a validated configuration ``cfg`` (one schema of this module)."""
 
     kind = "experiment"
-    allowed: frozenset[str] = frozenset()
+    duration: float
 
-    def __init__(self, cfg: Mapping[str, Any], rate_hz: float) -> None:
+    def __init__(self, cfg: C, rate_hz: float) -> None:
         if not (isinstance(rate_hz, int | float) and rate_hz > 0 and math.isfinite(rate_hz)):
             raise SceneError(f"rate_hz: must be positive, got {rate_hz!r}")
-        self.cfg = dict(cfg)
+        self.cfg = cfg
         self.rate_hz = float(rate_hz)
         self.dt = 1.0 / self.rate_hz
-        self.name = str(cfg.get("name") or self.kind)
+        self.name = str(cfg.name or self.kind)
         self.where = f"experiments[{self.name}]"
-        unknown = sorted(set(cfg) - self.allowed - _COMMON)
-        if unknown:
-            raise SceneError(f"{self.where}: unknown field(s) {', '.join(unknown)}; allowed: "
-                             f"{', '.join(sorted(self.allowed))}")
 
     def f(self, key: str) -> str:
         """Field path for messages."""
         return f"{self.where}.{key}"
-
-    def num(self, key: str, default: Any = None, *, positive: bool = False, nonneg: bool = False) -> float:
-        val = self.cfg.get(key, default)
-        if val is None:
-            raise SceneError(f"{self.f(key)}: required")
-        try:
-            x = float(val)
-        except (TypeError, ValueError) as exc:
-            raise SceneError(f"{self.f(key)}: not a number ({val!r})") from exc
-        if not math.isfinite(x):
-            raise SceneError(f"{self.f(key)}: must be finite")
-        if positive and x <= 0:
-            raise SceneError(f"{self.f(key)}: must be > 0, got {x}")
-        if nonneg and x < 0:
-            raise SceneError(f"{self.f(key)}: must be >= 0, got {x}")
-        return x
-
-    def band(self) -> tuple[float, float]:
-        """The excitation band ``(f0, f1)`` in Hz, 0 < f0 < f1."""
-        f0 = self.num("f0", positive=True)
-        f1 = self.num("f1", positive=True)
-        if not f0 < f1:
-            raise SceneError(f"{self.f('f1')}: must exceed f0 ({f0} Hz), got {f1}")
-        return f0, f1
 
     def _check_target(self, scene: Any, target: str, dofs: Sequence[int] | None) -> tuple[Any, list[int]]:
         devs = _devices(scene)
@@ -365,15 +540,34 @@ class _Base:
 # periodic effort signals on one actuator (chirp, multisine)
 
 
-class _PeriodicEffort(_Base):
+P = TypeVar("P", bound=_PeriodicConfig)
+
+
+class _PeriodicEffort(_Base[P]):
     """Shared machinery: per-DOF periodic sample arrays played on ``target``, sequentially (one
     DOF after the other, each for ``block`` samples) or simultaneously."""
 
+    wave: np.ndarray
+    wave_rate: np.ndarray
+    simultaneous: bool
+
+    def __init__(self, cfg: P, rate_hz: float, *, periodic: bool) -> None:
+        super().__init__(cfg, rate_hz)
+        self.f0, self.f1 = cfg.f0, cfg.f1
+        self.amplitude = cfg.amplitude
+        self.variant = cfg.variant
+        self._setup_periods(cfg.duration, periodic, cfg.periods)
+        self.excite = cfg.excite
+        self.kp = cfg.servo.kp if cfg.servo is not None else 0.0
+        self.kv = cfg.servo.kv if cfg.servo is not None else 0.0
+        self._x_start: np.ndarray | None = None
+        self.target = cfg.target
+        self.dofs_cfg = cfg.dofs
+        self.sel = [0] if cfg.dofs is None else list(cfg.dofs)
+        self.target_dof = max(self.sel) + 1
+        self.checked = False
+
     def _setup_periods(self, duration: float, periodic: bool, periods: int) -> None:
-        if duration <= 0:
-            raise SceneError(f"{self.f('duration')}: must be > 0, got {duration}")
-        if periods < 1:
-            raise SceneError(f"{self.f('periods')}: must be >= 1, got {periods}")
         self.periods = periods if periodic else 1
         n_block = round(duration * self.rate_hz)
         self.n_period = max(1, n_block // self.periods)
@@ -432,21 +626,6 @@ class _PeriodicEffort(_Base):
         eff[self.sel] = u
         return Excitation(effort={self.target: eff})
 
-    def _init_motion(self) -> None:
-        self.excite = str(self.cfg.get("excite", "effort"))
-        if self.excite not in ("effort", "motion"):
-            raise SceneError(f"{self.f('excite')}: 'effort' or 'motion', got {self.excite!r}")
-        self.kp = self.kv = 0.0
-        self._x_start: np.ndarray | None = None
-        if self.excite == "motion":
-            servo = self.cfg.get("servo")
-            if not isinstance(servo, Mapping):
-                raise SceneError(f"{self.f('servo')}: required for excite: motion ({{kp: N/m, kv: N.s/m}})")
-            self.kp = float(servo.get("kp", 0.0))
-            self.kv = float(servo.get("kv", 0.0))
-            if self.kp <= 0 or self.kv < 0:
-                raise SceneError(f"{self.f('servo')}: kp > 0 and kv >= 0 required")
-
     def _finish_rate(self) -> None:
         """Derivative of the periodic waves (for motion references), central differences."""
         w = self.wave
@@ -473,14 +652,6 @@ class _PeriodicEffort(_Base):
             self._check_effort(scene, peak, "amplitude")
         self.checked = True
 
-    def _resolve_target(self, scene: Any | None = None) -> None:
-        self.target = str(self.cfg.get("target") or "")
-        if not self.target:
-            raise SceneError(f"{self.f('target')}: required")
-        self.dofs_cfg = self.cfg.get("dofs")
-        self.sel = list(range(1)) if self.dofs_cfg is None else [int(i) for i in self.dofs_cfg]
-        self.target_dof = (max(self.sel) + 1) if self.sel else 1
-
     def check(self, scene: Any) -> None:
         """Validate against the scene (module doc). When ``dofs`` is omitted, all of the
         target's DOFs are excited: the signals are rebuilt for the scene's DOF count."""
@@ -496,7 +667,7 @@ class _PeriodicEffort(_Base):
         raise NotImplementedError
 
 
-class Chirp(_PeriodicEffort):
+class Chirp(_PeriodicEffort[ChirpExperiment]):
     """Swept sine on ``target``'s ``dofs``.
 
     Fields: ``f0``, ``f1`` (Hz), ``duration`` (s, per DOF block), ``amplitude`` (N or N.m; m or rad
@@ -515,29 +686,15 @@ class Chirp(_PeriodicEffort):
     """
 
     kind = "chirp"
-    allowed = frozenset({"f0", "f1", "duration", "amplitude", "sweep", "fade", "target", "dofs", "excite",
-                         "periodic", "periods", "variant", "simultaneous", "servo"})
 
-    def __init__(self, cfg: Mapping[str, Any], rate_hz: float) -> None:
-        super().__init__(cfg, rate_hz)
-        self.f0, self.f1 = self.band()
-        self.amplitude = self.num("amplitude", nonneg=True)
-        self.fade = self.num("fade", 0.0, nonneg=True)
-        self.sweep = str(cfg.get("sweep", "log"))
-        if self.sweep not in ("log", "linear"):
-            raise SceneError(f"{self.f('sweep')}: 'log' or 'linear', got {self.sweep!r}")
-        self.variant = cfg.get("variant")
-        if self.variant not in (None, "locked", "free"):
-            raise SceneError(f"{self.f('variant')}: 'locked' or 'free', got {self.variant!r}")
-        duration = self.num("duration", positive=True)
-        self.periodic = bool(cfg.get("periodic", False))
-        self._setup_periods(duration, self.periodic, int(cfg.get("periods", 1) or 1))
+    def __init__(self, cfg: ChirpExperiment, rate_hz: float) -> None:
+        super().__init__(cfg, rate_hz, periodic=cfg.periodic)
+        self.fade = cfg.fade
+        self.sweep = cfg.sweep
+        self.periodic = cfg.periodic
         if 2 * round(self.fade * self.rate_hz) > self.n_period:
             raise SceneError(f"{self.f('fade')}: {self.fade} s in and out exceeds the period {self.period:g} s")
-        self._init_motion()
-        self._resolve_target()
         self._build()
-        self.checked = False
         if self.periodic and self.f0 < 1.0 / self.period:
             logger.warning("%s: f0 = %g Hz is below the frequency resolution 1/period = %g Hz", self.name, self.f0,
                            1.0 / self.period)
@@ -547,7 +704,7 @@ class Chirp(_PeriodicEffort):
         win = raised_cosine_fade(self.n_period, round(self.fade * self.rate_hz))
         one = self.amplitude * win * x
         self.wave = np.tile(one, (len(self.sel), 1))
-        self._layout(len(self.sel), bool(self.cfg.get("simultaneous", False)))
+        self._layout(len(self.sel), self.cfg.simultaneous)
         self._finish_rate()
 
     def finish(self, data: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> dict:
@@ -572,7 +729,7 @@ class Chirp(_PeriodicEffort):
         return res
 
 
-class Multisine(_PeriodicEffort):
+class Multisine(_PeriodicEffort[MultisineExperiment]):
     """Periodic multisine with Schroeder phases, for MIMO identification in one experiment.
 
     Fields: ``f0``, ``f1`` (Hz), ``n_lines`` (lines per DOF), ``duration`` (s), ``periods``,
@@ -588,28 +745,16 @@ class Multisine(_PeriodicEffort):
     """
 
     kind = "multisine"
-    allowed = frozenset({"f0", "f1", "n_lines", "duration", "amplitude", "target", "dofs", "simultaneous",
-                         "periods", "seed", "variant", "spacing", "excite", "servo", "periodic"})
 
-    def __init__(self, cfg: Mapping[str, Any], rate_hz: float) -> None:
-        super().__init__(cfg, rate_hz)
-        self.f0, self.f1 = self.band()
-        self.n_lines = int(cfg.get("n_lines", 64))
-        if self.n_lines < 1:
-            raise SceneError(f"{self.f('n_lines')}: must be >= 1")
-        self.amplitude = self.num("amplitude", nonneg=True)
-        self.spacing = str(cfg.get("spacing", "linear"))
-        self.variant = cfg.get("variant")
-        self.seed = cfg.get("seed")
-        duration = self.num("duration", positive=True)
-        self._setup_periods(duration, True, int(cfg.get("periods", 1) or 1))
-        self._init_motion()
-        self._resolve_target()
+    def __init__(self, cfg: MultisineExperiment, rate_hz: float) -> None:
+        super().__init__(cfg, rate_hz, periodic=True)
+        self.n_lines = cfg.n_lines
+        self.spacing = cfg.spacing
+        self.seed = cfg.seed
         self._build()
-        self.checked = False
 
     def _build(self) -> None:
-        simultaneous = bool(self.cfg.get("simultaneous", True))
+        simultaneous = self.cfg.simultaneous
         n_in = len(self.sel) if simultaneous else 1
         df = 1.0 / self.period
         kmin, kmax = math.ceil(self.f0 / df - 1e-9), math.floor(self.f1 / df + 1e-9)
@@ -648,8 +793,10 @@ class Multisine(_PeriodicEffort):
 # energy injection
 
 
-def force_profile(profile: Mapping[str, Any], n: int, fs: float, dim: int, where: str = "profile") -> np.ndarray:
-    """Active force samples ``(n, dim)`` (N or N.m) of a profile mapping:
+def force_profile(profile: ForceProfileCfg | Mapping[str, Any], n: int, fs: float, dim: int,
+                  where: str = "profile") -> np.ndarray:
+    """Active force samples ``(n, dim)`` (N or N.m) of a profile (:class:`ForceProfileCfg`, or a
+    mapping validated against it):
 
     * ``sine``: ``amplitude sin(2π freq t + phase)``;
     * ``multisine``: sum over ``freqs`` (Hz, list) of ``amplitude/len(freqs) sin(2π f t + φ_i)``
@@ -661,15 +808,13 @@ def force_profile(profile: Mapping[str, Any], n: int, fs: float, dim: int, where
 
     ``direction`` (per port DOF weights, default ones) multiplies the scalar profile.
     """
-    kind = str(profile.get("kind", "sine"))
-    amp = float(profile.get("amplitude", 0.0))
-    freq = float(profile.get("freq", 1.0))
-    phase = float(profile.get("phase", 0.0))
+    cfg = validate(ForceProfileCfg, profile, where)
+    kind, amp, freq, phase = cfg.kind, cfg.amplitude, cfg.freq, cfg.phase
     t = np.arange(n) / fs
     if kind == "sine":
         x = amp * np.sin(2 * np.pi * freq * t + phase)
     elif kind == "multisine":
-        freqs = np.atleast_1d(np.asarray(profile.get("freqs", [freq]), dtype=float))
+        freqs = np.atleast_1d(np.asarray(cfg.freqs if cfg.freqs is not None else [freq], dtype=float))
         ph = schroeder_phases(freqs.size)
         x = amp / freqs.size * np.sum(np.sin(2 * np.pi * np.outer(freqs, t) + ph[:, None] + phase), axis=0)
     elif kind == "square":
@@ -679,21 +824,21 @@ def force_profile(profile: Mapping[str, Any], n: int, fs: float, dim: int, where
     elif kind == "noise":
         if not 0 < freq < fs / 2:
             raise SceneError(f"{where}.freq: noise cutoff must lie in (0, {fs / 2:g}) Hz, got {freq}")
-        rng = np.random.default_rng(int(profile.get("seed") or 0))
+        rng = np.random.default_rng(int(cfg.seed or 0))
         w = rng.standard_normal(n + 2000)
         b, a = _sps().butter(2, freq / (fs / 2))
         y = _sps().filtfilt(b, a, w)[1000:1000 + n]
         x = amp * y / (np.std(y) or 1.0)
-    else:
+    else:  # pragma: no cover - the schema's Literal admits no other kind
         raise SceneError(f"{where}.kind: one of sine, multisine, square, step, noise; got {kind!r}")
-    direction = profile.get("direction")
+    direction = cfg.direction
     dvec = np.ones(dim) if direction is None else np.asarray(direction, dtype=float).reshape(-1)
     if dvec.size != dim:
         raise SceneError(f"{where}.direction: {dvec.size} weights for a {dim}-DOF port")
     return x[:, None] * dvec[None, :]
 
 
-class EnergyInjection(_Base):
+class EnergyInjection(_Base[EnergyInjectionExperiment]):
     """Drive a network ``port`` with an active force profile and track ``E_s(t) = ∫ F_h^T V_h dt``
     at the port (paper 000 eq. 6, 001 eq. 30).
 
@@ -713,47 +858,31 @@ class EnergyInjection(_Base):
     """
 
     kind = "energy_injection"
-    allowed = frozenset({"port", "duration", "profile", "noise_bound", "via", "force_sign", "k_sigma", "bound_mode"})
 
-    def __init__(self, cfg: Mapping[str, Any], rate_hz: float) -> None:
+    def __init__(self, cfg: EnergyInjectionExperiment, rate_hz: float) -> None:
         super().__init__(cfg, rate_hz)
-        self.port = str(cfg.get("port") or "")
-        if not self.port:
-            raise SceneError(f"{self.f('port')}: required")
-        self.duration = self.num("duration", positive=True)
-        prof = cfg.get("profile")
-        if not isinstance(prof, Mapping):
-            raise SceneError(f"{self.f('profile')}: required mapping {{kind, amplitude, freq, ...}}")
-        self.profile = dict(prof)
-        self.via = cfg.get("via")
-        if self.via not in (None, "human", "actuator"):
-            raise SceneError(f"{self.f('via')}: 'human' or 'actuator', got {self.via!r}")
-        nb = cfg.get("noise_bound", "auto")
-        if nb != "auto":
-            try:
-                nb = float(nb)
-            except (TypeError, ValueError) as exc:
-                raise SceneError(f"{self.f('noise_bound')}: 'auto' or a number of J") from exc
-            if nb < 0:
-                raise SceneError(f"{self.f('noise_bound')}: must be >= 0")
-        self.noise_bound = nb
-        self.k_sigma = self.num("k_sigma", 4.0, positive=True)
-        self.bound_mode = str(cfg.get("bound_mode", "final"))
-        if self.bound_mode not in ("final", "running"):
-            raise SceneError(f"{self.f('bound_mode')}: 'final' or 'running', got {self.bound_mode!r}")
-        self._force_sign_cfg: float | None = None if cfg.get("force_sign") is None else float(cfg["force_sign"])
+        self.port = cfg.port
+        self.duration = cfg.duration
+        self.profile_cfg = cfg.profile
+        #: the profile as recorded in the results (``freqs`` only when given: ``multisine`` lines)
+        self.profile = cfg.profile.model_dump(exclude={"freqs"} if cfg.profile.freqs is None else None)
+        self.via: str | None = cfg.via
+        self.noise_bound: str | float = cfg.noise_bound
+        self.k_sigma = cfg.k_sigma
+        self.bound_mode = cfg.bound_mode
+        self._force_sign_cfg: float | None = None if cfg.force_sign is None else float(cfg.force_sign)
         self.force_sign: float | None = self._force_sign_cfg
         self._via_cfg = self.via
         self.n = round(self.duration * self.rate_hz)
         # defaults until check() resolves the port against the scene
         self.actuator = self.port
         self.sensor: str | None = None
-        direction = self.profile.get("direction")
-        self.dofs = 1 if direction is None else int(np.asarray(direction).size)
+        direction = cfg.profile.direction
+        self.dofs = 1 if direction is None else len(direction)
         self.axes: list[int] | None = None
         self.noise = (0.0, 0.0)
         self.simulated = False
-        self._samples = force_profile(self.profile, self.n, self.rate_hz, self.dofs, self.f("profile"))
+        self._samples = force_profile(self.profile_cfg, self.n, self.rate_hz, self.dofs, self.f("profile"))
 
     def check(self, scene: Any) -> None:
         ports = {str(_get(p, "name")): p for p in (_get(_get(scene, "network"), "ports") or [])}
@@ -794,7 +923,7 @@ class EnergyInjection(_Base):
         if self.noise_bound == "auto" and sim is not None:
             sn = _get(sim, "sensor_noise")
             self.noise = (float(_get(sn, "force_std", 0.0) or 0.0), float(_get(sn, "velocity_std", 0.0) or 0.0))
-        self._samples = force_profile(self.profile, self.n, self.rate_hz, self.dofs, self.f("profile"))
+        self._samples = force_profile(self.profile_cfg, self.n, self.rate_hz, self.dofs, self.f("profile"))
         peak = float(np.max(np.abs(self._samples))) if self._samples.size else 0.0
         if self.via == "actuator":
             self._check_effort(scene, peak, "profile.amplitude")
@@ -856,32 +985,24 @@ class EnergyInjection(_Base):
 # static hold
 
 
-class StaticHold(_Base):
+class StaticHold(_Base[StaticHoldExperiment]):
     """Step ``effort`` (N or N.m; scalar or per DOF) on ``target``'s ``dofs``, hold for
     ``duration`` s; after ``settle`` s report the static stiffness ``K = ΔF/Δx`` per DOF (ΔF the
     effort step, Δx the mean position after settling minus the position at the start, i.e. what
     the device + its controller + its environment oppose to a constant force)."""
 
     kind = "static_hold"
-    allowed = frozenset({"target", "dofs", "effort", "duration", "settle", "variant"})
 
-    def __init__(self, cfg: Mapping[str, Any], rate_hz: float) -> None:
+    def __init__(self, cfg: StaticHoldExperiment, rate_hz: float) -> None:
         super().__init__(cfg, rate_hz)
-        self.target = str(cfg.get("target") or "")
-        if not self.target:
-            raise SceneError(f"{self.f('target')}: required")
-        self.duration = self.num("duration", positive=True)
-        self.settle = self.num("settle", 0.0, nonneg=True)
-        if self.settle >= self.duration:
-            raise SceneError(f"{self.f('settle')}: ({self.settle} s) must be shorter than duration ({self.duration} s)")
-        eff = cfg.get("effort")
-        if eff is None:
-            raise SceneError(f"{self.f('effort')}: required")
-        self.effort_cfg = np.atleast_1d(np.asarray(eff, dtype=float))
-        self.dofs_cfg = cfg.get("dofs")
-        self.sel = [0] if self.dofs_cfg is None else [int(i) for i in self.dofs_cfg]
+        self.target = cfg.target
+        self.duration = cfg.duration
+        self.settle = cfg.settle
+        self.effort_cfg = np.atleast_1d(np.asarray(cfg.effort, dtype=float))
+        self.dofs_cfg = cfg.dofs
+        self.sel = [0] if cfg.dofs is None else list(cfg.dofs)
         self.target_dof = max(self.sel) + 1
-        self.variant = cfg.get("variant")
+        self.variant = cfg.variant
         self._resolve_effort()
 
     def _resolve_effort(self) -> None:
@@ -984,21 +1105,63 @@ class _Moments:
 
 
 # ---------------------------------------------------------------------------------------------
-# factory
-
-_TYPES: dict[str, type[_Base]] = {"chirp": Chirp, "multisine": Multisine, "energy_injection": EnergyInjection,
-                                  "static_hold": StaticHold}
+# registry and factory
 
 
-def make_experiment(cfg: Mapping[str, Any], *, rate_hz: float) -> Experiment:
-    """Build one scene ``experiments`` entry (a mapping or a pydantic model) at the control rate."""
-    if hasattr(cfg, "model_dump"):
-        cfg = cfg.model_dump()
-    cfg = {k: v for k, v in dict(cfg).items() if v is not None}
-    etype = str(cfg.get("type", ""))
-    if etype not in _TYPES:
-        raise SceneError(f"experiments[{cfg.get('name', '?')}].type: unknown experiment {etype!r}; "
-                         f"one of {sorted(_TYPES)}")
-    exp = _TYPES[etype](cfg, rate_hz)
+@dataclass(frozen=True)
+class ExperimentType:
+    """One experiment type: its scene ``type`` name, its schema and its implementation (built as
+    ``impl(validated_config, rate_hz)``)."""
+
+    name: str
+    schema: type[ExperimentConfig]
+    impl: Callable[[Any, float], Experiment]
+
+
+#: experiment type name -> (schema, implementation); :mod:`hil.scene` builds its ``experiments``
+#: union from it (register before importing :mod:`hil.scene`)
+EXPERIMENT_TYPES: dict[str, ExperimentType] = {}
+
+
+def register_experiment(name: str, schema: type[ExperimentConfig], impl: Callable[[Any, float], Experiment]) -> None:
+    """Add an experiment type: ``schema`` is a :class:`ExperimentConfig` whose ``type`` field is
+    ``Literal[name]``; ``impl(cfg, rate_hz)`` builds the :class:`Experiment` from a validated ``cfg``."""
+    tag = schema.model_fields["type"].annotation
+    if getattr(tag, "__args__", None) != (name,):
+        raise TypeError(f"{schema.__name__}.type must be Literal[{name!r}], got {tag!r}")
+    if name in EXPERIMENT_TYPES and EXPERIMENT_TYPES[name].schema is not schema:
+        raise ValueError(f"experiment type {name!r} is already registered")
+    EXPERIMENT_TYPES[name] = ExperimentType(name, schema, impl)
+
+
+def experiment_schemas() -> tuple[type[ExperimentConfig], ...]:
+    """The schemas of every registered experiment type (registration order)."""
+    return tuple(t.schema for t in EXPERIMENT_TYPES.values())
+
+
+register_experiment("chirp", ChirpExperiment, Chirp)
+register_experiment("multisine", MultisineExperiment, Multisine)
+register_experiment("energy_injection", EnergyInjectionExperiment, EnergyInjection)
+register_experiment("static_hold", StaticHoldExperiment, StaticHold)
+
+
+def make_experiment(cfg: ExperimentConfig | Mapping[str, Any], *, rate_hz: float) -> Experiment:
+    """Build one experiment at the control rate from its validated configuration (a scene's
+    ``experiments`` entry, e.g. :meth:`hil.scene.Scene.experiment_models`), or from a mapping,
+    which is validated here against the schema of its ``type``."""
+    if isinstance(cfg, ExperimentConfig):
+        etype = cfg.type
+        if etype not in EXPERIMENT_TYPES:
+            raise SceneError(f"experiments[{cfg.name or '?'}].type: unknown experiment {etype!r}; "
+                             f"one of {sorted(EXPERIMENT_TYPES)}")
+        model = cfg
+    else:
+        raw = {k: v for k, v in dict(cfg).items() if v is not None}
+        etype = str(raw.get("type", ""))
+        if etype not in EXPERIMENT_TYPES:
+            raise SceneError(f"experiments[{raw.get('name') or '?'}].type: unknown experiment {etype!r}; "
+                             f"one of {sorted(EXPERIMENT_TYPES)}")
+        model = validate(EXPERIMENT_TYPES[etype].schema, raw, f"experiments[{raw.get('name') or etype}]")
+    exp = EXPERIMENT_TYPES[etype].impl(model, rate_hz)
     logger.debug("experiment %s (%s), %.3f s", exp.name, etype, exp.duration)
-    return exp  # type: ignore[return-value]
+    return exp

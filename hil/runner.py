@@ -385,9 +385,10 @@ class Runner:
 
     def _channels(self, meas0: Mapping[str, Any]) -> dict[str, Any]:
         """Channel specs; sensor wrench sizes come from a first reading ``meas0``."""
+        from hil.controllers import DEFAULT_UNITS
         from hil.record import ChannelSpec
 
-        lin = getattr(self.scene, "units", "rotary") == "linear"
+        lin = getattr(self.scene, "units", DEFAULT_UNITS) == "linear"
         pu, vu, fu = ("m", "m/s", "N") if lin else ("rad", "rad/s", "N.m")
         ch: dict[str, Any] = {}
         for d in self._actuator_like() + [d for d in self.scene.devices if d.role != "actuator"]:
@@ -433,7 +434,7 @@ class Runner:
         with bench:
             self.bench = bench
             try:
-                return self._run(index, ecfg)
+                return self._run(index, ecfg, cfg)
             finally:
                 self.bench = None
 
@@ -452,16 +453,18 @@ class Runner:
         except (HilError, OSError) as exc:
             raise SafetyStop(f"record: {one_line(exc)}") from exc
 
-    def _run(self, index: int, ecfg: dict[str, Any]) -> ExperimentOutcome:
-        from hil.controllers import make_controller
+    def _run(self, index: int, ecfg: dict[str, Any], cfg: Any = None) -> ExperimentOutcome:
+        from hil.controllers import DEFAULT_UNITS, make_controller
         from hil.experiments import make_experiment
         from hil.record import RecordWriter
 
         name = self._name(index, ecfg)
-        exp = make_experiment(ecfg, rate_hz=self.rate_hz)
+        # the validated scene entry (hil.experiments schemas) when there is one; a mapping is validated once
+        exp = make_experiment(cfg if cfg is not None else ecfg, rate_hz=self.rate_hz)
         exp.check(self.scene)
-        ccfg = {"type": "none"} if ecfg.get("controller") == "none" else _dump(getattr(self.scene, "controller", None))
-        ctrl = make_controller(ccfg, units=getattr(self.scene, "units", "rotary"), scene=self.scene)
+        ccfg = None if ecfg.get("controller") == "none" else getattr(self.scene, "controller", None)
+        units = getattr(self.scene, "units", DEFAULT_UNITS)
+        ctrl = make_controller(ccfg, units=units, scene=self.scene)
         ctrl.reset()
         n = round(exp.duration * self.rate_hz)
         if self.max_ticks is not None:
@@ -498,7 +501,7 @@ class Runner:
                 "mode": "realtime" if self.realtime else "lockstep", "rate_hz": self.rate_hz,
                 "devices": self.bench.device_identities(),
                 "network": [p.model_dump() if hasattr(p, "model_dump") else dict(p) for p in self.ports],
-                "units": getattr(self.scene, "units", "rotary")}
+                "units": units}
         try:
             writer = RecordWriter(path, scene_text=self.scene.source_text, scene_sha256=self.scene.sha256,
                                   meta=meta, channels=self._channels(meas0), rate_hz=self.rate_hz,
@@ -670,7 +673,7 @@ class Runner:
         outcomes: list[ExperimentOutcome] = []
         self.stop_status: str | None = None
         self.stop_reason: str | None = None
-        cfgs = self.scene.experiment_configs() if hasattr(self.scene, "experiment_configs") else self.scene.experiments
+        cfgs = self.scene.experiment_models() if hasattr(self.scene, "experiment_models") else self.scene.experiments
         with STOP.install():
             for i, cfg in enumerate(cfgs):
                 if select is not None and i not in select:

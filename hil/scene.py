@@ -1,7 +1,11 @@
 """Scene files: what a run talks to (devices), what it simulates, how it is controlled and excited.
 
-A scene is pure data (YAML), never code. See docs/RUNNER_SPEC.md for the format; this module is
-its single source of truth (pydantic models, ``extra="forbid"`` everywhere).
+A scene is pure data (YAML), never code. See docs/RUNNER_SPEC.md for the format. Each block's
+schema (pydantic, ``extra="forbid"`` everywhere, built on :mod:`hil.schema`) lives next to the code
+that uses it: devices, simulation, network, safety and certification here; each experiment type in
+:mod:`hil.experiments` and each controller in :mod:`hil.controllers`, whose registries
+(``EXPERIMENT_TYPES``, ``CONTROLLER_TYPES``: type name -> schema, implementation) this module
+composes into the discriminated unions of ``experiments[]`` and ``controller``.
 
 * :func:`load_scene` takes a YAML path or the name of a built-in scene (``hil/scenes/<name>.yaml``,
   shipped as package data) and returns a validated :class:`Scene` with ``source_text`` (the exact
@@ -25,9 +29,14 @@ Sign conventions: those of :mod:`hil.protocols.base` (positive effort accelerate
 positive direction) and :mod:`hil.mocks.physics` (a termination exerts ``-Z(s) v`` on the device;
 velocities into the ports).
 
-Controller and experiment blocks are validated here but executed elsewhere:
-``hil.controllers.make_controller(scene.controller.model_dump(), units=scene.units)`` and
-``hil.experiments.make_experiment(exp.model_dump(), rate_hz=scene.rate_hz)`` consume plain dicts.
+Loading is three steps: validation (every field, by the schemas), normalization (a model
+validator, ``Scene._final_values``: each block's final values, e.g. the controller's gains as full
+``dof x dof`` matrices; :meth:`hil.controllers.ControllerConfig.normalized`), then pure checks
+(:func:`_cross_check` and the blocks' ``check_scene``, then every experiment and the controller
+built once). The validated models go to the implementations as they are:
+``hil.controllers.make_controller(scene.controller, units=scene.units, scene=scene)`` and
+``hil.experiments.make_experiment(exp, rate_hz=scene.rate_hz)`` for ``exp`` in
+:meth:`Scene.experiment_models`; nothing validates a dict twice.
 
 Additions to the spec (documented in each model): ``devices[].axes`` (wrench components of a
 force sensor that correspond to the body DOFs), ``devices[].sim`` options, ``experiments[].controller``
@@ -45,13 +54,10 @@ import re
 from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Union
 
-import numpy as np
 from pydantic import (
-    BaseModel,
     BeforeValidator,
-    ConfigDict,
     Field,
     PrivateAttr,
     ValidationError,
@@ -60,23 +66,81 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from hil.controllers import (
+    DEFAULT_UNITS,
+    ControllerConfig,
+    DualMaster,
+    MasterMap,
+    Mcet,
+    NoController,
+    PdGain,
+    PdPositionPosition,
+    Units,
+    Vsic,
+    VsicEnvironment,
+    controller_schemas,
+)
 from hil.errors import SceneError
-from hil.inputs import SEED_MAX, DuplicateKeyError, field_path, unique_key_loader
+from hil.experiments import (
+    ChirpExperiment,
+    EnergyInjectionExperiment,
+    ExperimentConfig,
+    ForceProfileCfg,
+    MultisineExperiment,
+    StaticHoldExperiment,
+    experiment_schemas,
+)
+from hil.inputs import SEED_MAX, DuplicateKeyError, unique_key_loader
 from hil.inputs import parse_yaml as _parse_yaml
+from hil.schema import (
+    DampMat,
+    DampNonneg,
+    DofList,
+    FieldError,
+    MassMat,
+    MassPos,
+    Name,
+    Number,
+    Position,
+    Probability,
+    Seed,
+    StiffMat,
+    StiffPos,
+    StrictModel,
+    as_matrix,
+    format_validation_error,
+    matrix_shape,
+    near,
+    number,
+    unknown_key_message,
+)
 
 __all__ = [
+    "DEFAULT_UNITS",
     "ChirpExperiment",
     "Device",
+    "DualMaster",
     "DuplicateKeyError",
     "EnergyInjectionExperiment",
+    "ExperimentConfig",
+    "ForceProfileCfg",
+    "MasterMap",
+    "Mcet",
     "MultisineExperiment",
+    "NoController",
+    "PdGain",
+    "PdPositionPosition",
     "Scene",
     "Simulation",
     "StaticHoldExperiment",
+    "Vsic",
+    "VsicEnvironment",
+    "as_matrix",
     "builtin_scenes",
     "check_seed",
     "load_scene",
     "parse_yaml",
+    "refresh_schema",
     "scene_from_dict",
     "unique_key_loader",
     "unknown_key_message",
@@ -87,154 +151,10 @@ logger = logging.getLogger(__name__)
 _BUILTIN_PACKAGE = "hil"
 _BUILTIN_DIR = "scenes"
 
-# ---------------------------------------------------------------------------------------------
-# numbers and matrices
-# ---------------------------------------------------------------------------------------------
-
-_LEADING_NUMBER = re.compile(r"\s*([-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)")
-
-
-def _number(value: Any, unit: str) -> float:
-    """A finite real number. Strings holding only a number are accepted (YAML 1.1 reads ``1e-3``
-    as a string); strings with units are rejected with a hint."""
-    what = f"a number{(' in ' + unit) if unit else ''}"
-    if isinstance(value, bool) or value is None:
-        raise PydanticCustomError("number", "expected {what}, got {got}", {"what": what, "got": repr(value)})
-    if isinstance(value, int | float):
-        x = float(value)
-    elif isinstance(value, str):
-        try:
-            x = float(value)
-        except ValueError:
-            m = _LEADING_NUMBER.match(value)
-            hint = f" (numbers are SI: write {float(m.group(1))!r})" if m else ""
-            raise PydanticCustomError(
-                "number", "expected {what}, got {got}{hint}", {"what": what, "got": repr(value), "hint": hint}
-            ) from None
-    else:
-        raise PydanticCustomError("number", "expected {what}, got {got}",
-                                  {"what": what, "got": type(value).__name__})
-    if not math.isfinite(x):
-        raise PydanticCustomError("number", "expected {what}, got {got}", {"what": what, "got": repr(value)})
-    return x
-
-
-def _num_type(unit: str = "", **constraints: Any) -> Any:
-    """A float field type that rejects unit strings; ``unit`` appears in the error message;
-    ``constraints`` go to :func:`pydantic.Field` (gt, ge, le, ...)."""
-    if constraints:
-        return Annotated[float, BeforeValidator(lambda v: _number(v, unit)), Field(**constraints)]
-    return Annotated[float, BeforeValidator(lambda v: _number(v, unit))]
-
-
-def _matrix(value: Any, unit: str) -> list[list[float]]:
-    """A matrix as a list of rows; a number is a 1x1 matrix or (later) ``x * I``; a flat list a
-    diagonal. Shapes are checked against the referenced devices by the scene."""
-    if isinstance(value, int | float | str) and not isinstance(value, bool):
-        return [[_number(value, unit)]]
-    if isinstance(value, Sequence) and not isinstance(value, str):
-        if all(not isinstance(r, Sequence) or isinstance(r, str) for r in value):
-            diag = [_number(v, unit) for v in value]
-            n = len(diag)
-            if n == 0:
-                raise PydanticCustomError("matrix", "expected a matrix (list of rows), got an empty list")
-            return [[diag[i] if i == j else 0.0 for j in range(n)] for i in range(n)]
-        rows = []
-        for r in value:
-            if not isinstance(r, Sequence) or isinstance(r, str):
-                raise PydanticCustomError("matrix", "expected a matrix (list of rows of numbers), got a mix")
-            rows.append([_number(v, unit) for v in r])
-        if not rows or any(len(r) != len(rows[0]) for r in rows) or not rows[0]:
-            raise PydanticCustomError("matrix", "expected a rectangular matrix (rows of equal length)")
-        return rows
-    raise PydanticCustomError("matrix", "expected a number or a matrix (list of rows), got {got}",
-                              {"got": type(value).__name__})
-
-
-def _matrix_or_scalar(value: Any, unit: str) -> Any:
-    if isinstance(value, int | float | str) and not isinstance(value, bool):
-        return _number(value, unit)
-    return _matrix(value, unit)
-
-
-def _mat_type(unit: str = "") -> Any:
-    """A matrix field type (list of rows); a number is kept as a scalar meaning ``x * I``."""
-    return Annotated[float | list[list[float]], BeforeValidator(lambda v: _matrix_or_scalar(v, unit))]
-
-
-Number = _num_type()
-MassMat = _mat_type("kg or kg.m^2")
-DampMat = _mat_type("N.s/m or N.m.s/rad")
-StiffMat = _mat_type("N/m or N.m/rad")
-PGain = _num_type("N/m or N.m/rad")
-VGain = _num_type("N.s/m or N.m.s/rad")
-MassPos = _num_type("kg or kg.m^2", gt=0)
-DampNonneg = _num_type("N.s/m or N.m.s/rad", ge=0)
-StiffPos = _num_type("N/m or N.m/rad", gt=0)
-StiffNonneg = _num_type("N/m or N.m/rad", ge=0)
-Fraction = _num_type("[0, 1]", ge=0, le=1)
-Hz = _num_type("Hz", gt=0)
-Seconds = _num_type("s", gt=0)
-SecondsOrZero = _num_type("s", ge=0)
-Effort = _num_type("N or N.m")
-Position = _num_type("m or rad")
-
-
-def as_matrix(value: float | list[list[float]], n: int) -> np.ndarray:
-    """A matrix field as an ``n x n`` array (scalars become ``x * I``)."""
-    if isinstance(value, int | float):
-        return float(value) * np.eye(n)
-    return np.asarray(value, dtype=float)
-
-
-def _shape(value: float | list[list[float]]) -> tuple[int, int] | None:
-    if isinstance(value, int | float):
-        return None
-    return (len(value), len(value[0]) if value else 0)
-
-
-# ---------------------------------------------------------------------------------------------
-# base model: unknown keys with did-you-mean
-# ---------------------------------------------------------------------------------------------
-
-
-class _Strict(BaseModel):
-    """``extra="forbid"`` with a did-you-mean message naming the offending key."""
-
-    model_config = ConfigDict(extra="forbid", frozen=False, populate_by_name=True)
-
-    @model_validator(mode="before")
-    @classmethod
-    def _unknown_keys(cls, data: Any) -> Any:
-        if isinstance(data, dict):
-            known = set(cls.model_fields) | {f.alias for f in cls.model_fields.values() if f.alias}
-            for key in data:
-                if key not in known:
-                    raise PydanticCustomError("unknown_key", "{msg}",
-                                              {"key": str(key), "msg": unknown_key_message(key, known)})
-        return data
-
-
-def unknown_key_message(key: Any, known: Any) -> str:
-    """``unknown key 'matrx', did you mean 'matrix'?`` (or the list of known keys when none is
-    close): the one message for a mistyped key, shared by every strict mapping."""
-    names = sorted(str(k) for k in known)
-    close = difflib.get_close_matches(str(key), names, n=1, cutoff=0.6)
-    if close:
-        return f"unknown key {str(key)!r}, did you mean {close[0]!r}?"
-    return f"unknown key {str(key)!r}; expected one of: {', '.join(names)}"
-
-
-def _seed(value: Any) -> Any:
-    if isinstance(value, bool):
-        raise PydanticCustomError("seed", "expected an integer seed in [0, 2**32-1], got {got}", {"got": repr(value)})
-    if isinstance(value, int) and not 0 <= value <= SEED_MAX:
-        raise PydanticCustomError("seed", "expected an integer seed in [0, 2**32-1], got {got}", {"got": value})
-    return value
-
-
-#: a random seed: an integer in [0, 2**32 - 1] (what numpy's generators and the mocks accept)
-Seed = Annotated[int, BeforeValidator(_seed), Field(ge=0, le=SEED_MAX)]
+_Strict = StrictModel
+_number = number
+_shape = matrix_shape
+_near = near
 
 
 def check_seed(value: Any, what: str = "--seed") -> int:
@@ -245,8 +165,6 @@ def check_seed(value: Any, what: str = "--seed") -> int:
     return int(value)
 
 
-Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", max_length=64)]
-DofList = Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=1)]
 
 # ---------------------------------------------------------------------------------------------
 # devices
@@ -433,7 +351,7 @@ class NamedTermination(_TermBase):
     not passive)."""
 
     type: Literal["named"]
-    name: Literal["T1", "T2"]  # type: ignore[assignment]
+    name: Literal["T1", "T2"]
 
 
 Termination = Annotated[ImpedanceTermination | WallTermination | NamedTermination, Field(discriminator="type")]
@@ -519,115 +437,18 @@ class GroupCfg(_Strict):
     devices: Annotated[list[Name], Field(min_length=2)]
 
 
-class NoController(_Strict):
-    """No controller: the experiment's excitation is the only effort."""
-
-    type: Literal["none"]
-
-
-class PdPositionPosition(_Strict):
-    """Bilateral position-position PD (paper 000 eq. 43/44): master effort
-    ``Kp_m (q_s - q_m) + Kv_m (v_s - v_m)``, slave effort ``Kp_s (q_m - q_s) + Kv_s (v_m - v_s)``.
-    Gains are dof x dof (N/m, N.s/m or N.m/rad, N.m.s/rad); a number means ``k * I``."""
-
-    type: Literal["pd_position_position"]
-    master: Name
-    slave: Name
-    Kp_m: StiffMat
-    Kv_m: DampMat
-    Kp_s: StiffMat
-    Kv_s: DampMat
+def _discriminated(schemas: Sequence[type], what: str) -> Any:
+    """The discriminated union (on ``type``) of the registered ``schemas`` of one kind."""
+    if not schemas:
+        raise RuntimeError(f"no {what} types are registered")
+    return Annotated[Union[tuple(schemas)], Field(discriminator="type")]  # noqa: UP007  # built at run time
 
 
-class Mcet(_Strict):
-    """Dual-user MCET four-channel controller (paper 000 eq. 22-23), 1-DOF robots. Local PD gains
-    (k_pmi, k_vmi), (k_ps, k_vs); optional coordinating channels c_4mi (default -c_mi) and c_1
-    (default c_s) and force gains c2m1, c2m2, c3, c5, c6m1, c6m2 (default 0: position-position,
-    eq. 25); ``force_sensors`` {master1, master2, slave} when force gains are used."""
-
-    type: Literal["mcet"]
-    masters: Annotated[list[Name], Field(min_length=2, max_length=2)]
-    slave: Name
-    alpha: Fraction
-    k_pm1: PGain
-    k_vm1: VGain
-    k_pm2: PGain
-    k_vm2: VGain
-    k_ps: PGain
-    k_vs: VGain
-    k_p4m1: float | None = None
-    k_v4m1: float | None = None
-    k_p4m2: float | None = None
-    k_v4m2: float | None = None
-    k_p1: float | None = None
-    k_v1: float | None = None
-    c2m1: float = 0.0
-    c2m2: float = 0.0
-    c3: float = 0.0
-    c5: float = 0.0
-    c6m1: float = 0.0
-    c6m2: float = 0.0
-    force_sensors: dict[str, Name] | None = None
-    slave_force_sign: Literal[1, -1] = -1
-
-
-class PdGain(_Strict):
-    """A PD gain matrix pair, i.e. the PI velocity controller ``(kp + kv s)/s`` of the papers."""
-
-    kp: StiffMat
-    kv: DampMat
-
-
-class MasterMap(_Strict):
-    """A master device and the slave DOFs it commands (paper 001: master 1 -> x, master 2 -> y, z)."""
-
-    device: Name
-    slave_dofs: DofList
-
-
-class DualMaster(_Strict):
-    """Dual-master / single-slave cooperative teleoperation (paper 001 eq. 17). The masters' DOFs,
-    concatenated in order, map onto ``slave_dofs``; ``C_m`` (master local), ``C_4`` (slave ->
-    masters), ``C_s`` (slave local), ``C_1`` (masters -> slave) are n x n PD gain pairs with n the
-    slave DOF count: master effort ``C_4 x_s - C_m x_m``, slave effort ``C_1 x_m - C_s x_s``
-    (x in the slave DOF order)."""
-
-    type: Literal["dual_master"]
-    masters: Annotated[list[MasterMap], Field(min_length=1)]
-    slave: Name
-    C_m: PdGain
-    C_4: PdGain
-    C_s: PdGain
-    C_1: PdGain
-
-
-class VsicEnvironment(_Strict):
-    """Virtual environment rendered by the VSIC: a spring ``k`` (N.m/rad) with damping ``b``."""
-
-    type: Literal["spring"] = "spring"
-    k: StiffNonneg = 0.0
-    b: DampNonneg = 0.0
-
-
-class Vsic(_Strict):
-    """Velocity-sourced impedance control of an SDEA (paper 002): inner motor velocity PI
-    (P_m, I_m), force PI (P_f, I_f) on the spring-force error, feed-forward ``1 - alpha`` and a
-    virtual coupler (k22, b22) to the environment."""
-
-    type: Literal["vsic"]
-    actuator: Name
-    force_sensor: Name
-    P_m: Annotated[float, BeforeValidator(lambda v: _number(v, "N.m.s/rad")), Field(gt=0)]
-    I_m: Annotated[float, BeforeValidator(lambda v: _number(v, "N.m/rad")), Field(ge=0)]
-    P_f: Annotated[float, BeforeValidator(lambda v: _number(v, "rad/(N.m.s)")), Field(gt=0)]
-    I_f: Annotated[float, BeforeValidator(lambda v: _number(v, "rad/(N.m.s^2)")), Field(ge=0)]
-    alpha: Fraction = 1.0
-    k22: Annotated[float, BeforeValidator(lambda v: _number(v, "N.m/rad")), Field(ge=0)]
-    b22: Annotated[float, BeforeValidator(lambda v: _number(v, "N.m.s/rad")), Field(ge=0)]
-    environment: VsicEnvironment = Field(default_factory=VsicEnvironment)
-
-
-Controller = Annotated[NoController | PdPositionPosition | Mcet | DualMaster | Vsic, Field(discriminator="type")]
+# the controller block: one of the schemas registered in hil.controllers.CONTROLLER_TYPES
+if TYPE_CHECKING:
+    Controller = ControllerConfig
+else:
+    Controller = _discriminated(controller_schemas(), "controller")
 
 
 class Safety(_Strict):
@@ -655,132 +476,13 @@ class Safety(_Strict):
 
 
 # ---------------------------------------------------------------------------------------------
-# experiments
+# experiments: one of the schemas registered in hil.experiments.EXPERIMENT_TYPES
 # ---------------------------------------------------------------------------------------------
 
-
-class _ExpBase(_Strict):
-    """Common experiment fields. ``controller``: ``scene`` runs the scene's controller during the
-    experiment, ``none`` runs it open loop (identification). ``name`` defaults to the type."""
-
-    name: Name | None = None
-    controller: Literal["scene", "none"] = "scene"
-
-
-
-
-class ChirpExperiment(_ExpBase):
-    """Swept sine from ``f0`` to ``f1`` (Hz) of ``amplitude`` (N or N.m) on ``target``'s ``dofs``,
-    ``sweep`` log or linear, cosine fade in/out of ``fade`` s. ``periodic``: ``periods`` identical
-    sweeps of ``duration / periods`` s each (one period per Welch segment). ``variant``: plant
-    configuration of a simulated SDEA (``locked`` output or ``free`` output)."""
-
-    type: Literal["chirp"]
-    f0: Hz
-    f1: Hz
-    duration: Seconds
-    amplitude: Effort
-    sweep: Literal["log", "linear"] = "log"
-    fade: SecondsOrZero = 0.0
-    target: Name
-    dofs: DofList | None = None
-    excite: Literal["effort"] = "effort"
-    periodic: bool = False
-    periods: int = Field(default=1, ge=1)
-    variant: Literal["locked", "free"] | None = None
-
-    @model_validator(mode="after")
-    def _band(self) -> ChirpExperiment:
-        if not self.f0 < self.f1:
-            raise PydanticCustomError("band", "f1 ({f1} Hz) must exceed f0 ({f0} Hz)",
-                                      {"f0": self.f0, "f1": self.f1, "key": "f1"})
-        return self
-
-
-class MultisineExperiment(_ExpBase):
-    """Sum of ``n_lines`` sines between ``f0`` and ``f1`` (Hz), total ``amplitude`` (N or N.m) on
-    ``target``'s ``dofs``; ``simultaneous``: all DOFs at once with orthogonal phases, else one DOF
-    after the other."""
-
-    type: Literal["multisine"]
-    f0: Hz
-    f1: Hz
-    n_lines: int = Field(default=64, ge=1)
-    duration: Seconds
-    amplitude: Effort
-    target: Name
-    dofs: DofList | None = None
-    simultaneous: bool = True
-    periods: int = Field(default=1, ge=1)
-    seed: Seed | None = None
-    variant: Literal["locked", "free"] | None = None
-
-    @model_validator(mode="after")
-    def _band(self) -> MultisineExperiment:
-        if not self.f0 < self.f1:
-            raise PydanticCustomError("band", "f1 ({f1} Hz) must exceed f0 ({f0} Hz)",
-                                      {"f0": self.f0, "f1": self.f1, "key": "f1"})
-        return self
-
-
-class ForceProfileCfg(_Strict):
-    """Active operator force: ``sine`` (amplitude N, freq Hz), ``square``, ``step`` (amplitude from
-    t = 0), ``noise`` (band-limited Gaussian, std = amplitude, seeded). ``direction``: unit weights
-    per port DOF (default all ones)."""
-
-    kind: Literal["sine", "square", "step", "noise"] = "sine"
-    amplitude: Annotated[float, BeforeValidator(lambda v: _number(v, "N or N.m"))]
-    freq: Annotated[float, BeforeValidator(lambda v: _number(v, "Hz")), Field(ge=0)] = 1.0
-    phase: Annotated[float, BeforeValidator(lambda v: _number(v, "rad"))] = 0.0
-    direction: list[Number] | None = None
-    seed: Seed | None = None
-
-
-def _auto_or_joules(value: Any) -> Any:
-    if value == "auto":
-        return value
-    x = _number(value, "J (or 'auto')")
-    if x < 0:
-        raise PydanticCustomError("number", "expected 'auto' or a number >= 0 in J, got {got}", {"got": x})
-    return x
-
-
-class EnergyInjectionExperiment(_ExpBase):
-    """Active force at a network ``port`` (simulated human) for ``duration`` s while the energy
-    ``E_s = int F^T V dt`` at the port is tracked; ``noise_bound``: ``auto`` (from the sensor noise)
-    or a number in J."""
-
-    type: Literal["energy_injection"]
-    port: Name
-    duration: Seconds
-    profile: ForceProfileCfg
-    noise_bound: Annotated[Literal["auto"] | float, BeforeValidator(_auto_or_joules)] = "auto"
-
-
-class StaticHoldExperiment(_ExpBase):
-    """Constant ``effort`` (N or N.m) on ``target``'s ``dofs`` for ``duration`` s; the statistics
-    are taken after ``settle`` s."""
-
-    type: Literal["static_hold"]
-    target: Name
-    dofs: DofList | None = None
-    effort: Effort
-    duration: Seconds
-    settle: SecondsOrZero = 0.0
-    variant: Literal["locked", "free"] | None = None
-
-    @model_validator(mode="after")
-    def _settle(self) -> StaticHoldExperiment:
-        if self.settle >= self.duration:
-            raise PydanticCustomError("settle", "settle ({s} s) must be shorter than duration ({d} s)",
-                                      {"s": self.settle, "d": self.duration, "key": "settle"})
-        return self
-
-
-Experiment = Annotated[
-    ChirpExperiment | MultisineExperiment | EnergyInjectionExperiment | StaticHoldExperiment,
-    Field(discriminator="type"),
-]
+if TYPE_CHECKING:
+    Experiment = ExperimentConfig
+else:
+    Experiment = _discriminated(experiment_schemas(), "experiment")
 
 # ---------------------------------------------------------------------------------------------
 # certification
@@ -825,9 +527,6 @@ class DesignCfg(_Strict):
         return v
 
 
-Probability = _num_type("(0, 1)", gt=0, lt=1)
-
-
 class PolicyCfg(_Strict):
     """The verdict policy (:class:`hil.certify.Policy`): probabilities strictly inside (0, 1)."""
 
@@ -865,7 +564,7 @@ class Scene(_Strict):
     seed: Seed = 0
     rate_hz: Annotated[float, BeforeValidator(lambda v: _number(v, "Hz")), Field(gt=0, le=100_000)] = 1000.0
     mode: Literal["lockstep", "realtime"] | None = None
-    units: Literal["rotary", "linear"] = "linear"
+    units: Units = DEFAULT_UNITS
     devices: Annotated[list[Device], Field(min_length=1)]
     groups: list[GroupCfg] = Field(default_factory=list)
     simulation: Simulation | None = None
@@ -948,18 +647,58 @@ class Scene(_Strict):
                 return p
         raise KeyError(name)
 
+    def require(self, path: str, name: str, role: str | None = None) -> Device:
+        """The device (or group) ``name`` referenced at scene field ``path``, of ``role`` when given;
+        else :class:`hil.schema.FieldError` ``path: unknown device 'x' (did you mean 'y'?)``."""
+        try:
+            d = self.device(name)
+        except KeyError:
+            known = [d.name for d in self.devices] + [g.name for g in self.groups]
+            raise FieldError(path, f"unknown device {name!r}{near(name, known)}") from None
+        if role is not None and d.role != role:
+            raise FieldError(path, f"device {name!r} is a {d.role}, expected a {role}")
+        return d
+
     def controller_config(self) -> dict[str, Any]:
-        """``controller`` as a plain dict for ``hil.controllers.make_controller``."""
+        """``controller`` as a plain dict (its final values: gains as full matrices)."""
         return self.controller.model_dump()
 
+    def experiment_models(self) -> list[ExperimentConfig]:
+        """``experiments`` with ``name`` filled (the type, or ``<type>_<n>`` when several of one
+        type are unnamed): what ``hil.experiments.make_experiment`` builds and the runner runs."""
+        return [e if e.name else e.model_copy(update={"name": _default_exp_name(self.experiments, i)})
+                for i, e in enumerate(self.experiments)]
+
     def experiment_configs(self) -> list[dict[str, Any]]:
-        """``experiments`` as plain dicts for ``hil.experiments.make_experiment`` (``name`` filled)."""
-        out = []
-        for i, e in enumerate(self.experiments):
-            d = e.model_dump()
-            d["name"] = e.name or _default_exp_name(self.experiments, i)
-            out.append(d)
-        return out
+        """:meth:`experiment_models` as plain dicts (as stored in a record's ``meta.experiment``)."""
+        return [e.model_dump() for e in self.experiment_models()]
+
+    @model_validator(mode="after")
+    def _final_values(self) -> Scene:
+        """Normalization (not a check): each block's final values for this scene, e.g. the
+        controller's gains expanded to full ``dof x dof`` matrices of the devices they act on
+        (:meth:`hil.controllers.ControllerConfig.normalized`). The checks (:func:`_cross_check`)
+        run afterwards and change nothing."""
+        self.__dict__.pop("_device_cache", None)
+        self.controller = self.controller.normalized(self)
+        self.__dict__.pop("_device_cache", None)  # groups are checked later: look them up afresh
+        return self
+
+
+def refresh_schema() -> None:
+    """Recompose :class:`Scene`'s ``experiments`` and ``controller`` unions from the registries of
+    :mod:`hil.experiments` and :mod:`hil.controllers` (they are composed when this module is
+    imported; call this after registering a type later)."""
+    fields = Scene.model_fields
+    # unions built at run time: typed Any (a type checker sees the registries' base classes)
+    union: Any = _discriminated(experiment_schemas(), "experiment")
+    fields["experiments"].annotation = list[union]
+    assert fields["controller"].discriminator == "type"
+    members: Any = Union[tuple(controller_schemas())]  # noqa: UP007
+    fields["controller"].annotation = members
+    Scene.model_rebuild(force=True)
+    logger.debug("scene schema: experiments %s, controllers %s", [c.__name__ for c in experiment_schemas()],
+                 [c.__name__ for c in controller_schemas()])
 
 
 def _default_exp_name(exps: Sequence[Any], i: int) -> str:
@@ -973,147 +712,63 @@ def _default_exp_name(exps: Sequence[Any], i: int) -> str:
 # ---------------------------------------------------------------------------------------------
 
 
-def _near(name: str, known: Sequence[str]) -> str:
-    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.5)
-    if close:
-        return f" (did you mean {close[0]!r}?)"
-    return f"; known: {', '.join(known) if known else '(none)'}"
-
-
 def _cross_check(sc: Scene) -> None:
-    """Raise ``_Where(path, message)`` for the first broken reference or shape."""
+    """Raise :class:`hil.schema.FieldError` ``(path, message)`` for the first broken reference or
+    shape. Pure: nothing in ``sc`` changes (the final values are set by ``Scene._final_values``)."""
     names = [d.name for d in sc.devices]
     seen: set[str] = set()
     for i, d in enumerate(sc.devices):
         if d.name in seen:
-            raise _Where(f"devices[{i}].name", f"duplicate device name {d.name!r}")
+            raise FieldError(f"devices[{i}].name", f"duplicate device name {d.name!r}")
         seen.add(d.name)
     dev = {d.name: d for d in sc.devices}
     grouped: set[str] = set()
     for i, g in enumerate(sc.groups):
         if g.name in dev:
-            raise _Where(f"groups[{i}].name", f"group name {g.name!r} is already a device name")
+            raise FieldError(f"groups[{i}].name", f"group name {g.name!r} is already a device name")
         for k, m in enumerate(g.devices):
             if m not in dev:
-                raise _Where(f"groups[{i}].devices[{k}]", f"unknown device {m!r}{_near(m, names)}")
+                raise FieldError(f"groups[{i}].devices[{k}]", f"unknown device {m!r}{_near(m, names)}")
             if dev[m].role != "actuator":
-                raise _Where(f"groups[{i}].devices[{k}]", f"device {m!r} is a {dev[m].role}; groups hold actuators")
+                raise FieldError(f"groups[{i}].devices[{k}]", f"device {m!r} is a {dev[m].role}; groups hold actuators")
             if m in grouped:
-                raise _Where(f"groups[{i}].devices[{k}]", f"device {m!r} is already in another group")
+                raise FieldError(f"groups[{i}].devices[{k}]", f"device {m!r} is already in another group")
             grouped.add(m)
         dev[g.name] = sc.device(g.name)
-    names = names + [g.name for g in sc.groups]
-
-    def need(path: str, name: str, role: str | None = None) -> Device:
-        if name not in dev:
-            raise _Where(path, f"unknown device {name!r}{_near(name, names)}")
-        d = dev[name]
-        if role is not None and d.role != role:
-            raise _Where(path, f"device {name!r} is a {d.role}, expected a {role}")
-        return d
-
-    def check_gain(path: str, value: Any, rows: int, cols: int, what: str) -> None:
-        s = _shape(value)
-        if s is None:
-            if rows != cols:
-                raise _Where(path, f"a number means k*I, which needs a square gain; expected a {rows}x{cols} "
-                                   f"matrix ({what})")
-            return
-        if s != (rows, cols):
-            raise _Where(path, f"expected a {rows}x{cols} matrix ({what}), got {s[0]}x{s[1]}")
+    need = sc.require
 
     # network
     pnames: set[str] = set()
     for i, p in enumerate(sc.network.ports):
         if p.name in pnames:
-            raise _Where(f"network.ports[{i}].name", f"duplicate port name {p.name!r}")
+            raise FieldError(f"network.ports[{i}].name", f"duplicate port name {p.name!r}")
         pnames.add(p.name)
         a = need(f"network.ports[{i}].actuator", p.actuator, "actuator")
         if a.dof != p.dofs:
-            raise _Where(f"network.ports[{i}].dofs", f"port has {p.dofs} DOF but actuator {a.name!r} has {a.dof}")
+            raise FieldError(f"network.ports[{i}].dofs", f"port has {p.dofs} DOF but actuator {a.name!r} has {a.dof}")
         if p.force_sensor is not None:
             s = need(f"network.ports[{i}].force_sensor", p.force_sensor, "force_sensor")
             if s.dof != p.dofs:
-                raise _Where(f"network.ports[{i}].force_sensor",
-                             f"sensor {s.name!r} measures {s.dof} DOF, the port has {p.dofs}")
-    # controller
-    c = sc.controller
-    if isinstance(c, PdPositionPosition):
-        m = need("controller.master", c.master, "actuator")
-        s = need("controller.slave", c.slave, "actuator")
-        if m.dof != s.dof:
-            raise _Where("controller.slave", f"master {m.name!r} has {m.dof} DOF, slave {s.name!r} has {s.dof}")
-        for key in ("Kp_m", "Kv_m", "Kp_s", "Kv_s"):
-            check_gain(f"controller.{key}", getattr(c, key), m.dof, m.dof, f"dof x dof of {m.name!r}/{s.name!r}")
-            setattr(c, key, as_matrix(getattr(c, key), m.dof).tolist())  # dumps always hold full matrices
-    elif isinstance(c, Mcet):
-        for k, mname in enumerate(c.masters):
-            d = need(f"controller.masters[{k}]", mname, "actuator")
-            if d.dof != 1:
-                raise _Where(f"controller.masters[{k}]", f"mcet needs 1-DOF robots; {mname!r} has {d.dof} DOF")
-        d = need("controller.slave", c.slave, "actuator")
-        if d.dof != 1:
-            raise _Where("controller.slave", f"mcet needs 1-DOF robots; {c.slave!r} has {d.dof} DOF")
-    elif isinstance(c, DualMaster):
-        s = need("controller.slave", c.slave, "actuator")
-        covered: list[int] = []
-        for k, mm in enumerate(c.masters):
-            d = need(f"controller.masters[{k}].device", mm.device, "actuator")
-            if len(mm.slave_dofs) != d.dof:
-                raise _Where(f"controller.masters[{k}].slave_dofs",
-                             f"master {d.name!r} has {d.dof} DOF but maps {len(mm.slave_dofs)} slave DOF")
-            bad = [j for j in mm.slave_dofs if j >= s.dof]
-            if bad:
-                raise _Where(f"controller.masters[{k}].slave_dofs",
-                             f"slave {s.name!r} has {s.dof} DOF; index {bad[0]} is out of range")
-            covered += mm.slave_dofs
-        if sorted(covered) != list(range(s.dof)):
-            raise _Where("controller.masters", f"the masters' slave_dofs must cover each of the slave's {s.dof} "
-                                               f"DOF exactly once, got {covered}")
-        for key in ("C_m", "C_4", "C_s", "C_1"):
-            g = getattr(c, key)
-            check_gain(f"controller.{key}.kp", g.kp, s.dof, s.dof, "n x n, n = slave DOF")
-            check_gain(f"controller.{key}.kv", g.kv, s.dof, s.dof, "n x n, n = slave DOF")
-            g.kp = as_matrix(g.kp, s.dof).tolist()
-            g.kv = as_matrix(g.kv, s.dof).tolist()
-    elif isinstance(c, Vsic):
-        a = need("controller.actuator", c.actuator, "actuator")
-        f = need("controller.force_sensor", c.force_sensor, "force_sensor")
-        if a.dof != 1 or f.dof != 1:
-            raise _Where("controller.actuator", "vsic controls a 1-DOF SDEA (actuator and sensor with dof 1)")
-        if c.k22 == 0 and c.b22 == 0:
-            raise _Where("controller.k22", "the virtual coupler needs k22 > 0 or b22 > 0")
-    # experiments
+                raise FieldError(f"network.ports[{i}].force_sensor",
+                                 f"sensor {s.name!r} measures {s.dof} DOF, the port has {p.dofs}")
+    # the controller and the experiments check their own references (pure)
+    sc.controller.check_scene(sc)
     exp_names: dict[str, int] = {}
-    for i, cfg in enumerate(sc.experiment_configs()):
-        if cfg["name"] in exp_names:
-            raise _Where(f"experiments[{i}].name", f"duplicate experiment name {cfg['name']!r} (also "
-                                                   f"experiments[{exp_names[cfg['name']]}])")
-        exp_names[cfg["name"]] = i
+    for i, e in enumerate(sc.experiment_models()):
+        assert e.name is not None  # filled by experiment_models
+        if e.name in exp_names:
+            raise FieldError(f"experiments[{i}].name", f"duplicate experiment name {e.name!r} (also "
+                                                       f"experiments[{exp_names[e.name]}])")
+        exp_names[e.name] = i
     for i, e in enumerate(sc.experiments):
-        if isinstance(e, EnergyInjectionExperiment):
-            if e.port not in pnames:
-                raise _Where(f"experiments[{i}].port", f"unknown port {e.port!r}{_near(e.port, sorted(pnames))}")
-            port = sc.port(e.port)
-            if e.profile.direction is not None and len(e.profile.direction) != port.dofs:
-                raise _Where(f"experiments[{i}].profile.direction",
-                             f"port {port.name!r} has {port.dofs} DOF, direction has {len(e.profile.direction)}")
-            continue
-        d = need(f"experiments[{i}].target", e.target, "actuator")
-        if e.dofs is not None and max(e.dofs) >= d.dof:
-            raise _Where(f"experiments[{i}].dofs", f"device {d.name!r} has {d.dof} DOF")
-        if getattr(e, "variant", None) is not None:
-            sim = sc.simulation
-            if sim is not None and (sim.sdea is None or sim.sdea.m_out is None) and e.variant == "free":
-                raise _Where(f"experiments[{i}].variant",
-                             "variant 'free' needs simulation.sdea.m_out (the output inertia)")
+        e.check_scene(sc, f"experiments[{i}]")
     for i, d in enumerate(sc.devices):
         if d.role == "actuator" and d.axes is not None:
-            raise _Where(f"devices[{i}].axes", "axes applies to force sensors only")
+            raise FieldError(f"devices[{i}].axes", "axes applies to force sensors only")
         if d.driver == "cia402" and (sc.units == "linear" or d.dof != 1 or d.role != "actuator"):
             # hil.protocols.cia402: one rotary axis (rad, N.m) per drive node
-            raise _Where(f"devices[{i}].driver", "a cia402 drive is one rotary actuator axis: role actuator, dof 1, "
-                                                 "units rotary")
+            raise FieldError(f"devices[{i}].driver",
+                             "a cia402 drive is one rotary actuator axis: role actuator, dof 1, units rotary")
     if sc.simulation is not None:
         _check_simulation(sc, sc.simulation)
     if sc.certification is not None:
@@ -1129,66 +784,67 @@ def _check_link_budgets(sc: Scene) -> None:
 
     for use in over_budget(sc.devices, sc.rate_hz):
         i = next(k for k, d in enumerate(sc.devices) if d.name == use.devices[0])
-        raise _Where(f"devices[{i}].params", f"link budget exceeded: {use.message()}")
+        raise FieldError(f"devices[{i}].params", f"link budget exceeded: {use.message()}")
 
 
 def _check_simulation(sc: Scene, sim: Simulation) -> None:
     bodies: dict[str, int] = {}
     for i, b in enumerate(sim.bodies):
         if b.name in bodies:
-            raise _Where(f"simulation.bodies[{i}].name", f"duplicate body name {b.name!r}")
+            raise FieldError(f"simulation.bodies[{i}].name", f"duplicate body name {b.name!r}")
         s = _shape(b.M)
         if s is not None and s[0] != s[1]:
-            raise _Where(f"simulation.bodies[{i}].M", f"mass matrix must be square, got {s[0]}x{s[1]}")
+            raise FieldError(f"simulation.bodies[{i}].M", f"mass matrix must be square, got {s[0]}x{s[1]}")
         for key in ("B", "K"):
             t = _shape(getattr(b, key))
             if t is not None and t != (b.dof, b.dof):
-                raise _Where(f"simulation.bodies[{i}].{key}", f"expected a {b.dof}x{b.dof} matrix, got {t[0]}x{t[1]}")
+                raise FieldError(f"simulation.bodies[{i}].{key}",
+                                 f"expected a {b.dof}x{b.dof} matrix, got {t[0]}x{t[1]}")
         bodies[b.name] = b.dof
     if sim.sdea is not None:
         for nm in (sim.sdea.name, f"{sim.sdea.name}_out"):
             if nm in bodies:
-                raise _Where("simulation.sdea.name", f"body name {nm!r} is already used")
+                raise FieldError("simulation.sdea.name", f"body name {nm!r} is already used")
     all_bodies = sim.body_dofs()
     if not all_bodies:
-        raise _Where("simulation", "a simulation needs at least one body (bodies or sdea)")
+        raise FieldError("simulation", "a simulation needs at least one body (bodies or sdea)")
     known = sorted(all_bodies)
 
     def body(path: str, name: str, dofs: list[int] | None) -> int:
         if name not in all_bodies:
-            raise _Where(path, f"unknown body {name!r}{_near(name, known)}")
+            raise FieldError(path, f"unknown body {name!r}{_near(name, known)}")
         n = all_bodies[name]
         if dofs is not None:
             bad = [j for j in dofs if j >= n]
             if bad:
-                raise _Where(path, f"body {name!r} has {n} DOF; DOF index {bad[0]} is out of range")
+                raise FieldError(path, f"body {name!r} has {n} DOF; DOF index {bad[0]} is out of range")
             return len(dofs)
         return n
 
     def square(path: str, value: Any, n: int) -> None:
         t = _shape(value)
         if t is not None and t != (n, n):
-            raise _Where(path, f"expected a {n}x{n} matrix (the port has {n} DOF), got {t[0]}x{t[1]}")
+            raise FieldError(path, f"expected a {n}x{n} matrix (the port has {n} DOF), got {t[0]}x{t[1]}")
 
     for i, sp in enumerate(sim.springs):
         na = body(f"simulation.springs[{i}].a", sp.a, sp.a_dofs)
         if sp.b is not None:
             nb = body(f"simulation.springs[{i}].b", sp.b, sp.b_dofs)
             if nb != na:
-                raise _Where(f"simulation.springs[{i}].b", f"ports have {na} and {nb} DOF")
+                raise FieldError(f"simulation.springs[{i}].b", f"ports have {na} and {nb} DOF")
         square(f"simulation.springs[{i}].stiffness", sp.stiffness, na)
         square(f"simulation.springs[{i}].damping", sp.damping, na)
-    for i, t in enumerate(sim.terminations):
-        n = body(f"simulation.terminations[{i}].port", t.port, t.dofs)
-        if isinstance(t, ImpedanceTermination) and len(t.tf) != n:
-            raise _Where(f"simulation.terminations[{i}].tf", f"expected a {n}x{n} transfer matrix (port DOF), "
-                                                             f"got {len(t.tf)}x{len(t.tf)}")
-        if isinstance(t, WallTermination):
-            square(f"simulation.terminations[{i}].stiffness", t.stiffness, n)
-            square(f"simulation.terminations[{i}].damping", t.damping, n)
-        if isinstance(t, NamedTermination) and NAMED_TERMINATION_DOF[t.name] != n:
-            raise _Where(f"simulation.terminations[{i}].name",
-                         f"{t.name} has {NAMED_TERMINATION_DOF[t.name]} ports, the port has {n} DOF")
+    for i, term in enumerate(sim.terminations):
+        n = body(f"simulation.terminations[{i}].port", term.port, term.dofs)
+        if isinstance(term, ImpedanceTermination) and len(term.tf) != n:
+            raise FieldError(f"simulation.terminations[{i}].tf", f"expected a {n}x{n} transfer matrix (port DOF), "
+                                                             f"got {len(term.tf)}x{len(term.tf)}")
+        if isinstance(term, WallTermination):
+            square(f"simulation.terminations[{i}].stiffness", term.stiffness, n)
+            square(f"simulation.terminations[{i}].damping", term.damping, n)
+        if isinstance(term, NamedTermination) and NAMED_TERMINATION_DOF[term.name] != n:
+            raise FieldError(f"simulation.terminations[{i}].name",
+                             f"{term.name} has {NAMED_TERMINATION_DOF[term.name]} ports, the port has {n} DOF")
     hnames: set[str] = set()
     for i, h in enumerate(sim.humans):
         path = "simulation.human" if isinstance(sim.human, HumanCfg) else f"simulation.human[{i}]"
@@ -1197,22 +853,23 @@ def _check_simulation(sc: Scene, sim: Simulation) -> None:
             square(f"{path}.{key}", getattr(h, key), n)
         nm = h.name or ("human" if len(sim.humans) == 1 else f"human_{h.port}")
         if nm in hnames or nm in all_bodies:
-            raise _Where(f"{path}.name", f"name {nm!r} is already used")
+            raise FieldError(f"{path}.name", f"name {nm!r} is already used")
         hnames.add(nm)
     for i, d in enumerate(sc.devices):
         if d.body is None:
-            raise _Where(f"devices[{i}].body", "required when the scene has a simulation (the simulated body "
+            raise FieldError(f"devices[{i}].body", "required when the scene has a simulation (the simulated body "
                                                "the device is attached to)")
         n = body(f"devices[{i}].body", d.body, d.dofs)
         if n != d.dof:
-            raise _Where(f"devices[{i}].dof", f"device has {d.dof} DOF but is attached to {n} DOF of body {d.body!r}")
+            raise FieldError(f"devices[{i}].dof",
+                             f"device has {d.dof} DOF but is attached to {n} DOF of body {d.body!r}")
         sel = d.dofs if d.dofs is not None else list(range(all_bodies[d.body]))
         if d.role == "actuator":
             for j, other in enumerate(sc.devices[:i]):
                 if other.role == "actuator" and other.body == d.body:
                     osel = other.dofs if other.dofs is not None else list(range(all_bodies[d.body]))
                     if set(osel) & set(sel):
-                        raise _Where(f"devices[{i}].dofs", f"DOF already driven by actuator {sc.devices[j].name!r}")
+                        raise FieldError(f"devices[{i}].dofs", f"DOF already driven by actuator {sc.devices[j].name!r}")
 
 
 def _hint(name: str, known: Sequence[str], limit: int = 16) -> str:
@@ -1243,7 +900,7 @@ def _network_parameters(model: str) -> tuple[list[str], Any]:
 
         def ok(k: str) -> bool:
             hit = _MBK_ENTRY.match(k)
-            return bool(hit) and int(hit.group(2)) <= int(hit.group(3))
+            return hit is not None and int(hit.group(2)) <= int(hit.group(3))
 
         return names, ok
     if model == "bilateral_2dof":
@@ -1267,7 +924,7 @@ def _identification_names(sc: Scene, path: str, spec: IdentifyCfg, exp: Any) -> 
     if key == "sdea":
         key = "sdea_locked"
     if key is not None and key not in IDENTIFICATION_MODELS:
-        raise _Where(f"{path}.model", f"unknown identification model {spec.model!r}"
+        raise FieldError(f"{path}.model", f"unknown identification model {spec.model!r}"
                                       f"{_hint(spec.model or '', IDENTIFICATION_MODELS)}")
     sdea = ["K_f", "B_f", "M", "B"]
 
@@ -1294,12 +951,12 @@ def _identification_names(sc: Scene, path: str, spec: IdentifyCfg, exp: Any) -> 
             key = "mbk"
     if key.startswith("sdea"):
         if n != 1:
-            raise _Where(f"{path}.model", f"{key} identifies a 1-DOF SDEA; experiment {spec.experiment!r} "
+            raise FieldError(f"{path}.model", f"{key} identifies a 1-DOF SDEA; experiment {spec.experiment!r} "
                                           f"excites {n} DOF")
         if key == "sdea_locked" and not sc.force_sensors:
             # the locked-output velocity alone carries B + B_f only: identification would refuse
             # after the runs (hil.identify's identifiability check)
-            raise _Where(f"{path}.model", "sdea_locked needs the spring force: with only the motor velocity, "
+            raise FieldError(f"{path}.model", "sdea_locked needs the spring force: with only the motor velocity, "
                                           "B and B_f are inseparable; add a force sensor on the target's body "
                                           "or network port, or identify sdea_free from a free-output chirp")
         names = sdea + (["m_h"] if key == "sdea_free" else [])
@@ -1317,13 +974,13 @@ def _check_certification(sc: Scene, cert: CertificationCfg) -> None:
     try:
         get_model(cert.model)
     except KeyError:
-        raise _Where("certification.model", f"unknown model {cert.model!r}{_hint(cert.model, model_names())}"
-                     ) from None
+        raise FieldError("certification.model", f"unknown model {cert.model!r}{_hint(cert.model, model_names())}"
+                         ) from None
     names, accepts = _network_parameters(cert.model)
 
     def need_param(path: str, k: str) -> None:
         if not accepts(k):
-            raise _Where(path, f"model {cert.model} has no parameter {k!r}{_hint(k, names)}")
+            raise FieldError(path, f"model {cert.model} has no parameter {k!r}{_hint(k, names)}")
 
     for k, v in cert.parameters.items():
         need_param(f"certification.parameters.{k}", k)
@@ -1331,15 +988,16 @@ def _check_certification(sc: Scene, cert: CertificationCfg) -> None:
             from hil.models.teleop import TWO_DOF_TABLE2
 
             if isinstance(v, str) and v not in TWO_DOF_TABLE2:
-                raise _Where(f"certification.parameters.{k}", f"unknown gain set {v!r}"
+                raise FieldError(f"certification.parameters.{k}", f"unknown gain set {v!r}"
                                                               f"{_hint(v, sorted(TWO_DOF_TABLE2))}")
             if isinstance(v, dict):
                 for gk, gv in v.items():
                     need_param(f"certification.parameters.gains.{gk}", str(gk))
                     _param_number(f"certification.parameters.gains.{gk}", gv)
             elif not isinstance(v, str):
-                raise _Where(f"certification.parameters.{k}", f"expected a gain set name ({', '.join(TWO_DOF_TABLE2)})"
-                                                              f" or a mapping of gains, got {v!r}")
+                raise FieldError(f"certification.parameters.{k}",
+                                 f"expected a gain set name ({', '.join(TWO_DOF_TABLE2)}) or a mapping of gains, "
+                                 f"got {v!r}")
             continue
         _param_number(f"certification.parameters.{k}", v)
     for k in cert.uncertain:
@@ -1350,26 +1008,27 @@ def _check_certification(sc: Scene, cert: CertificationCfg) -> None:
     for i, spec in enumerate(cert.identify):
         path = f"certification.identify[{i}]"
         if spec.experiment not in exps:
-            raise _Where(f"{path}.experiment", f"no experiment {spec.experiment!r} in the scene"
+            raise FieldError(f"{path}.experiment", f"no experiment {spec.experiment!r} in the scene"
                                                f"{_hint(spec.experiment, sorted(exps))}")
         j, exp = exps[spec.experiment]
         if exp.type not in ("chirp", "multisine"):
-            raise _Where(f"{path}.experiment", f"experiment {spec.experiment!r} (experiments[{j}]) is a {exp.type}; "
-                                               "identification needs a chirp or a multisine")
+            raise FieldError(f"{path}.experiment",
+                             f"experiment {spec.experiment!r} (experiments[{j}]) is a {exp.type}; "
+                             "identification needs a chirp or a multisine")
         model, sampled, available = _identification_names(sc, path, spec, exp)
         mapping = spec.map or {n: n for n in sampled}
         for src, dst in mapping.items():
             where = f"{path}.map.{src}" if spec.map else f"{path}.map"
             if src not in available:
-                raise _Where(where, f"identification model {model} has no parameter {src!r}{_hint(src, available)}")
+                raise FieldError(where, f"identification model {model} has no parameter {src!r}{_hint(src, available)}")
             if not accepts(dst):
                 what = (f"maps {src!r} to {dst!r}, which" if spec.map
                         else f"is empty: every identified parameter keeps its name, but {dst!r}")
-                raise _Where(where, f"{what} is not a parameter of model {cert.model}{_hint(dst, names)}")
+                raise FieldError(where, f"{what} is not a parameter of model {cert.model}{_hint(dst, names)}")
             if dst in identified:
-                raise _Where(where, f"parameter {dst!r} is already identified by {identified[dst]}")
+                raise FieldError(where, f"parameter {dst!r} is already identified by {identified[dst]}")
             if dst in cert.uncertain:
-                raise _Where(where, f"parameter {dst!r} is also in certification.uncertain: identify it or "
+                raise FieldError(where, f"parameter {dst!r} is also in certification.uncertain: identify it or "
                                     "give its uncertainty, not both")
             identified[dst] = path
     # design
@@ -1377,23 +1036,23 @@ def _check_certification(sc: Scene, cert: CertificationCfg) -> None:
     if d is not None:
         need_param("certification.design.parameter", d.parameter)
         if cert.model != "sdea" or d.parameter not in ("k22", "b22"):
-            raise _Where("certification.design.parameter", "the design search is implemented for the SDEA "
+            raise FieldError("certification.design.parameter", "the design search is implemented for the SDEA "
                                                            "coupler (model sdea, parameter k22 or b22)")
         if d.range[0] < 0:
-            raise _Where("certification.design.range", f"{d.parameter} must be >= 0, got [{d.range[0]:g}, "
+            raise FieldError("certification.design.range", f"{d.parameter} must be >= 0, got [{d.range[0]:g}, "
                                                        f"{d.range[1]:g}]")
         if d.parameter in identified or d.parameter in cert.uncertain:
-            raise _Where("certification.design.parameter", f"{d.parameter!r} is identified or uncertain; a design "
+            raise FieldError("certification.design.parameter", f"{d.parameter!r} is identified or uncertain; a design "
                                                            "parameter is chosen, not measured")
         if not identified and not cert.uncertain:
-            raise _Where("certification.design", "the design search runs over the posterior: it needs identify "
+            raise FieldError("certification.design", "the design search runs over the posterior: it needs identify "
                                                  "or uncertain entries")
     _check_network_builds(sc, cert)
 
 
 def _param_number(path: str, v: Any) -> None:
     if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(float(v)):
-        raise _Where(path, f"expected a finite number, got {v!r}")
+        raise FieldError(path, f"expected a finite number, got {v!r}")
 
 
 def _check_network_builds(sc: Scene, cert: CertificationCfg) -> None:
@@ -1409,90 +1068,17 @@ def _check_network_builds(sc: Scene, cert: CertificationCfg) -> None:
         tm = build_network(cert.model, q)
     except (HilError, ValueError, TypeError, KeyError, ArithmeticError) as exc:
         msg = " ".join(str(exc).split()) or type(exc).__name__
-        raise _Where("certification", f"the network model {cert.model} cannot be built from this scene: {msg}"
-                     ) from None
+        raise FieldError("certification", f"the network model {cert.model} cannot be built from this scene: {msg}"
+                         ) from None
     if cert.criterion == "llewellyn" and not (tm.n == 2 and tm.n_ports == 2):
-        raise _Where("certification.criterion", f"llewellyn applies to 1-DOF two-ports; model {cert.model} is a "
+        raise FieldError("certification.criterion", f"llewellyn applies to 1-DOF two-ports; model {cert.model} is a "
                                                 f"{tm.n_ports}-port with {tm.n} DOF (use absolute_stability or "
                                                 "passivity)")
-
-
-class _Where(Exception):
-    def __init__(self, path: str, message: str) -> None:
-        super().__init__(f"{path}: {message}")
-        self.path = path
-        self.message = message
 
 
 # ---------------------------------------------------------------------------------------------
 # loading and error formatting
 # ---------------------------------------------------------------------------------------------
-
-
-def _strip_tags(loc: Sequence[Any], data: Any) -> list[Any]:
-    """Drop discriminator tags and union-member names that pydantic inserts in error locations."""
-    out: list[Any] = []
-    cur = data
-    for part in loc:
-        if isinstance(part, int):
-            out.append(part)
-            cur = cur[part] if isinstance(cur, list) and 0 <= part < len(cur) else None
-            continue
-        if isinstance(cur, dict) and part in cur:
-            out.append(part)
-            cur = cur[part]
-            continue
-        if isinstance(cur, dict) and cur.get("type") == part:
-            continue  # discriminator tag
-        if isinstance(part, str) and ("[" in part or part in ("float", "int", "str") or part in _model_names()):
-            continue  # union member names ("float", "list[list[float]]", "HumanCfg", ...)
-        out.append(part)
-        cur = None
-    return out
-
-
-def _model_names() -> set[str]:
-    names: set[str] = set()
-    todo: list[type] = [_Strict]
-    while todo:
-        cls = todo.pop()
-        names.add(cls.__name__)
-        todo += cls.__subclasses__()
-    return names
-
-
-def _format_error(exc: ValidationError, data: Any) -> str:
-    errs = exc.errors(include_url=False)
-    # the deepest location is the most specific (for unions such as ``human: X | list[X]`` the
-    # member whose shape matches the input fails deeper than the one that does not)
-    err = max(errs, key=lambda e: len(_strip_tags(e["loc"], data)))
-    loc = _strip_tags(err["loc"], data)
-    ctx = err.get("ctx") or {}
-    typ = err["type"]
-    msg = str(err["msg"]).removeprefix("Value error, ")
-    if typ == "unknown_key" or ("key" in ctx and typ in ("dofs", "axes", "band", "settle")):
-        loc = [*loc, ctx["key"]]
-    if typ == "union_tag_invalid":
-        tag = ctx.get("tag")
-        expected = str(ctx.get("expected_tags", "")).replace("'", "").split(", ")
-        loc = [*loc, ctx.get("discriminator", "type").strip("'")]
-        msg = f"unknown type {tag!r}{_near(str(tag), expected)}; expected one of: {', '.join(expected)}"
-    elif typ == "union_tag_not_found":
-        loc = [*loc, "type"]
-        msg = "missing 'type'"
-    elif typ == "missing":
-        msg = "required field is missing"
-    elif typ == "literal_error":
-        msg = f"expected {ctx.get('expected', msg)}, got {err.get('input')!r}"
-    elif typ in ("int_type", "int_parsing", "int_from_float", "bool_type", "bool_parsing", "string_type",
-                 "dict_type", "list_type", "model_type", "model_attributes_type", "tuple_type"):
-        msg = f"{msg} (got {err.get('input')!r})"
-    elif typ in ("greater_than", "greater_than_equal", "less_than", "less_than_equal", "too_short", "too_long",
-                 "string_pattern_mismatch"):
-        inp = err.get("input")
-        if not isinstance(inp, dict | list):
-            msg = f"{msg} (got {inp!r})"
-    return f"{field_path(loc)}: {msg}"
 
 
 def _check_blocks(sc: Scene) -> None:
@@ -1503,9 +1089,9 @@ def _check_blocks(sc: Scene) -> None:
     from hil.controllers import make_controller
     from hil.experiments import make_experiment
 
-    for cfg in sc.experiment_configs():
+    for cfg in sc.experiment_models():
         make_experiment(cfg, rate_hz=sc.rate_hz).check(sc)
-    make_controller(sc.controller_config(), units=sc.units, scene=sc)
+    make_controller(sc.controller, units=sc.units, scene=sc)
 
 
 def parse_yaml(text: str, label: str) -> Any:
@@ -1520,7 +1106,7 @@ def _builtin_dir() -> Path:
 
 def builtin_scenes() -> list[tuple[str, str]]:
     """``(name, description)`` of every built-in scene, sorted by name."""
-    import yaml
+    import yaml  # type: ignore[import-untyped]  # no types-PyYAML in the environment
 
     out = []
     for p in sorted(_builtin_dir().glob("*.yaml")):
@@ -1557,10 +1143,10 @@ def scene_from_dict(data: Any, *, label: str = "<scene>", source_text: str = "",
     try:
         sc = Scene.model_validate(data)
     except ValidationError as exc:
-        raise SceneError(f"{label}: {_format_error(exc, data)}") from None
+        raise SceneError(f"{label}: {format_validation_error(exc, data)}") from None
     try:
         _cross_check(sc)
-    except _Where as w:
+    except FieldError as w:
         raise SceneError(f"{label}: {w.path}: {w.message}") from None
     try:
         _check_blocks(sc)

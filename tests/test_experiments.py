@@ -152,7 +152,7 @@ def test_chirp_motion_excitation_servo_law():
     assert e[0] == pytest.approx(200.0 * (0.3 + r - 0.305) + 5.0 * (rd - 0.02))
     with pytest.raises(SceneError, match=r"amplitude: peak effort .* exceeds safety\.max_effort"):
         exp.check(scene(max_effort=1.0))  # stalled servo effort kp A + kv max|r'| > 1
-    with pytest.raises(SceneError, match=r"servo: required"):
+    with pytest.raises(SceneError, match=r"experiments\[chirp\]\.servo: excite: motion needs servo"):
         make_experiment({"type": "chirp", "f0": 1.0, "f1": 20.0, "duration": 2.0, "amplitude": 0.01,
                          "target": "motor", "excite": "motion"}, rate_hz=1000.0)
 
@@ -232,15 +232,15 @@ def test_check_errors_name_the_field(cfg, sc, match):
 
 
 @pytest.mark.parametrize(("cfg", "match"), [
-    ({**CHIRP, "duration": 0.0}, r"experiments\[c\]\.duration: must be > 0"),
-    ({**CHIRP, "f1": 0.5}, r"experiments\[c\]\.f1: must exceed f0"),
+    ({**CHIRP, "duration": 0.0}, r"experiments\[c\]\.duration: Input should be greater than 0"),
+    ({**CHIRP, "f1": 0.5}, r"experiments\[c\]\.f1: f1 \(0.5 Hz\) must exceed f0"),
     ({**CHIRP, "sweep": "cubic"}, r"experiments\[c\]\.sweep"),
-    ({**CHIRP, "wobble": 1}, r"experiments\[c\]: unknown field\(s\) wobble"),
+    ({**CHIRP, "wobble": 1}, r"experiments\[c\]\.wobble: unknown key 'wobble'"),
     ({**CHIRP, "fade": 1.5}, r"experiments\[c\]\.fade: .* exceeds the period"),
     ({"type": "static_hold", "name": "h", "target": "motor", "effort": 1.0, "duration": 1.0, "settle": 1.0},
      r"experiments\[h\]\.settle"),
     ({"type": "energy_injection", "name": "e", "port": "operator", "duration": -1.0,
-      "profile": {"kind": "sine", "amplitude": 1.0}}, r"experiments\[e\]\.duration: must be > 0"),
+      "profile": {"kind": "sine", "amplitude": 1.0}}, r"experiments\[e\]\.duration: Input should be greater than 0"),
     ({"type": "sweep"}, r"experiments\[\?\]\.type: unknown experiment 'sweep'"),
 ])
 def test_construction_errors_name_the_field(cfg, match):

@@ -241,3 +241,87 @@ def test_scalar_gain_means_identity_and_flat_list_diagonal(tmp_path: Path) -> No
     assert as_matrix(c.Kp_m, 2).tolist() == [[500.0, 0.0], [0.0, 500.0]]
     assert c.model_dump()["Kp_m"] == [[500.0, 0.0], [0.0, 500.0]]  # consumers always get full matrices
     assert c.Kv_m == [[300.0, 0.0], [0.0, 200.0]]
+
+
+def test_cross_checks_are_pure_and_normalization_is_a_validator(tmp_path: Path) -> None:
+    """issue 13: the checks change nothing; the final values (full gain matrices) come from the
+    Scene model validator, so a scene validated without the checks already holds them."""
+    from hil.scene import _cross_check
+
+    d = _set("controller.C_4", {"kp": 7.0, "kv": [1.0, 2.0, 3.0]}, "dual_master_3dof")
+    d.pop("certification")
+    sc = Scene.model_validate(d)  # validation + normalization only
+    assert sc.controller.model_dump()["C_4"] == {"kp": [[7.0, 0.0, 0.0], [0.0, 7.0, 0.0], [0.0, 0.0, 7.0]],
+                                                 "kv": [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 3.0]]}
+    for name, _ in builtin_scenes():
+        sc = load_scene(name)
+        before = sc.model_dump()
+        _cross_check(sc)
+        assert sc.model_dump() == before, name
+
+
+def test_units_have_one_default() -> None:
+    """issue 13: the runner and the records fall back to the scene's default units ("linear")."""
+    from hil.controllers import DEFAULT_UNITS
+
+    d = _base("mbk_2dof_bench")
+    d.pop("units")
+    d.pop("certification")
+    assert Scene.model_validate(d).units == DEFAULT_UNITS == "linear"
+    import inspect
+
+    from hil import runner
+
+    src = inspect.getsource(runner)
+    assert '"units", "rotary"' not in src and src.count('"units", DEFAULT_UNITS') >= 2
+
+
+def test_a_registered_experiment_type_is_a_scene_option(tmp_path: Path) -> None:
+    """One schema + one implementation + one registration: after ``register_experiment`` (and
+    ``refresh_schema``: the scene composes its union at import) a scene file may use the type,
+    with the same did-you-mean messages."""
+    from typing import Literal
+
+    import hil.experiments as ex
+    from hil.scene import refresh_schema
+
+    class PulseExperiment(ex.ExperimentConfig):
+        """A single effort pulse of ``amplitude`` (N) on ``target`` for ``duration`` s."""
+
+        type: Literal["pulse"]
+        target: str
+        amplitude: float
+        duration: float
+
+    class Pulse:
+        def __init__(self, cfg: PulseExperiment, rate_hz: float) -> None:
+            self.name, self.duration, self.cfg = cfg.name or "pulse", cfg.duration, cfg
+
+        def check(self, scene: Any) -> None:
+            pass
+
+    d = _base("sdea_bench")
+    d.pop("certification")
+    d["experiments"] = [{"type": "pulse", "target": "motor", "amplitude": 0.1, "duration": 0.5}]
+    p = tmp_path / "pulse.yaml"
+    p.write_text(yaml.safe_dump(d))
+    with pytest.raises(SceneError, match=r"experiments\[0\]\.type: unknown type 'pulse'"):
+        load_scene(p)
+    saved = dict(ex.EXPERIMENT_TYPES)
+    try:
+        ex.register_experiment("pulse", PulseExperiment, Pulse)  # type: ignore[arg-type]
+        with pytest.raises(TypeError, match="Literal"):
+            ex.register_experiment("pulse2", PulseExperiment, Pulse)  # type: ignore[arg-type]
+        refresh_schema()
+        sc = load_scene(p)
+        exp = ex.make_experiment(sc.experiment_models()[0], rate_hz=sc.rate_hz)
+        assert isinstance(exp, Pulse) and exp.cfg.amplitude == 0.1 and exp.name == "pulse"
+        d["experiments"][0]["amplitud"] = 1
+        p.write_text(yaml.safe_dump(d))
+        with pytest.raises(SceneError, match=r"experiments\[0\]\.amplitud: unknown key 'amplitud', did you mean"):
+            load_scene(p)
+    finally:
+        ex.EXPERIMENT_TYPES.clear()
+        ex.EXPERIMENT_TYPES.update(saved)
+        refresh_schema()
+    assert load_scene("sdea_bench").experiments[0].type == "chirp"
