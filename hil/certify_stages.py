@@ -50,7 +50,7 @@ from hil.certificate import Witness as WitnessSection
 from hil.certify import Decision, Policy
 from hil.errors import HilError
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "HEADROOM",
@@ -315,7 +315,7 @@ class Sheet:
             return fn(*args)
         except Exception as exc:  # recorded, never swallowed (hil.pipeline's docstring)
             reason = one_line(exc)
-            log.warning("optional stage %s failed: %s", name, reason, exc_info=log.isEnabledFor(logging.DEBUG))
+            logger.warning("optional stage %s failed: %s", name, reason, exc_info=logger.isEnabledFor(logging.DEBUG))
             self.optional_errors.append(f"{name} failed: {reason}")
             self.failed[name] = reason
             return default

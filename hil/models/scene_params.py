@@ -12,7 +12,9 @@ from typing import Any
 
 import numpy as np
 
-log = logging.getLogger(__name__)
+from hil.schema import as_matrix
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["bilateral_1dof_params", "bilateral_2dof_params", "dual_master_3dof_params", "mcet_params", "sdea_params"]
 
@@ -20,8 +22,6 @@ _YZ = (((0, 0), "yy"), ((1, 1), "zz"), ((0, 1), "yz"))
 
 
 def _as_matrix(value: Any, n: int) -> np.ndarray:
-    from hil.scene import as_matrix
-
     return np.asarray(as_matrix(value, n), float)
 
 
