@@ -27,6 +27,7 @@ from __future__ import annotations
 import itertools
 import logging
 import math
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from fractions import Fraction
@@ -73,9 +74,8 @@ class Tolerances:
     ``rtol`` (default 0): a relative tolerance on the coefficients; a condition whose status can
     flip under such a perturbation is ``marginal``. With 0 every verdict is the exact one for the
     given coefficients. ``poly``: the rounding bound used only for conditions formed from derived
-    (rounded) entries (Theorem 1's Z' of blocks ≥ 3). ``residue``: residue matrices at finite
-    imaginary-axis poles (floating point) within it of singular count as singular. ``pole``: unused
-    (poles are located exactly), kept for compatibility."""
+    (rounded) entries (Theorem 1's Z' of blocks ≥ 3). ``pole`` and ``residue``: unused (poles are
+    located and residues decided exactly, :mod:`hil.stability.residues`), kept for compatibility."""
 
     poly: float = DEFAULT_TOL
     pole: float = POLE_TOL
@@ -181,43 +181,24 @@ def _desc(c: np.ndarray) -> list[float]:
 # poles and residues
 
 
-@dataclass
-class _AxisPole:
-    w: float  # imaginary part (rad/s), >= 0 (conjugate handled by symmetry)
-    exact: bool
-    re: float
-
-
-def _entry_axis_poles(e: Rational, tol: Tolerances) -> tuple[list[complex], list[tuple[float, int, bool]]]:
-    """RHP poles and imaginary-axis poles (w, multiplicity, exact) of one entry, decided exactly
-    (:func:`hil.stability.exact.exact_poles` on the reduced denominator: counts and multiplicities
-    exact, locations to double precision). ``tol`` is not used (kept for the signature)."""
+def _reduced_entries(tm: TransferMatrix) -> tuple[list[list[fmpq_poly | None]], list[list[fmpq_poly]]]:
+    """Exact entries n_ij/d_ij with gcd(n_ij, d_ij) = 1 (None for zero entries)."""
     from hil.stability.rational import _qpoly
 
-    n, d = _qpoly(e.num), _qpoly(e.den)
-    if n != 0:
-        g = n.gcd(d)
-        if g.degree() > 0:
-            d = d // g
-    ep = exact_poles(d)
-    axis: list[tuple[float, int, bool]] = [(0.0, ep.n_zero, True)] if ep.n_zero else []
-    axis += [(math.sqrt(x), mult, True) for x, mult in ep.axis]
-    rhp: list[complex] = []
-    if ep.n_rhp:
-        c = np.array([float(d[k]) for k in range(d.degree(), -1, -1)])
-        r = sorted(np.roots(c), key=lambda z: -z.real)
-        rhp = [complex(z) for z in r[: ep.n_rhp]]
-    return rhp, axis
-
-
-def _residue(e: Rational, w: float) -> complex:
-    """Residue of a simple pole at s = jw (0 if jw is not a pole of e)."""
-    s0 = 1j * w
-    d = P.polyval(s0, e.den)
-    if abs(d) > 1e-9 * P.polyval(abs(s0), np.abs(e.den)):
-        return 0.0
-    dd = P.polyval(s0, P.polyder(e.den))
-    return complex(P.polyval(s0, e.num) / dd)
+    n = tm.n
+    nums: list[list[fmpq_poly | None]] = [[None] * n for _ in range(n)]
+    dens: list[list[fmpq_poly]] = [[fmpq_poly([1])] * n for _ in range(n)]
+    for i in range(n):
+        for j in range(n):
+            e = tm[i, j]
+            if e.is_zero:
+                continue
+            num, den = _qpoly(e.num), _qpoly(e.den)
+            g = num.gcd(den)
+            if g.degree() > 0:
+                num, den = num // g, den // g
+            nums[i][j], dens[i][j] = num, den
+    return nums, dens
 
 
 def _permanent_abs(K: np.ndarray) -> float:
@@ -226,10 +207,21 @@ def _permanent_abs(K: np.ndarray) -> float:
     return float(sum(np.prod([A[i, p[i]] for i in range(n)]) for p in itertools.permutations(range(n))))
 
 
+def _rhp_poles(d: fmpq_poly) -> list[complex]:
+    """The open right-half-plane roots of an exact polynomial: the count exact
+    (:func:`hil.stability.exact.exact_poles`), the locations to double precision."""
+    ep = exact_poles(d)
+    if not ep.n_rhp:
+        return []
+    c = np.array([float(d[k]) for k in range(d.degree(), -1, -1)])
+    r = sorted(np.roots(c), key=lambda z: -z.real)
+    return [complex(z) for z in r[: ep.n_rhp]]
+
+
 def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: Tolerances = TOL,
                     w0: float = 1.0) -> list[Condition]:
     """Conditions on poles of every entry: (C) none in the open RHP; (D) imaginary-axis poles are
-    simple with an admissible residue matrix.
+    simple with an admissible residue matrix, decided exactly (:mod:`hil.stability.residues`).
 
     ``residue_test="hermitian"`` (positive realness): the residue matrix K must be Hermitian
     positive semidefinite. ``residue_test="minors"`` (Theorem 1 / Llewellyn): every principal
@@ -238,24 +230,21 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
     minors, hence PSD). The k12 = k21* clause printed with Llewellyn's criterion in paper 000
     (eq. 57) is *not* imposed: the paper's own case study (eq. 25, residues -k_pm1, -k_pm2) violates
     it while being declared stable, and Theorem 1 (which 000 says reduces to Llewellyn) does not
-    need it.
+    need it. ``w0``: the frequency normalization of ``tm`` (residues are reported physical).
     """
+    from hil.stability.residues import axis_poles, decide_residues, residue_matrix
+
     n = tm.n
+    nums, dens = _reduced_entries(tm)
     rhp_all: list[tuple[int, int, complex]] = []
-    axis: dict[float, dict] = {}
+    D = fmpq_poly([1])
     for i in range(n):
         for j in range(n):
-            e = tm[i, j]
-            if e.is_zero:
+            if nums[i][j] is None:
                 continue
-            rhp, ax = _entry_axis_poles(e, tol)
-            rhp_all += [(i, j, p) for p in rhp]
-            for w, mult, exact in ax:
-                key = next((k for k in axis if abs(k - w) <= 1e-6 * max(w, 1e-300)), w)
-                rec = axis.setdefault(key, {"mult": 1, "exact": True, "entries": []})
-                rec["mult"] = max(rec["mult"], mult)
-                rec["exact"] = rec["exact"] and exact
-                rec["entries"].append((i, j))
+            d = dens[i][j]
+            rhp_all += [(i, j, p) for p in _rhp_poles(d)]
+            D = D * d // D.gcd(d)
     conds: list[Condition] = []
     if rhp_all:
         worst = max(rhp_all, key=lambda t: t[2].real / abs(t[2]))
@@ -265,43 +254,27 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
             {"rhp_poles": [{"entry": [i + 1, j + 1], "pole": p} for i, j, p in rhp_all]}))
     else:
         allp = [p for row in tm.entries for e in row if not e.is_zero for p in e.poles()]
-        m = min((-p.real / abs(p) for p in allp if abs(p) > 0 and -p.real > tol.pole * abs(p)), default=1.0)
+        m = min((-p.real / abs(p) for p in allp if abs(p) > 0 and -p.real > 1e-9 * abs(p)), default=1.0)
         conds.append(Condition("C", "no poles in the open right-half plane", "satisfied", float(m), None,
                                "all poles in the closed left-half plane", {"poles": allp}))
-    for w, rec in sorted(axis.items()):
+    for pole in axis_poles(D):
+        w = pole.omega
         name = f"D[ω={w:.6g}]"
         wp = w * w0  # physical rad/s, for the detail lines
         label = "imaginary-axis pole simple with admissible residues"
-        if rec["mult"] > 1:
+        if pole.multiplicity > 1:
             conds.append(Condition(name, label, "violated", -1.0, w,
-                                   f"pole at s = j{wp:.6g} has multiplicity {rec['mult']}",
-                                   {"multiplicity": rec["mult"]}))
+                                   f"pole at s = j{wp:.6g} has multiplicity {pole.multiplicity}",
+                                   {"multiplicity": pole.multiplicity}))
             continue
-        # residues of the frequency-normalized entries are the physical ones divided by w0
-        K = w0 * np.array([[_residue(tm[i, j], w) if not tm[i, j].is_zero else 0.0 for j in range(n)]
-                           for i in range(n)], dtype=complex)
-        scale = float(np.max(np.abs(K))) or 1.0
-        ev: dict = {"pole": complex(0, w), "residues": K, "exact_on_axis": rec["exact"]}
-        if residue_test == "hermitian":
-            herm_err = float(np.max(np.abs(K - K.conj().T))) / scale
-            lam = np.linalg.eigvalsh((K + K.conj().T) / 2)
-            margin = float(np.min(lam)) / scale
-            ev["eigenvalues"] = lam
-            if herm_err > tol.residue:
-                status, detail = "violated", f"residue matrix at s = j{wp:.6g} is not Hermitian"
-                margin = -herm_err
-            elif margin < -tol.residue:
-                status, detail = "violated", f"residue matrix at s = j{wp:.6g} is not positive semidefinite"
-            elif margin <= tol.residue:
-                status, detail = "equality", f"residue matrix at s = j{wp:.6g} is singular (PSD)"
-                margin = 0.0
-            else:
-                status, detail = "satisfied", "residue matrix positive definite"
-        else:
-            status, margin, detail = _residue_minors(K, tol)
-        if status in ("satisfied", "equality") and not rec["exact"]:
-            status, detail = "marginal", detail + "; pole only within tolerance of the imaginary axis"
-        conds.append(Condition(name, label, status, margin, w, detail, ev))
+        R = residue_matrix(nums, dens, D, pole, w0)
+        dec = decide_residues(R, residue_test, tol.rtol)
+        ev = dec.evidence
+        ev["pole"] = complex(0, w)
+        at = f" at s = j{wp:.6g}"
+        detail = re.sub(r"residue( matrix)?", lambda mt: mt.group(0) + at, dec.detail, count=1) \
+            if "residue" in dec.detail else dec.detail + at
+        conds.append(Condition(name, label, dec.status, dec.margin, w, detail, ev))  # type: ignore[arg-type]
     return conds
 
 
@@ -409,39 +382,6 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> C
                          f"simple pole at s = ∞, residue matrix singular (minor {_lbl(idx)} = 0, PSD)", ev)
     return Condition(name, label, "satisfied", float(min(margin, 1.0)), math.inf,
                      "simple pole at s = ∞ with positive definite residue matrix", ev)
-
-
-def _residue_minors(K: np.ndarray, tol: Tolerances) -> tuple[str, float, str]:
-    n = K.shape[0]
-    worst = math.inf
-    status = "satisfied"
-    detail = "principal minors of the residue matrix are positive"
-    for i in range(n):
-        for j in range(i + 1, n):
-            prod = K[i, j] * K[j, i]
-            sc = abs(K[i, j]) * abs(K[j, i])
-            if sc and (abs(prod.imag) > tol.residue * sc or prod.real < -tol.residue * sc):
-                return "violated", -1.0, f"k{i + 1}{j + 1}·k{j + 1}{i + 1} = {prod:.4g} is not real and ≥ 0"
-    for k in range(1, n + 1):
-        for idx in itertools.combinations(range(n), k):
-            sub = K[np.ix_(idx, idx)]
-            mnr = np.linalg.det(sub) if k > 1 else sub[0, 0]
-            perm = _permanent_abs(sub)
-            if perm == 0:
-                continue
-            rel = mnr.real / perm
-            if abs(mnr.imag) > 1e-6 * perm:
-                return ("violated", -abs(mnr.imag) / perm,
-                        f"principal minor {_lbl(idx)} of the residue matrix is complex")
-            if rel < worst:
-                worst = rel
-            if rel < -tol.residue:
-                return ("violated", rel,
-                        f"principal minor {_lbl(idx)} of the residue matrix is negative ({mnr.real:.4g})")
-            if rel <= tol.residue:
-                status = "equality"
-                detail = f"principal minor {_lbl(idx)} of the residue matrix is zero"
-    return status, (0.0 if status == "equality" else float(min(worst, 1.0))), detail
 
 
 def _lbl(idx: Iterable[int]) -> str:
