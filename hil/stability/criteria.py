@@ -272,8 +272,8 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
         ev = dec.evidence
         ev["pole"] = complex(0, w)
         at = f" at s = j{wp:.6g}"
-        detail = re.sub(r"residue( matrix)?", lambda mt: mt.group(0) + at, dec.detail, count=1) \
-            if "residue" in dec.detail else dec.detail + at
+        mt = re.search(r"residue( matrix)?", dec.detail)
+        detail = dec.detail[: mt.end()] + at + dec.detail[mt.end():] if mt else dec.detail + at
         conds.append(Condition(name, label, dec.status, dec.margin, w, detail, ev))  # type: ignore[arg-type]
     return conds
 

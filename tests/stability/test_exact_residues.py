@@ -4,7 +4,6 @@ a Sturm-Tarski query at the isolated root. Compared with closed-form residues in
 
 from fractions import Fraction
 
-import numpy as np
 import pytest
 from flint import fmpq, fmpq_poly
 
