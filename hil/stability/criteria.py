@@ -41,12 +41,11 @@ from hil.stability.exact import (
     DEFAULT_TOL,
     SignDecision,
     decide_exact,
-    decide_nonnegative,
     exact_poles,
     flips_within,
 )
 from hil.stability.jpoly import JPoly, XPoly, trim_back
-from hil.stability.rational import Rational, TransferMatrix
+from hil.stability.rational import _RF, Rational, TransferMatrix, _to_rf
 from hil.stability.results import Condition, StabilityResult, combine
 
 log = logging.getLogger(__name__)
@@ -73,9 +72,9 @@ class Tolerances:
 
     ``rtol`` (default 0): a relative tolerance on the coefficients; a condition whose status can
     flip under such a perturbation is ``marginal``. With 0 every verdict is the exact one for the
-    given coefficients. ``poly``: the rounding bound used only for conditions formed from derived
-    (rounded) entries (Theorem 1's Z' of blocks ≥ 3). ``pole`` and ``residue``: unused (poles are
-    located and residues decided exactly, :mod:`hil.stability.residues`), kept for compatibility."""
+    given coefficients. ``poly``, ``pole`` and ``residue``: unused (every condition is formed and
+    decided exactly: Theorem 1's Z' over Q, poles by Routh-Hurwitz over Q, residues in Q[x]/(f),
+    :mod:`hil.stability.residues`), kept for compatibility."""
 
     poly: float = DEFAULT_TOL
     pole: float = POLE_TOL
@@ -570,12 +569,24 @@ class _Setup:
     Dcf: JPoly
 
 
-def _setup(sub: list[list[Rational]], need_m: bool = True) -> _Setup:
+QEntries = tuple[list[list["fmpq_poly | None"]], list[list[fmpq_poly]]]
+
+
+def _q_entries(sub: list[list[Rational]]) -> QEntries:
+    """The exact (numerator or None for a zero entry, denominator) of float entries."""
     from hil.stability.rational import _qpoly
 
     n = len(sub)
-    nums = [[None if sub[i][j].is_zero else _qpoly(sub[i][j].num) for j in range(n)] for i in range(n)]
+    nums: list[list[fmpq_poly | None]] = [[None if sub[i][j].is_zero else _qpoly(sub[i][j].num)
+                                           for j in range(n)] for i in range(n)]
     dens = [[_qpoly(sub[i][j].den) for j in range(n)] for i in range(n)]
+    return nums, dens
+
+
+def _setup(sub: list[list[Rational]], need_m: bool = True, q: QEntries | None = None) -> _Setup:
+    """``q``: the entries given exactly (then ``sub`` is only used for its size)."""
+    nums, dens = q if q is not None else _q_entries(sub)
+    n = len(nums)
     D, h, mu = _axis_factor([dens[i][j] for i in range(n) for j in range(n) if nums[i][j] is not None])
     E, O = _xq(D)
     Dc = (E, -O)
@@ -626,19 +637,30 @@ def _cancel(p: fmpq_poly, h: fmpq_poly | None, cap: int) -> tuple[fmpq_poly, int
     return p, cut
 
 
-def _exact_minor_polys(sub: list[list[Rational]],
-                       need_m: bool = True) -> dict[tuple[int, ...], tuple[fmpq_poly, int, np.ndarray | None]]:
+def _exact_minor_polys(sub: list[list[Rational]], need_m: bool = True, q: QEntries | None = None,
+                       entrywise_real: bool = False
+                       ) -> dict[tuple[int, ...], tuple[fmpq_poly, int, np.ndarray | None]]:
     """Every principal minor of (G + Gᴴ)(jω)·|D(jω)|^(2k), formed exactly over Q, divided by the
     squared axis factor where present. Values: (exact polynomial in x, number of h² factors
-    cancelled, float magnitude polynomial m of the uncancelled minor, None unless ``need_m``)."""
-    st = _setup(sub, need_m)
-    n = len(sub)
+    cancelled, float magnitude polynomial m of the uncancelled minor, None unless ``need_m``).
+    ``q``: the entries given exactly instead of ``sub``. ``entrywise_real``: minors of the
+    entrywise real part 2·Re G(jω) instead (equal to G + Gᴴ for a symmetric G; Theorem 1's Z' is
+    handled up to a diagonal similarity, which keeps the minors of Re Z' but not its symmetry)."""
+    st = _setup(sub, need_m, q)
+    n = len(st.u)
     zero = (fmpq_poly([]), fmpq_poly([]))
     A = [[_jmul(st.u[i][j], st.Dc) for j in range(n)] for i in range(n)]
-    Pm = [[(A[i][j][0] + A[j][i][0], A[i][j][1] - A[j][i][1]) for j in range(n)] for i in range(n)]
+    if entrywise_real:
+        Pm = [[(2 * A[i][j][0], fmpq_poly([])) for j in range(n)] for i in range(n)]
+    else:
+        Pm = [[(A[i][j][0] + A[j][i][0], A[i][j][1] - A[j][i][1]) for j in range(n)] for i in range(n)]
     if need_m:
         Af = [[st.uf[i][j] * st.Dcf for j in range(n)] for i in range(n)]
-        Pf = [[Af[i][j] + Af[j][i].conj() for j in range(n)] for i in range(n)]
+        if entrywise_real:
+            Pf = [[JPoly(2.0 * Af[i][j].re, np.zeros(1), 2.0 * Af[i][j].mre, np.zeros(1)) for j in range(n)]
+                  for i in range(n)]
+        else:
+            Pf = [[Af[i][j] + Af[j][i].conj() for j in range(n)] for i in range(n)]
     memo: dict = {}
     memof: dict = {}
 
@@ -765,35 +787,26 @@ def _band_detail(ev: dict) -> str:
 
 
 def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: Tolerances, prefix: str,
-                      label: str, margins: bool = True, derived: bool = False) -> list[Condition]:
+                      label: str, margins: bool = True, q: QEntries | None = None) -> list[Condition]:
     """All principal minors of G(jω) + G(jω)ᴴ over the index set, as exact polynomial conditions.
 
-    ``derived=True``: the entries were computed in floating point from the given network (the
-    symmetrized Z' of Theorem 1, whose entries √(z_ij z_ji) are rounded), so the exact polynomial of
-    the rounded entries differs from the network's by the rounding of those entries; then the
-    decision uses the rounding bound tol.poly·m (``marginal`` when it straddles zero, identically
-    zero within it = ``equality``), the one place a tolerance enters a verdict (docs/VERDICTS.md)."""
-    sub = [[entries[i][j] for j in idx_all] for i in idx_all]
-    n = len(sub)
-    exact = _exact_minor_polys(sub, need_m=margins or tol.rtol > 0 or derived)
+    ``q``: the entries given exactly (Theorem 1's symmetrized Z', whose coefficients are rationals
+    that floats need not represent, up to a diagonal similarity); ``entries`` is then ignored and
+    the minors are those of the entrywise real part (2·Re Z'(jω))."""
+    if q is not None:
+        sub_q: QEntries | None = ([[q[0][i][j] for j in idx_all] for i in idx_all],
+                                  [[q[1][i][j] for j in idx_all] for i in idx_all])
+        sub: list[list[Rational]] = []
+    else:
+        sub_q, sub = None, [[entries[i][j] for j in idx_all] for i in idx_all]
+    n = len(idx_all)
+    exact = _exact_minor_polys(sub, need_m=margins or tol.rtol > 0, q=sub_q, entrywise_real=q is not None)
     conds = []
     for k in range(1, n + 1):
         for idx in itertools.combinations(range(n), k):
             glob = tuple(idx_all[i] for i in idx)
             name, lab = f"{prefix}{_lbl(glob)}", f"{label}, principal minor {_lbl(glob)}"
             pq, cut, m = exact[idx]
-            if derived:
-                xp = XPoly(_qpoly_float(pq), m if cut == 0 else np.abs(_qpoly_float(pq)))
-                d = decide_nonnegative(xp, tol.poly, margin=margins)
-                if d.status == "marginal":
-                    cond = _cond_exact(name, lab, d, False, {"axis_pole_factors_cancelled": cut,
-                                                             "formed": "from derived (rounded) entries"}, tol)
-                    cond.status, cond.detail = "marginal", "within the rounding bound of the derived entries"
-                    conds.append(cond)
-                    continue
-                conds.append(_cond_exact(name, lab, d, False, {"axis_pole_factors_cancelled": cut,
-                                                               "formed": "from derived (rounded) entries"}, tol))
-                continue
             d, flip = _exact_decision(pq, cut, m, 2 * k, tol, margins)
             conds.append(_cond_exact(name, lab, d, flip, {"axis_pole_factors_cancelled": cut}, tol))
     return conds
@@ -1043,20 +1056,124 @@ def _symmetrize(tm: TransferMatrix, comp: list[int], W: dict) -> list[list[Ratio
     return out
 
 
-def _minors_match(tm: TransferMatrix, comp: list[int], Zs: list[list[Rational]]) -> bool:
-    rng = np.random.default_rng(7)
-    pts = rng.normal(size=3) * 2 + 1j * (rng.random(3) * 5 + 0.5) + 0.3
+def _rf_equal(a: _RF, b: _RF) -> bool:
+    """Exact equality of rational functions (both reduced with monic denominators)."""
+    return bool(a.n == b.n and a.d == b.d)
+
+
+def _poly_square_root(p: fmpq_poly) -> tuple[fmpq, fmpq_poly] | None:
+    """(κ, r) with p = κ·r² exactly (squarefree decomposition over Q), or None."""
+    c, facs = p.factor_squarefree()
+    r = fmpq_poly([1])
+    for f, e in facs:
+        if e % 2:
+            return None
+        r *= f ** (int(e) // 2)
+    return fmpq(c), r
+
+
+def _exact_sqrt(P_: _RF) -> tuple[fmpq, _RF] | None:
+    """(κ, ρ) with P = κ·ρ² exactly, κ > 0 rational and ρ a rational function over Q, or None
+    (then √P, the entry z'_ij = √(z_ij z_ji) of Theorem 1, is not a real rational function up
+    to a constant and the block is swept)."""
+    a, b = _poly_square_root(P_.n), _poly_square_root(P_.d)
+    if a is None or b is None:
+        return None
+    kap = a[0] / b[0]
+    if kap <= 0:
+        return None
+    # normalize ρ by λ ≈ √κ (exact when κ is a rational square): κ/λ² ≈ 1, so the diagonal
+    # similarity of _exact_symmetrize stays near the identity and the margins near those of Z'
+    num, den = int(kap.p), int(kap.q)
+    lam = fmpq(math.isqrt(num * den * 4**64), den * 2**64)
+    return kap / (lam * lam), _RF(a[1], b[1]) * _RF(fmpq_poly([lam]), fmpq_poly([1]), reduced=True)
+
+
+def _fmpq_sqrt(q: fmpq) -> fmpq | None:
+    """The exact rational square root of q ≥ 0, or None when q is not a rational square."""
+    num, den = int(q.p), int(q.q)
+    if num < 0:
+        return None
+    rn, rd = math.isqrt(num), math.isqrt(den)
+    return fmpq(rn, rd) if rn * rn == num and rd * rd == den else None
+
+
+def _exact_symmetrize(RF: list[list[_RF]], comp: list[int],
+                      roots: dict[tuple[int, int], tuple[fmpq, _RF]]) -> tuple[QEntries | None, str]:
+    """Theorem 1's symmetrized block Z' (z'_ij = γ_ij √(z_ij z_ji) = γ_ij √κ_ij ρ_ij), exactly.
+
+    √κ_ij need not be rational, so Z' is formed up to a diagonal similarity S = T⁻¹ Z' T,
+    T = diag(√q_i) with q_root = 1 and q_j = q_i κ_ij along a spanning tree: S_ij = γ_ij
+    √(κ_ij q_j/q_i) ρ_ij is rational on tree edges and is required to be on the other edges. A real
+    diagonal similarity keeps Re S = T⁻¹ Re Z' T and so every principal minor of Re Z'(jω). Signs
+    γ: +1 on tree edges; on the others the cycle product of S (= that of Z') must equal Z's exactly
+    up to sign. Then every principal minor of S must equal Z's (exactly, over Q(s)).
+
+    Returns (S as exact entries, "") or (None, reason): ``"irrational"`` when S is not rational
+    (the caller sweeps), else why no Z' reproduces Z's principal minors (not applicable)."""
+    from hil.stability.rational import _rf_det
+
     k = len(comp)
-    for s0 in pts:
-        Z = np.array([[complex(tm[i, j](s0)) for j in comp] for i in comp])
-        Zp = np.array([[complex(Zs[a][b](s0)) for b in range(k)] for a in range(k)])
-        for r in range(2, k + 1):
-            for idx in itertools.combinations(range(k), r):
-                m1 = np.linalg.det(Z[np.ix_(idx, idx)])
-                m2 = np.linalg.det(Zp[np.ix_(idx, idx)])
-                if abs(m1 - m2) > 1e-7 * max(1.0, abs(m1), _permanent_abs(Z[np.ix_(idx, idx)])):
-                    return False
-    return True
+    loc = {g: a for a, g in enumerate(comp)}
+    adj = {g: [h for h in comp if h != g and (min(g, h), max(g, h)) in roots] for g in comp}
+    q: dict[int, fmpq] = {comp[0]: fmpq(1)}
+    parent: dict[int, int | None] = {comp[0]: None}
+    order = [comp[0]]
+    for v in order:
+        for u in adj[v]:
+            if u not in q:
+                q[u] = q[v] * roots[(min(u, v), max(u, v))][0]
+                parent[u] = v
+                order.append(u)
+    S: list[list[_RF]] = [[RF[comp[a]][comp[a]] if a == b else _RF(fmpq_poly([]), fmpq_poly([1]), reduced=True)
+                           for b in range(k)] for a in range(k)]
+
+    def set_edge(i: int, j: int, sign: int) -> bool:
+        kap, rho = roots[(min(i, j), max(i, j))]
+        t = _fmpq_sqrt(kap * q[j] / q[i])
+        if t is None:
+            return False
+        S[loc[i]][loc[j]] = rho * _RF(fmpq_poly([sign * t]), fmpq_poly([1]), reduced=True)
+        S[loc[j]][loc[i]] = rho * _RF(fmpq_poly([sign * kap / t]), fmpq_poly([1]), reduced=True)
+        return True
+
+    tree = {(min(u, p), max(u, p)) for u, p in parent.items() if p is not None}
+    for i, j in tree:
+        set_edge(i, j, 1)  # rational by construction of q
+
+    def path(v: int) -> list[int]:
+        out = [v]
+        while parent[out[-1]] is not None:
+            out.append(parent[out[-1]])  # type: ignore[arg-type]
+        return out
+
+    for i, j in sorted(set(roots) - tree):
+        if not set_edge(i, j, 1):
+            return None, "irrational"
+        pi, pj = path(i), path(j)
+        seq = [*pi, *pj[::-1][1:], i]
+        zp = sp = _RF(fmpq_poly([1]), fmpq_poly([1]), reduced=True)
+        for a, b in itertools.pairwise(seq):
+            zp = zp * RF[a][b]
+            sp = sp * S[loc[a]][loc[b]]
+        if _rf_equal(zp, sp):
+            continue
+        if _rf_equal(zp, -sp):
+            set_edge(i, j, -1)
+            continue
+        return None, (f"no sign choice of √(z{i + 1}{j + 1} z{j + 1}{i + 1}) reproduces Z's cycle products "
+                      "(a longer cycle condition fails)")
+    for r in range(2, k + 1):
+        for idx in itertools.combinations(range(k), r):
+            mz = _rf_det([[RF[comp[a]][comp[b]] for b in idx] for a in idx])
+            ms = _rf_det([[S[a][b] for b in idx] for a in idx])
+            if not _rf_equal(mz, ms):
+                return None, (f"principal minor {_lbl([comp[a] for a in idx])} of Z' differs from Z's "
+                              "(no sign choice of √(z_ij z_ji) reproduces it)")
+    nums: list[list[fmpq_poly | None]] = [[None if S[a][b].is_zero else S[a][b].n for b in range(k)]
+                                          for a in range(k)]
+    dens = [[S[a][b].d for b in range(k)] for a in range(k)]
+    return (nums, dens), ""
 
 
 def _sweep_block(tm: TransferMatrix, comp: list[int], tol: Tolerances) -> list[Condition]:
@@ -1122,13 +1239,14 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
     n = tm.n
     net = _netinfo(tm0, w0)
     conds: list[Condition] = []
+    RF = _to_rf(tm.entries)  # exact entries over Q(s): A, B and the symmetrization are exact
     # (B) diagonal blocks symmetric
     off = 0
     bad_b = []
     for m in tm.port_dofs:
         for a in range(off, off + m):
             for b in range(a + 1, off + m):
-                if not _rat_equal(tm[a, b], tm[b, a]):
+                if not _rf_equal(RF[a][b], RF[b][a]):
                     bad_b.append((a, b))
         off += m
     if bad_b:
@@ -1140,9 +1258,9 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
     # (A) cycle condition on all triples
     bad_a = []
     for i, j, k in itertools.combinations(range(n), 3):
-        lhs = tm[i, j] * tm[j, k] * tm[k, i]
-        rhs = tm[j, i] * tm[k, j] * tm[i, k]
-        if not _rat_equal(lhs, rhs, 1e-8):
+        lhs = RF[i][j] * RF[j][k] * RF[k][i]
+        rhs = RF[j][i] * RF[k][j] * RF[i][k]
+        if not _rf_equal(lhs, rhs):
             bad_a.append((i, j, k))
     if bad_a:
         i, j, k = bad_a[0]
@@ -1156,18 +1274,18 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
                        reason="Theorem 1 does not apply: the symmetrization conditions do not hold")
     # pairs with z_ij z_ji ≢ 0 define the coupling graph of Z'
     nz = np.zeros((n, n), bool)
-    W: dict[tuple[int, int], Rational] = {}
+    roots: dict[tuple[int, int], tuple[fmpq, _RF]] = {}
     irrational: set[tuple[int, int]] = set()
     for i in range(n):
         for j in range(i + 1, n):
             if tm[i, j].is_zero or tm[j, i].is_zero:
                 continue
             nz[i, j] = nz[j, i] = True
-            r = _rational_sqrt(tm[i, j], tm[j, i])
+            r = _exact_sqrt(RF[i][j] * RF[j][i])
             if r is None:
                 irrational.add((i, j))
             else:
-                W[(i, j)] = r
+                roots[(i, j)] = r
     conds += pole_conditions(tm, "minors", tol, w0)
     for comp in _components(nz):
         if len(comp) == 1:
@@ -1175,21 +1293,22 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
             continue
         edges = {(i, j) for i in comp for j in comp if i < j and nz[i, j]}
         # 2×2 blocks: Llewellyn's η on the given entries (eq. 15b), formed exactly; larger blocks
-        # through the rational Z', whose entries √(z_ij z_ji) are *derived* in floats
+        # through the Hermitian minors of Z' (exactly, up to a diagonal similarity) when
+        # √(z_ij z_ji) is a rational function up to a constant
         if len(comp) > 2 and not (edges & irrational):
-            Zs = _symmetrize(tm, comp, {e: W[e] for e in edges})
-            if Zs is not None and _minors_match(tm, comp, Zs):
-                for c in _hermitian_minors(Zs, list(range(len(comp))), tol, "E", "Re Z'(jω) ⪰ 0", derived=True):
+            Sq, why = _exact_symmetrize(RF, comp, {e: roots[e] for e in edges})
+            if Sq is not None:
+                for c in _hermitian_minors(tm.entries, list(range(len(comp))), tol, "E", "Re Z'(jω) ⪰ 0", q=Sq):
                     # relabel local indices to global ones
                     loc = [int(t) - 1 for t in c.name[2:-1].split(",")]
                     c.name = "E" + _lbl([comp[t] for t in loc])
-                    c.label = f"principal minor {c.name[1:]} of Re Z'(jω) ≥ 0 (Z' rational)"
+                    c.label = f"principal minor {c.name[1:]} of Re Z'(jω) ≥ 0 (Z' exact over Q)"
+                    c.evidence["formed"] = "exact (Z' up to a diagonal similarity, over Q)"
                     conds.append(c)
                 continue
-            if Zs is None and len(comp) > 2:
+            if why != "irrational":
                 conds.append(Condition("A*", "equal principal minors of Z' and Z", "not_applicable", math.nan, None,
-                                       "no sign choice of √(z_ij z_ji) reproduces Z's principal minors "
-                                       "(a longer cycle condition fails)"))
+                                       why))
                 return combine("absolute_stability_nport", _rescale(conds, w0), net,
                                reason="Theorem 1 does not apply: Z is not symmetrizable")
         if len(comp) == 2:
