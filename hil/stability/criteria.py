@@ -469,38 +469,6 @@ def _eta_ratio(sub: list[list[Rational]], scale_values=None):
 # polynomial conditions
 
 
-class _CommonDen:
-    """Exact common denominator of a set of entries (float API for the design search).
-
-    d = lcm of the entries' denominators over Q[s] (FLINT, the float coefficients read as the exact
-    binary rationals they are; no tolerance), rounded to floats once; ``numerator(e)`` is
-    n·(d/den) formed exactly and rounded once. Near-divisibility is never accepted: a denominator
-    that differs from another by rounding is a different polynomial and enters the lcm."""
-
-    def __init__(self, entries: list[list[Rational]]) -> None:
-        from hil.stability.rational import _qpoly
-
-        D = fmpq_poly([1])
-        for row in entries:
-            for e in row:
-                if not e.is_zero:
-                    den = _qpoly(e.den)
-                    D = D * den // D.gcd(den)
-        self.D = D
-        self.d = _qpoly_float(D)
-
-    def numerator(self, e: Rational) -> np.ndarray:
-        from hil.stability.rational import _qpoly
-
-        if e.is_zero:
-            return np.zeros(1)
-        den = _qpoly(e.den)
-        q, r = divmod(self.D, den)
-        if r != 0:  # pragma: no cover - every entry's denominator divides the lcm exactly
-            raise ModelError("internal: entry denominator does not divide the common denominator")
-        return _qpoly_float(_qpoly(e.num) * q)
-
-
 def _qpoly_float(p: fmpq_poly) -> np.ndarray:
     """Ascending float coefficients of an exact polynomial, each correctly rounded."""
     from hil.stability.rational import _qfloat
@@ -596,13 +564,6 @@ def _setup(sub: list[list[Rational]], need_m: bool = True, q: QEntries | None = 
         return _Setup(u, Dc, h, mu, [], JPoly.zero())
     uf = [[_jfloat(e) for e in row] for row in u]
     return _Setup(u, Dc, h, mu, uf, _jfloat(Dc))
-
-
-def _axis_numerators(sub: list[list[Rational]]):
-    """(u, conj(D(jω)), h, μ) of :func:`_setup`, or None when no entry has a pole on the imaginary
-    axis away from s = 0 (kept for callers of the earlier API)."""
-    st = _setup(sub)
-    return None if st.h is None else (st.u, st.Dc, st.h, st.mu)
 
 
 def _axis_factor(dens: list[fmpq_poly]) -> tuple[fmpq_poly, fmpq_poly | None, int]:
@@ -924,17 +885,6 @@ def llewellyn(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -
 
 
 # -- Theorem 1 of paper 000 ------------------------------------------------------------------
-
-
-def _rat_equal(a: Rational, b: Rational, rtol: float = 1e-9) -> bool:
-    lhs = P.polymul(a.num, b.den)
-    rhs = P.polymul(b.num, a.den)
-    mag = P.polyadd(P.polymul(np.abs(a.num), np.abs(b.den)), P.polymul(np.abs(b.num), np.abs(a.den)))
-    diff = P.polysub(lhs, rhs)
-    n = max(diff.size, mag.size)
-    diff = np.pad(diff, (0, n - diff.size))
-    mag = np.pad(mag, (0, n - mag.size))
-    return bool(np.all(np.abs(diff) <= rtol * np.maximum(mag, 1e-300)))
 
 
 def _poly_sqrt(c: np.ndarray, rtol: float = 1e-9) -> tuple[np.ndarray, float] | None:

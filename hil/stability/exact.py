@@ -527,43 +527,6 @@ def _global_min(ratio: _Ratio, cc: np.ndarray, m: np.ndarray, extra: list[float]
     return bx, bv
 
 
-def _int_gcd(a: list[int], b: list[int]) -> list[int]:
-    """GCD of integer polynomials (descending), up to a constant, by primitive remainders."""
-    a, b = _strip(a), _strip(b)
-    if len(b) == 1 and b[0] == 0:
-        return _content_normalize(a)
-    while not (len(b) == 1 and b[0] == 0):
-        if len(b) == 1:  # non-zero constant: coprime
-            return [1]
-        r = _sign_prem(a, b)
-        a, b = b, (_content_normalize(r) if any(r) else [0])
-    return _content_normalize(a)
-
-
-def on_imaginary_axis_exact(den_asc: np.ndarray, w0: float, rel: float = 1e-6) -> bool:
-    """Whether d(s) has a root exactly at s = ±j·w0 (w0 > 0), given its float coefficients.
-
-    d(jω) = E(x) + jω·O(x) with x = ω²; a root on the axis is a common root x0 = w0² of E and O.
-    Their GCD is computed in exact integer arithmetic and checked (Sturm) for a root within
-    ``rel`` of w0² -- so the answer is exact for the given coefficients.
-    """
-    from hil.stability.jpoly import jpoly_from_s
-
-    jp = jpoly_from_s(np.asarray(den_asc, float))
-    E, O = trim_back(jp.re), trim_back(jp.im)
-    if E.size == 0 or not np.any(E):
-        return False
-    ie = _to_int_poly(E) if E.size else [0]
-    io = _to_int_poly(O) if O.size and np.any(O) else [0]
-    g = _int_gcd(ie, io)
-    if len(g) <= 1:
-        return False
-    x0 = w0 * w0
-    lo, hi = Fraction(x0 * (1 - rel)), Fraction(x0 * (1 + rel))
-    seq = _sturm_sequence(g)
-    return _var_at(seq, lo) - _var_at(seq, hi) > 0
-
-
 # ----------------------------------------------------------------------------------------------
 # exact decisions on exact polynomials (the path every criterion uses)
 #

@@ -18,8 +18,7 @@ Conventions
 * Common factors of numerator and denominator: powers of s are cancelled exactly; the algebra's
   shortcuts (a denominator dividing another, a numerator equal to a denominator) are taken only
   on exact divisibility over Q[s] (:func:`_exact_quotient`); conversions between immittance types
-  run entirely in exact arithmetic (:meth:`TransferMatrix.to`). :func:`Rational.minreal` (explicit
-  call only) still cancels roots that agree to a relative tolerance.
+  run entirely in exact arithmetic (:meth:`TransferMatrix.to`).
 """
 
 from __future__ import annotations
@@ -193,32 +192,6 @@ class Rational:
             k += 1
         return self if k == 0 else Rational(num[k:], den[k:])
 
-    def minreal(self, rtol: float = 1e-7) -> Rational:
-        """Cancel common factors: powers of s exactly, other common roots within ``rtol``."""
-        r = self.cancel_s()
-        num, den = r.num, r.den
-        if num.size > 1 and den.size > 1:
-            zn, zd = _roots_asc(num), _roots_asc(den)
-            used = np.zeros(zd.size, bool)
-            keep_n = []
-            for z in zn:
-                d = np.abs(zd - z)
-                d[used] = np.inf
-                j = int(np.argmin(d)) if d.size else -1
-                if j >= 0 and d[j] <= rtol * max(1.0, abs(z)):
-                    used[j] = True
-                else:
-                    keep_n.append(z)
-            if used.any():
-                kept_d = zd[~used]
-                gain = num[-1] / den[-1]
-                n2 = np.real(P.polyfromroots(keep_n)) if keep_n else np.array([1.0])
-                d2 = np.real(P.polyfromroots(kept_d)) if kept_d.size else np.array([1.0])
-                num, den = gain * n2, d2
-        # normalize: monic-ish denominator by its largest coefficient for conditioning
-        sc = np.max(np.abs(den))
-        return Rational(num / sc, den / sc)
-
     # -- evaluation ---------------------------------------------------------------------------
     def __call__(self, s: np.ndarray | complex) -> np.ndarray:
         s = np.asarray(s, dtype=complex)
@@ -316,23 +289,6 @@ class TransferMatrix:
         return TransferMatrix(ent, kind, tuple(port_dofs or ()), name)
 
     @staticmethod
-    def from_state_space(A, B, C, D, kind: ImmittanceKind = "impedance",
-                         port_dofs: Sequence[int] | None = None, name: str = "") -> TransferMatrix:
-        """From a state-space realization (inputs = flows for an impedance, etc.)."""
-        from scipy.signal import ss2tf
-
-        A, B, C, D = (np.atleast_2d(np.asarray(x, float)) for x in (A, B, C, D))
-        n_in = B.shape[1]
-        if C.shape[0] != n_in:
-            raise ModelError("an immittance matrix needs as many outputs as inputs")
-        rows: list[list[Rational]] = [[Rational.const(0.0)] * n_in for _ in range(n_in)]
-        for j in range(n_in):
-            num, den = ss2tf(A, B, C, D, input=j)
-            for i in range(n_in):
-                rows[i][j] = Rational.from_desc(np.atleast_2d(num)[i], den)
-        return TransferMatrix(rows, kind, tuple(port_dofs or ()), name)
-
-    @staticmethod
     def from_zpk(zpk_rows: Sequence[Sequence[tuple]], kind: ImmittanceKind = "impedance",
                  port_dofs: Sequence[int] | None = None, name: str = "") -> TransferMatrix:
         ent = [[Rational.from_zpk(*e) for e in row] for row in zpk_rows]
@@ -368,9 +324,6 @@ class TransferMatrix:
                     if not any(abs(p - q) <= 1e-9 * max(1.0, abs(p)) for q in ps):
                         ps.append(p)
         return np.array(ps, dtype=complex)
-
-    def is_symmetric(self, rtol: float = 1e-12) -> bool:
-        return all(_rational_equal(self[i, j], self[j, i], rtol) for i in range(self.n) for j in range(i))
 
     def to_dict(self) -> dict:
         return {"type": self.kind, "ports": list(self.port_dofs),
@@ -419,18 +372,6 @@ class TransferMatrix:
                 h = _rf_z_to_h(z, m1)
                 out = h if kind == "hybrid" else _rf_inv(h, _SINGULAR)
         return TransferMatrix(_from_rf(out), kind, self.port_dofs, self.name)
-
-
-def _rational_equal(a: Rational, b: Rational, rtol: float) -> bool:
-    lhs = P.polymul(a.num, b.den)
-    rhs = P.polymul(b.num, a.den)
-    n = max(lhs.size, rhs.size)
-    lhs = np.pad(lhs, (0, n - lhs.size))
-    rhs = np.pad(rhs, (0, n - rhs.size))
-    scale = np.abs(P.polymul(np.abs(a.num), np.abs(b.den)))
-    scale = np.pad(scale, (0, n - scale.size)) + np.pad(np.abs(P.polymul(np.abs(b.num), np.abs(a.den))),
-                                                         (0, n - P.polymul(b.num, a.den).size))
-    return bool(np.all(np.abs(lhs - rhs) <= rtol * np.maximum(scale, 1e-300)))
 
 
 # ---------------------------------------------------------------------------------------------
