@@ -28,9 +28,10 @@ import itertools
 import logging
 import math
 import re
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from fractions import Fraction
+from typing import Any, cast
 
 import numpy as np
 from flint import fmpq, fmpq_poly
@@ -46,7 +47,7 @@ from hil.stability.exact import (
 )
 from hil.stability.jpoly import JPoly, XPoly, trim_back
 from hil.stability.rational import _RF, Rational, TransferMatrix, _to_rf
-from hil.stability.results import Condition, StabilityResult, combine
+from hil.stability.results import Condition, ConditionStatus, StabilityResult, combine
 
 log = logging.getLogger(__name__)
 
@@ -93,14 +94,14 @@ def _as_tm(g: TransferMatrix | Rational) -> TransferMatrix:
     return g
 
 
-def _netinfo(tm: TransferMatrix, w0: float = 1.0) -> dict:
+def _netinfo(tm: TransferMatrix, w0: float = 1.0) -> dict[str, Any]:
     return {"name": tm.name, "type": tm.kind, "ports": list(tm.port_dofs), "size": tm.n, "omega_scale": w0}
 
 
 def _normalized(tm: TransferMatrix) -> tuple[TransferMatrix, float]:
     cached = getattr(tm, "_normalized_cache", None)
     if cached is not None:
-        return cached
+        return cast("tuple[TransferMatrix, float]", cached)
     out = _normalize(tm)
     tm._normalized_cache = out  # type: ignore[attr-defined]  # entries are never mutated in place
     return out
@@ -320,7 +321,7 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> C
     name, label = "D[ω=∞]", "pole at s = ∞ at most simple with admissible residue R = lim G(s)/s"
     exc: list[list[int | None]] = [[None if tm[i, j].is_zero else int(tm[i, j].num.size - tm[i, j].den.size)
                                     for j in range(n)] for i in range(n)]
-    ev: dict = {"degree_excess": exc, "pole": math.inf}
+    ev: dict[str, Any] = {"degree_excess": exc, "pole": math.inf}
     top = max((d for row in exc for d in row if d is not None), default=-1)
     if top >= 2:
         i, j = next((i, j) for i in range(n) for j in range(n) if exc[i][j] == top)
@@ -422,7 +423,8 @@ def _perm_batch(A: np.ndarray) -> np.ndarray:
     return out
 
 
-def _hermitian_ratio(sub: list[list[Rational]], values=None):
+def _hermitian_ratio(sub: list[list[Rational]], values: Callable[[np.ndarray], np.ndarray] | None = None
+                     ) -> Callable[[np.ndarray], np.ndarray]:
     """ω ↦ det(H)/perm(|G|+|Gᵀ|) with H = G + Gᴴ on the index set: in [-1, 1], scale invariant,
     identical for every immittance form that describes the same passive quantity. ``values``
     (ω ↦ G(jω)) replaces the plain frequency response (e.g. by its regular part)."""
@@ -443,7 +445,8 @@ def _hermitian_ratio(sub: list[list[Rational]], values=None):
     return f
 
 
-def _eta_ratio(sub: list[list[Rational]], scale_values=None):
+def _eta_ratio(sub: list[list[Rational]], scale_values: Callable[[np.ndarray], np.ndarray] | None = None
+               ) -> Callable[[np.ndarray], np.ndarray]:
     """ω ↦ η/(2|p11||p22| + 2|p12 p21|), Llewellyn's η normalized to [-1, 1]. ``scale_values``
     (ω ↦ G_reg(jω), the regular part) supplies the scale when imaginary-axis poles were cancelled;
     η itself is always evaluated on G."""
@@ -559,7 +562,7 @@ def _setup(sub: list[list[Rational]], need_m: bool = True, q: QEntries | None = 
     E, O = _xq(D)
     Dc = (E, -O)
     zero = (fmpq_poly([]), fmpq_poly([]))
-    u = [[zero if nums[i][j] is None else _xq(nums[i][j] * (D // dens[i][j])) for j in range(n)] for i in range(n)]
+    u = [[zero if (nij := nums[i][j]) is None else _xq(nij * (D // dens[i][j])) for j in range(n)] for i in range(n)]
     if not need_m:
         return _Setup(u, Dc, h, mu, [], JPoly.zero())
     uf = [[_jfloat(e) for e in row] for row in u]
@@ -583,7 +586,7 @@ def _axis_factor(dens: list[fmpq_poly]) -> tuple[fmpq_poly, fmpq_poly | None, in
     if h.degree() < 1:
         return D, None, 0
     mu, t = 0, g
-    while t.degree() >= h.degree() and t % h == 0:
+    while t.degree() >= h.degree() and (t % h).is_zero():
         t, mu = t // h, mu + 1
     return D, h, max(mu, 1)
 
@@ -593,7 +596,7 @@ def _cancel(p: fmpq_poly, h: fmpq_poly | None, cap: int) -> tuple[fmpq_poly, int
         return p, 0
     h2 = h * h
     cut = 0
-    while p != 0 and cut < cap and p % h2 == 0:
+    while not p.is_zero() and cut < cap and (p % h2).is_zero():
         p, cut = p // h2, cut + 1
     return p, cut
 
@@ -622,8 +625,8 @@ def _exact_minor_polys(sub: list[list[Rational]], need_m: bool = True, q: QEntri
                   for i in range(n)]
         else:
             Pf = [[Af[i][j] + Af[j][i].conj() for j in range(n)] for i in range(n)]
-    memo: dict = {}
-    memof: dict = {}
+    memo: dict[tuple[tuple[int, ...], tuple[int, ...]], tuple[fmpq_poly, fmpq_poly]] = {}
+    memof: dict[tuple[tuple[int, ...], tuple[int, ...]], JPoly] = {}
 
     def det(rows: tuple[int, ...], cols: tuple[int, ...]) -> tuple[fmpq_poly, fmpq_poly]:
         if len(rows) == 1:
@@ -657,7 +660,10 @@ def _exact_minor_polys(sub: list[list[Rational]], need_m: bool = True, q: QEntri
     return out
 
 
-def _exact_llewellyn_polys(sub: list[list[Rational]], need_m: bool = True):
+_PolyCond = tuple[fmpq_poly, int, "np.ndarray | None"]
+
+
+def _exact_llewellyn_polys(sub: list[list[Rational]], need_m: bool = True) -> tuple[_PolyCond, _PolyCond]:
     """(L1, L2) of :func:`llewellyn_polys` formed exactly over Q with the squared imaginary-axis
     factor divided out where present (L1 carries |D|⁴, L2 |D|⁸): (polynomial, h² factors cancelled,
     magnitude polynomial or None unless ``need_m``) each."""
@@ -686,7 +692,7 @@ def _exact_llewellyn_polys(sub: list[list[Rational]], need_m: bool = True):
     return (p1, c1, m1), (p2, c2, m2)
 
 
-def _exact_decision(p: fmpq_poly, cut: int, m: np.ndarray, K: int, tol: Tolerances,
+def _exact_decision(p: fmpq_poly, cut: int, m: np.ndarray | None, K: int, tol: Tolerances,
                     margins: bool) -> tuple[SignDecision, bool]:
     """Exact decision of one condition polynomial and, with ``tol.rtol > 0``, whether the decision
     can flip under relative perturbations ≤ rtol of the coefficients of u and D (K coefficient
@@ -708,12 +714,16 @@ def _exact_decision(p: fmpq_poly, cut: int, m: np.ndarray, K: int, tol: Toleranc
 _RANK = {"violated": 3, "touching": 1, "equality": 1, "satisfied": 0}
 
 
-def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict, tol: Tolerances) -> Condition:
+def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict[str, Any],
+                tol: Tolerances) -> Condition:
     """Condition record from an exact decision (statuses: docs/VERDICTS.md)."""
     bands_w = [(math.sqrt(a), math.sqrt(b) if math.isfinite(b) else math.inf) for a, b in d.negative_bands]
-    ev = {"polynomial_x_desc": _desc(d.coefficients), "method": d.method, "distinct_positive_roots": d.n_roots,
+    touching_w = [math.sqrt(x) for x in d.touching]
+    status: ConditionStatus
+    ev: dict[str, Any] = {
+          "polynomial_x_desc": _desc(d.coefficients), "method": d.method, "distinct_positive_roots": d.n_roots,
           "negative_bands_rad_s": bands_w, "band_depths": d.band_depths,
-          "touching_rad_s": [math.sqrt(x) for x in d.touching], "formed": "exact",
+          "touching_rad_s": touching_w, "formed": "exact",
           "margin_kind": "frequency-domain margin: min over x >= 0 of p(x)/m_r(x) (docs/VERDICTS.md)"}
     ev.update(extra)
     margin, wf = d.margin, d.worst_omega
@@ -727,8 +737,8 @@ def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict,
     elif d.status == "touching":
         status, margin = "equality", 0.0
         detail = ("touches zero (holds with equality) at ω = "
-                  + ", ".join(f"{w:.6g}" for w in ev["touching_rad_s"]) + " rad/s")
-        wf = ev["touching_rad_s"][0] if ev["touching_rad_s"] else wf
+                  + ", ".join(f"{w:.6g}" for w in touching_w) + " rad/s")
+        wf = touching_w[0] if touching_w else wf
     else:
         status, detail = "satisfied", "positive for all ω"
     if flip:
@@ -739,7 +749,7 @@ def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict,
     return Condition(name, label, status, float(margin), wf, detail, ev)
 
 
-def _band_detail(ev: dict) -> str:
+def _band_detail(ev: dict[str, Any]) -> str:
     """The detail line of a violated frequency condition, from its evidence (the one definition
     shared by the JSON and the text table): the deepest negative band, in physical rad/s once
     :func:`_rescale` has scaled ``negative_bands_rad_s``."""
@@ -914,7 +924,7 @@ def _poly_sqrt(c: np.ndarray, rtol: float = 1e-9) -> tuple[np.ndarray, float] | 
                 acc += r[a] * r[b]
         r[i] = (cn[deg] - acc) / 2.0
     sq = P.polymul(r, r)
-    mag = P.polymul(np.abs(r), np.abs(r))
+    mag: np.ndarray = P.polymul(np.abs(r), np.abs(r))
     if np.all(np.abs(sq - np.pad(cn, (0, sq.size - cn.size))) <= rtol * np.maximum(mag, 1e-300) + 1e-300):
         return r, float(kappa)
     return None
@@ -953,7 +963,7 @@ def _components(nz: np.ndarray) -> list[list[int]]:
     return comps
 
 
-def _symmetrize(tm: TransferMatrix, comp: list[int], W: dict) -> list[list[Rational]] | None:
+def _symmetrize(tm: TransferMatrix, comp: list[int], W: dict[tuple[int, int], Rational]) -> list[list[Rational]] | None:
     """Rational Z' on a component with signs chosen so that cycle products match Z's."""
     rng = np.random.default_rng(12345)
     s0 = complex(0.37 + rng.random(), 1.1 + rng.random())
@@ -971,8 +981,8 @@ def _symmetrize(tm: TransferMatrix, comp: list[int], W: dict) -> list[list[Ratio
     # non-tree edges: sign from the triangle/cycle product through the tree root paths
     def path(v: int) -> list[int]:
         out = [v]
-        while parent[out[-1]] is not None:
-            out.append(parent[out[-1]])
+        while (p := parent[out[-1]]) is not None:
+            out.append(p)
         return out
 
     for (i, j), _w in W.items():
@@ -1163,7 +1173,7 @@ def _sweep_block(tm: TransferMatrix, comp: list[int], tol: Tolerances) -> list[C
             rho = mn / np.maximum(scale, 1e-300)
             i0 = int(np.argmin(rho))
             v = float(rho[i0])
-            status = "violated" if v < -1e-6 else ("marginal" if v <= 1e-6 else "satisfied")
+            status: ConditionStatus = "violated" if v < -1e-6 else ("marginal" if v <= 1e-6 else "satisfied")
             glob = tuple(comp[i] for i in idx)
             conds.append(Condition(f"E{_lbl(glob)}", f"principal minor {_lbl(glob)} of Re Z'(jω) ≥ 0", status, v,
                                    float(w[i0]), "decided on a dense frequency grid (Z' is not rational)",
@@ -1297,7 +1307,7 @@ def check(tm: TransferMatrix | Rational, criterion: str = "auto", tol: Tolerance
                      "absolute_stability")
 
 
-def margin_curve(g: TransferMatrix | Rational, condition: str = "E{1}"):
+def margin_curve(g: TransferMatrix | Rational, condition: str = "E{1}") -> Callable[[np.ndarray], np.ndarray]:
     """ω ↦ p(x)/m_r(x) of one frequency condition, the quantity whose minimum is that condition's
     frequency-domain margin (docs/VERDICTS.md), for plots: ω in physical rad/s, values in [-1, 1].
 
@@ -1324,7 +1334,7 @@ def margin_curve(g: TransferMatrix | Rational, condition: str = "E{1}"):
     mm = np.abs(c) if (cut or m is None) else np.maximum(
         np.pad(np.abs(m), (0, max(0, c.size - m.size)))[: max(c.size, m.size)],
         np.pad(np.abs(c), (0, max(0, m.size - c.size))))
-    a = exact_sign(p).order0 if p != 0 else 0
+    a = exact_sign(p).order0 if not p.is_zero() else 0
     m_rep = mm.copy()
     m_rep[:a] = 0.0
     m_rep[c.size:] = 0.0
@@ -1332,6 +1342,6 @@ def margin_curve(g: TransferMatrix | Rational, condition: str = "E{1}"):
 
     def f(w: np.ndarray) -> np.ndarray:
         x = (np.asarray(w, float) / w0) ** 2
-        return ratio(x) if p != 0 else np.zeros_like(x)
+        return ratio(x) if not p.is_zero() else np.zeros_like(x)
 
     return f

@@ -30,12 +30,15 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from fractions import Fraction
-from typing import Literal
+from typing import TYPE_CHECKING, Any, Literal, cast
 
 import numpy as np
 from numpy.polynomial import polynomial as P
 
 from hil.stability.jpoly import XPoly, trim_back
+
+if TYPE_CHECKING:
+    from flint import fmpq_poly
 
 log = logging.getLogger(__name__)
 
@@ -242,7 +245,7 @@ def _safe_div(num: np.ndarray, den: np.ndarray, fallback: float) -> np.ndarray:
     bad = ~np.isfinite(r)
     if np.any(bad):
         r[bad] = fallback
-    return r
+    return np.asarray(r)
 
 
 def _positive_real_roots(c_asc: np.ndarray) -> np.ndarray:
@@ -287,7 +290,7 @@ def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL, margin: bool = True,
     root isolation then use it instead of the float coefficients (callers that formed the
     condition exactly, e.g. after cancelling imaginary-axis poles, pass it with ``p.m = |p.c|``).
     """
-    if exact is None and getattr(p, "exact", None) is not None:
+    if exact is None and p.exact is not None:
         d = decide_exact(p.exact, p.m, margin=margin)
         if d.status == "touching":  # holds, with equality at isolated frequencies
             d.status = "equality"
@@ -546,7 +549,7 @@ def _global_min(ratio: _Ratio, cc: np.ndarray, m: np.ndarray, extra: list[float]
 # only comes from a user tolerance on the inputs (:func:`flips_within`).
 
 
-def _fmpq_list(p) -> list[Fraction]:
+def _fmpq_list(p: fmpq_poly) -> list[Fraction]:
     return [Fraction(int(p[i].p), int(p[i].q)) for i in range(p.degree() + 1)]
 
 
@@ -555,11 +558,11 @@ def _var(signs: list[int]) -> int:
     return sum(1 for a, b in itertools.pairwise(s) if a != b)
 
 
-def _sgn(v) -> int:
-    return (v > 0) - (v < 0)
+def _sgn(v: Any) -> int:
+    return int(v > 0) - int(v < 0)
 
 
-def count_positive_roots(f) -> int:
+def count_positive_roots(f: fmpq_poly) -> int:
     """Number of distinct roots in (0, ∞) of a non-zero exact polynomial (``flint.fmpq_poly``),
     by a Sturm sequence over Q (FLINT arithmetic, no rounding)."""
     from flint import fmpq_poly
@@ -593,7 +596,7 @@ def count_positive_roots(f) -> int:
     # polynomial): real roots come with an exactly zero imaginary part, their balls are disjoint and
     # exclude 0 unless a root sits within the ball radius of 0 (then: Sturm)
     n_pos = 0
-    for r, _mult in f.numer().complex_roots():
+    for r, _mult in _complex_roots(f):
         if r.imag == 0:
             if r.real > 0:
                 n_pos += 1
@@ -602,12 +605,12 @@ def count_positive_roots(f) -> int:
     return n_pos
 
 
-def _sturm_count_q(f) -> int:
+def _sturm_count_q(f: fmpq_poly) -> int:
     """Distinct positive roots of a squarefree exact polynomial with f(0) ≠ 0: primitive Sturm
     sequence over Q (each remainder divided by its positive content, which keeps its signs)."""
     from flint import fmpq_poly
 
-    def prim(g):
+    def prim(g: fmpq_poly) -> fmpq_poly:
         n = g.numer()
         c = n.content()
         return fmpq_poly(n) / c if c != 0 else g
@@ -615,7 +618,7 @@ def _sturm_count_q(f) -> int:
     seq = [prim(f), prim(f.derivative())]
     while seq[-1].degree() > 0:
         r = seq[-2] % seq[-1]
-        if r == 0:
+        if r.is_zero():
             break
         seq.append(-prim(r))
     return _var([_sgn(q[0]) for q in seq]) - _var([_sgn(q[q.degree()]) for q in seq])
@@ -631,15 +634,15 @@ class ExactSign:
     order0: int
     sign_changes: int
     touch_roots: int
-    q_odd: object = None
-    q_even: object = None
+    q_odd: fmpq_poly | None = None
+    q_even: fmpq_poly | None = None
 
 
-def exact_sign(p) -> ExactSign:
+def exact_sign(p: fmpq_poly) -> ExactSign:
     """Classify an exact polynomial ``p`` (``flint.fmpq_poly`` in x = ω²) on x ≥ 0 without rounding."""
     from flint import fmpq_poly
 
-    if p == 0:
+    if p.is_zero():
         return ExactSign("equality", 0, 0, 0)
     k = 0
     while p[k] == 0:
@@ -668,7 +671,13 @@ def exact_sign(p) -> ExactSign:
     return ExactSign("touching" if n_even else "satisfied", k, 0, n_even, q_odd, q_even)
 
 
-def _positive_roots_arb(f) -> list[float] | None:
+def _complex_roots(f: fmpq_poly) -> list[tuple[Any, int]]:
+    """Rigorous complex root balls (Arb) of f's integer polynomial with their multiplicities
+    (the stubs of python-flint 0.9 say list[acb]; the runtime returns (acb, multiplicity) pairs)."""
+    return cast("list[tuple[Any, int]]", f.numer().complex_roots())
+
+
+def _positive_roots_arb(f: fmpq_poly) -> list[float] | None:
     """Positive real roots (to double precision, sorted) of a squarefree exact polynomial from
     rigorous Arb isolation; None when a root ball straddles 0 (the caller falls back to Sturm)."""
     if f.degree() < 1:
@@ -677,7 +686,7 @@ def _positive_roots_arb(f) -> list[float] | None:
     if g.degree() > 0:
         f = f // g
     out = []
-    for r, _mult in f.numer().complex_roots():
+    for r, _mult in _complex_roots(f):
         if r.imag == 0:
             if r.real > 0:
                 out.append(float(r.real.mid()))
@@ -686,7 +695,7 @@ def _positive_roots_arb(f) -> list[float] | None:
     return sorted(out)
 
 
-def decide_exact(p, m: np.ndarray | None = None, margin: bool = True) -> SignDecision:
+def decide_exact(p: fmpq_poly, m: np.ndarray | None = None, margin: bool = True) -> SignDecision:
     """Decide ``p(x) ≥ 0`` for all x ≥ 0 for an *exact* polynomial ``p`` (``flint.fmpq_poly``).
 
     The status is exact (see :func:`exact_sign`); negative bands and touching points are isolated
@@ -722,7 +731,7 @@ def decide_exact(p, m: np.ndarray | None = None, margin: bool = True) -> SignDec
     m_rep = mm.copy()
     m_rep[:a] = 0.0
     m_rep[n:] = 0.0
-    status_map = {"satisfied": "satisfied", "touching": "touching", "violated": "violated"}
+    status_map: dict[str, Status] = {"satisfied": "satisfied", "touching": "touching", "violated": "violated"}
     if es.status == "satisfied" and not margin:
         return SignDecision("satisfied", math.nan, math.nan, method="exact (descartes/sturm over Q)",
                             coefficients=c)
@@ -734,7 +743,7 @@ def decide_exact(p, m: np.ndarray | None = None, margin: bool = True) -> SignDec
     even = _positive_roots_arb(es.q_even) if es.q_even is not None else []
     if odd is None or even is None:  # pragma: no cover - ambiguous isolation: integer Sturm path
         d = decide_nonnegative(XPoly(c, mm), tol=0.0, margin=margin, exact=fr, _m_rep=m_rep)
-        d.status = status_map[es.status]  # type: ignore[assignment]
+        d.status = status_map[es.status]
         d.method = "exact (sturm over Q)"
         _exact_depths(p, d, mm, m_rep, margin)
         return d
@@ -756,14 +765,14 @@ def decide_exact(p, m: np.ndarray | None = None, margin: bool = True) -> SignDec
     if margin:
         margin_v, worst_x = _margin_min(_Ratio(c, m_rep), c, m_rep, bands, touching, [x for x, _ in events])
     d = SignDecision(status_map[es.status], float(margin_v), float(worst_x), bands, [math.nan] * len(bands),
-                     touching, len(events), "exact (Arb isolation over Q)", c)  # type: ignore[arg-type]
+                     touching, len(events), "exact (Arb isolation over Q)", c)
     _exact_depths(p, d, mm, m_rep, margin)
     if d.status == "violated" and not d.negative_bands:  # pragma: no cover - defensive
         log.warning("exact classification says violated but no negative band was isolated")
     return d
 
 
-def _exact_ratio(p, mpoly: np.ndarray, x: float) -> float:
+def _exact_ratio(p: fmpq_poly, mpoly: np.ndarray, x: float) -> float:
     """p(x)/m(x) with p evaluated exactly at the float x (no cancellation error), m in floats."""
     from flint import fmpq
 
@@ -776,7 +785,7 @@ def _exact_ratio(p, mpoly: np.ndarray, x: float) -> float:
     return float(Fraction(int(v.p), int(v.q)) / Fraction(mv))
 
 
-def _exact_depths(p, d: SignDecision, m: np.ndarray, m_rep: np.ndarray, margin: bool) -> None:
+def _exact_depths(p: fmpq_poly, d: SignDecision, m: np.ndarray, m_rep: np.ndarray, margin: bool) -> None:
     """Band depths and the margin re-evaluated with p exact: inside each (exactly isolated) negative
     band, p is evaluated exactly on 65 points, so depths far below double round-off (a band of
     relative width 1e-10) are resolved; the margin of a holding condition is re-evaluated exactly
@@ -806,7 +815,7 @@ def _exact_depths(p, d: SignDecision, m: np.ndarray, m_rep: np.ndarray, margin: 
             d.margin = v
 
 
-def flips_within(p, m: np.ndarray, eps: float, status: str) -> bool:
+def flips_within(p: fmpq_poly, m: np.ndarray, eps: float, status: str) -> bool:
     """Whether a perturbation |Δp(x)| ≤ eps·m(x) (x ≥ 0) can change the decision of ``p ≥ 0``:
     for a holding condition, whether p - eps·m is negative somewhere on x > 0; for a violated one,
     whether p + eps·m ≥ 0 everywhere. Decided exactly (eps and m are exact binary rationals)."""
@@ -823,25 +832,25 @@ def flips_within(p, m: np.ndarray, eps: float, status: str) -> bool:
 # exact pole location: open right-half plane and imaginary axis
 
 
-def _cauchy_index(Q, P) -> int:
+def _cauchy_index(Q: fmpq_poly, P: fmpq_poly) -> int:
     """Cauchy index of Q/P over (-∞, ∞) by a generalized Sturm sequence over Q (exact)."""
     if P.degree() < 0:
         return 0
     if Q.degree() >= P.degree():
         Q = Q % P
     seq = [P, Q]
-    while seq[-1] != 0 and seq[-1].degree() > 0:
+    while not seq[-1].is_zero() and seq[-1].degree() > 0:
         r = seq[-2] % seq[-1]
-        if r == 0:
+        if r.is_zero():
             break
         seq.append(-r)
-    seq = [q for q in seq if q != 0]
+    seq = [q for q in seq if not q.is_zero()]
     v_pos = _var([_sgn(q[q.degree()]) for q in seq])
     v_neg = _var([_sgn(q[q.degree()]) * (-1) ** q.degree() for q in seq])
     return v_neg - v_pos
 
 
-def _s_of_x(g):
+def _s_of_x(g: fmpq_poly) -> fmpq_poly:
     """g(-s²) as a polynomial in s."""
     from flint import fmpq_poly
 
@@ -862,7 +871,7 @@ class ExactPoles:
     axis: list[tuple[float, int]]
 
 
-def exact_poles(d) -> ExactPoles:
+def exact_poles(d: fmpq_poly) -> ExactPoles:
     """Locate the roots of ``d`` (``flint.fmpq_poly`` in s) relative to the imaginary axis exactly.
 
     d(jω) = E(x) + jω O(x) (x = ω²); g = gcd(E, O) collects the root pairs ±s0 symmetric about the
@@ -877,13 +886,13 @@ def exact_poles(d) -> ExactPoles:
     while d[k0] == 0:
         k0 += 1
     rest = d // fmpq_poly([0] * k0 + [1]) if k0 else d
-    a: list = []
-    b: list = []
+    a: list[Any] = []
+    b: list[Any] = []
     for k in range(rest.degree() + 1):
         v = rest[k] if (k // 2) % 2 == 0 else -rest[k]
         (a if k % 2 == 0 else b).append(v)
     E, O = fmpq_poly(a), fmpq_poly(b)
-    g = E.gcd(O) if O != 0 else E
+    g = E.gcd(O) if not O.is_zero() else E
     n_rhp = 0
     axis: list[tuple[float, int]] = []
     q = rest
@@ -900,8 +909,8 @@ def exact_poles(d) -> ExactPoles:
                 axis += [(float(x), e) for x in xs]
     n = q.degree()
     if n > 0:
-        R = [0] * (n + 1)
-        Im = [0] * (n + 1)
+        R: list[Any] = [0] * (n + 1)
+        Im: list[Any] = [0] * (n + 1)
         for k in range(n + 1):
             m = k % 4
             if m == 0:

@@ -27,7 +27,7 @@ import functools
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from flint import fmpq, fmpq_poly
@@ -195,13 +195,13 @@ class Rational:
     # -- evaluation ---------------------------------------------------------------------------
     def __call__(self, s: np.ndarray | complex) -> np.ndarray:
         s = np.asarray(s, dtype=complex)
-        return P.polyval(s, self.num) / P.polyval(s, self.den)
+        return np.asarray(P.polyval(s, self.num) / P.polyval(s, self.den))
 
     def freq(self, w: np.ndarray | float) -> np.ndarray:
         """Frequency response at s = jω (ω in rad/s), vectorized."""
         return self(1j * np.asarray(w, dtype=float))
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {"num": self.num[::-1].tolist(), "den": self.den[::-1].tolist()}
 
     def __repr__(self) -> str:
@@ -230,7 +230,7 @@ def _exact_quotient(a: np.ndarray, b: np.ndarray, rtol: float = 0.0) -> np.ndarr
         qa = _qpoly(a) / fmpq(*float(b[0]).as_integer_ratio())
     else:
         qa, r = divmod(_qpoly(a), _qpoly(b))
-        if r != 0:
+        if not r.is_zero():
             return None
     try:
         return np.array([_qfloat(qa[k]) for k in range(qa.degree() + 1)] or [0.0])
@@ -282,14 +282,14 @@ class TransferMatrix:
 
     # -- constructors ---------------------------------------------------------------------------
     @staticmethod
-    def from_coefficients(rows: Sequence[Sequence[dict]], kind: ImmittanceKind = "impedance",
+    def from_coefficients(rows: Sequence[Sequence[dict[str, Any]]], kind: ImmittanceKind = "impedance",
                           port_dofs: Sequence[int] | None = None, name: str = "") -> TransferMatrix:
         """From rows of ``{"num": [...], "den": [...]}`` (descending powers of s)."""
         ent = [[Rational.from_desc(e["num"], e.get("den", [1.0])) for e in row] for row in rows]
         return TransferMatrix(ent, kind, tuple(port_dofs or ()), name)
 
     @staticmethod
-    def from_zpk(zpk_rows: Sequence[Sequence[tuple]], kind: ImmittanceKind = "impedance",
+    def from_zpk(zpk_rows: Sequence[Sequence[tuple[Any, ...]]], kind: ImmittanceKind = "impedance",
                  port_dofs: Sequence[int] | None = None, name: str = "") -> TransferMatrix:
         ent = [[Rational.from_zpk(*e) for e in row] for row in zpk_rows]
         return TransferMatrix(ent, kind, tuple(port_dofs or ()), name)
@@ -325,7 +325,7 @@ class TransferMatrix:
                         ps.append(p)
         return np.array(ps, dtype=complex)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {"type": self.kind, "ports": list(self.port_dofs),
                 "matrix": [[e.to_dict() for e in row] for row in self.entries]}
 
@@ -392,9 +392,9 @@ class _RF:
 
     def __init__(self, n: fmpq_poly, d: fmpq_poly, reduced: bool = False) -> None:
         if not reduced:
-            if d == 0:
+            if d.is_zero():
                 raise ConversionError("division by an identically zero transfer function")
-            if n == 0:
+            if n.is_zero():
                 n, d = fmpq_poly([]), fmpq_poly([1])
             else:
                 g = n.gcd(d)
@@ -411,7 +411,7 @@ class _RF:
 
     @property
     def is_zero(self) -> bool:
-        return self.n == 0
+        return self.n.is_zero()
 
     # Henrici's algorithms: gcds of the small factors instead of one gcd of the full product,
     # which keeps the intermediate polynomials (and the Gauss-Jordan elimination) small.
@@ -421,11 +421,11 @@ class _RF:
         if self.is_zero:
             return o
         g = self.d.gcd(o.d)
-        if g == 1:  # coprime denominators: the sum is already reduced
+        if g.is_one():  # coprime denominators: the sum is already reduced
             return _RF(self.n * o.d + o.n * self.d, self.d * o.d, reduced=True)
         d1, d2 = self.d // g, o.d // g
         t = self.n * d2 + o.n * d1
-        if t == 0:
+        if t.is_zero():
             return _ZERO
         h = t.gcd(g)  # gcds are monic (FLINT), so is the denominator
         return _RF(t // h, d1 * d2 * (g // h), reduced=True)

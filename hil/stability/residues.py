@@ -51,7 +51,7 @@ Pair = tuple[fmpq_poly, fmpq_poly]  # a(x) + jω·b(x)
 
 
 def _sgn(v: Any) -> int:
-    return (v > 0) - (v < 0)
+    return int(v > 0) - int(v < 0)
 
 
 def _xq(c: fmpq_poly) -> Pair:
@@ -71,12 +71,12 @@ def _xq(c: fmpq_poly) -> Pair:
 def _sturm(f: fmpq_poly, g: fmpq_poly) -> list[fmpq_poly]:
     """Signed remainder sequence f, g, -rem(f, g), ... (exact over Q)."""
     seq = [f, g]
-    while seq[-1] != 0 and seq[-1].degree() > 0:
+    while not seq[-1].is_zero() and seq[-1].degree() > 0:
         r = seq[-2] % seq[-1]
-        if r == 0:
+        if r.is_zero():
             break
         seq.append(-r)
-    return [q for q in seq if q != 0]
+    return [q for q in seq if not q.is_zero()]
 
 
 def _var_at(seq: Sequence[fmpq_poly], t: fmpq) -> int:
@@ -125,7 +125,7 @@ def sign_at_root(r: fmpq_poly, f: fmpq_poly, iv: tuple[fmpq, fmpq]) -> int:
     if lo == hi:
         return _sgn(r(lo))
     r = r % f
-    if r == 0:
+    if r.is_zero():
         return 0
     seq = _sturm(f, (f.derivative() * r) % f)
     return _var_at(seq, lo) - _var_at(seq, hi)
@@ -220,7 +220,7 @@ class _Ring:
 
     @staticmethod
     def is_zero(u: Pair) -> bool:
-        return u[0] == 0 and u[1] == 0
+        return u[0].is_zero() and u[1].is_zero()
 
     def det(self, M: list[list[Pair]], idx: tuple[int, ...]) -> Pair:
         """Exact determinant (Laplace expansion along the first row) of M on rows/cols idx."""
@@ -401,7 +401,7 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0) -> R
             if ring.is_zero(M[i][j]) or ring.is_zero(M[j][i]):
                 continue
             p = ring.mul(M[i][j], M[j][i])
-            bad_imag = p[1] != 0
+            bad_imag = not p[1].is_zero()
             sg = real_sign(p)
             if bad_imag or sg < 0:
                 prod = K[i, j] * K[j, i]
@@ -425,7 +425,7 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0) -> R
             perm = _perm_abs(sub) or 1.0
             room = _perm_abs(Kd[np.ix_(ii, ii)]) - _perm_abs(sub)
             d = ring.det(M, idx)
-            if d[1] != 0:
+            if not d[1].is_zero():
                 why = f"principal minor {_lbl(idx)} of the residue matrix is complex"
                 if rtol > 0 and abs(mnr.imag) <= room and mnr.real >= -room:
                     return ResidueDecision("marginal", -abs(mnr.imag) / perm, why + f"; within rtol {rtol:.3g}", ev)

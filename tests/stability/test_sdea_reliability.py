@@ -3,6 +3,8 @@ the reliability index β (FORM, hil.stability.reliability) on the SDEA. With k22
 parameter, k22 ~ N(k22_0, σ²), the network stops being passive exactly at k22 = k22_max (decided
 on the same exact polynomials), so the closed form is β = (k22_max - k22_0)/σ."""
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -29,5 +31,5 @@ def test_sdea_beta_is_the_standardized_distance_to_k22_max_and_tends_to_zero():
         assert r.beta == pytest.approx((kmax - k0) / sigma, abs=1e-7 * kmax / sigma + 1e-6)
         assert abs(r.design_point_u[0]) == pytest.approx(r.beta)
         betas.append(r.beta)
-    assert all(a > b > 0 for a, b in zip(betas, betas[1:]))  # monotone in k22, positive below k22_max
+    assert all(a > b > 0 for a, b in itertools.pairwise(betas))  # monotone in k22, positive below k22_max
     assert betas[-1] < 0.05  # → 0 as k22 → k22_max

@@ -251,7 +251,7 @@ def test_common_denominator_is_exact_lcm_and_refuses_near_divisibility():
     assert _exact_quotient(a + np.array([1e-13, 0, 0]), b) is None  # near-divisible is not divisible
     # the common denominator of the frequency conditions is the exact lcm over Q[s]
     D, _h, _mu = _axis_factor([_qpoly(a), _qpoly(b)])
-    assert D == _qpoly(a)
+    assert _qpoly(a) == D
     D2, _h, _mu = _axis_factor([_qpoly(a + np.array([1e-13, 0, 0])), _qpoly(b)])
     assert D2.degree() == 3  # the perturbed denominator does not contain (s + 1): the lcm is the product
 
