@@ -562,9 +562,12 @@ def _sgn(v: Any) -> int:
     return int(v > 0) - int(v < 0)
 
 
-def count_positive_roots(f: fmpq_poly) -> int:
+def count_positive_roots(f: fmpq_poly, squarefree: bool = False) -> int:
     """Number of distinct roots in (0, ∞) of a non-zero exact polynomial (``flint.fmpq_poly``),
-    by a Sturm sequence over Q (FLINT arithmetic, no rounding)."""
+    exactly: Descartes' rule when it decides, closed forms up to degree 2, a Sturm sequence over Q
+    up to degree 4, else Descartes with continued-fraction subdivision over Z (:func:`_vas_count`;
+    rigorous Arb isolation as a fallback). ``squarefree``: f is known to be squarefree (skips the
+    gcd with f')."""
     from flint import fmpq_poly
 
     if f.degree() < 1:
@@ -576,8 +579,7 @@ def count_positive_roots(f: fmpq_poly) -> int:
         f = f // fmpq_poly([0] * k + [1])
     if f.degree() < 1:
         return 0
-    coeffs = [_sgn(f[i]) for i in range(f.degree() + 1)]
-    if _var(coeffs) == 0:  # Descartes: no sign change, no positive root
+    if _descartes(f.numer().coeffs()) == 0:  # Descartes: no sign change, no positive root
         return 0
     if f.degree() == 1:  # f0 + f1 x: root -f0/f1 > 0 iff the signs differ (Descartes: they do)
         return 1
@@ -589,20 +591,101 @@ def count_positive_roots(f: fmpq_poly) -> int:
         if disc == 0:
             return 1 if _sgn(c1) != _sgn(c2) else 0  # double root -c1/(2 c2)
         return 2 if _sgn(c0) == _sgn(c2) else 1  # product of the roots c0/c2 > 0: both positive
-    g = f.gcd(f.derivative())
-    if g.degree() > 0:
-        f = f // g
+    if not squarefree:
+        g = f.gcd(f.derivative())
+        if g.degree() > 0:
+            f = f // g
+    if f.degree() <= 4:  # small degree: the Sturm sequence is the cheaper exact count
+        return _sturm_count_q(f)
+    # exact count by Descartes' rule with continued-fraction (Vincent-Akritas-Strzeboński)
+    # subdivision over the integers; the rigorous Arb isolation below only if that takes too long
+    n_vas = _vas_count(f.numer())
+    if n_vas is not None:
+        return n_vas
     # rigorous root isolation (FLINT/Arb, arb_fmpz_poly_complex_roots on the squarefree integer
     # polynomial): real roots come with an exactly zero imaginary part, their balls are disjoint and
     # exclude 0 unless a root sits within the ball radius of 0 (then: Sturm)
-    n_pos = 0
-    for r, _mult in _complex_roots(f):
+    n_pos = 0  # pragma: no cover - only past _vas_count's node limit
+    for r, _mult in _complex_roots(f):  # pragma: no cover
         if r.imag == 0:
             if r.real > 0:
                 n_pos += 1
-            elif not r.real < 0:  # pragma: no cover - ambiguous ball: exact Sturm count instead
+            elif not r.real < 0:
                 return _sturm_count_q(f)
-    return n_pos
+    return n_pos  # pragma: no cover
+
+
+def _descartes(c: list[Any]) -> int:
+    """Sign variations of a coefficient list (zeros skipped)."""
+    v, prev = 0, 0
+    for x in c:
+        if x != 0:
+            sg = 1 if x > 0 else -1
+            if prev and sg != prev:
+                v += 1
+            prev = sg
+    return v
+
+
+def _pos_root_log2_bound(c: list[Any]) -> int | None:
+    """An integer e with every positive root of Σ c_i x^i below 2^e (c ascending, c[-1] ≠ 0), or
+    None when there is no positive root (no coefficient of sign opposite to the leading one).
+    Rigorous from bit lengths: a positive root r satisfies r < 2·max (|c_i|/|c_n|)^(1/(n-i)) over
+    those c_i (Fujiwara), and |c_i|/|c_n| < 2^(bitlen c_i - bitlen c_n + 1)."""
+    n = len(c) - 1
+    lead = c[n]
+    bl_n = lead.bit_length()
+    best: int | None = None
+    for i in range(n):
+        a = c[i]
+        if a != 0 and (a > 0) != (lead > 0):
+            e = -(-(a.bit_length() - bl_n + 1) // (n - i))  # ceil
+            if best is None or e > best:
+                best = e
+    return None if best is None else best + 1
+
+
+def _vas_count(f: Any, max_nodes: int = 2000) -> int | None:
+    """Number of roots in (0, ∞) of a squarefree integer polynomial (``flint.fmpz_poly``) with
+    f(0) ≠ 0, exactly: Descartes' rule of signs bounds the count by the sign variations V and is
+    exact for V ∈ {0, 1}; otherwise the roots are split at 1 (f(x + 1) for (1, ∞),
+    (x + 1)^n f(1/(x + 1)) for (0, 1), a root at 1 divided out and counted) after shifting by a
+    power-of-two lower bound of the positive roots (Vincent's theorem: terminates for squarefree f).
+    None when ``max_nodes`` subdivisions do not suffice (the caller then uses root isolation)."""
+    from flint import fmpz_poly
+
+    x_plus_1 = fmpz_poly([1, 1])
+    x_minus_1 = fmpz_poly([-1, 1])
+    stack = [f]
+    count = 0
+    nodes = 0
+    while stack:
+        nodes += 1
+        if nodes > max_nodes:  # pragma: no cover - pathological root separation
+            return None
+        g = stack.pop()
+        c = g.coeffs()
+        v = _descartes(c)
+        if v < 2:
+            count += v
+            continue
+        e = _pos_root_log2_bound(c[::-1])  # positive roots of the reverse < 2^e: of g > 2^-e
+        if e is not None and e <= -1:
+            g = g(fmpz_poly([1 << (-e), 1]))  # shift by the lower bound 2^-e ≥ 2 (< every root)
+            c = g.coeffs()
+            v = _descartes(c)
+            if v < 2:
+                count += v
+                continue
+        if sum(c) == 0:  # a root at x = 1
+            count += 1
+            g = g // x_minus_1
+            c = g.coeffs()
+            if g.degree() < 1:
+                continue
+        stack.append(g(x_plus_1))  # roots of g in (1, ∞), shifted to (0, ∞)
+        stack.append(fmpz_poly(c[::-1])(x_plus_1))  # roots in (0, 1), mapped to (0, ∞)
+    return count
 
 
 def _sturm_count_q(f: fmpq_poly) -> int:
@@ -644,30 +727,28 @@ def exact_sign(p: fmpq_poly) -> ExactSign:
 
     if p.is_zero():
         return ExactSign("equality", 0, 0, 0)
+    ci = p.numer().coeffs()  # a positive multiple of p's coefficients, as integers (one call)
     k = 0
-    while p[k] == 0:
+    while ci[k] == 0:
         k += 1
-    low = p[k]
+    low = ci[k]
     if p.degree() == k:
         return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
-    signs = [_sgn(p[i]) for i in range(k, p.degree() + 1)]
-    if all(v >= 0 for v in signs):  # Descartes: no sign change, p > 0 on x > 0
-        return ExactSign("satisfied", k, 0, 0)
-    if all(v <= 0 for v in signs):
-        return ExactSign("violated", k, 0, 0)
-    _c, facs = p.factor_squarefree()
+    if _descartes(ci) == 0:  # Descartes: no sign change, p has the sign of low on x > 0
+        return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
+    # the factor x^k (the boundary x = 0) removed first, so no squarefree factor contains x
+    p0 = fmpq_poly([p[i] for i in range(k, p.degree() + 1)]) if k else p
+    _c, facs = p0.factor_squarefree()
     q_odd, q_even = fmpq_poly([1]), fmpq_poly([1])
     for f, e in facs:
-        if f.degree() == 1 and f[0] == 0:
-            continue  # the factor x: the boundary x = 0
         if e % 2:
             q_odd *= f
         else:
             q_even *= f
-    n_odd = count_positive_roots(q_odd)
+    n_odd = count_positive_roots(q_odd, squarefree=True)
     if n_odd or low < 0:
         return ExactSign("violated", k, n_odd, 0, q_odd, q_even)
-    n_even = count_positive_roots(q_even)
+    n_even = count_positive_roots(q_even, squarefree=True)
     return ExactSign("touching" if n_even else "satisfied", k, 0, n_even, q_odd, q_even)
 
 
@@ -715,8 +796,10 @@ def decide_exact(p: fmpq_poly, m: np.ndarray | None = None, margin: bool = True)
     if es.status == "equality":
         return SignDecision("equality", 0.0, 0.0, method="identically zero (exact)", coefficients=np.zeros(1))
     n = p.degree() + 1
-    fr = _fmpq_list(p)
     c = np.array([_qfloat(p[i]) for i in range(n)])
+    if es.status == "satisfied" and not margin:
+        return SignDecision("satisfied", math.nan, math.nan, method="exact (descartes/sturm over Q)",
+                            coefficients=c)
     if m is None:
         mm = np.abs(c)
     else:
@@ -732,9 +815,6 @@ def decide_exact(p: fmpq_poly, m: np.ndarray | None = None, margin: bool = True)
     m_rep[:a] = 0.0
     m_rep[n:] = 0.0
     status_map: dict[str, Status] = {"satisfied": "satisfied", "touching": "touching", "violated": "violated"}
-    if es.status == "satisfied" and not margin:
-        return SignDecision("satisfied", math.nan, math.nan, method="exact (descartes/sturm over Q)",
-                            coefficients=c)
     if es.status == "satisfied" and a + 1 == n:
         return SignDecision("satisfied", 1.0 if math.isfinite(c[a]) else math.nan, 0.0 if a == 0 else math.inf,
                             method="exact (monomial)", coefficients=c)
@@ -742,7 +822,7 @@ def decide_exact(p: fmpq_poly, m: np.ndarray | None = None, margin: bool = True)
     odd = _positive_roots_arb(es.q_odd) if es.q_odd is not None else []
     even = _positive_roots_arb(es.q_even) if es.q_even is not None else []
     if odd is None or even is None:  # pragma: no cover - ambiguous isolation: integer Sturm path
-        d = decide_nonnegative(XPoly(c, mm), tol=0.0, margin=margin, exact=fr, _m_rep=m_rep)
+        d = decide_nonnegative(XPoly(c, mm), tol=0.0, margin=margin, exact=_fmpq_list(p), _m_rep=m_rep)
         d.status = status_map[es.status]
         d.method = "exact (sturm over Q)"
         _exact_depths(p, d, mm, m_rep, margin)
