@@ -219,7 +219,7 @@ def _rhp_poles(d: fmpq_poly) -> list[complex]:
 
 
 def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: Tolerances = TOL,
-                    w0: float = 1.0) -> list[Condition]:
+                    w0: float = 1.0, margins: bool = True) -> list[Condition]:
     """Conditions on poles of every entry: (C) none in the open RHP; (D) imaginary-axis poles are
     simple with an admissible residue matrix, decided exactly (:mod:`hil.stability.residues`).
 
@@ -231,6 +231,8 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
     (eq. 57) is *not* imposed: the paper's own case study (eq. 25, residues -k_pm1, -k_pm2) violates
     it while being declared stable, and Theorem 1 (which 000 says reduces to Llewellyn) does not
     need it. ``w0``: the frequency normalization of ``tm`` (residues are reported physical).
+    ``margins=False``: C's margin (the smallest damping ratio, from float roots) and its ``poles``
+    evidence are not computed (verdict unchanged).
     """
     from hil.stability.residues import axis_poles, decide_residues, residue_matrix
 
@@ -240,11 +242,16 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
     D = fmpq_poly([1])
     for i in range(n):
         for j in range(n):
-            if nums[i][j] is None:
-                continue
-            d = dens[i][j]
-            rhp_all += [(i, j, p) for p in _rhp_poles(d)]
-            D = D * d // D.gcd(d)
+            if nums[i][j] is not None:
+                d = dens[i][j]
+                D = D * d // D.gcd(d)
+    # the roots of D are those of all the entries: one exact RHP count decides C; the entries are
+    # searched only to name the offending ones
+    if exact_poles(D).n_rhp:
+        for i in range(n):
+            for j in range(n):
+                if nums[i][j] is not None:
+                    rhp_all += [(i, j, p) for p in _rhp_poles(dens[i][j])]
     conds: list[Condition] = []
     if rhp_all:
         worst = max(rhp_all, key=lambda t: t[2].real / abs(t[2]))
@@ -252,6 +259,9 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
             "C", "no poles in the open right-half plane", "violated", -worst[2].real / abs(worst[2]),
             abs(worst[2].imag), f"entry ({worst[0] + 1},{worst[1] + 1}) has a pole at {worst[2] * w0:.6g} rad/s",
             {"rhp_poles": [{"entry": [i + 1, j + 1], "pole": p} for i, j, p in rhp_all]}))
+    elif not margins:
+        conds.append(Condition("C", "no poles in the open right-half plane", "satisfied", math.nan, None,
+                               "all poles in the closed left-half plane", {}))
     else:
         allp = [p for row in tm.entries for e in row if not e.is_zero for p in e.poles()]
         m = min((-p.real / abs(p) for p in allp if abs(p) > 0 and -p.real > 1e-9 * abs(p)), default=1.0)
@@ -793,7 +803,7 @@ def positive_real(g: TransferMatrix | Rational, tol: Tolerances = TOL, margins: 
     ``margins=False`` returns the same verdict without computing margins (faster)."""
     tm0 = _as_tm(g)
     tm, w0 = _normalized(tm0)
-    conds = pole_conditions(tm, "hermitian", tol, w0)
+    conds = pole_conditions(tm, "hermitian", tol, w0, margins)
     conds += _hermitian_minors(tm.entries, list(range(tm.n)), tol, "E",
                                "G(jω)+G(jω)ᴴ ⪰ 0" if tm.n > 1 else "Re Z(jω) ≥ 0", margins)
     crit = "positive_real" if tm.n > 1 else "positive_real (one-port)"
@@ -887,7 +897,7 @@ def llewellyn(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -
         raise ModelError("Llewellyn's criterion applies to 1-DOF two-ports (2×2 immittance matrices)")
     tm0 = tm
     tm, w0 = _normalized(tm0)
-    conds = pole_conditions(tm, "minors", tol, w0)
+    conds = pole_conditions(tm, "minors", tol, w0, margins)
     for k in range(2):
         conds += _hermitian_minors(tm.entries, [k], tol, "E", "Re p(jω) ≥ 0", margins)
     conds.append(_llewellyn_eta(tm.entries, 0, 1, tol, margins))
@@ -1181,7 +1191,7 @@ def _sweep_block(tm: TransferMatrix, comp: list[int], tol: Tolerances) -> list[C
     return conds
 
 
-def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityResult:
+def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -> StabilityResult:
     """Theorem 1 of paper 000: absolute stability of an m-DOF n-port (impedance form, or any
     immittance form by its Remark 1).
 
@@ -1192,7 +1202,8 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
     Re Z'(jω) ≥ 0 where z'_ij = γ_ij √(z_ij z_ji) (signs γ chosen so Z' and Z have equal principal
     minors). Blocks of Re Z' are decided exactly: 1×1 and 2×2 blocks through Re z_ii and
     Llewellyn's η (eq. 15b); larger blocks through the Hermitian minors of the rational Z' when
-    √(z_ij z_ji) is rational, otherwise by a flagged numerical sweep.
+    √(z_ij z_ji) is rational, otherwise by a flagged numerical sweep. ``margins=False`` returns
+    the same verdict without computing margins (faster).
     """
     tm0 = tm
     tm, w0 = _normalized(tm0)
@@ -1246,10 +1257,10 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
                 irrational.add((i, j))
             else:
                 roots[(i, j)] = r
-    conds += pole_conditions(tm, "minors", tol, w0)
+    conds += pole_conditions(tm, "minors", tol, w0, margins)
     for comp in _components(nz):
         if len(comp) == 1:
-            conds += _hermitian_minors(tm.entries, comp, tol, "E", "Re z_ii(jω) ≥ 0")
+            conds += _hermitian_minors(tm.entries, comp, tol, "E", "Re z_ii(jω) ≥ 0", margins)
             continue
         edges = {(i, j) for i in comp for j in comp if i < j and nz[i, j]}
         # 2×2 blocks: Llewellyn's η on the given entries (eq. 15b), formed exactly; larger blocks
@@ -1258,7 +1269,8 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
         if len(comp) > 2 and not (edges & irrational):
             Sq, why = _exact_symmetrize(RF, comp, {e: roots[e] for e in edges})
             if Sq is not None:
-                for c in _hermitian_minors(tm.entries, list(range(len(comp))), tol, "E", "Re Z'(jω) ⪰ 0", q=Sq):
+                for c in _hermitian_minors(tm.entries, list(range(len(comp))), tol, "E", "Re Z'(jω) ⪰ 0", margins,
+                                           q=Sq):
                     # relabel local indices to global ones
                     loc = [int(t) - 1 for t in c.name[2:-1].split(",")]
                     c.name = "E" + _lbl([comp[t] for t in loc])
@@ -1273,36 +1285,38 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
                                reason="Theorem 1 does not apply: Z is not symmetrizable")
         if len(comp) == 2:
             i, j = comp
-            conds += _hermitian_minors(tm.entries, [i], tol, "E", "Re z_ii(jω) ≥ 0")
-            conds += _hermitian_minors(tm.entries, [j], tol, "E", "Re z_ii(jω) ≥ 0")
-            conds.append(_llewellyn_eta(tm.entries, i, j, tol))
+            conds += _hermitian_minors(tm.entries, [i], tol, "E", "Re z_ii(jω) ≥ 0", margins)
+            conds += _hermitian_minors(tm.entries, [j], tol, "E", "Re z_ii(jω) ≥ 0", margins)
+            conds.append(_llewellyn_eta(tm.entries, i, j, tol, margins))
         else:
             conds += _sweep_block(tm, comp, tol)
     return combine("absolute_stability_nport", [*_rescale(conds, w0), infinity_condition(tm0, "minors")], net)
 
 
-def check(tm: TransferMatrix | Rational, criterion: str = "auto", tol: Tolerances = TOL) -> StabilityResult:
+def check(tm: TransferMatrix | Rational, criterion: str = "auto", tol: Tolerances = TOL,
+          margins: bool = True) -> StabilityResult:
     """Run the criterion that fits the network (``auto``) or the named one.
 
     ``auto``: a one-port → positive realness; a 1-DOF two-port → Llewellyn; anything larger →
     Theorem 1 (which reduces to Llewellyn for m = 1, n = 2). Names: ``positive_real``,
-    ``passivity`` (two-port passivity), ``llewellyn``, ``absolute_stability``.
+    ``passivity`` (two-port passivity), ``llewellyn``, ``absolute_stability``. ``margins=False``:
+    the same verdict without margins (faster).
     """
     tm = _as_tm(tm)
     if criterion == "auto":
         if tm.n == 1:
-            return positive_real(tm, tol)
+            return positive_real(tm, tol, margins)
         if tm.n == 2 and tm.n_ports == 2:
-            return llewellyn(tm, tol)
-        return absolute_stability(tm, tol)
+            return llewellyn(tm, tol, margins)
+        return absolute_stability(tm, tol, margins)
     if criterion == "positive_real":
-        return positive_real(tm, tol)
+        return positive_real(tm, tol, margins)
     if criterion == "passivity":
-        return two_port_passivity(tm, tol) if tm.n_ports == 2 else positive_real(tm, tol)
+        return two_port_passivity(tm, tol, margins) if tm.n_ports == 2 else positive_real(tm, tol, margins)
     if criterion == "llewellyn":
-        return llewellyn(tm, tol)
+        return llewellyn(tm, tol, margins)
     if criterion == "absolute_stability":
-        return absolute_stability(tm, tol)
+        return absolute_stability(tm, tol, margins)
     raise ModelError(f"unknown criterion {criterion!r}; expected auto, positive_real, passivity, llewellyn or "
                      "absolute_stability")
 
