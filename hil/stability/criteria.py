@@ -278,7 +278,7 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
                                    {"multiplicity": pole.multiplicity}))
             continue
         R = residue_matrix(nums, dens, D, pole, w0)
-        dec = decide_residues(R, residue_test, tol.rtol)
+        dec = decide_residues(R, residue_test, tol.rtol, margins)
         ev = dec.evidence
         ev["pole"] = complex(0, w)
         at = f" at s = j{wp:.6g}"
@@ -288,27 +288,31 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
     return conds
 
 
-def _frac_det(A: list[list[Fraction]]) -> Fraction:
-    """Exact determinant of a small matrix of Fractions (Gaussian elimination over Q)."""
-    M = [list(r) for r in A]
-    n = len(M)
-    det = Fraction(1)
-    for c in range(n):
-        piv = next((r for r in range(c, n) if M[r][c] != 0), None)
-        if piv is None:
-            return Fraction(0)
-        if piv != c:
-            M[c], M[piv] = M[piv], M[c]
-            det = -det
-        det *= M[c][c]
-        for r in range(c + 1, n):
-            f = M[r][c] / M[c][c]
-            if f:
-                M[r] = [a - f * b for a, b in zip(M[r], M[c], strict=True)]
-    return det
+def _principal_minors(A: list[list[fmpq]]) -> dict[tuple[int, ...], fmpq]:
+    """Every principal minor of a small exact matrix (Laplace expansion along the first row, the
+    sub-minors memoized), keyed by the index tuple, in order of size then lexicographic."""
+    n = len(A)
+    memo: dict[tuple[tuple[int, ...], tuple[int, ...]], fmpq] = {}
+
+    def det(rows: tuple[int, ...], cols: tuple[int, ...]) -> fmpq:
+        if len(rows) == 1:
+            return A[rows[0]][cols[0]]
+        key = (rows, cols)
+        v = memo.get(key)
+        if v is None:
+            v = fmpq(0)
+            for k, c in enumerate(cols):
+                a = A[rows[0]][c]
+                if a != 0:
+                    t = a * det(rows[1:], cols[:k] + cols[k + 1:])
+                    v = v + t if k % 2 == 0 else v - t
+            memo[key] = v
+        return v
+
+    return {idx: det(idx, idx) for k in range(1, n + 1) for idx in itertools.combinations(range(n), k)}
 
 
-def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> Condition:
+def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian", margins: bool = True) -> Condition:
     """Condition D[ω=∞]: at most a simple pole at s = ∞ with an admissible residue matrix.
 
     Positive realness (and therefore passivity, Llewellyn and Theorem 1, which all reduce to
@@ -325,7 +329,8 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> C
     Evidence: ``degree_excess`` per entry (None for zero entries), ``residue_inf`` (R, floats),
     ``eigenvalues`` (of the symmetric part of R) and the decisive exact minor. Margin: the
     smallest eigenvalue of the symmetric part of R over max|r_ij| (``minors``: the smallest
-    principal minor over the permanent of |R|), invariant under s → a·s and G → b·G.
+    principal minor over the permanent of |R|), invariant under s → a·s and G → b·G;
+    ``margins=False``: not computed (nan), the status unchanged.
     """
     n = tm.n
     name, label = "D[ω=∞]", "pole at s = ∞ at most simple with admissible residue R = lim G(s)/s"
@@ -360,17 +365,27 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> C
                     return Condition(name, label, "violated", -1.0, math.inf,
                                      f"r{i + 1}{j + 1}·r{j + 1}{i + 1} = {float(R[i][j] * R[j][i]):.4g} < 0 "
                                      "at s = ∞", ev)
+    minors = _principal_minors([[fmpq(v.numerator, v.denominator) for v in row] for row in R])
+    perm_of: dict[tuple[int, ...], float] = {}
+
+    def perm(idx: tuple[int, ...]) -> float:
+        if idx not in perm_of:
+            perm_of[idx] = _permanent_abs(Rf[np.ix_(idx, idx)])
+        return perm_of[idx]
+
     worst: tuple[float, tuple[int, ...]] | None = None
     zero_minor: tuple[int, ...] | None = None
-    for k in range(1, n + 1):
-        for idx in itertools.combinations(range(n), k):
-            mnr = _frac_det([[R[a][b] for b in idx] for a in idx])
-            perm = _permanent_abs(Rf[np.ix_(idx, idx)])
-            rel = float(mnr) / perm if perm else 0.0
-            if mnr < 0 and (worst is None or rel < worst[0]):
+    for idx, mnr in minors.items():
+        if mnr < 0:
+            if not margins:
+                worst = (-1e-300, idx) if worst is None else worst
+                continue
+            pm = perm(idx)
+            rel = float(mnr) / pm if pm else 0.0
+            if worst is None or rel < worst[0]:
                 worst = (min(rel, -1e-300), idx)
-            if mnr == 0 and zero_minor is None and perm:
-                zero_minor = idx
+        elif mnr == 0 and zero_minor is None and perm(idx):
+            zero_minor = idx
     if worst is not None:
         ev["negative_minor"] = [i + 1 for i in worst[1]]
         margin = float(np.min(lam)) / lam_scale if residue_test == "hermitian" else worst[0]
@@ -380,17 +395,17 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> C
         return Condition(name, label, "violated", margin, math.inf,
                          f"residue matrix at s = ∞ is {what}: principal minor {_lbl(worst[1])} < 0 "
                          f"(eigenvalues {', '.join(f'{v:.4g}' for v in lam)})", ev)
-    if residue_test == "hermitian":
+    if not margins:
+        margin = math.nan
+    elif residue_test == "hermitian":
         margin = max(float(np.min(lam)) / lam_scale, 0.0)
     else:
-        margin = min((float(_frac_det([[R[a][b] for b in idx] for a in idx])) / _permanent_abs(Rf[np.ix_(idx, idx)])
-                      for k in range(1, n + 1) for idx in itertools.combinations(range(n), k)
-                      if _permanent_abs(Rf[np.ix_(idx, idx)])), default=1.0)
+        margin = min((float(mnr) / perm(idx) for idx, mnr in minors.items() if perm(idx)), default=1.0)
     if zero_minor is not None or any(R[i][i] == 0 for i in range(n)):
         idx = zero_minor if zero_minor is not None else (next(i for i in range(n) if R[i][i] == 0),)
         return Condition(name, label, "equality", 0.0, math.inf,
                          f"simple pole at s = ∞, residue matrix singular (minor {_lbl(idx)} = 0, PSD)", ev)
-    return Condition(name, label, "satisfied", float(min(margin, 1.0)), math.inf,
+    return Condition(name, label, "satisfied", float(min(margin, 1.0)) if margins else math.nan, math.inf,
                      "simple pole at s = ∞ with positive definite residue matrix", ev)
 
 
@@ -807,7 +822,7 @@ def positive_real(g: TransferMatrix | Rational, tol: Tolerances = TOL, margins: 
     conds += _hermitian_minors(tm.entries, list(range(tm.n)), tol, "E",
                                "G(jω)+G(jω)ᴴ ⪰ 0" if tm.n > 1 else "Re Z(jω) ≥ 0", margins)
     crit = "positive_real" if tm.n > 1 else "positive_real (one-port)"
-    return combine(crit, [*_rescale(conds, w0), infinity_condition(tm0, "hermitian")], _netinfo(tm0, w0))
+    return combine(crit, [*_rescale(conds, w0), infinity_condition(tm0, "hermitian", margins)], _netinfo(tm0, w0))
 
 
 def two_port_passivity(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -> StabilityResult:
@@ -901,7 +916,7 @@ def llewellyn(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -
     for k in range(2):
         conds += _hermitian_minors(tm.entries, [k], tol, "E", "Re p(jω) ≥ 0", margins)
     conds.append(_llewellyn_eta(tm.entries, 0, 1, tol, margins))
-    return combine("llewellyn", [*_rescale(conds, w0), infinity_condition(tm0, "minors")], _netinfo(tm0, w0))
+    return combine("llewellyn", [*_rescale(conds, w0), infinity_condition(tm0, "minors", margins)], _netinfo(tm0, w0))
 
 
 # -- Theorem 1 of paper 000 ------------------------------------------------------------------
@@ -1133,7 +1148,13 @@ def _exact_symmetrize(RF: list[list[_RF]], comp: list[int],
             continue
         return None, (f"no sign choice of √(z{i + 1}{j + 1} z{j + 1}{i + 1}) reproduces Z's cycle products "
                       "(a longer cycle condition fails)")
-    for r in range(2, k + 1):
+    # With every fundamental cycle balanced, the ratios z_ij/S_ij (whose two directions multiply to
+    # 1) are potential differences φ_i/φ_j on the coupling graph, so Z = Φ S Φ⁻¹ on the edges and
+    # all principal minors agree. Only an entry with z_ij ≠ 0 but z_ji = 0 (no edge, S_ij = 0) can
+    # still make them differ (through a longer cycle): then they are compared exactly.
+    one_way = any(RF[comp[a]][comp[b]].is_zero != RF[comp[b]][comp[a]].is_zero
+                  for a in range(k) for b in range(a + 1, k))
+    for r in range(2, k + 1 if one_way else 2):
         for idx in itertools.combinations(range(k), r):
             mz = _rf_det([[RF[comp[a]][comp[b]] for b in idx] for a in idx])
             ms = _rf_det([[S[a][b] for b in idx] for a in idx])
@@ -1290,7 +1311,7 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool 
             conds.append(_llewellyn_eta(tm.entries, i, j, tol, margins))
         else:
             conds += _sweep_block(tm, comp, tol)
-    return combine("absolute_stability_nport", [*_rescale(conds, w0), infinity_condition(tm0, "minors")], net)
+    return combine("absolute_stability_nport", [*_rescale(conds, w0), infinity_condition(tm0, "minors", margins)], net)
 
 
 def check(tm: TransferMatrix | Rational, criterion: str = "auto", tol: Tolerances = TOL,

@@ -222,11 +222,13 @@ class _Ring:
     def is_zero(u: Pair) -> bool:
         return u[0].is_zero() and u[1].is_zero()
 
-    def det(self, M: list[list[Pair]], idx: tuple[int, ...]) -> Pair:
-        """Exact determinant (Laplace expansion along the first row) of M on rows/cols idx."""
+    def det(self, M: list[list[Pair]], idx: tuple[int, ...],
+            memo: dict[tuple[tuple[int, ...], tuple[int, ...]], Pair] | None = None) -> Pair:
+        """Exact determinant (Laplace expansion along the first row) of M on rows/cols idx;
+        ``memo`` shares the sub-minors between calls on the same M."""
         if len(idx) == 1:
             return M[idx[0]][idx[0]]
-        return self._det(M, idx, idx, {})
+        return self._det(M, idx, idx, {} if memo is None else memo)
 
     def _det(self, M: list[list[Pair]], rows: tuple[int, ...], cols: tuple[int, ...],
              memo: dict[tuple[tuple[int, ...], tuple[int, ...]], Pair]) -> Pair:
@@ -334,13 +336,16 @@ def _perm_abs(A: np.ndarray) -> float:
     return float(sum(np.prod([A[i, p[i]] for i in range(n)]) for p in itertools.permutations(range(n))))
 
 
-def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0) -> ResidueDecision:
+def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0, margins: bool = True) -> ResidueDecision:
     """Exact decision of the residue condition at one pole (``hermitian``: K Hermitian positive
     semidefinite; ``minors``: every k_ij·k_ji and every principal minor of K real and ≥ 0).
     With ``rtol`` > 0 a decision that an entrywise perturbation |ΔK_ij| ≤ ((1+rtol)² - 1)·|K|_ij
     (|K|_ij: the coefficient-wise magnitude bound of the residue, the pole held on the axis) can
-    flip is ``marginal`` (docs/VERDICTS.md)."""
+    flip is ``marginal`` (docs/VERDICTS.md). ``margins=False`` (and rtol = 0): the float margins
+    are not computed (nan; violated ones -1e-300), the status unchanged."""
     M, ring, pole = R.M, R.ring, R.pole
+    need_f = margins or rtol > 0
+    memo: dict[tuple[tuple[int, ...], tuple[int, ...]], Pair] = {}
     n = len(M)
     f, iv = pole.factor, pole.interval
     K = R.K
@@ -356,7 +361,7 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0) -> R
         return sign_at_root(u[0], f, iv)
 
     if residue_test == "hermitian":
-        lam = np.linalg.eigvalsh((K + K.conj().T) / 2)
+        lam = np.linalg.eigvalsh((K + K.conj().T) / 2) if need_f else np.full(n, math.nan)
         ev["eigenvalues"] = lam
         lmin = float(np.min(lam)) / scale
         dnorm = float(np.linalg.norm(delta)) / scale
@@ -374,7 +379,7 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0) -> R
         singular = False
         for k in range(1, n + 1):
             for idx in itertools.combinations(range(n), k):
-                sg = real_sign(ring.det(M, idx))
+                sg = real_sign(ring.det(M, idx, memo))
                 if sg < 0 and worst is None:
                     worst = (sg, idx)
                 if sg == 0 and k == n:
@@ -383,13 +388,15 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0) -> R
             detail = (f"residue matrix is not positive semidefinite (principal minor {_lbl(worst[1])} < 0)"
                       if n > 1 else "residue is negative")
             margin = lmin if lmin < 0 else -1e-300
+            if not need_f:
+                margin = -1e-300
             if rtol > 0 and lmin >= -dnorm:
                 return ResidueDecision("marginal", margin, detail + f"; within rtol {rtol:.3g}", ev)
             return ResidueDecision("violated", margin, detail, ev)
         if singular:
             st, margin, detail = "equality", 0.0, "residue matrix singular (PSD)" if n > 1 else "residue is zero"
         else:
-            st, margin = "satisfied", (lmin if lmin > 0 else 1e-300)
+            st, margin = "satisfied", (lmin if lmin > 0 else 1e-300) if need_f else math.nan
             detail = "residue matrix positive definite" if n > 1 else "residue real and positive"
         if rtol > 0 and lmin <= dnorm:
             return ResidueDecision("marginal", margin, detail + f"; can flip within rtol {rtol:.3g}", ev)
@@ -420,17 +427,19 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0) -> R
             ii = list(idx)
             if not any(all(nz[ii[a], ii[p[a]]] for a in range(k)) for p in itertools.permutations(range(k))):
                 continue  # structurally zero minor (every term of the determinant vanishes)
+            d = ring.det(M, idx, memo)
+            sg = real_sign(d) if d[1].is_zero() else 0
+            if not need_f and d[1].is_zero() and sg > 0:
+                continue  # holds strictly: nothing to report without margins
             sub = K[np.ix_(ii, ii)]
             mnr = complex(np.linalg.det(sub)) if k > 1 else complex(sub[0, 0])
             perm = _perm_abs(sub) or 1.0
             room = _perm_abs(Kd[np.ix_(ii, ii)]) - _perm_abs(sub)
-            d = ring.det(M, idx)
             if not d[1].is_zero():
                 why = f"principal minor {_lbl(idx)} of the residue matrix is complex"
                 if rtol > 0 and abs(mnr.imag) <= room and mnr.real >= -room:
                     return ResidueDecision("marginal", -abs(mnr.imag) / perm, why + f"; within rtol {rtol:.3g}", ev)
                 return ResidueDecision("violated", -max(abs(mnr.imag) / perm, 1e-300), why, ev)
-            sg = real_sign(d)
             rel = mnr.real / perm
             if sg < 0:
                 why = f"principal minor {_lbl(idx)} of the residue matrix is negative ({mnr.real:.4g})"
@@ -445,7 +454,7 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0) -> R
                 worst_rel = min(worst_rel, rel if rel > 0 else 1e-300)
             if rtol > 0 and mnr.real <= room:
                 flip = True
-    margin = 0.0 if status == "equality" else float(min(worst_rel, 1.0))
+    margin = 0.0 if status == "equality" else float(min(worst_rel, 1.0)) if need_f else math.nan
     if flip:
         return ResidueDecision("marginal", margin, detail + f"; can flip within rtol {rtol:.3g}", ev)
     return ResidueDecision(status, margin, detail, ev)

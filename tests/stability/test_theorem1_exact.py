@@ -85,3 +85,30 @@ def test_conditions_a_and_b_are_exact():
                            for j in range(3)] for i in range(3)], "impedance", (1, 1, 1))
     res = absolute_stability(bad)
     assert str(res.verdict) == "not_applicable" and res.condition("A").status == "not_applicable"
+
+
+@pytest.mark.parametrize("c", [0.2, 1.5])
+def test_exact_z_prime_has_the_principal_minors_of_z(c):
+    """The symmetrized block (up to its diagonal similarity) has exactly Z's principal minors over
+    Q(s): checked here independently of the criterion, which relies on cycle balance for it."""
+    from flint import fmpq_poly
+
+    from hil.stability.criteria import _exact_sqrt, _exact_symmetrize
+    from hil.stability.rational import _RF, _rf_det, _to_rf
+
+    tm = _three_port((S + 2) / (S + 1), (2 * S + 1) / (S + 3), (S + 5) / (S + 2), c / (S + 1), c / (S + 2),
+                     c / (S + 3), -1.0)
+    RF = _to_rf(tm.entries)
+    roots = {(i, j): _exact_sqrt(RF[i][j] * RF[j][i]) for i in range(3) for j in range(i + 1, 3)}
+    (nums, dens), why = _exact_symmetrize(RF, [0, 1, 2], roots)
+    assert why == ""
+    Sm = [[_RF(nums[a][b] if nums[a][b] is not None else fmpq_poly([]), dens[a][b]) for b in range(3)]
+          for a in range(3)]
+    for idx in ((0, 1), (0, 2), (1, 2), (0, 1, 2)):
+        mz = _rf_det([[RF[a][b] for b in idx] for a in idx])
+        ms = _rf_det([[Sm[a][b] for b in idx] for a in idx])
+        assert mz.n == ms.n and mz.d == ms.d
+    for a in range(3):  # the products S_ab S_ba are z_ab z_ba
+        for b in range(a + 1, 3):
+            p, q = Sm[a][b] * Sm[b][a], RF[a][b] * RF[b][a]
+            assert p.n == q.n and p.d == q.d
