@@ -234,7 +234,14 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
     ``margins=False``: C's margin (the smallest damping ratio, from float roots) and its ``poles``
     evidence are not computed (verdict unchanged).
     """
-    from hil.stability.residues import axis_poles, decide_residues, residue_matrix
+    from hil.stability.residues import (
+        ResidueDecision,
+        axis_poles,
+        decide_rational_residues,
+        decide_residues,
+        residue_matrix,
+        residues_at_zero,
+    )
 
     n = tm.n
     nums, dens = _reduced_entries(tm)
@@ -277,8 +284,14 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
                                    f"pole at s = j{wp:.6g} has multiplicity {pole.multiplicity}",
                                    {"multiplicity": pole.multiplicity}))
             continue
-        R = residue_matrix(nums, dens, D, pole, w0)
-        dec = decide_residues(R, residue_test, tol.rtol, margins)
+        fast = None
+        if pole.x0 == 0 and not margins and tol.rtol == 0:
+            # verdict only at s = 0: a rational residue matrix, decided in Q without floats
+            fast = decide_rational_residues(residues_at_zero(nums, dens), residue_test)
+        if fast is not None:
+            dec = ResidueDecision(fast[0], 0.0 if fast[0] == "equality" else math.nan, fast[1], {})
+        else:
+            dec = decide_residues(residue_matrix(nums, dens, D, pole, w0), residue_test, tol.rtol, margins)
         ev = dec.evidence
         ev["pole"] = complex(0, w)
         at = f" at s = j{wp:.6g}"
@@ -286,30 +299,6 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
         detail = dec.detail[: mt.end()] + at + dec.detail[mt.end():] if mt else dec.detail + at
         conds.append(Condition(name, label, dec.status, dec.margin, w, detail, ev))  # type: ignore[arg-type]
     return conds
-
-
-def _principal_minors(A: list[list[fmpq]]) -> dict[tuple[int, ...], fmpq]:
-    """Every principal minor of a small exact matrix (Laplace expansion along the first row, the
-    sub-minors memoized), keyed by the index tuple, in order of size then lexicographic."""
-    n = len(A)
-    memo: dict[tuple[tuple[int, ...], tuple[int, ...]], fmpq] = {}
-
-    def det(rows: tuple[int, ...], cols: tuple[int, ...]) -> fmpq:
-        if len(rows) == 1:
-            return A[rows[0]][cols[0]]
-        key = (rows, cols)
-        v = memo.get(key)
-        if v is None:
-            v = fmpq(0)
-            for k, c in enumerate(cols):
-                a = A[rows[0]][c]
-                if a != 0:
-                    t = a * det(rows[1:], cols[:k] + cols[k + 1:])
-                    v = v + t if k % 2 == 0 else v - t
-            memo[key] = v
-        return v
-
-    return {idx: det(idx, idx) for k in range(1, n + 1) for idx in itertools.combinations(range(n), k)}
 
 
 def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian", margins: bool = True) -> Condition:
@@ -365,7 +354,9 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian", marg
                     return Condition(name, label, "violated", -1.0, math.inf,
                                      f"r{i + 1}{j + 1}·r{j + 1}{i + 1} = {float(R[i][j] * R[j][i]):.4g} < 0 "
                                      "at s = ∞", ev)
-    minors = _principal_minors([[fmpq(v.numerator, v.denominator) for v in row] for row in R])
+    from hil.stability.residues import principal_minors
+
+    minors = principal_minors([[fmpq(v.numerator, v.denominator) for v in row] for row in R])
     perm_of: dict[tuple[int, ...], float] = {}
 
     def perm(idx: tuple[int, ...]) -> float:

@@ -166,3 +166,29 @@ def test_axis_poles_multiplicities_are_exact():
     d = fmpq_poly([0, 0, 1]) * fmpq_poly([1, 0, 1]) ** 2 * fmpq_poly([2, 0, 1]) * fmpq_poly([1, 1])
     ps = axis_poles(d)
     assert [(float(p.x0), p.multiplicity) for p in ps] == [(0.0, 2), (1.0, 2), (2.0, 1)]
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_rational_residues_at_zero_fast_path_agrees_with_the_general_one(seed):
+    """The verdict-only path decides the residue matrix at s = 0 in Q directly (k_ij = n_ij(0)/d_ij'(0));
+    the full path goes through Q[x]/(x). Same statuses for symmetric, asymmetric, singular, indefinite K."""
+    import numpy as np
+
+    from hil.stability.criteria import check
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 4))
+    K = rng.integers(-2, 4, size=(n, n)).astype(float)
+    if seed % 3 == 0:
+        K = K @ K.T  # PSD (often singular)
+    if seed % 3 == 1:
+        K = (K + K.T) / 2
+    rows = [[(K[i, j] + (1.0 if i == j else 0.0) * S) / S if K[i, j] or i == j else 0.0 * S for j in range(n)]
+            for i in range(n)]
+    tm = TransferMatrix(rows, "impedance", (1,) * n)
+    for crit in ("positive_real", "absolute_stability"):
+        full, fast = check(tm, crit), check(tm, crit, margins=False)
+        sf = {c.name: c.status for c in full.conditions}
+        for c in fast.conditions:
+            assert c.status == sf[c.name], (crit, c.name, K)
+        assert fast.verdict == full.verdict
