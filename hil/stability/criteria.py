@@ -120,30 +120,39 @@ def _normalize(tm: TransferMatrix) -> tuple[TransferMatrix, float]:
         for e in row:
             if e.is_zero:
                 continue
-            for c in (e.num, e.den):
-                nz = np.nonzero(c)[0]
-                if nz.size >= 2 and nz[-1] > nz[0]:
-                    mags.append((abs(c[nz[0]]) / abs(c[nz[-1]])) ** (1.0 / (nz[-1] - nz[0])))
+            for arr in (e.num, e.den):
+                c = arr.tolist()  # cleaned: the last coefficient is non-zero
+                k = 0
+                while c[k] == 0:
+                    k += 1
+                top = len(c) - 1
+                if top > k:
+                    mags.append((abs(c[k]) / abs(c[top])) ** (1.0 / (top - k)))
     if not mags:
         return tm, 1.0
     w0 = float(math.sqrt(min(mags) * max(mags)))
-    if not (np.isfinite(w0) and w0 > 0) or abs(math.log10(w0)) < 0.5:
+    if not (math.isfinite(w0) and w0 > 0) or abs(math.log10(w0)) < 0.5:
         return tm, 1.0
     # a power of two: the scaled coefficients c_k·w0^k / 2^e are then *exact* (no rounding), so
     # exact relations between the entries' coefficients (common factors, imaginary-axis poles,
     # cancellations) survive the normalization and the exact decisions see the given network
-    w0 = 2.0 ** round(math.log2(w0))
-    ent = [[e if e.is_zero else _scaled_exact(e, w0) for e in row] for row in tm.entries]
+    e0 = round(math.log2(w0))
+    w0 = 2.0**e0
+    ent = [[e if e.is_zero else _scaled_exact(e, e0) for e in row] for row in tm.entries]
     return TransferMatrix(ent, tm.kind, tm.port_dofs, tm.name), w0
 
 
-def _scaled_exact(e: Rational, w0: float) -> Rational:
-    """e(w0·s̃) with w0 a power of two, divided by a power of two near den's largest coefficient:
-    every coefficient is scaled exactly (barring under/overflow)."""
-    num = e.num * w0 ** np.arange(e.num.size)
-    den = e.den * w0 ** np.arange(e.den.size)
-    sc = 2.0 ** round(math.log2(float(np.max(np.abs(den)))))
-    return Rational(num / sc, den / sc)
+def _scaled_exact(e: Rational, e0: int) -> Rational:
+    """e(w0·s̃) with w0 = 2^e0, divided by a power of two near den's largest coefficient: every
+    coefficient is scaled exactly (``ldexp``), barring under/overflow (then the checked
+    constructor)."""
+    den = np.ldexp(e.den, e0 * np.arange(e.den.size))
+    es = round(math.log2(float(np.max(np.abs(den)))))
+    den = np.ldexp(den, -es)
+    num = np.ldexp(e.num, e0 * np.arange(e.num.size) - es)
+    if num[-1] != 0 and den[-1] != 0 and np.isfinite(num).all() and np.isfinite(den).all():
+        return Rational.trusted(num, den)
+    return Rational(num, den)
 
 
 def _rescale(conds: list[Condition], w0: float) -> list[Condition]:

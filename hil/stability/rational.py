@@ -69,6 +69,15 @@ class Rational:
 
     # -- constructors ---------------------------------------------------------------------
     @staticmethod
+    def trusted(num: np.ndarray, den: np.ndarray) -> Rational:
+        """Internal: a Rational from ascending float arrays the caller guarantees to be clean (1-D,
+        finite, last coefficient non-zero, den ≠ 0), without re-validating them."""
+        r = object.__new__(Rational)
+        object.__setattr__(r, "num", num)
+        object.__setattr__(r, "den", den)
+        return r
+
+    @staticmethod
     def from_desc(num: Sequence[float], den: Sequence[float] = (1.0,)) -> Rational:
         """From coefficients in descending powers of s, e.g. ``[m, b, k], [1, 0]`` = (ms²+bs+k)/s."""
         return Rational(np.asarray(num, float)[::-1], np.asarray(den, float)[::-1]).cancel_s()
