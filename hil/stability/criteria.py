@@ -192,8 +192,6 @@ def _desc(c: np.ndarray) -> list[float]:
 
 def _reduced_entries(tm: TransferMatrix) -> tuple[list[list[fmpq_poly | None]], list[list[fmpq_poly]]]:
     """Exact entries n_ij/d_ij with gcd(n_ij, d_ij) = 1 (None for zero entries)."""
-    from hil.stability.rational import _qpoly
-
     n = tm.n
     nums: list[list[fmpq_poly | None]] = [[None] * n for _ in range(n)]
     dens: list[list[fmpq_poly]] = [[fmpq_poly([1])] * n for _ in range(n)]
@@ -202,10 +200,7 @@ def _reduced_entries(tm: TransferMatrix) -> tuple[list[list[fmpq_poly | None]], 
             e = tm[i, j]
             if e.is_zero:
                 continue
-            num, den = _qpoly(e.num), _qpoly(e.den)
-            g = num.gcd(den)
-            if g.degree() > 0:
-                num, den = num // g, den // g
+            num, den = e.exact_reduced
             nums[i][j], dens[i][j] = num, den
     return nums, dens
 
@@ -570,12 +565,11 @@ QEntries = tuple[list[list["fmpq_poly | None"]], list[list[fmpq_poly]]]
 
 def _q_entries(sub: list[list[Rational]]) -> QEntries:
     """The exact (numerator or None for a zero entry, denominator) of float entries."""
-    from hil.stability.rational import _qpoly
 
     n = len(sub)
-    nums: list[list[fmpq_poly | None]] = [[None if sub[i][j].is_zero else _qpoly(sub[i][j].num)
+    nums: list[list[fmpq_poly | None]] = [[None if sub[i][j].is_zero else sub[i][j].exact[0]
                                            for j in range(n)] for i in range(n)]
-    dens = [[_qpoly(sub[i][j].den) for j in range(n)] for i in range(n)]
+    dens = [[sub[i][j].exact[1] for j in range(n)] for i in range(n)]
     return nums, dens
 
 

@@ -651,7 +651,9 @@ def _vas_count(f: Any, max_nodes: int = 2000) -> int | None:
     exact for V ∈ {0, 1}; otherwise the roots are split at 1 (f(x + 1) for (1, ∞),
     (x + 1)^n f(1/(x + 1)) for (0, 1), a root at 1 divided out and counted) after shifting by a
     power-of-two lower bound of the positive roots (Vincent's theorem: terminates for squarefree f).
-    None when ``max_nodes`` subdivisions do not suffice (the caller then uses root isolation)."""
+    None when ``max_nodes`` subdivisions do not suffice (the caller then uses root isolation).
+    For a polynomial that is not squarefree a result of 0 still proves that it has no positive
+    root (every leaf has no sign variation); other counts are only meaningful when squarefree."""
     from flint import fmpz_poly
 
     x_plus_1 = fmpz_poly([1, 1])
@@ -738,6 +740,11 @@ def exact_sign(p: fmpq_poly) -> ExactSign:
         return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
     # the factor x^k (the boundary x = 0) removed first, so no squarefree factor contains x
     p0 = fmpq_poly([p[i] for i in range(k, p.degree() + 1)]) if k else p
+    # the common case first: Descartes' rule on a subdivision proves that p0 has no positive root
+    # at all (whatever the multiplicities), so p has the sign of its lowest coefficient on x > 0
+    # and the squarefree decomposition is not needed
+    if p0.degree() > 4 and _vas_count(p0.numer(), max_nodes=64) == 0:  # (small degree: Sturm is cheaper)
+        return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
     _c, facs = p0.factor_squarefree()
     q_odd, q_even = fmpq_poly([1]), fmpq_poly([1])
     for f, e in facs:

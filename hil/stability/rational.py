@@ -184,6 +184,22 @@ class Rational:
         return self._zeros
 
     @functools.cached_property
+    def exact(self) -> tuple[fmpq_poly, fmpq_poly]:
+        """(num, den) as exact rational polynomials (the binary rationals the floats are), computed
+        once per object; callers must not modify them in place."""
+        return _qpoly(self.num), _qpoly(self.den)
+
+    @functools.cached_property
+    def exact_reduced(self) -> tuple[fmpq_poly, fmpq_poly]:
+        """(num, den) exactly, divided by their gcd over Q[s] (a zero numerator: den unchanged)."""
+        num, den = self.exact
+        if not num.is_zero():
+            g = num.gcd(den)
+            if g.degree() > 0:
+                num, den = num // g, den // g
+        return num, den
+
+    @functools.cached_property
     def _poles(self) -> np.ndarray:
         return _roots_asc(self.den)
 
@@ -416,7 +432,7 @@ class _RF:
 
     @staticmethod
     def of(r: Rational) -> _RF:
-        return _RF(_qpoly(r.num), _qpoly(r.den))
+        return _RF(*r.exact)
 
     @property
     def is_zero(self) -> bool:
