@@ -30,7 +30,6 @@ import math
 import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from fractions import Fraction
 from typing import Any, cast
 
 import numpy as np
@@ -337,8 +336,9 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian", marg
                          f"entry ({i + 1},{j + 1}) has a pole of order {top} at s = ∞ (degree excess {top})", ev)
     if top <= 0:
         return Condition(name, label, "satisfied", 1.0, None, "no pole at s = ∞ (all entries proper)", ev)
-    R = [[Fraction(0) if exc[i][j] != 1 else
-          Fraction(float(tm[i, j].num[-1])) / Fraction(float(tm[i, j].den[-1])) for j in range(n)] for i in range(n)]
+    R = [[fmpq(0) if exc[i][j] != 1 else
+          fmpq(*float(tm[i, j].num[-1]).as_integer_ratio()) / fmpq(*float(tm[i, j].den[-1]).as_integer_ratio())
+          for j in range(n)] for i in range(n)]
     Rf = np.array([[float(v) for v in row] for row in R])
     scale = float(np.max(np.abs(Rf))) or 1.0
     lam = np.linalg.eigvalsh((Rf + Rf.T) / 2)
@@ -360,7 +360,7 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian", marg
                                      "at s = ∞", ev)
     from hil.stability.residues import principal_minors
 
-    minors = principal_minors([[fmpq(v.numerator, v.denominator) for v in row] for row in R])
+    minors = principal_minors(R)
     perm_of: dict[tuple[int, ...], float] = {}
 
     def perm(idx: tuple[int, ...]) -> float:
@@ -1068,6 +1068,14 @@ def _exact_sqrt(P_: _RF) -> tuple[fmpq, _RF] | None:
     return kap / (lam * lam), _RF(a[1], b[1]) * _RF(fmpq_poly([lam]), fmpq_poly([1]), reduced=True)
 
 
+def _sqrt_of_pair(zij: _RF, zji: _RF) -> tuple[fmpq, _RF] | None:
+    """(κ, ρ) with z_ij z_ji = κ ρ² (:func:`_exact_sqrt`); a symmetric pair z_ij = z_ji needs no
+    factorization: κ = 1, ρ = z_ij."""
+    if _rf_equal(zij, zji):
+        return fmpq(1), zij
+    return _exact_sqrt(zij * zji)
+
+
 def _fmpq_sqrt(q: fmpq) -> fmpq | None:
     """The exact rational square root of q ≥ 0, or None when q is not a rational square."""
     num, den = int(q.p), int(q.q)
@@ -1267,7 +1275,7 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool 
             if tm[i, j].is_zero or tm[j, i].is_zero:
                 continue
             nz[i, j] = nz[j, i] = True
-            r = _exact_sqrt(RF[i][j] * RF[j][i])
+            r = _sqrt_of_pair(RF[i][j], RF[j][i])
             if r is None:
                 irrational.add((i, j))
             else:
