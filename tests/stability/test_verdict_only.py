@@ -31,6 +31,7 @@ def _same(tm: TransferMatrix, criterion: str) -> None:
     if full.failed_condition is None:
         assert fast.failed_condition is None
     else:
+        assert fast.failed_condition is not None
         assert full.condition(fast.failed_condition).status == full.condition(full.failed_condition).status
     assert [(c.name, c.status) for c in fast.conditions] == [(c.name, c.status) for c in full.conditions]
 
