@@ -6,8 +6,9 @@ real polynomial ``p`` (see :mod:`hil.stability.jpoly` and :mod:`hil.stability.cr
 **The path every criterion uses** (:func:`decide_exact`, :func:`exact_sign`): ``p`` is formed
 exactly over Q (``flint.fmpq_poly``) from the float coefficients, which are exact binary
 rationals, so its sign structure is decided without any tolerance -- squarefree decomposition,
-positive roots of the odd-multiplicity part counted by rigorous root isolation (Arb) or a Sturm
-sequence over Q, bands isolated exactly and located to double precision. Statuses: satisfied,
+positive roots of the odd-multiplicity part counted exactly (Sturm over Q for small degrees,
+Descartes' rule with continued-fraction subdivision over Z, :func:`_vas_count`, else; rigorous
+Arb isolation as the fallback), bands isolated exactly and located to double precision. Statuses: satisfied,
 touching (equality at isolated frequencies), equality (p ≡ 0), violated. The margin reported with
 it is defined in docs/VERDICTS.md (p/m_r with structural zeros factored out). A user tolerance on
 the inputs is handled by :func:`flips_within`. :func:`exact_poles` counts right-half-plane and
