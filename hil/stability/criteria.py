@@ -527,11 +527,11 @@ def _qpoly_float(p: fmpq_poly) -> np.ndarray:
 
 def _xq(c: fmpq_poly) -> tuple[fmpq_poly, fmpq_poly]:
     """N(jω) = a(x) + jω·b(x) for an exact polynomial N(s)."""
-    a: list[fmpq] = []
-    b: list[fmpq] = []
-    for k in range(c.degree() + 1):
-        v = c[k] if (k // 2) % 2 == 0 else -c[k]
-        (a if k % 2 == 0 else b).append(v)
+    co = c.coeffs()  # c_0 + c_1 s + ...: at s = jω, s^k = (jω)^k = (-x)^(k//2)·(jω)^(k%2)
+    a = co[0::2]
+    b = co[1::2]
+    a[1::2] = [-v for v in a[1::2]]
+    b[1::2] = [-v for v in b[1::2]]
     return fmpq_poly(a), fmpq_poly(b)
 
 
