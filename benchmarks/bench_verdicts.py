@@ -5,8 +5,8 @@ Rows (each the criterion the CLI would run): a passive one-port of degree 4, the
 000 (k_vm1 = 64) by Theorem 1, and the 2-DOF bilateral teleoperator of paper 000 (4×4, gains A1)
 by Theorem 1. For each: the exact verdict with margins, without margins (verdict only), a
 10⁴-point numpy grid of the same frequency conditions (which decides nothing exactly), the ratios
-exact/grid, and python-control's ``ispassive`` where python-control is installed (it is not a
-dependency of this project). Warm medians of process CPU time over repeated calls; the network
+exact/grid (python-control's ``ispassive``, issue 15's third baseline, is not a dependency of this
+project and is not run). Warm medians of process CPU time over repeated calls; the network
 object is fresh for each call (no per-object cache).
 
 Not a test: prints a table, asserts nothing. Run: ``python benchmarks/bench_verdicts.py``
@@ -87,27 +87,13 @@ def median_time(f: Callable[[], object], reps: int) -> float:
     return statistics.median(ts)
 
 
-def ispassive_time(tm: TransferMatrix) -> str:
-    try:
-        import control  # type: ignore[import-not-found]  # optional, not a dependency
-    except ImportError:
-        return "n/a"
-    try:
-        sys_ = control.tf([[list(tm[i, j].num[::-1]) for j in range(tm.n)] for i in range(tm.n)],
-                          [[list(tm[i, j].den[::-1]) for j in range(tm.n)] for i in range(tm.n)])
-        t = median_time(lambda: control.ispassive(sys_), 5)
-        return f"{t * 1e3:.2f}ms ({control.ispassive(sys_)})"
-    except Exception as e:  # report what python-control does (it raises on improper systems)
-        return f"raises ({type(e).__name__})"
-
-
 def _call(make: Callable[[], TransferMatrix], crit: Callable[..., object], **kw: bool) -> object:
     return crit(make(), **kw)
 
 
 def main(reps: int = 41) -> None:
     hdr = (f"{'work':34s} {'verdict':22s} {'exact':>10s} {'no margins':>11s} {'grid 1e4':>10s} "
-           f"{'exact/grid':>10s} {'nm/grid':>8s}  ispassive")
+           f"{'exact/grid':>10s} {'nm/grid':>8s}")
     print("Exact verdict time, warm median per call (fresh network each call), against a 1e4-point numpy grid")
     print(hdr)
     print("-" * len(hdr))
@@ -124,7 +110,7 @@ def main(reps: int = 41) -> None:
         te -= tb
         tg = median_time(partial(grid, tm, kind), max(5, reps // 4))
         print(f"{name:34s} {verdict!s:22s} {te * 1e6:8.0f}µs {tn * 1e6:9.0f}µs {tg * 1e6:8.0f}µs "
-              f"{te / tg:10.2f} {tn / tg:8.2f}  {ispassive_time(tm)}")
+              f"{te / tg:10.2f} {tn / tg:8.2f}")
     print("(exact: the criterion with margins; no margins: verdict only (margins=False); times are process CPU "
           "time, excluding building the network; grid: numpy, decides nothing exactly)")
 
