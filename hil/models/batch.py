@@ -168,7 +168,7 @@ def critical_band(t: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
         go, gi = g[i_out, cols], g[i_in, cols]
         with np.errstate(invalid="ignore", divide="ignore"):
             a = np.clip(np.where(go != gi, (thr - gi) / (go - gi), 0.0), 0.0, 1.0)
-        return np.exp(lw[i_in] + a * (lw[i_out] - lw[i_in]))
+        return np.asarray(np.exp(lw[i_in] + a * (lw[i_out] - lw[i_in])))
 
     io = np.clip(brk_lo, 0, m - 2)
     lo = np.where(brk_lo < 0, grid[0], edge(io, io + 1))

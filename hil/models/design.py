@@ -22,6 +22,7 @@ import logging
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from scipy.optimize import minimize_scalar
 
@@ -50,7 +51,7 @@ class K22Design:
     k22_max: float
     evaluations: int
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {"criterion": self.criterion, "alpha": self.alpha, "b22": self.b22, "k22_max": self.k22_max,
                 "evaluations": self.evaluations}
 
@@ -63,7 +64,7 @@ class _Counter:
 DESIGN_FIXED = tuple(k for k in SDEA_TABLE1 if k not in ("k22", "b22", "alpha"))
 
 
-def _plain(x: object) -> str:
+def _plain(x: Any) -> str:
     """A value for a message: numbers (numpy ones too) as plain floats, never ``np.float64(...)``."""
     try:
         return repr(float(x)) if not isinstance(x, bool | str) else repr(x)

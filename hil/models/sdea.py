@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from hil.errors import ModelError
 from hil.stability.rational import Rational, S, TransferMatrix
@@ -153,7 +154,7 @@ def lemma5_nonnegative_cubic(p3: float, p2: float, p1: float, p0: float) -> bool
     return bool(sig > 0 and s3 < 0 and 4 * p2 * s3 < 4 * p1 * sig + 3 * p3 * s3 * s3 / sig)
 
 
-def sdea_polynomials(q: Mapping) -> dict:
+def sdea_polynomials(q: Mapping[str, Any]) -> dict[str, Any]:
     """Coefficients of eq. (12)'s a(s), and of the (c-i) cubic r(x) (eq. 34) and (c-ii) cubic t(x)
     (eq. 36), for a mapping of scalars **or numpy arrays** (vectorized over draws; no validation).
 

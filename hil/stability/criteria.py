@@ -27,9 +27,10 @@ from __future__ import annotations
 import itertools
 import logging
 import math
-from collections.abc import Iterable
+import re
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from fractions import Fraction
+from typing import Any, cast
 
 import numpy as np
 from flint import fmpq, fmpq_poly
@@ -40,13 +41,12 @@ from hil.stability.exact import (
     DEFAULT_TOL,
     SignDecision,
     decide_exact,
-    decide_nonnegative,
     exact_poles,
     flips_within,
 )
 from hil.stability.jpoly import JPoly, XPoly, trim_back
-from hil.stability.rational import Rational, TransferMatrix
-from hil.stability.results import Condition, StabilityResult, combine
+from hil.stability.rational import _RF, Rational, TransferMatrix, _to_rf
+from hil.stability.results import Condition, ConditionStatus, StabilityResult, combine
 
 log = logging.getLogger(__name__)
 
@@ -72,10 +72,9 @@ class Tolerances:
 
     ``rtol`` (default 0): a relative tolerance on the coefficients; a condition whose status can
     flip under such a perturbation is ``marginal``. With 0 every verdict is the exact one for the
-    given coefficients. ``poly``: the rounding bound used only for conditions formed from derived
-    (rounded) entries (Theorem 1's Z' of blocks ≥ 3). ``residue``: residue matrices at finite
-    imaginary-axis poles (floating point) within it of singular count as singular. ``pole``: unused
-    (poles are located exactly), kept for compatibility."""
+    given coefficients. ``poly``, ``pole`` and ``residue``: unused (every condition is formed and
+    decided exactly: Theorem 1's Z' over Q, poles by Routh-Hurwitz over Q, residues in Q[x]/(f),
+    :mod:`hil.stability.residues`), kept for compatibility."""
 
     poly: float = DEFAULT_TOL
     pole: float = POLE_TOL
@@ -94,14 +93,14 @@ def _as_tm(g: TransferMatrix | Rational) -> TransferMatrix:
     return g
 
 
-def _netinfo(tm: TransferMatrix, w0: float = 1.0) -> dict:
+def _netinfo(tm: TransferMatrix, w0: float = 1.0) -> dict[str, Any]:
     return {"name": tm.name, "type": tm.kind, "ports": list(tm.port_dofs), "size": tm.n, "omega_scale": w0}
 
 
 def _normalized(tm: TransferMatrix) -> tuple[TransferMatrix, float]:
     cached = getattr(tm, "_normalized_cache", None)
     if cached is not None:
-        return cached
+        return cast("tuple[TransferMatrix, float]", cached)
     out = _normalize(tm)
     tm._normalized_cache = out  # type: ignore[attr-defined]  # entries are never mutated in place
     return out
@@ -120,30 +119,39 @@ def _normalize(tm: TransferMatrix) -> tuple[TransferMatrix, float]:
         for e in row:
             if e.is_zero:
                 continue
-            for c in (e.num, e.den):
-                nz = np.nonzero(c)[0]
-                if nz.size >= 2 and nz[-1] > nz[0]:
-                    mags.append((abs(c[nz[0]]) / abs(c[nz[-1]])) ** (1.0 / (nz[-1] - nz[0])))
+            for arr in (e.num, e.den):
+                c = arr.tolist()  # cleaned: the last coefficient is non-zero
+                k = 0
+                while c[k] == 0:
+                    k += 1
+                top = len(c) - 1
+                if top > k:
+                    mags.append((abs(c[k]) / abs(c[top])) ** (1.0 / (top - k)))
     if not mags:
         return tm, 1.0
     w0 = float(math.sqrt(min(mags) * max(mags)))
-    if not (np.isfinite(w0) and w0 > 0) or abs(math.log10(w0)) < 0.5:
+    if not (math.isfinite(w0) and w0 > 0) or abs(math.log10(w0)) < 0.5:
         return tm, 1.0
     # a power of two: the scaled coefficients c_k·w0^k / 2^e are then *exact* (no rounding), so
     # exact relations between the entries' coefficients (common factors, imaginary-axis poles,
     # cancellations) survive the normalization and the exact decisions see the given network
-    w0 = 2.0 ** round(math.log2(w0))
-    ent = [[e if e.is_zero else _scaled_exact(e, w0) for e in row] for row in tm.entries]
+    e0 = round(math.log2(w0))
+    w0 = 2.0**e0
+    ent = [[e if e.is_zero else _scaled_exact(e, e0) for e in row] for row in tm.entries]
     return TransferMatrix(ent, tm.kind, tm.port_dofs, tm.name), w0
 
 
-def _scaled_exact(e: Rational, w0: float) -> Rational:
-    """e(w0·s̃) with w0 a power of two, divided by a power of two near den's largest coefficient:
-    every coefficient is scaled exactly (barring under/overflow)."""
-    num = e.num * w0 ** np.arange(e.num.size)
-    den = e.den * w0 ** np.arange(e.den.size)
-    sc = 2.0 ** round(math.log2(float(np.max(np.abs(den)))))
-    return Rational(num / sc, den / sc)
+def _scaled_exact(e: Rational, e0: int) -> Rational:
+    """e(w0·s̃) with w0 = 2^e0, divided by a power of two near den's largest coefficient: every
+    coefficient is scaled exactly (``ldexp``), barring under/overflow (then the checked
+    constructor)."""
+    den = np.ldexp(e.den, e0 * np.arange(e.den.size))
+    es = round(math.log2(float(np.max(np.abs(den)))))
+    den = np.ldexp(den, -es)
+    num = np.ldexp(e.num, e0 * np.arange(e.num.size) - es)
+    if num[-1] != 0 and den[-1] != 0 and np.isfinite(num).all() and np.isfinite(den).all():
+        return Rational.trusted(num, den)
+    return Rational(num, den)
 
 
 def _rescale(conds: list[Condition], w0: float) -> list[Condition]:
@@ -181,43 +189,19 @@ def _desc(c: np.ndarray) -> list[float]:
 # poles and residues
 
 
-@dataclass
-class _AxisPole:
-    w: float  # imaginary part (rad/s), >= 0 (conjugate handled by symmetry)
-    exact: bool
-    re: float
-
-
-def _entry_axis_poles(e: Rational, tol: Tolerances) -> tuple[list[complex], list[tuple[float, int, bool]]]:
-    """RHP poles and imaginary-axis poles (w, multiplicity, exact) of one entry, decided exactly
-    (:func:`hil.stability.exact.exact_poles` on the reduced denominator: counts and multiplicities
-    exact, locations to double precision). ``tol`` is not used (kept for the signature)."""
-    from hil.stability.rational import _qpoly
-
-    n, d = _qpoly(e.num), _qpoly(e.den)
-    if n != 0:
-        g = n.gcd(d)
-        if g.degree() > 0:
-            d = d // g
-    ep = exact_poles(d)
-    axis: list[tuple[float, int, bool]] = [(0.0, ep.n_zero, True)] if ep.n_zero else []
-    axis += [(math.sqrt(x), mult, True) for x, mult in ep.axis]
-    rhp: list[complex] = []
-    if ep.n_rhp:
-        c = np.array([float(d[k]) for k in range(d.degree(), -1, -1)])
-        r = sorted(np.roots(c), key=lambda z: -z.real)
-        rhp = [complex(z) for z in r[: ep.n_rhp]]
-    return rhp, axis
-
-
-def _residue(e: Rational, w: float) -> complex:
-    """Residue of a simple pole at s = jw (0 if jw is not a pole of e)."""
-    s0 = 1j * w
-    d = P.polyval(s0, e.den)
-    if abs(d) > 1e-9 * P.polyval(abs(s0), np.abs(e.den)):
-        return 0.0
-    dd = P.polyval(s0, P.polyder(e.den))
-    return complex(P.polyval(s0, e.num) / dd)
+def _reduced_entries(tm: TransferMatrix) -> tuple[list[list[fmpq_poly | None]], list[list[fmpq_poly]]]:
+    """Exact entries n_ij/d_ij with gcd(n_ij, d_ij) = 1 (None for zero entries)."""
+    n = tm.n
+    nums: list[list[fmpq_poly | None]] = [[None] * n for _ in range(n)]
+    dens: list[list[fmpq_poly]] = [[fmpq_poly([1])] * n for _ in range(n)]
+    for i in range(n):
+        for j in range(n):
+            e = tm[i, j]
+            if e.is_zero:
+                continue
+            num, den = e.exact_reduced
+            nums[i][j], dens[i][j] = num, den
+    return nums, dens
 
 
 def _permanent_abs(K: np.ndarray) -> float:
@@ -226,10 +210,21 @@ def _permanent_abs(K: np.ndarray) -> float:
     return float(sum(np.prod([A[i, p[i]] for i in range(n)]) for p in itertools.permutations(range(n))))
 
 
+def _rhp_poles(d: fmpq_poly) -> list[complex]:
+    """The open right-half-plane roots of an exact polynomial: the count exact
+    (:func:`hil.stability.exact.exact_poles`), the locations to double precision."""
+    ep = exact_poles(d)
+    if not ep.n_rhp:
+        return []
+    c = np.array([float(d[k]) for k in range(d.degree(), -1, -1)])
+    r = sorted(np.roots(c), key=lambda z: -z.real)
+    return [complex(z) for z in r[: ep.n_rhp]]
+
+
 def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: Tolerances = TOL,
-                    w0: float = 1.0) -> list[Condition]:
+                    w0: float = 1.0, margins: bool = True) -> list[Condition]:
     """Conditions on poles of every entry: (C) none in the open RHP; (D) imaginary-axis poles are
-    simple with an admissible residue matrix.
+    simple with an admissible residue matrix, decided exactly (:mod:`hil.stability.residues`).
 
     ``residue_test="hermitian"`` (positive realness): the residue matrix K must be Hermitian
     positive semidefinite. ``residue_test="minors"`` (Theorem 1 / Llewellyn): every principal
@@ -238,24 +233,35 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
     minors, hence PSD). The k12 = k21* clause printed with Llewellyn's criterion in paper 000
     (eq. 57) is *not* imposed: the paper's own case study (eq. 25, residues -k_pm1, -k_pm2) violates
     it while being declared stable, and Theorem 1 (which 000 says reduces to Llewellyn) does not
-    need it.
+    need it. ``w0``: the frequency normalization of ``tm`` (residues are reported physical).
+    ``margins=False``: C's margin (the smallest damping ratio, from float roots) and its ``poles``
+    evidence are not computed (verdict unchanged).
     """
+    from hil.stability.residues import (
+        ResidueDecision,
+        axis_poles,
+        decide_rational_residues,
+        decide_residues,
+        residue_matrix,
+        residues_at_zero,
+    )
+
     n = tm.n
+    nums, dens = _reduced_entries(tm)
     rhp_all: list[tuple[int, int, complex]] = []
-    axis: dict[float, dict] = {}
+    D = fmpq_poly([1])
     for i in range(n):
         for j in range(n):
-            e = tm[i, j]
-            if e.is_zero:
-                continue
-            rhp, ax = _entry_axis_poles(e, tol)
-            rhp_all += [(i, j, p) for p in rhp]
-            for w, mult, exact in ax:
-                key = next((k for k in axis if abs(k - w) <= 1e-6 * max(w, 1e-300)), w)
-                rec = axis.setdefault(key, {"mult": 1, "exact": True, "entries": []})
-                rec["mult"] = max(rec["mult"], mult)
-                rec["exact"] = rec["exact"] and exact
-                rec["entries"].append((i, j))
+            if nums[i][j] is not None:
+                d = dens[i][j]
+                D = D * d // D.gcd(d)
+    # the roots of D are those of all the entries: one exact RHP count decides C; the entries are
+    # searched only to name the offending ones
+    if exact_poles(D).n_rhp:
+        for i in range(n):
+            for j in range(n):
+                if nums[i][j] is not None:
+                    rhp_all += [(i, j, p) for p in _rhp_poles(dens[i][j])]
     conds: list[Condition] = []
     if rhp_all:
         worst = max(rhp_all, key=lambda t: t[2].real / abs(t[2]))
@@ -263,69 +269,42 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
             "C", "no poles in the open right-half plane", "violated", -worst[2].real / abs(worst[2]),
             abs(worst[2].imag), f"entry ({worst[0] + 1},{worst[1] + 1}) has a pole at {worst[2] * w0:.6g} rad/s",
             {"rhp_poles": [{"entry": [i + 1, j + 1], "pole": p} for i, j, p in rhp_all]}))
+    elif not margins:
+        conds.append(Condition("C", "no poles in the open right-half plane", "satisfied", math.nan, None,
+                               "all poles in the closed left-half plane", {}))
     else:
         allp = [p for row in tm.entries for e in row if not e.is_zero for p in e.poles()]
-        m = min((-p.real / abs(p) for p in allp if abs(p) > 0 and -p.real > tol.pole * abs(p)), default=1.0)
+        m = min((-p.real / abs(p) for p in allp if abs(p) > 0 and -p.real > 1e-9 * abs(p)), default=1.0)
         conds.append(Condition("C", "no poles in the open right-half plane", "satisfied", float(m), None,
                                "all poles in the closed left-half plane", {"poles": allp}))
-    for w, rec in sorted(axis.items()):
+    for pole in axis_poles(D):
+        w = pole.omega
         name = f"D[ω={w:.6g}]"
         wp = w * w0  # physical rad/s, for the detail lines
         label = "imaginary-axis pole simple with admissible residues"
-        if rec["mult"] > 1:
+        if pole.multiplicity > 1:
             conds.append(Condition(name, label, "violated", -1.0, w,
-                                   f"pole at s = j{wp:.6g} has multiplicity {rec['mult']}",
-                                   {"multiplicity": rec["mult"]}))
+                                   f"pole at s = j{wp:.6g} has multiplicity {pole.multiplicity}",
+                                   {"multiplicity": pole.multiplicity}))
             continue
-        # residues of the frequency-normalized entries are the physical ones divided by w0
-        K = w0 * np.array([[_residue(tm[i, j], w) if not tm[i, j].is_zero else 0.0 for j in range(n)]
-                           for i in range(n)], dtype=complex)
-        scale = float(np.max(np.abs(K))) or 1.0
-        ev: dict = {"pole": complex(0, w), "residues": K, "exact_on_axis": rec["exact"]}
-        if residue_test == "hermitian":
-            herm_err = float(np.max(np.abs(K - K.conj().T))) / scale
-            lam = np.linalg.eigvalsh((K + K.conj().T) / 2)
-            margin = float(np.min(lam)) / scale
-            ev["eigenvalues"] = lam
-            if herm_err > tol.residue:
-                status, detail = "violated", f"residue matrix at s = j{wp:.6g} is not Hermitian"
-                margin = -herm_err
-            elif margin < -tol.residue:
-                status, detail = "violated", f"residue matrix at s = j{wp:.6g} is not positive semidefinite"
-            elif margin <= tol.residue:
-                status, detail = "equality", f"residue matrix at s = j{wp:.6g} is singular (PSD)"
-                margin = 0.0
-            else:
-                status, detail = "satisfied", "residue matrix positive definite"
+        fast = None
+        if pole.x0 == 0 and not margins and tol.rtol == 0:
+            # verdict only at s = 0: a rational residue matrix, decided in Q without floats
+            fast = decide_rational_residues(residues_at_zero(nums, dens), residue_test)
+        if fast is not None:
+            dec = ResidueDecision(fast[0], 0.0 if fast[0] == "equality" else math.nan, fast[1], {})
         else:
-            status, margin, detail = _residue_minors(K, tol)
-        if status in ("satisfied", "equality") and not rec["exact"]:
-            status, detail = "marginal", detail + "; pole only within tolerance of the imaginary axis"
-        conds.append(Condition(name, label, status, margin, w, detail, ev))
+            dec = decide_residues(residue_matrix(nums, dens, D, pole, w0), residue_test, tol.rtol, margins)
+        ev = dec.evidence
+        ev["pole"] = complex(0, w)
+        at = f" at s = j{wp:.6g}"
+        mt = re.search(r"residue( matrix)?", dec.detail)
+        detail = dec.detail[: mt.end()] + at + dec.detail[mt.end():] if mt else dec.detail + at
+        conds.append(Condition(name, label, dec.status, dec.margin, w, detail, ev))  # type: ignore[arg-type]
     return conds
 
 
-def _frac_det(A: list[list[Fraction]]) -> Fraction:
-    """Exact determinant of a small matrix of Fractions (Gaussian elimination over Q)."""
-    M = [list(r) for r in A]
-    n = len(M)
-    det = Fraction(1)
-    for c in range(n):
-        piv = next((r for r in range(c, n) if M[r][c] != 0), None)
-        if piv is None:
-            return Fraction(0)
-        if piv != c:
-            M[c], M[piv] = M[piv], M[c]
-            det = -det
-        det *= M[c][c]
-        for r in range(c + 1, n):
-            f = M[r][c] / M[c][c]
-            if f:
-                M[r] = [a - f * b for a, b in zip(M[r], M[c], strict=True)]
-    return det
-
-
-def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> Condition:
+def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian", margins: bool = True) -> Condition:
     """Condition D[ω=∞]: at most a simple pole at s = ∞ with an admissible residue matrix.
 
     Positive realness (and therefore passivity, Llewellyn and Theorem 1, which all reduce to
@@ -342,13 +321,14 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> C
     Evidence: ``degree_excess`` per entry (None for zero entries), ``residue_inf`` (R, floats),
     ``eigenvalues`` (of the symmetric part of R) and the decisive exact minor. Margin: the
     smallest eigenvalue of the symmetric part of R over max|r_ij| (``minors``: the smallest
-    principal minor over the permanent of |R|), invariant under s → a·s and G → b·G.
+    principal minor over the permanent of |R|), invariant under s → a·s and G → b·G;
+    ``margins=False``: not computed (nan), the status unchanged.
     """
     n = tm.n
     name, label = "D[ω=∞]", "pole at s = ∞ at most simple with admissible residue R = lim G(s)/s"
     exc: list[list[int | None]] = [[None if tm[i, j].is_zero else int(tm[i, j].num.size - tm[i, j].den.size)
                                     for j in range(n)] for i in range(n)]
-    ev: dict = {"degree_excess": exc, "pole": math.inf}
+    ev: dict[str, Any] = {"degree_excess": exc, "pole": math.inf}
     top = max((d for row in exc for d in row if d is not None), default=-1)
     if top >= 2:
         i, j = next((i, j) for i in range(n) for j in range(n) if exc[i][j] == top)
@@ -356,8 +336,9 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> C
                          f"entry ({i + 1},{j + 1}) has a pole of order {top} at s = ∞ (degree excess {top})", ev)
     if top <= 0:
         return Condition(name, label, "satisfied", 1.0, None, "no pole at s = ∞ (all entries proper)", ev)
-    R = [[Fraction(0) if exc[i][j] != 1 else
-          Fraction(float(tm[i, j].num[-1])) / Fraction(float(tm[i, j].den[-1])) for j in range(n)] for i in range(n)]
+    R = [[fmpq(0) if exc[i][j] != 1 else
+          fmpq(*float(tm[i, j].num[-1]).as_integer_ratio()) / fmpq(*float(tm[i, j].den[-1]).as_integer_ratio())
+          for j in range(n)] for i in range(n)]
     Rf = np.array([[float(v) for v in row] for row in R])
     scale = float(np.max(np.abs(Rf))) or 1.0
     lam = np.linalg.eigvalsh((Rf + Rf.T) / 2)
@@ -377,17 +358,29 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> C
                     return Condition(name, label, "violated", -1.0, math.inf,
                                      f"r{i + 1}{j + 1}·r{j + 1}{i + 1} = {float(R[i][j] * R[j][i]):.4g} < 0 "
                                      "at s = ∞", ev)
+    from hil.stability.residues import principal_minors
+
+    minors = principal_minors(R)
+    perm_of: dict[tuple[int, ...], float] = {}
+
+    def perm(idx: tuple[int, ...]) -> float:
+        if idx not in perm_of:
+            perm_of[idx] = _permanent_abs(Rf[np.ix_(idx, idx)])
+        return perm_of[idx]
+
     worst: tuple[float, tuple[int, ...]] | None = None
     zero_minor: tuple[int, ...] | None = None
-    for k in range(1, n + 1):
-        for idx in itertools.combinations(range(n), k):
-            mnr = _frac_det([[R[a][b] for b in idx] for a in idx])
-            perm = _permanent_abs(Rf[np.ix_(idx, idx)])
-            rel = float(mnr) / perm if perm else 0.0
-            if mnr < 0 and (worst is None or rel < worst[0]):
+    for idx, mnr in minors.items():
+        if mnr < 0:
+            if not margins:
+                worst = (-1e-300, idx) if worst is None else worst
+                continue
+            pm = perm(idx)
+            rel = float(mnr) / pm if pm else 0.0
+            if worst is None or rel < worst[0]:
                 worst = (min(rel, -1e-300), idx)
-            if mnr == 0 and zero_minor is None and perm:
-                zero_minor = idx
+        elif mnr == 0 and zero_minor is None and perm(idx):
+            zero_minor = idx
     if worst is not None:
         ev["negative_minor"] = [i + 1 for i in worst[1]]
         margin = float(np.min(lam)) / lam_scale if residue_test == "hermitian" else worst[0]
@@ -397,51 +390,18 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian") -> C
         return Condition(name, label, "violated", margin, math.inf,
                          f"residue matrix at s = ∞ is {what}: principal minor {_lbl(worst[1])} < 0 "
                          f"(eigenvalues {', '.join(f'{v:.4g}' for v in lam)})", ev)
-    if residue_test == "hermitian":
+    if not margins:
+        margin = math.nan
+    elif residue_test == "hermitian":
         margin = max(float(np.min(lam)) / lam_scale, 0.0)
     else:
-        margin = min((float(_frac_det([[R[a][b] for b in idx] for a in idx])) / _permanent_abs(Rf[np.ix_(idx, idx)])
-                      for k in range(1, n + 1) for idx in itertools.combinations(range(n), k)
-                      if _permanent_abs(Rf[np.ix_(idx, idx)])), default=1.0)
+        margin = min((float(mnr) / perm(idx) for idx, mnr in minors.items() if perm(idx)), default=1.0)
     if zero_minor is not None or any(R[i][i] == 0 for i in range(n)):
         idx = zero_minor if zero_minor is not None else (next(i for i in range(n) if R[i][i] == 0),)
         return Condition(name, label, "equality", 0.0, math.inf,
                          f"simple pole at s = ∞, residue matrix singular (minor {_lbl(idx)} = 0, PSD)", ev)
-    return Condition(name, label, "satisfied", float(min(margin, 1.0)), math.inf,
+    return Condition(name, label, "satisfied", float(min(margin, 1.0)) if margins else math.nan, math.inf,
                      "simple pole at s = ∞ with positive definite residue matrix", ev)
-
-
-def _residue_minors(K: np.ndarray, tol: Tolerances) -> tuple[str, float, str]:
-    n = K.shape[0]
-    worst = math.inf
-    status = "satisfied"
-    detail = "principal minors of the residue matrix are positive"
-    for i in range(n):
-        for j in range(i + 1, n):
-            prod = K[i, j] * K[j, i]
-            sc = abs(K[i, j]) * abs(K[j, i])
-            if sc and (abs(prod.imag) > tol.residue * sc or prod.real < -tol.residue * sc):
-                return "violated", -1.0, f"k{i + 1}{j + 1}·k{j + 1}{i + 1} = {prod:.4g} is not real and ≥ 0"
-    for k in range(1, n + 1):
-        for idx in itertools.combinations(range(n), k):
-            sub = K[np.ix_(idx, idx)]
-            mnr = np.linalg.det(sub) if k > 1 else sub[0, 0]
-            perm = _permanent_abs(sub)
-            if perm == 0:
-                continue
-            rel = mnr.real / perm
-            if abs(mnr.imag) > 1e-6 * perm:
-                return ("violated", -abs(mnr.imag) / perm,
-                        f"principal minor {_lbl(idx)} of the residue matrix is complex")
-            if rel < worst:
-                worst = rel
-            if rel < -tol.residue:
-                return ("violated", rel,
-                        f"principal minor {_lbl(idx)} of the residue matrix is negative ({mnr.real:.4g})")
-            if rel <= tol.residue:
-                status = "equality"
-                detail = f"principal minor {_lbl(idx)} of the residue matrix is zero"
-    return status, (0.0 if status == "equality" else float(min(worst, 1.0))), detail
 
 
 def _lbl(idx: Iterable[int]) -> str:
@@ -483,7 +443,8 @@ def _perm_batch(A: np.ndarray) -> np.ndarray:
     return out
 
 
-def _hermitian_ratio(sub: list[list[Rational]], values=None):
+def _hermitian_ratio(sub: list[list[Rational]], values: Callable[[np.ndarray], np.ndarray] | None = None
+                     ) -> Callable[[np.ndarray], np.ndarray]:
     """ω ↦ det(H)/perm(|G|+|Gᵀ|) with H = G + Gᴴ on the index set: in [-1, 1], scale invariant,
     identical for every immittance form that describes the same passive quantity. ``values``
     (ω ↦ G(jω)) replaces the plain frequency response (e.g. by its regular part)."""
@@ -504,7 +465,8 @@ def _hermitian_ratio(sub: list[list[Rational]], values=None):
     return f
 
 
-def _eta_ratio(sub: list[list[Rational]], scale_values=None):
+def _eta_ratio(sub: list[list[Rational]], scale_values: Callable[[np.ndarray], np.ndarray] | None = None
+               ) -> Callable[[np.ndarray], np.ndarray]:
     """ω ↦ η/(2|p11||p22| + 2|p12 p21|), Llewellyn's η normalized to [-1, 1]. ``scale_values``
     (ω ↦ G_reg(jω), the regular part) supplies the scale when imaginary-axis poles were cancelled;
     η itself is always evaluated on G."""
@@ -528,38 +490,6 @@ def _eta_ratio(sub: list[list[Rational]], scale_values=None):
 
 # ------------------------------------------------------------------------------------------
 # polynomial conditions
-
-
-class _CommonDen:
-    """Exact common denominator of a set of entries (float API for the design search).
-
-    d = lcm of the entries' denominators over Q[s] (FLINT, the float coefficients read as the exact
-    binary rationals they are; no tolerance), rounded to floats once; ``numerator(e)`` is
-    n·(d/den) formed exactly and rounded once. Near-divisibility is never accepted: a denominator
-    that differs from another by rounding is a different polynomial and enters the lcm."""
-
-    def __init__(self, entries: list[list[Rational]]) -> None:
-        from hil.stability.rational import _qpoly
-
-        D = fmpq_poly([1])
-        for row in entries:
-            for e in row:
-                if not e.is_zero:
-                    den = _qpoly(e.den)
-                    D = D * den // D.gcd(den)
-        self.D = D
-        self.d = _qpoly_float(D)
-
-    def numerator(self, e: Rational) -> np.ndarray:
-        from hil.stability.rational import _qpoly
-
-        if e.is_zero:
-            return np.zeros(1)
-        den = _qpoly(e.den)
-        q, r = divmod(self.D, den)
-        if r != 0:  # pragma: no cover - every entry's denominator divides the lcm exactly
-            raise ModelError("internal: entry denominator does not divide the common denominator")
-        return _qpoly_float(_qpoly(e.num) * q)
 
 
 def _qpoly_float(p: fmpq_poly) -> np.ndarray:
@@ -597,11 +527,11 @@ def _qpoly_float(p: fmpq_poly) -> np.ndarray:
 
 def _xq(c: fmpq_poly) -> tuple[fmpq_poly, fmpq_poly]:
     """N(jω) = a(x) + jω·b(x) for an exact polynomial N(s)."""
-    a: list[fmpq] = []
-    b: list[fmpq] = []
-    for k in range(c.degree() + 1):
-        v = c[k] if (k // 2) % 2 == 0 else -c[k]
-        (a if k % 2 == 0 else b).append(v)
+    co = c.coeffs()  # c_0 + c_1 s + ...: at s = jω, s^k = (jω)^k = (-x)^(k//2)·(jω)^(k%2)
+    a = co[0::2]
+    b = co[1::2]
+    a[1::2] = [-v for v in a[1::2]]
+    b[1::2] = [-v for v in b[1::2]]
     return fmpq_poly(a), fmpq_poly(b)
 
 
@@ -630,28 +560,32 @@ class _Setup:
     Dcf: JPoly
 
 
-def _setup(sub: list[list[Rational]], need_m: bool = True) -> _Setup:
-    from hil.stability.rational import _qpoly
+QEntries = tuple[list[list["fmpq_poly | None"]], list[list[fmpq_poly]]]
+
+
+def _q_entries(sub: list[list[Rational]]) -> QEntries:
+    """The exact (numerator or None for a zero entry, denominator) of float entries."""
 
     n = len(sub)
-    nums = [[None if sub[i][j].is_zero else _qpoly(sub[i][j].num) for j in range(n)] for i in range(n)]
-    dens = [[_qpoly(sub[i][j].den) for j in range(n)] for i in range(n)]
+    nums: list[list[fmpq_poly | None]] = [[None if sub[i][j].is_zero else sub[i][j].exact[0]
+                                           for j in range(n)] for i in range(n)]
+    dens = [[sub[i][j].exact[1] for j in range(n)] for i in range(n)]
+    return nums, dens
+
+
+def _setup(sub: list[list[Rational]], need_m: bool = True, q: QEntries | None = None) -> _Setup:
+    """``q``: the entries given exactly (then ``sub`` is only used for its size)."""
+    nums, dens = q if q is not None else _q_entries(sub)
+    n = len(nums)
     D, h, mu = _axis_factor([dens[i][j] for i in range(n) for j in range(n) if nums[i][j] is not None])
     E, O = _xq(D)
     Dc = (E, -O)
     zero = (fmpq_poly([]), fmpq_poly([]))
-    u = [[zero if nums[i][j] is None else _xq(nums[i][j] * (D // dens[i][j])) for j in range(n)] for i in range(n)]
+    u = [[zero if (nij := nums[i][j]) is None else _xq(nij * (D // dens[i][j])) for j in range(n)] for i in range(n)]
     if not need_m:
         return _Setup(u, Dc, h, mu, [], JPoly.zero())
     uf = [[_jfloat(e) for e in row] for row in u]
     return _Setup(u, Dc, h, mu, uf, _jfloat(Dc))
-
-
-def _axis_numerators(sub: list[list[Rational]]):
-    """(u, conj(D(jω)), h, μ) of :func:`_setup`, or None when no entry has a pole on the imaginary
-    axis away from s = 0 (kept for callers of the earlier API)."""
-    st = _setup(sub)
-    return None if st.h is None else (st.u, st.Dc, st.h, st.mu)
 
 
 def _axis_factor(dens: list[fmpq_poly]) -> tuple[fmpq_poly, fmpq_poly | None, int]:
@@ -671,7 +605,7 @@ def _axis_factor(dens: list[fmpq_poly]) -> tuple[fmpq_poly, fmpq_poly | None, in
     if h.degree() < 1:
         return D, None, 0
     mu, t = 0, g
-    while t.degree() >= h.degree() and t % h == 0:
+    while t.degree() >= h.degree() and (t % h).is_zero():
         t, mu = t // h, mu + 1
     return D, h, max(mu, 1)
 
@@ -681,26 +615,37 @@ def _cancel(p: fmpq_poly, h: fmpq_poly | None, cap: int) -> tuple[fmpq_poly, int
         return p, 0
     h2 = h * h
     cut = 0
-    while p != 0 and cut < cap and p % h2 == 0:
+    while not p.is_zero() and cut < cap and (p % h2).is_zero():
         p, cut = p // h2, cut + 1
     return p, cut
 
 
-def _exact_minor_polys(sub: list[list[Rational]],
-                       need_m: bool = True) -> dict[tuple[int, ...], tuple[fmpq_poly, int, np.ndarray | None]]:
+def _exact_minor_polys(sub: list[list[Rational]], need_m: bool = True, q: QEntries | None = None,
+                       entrywise_real: bool = False
+                       ) -> dict[tuple[int, ...], tuple[fmpq_poly, int, np.ndarray | None]]:
     """Every principal minor of (G + Gᴴ)(jω)·|D(jω)|^(2k), formed exactly over Q, divided by the
     squared axis factor where present. Values: (exact polynomial in x, number of h² factors
-    cancelled, float magnitude polynomial m of the uncancelled minor, None unless ``need_m``)."""
-    st = _setup(sub, need_m)
-    n = len(sub)
+    cancelled, float magnitude polynomial m of the uncancelled minor, None unless ``need_m``).
+    ``q``: the entries given exactly instead of ``sub``. ``entrywise_real``: minors of the
+    entrywise real part 2·Re G(jω) instead (equal to G + Gᴴ for a symmetric G; Theorem 1's Z' is
+    handled up to a diagonal similarity, which keeps the minors of Re Z' but not its symmetry)."""
+    st = _setup(sub, need_m, q)
+    n = len(st.u)
     zero = (fmpq_poly([]), fmpq_poly([]))
     A = [[_jmul(st.u[i][j], st.Dc) for j in range(n)] for i in range(n)]
-    Pm = [[(A[i][j][0] + A[j][i][0], A[i][j][1] - A[j][i][1]) for j in range(n)] for i in range(n)]
+    if entrywise_real:
+        Pm = [[(2 * A[i][j][0], fmpq_poly([])) for j in range(n)] for i in range(n)]
+    else:
+        Pm = [[(A[i][j][0] + A[j][i][0], A[i][j][1] - A[j][i][1]) for j in range(n)] for i in range(n)]
     if need_m:
         Af = [[st.uf[i][j] * st.Dcf for j in range(n)] for i in range(n)]
-        Pf = [[Af[i][j] + Af[j][i].conj() for j in range(n)] for i in range(n)]
-    memo: dict = {}
-    memof: dict = {}
+        if entrywise_real:
+            Pf = [[JPoly(2.0 * Af[i][j].re, np.zeros(1), 2.0 * Af[i][j].mre, np.zeros(1)) for j in range(n)]
+                  for i in range(n)]
+        else:
+            Pf = [[Af[i][j] + Af[j][i].conj() for j in range(n)] for i in range(n)]
+    memo: dict[tuple[tuple[int, ...], tuple[int, ...]], tuple[fmpq_poly, fmpq_poly]] = {}
+    memof: dict[tuple[tuple[int, ...], tuple[int, ...]], JPoly] = {}
 
     def det(rows: tuple[int, ...], cols: tuple[int, ...]) -> tuple[fmpq_poly, fmpq_poly]:
         if len(rows) == 1:
@@ -734,7 +679,10 @@ def _exact_minor_polys(sub: list[list[Rational]],
     return out
 
 
-def _exact_llewellyn_polys(sub: list[list[Rational]], need_m: bool = True):
+_PolyCond = tuple[fmpq_poly, int, "np.ndarray | None"]
+
+
+def _exact_llewellyn_polys(sub: list[list[Rational]], need_m: bool = True) -> tuple[_PolyCond, _PolyCond]:
     """(L1, L2) of :func:`llewellyn_polys` formed exactly over Q with the squared imaginary-axis
     factor divided out where present (L1 carries |D|⁴, L2 |D|⁸): (polynomial, h² factors cancelled,
     magnitude polynomial or None unless ``need_m``) each."""
@@ -763,7 +711,7 @@ def _exact_llewellyn_polys(sub: list[list[Rational]], need_m: bool = True):
     return (p1, c1, m1), (p2, c2, m2)
 
 
-def _exact_decision(p: fmpq_poly, cut: int, m: np.ndarray, K: int, tol: Tolerances,
+def _exact_decision(p: fmpq_poly, cut: int, m: np.ndarray | None, K: int, tol: Tolerances,
                     margins: bool) -> tuple[SignDecision, bool]:
     """Exact decision of one condition polynomial and, with ``tol.rtol > 0``, whether the decision
     can flip under relative perturbations ≤ rtol of the coefficients of u and D (K coefficient
@@ -785,12 +733,16 @@ def _exact_decision(p: fmpq_poly, cut: int, m: np.ndarray, K: int, tol: Toleranc
 _RANK = {"violated": 3, "touching": 1, "equality": 1, "satisfied": 0}
 
 
-def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict, tol: Tolerances) -> Condition:
+def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict[str, Any],
+                tol: Tolerances) -> Condition:
     """Condition record from an exact decision (statuses: docs/VERDICTS.md)."""
     bands_w = [(math.sqrt(a), math.sqrt(b) if math.isfinite(b) else math.inf) for a, b in d.negative_bands]
-    ev = {"polynomial_x_desc": _desc(d.coefficients), "method": d.method, "distinct_positive_roots": d.n_roots,
+    touching_w = [math.sqrt(x) for x in d.touching]
+    status: ConditionStatus
+    ev: dict[str, Any] = {
+          "polynomial_x_desc": _desc(d.coefficients), "method": d.method, "distinct_positive_roots": d.n_roots,
           "negative_bands_rad_s": bands_w, "band_depths": d.band_depths,
-          "touching_rad_s": [math.sqrt(x) for x in d.touching], "formed": "exact",
+          "touching_rad_s": touching_w, "formed": "exact",
           "margin_kind": "frequency-domain margin: min over x >= 0 of p(x)/m_r(x) (docs/VERDICTS.md)"}
     ev.update(extra)
     margin, wf = d.margin, d.worst_omega
@@ -804,8 +756,8 @@ def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict,
     elif d.status == "touching":
         status, margin = "equality", 0.0
         detail = ("touches zero (holds with equality) at ω = "
-                  + ", ".join(f"{w:.6g}" for w in ev["touching_rad_s"]) + " rad/s")
-        wf = ev["touching_rad_s"][0] if ev["touching_rad_s"] else wf
+                  + ", ".join(f"{w:.6g}" for w in touching_w) + " rad/s")
+        wf = touching_w[0] if touching_w else wf
     else:
         status, detail = "satisfied", "positive for all ω"
     if flip:
@@ -816,7 +768,7 @@ def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict,
     return Condition(name, label, status, float(margin), wf, detail, ev)
 
 
-def _band_detail(ev: dict) -> str:
+def _band_detail(ev: dict[str, Any]) -> str:
     """The detail line of a violated frequency condition, from its evidence (the one definition
     shared by the JSON and the text table): the deepest negative band, in physical rad/s once
     :func:`_rescale` has scaled ``negative_bands_rad_s``."""
@@ -825,35 +777,26 @@ def _band_detail(ev: dict) -> str:
 
 
 def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: Tolerances, prefix: str,
-                      label: str, margins: bool = True, derived: bool = False) -> list[Condition]:
+                      label: str, margins: bool = True, q: QEntries | None = None) -> list[Condition]:
     """All principal minors of G(jω) + G(jω)ᴴ over the index set, as exact polynomial conditions.
 
-    ``derived=True``: the entries were computed in floating point from the given network (the
-    symmetrized Z' of Theorem 1, whose entries √(z_ij z_ji) are rounded), so the exact polynomial of
-    the rounded entries differs from the network's by the rounding of those entries; then the
-    decision uses the rounding bound tol.poly·m (``marginal`` when it straddles zero, identically
-    zero within it = ``equality``), the one place a tolerance enters a verdict (docs/VERDICTS.md)."""
-    sub = [[entries[i][j] for j in idx_all] for i in idx_all]
-    n = len(sub)
-    exact = _exact_minor_polys(sub, need_m=margins or tol.rtol > 0 or derived)
+    ``q``: the entries given exactly (Theorem 1's symmetrized Z', whose coefficients are rationals
+    that floats need not represent, up to a diagonal similarity); ``entries`` is then ignored and
+    the minors are those of the entrywise real part (2·Re Z'(jω))."""
+    if q is not None:
+        sub_q: QEntries | None = ([[q[0][i][j] for j in idx_all] for i in idx_all],
+                                  [[q[1][i][j] for j in idx_all] for i in idx_all])
+        sub: list[list[Rational]] = []
+    else:
+        sub_q, sub = None, [[entries[i][j] for j in idx_all] for i in idx_all]
+    n = len(idx_all)
+    exact = _exact_minor_polys(sub, need_m=margins or tol.rtol > 0, q=sub_q, entrywise_real=q is not None)
     conds = []
     for k in range(1, n + 1):
         for idx in itertools.combinations(range(n), k):
             glob = tuple(idx_all[i] for i in idx)
             name, lab = f"{prefix}{_lbl(glob)}", f"{label}, principal minor {_lbl(glob)}"
             pq, cut, m = exact[idx]
-            if derived:
-                xp = XPoly(_qpoly_float(pq), m if cut == 0 else np.abs(_qpoly_float(pq)))
-                d = decide_nonnegative(xp, tol.poly, margin=margins)
-                if d.status == "marginal":
-                    cond = _cond_exact(name, lab, d, False, {"axis_pole_factors_cancelled": cut,
-                                                             "formed": "from derived (rounded) entries"}, tol)
-                    cond.status, cond.detail = "marginal", "within the rounding bound of the derived entries"
-                    conds.append(cond)
-                    continue
-                conds.append(_cond_exact(name, lab, d, False, {"axis_pole_factors_cancelled": cut,
-                                                               "formed": "from derived (rounded) entries"}, tol))
-                continue
             d, flip = _exact_decision(pq, cut, m, 2 * k, tol, margins)
             conds.append(_cond_exact(name, lab, d, flip, {"axis_pole_factors_cancelled": cut}, tol))
     return conds
@@ -869,11 +812,11 @@ def positive_real(g: TransferMatrix | Rational, tol: Tolerances = TOL, margins: 
     ``margins=False`` returns the same verdict without computing margins (faster)."""
     tm0 = _as_tm(g)
     tm, w0 = _normalized(tm0)
-    conds = pole_conditions(tm, "hermitian", tol, w0)
+    conds = pole_conditions(tm, "hermitian", tol, w0, margins)
     conds += _hermitian_minors(tm.entries, list(range(tm.n)), tol, "E",
                                "G(jω)+G(jω)ᴴ ⪰ 0" if tm.n > 1 else "Re Z(jω) ≥ 0", margins)
     crit = "positive_real" if tm.n > 1 else "positive_real (one-port)"
-    return combine(crit, [*_rescale(conds, w0), infinity_condition(tm0, "hermitian")], _netinfo(tm0, w0))
+    return combine(crit, [*_rescale(conds, w0), infinity_condition(tm0, "hermitian", margins)], _netinfo(tm0, w0))
 
 
 def two_port_passivity(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -> StabilityResult:
@@ -963,25 +906,14 @@ def llewellyn(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -
         raise ModelError("Llewellyn's criterion applies to 1-DOF two-ports (2×2 immittance matrices)")
     tm0 = tm
     tm, w0 = _normalized(tm0)
-    conds = pole_conditions(tm, "minors", tol, w0)
+    conds = pole_conditions(tm, "minors", tol, w0, margins)
     for k in range(2):
         conds += _hermitian_minors(tm.entries, [k], tol, "E", "Re p(jω) ≥ 0", margins)
     conds.append(_llewellyn_eta(tm.entries, 0, 1, tol, margins))
-    return combine("llewellyn", [*_rescale(conds, w0), infinity_condition(tm0, "minors")], _netinfo(tm0, w0))
+    return combine("llewellyn", [*_rescale(conds, w0), infinity_condition(tm0, "minors", margins)], _netinfo(tm0, w0))
 
 
 # -- Theorem 1 of paper 000 ------------------------------------------------------------------
-
-
-def _rat_equal(a: Rational, b: Rational, rtol: float = 1e-9) -> bool:
-    lhs = P.polymul(a.num, b.den)
-    rhs = P.polymul(b.num, a.den)
-    mag = P.polyadd(P.polymul(np.abs(a.num), np.abs(b.den)), P.polymul(np.abs(b.num), np.abs(a.den)))
-    diff = P.polysub(lhs, rhs)
-    n = max(diff.size, mag.size)
-    diff = np.pad(diff, (0, n - diff.size))
-    mag = np.pad(mag, (0, n - mag.size))
-    return bool(np.all(np.abs(diff) <= rtol * np.maximum(mag, 1e-300)))
 
 
 def _poly_sqrt(c: np.ndarray, rtol: float = 1e-9) -> tuple[np.ndarray, float] | None:
@@ -1011,7 +943,7 @@ def _poly_sqrt(c: np.ndarray, rtol: float = 1e-9) -> tuple[np.ndarray, float] | 
                 acc += r[a] * r[b]
         r[i] = (cn[deg] - acc) / 2.0
     sq = P.polymul(r, r)
-    mag = P.polymul(np.abs(r), np.abs(r))
+    mag: np.ndarray = P.polymul(np.abs(r), np.abs(r))
     if np.all(np.abs(sq - np.pad(cn, (0, sq.size - cn.size))) <= rtol * np.maximum(mag, 1e-300) + 1e-300):
         return r, float(kappa)
     return None
@@ -1050,7 +982,7 @@ def _components(nz: np.ndarray) -> list[list[int]]:
     return comps
 
 
-def _symmetrize(tm: TransferMatrix, comp: list[int], W: dict) -> list[list[Rational]] | None:
+def _symmetrize(tm: TransferMatrix, comp: list[int], W: dict[tuple[int, int], Rational]) -> list[list[Rational]] | None:
     """Rational Z' on a component with signs chosen so that cycle products match Z's."""
     rng = np.random.default_rng(12345)
     s0 = complex(0.37 + rng.random(), 1.1 + rng.random())
@@ -1068,8 +1000,8 @@ def _symmetrize(tm: TransferMatrix, comp: list[int], W: dict) -> list[list[Ratio
     # non-tree edges: sign from the triangle/cycle product through the tree root paths
     def path(v: int) -> list[int]:
         out = [v]
-        while parent[out[-1]] is not None:
-            out.append(parent[out[-1]])
+        while (p := parent[out[-1]]) is not None:
+            out.append(p)
         return out
 
     for (i, j), _w in W.items():
@@ -1103,20 +1035,138 @@ def _symmetrize(tm: TransferMatrix, comp: list[int], W: dict) -> list[list[Ratio
     return out
 
 
-def _minors_match(tm: TransferMatrix, comp: list[int], Zs: list[list[Rational]]) -> bool:
-    rng = np.random.default_rng(7)
-    pts = rng.normal(size=3) * 2 + 1j * (rng.random(3) * 5 + 0.5) + 0.3
+def _rf_equal(a: _RF, b: _RF) -> bool:
+    """Exact equality of rational functions (both reduced with monic denominators)."""
+    return bool(a.n == b.n and a.d == b.d)
+
+
+def _poly_square_root(p: fmpq_poly) -> tuple[fmpq, fmpq_poly] | None:
+    """(κ, r) with p = κ·r² exactly (squarefree decomposition over Q), or None."""
+    c, facs = p.factor_squarefree()
+    r = fmpq_poly([1])
+    for f, e in facs:
+        if e % 2:
+            return None
+        r *= f ** (int(e) // 2)
+    return fmpq(c), r
+
+
+def _exact_sqrt(P_: _RF) -> tuple[fmpq, _RF] | None:
+    """(κ, ρ) with P = κ·ρ² exactly, κ > 0 rational and ρ a rational function over Q, or None
+    (then √P, the entry z'_ij = √(z_ij z_ji) of Theorem 1, is not a real rational function up
+    to a constant and the block is swept)."""
+    a, b = _poly_square_root(P_.n), _poly_square_root(P_.d)
+    if a is None or b is None:
+        return None
+    kap = a[0] / b[0]
+    if kap <= 0:
+        return None
+    # normalize ρ by λ ≈ √κ (exact when κ is a rational square): κ/λ² ≈ 1, so the diagonal
+    # similarity of _exact_symmetrize stays near the identity and the margins near those of Z'
+    num, den = int(kap.p), int(kap.q)
+    lam = fmpq(math.isqrt(num * den * 4**64), den * 2**64)
+    return kap / (lam * lam), _RF(a[1], b[1]) * _RF(fmpq_poly([lam]), fmpq_poly([1]), reduced=True)
+
+
+def _sqrt_of_pair(zij: _RF, zji: _RF) -> tuple[fmpq, _RF] | None:
+    """(κ, ρ) with z_ij z_ji = κ ρ² (:func:`_exact_sqrt`); a symmetric pair z_ij = z_ji needs no
+    factorization: κ = 1, ρ = z_ij."""
+    if _rf_equal(zij, zji):
+        return fmpq(1), zij
+    return _exact_sqrt(zij * zji)
+
+
+def _fmpq_sqrt(q: fmpq) -> fmpq | None:
+    """The exact rational square root of q ≥ 0, or None when q is not a rational square."""
+    num, den = int(q.p), int(q.q)
+    if num < 0:
+        return None
+    rn, rd = math.isqrt(num), math.isqrt(den)
+    return fmpq(rn, rd) if rn * rn == num and rd * rd == den else None
+
+
+def _exact_symmetrize(RF: list[list[_RF]], comp: list[int],
+                      roots: dict[tuple[int, int], tuple[fmpq, _RF]]) -> tuple[QEntries | None, str]:
+    """Theorem 1's symmetrized block Z' (z'_ij = γ_ij √(z_ij z_ji) = γ_ij √κ_ij ρ_ij), exactly.
+
+    √κ_ij need not be rational, so Z' is formed up to a diagonal similarity S = T⁻¹ Z' T,
+    T = diag(√q_i) with q_root = 1 and q_j = q_i κ_ij along a spanning tree: S_ij = γ_ij
+    √(κ_ij q_j/q_i) ρ_ij is rational on tree edges and is required to be on the other edges. A real
+    diagonal similarity keeps Re S = T⁻¹ Re Z' T and so every principal minor of Re Z'(jω). Signs
+    γ: +1 on tree edges; on the others the cycle product of S (= that of Z') must equal Z's exactly
+    up to sign. Then every principal minor of S must equal Z's (exactly, over Q(s)).
+
+    Returns (S as exact entries, "") or (None, reason): ``"irrational"`` when S is not rational
+    (the caller sweeps), else why no Z' reproduces Z's principal minors (not applicable)."""
+    from hil.stability.rational import _rf_det
+
     k = len(comp)
-    for s0 in pts:
-        Z = np.array([[complex(tm[i, j](s0)) for j in comp] for i in comp])
-        Zp = np.array([[complex(Zs[a][b](s0)) for b in range(k)] for a in range(k)])
-        for r in range(2, k + 1):
-            for idx in itertools.combinations(range(k), r):
-                m1 = np.linalg.det(Z[np.ix_(idx, idx)])
-                m2 = np.linalg.det(Zp[np.ix_(idx, idx)])
-                if abs(m1 - m2) > 1e-7 * max(1.0, abs(m1), _permanent_abs(Z[np.ix_(idx, idx)])):
-                    return False
-    return True
+    loc = {g: a for a, g in enumerate(comp)}
+    adj = {g: [h for h in comp if h != g and (min(g, h), max(g, h)) in roots] for g in comp}
+    q: dict[int, fmpq] = {comp[0]: fmpq(1)}
+    parent: dict[int, int | None] = {comp[0]: None}
+    order = [comp[0]]
+    for v in order:
+        for u in adj[v]:
+            if u not in q:
+                q[u] = q[v] * roots[(min(u, v), max(u, v))][0]
+                parent[u] = v
+                order.append(u)
+    S: list[list[_RF]] = [[RF[comp[a]][comp[a]] if a == b else _RF(fmpq_poly([]), fmpq_poly([1]), reduced=True)
+                           for b in range(k)] for a in range(k)]
+
+    def set_edge(i: int, j: int, sign: int) -> bool:
+        kap, rho = roots[(min(i, j), max(i, j))]
+        t = _fmpq_sqrt(kap * q[j] / q[i])
+        if t is None:
+            return False
+        S[loc[i]][loc[j]] = rho * _RF(fmpq_poly([sign * t]), fmpq_poly([1]), reduced=True)
+        S[loc[j]][loc[i]] = rho * _RF(fmpq_poly([sign * kap / t]), fmpq_poly([1]), reduced=True)
+        return True
+
+    tree = {(min(u, p), max(u, p)) for u, p in parent.items() if p is not None}
+    for i, j in tree:
+        set_edge(i, j, 1)  # rational by construction of q
+
+    def path(v: int) -> list[int]:
+        out = [v]
+        while parent[out[-1]] is not None:
+            out.append(parent[out[-1]])  # type: ignore[arg-type]
+        return out
+
+    for i, j in sorted(set(roots) - tree):
+        if not set_edge(i, j, 1):
+            return None, "irrational"
+        pi, pj = path(i), path(j)
+        seq = [*pi, *pj[::-1][1:], i]
+        zp = sp = _RF(fmpq_poly([1]), fmpq_poly([1]), reduced=True)
+        for a, b in itertools.pairwise(seq):
+            zp = zp * RF[a][b]
+            sp = sp * S[loc[a]][loc[b]]
+        if _rf_equal(zp, sp):
+            continue
+        if _rf_equal(zp, -sp):
+            set_edge(i, j, -1)
+            continue
+        return None, (f"no sign choice of √(z{i + 1}{j + 1} z{j + 1}{i + 1}) reproduces Z's cycle products "
+                      "(a longer cycle condition fails)")
+    # With every fundamental cycle balanced, the ratios z_ij/S_ij (whose two directions multiply to
+    # 1) are potential differences φ_i/φ_j on the coupling graph, so Z = Φ S Φ⁻¹ on the edges and
+    # all principal minors agree. Only an entry with z_ij ≠ 0 but z_ji = 0 (no edge, S_ij = 0) can
+    # still make them differ (through a longer cycle): then they are compared exactly.
+    one_way = any(RF[comp[a]][comp[b]].is_zero != RF[comp[b]][comp[a]].is_zero
+                  for a in range(k) for b in range(a + 1, k))
+    for r in range(2, k + 1 if one_way else 2):
+        for idx in itertools.combinations(range(k), r):
+            mz = _rf_det([[RF[comp[a]][comp[b]] for b in idx] for a in idx])
+            ms = _rf_det([[S[a][b] for b in idx] for a in idx])
+            if not _rf_equal(mz, ms):
+                return None, (f"principal minor {_lbl([comp[a] for a in idx])} of Z' differs from Z's "
+                              "(no sign choice of √(z_ij z_ji) reproduces it)")
+    nums: list[list[fmpq_poly | None]] = [[None if S[a][b].is_zero else S[a][b].n for b in range(k)]
+                                          for a in range(k)]
+    dens = [[S[a][b].d for b in range(k)] for a in range(k)]
+    return (nums, dens), ""
 
 
 def _sweep_block(tm: TransferMatrix, comp: list[int], tol: Tolerances) -> list[Condition]:
@@ -1156,7 +1206,7 @@ def _sweep_block(tm: TransferMatrix, comp: list[int], tol: Tolerances) -> list[C
             rho = mn / np.maximum(scale, 1e-300)
             i0 = int(np.argmin(rho))
             v = float(rho[i0])
-            status = "violated" if v < -1e-6 else ("marginal" if v <= 1e-6 else "satisfied")
+            status: ConditionStatus = "violated" if v < -1e-6 else ("marginal" if v <= 1e-6 else "satisfied")
             glob = tuple(comp[i] for i in idx)
             conds.append(Condition(f"E{_lbl(glob)}", f"principal minor {_lbl(glob)} of Re Z'(jω) ≥ 0", status, v,
                                    float(w[i0]), "decided on a dense frequency grid (Z' is not rational)",
@@ -1164,7 +1214,7 @@ def _sweep_block(tm: TransferMatrix, comp: list[int], tol: Tolerances) -> list[C
     return conds
 
 
-def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityResult:
+def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -> StabilityResult:
     """Theorem 1 of paper 000: absolute stability of an m-DOF n-port (impedance form, or any
     immittance form by its Remark 1).
 
@@ -1175,20 +1225,22 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
     Re Z'(jω) ≥ 0 where z'_ij = γ_ij √(z_ij z_ji) (signs γ chosen so Z' and Z have equal principal
     minors). Blocks of Re Z' are decided exactly: 1×1 and 2×2 blocks through Re z_ii and
     Llewellyn's η (eq. 15b); larger blocks through the Hermitian minors of the rational Z' when
-    √(z_ij z_ji) is rational, otherwise by a flagged numerical sweep.
+    √(z_ij z_ji) is rational, otherwise by a flagged numerical sweep. ``margins=False`` returns
+    the same verdict without computing margins (faster).
     """
     tm0 = tm
     tm, w0 = _normalized(tm0)
     n = tm.n
     net = _netinfo(tm0, w0)
     conds: list[Condition] = []
+    RF = _to_rf(tm.entries)  # exact entries over Q(s): A, B and the symmetrization are exact
     # (B) diagonal blocks symmetric
     off = 0
     bad_b = []
     for m in tm.port_dofs:
         for a in range(off, off + m):
             for b in range(a + 1, off + m):
-                if not _rat_equal(tm[a, b], tm[b, a]):
+                if not _rf_equal(RF[a][b], RF[b][a]):
                     bad_b.append((a, b))
         off += m
     if bad_b:
@@ -1200,9 +1252,9 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
     # (A) cycle condition on all triples
     bad_a = []
     for i, j, k in itertools.combinations(range(n), 3):
-        lhs = tm[i, j] * tm[j, k] * tm[k, i]
-        rhs = tm[j, i] * tm[k, j] * tm[i, k]
-        if not _rat_equal(lhs, rhs, 1e-8):
+        lhs = RF[i][j] * RF[j][k] * RF[k][i]
+        rhs = RF[j][i] * RF[k][j] * RF[i][k]
+        if not _rf_equal(lhs, rhs):
             bad_a.append((i, j, k))
     if bad_a:
         i, j, k = bad_a[0]
@@ -1216,74 +1268,78 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL) -> StabilityRe
                        reason="Theorem 1 does not apply: the symmetrization conditions do not hold")
     # pairs with z_ij z_ji ≢ 0 define the coupling graph of Z'
     nz = np.zeros((n, n), bool)
-    W: dict[tuple[int, int], Rational] = {}
+    roots: dict[tuple[int, int], tuple[fmpq, _RF]] = {}
     irrational: set[tuple[int, int]] = set()
     for i in range(n):
         for j in range(i + 1, n):
             if tm[i, j].is_zero or tm[j, i].is_zero:
                 continue
             nz[i, j] = nz[j, i] = True
-            r = _rational_sqrt(tm[i, j], tm[j, i])
+            r = _sqrt_of_pair(RF[i][j], RF[j][i])
             if r is None:
                 irrational.add((i, j))
             else:
-                W[(i, j)] = r
-    conds += pole_conditions(tm, "minors", tol, w0)
+                roots[(i, j)] = r
+    conds += pole_conditions(tm, "minors", tol, w0, margins)
     for comp in _components(nz):
         if len(comp) == 1:
-            conds += _hermitian_minors(tm.entries, comp, tol, "E", "Re z_ii(jω) ≥ 0")
+            conds += _hermitian_minors(tm.entries, comp, tol, "E", "Re z_ii(jω) ≥ 0", margins)
             continue
         edges = {(i, j) for i in comp for j in comp if i < j and nz[i, j]}
         # 2×2 blocks: Llewellyn's η on the given entries (eq. 15b), formed exactly; larger blocks
-        # through the rational Z', whose entries √(z_ij z_ji) are *derived* in floats
+        # through the Hermitian minors of Z' (exactly, up to a diagonal similarity) when
+        # √(z_ij z_ji) is a rational function up to a constant
         if len(comp) > 2 and not (edges & irrational):
-            Zs = _symmetrize(tm, comp, {e: W[e] for e in edges})
-            if Zs is not None and _minors_match(tm, comp, Zs):
-                for c in _hermitian_minors(Zs, list(range(len(comp))), tol, "E", "Re Z'(jω) ⪰ 0", derived=True):
+            Sq, why = _exact_symmetrize(RF, comp, {e: roots[e] for e in edges})
+            if Sq is not None:
+                for c in _hermitian_minors(tm.entries, list(range(len(comp))), tol, "E", "Re Z'(jω) ⪰ 0", margins,
+                                           q=Sq):
                     # relabel local indices to global ones
                     loc = [int(t) - 1 for t in c.name[2:-1].split(",")]
                     c.name = "E" + _lbl([comp[t] for t in loc])
-                    c.label = f"principal minor {c.name[1:]} of Re Z'(jω) ≥ 0 (Z' rational)"
+                    c.label = f"principal minor {c.name[1:]} of Re Z'(jω) ≥ 0 (Z' exact over Q)"
+                    c.evidence["formed"] = "exact (Z' up to a diagonal similarity, over Q)"
                     conds.append(c)
                 continue
-            if Zs is None and len(comp) > 2:
+            if why != "irrational":
                 conds.append(Condition("A*", "equal principal minors of Z' and Z", "not_applicable", math.nan, None,
-                                       "no sign choice of √(z_ij z_ji) reproduces Z's principal minors "
-                                       "(a longer cycle condition fails)"))
+                                       why))
                 return combine("absolute_stability_nport", _rescale(conds, w0), net,
                                reason="Theorem 1 does not apply: Z is not symmetrizable")
         if len(comp) == 2:
             i, j = comp
-            conds += _hermitian_minors(tm.entries, [i], tol, "E", "Re z_ii(jω) ≥ 0")
-            conds += _hermitian_minors(tm.entries, [j], tol, "E", "Re z_ii(jω) ≥ 0")
-            conds.append(_llewellyn_eta(tm.entries, i, j, tol))
+            conds += _hermitian_minors(tm.entries, [i], tol, "E", "Re z_ii(jω) ≥ 0", margins)
+            conds += _hermitian_minors(tm.entries, [j], tol, "E", "Re z_ii(jω) ≥ 0", margins)
+            conds.append(_llewellyn_eta(tm.entries, i, j, tol, margins))
         else:
             conds += _sweep_block(tm, comp, tol)
-    return combine("absolute_stability_nport", [*_rescale(conds, w0), infinity_condition(tm0, "minors")], net)
+    return combine("absolute_stability_nport", [*_rescale(conds, w0), infinity_condition(tm0, "minors", margins)], net)
 
 
-def check(tm: TransferMatrix | Rational, criterion: str = "auto", tol: Tolerances = TOL) -> StabilityResult:
+def check(tm: TransferMatrix | Rational, criterion: str = "auto", tol: Tolerances = TOL,
+          margins: bool = True) -> StabilityResult:
     """Run the criterion that fits the network (``auto``) or the named one.
 
     ``auto``: a one-port → positive realness; a 1-DOF two-port → Llewellyn; anything larger →
     Theorem 1 (which reduces to Llewellyn for m = 1, n = 2). Names: ``positive_real``,
-    ``passivity`` (two-port passivity), ``llewellyn``, ``absolute_stability``.
+    ``passivity`` (two-port passivity), ``llewellyn``, ``absolute_stability``. ``margins=False``:
+    the same verdict without margins (faster).
     """
     tm = _as_tm(tm)
     if criterion == "auto":
         if tm.n == 1:
-            return positive_real(tm, tol)
+            return positive_real(tm, tol, margins)
         if tm.n == 2 and tm.n_ports == 2:
-            return llewellyn(tm, tol)
-        return absolute_stability(tm, tol)
+            return llewellyn(tm, tol, margins)
+        return absolute_stability(tm, tol, margins)
     if criterion == "positive_real":
-        return positive_real(tm, tol)
+        return positive_real(tm, tol, margins)
     if criterion == "passivity":
-        return two_port_passivity(tm, tol) if tm.n_ports == 2 else positive_real(tm, tol)
+        return two_port_passivity(tm, tol, margins) if tm.n_ports == 2 else positive_real(tm, tol, margins)
     if criterion == "llewellyn":
-        return llewellyn(tm, tol)
+        return llewellyn(tm, tol, margins)
     if criterion == "absolute_stability":
-        return absolute_stability(tm, tol)
+        return absolute_stability(tm, tol, margins)
     raise ModelError(f"unknown criterion {criterion!r}; expected auto, positive_real, passivity, llewellyn or "
                      "absolute_stability")
 
@@ -1293,7 +1349,7 @@ def check(tm: TransferMatrix | Rational, criterion: str = "auto", tol: Tolerance
 CRITERIA: tuple[str, ...] = ("positive_real", "passivity", "llewellyn", "absolute_stability")
 
 
-def margin_curve(g: TransferMatrix | Rational, condition: str = "E{1}"):
+def margin_curve(g: TransferMatrix | Rational, condition: str = "E{1}") -> Callable[[np.ndarray], np.ndarray]:
     """ω ↦ p(x)/m_r(x) of one frequency condition, the quantity whose minimum is that condition's
     frequency-domain margin (docs/VERDICTS.md), for plots: ω in physical rad/s, values in [-1, 1].
 
@@ -1320,7 +1376,7 @@ def margin_curve(g: TransferMatrix | Rational, condition: str = "E{1}"):
     mm = np.abs(c) if (cut or m is None) else np.maximum(
         np.pad(np.abs(m), (0, max(0, c.size - m.size)))[: max(c.size, m.size)],
         np.pad(np.abs(c), (0, max(0, m.size - c.size))))
-    a = exact_sign(p).order0 if p != 0 else 0
+    a = exact_sign(p).order0 if not p.is_zero() else 0
     m_rep = mm.copy()
     m_rep[:a] = 0.0
     m_rep[c.size:] = 0.0
@@ -1328,6 +1384,6 @@ def margin_curve(g: TransferMatrix | Rational, condition: str = "E{1}"):
 
     def f(w: np.ndarray) -> np.ndarray:
         x = (np.asarray(w, float) / w0) ** 2
-        return ratio(x) if p != 0 else np.zeros_like(x)
+        return ratio(x) if not p.is_zero() else np.zeros_like(x)
 
     return f

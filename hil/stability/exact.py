@@ -6,8 +6,9 @@ real polynomial ``p`` (see :mod:`hil.stability.jpoly` and :mod:`hil.stability.cr
 **The path every criterion uses** (:func:`decide_exact`, :func:`exact_sign`): ``p`` is formed
 exactly over Q (``flint.fmpq_poly``) from the float coefficients, which are exact binary
 rationals, so its sign structure is decided without any tolerance -- squarefree decomposition,
-positive roots of the odd-multiplicity part counted by rigorous root isolation (Arb) or a Sturm
-sequence over Q, bands isolated exactly and located to double precision. Statuses: satisfied,
+positive roots of the odd-multiplicity part counted exactly (Sturm over Q for small degrees,
+Descartes' rule with continued-fraction subdivision over Z, :func:`_vas_count`, else; rigorous
+Arb isolation as the fallback), bands isolated exactly and located to double precision. Statuses: satisfied,
 touching (equality at isolated frequencies), equality (p ≡ 0), violated. The margin reported with
 it is defined in docs/VERDICTS.md (p/m_r with structural zeros factored out). A user tolerance on
 the inputs is handled by :func:`flips_within`. :func:`exact_poles` counts right-half-plane and
@@ -30,12 +31,15 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from fractions import Fraction
-from typing import Literal
+from typing import TYPE_CHECKING, Any, Literal, cast
 
 import numpy as np
 from numpy.polynomial import polynomial as P
 
 from hil.stability.jpoly import XPoly, trim_back
+
+if TYPE_CHECKING:
+    from flint import fmpq_poly
 
 log = logging.getLogger(__name__)
 
@@ -242,7 +246,7 @@ def _safe_div(num: np.ndarray, den: np.ndarray, fallback: float) -> np.ndarray:
     bad = ~np.isfinite(r)
     if np.any(bad):
         r[bad] = fallback
-    return r
+    return np.asarray(r)
 
 
 def _positive_real_roots(c_asc: np.ndarray) -> np.ndarray:
@@ -287,7 +291,7 @@ def decide_nonnegative(p: XPoly, tol: float = DEFAULT_TOL, margin: bool = True,
     root isolation then use it instead of the float coefficients (callers that formed the
     condition exactly, e.g. after cancelling imaginary-axis poles, pass it with ``p.m = |p.c|``).
     """
-    if exact is None and getattr(p, "exact", None) is not None:
+    if exact is None and p.exact is not None:
         d = decide_exact(p.exact, p.m, margin=margin)
         if d.status == "touching":  # holds, with equality at isolated frequencies
             d.status = "equality"
@@ -527,43 +531,6 @@ def _global_min(ratio: _Ratio, cc: np.ndarray, m: np.ndarray, extra: list[float]
     return bx, bv
 
 
-def _int_gcd(a: list[int], b: list[int]) -> list[int]:
-    """GCD of integer polynomials (descending), up to a constant, by primitive remainders."""
-    a, b = _strip(a), _strip(b)
-    if len(b) == 1 and b[0] == 0:
-        return _content_normalize(a)
-    while not (len(b) == 1 and b[0] == 0):
-        if len(b) == 1:  # non-zero constant: coprime
-            return [1]
-        r = _sign_prem(a, b)
-        a, b = b, (_content_normalize(r) if any(r) else [0])
-    return _content_normalize(a)
-
-
-def on_imaginary_axis_exact(den_asc: np.ndarray, w0: float, rel: float = 1e-6) -> bool:
-    """Whether d(s) has a root exactly at s = ±j·w0 (w0 > 0), given its float coefficients.
-
-    d(jω) = E(x) + jω·O(x) with x = ω²; a root on the axis is a common root x0 = w0² of E and O.
-    Their GCD is computed in exact integer arithmetic and checked (Sturm) for a root within
-    ``rel`` of w0² -- so the answer is exact for the given coefficients.
-    """
-    from hil.stability.jpoly import jpoly_from_s
-
-    jp = jpoly_from_s(np.asarray(den_asc, float))
-    E, O = trim_back(jp.re), trim_back(jp.im)
-    if E.size == 0 or not np.any(E):
-        return False
-    ie = _to_int_poly(E) if E.size else [0]
-    io = _to_int_poly(O) if O.size and np.any(O) else [0]
-    g = _int_gcd(ie, io)
-    if len(g) <= 1:
-        return False
-    x0 = w0 * w0
-    lo, hi = Fraction(x0 * (1 - rel)), Fraction(x0 * (1 + rel))
-    seq = _sturm_sequence(g)
-    return _var_at(seq, lo) - _var_at(seq, hi) > 0
-
-
 # ----------------------------------------------------------------------------------------------
 # exact decisions on exact polynomials (the path every criterion uses)
 #
@@ -583,7 +550,7 @@ def on_imaginary_axis_exact(den_asc: np.ndarray, w0: float, rel: float = 1e-6) -
 # only comes from a user tolerance on the inputs (:func:`flips_within`).
 
 
-def _fmpq_list(p) -> list[Fraction]:
+def _fmpq_list(p: fmpq_poly) -> list[Fraction]:
     return [Fraction(int(p[i].p), int(p[i].q)) for i in range(p.degree() + 1)]
 
 
@@ -592,13 +559,16 @@ def _var(signs: list[int]) -> int:
     return sum(1 for a, b in itertools.pairwise(s) if a != b)
 
 
-def _sgn(v) -> int:
-    return (v > 0) - (v < 0)
+def _sgn(v: Any) -> int:
+    return int(v > 0) - int(v < 0)
 
 
-def count_positive_roots(f) -> int:
+def count_positive_roots(f: fmpq_poly, squarefree: bool = False) -> int:
     """Number of distinct roots in (0, ∞) of a non-zero exact polynomial (``flint.fmpq_poly``),
-    by a Sturm sequence over Q (FLINT arithmetic, no rounding)."""
+    exactly: Descartes' rule when it decides, closed forms up to degree 2, a Sturm sequence over Q
+    up to degree 4, else Descartes with continued-fraction subdivision over Z (:func:`_vas_count`;
+    rigorous Arb isolation as a fallback). ``squarefree``: f is known to be squarefree (skips the
+    gcd with f')."""
     from flint import fmpq_poly
 
     if f.degree() < 1:
@@ -610,8 +580,7 @@ def count_positive_roots(f) -> int:
         f = f // fmpq_poly([0] * k + [1])
     if f.degree() < 1:
         return 0
-    coeffs = [_sgn(f[i]) for i in range(f.degree() + 1)]
-    if _var(coeffs) == 0:  # Descartes: no sign change, no positive root
+    if _descartes(f.numer().coeffs()) == 0:  # Descartes: no sign change, no positive root
         return 0
     if f.degree() == 1:  # f0 + f1 x: root -f0/f1 > 0 iff the signs differ (Descartes: they do)
         return 1
@@ -623,28 +592,111 @@ def count_positive_roots(f) -> int:
         if disc == 0:
             return 1 if _sgn(c1) != _sgn(c2) else 0  # double root -c1/(2 c2)
         return 2 if _sgn(c0) == _sgn(c2) else 1  # product of the roots c0/c2 > 0: both positive
-    g = f.gcd(f.derivative())
-    if g.degree() > 0:
-        f = f // g
+    if not squarefree:
+        g = f.gcd(f.derivative())
+        if g.degree() > 0:
+            f = f // g
+    if f.degree() <= 4:  # small degree: the Sturm sequence is the cheaper exact count
+        return _sturm_count_q(f)
+    # exact count by Descartes' rule with continued-fraction (Vincent-Akritas-Strzeboński)
+    # subdivision over the integers; the rigorous Arb isolation below only if that takes too long
+    n_vas = _vas_count(f.numer())
+    if n_vas is not None:
+        return n_vas
     # rigorous root isolation (FLINT/Arb, arb_fmpz_poly_complex_roots on the squarefree integer
     # polynomial): real roots come with an exactly zero imaginary part, their balls are disjoint and
     # exclude 0 unless a root sits within the ball radius of 0 (then: Sturm)
-    n_pos = 0
-    for r, _mult in f.numer().complex_roots():
+    n_pos = 0  # pragma: no cover - only past _vas_count's node limit
+    for r, _mult in _complex_roots(f):  # pragma: no cover
         if r.imag == 0:
             if r.real > 0:
                 n_pos += 1
-            elif not r.real < 0:  # pragma: no cover - ambiguous ball: exact Sturm count instead
+            elif not r.real < 0:
                 return _sturm_count_q(f)
-    return n_pos
+    return n_pos  # pragma: no cover
 
 
-def _sturm_count_q(f) -> int:
+def _descartes(c: list[Any]) -> int:
+    """Sign variations of a coefficient list (zeros skipped)."""
+    v, prev = 0, 0
+    for x in c:
+        if x != 0:
+            sg = 1 if x > 0 else -1
+            if prev and sg != prev:
+                v += 1
+            prev = sg
+    return v
+
+
+def _pos_root_log2_bound(c: list[Any]) -> int | None:
+    """An integer e with every positive root of Σ c_i x^i below 2^e (c ascending, c[-1] ≠ 0), or
+    None when there is no positive root (no coefficient of sign opposite to the leading one).
+    Rigorous from bit lengths: a positive root r satisfies r < 2·max (|c_i|/|c_n|)^(1/(n-i)) over
+    those c_i (Fujiwara), and |c_i|/|c_n| < 2^(bitlen c_i - bitlen c_n + 1)."""
+    n = len(c) - 1
+    lead = c[n]
+    bl_n = lead.bit_length()
+    best: int | None = None
+    for i in range(n):
+        a = c[i]
+        if a != 0 and (a > 0) != (lead > 0):
+            e = -(-(a.bit_length() - bl_n + 1) // (n - i))  # ceil
+            if best is None or e > best:
+                best = e
+    return None if best is None else best + 1
+
+
+def _vas_count(f: Any, max_nodes: int = 2000) -> int | None:
+    """Number of roots in (0, ∞) of a squarefree integer polynomial (``flint.fmpz_poly``) with
+    f(0) ≠ 0, exactly: Descartes' rule of signs bounds the count by the sign variations V and is
+    exact for V ∈ {0, 1}; otherwise the roots are split at 1 (f(x + 1) for (1, ∞),
+    (x + 1)^n f(1/(x + 1)) for (0, 1), a root at 1 divided out and counted) after shifting by a
+    power-of-two lower bound of the positive roots (Vincent's theorem: terminates for squarefree f).
+    None when ``max_nodes`` subdivisions do not suffice (the caller then uses root isolation).
+    For a polynomial that is not squarefree a result of 0 still proves that it has no positive
+    root (every leaf has no sign variation); other counts are only meaningful when squarefree."""
+    from flint import fmpz_poly
+
+    x_plus_1 = fmpz_poly([1, 1])
+    x_minus_1 = fmpz_poly([-1, 1])
+    stack = [f]
+    count = 0
+    nodes = 0
+    while stack:
+        nodes += 1
+        if nodes > max_nodes:  # pragma: no cover - pathological root separation
+            return None
+        g = stack.pop()
+        c = g.coeffs()
+        v = _descartes(c)
+        if v < 2:
+            count += v
+            continue
+        e = _pos_root_log2_bound(c[::-1])  # positive roots of the reverse < 2^e: of g > 2^-e
+        if e is not None and e <= -1:
+            g = g(fmpz_poly([1 << (-e), 1]))  # shift by the lower bound 2^-e ≥ 2 (< every root)
+            c = g.coeffs()
+            v = _descartes(c)
+            if v < 2:
+                count += v
+                continue
+        if sum(c) == 0:  # a root at x = 1
+            count += 1
+            g = g // x_minus_1
+            c = g.coeffs()
+            if g.degree() < 1:
+                continue
+        stack.append(g(x_plus_1))  # roots of g in (1, ∞), shifted to (0, ∞)
+        stack.append(fmpz_poly(c[::-1])(x_plus_1))  # roots in (0, 1), mapped to (0, ∞)
+    return count
+
+
+def _sturm_count_q(f: fmpq_poly) -> int:
     """Distinct positive roots of a squarefree exact polynomial with f(0) ≠ 0: primitive Sturm
     sequence over Q (each remainder divided by its positive content, which keeps its signs)."""
     from flint import fmpq_poly
 
-    def prim(g):
+    def prim(g: fmpq_poly) -> fmpq_poly:
         n = g.numer()
         c = n.content()
         return fmpq_poly(n) / c if c != 0 else g
@@ -652,7 +704,7 @@ def _sturm_count_q(f) -> int:
     seq = [prim(f), prim(f.derivative())]
     while seq[-1].degree() > 0:
         r = seq[-2] % seq[-1]
-        if r == 0:
+        if r.is_zero():
             break
         seq.append(-prim(r))
     return _var([_sgn(q[0]) for q in seq]) - _var([_sgn(q[q.degree()]) for q in seq])
@@ -668,44 +720,53 @@ class ExactSign:
     order0: int
     sign_changes: int
     touch_roots: int
-    q_odd: object = None
-    q_even: object = None
+    q_odd: fmpq_poly | None = None
+    q_even: fmpq_poly | None = None
 
 
-def exact_sign(p) -> ExactSign:
+def exact_sign(p: fmpq_poly) -> ExactSign:
     """Classify an exact polynomial ``p`` (``flint.fmpq_poly`` in x = ω²) on x ≥ 0 without rounding."""
     from flint import fmpq_poly
 
-    if p == 0:
+    if p.is_zero():
         return ExactSign("equality", 0, 0, 0)
+    ci = p.numer().coeffs()  # a positive multiple of p's coefficients, as integers (one call)
     k = 0
-    while p[k] == 0:
+    while ci[k] == 0:
         k += 1
-    low = p[k]
+    low = ci[k]
     if p.degree() == k:
         return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
-    signs = [_sgn(p[i]) for i in range(k, p.degree() + 1)]
-    if all(v >= 0 for v in signs):  # Descartes: no sign change, p > 0 on x > 0
-        return ExactSign("satisfied", k, 0, 0)
-    if all(v <= 0 for v in signs):
-        return ExactSign("violated", k, 0, 0)
-    _c, facs = p.factor_squarefree()
+    if _descartes(ci) == 0:  # Descartes: no sign change, p has the sign of low on x > 0
+        return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
+    # the factor x^k (the boundary x = 0) removed first, so no squarefree factor contains x
+    p0 = fmpq_poly([p[i] for i in range(k, p.degree() + 1)]) if k else p
+    # the common case first: Descartes' rule on a subdivision proves that p0 has no positive root
+    # at all (whatever the multiplicities), so p has the sign of its lowest coefficient on x > 0
+    # and the squarefree decomposition is not needed
+    if p0.degree() > 4 and _vas_count(p0.numer(), max_nodes=64) == 0:  # (small degree: Sturm is cheaper)
+        return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
+    _c, facs = p0.factor_squarefree()
     q_odd, q_even = fmpq_poly([1]), fmpq_poly([1])
     for f, e in facs:
-        if f.degree() == 1 and f[0] == 0:
-            continue  # the factor x: the boundary x = 0
         if e % 2:
             q_odd *= f
         else:
             q_even *= f
-    n_odd = count_positive_roots(q_odd)
+    n_odd = count_positive_roots(q_odd, squarefree=True)
     if n_odd or low < 0:
         return ExactSign("violated", k, n_odd, 0, q_odd, q_even)
-    n_even = count_positive_roots(q_even)
+    n_even = count_positive_roots(q_even, squarefree=True)
     return ExactSign("touching" if n_even else "satisfied", k, 0, n_even, q_odd, q_even)
 
 
-def _positive_roots_arb(f) -> list[float] | None:
+def _complex_roots(f: fmpq_poly) -> list[tuple[Any, int]]:
+    """Rigorous complex root balls (Arb) of f's integer polynomial with their multiplicities
+    (the stubs of python-flint 0.9 say list[acb]; the runtime returns (acb, multiplicity) pairs)."""
+    return cast("list[tuple[Any, int]]", f.numer().complex_roots())
+
+
+def _positive_roots_arb(f: fmpq_poly) -> list[float] | None:
     """Positive real roots (to double precision, sorted) of a squarefree exact polynomial from
     rigorous Arb isolation; None when a root ball straddles 0 (the caller falls back to Sturm)."""
     if f.degree() < 1:
@@ -714,7 +775,7 @@ def _positive_roots_arb(f) -> list[float] | None:
     if g.degree() > 0:
         f = f // g
     out = []
-    for r, _mult in f.numer().complex_roots():
+    for r, _mult in _complex_roots(f):
         if r.imag == 0:
             if r.real > 0:
                 out.append(float(r.real.mid()))
@@ -723,7 +784,7 @@ def _positive_roots_arb(f) -> list[float] | None:
     return sorted(out)
 
 
-def decide_exact(p, m: np.ndarray | None = None, margin: bool = True) -> SignDecision:
+def decide_exact(p: fmpq_poly, m: np.ndarray | None = None, margin: bool = True) -> SignDecision:
     """Decide ``p(x) ≥ 0`` for all x ≥ 0 for an *exact* polynomial ``p`` (``flint.fmpq_poly``).
 
     The status is exact (see :func:`exact_sign`); negative bands and touching points are isolated
@@ -743,8 +804,10 @@ def decide_exact(p, m: np.ndarray | None = None, margin: bool = True) -> SignDec
     if es.status == "equality":
         return SignDecision("equality", 0.0, 0.0, method="identically zero (exact)", coefficients=np.zeros(1))
     n = p.degree() + 1
-    fr = _fmpq_list(p)
     c = np.array([_qfloat(p[i]) for i in range(n)])
+    if es.status == "satisfied" and not margin:
+        return SignDecision("satisfied", math.nan, math.nan, method="exact (descartes/sturm over Q)",
+                            coefficients=c)
     if m is None:
         mm = np.abs(c)
     else:
@@ -759,10 +822,7 @@ def decide_exact(p, m: np.ndarray | None = None, margin: bool = True) -> SignDec
     m_rep = mm.copy()
     m_rep[:a] = 0.0
     m_rep[n:] = 0.0
-    status_map = {"satisfied": "satisfied", "touching": "touching", "violated": "violated"}
-    if es.status == "satisfied" and not margin:
-        return SignDecision("satisfied", math.nan, math.nan, method="exact (descartes/sturm over Q)",
-                            coefficients=c)
+    status_map: dict[str, Status] = {"satisfied": "satisfied", "touching": "touching", "violated": "violated"}
     if es.status == "satisfied" and a + 1 == n:
         return SignDecision("satisfied", 1.0 if math.isfinite(c[a]) else math.nan, 0.0 if a == 0 else math.inf,
                             method="exact (monomial)", coefficients=c)
@@ -770,8 +830,8 @@ def decide_exact(p, m: np.ndarray | None = None, margin: bool = True) -> SignDec
     odd = _positive_roots_arb(es.q_odd) if es.q_odd is not None else []
     even = _positive_roots_arb(es.q_even) if es.q_even is not None else []
     if odd is None or even is None:  # pragma: no cover - ambiguous isolation: integer Sturm path
-        d = decide_nonnegative(XPoly(c, mm), tol=0.0, margin=margin, exact=fr, _m_rep=m_rep)
-        d.status = status_map[es.status]  # type: ignore[assignment]
+        d = decide_nonnegative(XPoly(c, mm), tol=0.0, margin=margin, exact=_fmpq_list(p), _m_rep=m_rep)
+        d.status = status_map[es.status]
         d.method = "exact (sturm over Q)"
         _exact_depths(p, d, mm, m_rep, margin)
         return d
@@ -793,14 +853,14 @@ def decide_exact(p, m: np.ndarray | None = None, margin: bool = True) -> SignDec
     if margin:
         margin_v, worst_x = _margin_min(_Ratio(c, m_rep), c, m_rep, bands, touching, [x for x, _ in events])
     d = SignDecision(status_map[es.status], float(margin_v), float(worst_x), bands, [math.nan] * len(bands),
-                     touching, len(events), "exact (Arb isolation over Q)", c)  # type: ignore[arg-type]
+                     touching, len(events), "exact (Arb isolation over Q)", c)
     _exact_depths(p, d, mm, m_rep, margin)
     if d.status == "violated" and not d.negative_bands:  # pragma: no cover - defensive
         log.warning("exact classification says violated but no negative band was isolated")
     return d
 
 
-def _exact_ratio(p, mpoly: np.ndarray, x: float) -> float:
+def _exact_ratio(p: fmpq_poly, mpoly: np.ndarray, x: float) -> float:
     """p(x)/m(x) with p evaluated exactly at the float x (no cancellation error), m in floats."""
     from flint import fmpq
 
@@ -813,7 +873,7 @@ def _exact_ratio(p, mpoly: np.ndarray, x: float) -> float:
     return float(Fraction(int(v.p), int(v.q)) / Fraction(mv))
 
 
-def _exact_depths(p, d: SignDecision, m: np.ndarray, m_rep: np.ndarray, margin: bool) -> None:
+def _exact_depths(p: fmpq_poly, d: SignDecision, m: np.ndarray, m_rep: np.ndarray, margin: bool) -> None:
     """Band depths and the margin re-evaluated with p exact: inside each (exactly isolated) negative
     band, p is evaluated exactly on 65 points, so depths far below double round-off (a band of
     relative width 1e-10) are resolved; the margin of a holding condition is re-evaluated exactly
@@ -843,7 +903,7 @@ def _exact_depths(p, d: SignDecision, m: np.ndarray, m_rep: np.ndarray, margin: 
             d.margin = v
 
 
-def flips_within(p, m: np.ndarray, eps: float, status: str) -> bool:
+def flips_within(p: fmpq_poly, m: np.ndarray, eps: float, status: str) -> bool:
     """Whether a perturbation |Δp(x)| ≤ eps·m(x) (x ≥ 0) can change the decision of ``p ≥ 0``:
     for a holding condition, whether p - eps·m is negative somewhere on x > 0; for a violated one,
     whether p + eps·m ≥ 0 everywhere. Decided exactly (eps and m are exact binary rationals)."""
@@ -860,25 +920,25 @@ def flips_within(p, m: np.ndarray, eps: float, status: str) -> bool:
 # exact pole location: open right-half plane and imaginary axis
 
 
-def _cauchy_index(Q, P) -> int:
+def _cauchy_index(Q: fmpq_poly, P: fmpq_poly) -> int:
     """Cauchy index of Q/P over (-∞, ∞) by a generalized Sturm sequence over Q (exact)."""
     if P.degree() < 0:
         return 0
     if Q.degree() >= P.degree():
         Q = Q % P
     seq = [P, Q]
-    while seq[-1] != 0 and seq[-1].degree() > 0:
+    while not seq[-1].is_zero() and seq[-1].degree() > 0:
         r = seq[-2] % seq[-1]
-        if r == 0:
+        if r.is_zero():
             break
         seq.append(-r)
-    seq = [q for q in seq if q != 0]
+    seq = [q for q in seq if not q.is_zero()]
     v_pos = _var([_sgn(q[q.degree()]) for q in seq])
     v_neg = _var([_sgn(q[q.degree()]) * (-1) ** q.degree() for q in seq])
     return v_neg - v_pos
 
 
-def _s_of_x(g):
+def _s_of_x(g: fmpq_poly) -> fmpq_poly:
     """g(-s²) as a polynomial in s."""
     from flint import fmpq_poly
 
@@ -899,7 +959,7 @@ class ExactPoles:
     axis: list[tuple[float, int]]
 
 
-def exact_poles(d) -> ExactPoles:
+def exact_poles(d: fmpq_poly) -> ExactPoles:
     """Locate the roots of ``d`` (``flint.fmpq_poly`` in s) relative to the imaginary axis exactly.
 
     d(jω) = E(x) + jω O(x) (x = ω²); g = gcd(E, O) collects the root pairs ±s0 symmetric about the
@@ -914,13 +974,13 @@ def exact_poles(d) -> ExactPoles:
     while d[k0] == 0:
         k0 += 1
     rest = d // fmpq_poly([0] * k0 + [1]) if k0 else d
-    a: list = []
-    b: list = []
+    a: list[Any] = []
+    b: list[Any] = []
     for k in range(rest.degree() + 1):
         v = rest[k] if (k // 2) % 2 == 0 else -rest[k]
         (a if k % 2 == 0 else b).append(v)
     E, O = fmpq_poly(a), fmpq_poly(b)
-    g = E.gcd(O) if O != 0 else E
+    g = E.gcd(O) if not O.is_zero() else E
     n_rhp = 0
     axis: list[tuple[float, int]] = []
     q = rest
@@ -937,8 +997,8 @@ def exact_poles(d) -> ExactPoles:
                 axis += [(float(x), e) for x in xs]
     n = q.degree()
     if n > 0:
-        R = [0] * (n + 1)
-        Im = [0] * (n + 1)
+        R: list[Any] = [0] * (n + 1)
+        Im: list[Any] = [0] * (n + 1)
         for k in range(n + 1):
             m = k % 4
             if m == 0:

@@ -24,9 +24,13 @@ The public file formats use descending powers of s; conversion happens in :mod:`
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.polynomial import polynomial as P
+
+if TYPE_CHECKING:
+    from flint import fmpq_poly
 
 __all__ = ["JPoly", "XPoly", "jpoly_from_s"]
 
@@ -77,7 +81,7 @@ class XPoly:
 
     c: np.ndarray
     m: np.ndarray
-    exact: object = None
+    exact: fmpq_poly | None = None
 
     @staticmethod
     def const(v: float) -> XPoly:
@@ -103,10 +107,10 @@ class XPoly:
         return XPoly(_mulx(self.c), _mulx(self.m))
 
     def __call__(self, x: np.ndarray | float) -> np.ndarray:
-        return P.polyval(x, self.c)
+        return np.asarray(P.polyval(x, self.c))
 
     def magnitude(self, x: np.ndarray | float) -> np.ndarray:
-        return P.polyval(x, self.m)
+        return np.asarray(P.polyval(x, self.m))
 
     @property
     def degree(self) -> int:
@@ -179,7 +183,7 @@ class JPoly:
     def __call__(self, w: np.ndarray | float) -> np.ndarray:
         w = np.asarray(w, dtype=float)
         x = w * w
-        return P.polyval(x, self.re) + 1j * w * P.polyval(x, self.im)
+        return np.asarray(P.polyval(x, self.re) + 1j * w * P.polyval(x, self.im))
 
 
 def jpoly_from_s(coeffs_ascending: np.ndarray) -> JPoly:

@@ -18,8 +18,7 @@ Conventions
 * Common factors of numerator and denominator: powers of s are cancelled exactly; the algebra's
   shortcuts (a denominator dividing another, a numerator equal to a denominator) are taken only
   on exact divisibility over Q[s] (:func:`_exact_quotient`); conversions between immittance types
-  run entirely in exact arithmetic (:meth:`TransferMatrix.to`). :func:`Rational.minreal` (explicit
-  call only) still cancels roots that agree to a relative tolerance.
+  run entirely in exact arithmetic (:meth:`TransferMatrix.to`).
 """
 
 from __future__ import annotations
@@ -28,7 +27,7 @@ import functools
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from flint import fmpq, fmpq_poly
@@ -69,6 +68,15 @@ class Rational:
             raise ModelError("denominator is identically zero")
 
     # -- constructors ---------------------------------------------------------------------
+    @staticmethod
+    def trusted(num: np.ndarray, den: np.ndarray) -> Rational:
+        """Internal: a Rational from ascending float arrays the caller guarantees to be clean (1-D,
+        finite, last coefficient non-zero, den ≠ 0), without re-validating them."""
+        r = object.__new__(Rational)
+        object.__setattr__(r, "num", num)
+        object.__setattr__(r, "den", den)
+        return r
+
     @staticmethod
     def from_desc(num: Sequence[float], den: Sequence[float] = (1.0,)) -> Rational:
         """From coefficients in descending powers of s, e.g. ``[m, b, k], [1, 0]`` = (ms²+bs+k)/s."""
@@ -176,6 +184,22 @@ class Rational:
         return self._zeros
 
     @functools.cached_property
+    def exact(self) -> tuple[fmpq_poly, fmpq_poly]:
+        """(num, den) as exact rational polynomials (the binary rationals the floats are), computed
+        once per object; callers must not modify them in place."""
+        return _qpoly(self.num), _qpoly(self.den)
+
+    @functools.cached_property
+    def exact_reduced(self) -> tuple[fmpq_poly, fmpq_poly]:
+        """(num, den) exactly, divided by their gcd over Q[s] (a zero numerator: den unchanged)."""
+        num, den = self.exact
+        if not num.is_zero():
+            g = num.gcd(den)
+            if g.degree() > 0:
+                num, den = num // g, den // g
+        return num, den
+
+    @functools.cached_property
     def _poles(self) -> np.ndarray:
         return _roots_asc(self.den)
 
@@ -193,42 +217,16 @@ class Rational:
             k += 1
         return self if k == 0 else Rational(num[k:], den[k:])
 
-    def minreal(self, rtol: float = 1e-7) -> Rational:
-        """Cancel common factors: powers of s exactly, other common roots within ``rtol``."""
-        r = self.cancel_s()
-        num, den = r.num, r.den
-        if num.size > 1 and den.size > 1:
-            zn, zd = _roots_asc(num), _roots_asc(den)
-            used = np.zeros(zd.size, bool)
-            keep_n = []
-            for z in zn:
-                d = np.abs(zd - z)
-                d[used] = np.inf
-                j = int(np.argmin(d)) if d.size else -1
-                if j >= 0 and d[j] <= rtol * max(1.0, abs(z)):
-                    used[j] = True
-                else:
-                    keep_n.append(z)
-            if used.any():
-                kept_d = zd[~used]
-                gain = num[-1] / den[-1]
-                n2 = np.real(P.polyfromroots(keep_n)) if keep_n else np.array([1.0])
-                d2 = np.real(P.polyfromroots(kept_d)) if kept_d.size else np.array([1.0])
-                num, den = gain * n2, d2
-        # normalize: monic-ish denominator by its largest coefficient for conditioning
-        sc = np.max(np.abs(den))
-        return Rational(num / sc, den / sc)
-
     # -- evaluation ---------------------------------------------------------------------------
     def __call__(self, s: np.ndarray | complex) -> np.ndarray:
         s = np.asarray(s, dtype=complex)
-        return P.polyval(s, self.num) / P.polyval(s, self.den)
+        return np.asarray(P.polyval(s, self.num) / P.polyval(s, self.den))
 
     def freq(self, w: np.ndarray | float) -> np.ndarray:
         """Frequency response at s = jω (ω in rad/s), vectorized."""
         return self(1j * np.asarray(w, dtype=float))
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {"num": self.num[::-1].tolist(), "den": self.den[::-1].tolist()}
 
     def __repr__(self) -> str:
@@ -257,7 +255,7 @@ def _exact_quotient(a: np.ndarray, b: np.ndarray, rtol: float = 0.0) -> np.ndarr
         qa = _qpoly(a) / fmpq(*float(b[0]).as_integer_ratio())
     else:
         qa, r = divmod(_qpoly(a), _qpoly(b))
-        if r != 0:
+        if not r.is_zero():
             return None
     try:
         return np.array([_qfloat(qa[k]) for k in range(qa.degree() + 1)] or [0.0])
@@ -309,31 +307,14 @@ class TransferMatrix:
 
     # -- constructors ---------------------------------------------------------------------------
     @staticmethod
-    def from_coefficients(rows: Sequence[Sequence[dict]], kind: ImmittanceKind = "impedance",
+    def from_coefficients(rows: Sequence[Sequence[dict[str, Any]]], kind: ImmittanceKind = "impedance",
                           port_dofs: Sequence[int] | None = None, name: str = "") -> TransferMatrix:
         """From rows of ``{"num": [...], "den": [...]}`` (descending powers of s)."""
         ent = [[Rational.from_desc(e["num"], e.get("den", [1.0])) for e in row] for row in rows]
         return TransferMatrix(ent, kind, tuple(port_dofs or ()), name)
 
     @staticmethod
-    def from_state_space(A, B, C, D, kind: ImmittanceKind = "impedance",
-                         port_dofs: Sequence[int] | None = None, name: str = "") -> TransferMatrix:
-        """From a state-space realization (inputs = flows for an impedance, etc.)."""
-        from scipy.signal import ss2tf
-
-        A, B, C, D = (np.atleast_2d(np.asarray(x, float)) for x in (A, B, C, D))
-        n_in = B.shape[1]
-        if C.shape[0] != n_in:
-            raise ModelError("an immittance matrix needs as many outputs as inputs")
-        rows: list[list[Rational]] = [[Rational.const(0.0)] * n_in for _ in range(n_in)]
-        for j in range(n_in):
-            num, den = ss2tf(A, B, C, D, input=j)
-            for i in range(n_in):
-                rows[i][j] = Rational.from_desc(np.atleast_2d(num)[i], den)
-        return TransferMatrix(rows, kind, tuple(port_dofs or ()), name)
-
-    @staticmethod
-    def from_zpk(zpk_rows: Sequence[Sequence[tuple]], kind: ImmittanceKind = "impedance",
+    def from_zpk(zpk_rows: Sequence[Sequence[tuple[Any, ...]]], kind: ImmittanceKind = "impedance",
                  port_dofs: Sequence[int] | None = None, name: str = "") -> TransferMatrix:
         ent = [[Rational.from_zpk(*e) for e in row] for row in zpk_rows]
         return TransferMatrix(ent, kind, tuple(port_dofs or ()), name)
@@ -369,10 +350,7 @@ class TransferMatrix:
                         ps.append(p)
         return np.array(ps, dtype=complex)
 
-    def is_symmetric(self, rtol: float = 1e-12) -> bool:
-        return all(_rational_equal(self[i, j], self[j, i], rtol) for i in range(self.n) for j in range(i))
-
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {"type": self.kind, "ports": list(self.port_dofs),
                 "matrix": [[e.to_dict() for e in row] for row in self.entries]}
 
@@ -421,18 +399,6 @@ class TransferMatrix:
         return TransferMatrix(_from_rf(out), kind, self.port_dofs, self.name)
 
 
-def _rational_equal(a: Rational, b: Rational, rtol: float) -> bool:
-    lhs = P.polymul(a.num, b.den)
-    rhs = P.polymul(b.num, a.den)
-    n = max(lhs.size, rhs.size)
-    lhs = np.pad(lhs, (0, n - lhs.size))
-    rhs = np.pad(rhs, (0, n - rhs.size))
-    scale = np.abs(P.polymul(np.abs(a.num), np.abs(b.den)))
-    scale = np.pad(scale, (0, n - scale.size)) + np.pad(np.abs(P.polymul(np.abs(b.num), np.abs(a.den))),
-                                                         (0, n - P.polymul(b.num, a.den).size))
-    return bool(np.all(np.abs(lhs - rhs) <= rtol * np.maximum(scale, 1e-300)))
-
-
 # ---------------------------------------------------------------------------------------------
 # conversions in exact rational arithmetic
 #
@@ -451,9 +417,9 @@ class _RF:
 
     def __init__(self, n: fmpq_poly, d: fmpq_poly, reduced: bool = False) -> None:
         if not reduced:
-            if d == 0:
+            if d.is_zero():
                 raise ConversionError("division by an identically zero transfer function")
-            if n == 0:
+            if n.is_zero():
                 n, d = fmpq_poly([]), fmpq_poly([1])
             else:
                 g = n.gcd(d)
@@ -466,11 +432,11 @@ class _RF:
 
     @staticmethod
     def of(r: Rational) -> _RF:
-        return _RF(_qpoly(r.num), _qpoly(r.den))
+        return _RF(*r.exact)
 
     @property
     def is_zero(self) -> bool:
-        return self.n == 0
+        return self.n.is_zero()
 
     # Henrici's algorithms: gcds of the small factors instead of one gcd of the full product,
     # which keeps the intermediate polynomials (and the Gauss-Jordan elimination) small.
@@ -480,11 +446,11 @@ class _RF:
         if self.is_zero:
             return o
         g = self.d.gcd(o.d)
-        if g == 1:  # coprime denominators: the sum is already reduced
+        if g.is_one():  # coprime denominators: the sum is already reduced
             return _RF(self.n * o.d + o.n * self.d, self.d * o.d, reduced=True)
         d1, d2 = self.d // g, o.d // g
         t = self.n * d2 + o.n * d1
-        if t == 0:
+        if t.is_zero():
             return _ZERO
         h = t.gcd(g)  # gcds are monic (FLINT), so is the denominator
         return _RF(t // h, d1 * d2 * (g // h), reduced=True)

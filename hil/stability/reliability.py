@@ -63,7 +63,7 @@ class Standardization:
         return cls(mu, np.linalg.cholesky(C))
 
     def to_theta(self, U: np.ndarray) -> np.ndarray:
-        return self.mu + np.atleast_2d(U) @ self.L.T
+        return np.asarray(self.mu + np.atleast_2d(U) @ self.L.T)
 
     def to_u(self, T: np.ndarray) -> np.ndarray:
         return np.linalg.solve(self.L, (np.atleast_2d(T) - self.mu).T).T

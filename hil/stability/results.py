@@ -170,6 +170,7 @@ def combine(criterion: str, conditions: list[Condition], network: dict[str, Any]
                                reason=why, network=network)
     violated = [c for c in conditions if c.status == "violated"]
     marginal = [c for c in conditions if c.status == "marginal"]
+    worst: Condition | None
     if violated:
         worst = min(violated, key=lambda c: c.margin)
         verdict = Verdict.POTENTIALLY_UNSTABLE

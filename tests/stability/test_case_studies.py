@@ -107,7 +107,7 @@ def test_theorem1_numerical_fallback_agrees_with_the_exact_path(make, expected, 
 
     exact = absolute_stability(make())
     assert exact.verdict == expected
-    monkeypatch.setattr(criteria, "_rational_sqrt", lambda a, b: None)
+    monkeypatch.setattr(criteria, "_sqrt_of_pair", lambda a, b: None)
     swept = absolute_stability(make())
     assert any(c.evidence.get("method") == "sweep" for c in swept.conditions)
     assert swept.verdict == expected

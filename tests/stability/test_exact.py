@@ -89,3 +89,39 @@ def test_jpoly_matches_direct_evaluation():
     np.testing.assert_allclose((ja * jb.conj())(w), va * np.conj(vb), rtol=1e-12)
     np.testing.assert_allclose(ja.abs2()(w * w), np.abs(va) ** 2, rtol=1e-12)
     assert isinstance(JPoly.one(), JPoly)
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_descartes_subdivision_count_agrees_with_sturm_and_constructed_roots(seed):
+    """The exact positive-root count (Descartes/continued fractions over Z, exact._vas_count) against
+    polynomials built from known roots (positive ones over 12 decades, clustered pairs, negative
+    and complex ones) and against an independent Sturm count over Q."""
+    from fractions import Fraction
+
+    from flint import fmpq, fmpq_poly
+
+    from hil.stability.exact import _sturm_count_q, _vas_count
+
+    rng = np.random.default_rng(seed)
+    f = fmpq_poly([int(rng.integers(1, 9))])
+    n_pos = int(rng.integers(0, 5))
+    roots = set()
+    for _ in range(n_pos):
+        r = Fraction(10.0 ** rng.uniform(-6, 6)).limit_denominator(10**12)
+        while r in roots:
+            r *= 2
+        roots.add(r)
+        f *= fmpq_poly([fmpq(-r.numerator, r.denominator), 1])
+        if rng.random() < 0.3:  # a close partner: relative separation 1e-9
+            r2 = r * (1 + Fraction(1, 10**9))
+            roots.add(r2)
+            f *= fmpq_poly([fmpq(-r2.numerator, r2.denominator), 1])
+    for _ in range(int(rng.integers(0, 3))):
+        q = Fraction(10.0 ** rng.uniform(-3, 3)).limit_denominator(10**9)
+        f *= fmpq_poly([fmpq(q.numerator, q.denominator), 1])  # a negative root
+    for _ in range(int(rng.integers(0, 3))):
+        a, b = rng.uniform(-5, 5), 10.0 ** rng.uniform(-2, 2)  # complex pair (x - a)² + b²
+        c0, c1 = Fraction(a * a + b * b), Fraction(-2 * a)
+        f *= fmpq_poly([fmpq(c0.numerator, c0.denominator), fmpq(c1.numerator, c1.denominator), 1])
+    assert _vas_count(f.numer()) == len(roots)
+    assert _sturm_count_q(f) == len(roots)

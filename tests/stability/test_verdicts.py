@@ -242,17 +242,18 @@ def test_passive_t_network_is_stable_in_every_form(kind):
 
 
 def test_common_denominator_is_exact_lcm_and_refuses_near_divisibility():
-    from hil.stability.criteria import _CommonDen
-    from hil.stability.rational import _exact_quotient
+    from hil.stability.criteria import _axis_factor
+    from hil.stability.rational import _exact_quotient, _qpoly
 
     a = np.array([3.0, 4.0, 1.0])  # (s + 1)(s + 3)
     b = np.array([1.0, 1.0])
     assert np.array_equal(_exact_quotient(a, b), np.array([3.0, 1.0]))
     assert _exact_quotient(a + np.array([1e-13, 0, 0]), b) is None  # near-divisible is not divisible
-    cd = _CommonDen([[Rational(np.array([1.0]), a), Rational(np.array([1.0]), b)]])
-    assert np.array_equal(cd.d / cd.d[-1], a)
-    cd2 = _CommonDen([[Rational(np.array([1.0]), a + np.array([1e-13, 0, 0])), Rational(np.array([1.0]), b)]])
-    assert cd2.d.size == 4  # the perturbed denominator does not contain (s + 1): the lcm is the product
+    # the common denominator of the frequency conditions is the exact lcm over Q[s]
+    D, _h, _mu = _axis_factor([_qpoly(a), _qpoly(b)])
+    assert _qpoly(a) == D
+    D2, _h, _mu = _axis_factor([_qpoly(a + np.array([1e-13, 0, 0])), _qpoly(b)])
+    assert D2.degree() == 3  # the perturbed denominator does not contain (s + 1): the lcm is the product
 
 
 def _random_two_port(rng, active: bool) -> TransferMatrix:
