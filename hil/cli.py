@@ -950,7 +950,7 @@ def _cmd_probe(args: argparse.Namespace) -> int:
     return run(args)
 
 
-_PASSTHROUGH = {"identify": "hil.identify.api", "mock": "hil.mocks.serve"}
+_PASSTHROUGH = {"identify": "hil.identify_records", "mock": "hil.mocks.serve"}  # identify: api.main + record backend
 _MOCK_USAGE = ("usage: hil mock serve SCENE [--duration SECONDS] [--json] [--can-interface udp_multicast] "
                "| hil mock serve --spec SPEC | hil mock serve --device KIND")
 

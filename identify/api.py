@@ -62,6 +62,7 @@ from hil.identify.fit import LsResult, fit_least_squares
 from hil.identify.frf import FrfEstimate, Resolution, estimate_frf, lpm_frf
 from hil.identify.models import GreyBoxModel, make_model
 from hil.identify.posterior import LogPosterior, PosteriorResult, sample_posterior
+from hil.identify.source import as_source, backend_for
 from hil.identify.timedomain import (
     MlLogPosterior,
     dft_records,
@@ -305,7 +306,16 @@ def identify_experiments(
         raise DataQualityError(f"experiments sampled at different rates {fs_all}")
     n_min = min(p[0].shape[0] for p in pairs)
     chosen = _choose_method(method, pairs, period, fs)
-    nps = int(nperseg) if nperseg else (round(period * fs) if period else max(n_min // 16, 16))
+    # Welch segment: the period; else n/16 (FRF path), or n/4 on the ML path, where the H1 FRF only
+    # feeds the data checks and the start: its first bin fs/nps must sit below the excitation's lowest
+    # frequency (a 3 s record: 1.3 Hz, not 5.3 Hz) for the checks to see the band that is analysed; a
+    # period given with a record that does not repeat it still sets the segment, but never fewer than 4
+    if nperseg:
+        nps = int(nperseg)
+    elif chosen == "ml":
+        nps = max(min(round(period * fs) if period else n_min, n_min // 4), 16)
+    else:
+        nps = round(period * fs) if period else max(n_min // 16, 16)
     est = estimate_frf(
         pairs,
         fs,
@@ -329,7 +339,7 @@ def identify_experiments(
             + ("the FRF is compensated for the hold" if chosen == "frf" else
                "the ML path does not model the hold (use periodic excitation for this sensor)"), channel=name))
     if band is None and chosen == "ml":
-        band = _excited_band(est)
+        band = _record_band(pairs, fs)
         logger.info("analysis band %.3g..%.3g Hz: where the recorded input carries power", *band)
     est = est.band(*(band or (fs / nps, 0.45 * fs)))
     exc = check_excitation(est)
@@ -391,6 +401,25 @@ def _choose_method(method: str, pairs: Sequence[tuple[np.ndarray, np.ndarray]], 
     logger.info("non-periodic record%s: output-error ML on the exact sampled model",
                 "" if period is None else f" (input does not repeat with period {period:g} s)")
     return "ml"
+
+
+def _record_band(pairs: Sequence[tuple[np.ndarray, np.ndarray]], fs: float) -> tuple[float, float]:
+    """Default band [Hz] of the ML path: the union over the records of the band holding 99.8 % of the
+    input power in the periodogram of the whole record (:func:`hil.identify.excitation.excited_band`:
+    full record resolution, so a sweep or multisine starting at 0.5 Hz is analysed from 0.5 Hz, not from
+    the first Welch bin), capped at 0.45 fs. Idle records (one DOF after the other) are skipped."""
+    from hil.identify.excitation import excited_band
+
+    lo, hi = np.inf, 0.0
+    for u, _ in pairs:
+        try:
+            b = excited_band(u, fs)
+        except ValueError:
+            continue
+        lo, hi = min(lo, b[0]), max(hi, b[1])
+    if not np.isfinite(lo) or hi <= lo:
+        raise DataQualityError("no input carries power: no excitation")
+    return float(lo), float(min(hi, 0.45 * fs))
 
 
 def _excited_band(est: FrfEstimate, rel: float = 1e-4) -> tuple[float, float]:
@@ -566,51 +595,40 @@ _META_KW = (
 def identify_record(record: Any, **overrides: Any) -> IdentificationResult:
     """Identify from a run record or a record dict (module docstring).
 
-    ``record``: a :class:`hil.record.RunRecord`, a path (``.h5`` run record, ``.csv``/``.mat``
-    imported with :mod:`hil.importers` defaults, ``.npz``), or ``{"t", "signals", "meta"}``.
+    ``record``: a :class:`~hil.identify.source.RecordSource` (or an object a registered record backend
+    adapts to one, e.g. a :class:`hil.record.RunRecord`), a path (``.npz``; ``.h5`` run record,
+    ``.csv``/``.mat`` imported with the importers' defaults, through the registered backend,
+    :mod:`hil.identify.source`), or ``{"t", "signals", "meta"}``.
     Run records: everything is inferred (:func:`hil.identify.records.plan_from_record`) and
     ``overrides`` (``model``, ``inputs``, ``outputs``, ``target``, ``experiment``, ``period``,
     ``skip``, ``band``, ``sampling``, ... and any keyword of :func:`identify_experiments`) win.
     Dicts: ``meta["inputs"]``/``meta["outputs"]`` map model channels to signal names (or list signal
     names in model order); ``overrides`` take precedence over ``meta``.
     """
-    from hil.record import RunRecord
-
     if isinstance(record, str | Path):
         record = load_record(record)
-    if isinstance(record, RunRecord):
-        return _identify_run_record(record, overrides)
+    src = as_source(record)
+    if src is not None:
+        return _identify_run_record(src, overrides)
     return _identify_dict(record, **overrides)
 
 
 def load_record(path: str | Path) -> Any:
-    """A :class:`hil.record.RunRecord` (``.h5``; ``.csv``/``.mat`` imported into a temporary record
-    with the importers' defaults) or a record dict (``.npz``). Raises RecordError / ModelSpecError."""
-    from hil.record import RecordError, RunRecord
-
+    """A :class:`~hil.identify.source.RecordSource` opened by the record backend registered for the
+    file's suffix (the suite's: ``.h5``; ``.csv``/``.mat`` imported into a temporary record with the
+    importers' defaults) or a record dict (``.npz``, read here). Raises the backend's error (RecordError)
+    or ModelSpecError, one line naming the file."""
     p = Path(path)
-    suffix = p.suffix.lower()
-    try:  # an unreadable file is one line naming it, never a traceback
-        if suffix == ".npz":
+    if p.suffix.lower() == ".npz":
+        try:
             if not p.is_file():
                 raise ModelSpecError(f"{p}: no such file")
             return load_npz_record(str(p))
-        if suffix in (".csv", ".mat"):
-            from hil.importers import import_csv, import_mat
-
-            with tempfile.TemporaryDirectory(prefix="hil-identify-") as tmp:
-                out = Path(tmp) / (p.stem + ".h5")
-                (import_csv if suffix == ".csv" else import_mat)(p, out)
-                return RunRecord.open(out)
-    except HilError:
-        raise
-    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:  # UnicodeDecodeError is a ValueError
-        raise RecordError(f"{p}: not a readable {suffix} record ({' '.join(str(exc).split())[:200]})") from None
-    except Exception as exc:  # scipy's MatReadError derives from Exception only
-        if type(exc).__name__ != "MatReadError":
+        except HilError:
             raise
-        raise RecordError(f"{p}: not a readable .mat file ({' '.join(str(exc).split())[:200]})") from None
-    return RunRecord.open(p)
+        except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+            raise ModelSpecError(f"{p}: not a readable .npz record ({' '.join(str(exc).split())[:200]})") from None
+    return backend_for(p).open(p)
 
 
 def _identify_run_record(rec: Any, overrides: Mapping[str, Any]) -> IdentificationResult:
@@ -704,10 +722,8 @@ def store_result(path: str | Path, res: IdentificationResult, name: str | None =
     model name): the posterior samples (physical units, columns ``sample_names``) and the full
     summary (:meth:`IdentificationResult.to_dict`: per-parameter summary, convergence diagnostics,
     noise model, LS, CRB, data checks, channel mapping). Returns the group name."""
-    from hil.record import store_identification
-
     key = name or res.model.name
-    store_identification(path, key, res.posterior.samples, res.to_dict())
+    backend_for(path).store(path, key, res.posterior.samples, res.to_dict())
     return key
 
 
@@ -716,8 +732,10 @@ def load_identification(path: str | Path, name: str | None = None) -> dict[str, 
     only one when ``name`` is None). Raises RecordError."""
     import h5py
 
-    from hil.record import RecordError
-
+    try:
+        error: type[Exception] = backend_for(path).error
+    except ModelSpecError:
+        error = ModelSpecError
     try:
         with h5py.File(path, "r") as f:
             g = f.get("identification")
@@ -725,11 +743,11 @@ def load_identification(path: str | Path, name: str | None = None) -> dict[str, 
             if name is None and len(names) == 1:
                 name = names[0]
             if name not in names:
-                raise RecordError(f"{path}: no identification {name!r} (have {names})")
+                raise error(f"{path}: no identification {name!r} (have {names})")
             grp = g[name]
             return {"samples": np.array(grp["samples"]), "summary": json.loads(grp["summary"][()])}
     except OSError as exc:
-        raise RecordError(f"{path}: cannot read: {exc}") from None
+        raise error(f"{path}: cannot read: {exc}") from None
 
 
 def _kv(items: Sequence[str] | None, what: str) -> dict[str, str]:
@@ -852,15 +870,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if a.out and suffix not in (".csv", ".mat"):
             raise ModelSpecError(f"--out applies to .csv/.mat input (the result goes into {target_path} itself)")
         if suffix in (".csv", ".mat"):
-            from hil.importers import import_csv, import_mat
-
-            if a.out:
-                from hil.outdir import check_out_file
-
-                if not target_path.is_file():
-                    raise ModelSpecError(f"{target_path}: no such file")
-                check_out_file(a.out, overwrite=a.overwrite)
-                target_path = (import_csv if suffix == ".csv" else import_mat)(a.record, a.out)
+            if a.out:  # the backend imports the file into a record kept at --out
+                target_path = backend_for(target_path).import_to(target_path, a.out, overwrite=a.overwrite)
                 rec: Any = load_record(target_path)
             else:
                 rec, target_path = load_record(a.record), None
