@@ -37,7 +37,6 @@ from __future__ import annotations
 import json
 import logging
 import sys
-import tempfile
 import time
 import zipfile
 from collections.abc import Mapping, Sequence

@@ -63,7 +63,8 @@ class RecordSource(Protocol):
 
 class RecordBackend(Protocol):
     """Opens, adapts and writes records of one family (module docstring). ``suffixes``: lower-case file
-    suffixes it opens (``".h5"``; ``"*"``: any suffix no other backend claims); ``error``: its error class (a :class:`hil.errors.HilError`)."""
+    suffixes it opens (``".h5"``; ``"*"``: any suffix no other backend claims); ``error``: its error
+    class (a :class:`hil.errors.HilError`)."""
 
     suffixes: tuple[str, ...]
     error: type[Exception]

@@ -51,7 +51,6 @@ def test_the_multisine_record_is_not_periodic_and_goes_to_the_ml_path() -> None:
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_mbk_cross_coupled_nonperiodic_bias_coverage_and_bound() -> None:
-    n_par = TRUTH.size
     z_all, hits_all, zc_all = [], [], []
     n_misfit = 0
     for li, noise in enumerate(NOISE):
