@@ -328,15 +328,18 @@ def identify_experiments(
     from hil.identify.sensor_hold import compensate_frf, held_outputs  # outputs of a slower sensor
 
     held = held_outputs(pairs, mdl.output_names)
-    if held and chosen == "frf":
-        est = compensate_frf(est, held, fs)
+    # the ML path models the hold in its likelihood (hil.identify.held_ml) on the exact ZOH model
+    held_ml = bool(held) and chosen == "ml" and mdl.zoh_fs is not None and not mdl.has_delay
+    if held:
+        est = compensate_frf(est, held, fs)  # FRF path: the estimate; ML path: its checks and start
     for name in held:
+        how = ("the FRF is compensated for the hold" if chosen == "frf" else
+               "the likelihood observes it at its new samples only (hold modelled)" if held_ml else
+               "the ML path models the hold only with the zero-order-hold model without delay (sampling 'zoh')")
         report.diagnoses.append(Diagnosis(
-            "sample_and_hold", "warning" if chosen == "ml" else "info",
+            "sample_and_hold", "info" if chosen == "frf" or held_ml else "warning",
             f"output {name} repeats its previous value in {100 * (1 - held[name][0]):.0f} % of the samples "
-            f"(a sensor slower than the {fs:g} Hz loop): "
-            + ("the FRF is compensated for the hold" if chosen == "frf" else
-               "the ML path does not model the hold (use periodic excitation for this sensor)"), channel=name))
+            f"(a sensor slower than the {fs:g} Hz loop): " + how, channel=name))
     if band is None and chosen == "ml":
         band = _record_band(pairs, fs)
         logger.info("analysis band %.3g..%.3g Hz: where the recorded input carries power", *band)
@@ -367,7 +370,7 @@ def identify_experiments(
     if chosen == "ml":
         return _identify_ml(mdl, pairs, fs, band or (fs / nps, 0.45 * fs), est, ls, ident, report, timings, t0,
                             seed=seed, posterior=posterior, n_walkers=n_walkers, max_steps=max_steps,
-                            max_seconds=max_seconds, accept_misfit=accept_misfit,
+                            max_seconds=max_seconds, accept_misfit=accept_misfit, held=held if held_ml else None,
                             alt_start=lambda: _lpm_start(mdl, pairs, fs, band or (fs / nps, 0.45 * fs), th0))
     crb_std = _frf_path_crb(mdl, ls.theta, pairs, fs, est)
     adequacy = check_frf_fit(mdl, est, ls.theta)
@@ -506,14 +509,24 @@ def _identify_ml(
     max_seconds: float | None,
     accept_misfit: bool,
     alt_start: Any = None,
+    held: Mapping[str, Any] | None = None,
 ) -> IdentificationResult:
     """Output-error ML from the H1-LS start, adequacy tests, then the posterior (emcee on the same
-    likelihood, or its Laplace approximation)."""
+    likelihood, or its Laplace approximation). ``held``: outputs of a slower sensor (name -> age
+    distribution): the time-domain likelihood with the hold modelled (:mod:`hil.identify.held_ml`)."""
     t1 = time.perf_counter()
     start = "H1"
     recs = dft_records(pairs, fs, band)
-    ml = fit_ml(mdl, recs, ls0.theta)
-    adequacy = check_ml_fit(mdl, recs, ml.theta, ml.sigma)
+    prob = None
+    if held:
+        from hil.identify.held_ml import check_held_fit, fit_held_ml, held_records
+
+        ml, prob = fit_held_ml(mdl, held_records(pairs, mdl.output_names, held), ls0.theta)
+        adequacy = check_held_fit(prob, ml.theta, ml.sigma)
+        alt_start = None  # the time-domain problem has its own start (the hold-compensated H1 fit)
+    else:
+        ml = fit_ml(mdl, recs, ls0.theta)
+        adequacy = check_ml_fit(mdl, recs, ml.theta, ml.sigma)
     if adequacy.misfit and alt_start is not None:
         # a local optimum also fails the adequacy tests: refit from an LS fit on the transient-free
         # local-polynomial FRF, keep the likelier fit
@@ -534,7 +547,7 @@ def _identify_ml(
     if posterior == "laplace":
         post = laplace_posterior(mdl, ml, seed=seed)
     elif posterior == "emcee":
-        lp = MlLogPosterior(mdl, recs, ml.sigma)
+        lp = MlLogPosterior(mdl, recs, ml.sigma, prob=prob)
         post = sample_posterior(lp, ml.z, ml.cov_z, seed=seed, n_walkers=n_walkers, max_steps=max_steps,  # type: ignore[arg-type]
                                 max_seconds=max_seconds)
     else:
@@ -544,6 +557,9 @@ def _identify_ml(
     info = {"noise_std": dict(zip(mdl.output_names, map(float, ml.sigma), strict=True)), "band_hz": list(band),
             "n_bins": ml.n_bins, "posterior": posterior,
             "start": f"least squares on the {start} FRF"}
+    if held:
+        info.update(likelihood="time domain, held outputs observed at their new samples",
+                    held_outputs=sorted(held), band_hz=None)
     res = IdentificationResult(mdl, est, ls, ml.crb_std, ident, post, report, timings, method="ml",
                                adequacy=adequacy, misfit_accepted=bool(accept_misfit and adequacy.misfit), ml=info)
     if not res.converged:

@@ -492,9 +492,11 @@ class MlLogPosterior:
 
     noise = "ml-white"
 
-    def __init__(self, model: GreyBoxModel, recs: Sequence[DftRecord], sigma: ArrayLike) -> None:
+    def __init__(self, model: GreyBoxModel, recs: Sequence[DftRecord], sigma: ArrayLike, *, prob: Any = None) -> None:
         self.model = model
-        self.prob = _Problem(model, recs)
+        #: the problem: ``rss_weighted(theta_batch, sigma)`` and ``m_o`` (the DFT problem of ``recs``, or
+        #: :class:`hil.identify.held_ml.HeldProblem` for held outputs)
+        self.prob = _Problem(model, recs) if prob is None else prob
         self.sigma = np.asarray(sigma, float)
         self.lo, self.hi = model.z_bounds()
         self.ndim = self.lo.size

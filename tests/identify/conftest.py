@@ -305,6 +305,18 @@ def make_multisine_record(
     return SimRecord(np.arange(n) / fs, u, y, fs, sd)
 
 
+def sample_and_hold(y: NDArray[np.float64], fs: float, rate: float, phase: float = 0.37) -> NDArray[np.float64]:
+    """``y`` (n,) as a sensor streaming at ``rate`` < ``fs`` [Hz] leaves it in a record taken at ``fs``: the
+    value is new at the ticks where a sensor sample fell since the previous tick (the sensor's clock runs
+    free: at 1004 Hz in a 2 kHz loop the ages are mostly 0,1 with a 0,0 every ~250 ticks) and equals the
+    signal at that tick; elsewhere the previous value is held (noise included)."""
+    i = np.arange(y.size)
+    new = np.ones(y.size, dtype=bool)
+    new[1:] = np.floor(i[1:] * rate / fs + phase) > np.floor((i[1:] - 1) * rate / fs + phase)
+    last = np.maximum.accumulate(np.where(new, i, 0))
+    return y[last]
+
+
 def sdea_compliant_mount_ss(
     K_f: float, B_f: float, M: float, B: float, *, m_e: float = 2e-3, f_e: float = 300.0, zeta: float = 0.02
 ) -> tuple[NDArray, ...]:
