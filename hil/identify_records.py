@@ -37,7 +37,7 @@ def scene_of_record(rec: Any) -> Any:
     text = getattr(rec, "scene_text", "") or ""
     if not text.strip():
         return None
-    import yaml
+    import yaml  # type: ignore[import-untyped]  # PyYAML ships no stubs (types-PyYAML is not a dependency)
 
     from hil.scene import scene_from_dict
 

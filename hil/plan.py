@@ -45,7 +45,7 @@ import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol, cast
 
 import numpy as np
 
@@ -59,6 +59,27 @@ __all__ = ["ExperimentPrediction", "PlanError", "plan_scene", "predict_experimen
 SAFETY_MARGIN = 0.8
 #: longest experiment a proposal may ask for [s]
 MAX_DURATION = 600.0
+
+
+class _PeriodicExperiment(Protocol):
+    """What planning reads of a chirp/multisine (:class:`hil.experiments._PeriodicEffort` subclasses set
+    these when built): one period of ``n_period`` samples per selected DOF in ``wave`` (n_sel, n_period),
+    laid out in ``n_blocks`` blocks of ``n_block`` samples."""
+
+    name: str
+    rate_hz: float
+    duration: float
+    period: float
+    periods: int
+    n_period: int
+    n_block: int
+    n_blocks: int
+    sel: list[int]
+    wave: Any
+    f0: float
+    f1: float
+
+    def check(self, scene: Any) -> None: ...
 
 
 class PlanError(HilError):
@@ -225,7 +246,10 @@ def predict_experiment(scene: Any, exp_cfg: Any, *, requested: Mapping[str, floa
 
     cfg = exp_cfg.model_dump() if hasattr(exp_cfg, "model_dump") else dict(exp_cfg)
     cfg = {k: v for k, v in cfg.items() if v is not None}
-    exp = make_experiment(cfg, rate_hz=scene.rate_hz)
+    built = make_experiment(cfg, rate_hz=scene.rate_hz)
+    if not hasattr(built, "n_period"):
+        raise PlanError(f"experiment {built.name}: type {cfg.get('type')!r} is not a periodic chirp or multisine")
+    exp = cast(_PeriodicExperiment, built)
     exp.check(scene)
     spec = type("E", (), {"target": cfg["target"], "variant": cfg.get("variant"), "dofs": cfg.get("dofs"),
                           "name": exp.name})()

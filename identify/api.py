@@ -819,8 +819,8 @@ def _print_table(res: IdentificationResult) -> None:
             f"{n:>10} {r['median']:12.5g} {r['q05']:12.5g} {r['q95']:12.5g} {r['std']:10.3g} "
             f"{r.get('ls_std', float('nan')):10.3g} {r.get('crb_std', float('nan')):10.3g}  {units.get(n, '')}"
         )
-    for n, r in res.derived_summary().items():
-        print(f"{n:>10} {r['median']:12.5g} {r['q05']:12.5g} {r['q95']:12.5g} {r['std']:10.3g}  (derived)  {r['unit']}")
+    for n, d in res.derived_summary().items():
+        print(f"{n:>10} {d['median']:12.5g} {d['q05']:12.5g} {d['q95']:12.5g} {d['std']:10.3g}  (derived)  {d['unit']}")
     if res.adequacy is not None:
         for t in res.adequacy.tests:
             rng = f" expected {t.expected[0]:.3g}..{t.expected[1]:.3g}" if t.expected else ""
@@ -878,15 +878,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         outputs = _kv(a.output, "--output") or None
         theta0 = _theta0(a.set)
         res_spec = _resolution_arg(a.resolution)
-        target_path: Path | None = Path(a.record)
-        suffix = target_path.suffix.lower()
-        if target_path.is_dir():
-            raise ModelSpecError(f"{target_path}: is a folder, not a record")
+        record_path = Path(a.record)
+        target_path: Path | None = record_path
+        suffix = record_path.suffix.lower()
+        if record_path.is_dir():
+            raise ModelSpecError(f"{record_path}: is a folder, not a record")
         if a.out and suffix not in (".csv", ".mat"):
             raise ModelSpecError(f"--out applies to .csv/.mat input (the result goes into {target_path} itself)")
         if suffix in (".csv", ".mat"):
             if a.out:  # the backend imports the file into a record kept at --out
-                target_path = backend_for(target_path).import_to(target_path, a.out, overwrite=a.overwrite)
+                target_path = backend_for(record_path).import_to(record_path, a.out, overwrite=a.overwrite)
                 rec: Any = load_record(target_path)
             else:
                 rec, target_path = load_record(a.record), None
@@ -941,7 +942,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"hil identify: ConvergenceError: posterior not converged: {reasons}", file=sys.stderr)
         return EXIT_ERROR
     if res.misfit and not a.accept_misfit:
-        print(f"hil identify: ModelMisfit: the model does not describe the data ({'; '.join(res.adequacy.reasons)}); "
+        why = "; ".join(res.adequacy.reasons) if res.adequacy is not None else ""
+        print(f"hil identify: ModelMisfit: the model does not describe the data ({why}); "
               "use a richer model, or --accept-misfit", file=sys.stderr)
         return EXIT_ERROR
     return EXIT_OK

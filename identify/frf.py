@@ -266,7 +266,7 @@ def estimate_frf(
         _, Gyx = signal.csd(uT[None, :, :], yT[:, None, :], **kw)  # [o, i] = E[Y_o conj(X_i)]
         _, Gyy = signal.welch(yT, **kw)
         K, Ke = welch_effective_averages(u.shape[0], nperseg, noverlap, window)
-        if acc_xx is None:
+        if acc_xx is None or acc_yx is None or acc_yy is None:
             acc_xx, acc_yx, acc_yy = K * Gxx, K * Gyx, K * Gyy
         else:
             if Gxx.shape != acc_xx.shape or Gyx.shape != acc_yx.shape:

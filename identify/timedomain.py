@@ -110,7 +110,8 @@ def dft_records(
         n = u.shape[0]
         f = np.fft.rfftfreq(n, 1.0 / fs)
         k = np.flatnonzero((f > 0) & (f >= lo) & (f <= hi) & (np.arange(f.size) < n / 2))
-        out.append(DftRecord(k, f[k], np.fft.rfft(u, axis=0)[k], np.fft.rfft(y, axis=0)[k], n, float(fs)))
+        out.append(DftRecord(k, np.asarray(f[k], float), np.fft.rfft(u, axis=0)[k], np.fft.rfft(y, axis=0)[k], n,
+                             float(fs)))
     return out
 
 
