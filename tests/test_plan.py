@@ -188,3 +188,31 @@ def test_predicted_sd_matches_the_achieved_posterior_sd_on_the_mbk_2dof_bench(tm
     scatter = (per - per.mean(axis=0)).std(axis=(0, 1)) * np.sqrt(k / (k - 1))
     # 5 x 2000 samples per DOF: the sample std has a relative sd of 0.7 %; 5 % is > 7 sd
     np.testing.assert_allclose(scatter, [pred.noise["velocity_0"], pred.noise["velocity_1"]], rtol=0.05)
+
+
+def test_cia402_velocity_quantization_is_in_the_plan(tmp_path) -> None:
+    """A CiA 402 drive reports velocity in whole counts/s: the recorded velocity of the simulated drive lies on
+    the lattice 2 pi / counts_per_rev rad/s that the plan takes as its velocity rounding floor (800 x the
+    float32 spacing at 0.5 rad/s), which raises the predicted sd of the velocity-limited K_f and M."""
+    pytest.importorskip("canopen")
+    from hil.plan import _velocity_steps
+    from hil.record import RunRecord
+    from hil.runner import Runner
+
+    d = yaml.safe_load(load_scene("cia402_bench").source_text)
+    d["experiments"] = [dict(d["experiments"][0], duration=0.5, periods=1)]
+    sc = scene_from_dict(d, label="cia402-short", source_text=yaml.safe_dump(d, sort_keys=False))
+    (step,) = _velocity_steps(sc, "motor")
+    assert step == pytest.approx(2 * np.pi / 131072, rel=1e-12)
+    (out,) = Runner(sc, tmp_path).run()
+    v = np.asarray(RunRecord.open(out.record).channels["motor.velocity"], float).ravel()
+    k = v / step
+    assert np.ptp(k) > 100  # the chirp moves the motor over many counts/s
+    np.testing.assert_allclose(k, np.round(k), atol=1e-3)  # whole counts (float32 recording: ~1e-3 of a count)
+    pred = predict_experiment(sc, sc.experiments[0])
+    d["devices"][0]["params"].pop("counts_per_rev")  # left to the drive: the plan cannot know the lattice
+    sc2 = scene_from_dict(d, label="cia402-unknown-cpr", source_text=yaml.safe_dump(d, sort_keys=False))
+    assert _velocity_steps(sc2, "motor") == []
+    base = predict_experiment(sc2, sc2.experiments[0])
+    assert pred.sd["K_f"] > 100 * base.sd["K_f"] and pred.sd["M"] > 100 * base.sd["M"]
+    assert pred.sd["B_f"] == pytest.approx(base.sd["B_f"], rel=0.05)  # force-limited: unchanged
