@@ -58,7 +58,7 @@ from hil.identify.errors import (
 )
 from hil.identify.fisher import IdentifiabilityReport, check_identifiability, crb
 from hil.identify.fit import LsResult, fit_least_squares
-from hil.identify.frf import FrfEstimate, Resolution, estimate_frf, lpm_frf
+from hil.identify.frf import FrfEstimate, Resolution, estimate_frf, lattice_step, lpm_frf
 from hil.identify.models import GreyBoxModel, make_model
 from hil.identify.posterior import LogPosterior, PosteriorResult, sample_posterior
 from hil.identify.source import as_source, backend_for
@@ -244,8 +244,9 @@ def identify_experiments(
     leakage-free segments); otherwise ``nperseg`` defaults to 1/16 of the shortest record.
     ``skip`` [s] drops the start of each record (transient). ``seed`` drives LS restarts and the
     whole emcee run. ``resolution``/``input_resolution``: rounding of the recorded outputs/inputs
-    (default float32, what device buses carry), a noise floor that periodic averaging does not
-    remove (:mod:`hil.identify.frf`). ``sampling``: ``continuous`` (H(jw)) or ``zoh`` (the exact
+    (default float32, what device buses carry; ``auto``: float32, or the step of a whole-count
+    quantizer found in the values, :func:`hil.identify.frf.lattice_step`), a noise floor that periodic
+    averaging does not remove (:mod:`hil.identify.frf`). ``sampling``: ``continuous`` (H(jw)) or ``zoh`` (the exact
     response of the plant behind a zero-order hold at the data's rate: digital benches; a model
     instance must then have been built with ``zoh_fs``). ``theta0`` (default: the model's
     data-derived :meth:`~hil.identify.models.GreyBoxModel.initial_guess`, else its nominal values)
@@ -325,6 +326,13 @@ def identify_experiments(
         resolution=resolution,
         input_resolution=input_resolution,
     )
+    if isinstance(resolution, str) and resolution == "auto":
+        for o, name in enumerate(mdl.output_names):
+            q = lattice_step(np.concatenate([y[:, o] for _, y in pairs]))
+            if q is not None:
+                report.diagnoses.append(Diagnosis(
+                    "quantized", "info", f"output {name} takes whole multiples of {q:.4g} (a sensor or drive "
+                    "reporting whole counts): its rounding floor q^2/12 is in the noise model", channel=name))
     from hil.identify.sensor_hold import compensate_frf, held_outputs  # outputs of a slower sensor
 
     held = held_outputs(pairs, mdl.output_names)
@@ -782,14 +790,14 @@ def _resolution_arg(v: str | None) -> Resolution | None:
         return None
     if v in ("none", "0"):
         return None if v == "none" else 0.0
-    if v in ("float16", "float32", "float64"):
+    if v in ("float16", "float32", "float64", "auto"):
         return v
     try:
         step = float(v)
     except ValueError:
         step = float("nan")
     if not np.isfinite(step) or step < 0:
-        raise ModelSpecError(f"--resolution {v}: expected float16, float32, float64, none, or a non-negative "
+        raise ModelSpecError(f"--resolution {v}: expected auto, float16, float32, float64, none, or a non-negative "
                              "quantization step")
     return step
 
@@ -854,7 +862,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--sampling", choices=["zoh", "continuous"], default=None,
                    help="plant behind a zero-order hold at the record's rate (default for records) or continuous")
     p.add_argument("--resolution", default=None,
-                   help="rounding of the recorded signals: float32 (default), float64, none, or a step")
+                   help="rounding of the recorded signals: float32 (default), auto (a whole-count quantizer "
+                   "detected from the values, else float32), float64, none, or a step")
     p.add_argument("--noise", choices=["student", "gaussian", "scaled"], default=None)
     p.add_argument("--set", action="append", metavar="PARAM=VALUE", help="starting value of a parameter (theta0)")
     p.add_argument("--seed", type=seed_type, default=None)
