@@ -2,8 +2,9 @@
 
 * :func:`identify_arrays` -- one experiment given as arrays.
 * :func:`identify_experiments` -- several experiments (e.g. one chirp per input of an m-DOF device).
-* :func:`identify_record` -- a run record (:class:`hil.record.RunRecord`, or its path: ``.h5``
-  written by ``hil run`` or ``hil import``; ``.csv``/``.mat`` imported on the fly; ``.npz``), or the
+* :func:`identify_record` -- a run record (a :class:`hil.identify.source.RecordSource`, e.g. a
+  :class:`hil.record.RunRecord` adapted by its backend, or its path: ``.h5`` written by ``hil run`` or
+  ``hil import``; ``.csv``/``.mat`` imported on the fly; ``.npz``), or the
   dict ``{"t": ..., "signals": {name: array}, "meta": {...}}``. For run records the model,
   channels, windows, Welch segment and band are inferred from the record's meta, results and scene
   (:mod:`hil.identify.records`); dict ``meta`` keys: ``model`` (name), ``inputs`` / ``outputs``
@@ -11,7 +12,8 @@
   (measured model outputs), ``band`` [Hz], ``period`` [s] of the periodic chirp (sets the Welch
   segment), ``nperseg``, ``skip`` [s], ``seed``, ``model_options``, ``noise``.
 * :func:`store_result` -- posterior samples, summary and convergence diagnostics into the record
-  (``/identification/<model>``, :func:`hil.record.store_identification`); :func:`load_identification`.
+  (``/identification/<model>``, through the record backend: :func:`hil.record.store_identification`);
+  :func:`load_identification`.
 * :func:`main` -- ``hil identify RECORD [--model NAME] [--json] ...``. Exit codes (the CLI's): 0 ok;
   2 usage or input error (unreadable file, unknown model, missing channel); 13 the data cannot
   give a trustworthy estimate (data quality, not identifiable, posterior not converged, model misfit
