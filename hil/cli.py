@@ -998,7 +998,7 @@ def _cmd_mock_serve(args: argparse.Namespace) -> int:
     return run(args)
 
 
-_PASSTHROUGH = {"identify": "hil.identify.api"}
+_PASSTHROUGH = {"identify": "hil.identify_records"}  # identify: api.main + the record backend
 
 # ---------------------------------------------------------------------------------------------
 # output folders, progress, numeric guard, error mapping

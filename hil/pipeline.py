@@ -354,9 +354,10 @@ def stage_identify(ctx: Context, sheet: Sheet, run: RunOutput) -> PosteriorDraws
                     continue
                 try:
                     from hil.identify.api import identify_record, store_result
+                    from hil.identify_records import open_source  # the record as identification reads it
 
                     kw = {"model": spec.model} if spec.model else {}
-                    res = identify_record(o.record, seed=seed, **kw)
+                    res = identify_record(open_source(o.record), seed=seed, **kw)
                     store_result(o.record, res)
                 except HilError as exc:
                     errors.append(f"identification from {spec.experiment}: {exc}")

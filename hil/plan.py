@@ -45,7 +45,7 @@ import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol, cast
 
 import numpy as np
 
@@ -59,6 +59,27 @@ __all__ = ["ExperimentPrediction", "PlanError", "plan_scene", "predict_experimen
 SAFETY_MARGIN = 0.8
 #: longest experiment a proposal may ask for [s]
 MAX_DURATION = 600.0
+
+
+class _PeriodicExperiment(Protocol):
+    """What planning reads of a chirp/multisine (:class:`hil.experiments._PeriodicEffort` subclasses set
+    these when built): one period of ``n_period`` samples per selected DOF in ``wave`` (n_sel, n_period),
+    laid out in ``n_blocks`` blocks of ``n_block`` samples."""
+
+    name: str
+    rate_hz: float
+    duration: float
+    period: float
+    periods: int
+    n_period: int
+    n_block: int
+    n_blocks: int
+    sel: list[int]
+    wave: Any
+    f0: float
+    f1: float
+
+    def check(self, scene: Any) -> None: ...
 
 
 class PlanError(HilError):
@@ -225,7 +246,10 @@ def predict_experiment(scene: Any, exp_cfg: Any, *, requested: Mapping[str, floa
 
     cfg = exp_cfg.model_dump() if hasattr(exp_cfg, "model_dump") else dict(exp_cfg)
     cfg = {k: v for k, v in cfg.items() if v is not None}
-    exp = make_experiment(cfg, rate_hz=scene.rate_hz)
+    built = make_experiment(cfg, rate_hz=scene.rate_hz)
+    if not hasattr(built, "n_period"):
+        raise PlanError(f"experiment {built.name}: type {cfg.get('type')!r} is not a periodic chirp or multisine")
+    exp = cast(_PeriodicExperiment, built)
     exp.check(scene)
     spec = type("E", (), {"target": cfg["target"], "variant": cfg.get("variant"), "dofs": cfg.get("dofs"),
                           "name": exp.name})()
@@ -246,6 +270,12 @@ def predict_experiment(scene: Any, exp_cfg: Any, *, requested: Mapping[str, floa
     A, Bm, C = mdl.state_space(th)
     Y = _simulate(A, Bm, C, u, fs)
     q_y = np.array([rounding_variance(Y[:, o], "float32") for o in range(C.shape[0])])
+    # a drive that reports velocity in whole encoder counts per second quantizes it far above float32;
+    # the rounding repeats with the signal in every period (not averaged), like the float32 floor
+    steps = _velocity_steps(scene, cfg["target"])
+    for o, name in enumerate(mdl.output_names):
+        if name.startswith("velocity") and steps:
+            q_y[o] = max(q_y[o], rounding_variance(Y[:, o], steps[min(_dof_index(name), len(steps) - 1)]))
     q_u = np.array([rounding_variance(u[:, i], "float32") for i in range(u.shape[1])])
     s2 = np.array([noise[o] ** 2 for o in mdl.output_names])
     floor = n * (s2[None, :] / K + q_y[None, :] + (np.abs(H) ** 2 @ q_u)[..., None][..., 0])  # (nf, no)
@@ -386,6 +416,31 @@ def plan_scene(scene: Any, *, experiments: Sequence[str] | None = None,
         raise PlanError(f"--precision {unknown[0]}: no planned experiment identifies it (parameters: "
                         f"{', '.join(sorted(known))})")
     return out
+
+
+def _dof_index(output: str) -> int:
+    """DOF of a velocity output name (``velocity`` -> 0, ``velocity_1`` -> 1)."""
+    tail = output.rsplit("_", 1)[-1]
+    return int(tail) if tail.isdigit() else 0
+
+
+def _velocity_steps(scene: Any, target: str) -> list[float]:
+    """Velocity quantization step [rad/s] per DOF of the target actuator (a device or a group), where its
+    driver reports velocity in whole encoder counts per second: CiA 402 (0x606C in counts/s,
+    ``2 pi / (counts_per_rev * gear_ratio)`` rad/s per count, :mod:`hil.protocols.cia402`). Empty when
+    no such driver (float32 feedback only) or when counts_per_rev is left to be read from the drive."""
+    devs = [d for d in scene.devices if d.name == target]
+    if not devs:
+        group = next((g for g in getattr(scene, "groups", None) or [] if g.name == target), None)
+        members = list(getattr(group, "devices", []) or [])
+        devs = [d for m in members for d in scene.devices if d.name == m]
+    steps: list[float] = []
+    for d in devs:
+        p = dict(d.params or {})
+        if d.driver != "cia402" or not p.get("counts_per_rev"):
+            return []
+        steps += [2 * math.pi / (float(p["counts_per_rev"]) * abs(float(p.get("gear_ratio", 1.0))))] * int(d.dof or 1)
+    return steps
 
 
 def _sensor_rate(scene: Any, rate: float) -> float:

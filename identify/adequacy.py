@@ -156,7 +156,10 @@ def lpm_noise(
 
 # ------------------------------------------------------------------------------------ sequence tests
 def whiteness_test(x: ArrayLike, *, lags: int = 20, alpha: float = 1e-3, channel: str = "") -> AdequacyTest:
-    """Ljung-Box-type whiteness of a complex sequence ``x`` (module docstring, test 2)."""
+    """Ljung-Box-type whiteness of a complex sequence ``x`` (module docstring, test 2). A REAL sequence
+    (time-domain residuals, :mod:`hil.identify.held_ml`) has real autocorrelations, each carrying one
+    degree of freedom: ``Q = m sum rho^2 ~ chi^2(h)`` instead of ``2 m sum |rho|^2 ~ chi^2(2 h)``."""
+    real = bool(np.isrealobj(x))
     xx = np.asarray(x, complex)
     xx = xx[np.isfinite(xx)]
     m = xx.size
@@ -164,16 +167,20 @@ def whiteness_test(x: ArrayLike, *, lags: int = 20, alpha: float = 1e-3, channel
     X = np.fft.fft(xx)
     acf = np.fft.ifft(np.abs(X) ** 2)  # circular autocorrelation (sum_t x_{t+tau} conj(x_t))
     rho = acf[1 : h + 1] / acf[0].real
-    Q = float(2 * m * np.sum(np.abs(rho) ** 2))
-    p = float(stats.chi2.sf(Q, 2 * h))
-    return AdequacyTest("whiteness", channel, Q, p >= alpha, p, None, alpha, {"lags": h, "dof": 2 * h, "n": m})
+    k = 1 if real else 2
+    Q = float(k * m * np.sum(np.abs(rho) ** 2))
+    p = float(stats.chi2.sf(Q, k * h))
+    return AdequacyTest("whiteness", channel, Q, p >= alpha, p, None, alpha, {"lags": h, "dof": k * h, "n": m})
 
 
 def cross_correlation_test(
     e: ArrayLike, u: ArrayLike, *, lags: int = 10, alpha: float = 1e-3, channel: str = ""
 ) -> AdequacyTest:
     """Input-residual cross-correlation across the band (module docstring, test 3). ``e``: normalized
-    residuals (unit variance per complex entry), ``u``: the input DFT on the same bins."""
+    residuals (unit variance per complex entry), ``u``: the input DFT on the same bins. Both REAL (time-
+    domain residuals and input samples): ``S ~ chi^2(2L + 1)`` (a real Gaussian vector) instead of
+    ``2 S ~ chi^2(2 (2L + 1))``."""
+    real = bool(np.isrealobj(e) and np.isrealobj(u))
     ee = np.asarray(e, complex)
     uu = np.asarray(u, complex)
     m = ee.size
@@ -188,9 +195,10 @@ def cross_correlation_test(
         S = float(np.real(np.conj(r) @ np.linalg.solve(R, r)))
     except np.linalg.LinAlgError:
         S = float(np.real(np.conj(r) @ np.linalg.pinv(R) @ r))
-    dof = 2 * taus.size
-    p = float(stats.chi2.sf(2 * S, dof))  # complex Gaussian: 2 S ~ chi^2(2 (2L+1))
-    return AdequacyTest("input_residual_correlation", channel, 2 * S, p >= alpha, p, None, alpha,
+    k = 1 if real else 2
+    dof = k * taus.size
+    p = float(stats.chi2.sf(k * S, dof))  # complex Gaussian: 2 S ~ chi^2(2 (2L+1)); real: S ~ chi^2(2L+1)
+    return AdequacyTest("input_residual_correlation", channel, k * S, p >= alpha, p, None, alpha,
                         {"lags": L, "dof": dof, "n": m})
 
 

@@ -2,8 +2,9 @@
 
 * :func:`identify_arrays` -- one experiment given as arrays.
 * :func:`identify_experiments` -- several experiments (e.g. one chirp per input of an m-DOF device).
-* :func:`identify_record` -- a run record (:class:`hil.record.RunRecord`, or its path: ``.h5``
-  written by ``hil run`` or ``hil import``; ``.csv``/``.mat`` imported on the fly; ``.npz``), or the
+* :func:`identify_record` -- a run record (a :class:`hil.identify.source.RecordSource`, e.g. a
+  :class:`hil.record.RunRecord` adapted by its backend, or its path: ``.h5`` written by ``hil run`` or
+  ``hil import``; ``.csv``/``.mat`` imported on the fly; ``.npz``), or the
   dict ``{"t": ..., "signals": {name: array}, "meta": {...}}``. For run records the model,
   channels, windows, Welch segment and band are inferred from the record's meta, results and scene
   (:mod:`hil.identify.records`); dict ``meta`` keys: ``model`` (name), ``inputs`` / ``outputs``
@@ -11,7 +12,8 @@
   (measured model outputs), ``band`` [Hz], ``period`` [s] of the periodic chirp (sets the Welch
   segment), ``nperseg``, ``skip`` [s], ``seed``, ``model_options``, ``noise``.
 * :func:`store_result` -- posterior samples, summary and convergence diagnostics into the record
-  (``/identification/<model>``, :func:`hil.record.store_identification`); :func:`load_identification`.
+  (``/identification/<model>``, through the record backend: :func:`hil.record.store_identification`);
+  :func:`load_identification`.
 * :func:`main` -- ``hil identify RECORD [--model NAME] [--json] ...``. Exit codes (the CLI's): 0 ok;
   2 usage or input error (unreadable file, unknown model, missing channel); 13 the data cannot
   give a trustworthy estimate (data quality, not identifiable, posterior not converged, model misfit
@@ -37,7 +39,6 @@ from __future__ import annotations
 import json
 import logging
 import sys
-import tempfile
 import time
 import zipfile
 from collections.abc import Mapping, Sequence
@@ -59,9 +60,10 @@ from hil.identify.errors import (
 )
 from hil.identify.fisher import IdentifiabilityReport, check_identifiability, crb
 from hil.identify.fit import LsResult, fit_least_squares
-from hil.identify.frf import FrfEstimate, Resolution, estimate_frf, lpm_frf
+from hil.identify.frf import FrfEstimate, Resolution, estimate_frf, lattice_step, lpm_frf
 from hil.identify.models import GreyBoxModel, make_model
 from hil.identify.posterior import LogPosterior, PosteriorResult, sample_posterior
+from hil.identify.source import as_source, backend_for
 from hil.identify.timedomain import (
     MlLogPosterior,
     dft_records,
@@ -244,8 +246,9 @@ def identify_experiments(
     leakage-free segments); otherwise ``nperseg`` defaults to 1/16 of the shortest record.
     ``skip`` [s] drops the start of each record (transient). ``seed`` drives LS restarts and the
     whole emcee run. ``resolution``/``input_resolution``: rounding of the recorded outputs/inputs
-    (default float32, what device buses carry), a noise floor that periodic averaging does not
-    remove (:mod:`hil.identify.frf`). ``sampling``: ``continuous`` (H(jw)) or ``zoh`` (the exact
+    (default float32, what device buses carry; ``auto``: float32, or the step of a whole-count
+    quantizer found in the values, :func:`hil.identify.frf.lattice_step`), a noise floor that periodic
+    averaging does not remove (:mod:`hil.identify.frf`). ``sampling``: ``continuous`` (H(jw)) or ``zoh`` (the exact
     response of the plant behind a zero-order hold at the data's rate: digital benches; a model
     instance must then have been built with ``zoh_fs``). ``theta0`` (default: the model's
     data-derived :meth:`~hil.identify.models.GreyBoxModel.initial_guess`, else its nominal values)
@@ -305,7 +308,16 @@ def identify_experiments(
         raise DataQualityError(f"experiments sampled at different rates {fs_all}")
     n_min = min(p[0].shape[0] for p in pairs)
     chosen = _choose_method(method, pairs, period, fs)
-    nps = int(nperseg) if nperseg else (round(period * fs) if period else max(n_min // 16, 16))
+    # Welch segment: the period; else n/16 (FRF path), or n/4 on the ML path, where the H1 FRF only
+    # feeds the data checks and the start: its first bin fs/nps must sit below the excitation's lowest
+    # frequency (a 3 s record: 1.3 Hz, not 5.3 Hz) for the checks to see the band that is analysed; a
+    # period given with a record that does not repeat it still sets the segment, but never fewer than 4
+    if nperseg:
+        nps = int(nperseg)
+    elif chosen == "ml":
+        nps = max(min(round(period * fs) if period else n_min, n_min // 4), 16)
+    else:
+        nps = round(period * fs) if period else max(n_min // 16, 16)
     est = estimate_frf(
         pairs,
         fs,
@@ -316,20 +328,30 @@ def identify_experiments(
         resolution=resolution,
         input_resolution=input_resolution,
     )
+    if isinstance(resolution, str) and resolution == "auto":
+        for o, name in enumerate(mdl.output_names):
+            q = lattice_step(np.concatenate([y[:, o] for _, y in pairs]))
+            if q is not None:
+                report.diagnoses.append(Diagnosis(
+                    "quantized", "info", f"output {name} takes whole multiples of {q:.4g} (a sensor or drive "
+                    "reporting whole counts): its rounding floor q^2/12 is in the noise model", channel=name))
     from hil.identify.sensor_hold import compensate_frf, held_outputs  # outputs of a slower sensor
 
     held = held_outputs(pairs, mdl.output_names)
-    if held and chosen == "frf":
-        est = compensate_frf(est, held, fs)
+    # the ML path models the hold in its likelihood (hil.identify.held_ml) on the exact ZOH model
+    held_ml = bool(held) and chosen == "ml" and mdl.zoh_fs is not None and not mdl.has_delay
+    if held:
+        est = compensate_frf(est, held, fs)  # FRF path: the estimate; ML path: its checks and start
     for name in held:
+        how = ("the FRF is compensated for the hold" if chosen == "frf" else
+               "the likelihood observes it at its new samples only (hold modelled)" if held_ml else
+               "the ML path models the hold only with the zero-order-hold model without delay (sampling 'zoh')")
         report.diagnoses.append(Diagnosis(
-            "sample_and_hold", "warning" if chosen == "ml" else "info",
+            "sample_and_hold", "info" if chosen == "frf" or held_ml else "warning",
             f"output {name} repeats its previous value in {100 * (1 - held[name][0]):.0f} % of the samples "
-            f"(a sensor slower than the {fs:g} Hz loop): "
-            + ("the FRF is compensated for the hold" if chosen == "frf" else
-               "the ML path does not model the hold (use periodic excitation for this sensor)"), channel=name))
+            f"(a sensor slower than the {fs:g} Hz loop): " + how, channel=name))
     if band is None and chosen == "ml":
-        band = _excited_band(est)
+        band = _record_band(pairs, fs)
         logger.info("analysis band %.3g..%.3g Hz: where the recorded input carries power", *band)
     est = est.band(*(band or (fs / nps, 0.45 * fs)))
     exc = check_excitation(est)
@@ -358,7 +380,7 @@ def identify_experiments(
     if chosen == "ml":
         return _identify_ml(mdl, pairs, fs, band or (fs / nps, 0.45 * fs), est, ls, ident, report, timings, t0,
                             seed=seed, posterior=posterior, n_walkers=n_walkers, max_steps=max_steps,
-                            max_seconds=max_seconds, accept_misfit=accept_misfit,
+                            max_seconds=max_seconds, accept_misfit=accept_misfit, held=held if held_ml else None,
                             alt_start=lambda: _lpm_start(mdl, pairs, fs, band or (fs / nps, 0.45 * fs), th0))
     crb_std = _frf_path_crb(mdl, ls.theta, pairs, fs, est)
     adequacy = check_frf_fit(mdl, est, ls.theta)
@@ -391,6 +413,25 @@ def _choose_method(method: str, pairs: Sequence[tuple[np.ndarray, np.ndarray]], 
     logger.info("non-periodic record%s: output-error ML on the exact sampled model",
                 "" if period is None else f" (input does not repeat with period {period:g} s)")
     return "ml"
+
+
+def _record_band(pairs: Sequence[tuple[np.ndarray, np.ndarray]], fs: float) -> tuple[float, float]:
+    """Default band [Hz] of the ML path: the union over the records of the band holding 99.8 % of the
+    input power in the periodogram of the whole record (:func:`hil.identify.excitation.excited_band`:
+    full record resolution, so a sweep or multisine starting at 0.5 Hz is analysed from 0.5 Hz, not from
+    the first Welch bin), capped at 0.45 fs. Idle records (one DOF after the other) are skipped."""
+    from hil.identify.excitation import excited_band
+
+    lo, hi = np.inf, 0.0
+    for u, _ in pairs:
+        try:
+            b = excited_band(u, fs)
+        except ValueError:
+            continue
+        lo, hi = min(lo, b[0]), max(hi, b[1])
+    if not np.isfinite(lo) or hi <= lo:
+        raise DataQualityError("no input carries power: no excitation")
+    return float(lo), float(min(hi, 0.45 * fs))
 
 
 def _excited_band(est: FrfEstimate, rel: float = 1e-4) -> tuple[float, float]:
@@ -478,14 +519,24 @@ def _identify_ml(
     max_seconds: float | None,
     accept_misfit: bool,
     alt_start: Any = None,
+    held: Mapping[str, Any] | None = None,
 ) -> IdentificationResult:
     """Output-error ML from the H1-LS start, adequacy tests, then the posterior (emcee on the same
-    likelihood, or its Laplace approximation)."""
+    likelihood, or its Laplace approximation). ``held``: outputs of a slower sensor (name -> age
+    distribution): the time-domain likelihood with the hold modelled (:mod:`hil.identify.held_ml`)."""
     t1 = time.perf_counter()
     start = "H1"
     recs = dft_records(pairs, fs, band)
-    ml = fit_ml(mdl, recs, ls0.theta)
-    adequacy = check_ml_fit(mdl, recs, ml.theta, ml.sigma)
+    prob = None
+    if held:
+        from hil.identify.held_ml import check_held_fit, fit_held_ml, held_records
+
+        ml, prob = fit_held_ml(mdl, held_records(pairs, mdl.output_names, held), ls0.theta)
+        adequacy = check_held_fit(prob, ml.theta, ml.sigma)
+        alt_start = None  # the time-domain problem has its own start (the hold-compensated H1 fit)
+    else:
+        ml = fit_ml(mdl, recs, ls0.theta)
+        adequacy = check_ml_fit(mdl, recs, ml.theta, ml.sigma)
     if adequacy.misfit and alt_start is not None:
         # a local optimum also fails the adequacy tests: refit from an LS fit on the transient-free
         # local-polynomial FRF, keep the likelier fit
@@ -506,7 +557,7 @@ def _identify_ml(
     if posterior == "laplace":
         post = laplace_posterior(mdl, ml, seed=seed)
     elif posterior == "emcee":
-        lp = MlLogPosterior(mdl, recs, ml.sigma)
+        lp = MlLogPosterior(mdl, recs, ml.sigma, prob=prob)
         post = sample_posterior(lp, ml.z, ml.cov_z, seed=seed, n_walkers=n_walkers, max_steps=max_steps,  # type: ignore[arg-type]
                                 max_seconds=max_seconds)
     else:
@@ -516,6 +567,9 @@ def _identify_ml(
     info = {"noise_std": dict(zip(mdl.output_names, map(float, ml.sigma), strict=True)), "band_hz": list(band),
             "n_bins": ml.n_bins, "posterior": posterior,
             "start": f"least squares on the {start} FRF"}
+    if held:
+        info.update(likelihood="time domain, held outputs observed at their new samples",
+                    held_outputs=sorted(held), band_hz=None)
     res = IdentificationResult(mdl, est, ls, ml.crb_std, ident, post, report, timings, method="ml",
                                adequacy=adequacy, misfit_accepted=bool(accept_misfit and adequacy.misfit), ml=info)
     if not res.converged:
@@ -566,51 +620,40 @@ _META_KW = (
 def identify_record(record: Any, **overrides: Any) -> IdentificationResult:
     """Identify from a run record or a record dict (module docstring).
 
-    ``record``: a :class:`hil.record.RunRecord`, a path (``.h5`` run record, ``.csv``/``.mat``
-    imported with :mod:`hil.importers` defaults, ``.npz``), or ``{"t", "signals", "meta"}``.
+    ``record``: a :class:`~hil.identify.source.RecordSource` (or an object a registered record backend
+    adapts to one, e.g. a :class:`hil.record.RunRecord`), a path (``.npz``; ``.h5`` run record,
+    ``.csv``/``.mat`` imported with the importers' defaults, through the registered backend,
+    :mod:`hil.identify.source`), or ``{"t", "signals", "meta"}``.
     Run records: everything is inferred (:func:`hil.identify.records.plan_from_record`) and
     ``overrides`` (``model``, ``inputs``, ``outputs``, ``target``, ``experiment``, ``period``,
     ``skip``, ``band``, ``sampling``, ... and any keyword of :func:`identify_experiments`) win.
     Dicts: ``meta["inputs"]``/``meta["outputs"]`` map model channels to signal names (or list signal
     names in model order); ``overrides`` take precedence over ``meta``.
     """
-    from hil.record import RunRecord
-
     if isinstance(record, str | Path):
         record = load_record(record)
-    if isinstance(record, RunRecord):
-        return _identify_run_record(record, overrides)
+    src = as_source(record)
+    if src is not None:
+        return _identify_run_record(src, overrides)
     return _identify_dict(record, **overrides)
 
 
 def load_record(path: str | Path) -> Any:
-    """A :class:`hil.record.RunRecord` (``.h5``; ``.csv``/``.mat`` imported into a temporary record
-    with the importers' defaults) or a record dict (``.npz``). Raises RecordError / ModelSpecError."""
-    from hil.record import RecordError, RunRecord
-
+    """A :class:`~hil.identify.source.RecordSource` opened by the record backend registered for the
+    file's suffix (the suite's: ``.h5``; ``.csv``/``.mat`` imported into a temporary record with the
+    importers' defaults) or a record dict (``.npz``, read here). Raises the backend's error (RecordError)
+    or ModelSpecError, one line naming the file."""
     p = Path(path)
-    suffix = p.suffix.lower()
-    try:  # an unreadable file is one line naming it, never a traceback
-        if suffix == ".npz":
+    if p.suffix.lower() == ".npz":
+        try:
             if not p.is_file():
                 raise ModelSpecError(f"{p}: no such file")
             return load_npz_record(str(p))
-        if suffix in (".csv", ".mat"):
-            from hil.importers import import_csv, import_mat
-
-            with tempfile.TemporaryDirectory(prefix="hil-identify-") as tmp:
-                out = Path(tmp) / (p.stem + ".h5")
-                (import_csv if suffix == ".csv" else import_mat)(p, out)
-                return RunRecord.open(out)
-    except HilError:
-        raise
-    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:  # UnicodeDecodeError is a ValueError
-        raise RecordError(f"{p}: not a readable {suffix} record ({' '.join(str(exc).split())[:200]})") from None
-    except Exception as exc:  # scipy's MatReadError derives from Exception only
-        if type(exc).__name__ != "MatReadError":
+        except HilError:
             raise
-        raise RecordError(f"{p}: not a readable .mat file ({' '.join(str(exc).split())[:200]})") from None
-    return RunRecord.open(p)
+        except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+            raise ModelSpecError(f"{p}: not a readable .npz record ({' '.join(str(exc).split())[:200]})") from None
+    return backend_for(p).open(p)
 
 
 def _identify_run_record(rec: Any, overrides: Mapping[str, Any]) -> IdentificationResult:
@@ -704,10 +747,8 @@ def store_result(path: str | Path, res: IdentificationResult, name: str | None =
     model name): the posterior samples (physical units, columns ``sample_names``) and the full
     summary (:meth:`IdentificationResult.to_dict`: per-parameter summary, convergence diagnostics,
     noise model, LS, CRB, data checks, channel mapping). Returns the group name."""
-    from hil.record import store_identification
-
     key = name or res.model.name
-    store_identification(path, key, res.posterior.samples, res.to_dict())
+    backend_for(path).store(path, key, res.posterior.samples, res.to_dict())
     return key
 
 
@@ -716,8 +757,10 @@ def load_identification(path: str | Path, name: str | None = None) -> dict[str, 
     only one when ``name`` is None). Raises RecordError."""
     import h5py
 
-    from hil.record import RecordError
-
+    try:
+        error: type[Exception] = backend_for(path).error
+    except ModelSpecError:
+        error = ModelSpecError
     try:
         with h5py.File(path, "r") as f:
             g = f.get("identification")
@@ -725,11 +768,11 @@ def load_identification(path: str | Path, name: str | None = None) -> dict[str, 
             if name is None and len(names) == 1:
                 name = names[0]
             if name not in names:
-                raise RecordError(f"{path}: no identification {name!r} (have {names})")
+                raise error(f"{path}: no identification {name!r} (have {names})")
             grp = g[name]
             return {"samples": np.array(grp["samples"]), "summary": json.loads(grp["summary"][()])}
     except OSError as exc:
-        raise RecordError(f"{path}: cannot read: {exc}") from None
+        raise error(f"{path}: cannot read: {exc}") from None
 
 
 def _kv(items: Sequence[str] | None, what: str) -> dict[str, str]:
@@ -749,14 +792,14 @@ def _resolution_arg(v: str | None) -> Resolution | None:
         return None
     if v in ("none", "0"):
         return None if v == "none" else 0.0
-    if v in ("float16", "float32", "float64"):
+    if v in ("float16", "float32", "float64", "auto"):
         return v
     try:
         step = float(v)
     except ValueError:
         step = float("nan")
     if not np.isfinite(step) or step < 0:
-        raise ModelSpecError(f"--resolution {v}: expected float16, float32, float64, none, or a non-negative "
+        raise ModelSpecError(f"--resolution {v}: expected auto, float16, float32, float64, none, or a non-negative "
                              "quantization step")
     return step
 
@@ -786,8 +829,8 @@ def _print_table(res: IdentificationResult) -> None:
             f"{n:>10} {r['median']:12.5g} {r['q05']:12.5g} {r['q95']:12.5g} {r['std']:10.3g} "
             f"{r.get('ls_std', float('nan')):10.3g} {r.get('crb_std', float('nan')):10.3g}  {units.get(n, '')}"
         )
-    for n, r in res.derived_summary().items():
-        print(f"{n:>10} {r['median']:12.5g} {r['q05']:12.5g} {r['q95']:12.5g} {r['std']:10.3g}  (derived)  {r['unit']}")
+    for n, d in res.derived_summary().items():
+        print(f"{n:>10} {d['median']:12.5g} {d['q05']:12.5g} {d['q95']:12.5g} {d['std']:10.3g}  (derived)  {d['unit']}")
     if res.adequacy is not None:
         for t in res.adequacy.tests:
             rng = f" expected {t.expected[0]:.3g}..{t.expected[1]:.3g}" if t.expected else ""
@@ -821,7 +864,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--sampling", choices=["zoh", "continuous"], default=None,
                    help="plant behind a zero-order hold at the record's rate (default for records) or continuous")
     p.add_argument("--resolution", default=None,
-                   help="rounding of the recorded signals: float32 (default), float64, none, or a step")
+                   help="rounding of the recorded signals: float32 (default), auto (a whole-count quantizer "
+                   "detected from the values, else float32), float64, none, or a step")
     p.add_argument("--noise", choices=["student", "gaussian", "scaled"], default=None)
     p.add_argument("--set", action="append", metavar="PARAM=VALUE", help="starting value of a parameter (theta0)")
     p.add_argument("--seed", type=seed_type, default=None)
@@ -845,22 +889,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         outputs = _kv(a.output, "--output") or None
         theta0 = _theta0(a.set)
         res_spec = _resolution_arg(a.resolution)
-        target_path: Path | None = Path(a.record)
-        suffix = target_path.suffix.lower()
-        if target_path.is_dir():
-            raise ModelSpecError(f"{target_path}: is a folder, not a record")
+        record_path = Path(a.record)
+        target_path: Path | None = record_path
+        suffix = record_path.suffix.lower()
+        if record_path.is_dir():
+            raise ModelSpecError(f"{record_path}: is a folder, not a record")
         if a.out and suffix not in (".csv", ".mat"):
             raise ModelSpecError(f"--out applies to .csv/.mat input (the result goes into {target_path} itself)")
         if suffix in (".csv", ".mat"):
-            from hil.importers import import_csv, import_mat
-
-            if a.out:
-                from hil.outdir import check_out_file
-
-                if not target_path.is_file():
-                    raise ModelSpecError(f"{target_path}: no such file")
-                check_out_file(a.out, overwrite=a.overwrite)
-                target_path = (import_csv if suffix == ".csv" else import_mat)(a.record, a.out)
+            if a.out:  # the backend imports the file into a record kept at --out
+                target_path = backend_for(record_path).import_to(record_path, a.out, overwrite=a.overwrite)
                 rec: Any = load_record(target_path)
             else:
                 rec, target_path = load_record(a.record), None
@@ -915,7 +953,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"hil identify: ConvergenceError: posterior not converged: {reasons}", file=sys.stderr)
         return EXIT_ERROR
     if res.misfit and not a.accept_misfit:
-        print(f"hil identify: ModelMisfit: the model does not describe the data ({'; '.join(res.adequacy.reasons)}); "
+        why = "; ".join(res.adequacy.reasons) if res.adequacy is not None else ""
+        print(f"hil identify: ModelMisfit: the model does not describe the data ({why}); "
               "use a richer model, or --accept-misfit", file=sys.stderr)
         return EXIT_ERROR
     return EXIT_OK

@@ -151,7 +151,7 @@ def _vif_and_var(F: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[n
 
 def _grid(lo: float, hi: float, df: float) -> NDArray[np.float64]:
     k0 = max(int(np.ceil(lo / df - 1e-9)), 1)
-    return np.arange(k0, int(np.floor(hi / df + 1e-9)) + 1) * df
+    return np.asarray(np.arange(k0, int(np.floor(hi / df + 1e-9)) + 1) * df, float)
 
 
 def _edge_sigma(f: NDArray[np.float64], sig: NDArray[np.float64], excited: NDArray[np.bool_],

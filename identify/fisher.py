@@ -151,7 +151,7 @@ class ExperimentPlan:
     def frequencies(self) -> NDArray[np.float64]:
         """Welch bin frequencies [Hz] inside the analysis band."""
         f = np.fft.rfftfreq(self.nperseg, 1.0 / self.fs)
-        return f[(f >= self.band[0]) & (f <= self.band[1]) & (f > 0)]
+        return np.asarray(f[(f >= self.band[0]) & (f <= self.band[1]) & (f > 0)], float)
 
     @property
     def n_averages(self) -> int:
@@ -282,8 +282,8 @@ def check_identifiability(
     rel = np.where(model.log_mask, np.sqrt(np.clip(np.diag(cov_z), 0, None)), std / (hi - lo))
     messages: list[str] = []
     unident: list[str] = []
-    for k in np.flatnonzero(null):
-        v = vec[:, k]
+    for kn in np.flatnonzero(null):
+        v = vec[:, kn]
         involved = {names[i] for i in np.flatnonzero(np.abs(v) > 0.2 * np.max(np.abs(v)))}
         involved |= {names[i] for i in np.flatnonzero(dead)}
         unident += [n for n in names if n in involved and n not in unident]

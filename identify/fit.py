@@ -150,9 +150,7 @@ def fit_least_squares(
         raise ConvergenceError("least squares failed from every start")
     best.x = to_z(best.x)
 
-    def jac(z: NDArray[np.float64]) -> NDArray[np.float64]:  # covariance: fourth-order differences
-        return jac_z(z, order=4)
-    J = jac(best.x)
+    J = jac_z(best.x, order=4)  # covariance: fourth-order differences
     cov_z = normalized_pinv(J.T @ J)
     theta = model.from_z(best.x)
     D = np.diag(np.where(model.log_mask, theta, 1.0))

@@ -160,17 +160,51 @@ _FLOAT_FORMATS = {"float16": np.float16, "float32": np.float32, "float64": np.fl
 Resolution = str | float | None
 
 
+def lattice_step(x: ArrayLike, *, min_ratio: float = 100.0) -> float | None:
+    """The quantization step ``q`` of a signal recorded in whole units (a drive reporting velocity in
+    encoder counts per second), or None: every value sits on a lattice of spacing ``q`` (within 1 % of
+    ``q``; ``q`` from the smallest gaps between distinct values, refined over the whole span) and ``q``
+    is at least ``min_ratio`` times the median float32 spacing of the signal (float32 values
+    themselves are multiples of their smallest spacing: that is not a quantizer). Needs at least 8
+    distinct values."""
+    a = np.asarray(x, dtype=float).ravel()
+    a = a[np.isfinite(a)]
+    u = np.unique(a)
+    if u.size < 8:
+        return None
+    d = np.diff(u)
+    q0 = float(np.min(d))
+    if not q0 > 0:
+        return None
+    # refine (values recorded as float32 sit within their spacing of the lattice): the adjacent gaps, then
+    # the whole span over the count of steps (each gap's count is a small exact integer)
+    q1 = float(np.median(d[d < 1.5 * q0]))
+    n = np.round(d / q1)
+    if np.any(n < 1):
+        return None
+    q = float(np.sum(d) / np.sum(n))
+    k = (u - u[0]) / q
+    if float(np.max(np.abs(k - np.round(k)))) > 1e-2:
+        return None
+    sp32 = float(np.median(np.spacing(np.abs(a).astype(np.float32)).astype(float)))
+    return q if q >= min_ratio * sp32 else None
+
+
 def rounding_variance(x: ArrayLike, resolution: Resolution) -> float:
     """Mean per-sample variance of the rounding error of ``x`` at ``resolution``.
 
     ``"float32"`` (or ``float16``/``float64``): round to nearest in that format, error uniform over
     one spacing ``np.spacing(x)`` -> ``mean(spacing^2)/12``; a number: a fixed quantization step
-    ``q`` -> ``q^2/12``; None/0: no rounding.
+    ``q`` -> ``q^2/12``; None/0: no rounding; ``"auto"``: the step of :func:`lattice_step` when the
+    signal is quantized (``q^2/12``), else float32.
     """
     if resolution is None:
         return 0.0
     a = np.asarray(x, dtype=float)
     a = a[np.isfinite(a)]
+    if resolution == "auto":
+        q = lattice_step(a)
+        return rounding_variance(a, "float32") if q is None else q**2 / 12.0
     if isinstance(resolution, str):
         fmt = _FLOAT_FORMATS.get(resolution)
         if fmt is None:
@@ -266,7 +300,7 @@ def estimate_frf(
         _, Gyx = signal.csd(uT[None, :, :], yT[:, None, :], **kw)  # [o, i] = E[Y_o conj(X_i)]
         _, Gyy = signal.welch(yT, **kw)
         K, Ke = welch_effective_averages(u.shape[0], nperseg, noverlap, window)
-        if acc_xx is None:
+        if acc_xx is None or acc_yx is None or acc_yy is None:
             acc_xx, acc_yx, acc_yy = K * Gxx, K * Gyx, K * Gyy
         else:
             if Gxx.shape != acc_xx.shape or Gyx.shape != acc_yx.shape:

@@ -668,7 +668,8 @@ class MbkModel(GreyBoxModel):
         if self.n_dof == 2:  # closed-form 2x2 inverse: ~5x faster than np.linalg.inv on the MCMC hot path
             a, b, c, d = A[..., 0, 0], A[..., 0, 1], A[..., 1, 0], A[..., 1, 1]
             det = a * d - b * c
-            H = np.stack([np.stack([d, -b], -1), np.stack([-c, a], -1)], -2) / det[..., None, None]
+            H = np.asarray(np.stack([np.stack([d, -b], -1), np.stack([-c, a], -1)], -2) / det[..., None, None],
+                           complex)
         else:
             H = np.linalg.inv(A)
         if self.output == "velocity":

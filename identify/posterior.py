@@ -205,7 +205,7 @@ class PosteriorResult:
         return self.diagnostics.converged
 
     def quantiles(self, q: ArrayLike) -> NDArray[np.float64]:
-        return np.quantile(self.samples, q, axis=0)
+        return np.asarray(np.quantile(self.samples, np.asarray(q, float), axis=0), float)
 
     def summary(
         self, ls_std: ArrayLike | None = None, crb_std: ArrayLike | None = None, ls_theta: ArrayLike | None = None

@@ -1,4 +1,4 @@
-"""Run records (:mod:`hil.record`, native or imported) -> identification problems.
+"""Run records (a :class:`hil.identify.source.RecordSource`: native or imported) -> identification problems.
 
 :func:`plan_from_record` reads what a record says about itself and returns an
 :class:`IdentificationPlan`: the model, which signals are its inputs and outputs, the experiment
@@ -83,21 +83,9 @@ class IdentificationPlan:
 
 
 def scene_of_record(rec: Any) -> Any:
-    """The validated :class:`hil.scene.Scene` stored in a record, or None (imported records have no
-    scene text; an unreadable scene is logged and ignored)."""
-    text = getattr(rec, "scene_text", "") or ""
-    if not text.strip():
-        return None
-    import yaml
-
-    from hil.errors import SceneError
-    from hil.scene import scene_from_dict
-
-    try:
-        return scene_from_dict(yaml.safe_load(text), label="record scene", source_text=text)
-    except (SceneError, yaml.YAMLError) as exc:
-        logger.warning("the record's scene cannot be parsed (%s): inferring from channel names only", exc)
-        return None
+    """The validated scene of a record source (:attr:`hil.identify.source.RecordSource.scene`: parsed
+    by the side that owns the scene schema), or None (imported records have none)."""
+    return getattr(rec, "scene", None)
 
 
 def _experiment(rec: Any, name: str | None) -> tuple[str | None, dict[str, Any], dict[str, Any]]:
@@ -189,9 +177,9 @@ def _force_signal(scene: Any, signals: Mapping[str, Any], target: str, notes: li
 def plan_from_record(
     rec: Any, signals: Mapping[str, Any], overrides: Mapping[str, Any] | None = None
 ) -> IdentificationPlan:
-    """Infer the identification of a :class:`hil.record.RunRecord` (module docstring).
+    """Infer the identification of a record (:class:`hil.identify.source.RecordSource`; module docstring).
 
-    ``signals``: the record's 1-D signals (:meth:`RunRecord.to_identify_dict`). ``overrides``:
+    ``signals``: the record's 1-D signals (:meth:`~hil.identify.source.RecordSource.to_identify_dict`). ``overrides``:
     ``model``, ``channels``, ``inputs`` (list of signal names), ``outputs`` (model channel -> signal),
     ``target``, ``experiment``, ``period``, ``skip``, ``band``, ``nperseg``, ``sampling``
     (``zoh``/``continuous``), ``model_options`` and any keyword of ``identify_experiments``.

@@ -88,7 +88,7 @@ def held_outputs(pairs: Sequence[tuple[NDArray[Any], NDArray[Any]]], names: Sequ
             counts.append(p * col.size)
         if counts:
             m = max(c.size for c in counts)
-            tot = sum(np.pad(c, (0, m - c.size)) for c in counts)
+            tot = np.sum([np.pad(c, (0, m - c.size)) for c in counts], axis=0)
             out[name] = tot / tot.sum()
     return out
 

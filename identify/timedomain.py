@@ -110,7 +110,8 @@ def dft_records(
         n = u.shape[0]
         f = np.fft.rfftfreq(n, 1.0 / fs)
         k = np.flatnonzero((f > 0) & (f >= lo) & (f <= hi) & (np.arange(f.size) < n / 2))
-        out.append(DftRecord(k, f[k], np.fft.rfft(u, axis=0)[k], np.fft.rfft(y, axis=0)[k], n, float(fs)))
+        out.append(DftRecord(k, np.asarray(f[k], float), np.fft.rfft(u, axis=0)[k], np.fft.rfft(y, axis=0)[k], n,
+                             float(fs)))
     return out
 
 
@@ -492,9 +493,11 @@ class MlLogPosterior:
 
     noise = "ml-white"
 
-    def __init__(self, model: GreyBoxModel, recs: Sequence[DftRecord], sigma: ArrayLike) -> None:
+    def __init__(self, model: GreyBoxModel, recs: Sequence[DftRecord], sigma: ArrayLike, *, prob: Any = None) -> None:
         self.model = model
-        self.prob = _Problem(model, recs)
+        #: the problem: ``rss_weighted(theta_batch, sigma)`` and ``m_o`` (the DFT problem of ``recs``, or
+        #: :class:`hil.identify.held_ml.HeldProblem` for held outputs)
+        self.prob = _Problem(model, recs) if prob is None else prob
         self.sigma = np.asarray(sigma, float)
         self.lo, self.hi = model.z_bounds()
         self.ndim = self.lo.size

@@ -262,6 +262,61 @@ def make_nonperiodic_record(
     return SimRecord(np.arange(n) / fs, u, y, fs, sd)
 
 
+def make_multisine_record(
+    ss: Sequence[NDArray],
+    seed: int,
+    noise: float,
+    *,
+    fs: float = 500.0,
+    duration: float = 3.0,
+    period: float = 1.7,
+    pre_roll: float = 0.5,
+    f0: float = 0.5,
+    f1: float = 80.0,
+    rms: float = 20.0,
+    n_in: int = 2,
+    phase_seed: int = 0,
+) -> SimRecord:
+    """A random-phase multisine through the plant ``ss`` behind a zero-order hold at ``fs`` (the suite's
+    exact ZOH discretization), NOT periodic in the record: the multisine's period ``period`` does not
+    divide ``duration`` and the record starts ``pre_roll`` s into the motion, so every DFT bin of the
+    record carries leakage and a transient. Inputs take zippered lines of the ``1/period`` grid in
+    ``[f0, f1]`` (input i every ``n_in``-th line from line i), so they are never collinear; each input
+    has RMS ``rms``. The phases come from ``phase_seed`` (the same excitation for every noise seed);
+    ``noise`` is white Gaussian noise std as a fraction of each noise-free output's RMS (``seed``)."""
+    from hil.mocks.lti import StateSpace
+
+    rng_p = np.random.default_rng(phase_seed)
+    n_pre, n = round(pre_roll * fs), round(duration * fs)
+    t_all = np.arange(n_pre + n) / fs
+    lines = np.arange(max(1, int(np.ceil(f0 * period))), int(np.floor(f1 * period)) + 1) / period
+    cols = []
+    for i in range(n_in):
+        f = lines[i::n_in]
+        ph = rng_p.uniform(0, 2 * np.pi, f.size)
+        x = np.cos(2 * np.pi * np.outer(t_all, f) + ph).sum(axis=1)
+        cols.append(rms * x / np.sqrt(np.mean(x**2)))
+    u_all = np.column_stack(cols)
+    A, Bm, C, D = ss
+    _, y_all = StateSpace(A, Bm, C, D).discretize(1.0 / fs, "zoh").simulate(u_all)
+    u, y_clean = u_all[n_pre:], y_all[n_pre:]
+    sd = noise * np.sqrt(np.mean(y_clean**2, axis=0))
+    y = y_clean + np.random.default_rng(seed).standard_normal(y_clean.shape) * sd
+    return SimRecord(np.arange(n) / fs, u, y, fs, sd)
+
+
+def sample_and_hold(y: NDArray[np.float64], fs: float, rate: float, phase: float = 0.37) -> NDArray[np.float64]:
+    """``y`` (n,) as a sensor streaming at ``rate`` < ``fs`` [Hz] leaves it in a record taken at ``fs``: the
+    value is new at the ticks where a sensor sample fell since the previous tick (the sensor's clock runs
+    free: at 1004 Hz in a 2 kHz loop the ages are mostly 0,1 with a 0,0 every ~250 ticks) and equals the
+    signal at that tick; elsewhere the previous value is held (noise included)."""
+    i = np.arange(y.size)
+    new = np.ones(y.size, dtype=bool)
+    new[1:] = np.floor(i[1:] * rate / fs + phase) > np.floor((i[1:] - 1) * rate / fs + phase)
+    last = np.maximum.accumulate(np.where(new, i, 0))
+    return y[last]
+
+
 def sdea_compliant_mount_ss(
     K_f: float, B_f: float, M: float, B: float, *, m_e: float = 2e-3, f_e: float = 300.0, zeta: float = 0.02
 ) -> tuple[NDArray, ...]:

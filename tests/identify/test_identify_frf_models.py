@@ -130,3 +130,21 @@ def test_welch_windows_run(window: str) -> None:
     assert np.all(est.coherence >= 0) and np.all(est.coherence <= 1)
     assert est.n_avg > 1 and est.dof > 0
     _ = signal  # scipy.signal used by the generators in conftest
+
+
+def test_lattice_step_finds_a_whole_count_quantizer_and_nothing_else() -> None:
+    """A velocity reported in whole encoder counts per second (CiA 402: 2 pi / 131072 rad/s per count) lies on
+    a lattice; float32 samples of a smooth signal (every float32 is a multiple of its smallest spacing) and
+    noisy floats do not count. ``resolution="auto"`` then takes q^2/12 as the rounding floor."""
+    from hil.identify.frf import lattice_step, rounding_variance
+
+    q = 2 * np.pi / 131072
+    t = np.arange(4000) / 2000.0
+    v = 0.9 * np.sin(2 * np.pi * 3 * t)
+    counts = np.round(v / q) * q
+    assert lattice_step(counts) == pytest.approx(q, rel=1e-9)
+    assert lattice_step(counts.astype(np.float32)) == pytest.approx(q, rel=1e-6)  # recorded as float32
+    assert lattice_step(v.astype(np.float32)) is None
+    assert lattice_step(v + 1e-3 * np.random.default_rng(0).standard_normal(v.size)) is None
+    assert rounding_variance(counts, "auto") == pytest.approx(q**2 / 12, rel=1e-9)
+    assert rounding_variance(v, "auto") == rounding_variance(v, "float32")
