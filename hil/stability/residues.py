@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 from flint import fmpq, fmpq_poly
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["AxisPole", "ResidueDecision", "axis_poles", "decide_rational_residues", "decide_residues",
            "principal_minors", "residue_matrix", "residues_at_zero", "sign_at_root"]
