@@ -482,6 +482,9 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
             if X.shape[0] > X.shape[1] + 2 and (fast or not nominal_unstable):
                 reliability, form_res, rare = _reliability_stage(cert.model, criterion, params, names, X, centre,
                                                                  stable_draws, policy, fast, seed, theta)
+                if reliability is not None:
+                    opt.run("plots (design point)", _design_point_plot, plots, cert.model, criterion, params, names,
+                            X, centre, reliability, fast)
             p_method = "importance_sampling" if rare is not None and rare.reliable else "monte_carlo"
             robust = Robust(n_draws=int(stable_draws.size), p_stable=p, lower=lo, upper=hi,
                             confidence=policy.confidence, required=policy.required_probability,
@@ -862,6 +865,18 @@ def _reliability_stage(model: str, criterion: str, params: Mapping[str, Any], na
                          p_stable=isr.p_stable, lower=1.0 - isr.upper, upper=1.0 - isr.lower,
                          confidence=isr.confidence, ess=isr.ess, reliable=isr.reliable)
     return rel, fr, rare
+
+
+def _design_point_plot(plots: dict[str, Series], model: str, criterion: str, params: Mapping[str, Any],
+                       names: list[str], X: np.ndarray, centre: np.ndarray, reliability: Any, fast: bool) -> None:
+    """The design point in the posterior-standardized coordinates of :func:`_reliability_stage`
+    with the limit state traced by the same verdict; see :func:`hil.evidence_plots.design_point_plot`."""
+    from hil.evidence_plots import design_point_plot
+    from hil.stability.reliability import Standardization
+
+    st = Standardization(centre, Standardization.from_draws(X).L)
+    verdict = _verdict_fn(model, criterion, params, names, fast)
+    design_point_plot(plots, lambda U: verdict(st.to_theta(U)), reliability, names, model=model, fast=fast)
 
 
 def _design(cert: Any, params: Mapping[str, Any], draws: Mapping[str, np.ndarray], policy: Policy,
