@@ -160,13 +160,7 @@ def _condition_curve(tm: Any, r: Any, c: Any) -> tuple[np.ndarray, np.ndarray]:
         if entries is not tmn.entries:
             idx = list(range(len(idx))) if len(entries) == len(idx) else idx
     sub = [[entries[a][b] for b in idx] for a in idx]
-    if "Llewellyn" in c.label and len(idx) == 2:
-        fn = C._eta_ratio(sub)
-    else:
-        try:
-            fn = C._hermitian_ratio(sub, C._regular_part(sub))
-        except Exception:  # the regular part needs exact arithmetic; the plain ratio has the same sign
-            fn = C._hermitian_ratio(sub)
+    fn = C._eta_ratio(sub) if "Llewellyn" in c.label and len(idx) == 2 else C._hermitian_ratio(sub)
     with np.errstate(all="ignore"):
         y = np.asarray(fn(w), float)
     return w * w0, y
@@ -220,7 +214,7 @@ def decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
         title = (f"Decisive condition {dec.name}: a residue (bars, right)\nfrequency condition with the "
                  f"{'most negative' if shown.status == 'violated' else 'smallest'} margin: {shown.name}")
     plots["decided"] = Series(
-        title=title, x=_clean(w), x_label="ω [rad/s]",
+        title=title, x=[float(v) for v in w], x_label="ω [rad/s]",
         y_label="normalized margin [1]", log_x=True, lines={f"{shown.name}: {shown.label}": _clean(y)},
         points=pts, vlines=vl, hline=0.0, shade_negative=True, bars=residues)
 
@@ -290,7 +284,7 @@ def witness_response(w: Any, plots: dict[str, Series], scene: Any = None) -> dic
         hit = np.nonzero(vmag[:n_ok] > 1e3 * max(ref, 1e-12))[0]
         if hit.size:
             crossed["1000 × the initial velocity"] = int(hit[0])
-    first = min(crossed, key=crossed.get) if crossed else None
+    first = min(crossed, key=lambda name: crossed[name]) if crossed else None
     n_keep = (crossed[first] + 1) if first else n_ok
     n_keep = max(2, min(n_keep, n_ok))
     t, E, vmag = t[:n_keep], E[:n_keep], vmag[:n_keep]
@@ -373,11 +367,12 @@ def headroom_plot(plots: dict[str, Series], cert_cfg: Any, params: Any, draws: A
         a, b = 0.97 * min(span), 1.03 * max(span)
         zx = np.unique(np.concatenate([np.linspace(a, b, n_grid), span]))
         zp, zl = curve(zx)
-        zv = {k: v for k, v in vl.items() if a <= v <= b}
+        zv = {k.split(" (")[0]: v for k, v in vl.items() if a <= v <= b}
         panels.append(Series(title=f"zoom on the requirement crossing ({d.parameter} in [{a:.4g}, {b:.4g}] {unit})",
                              x=zx.tolist(), x_label=f"{d.parameter} [{unit}]", y_label="P(stable) [1]",
                              lines={"P̂(stable)": _clean(zp), f"lower {policy.confidence:.0%} bound": _clean(zl)},
-                             points={k: v for k, v in pts.items()}, vlines=zv, hline=req))
+                             points={f"posterior limit {limit:.5g}": (float(limit), req)} if has_limit else {},
+                             vlines=zv, hline=req))
     plots["headroom"] = Series(
         title=f"Headroom: P(stable) against {d.parameter} (the lower {policy.confidence:.0%} bound must stay "
               f"≥ {policy.required_probability})", x=xs.tolist(), x_label=f"{d.parameter} [{unit}]",
@@ -490,6 +485,6 @@ def design_point_plot(plots: dict[str, Series], stable_u: Any, reliability: Any,
         title=f"Design point u* and limit state g = 0 in standardized coordinates u = L⁻¹(θ − μ) "
               f"({model or 'network'}): the slice through u* along u[{pj}] and u[{pu}]"
               + ("" if rho2 == 0.0 else ", other coordinates at their u* values"),
-        x=_clean(xs), x_label=f"u[{pj}] (standardized) [1]", y_label=f"u[{pu}] (standardized) [1]",
+        x=[float(v) for v in xs], x_label=f"u[{pj}] (standardized) [1]", y_label=f"u[{pu}] (standardized) [1]",
         lines=lines, bands={f"{what} side of g = 0": (_clean(yb), _clean(np.where(has, sgn * top, np.nan)))},
         points=pts)

@@ -296,12 +296,13 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
         if lo.size != n or hi.size != n:
             notes.append(f"band {name!r} left out: {lo.size}/{hi.size} values for {n} x values")
             continue
-        c = colours.get(name)
-        if c is None and name.startswith(("non-stable", "unstable")):
-            c = "#c62828"
-        if c is None:
-            c = next_colour(k)
+        bc = colours.get(name)
+        if bc is None and name.startswith(("non-stable", "unstable")):
+            bc = "#c62828"
+        if bc is None:
+            bc = next_colour(k)
             k += 1
+        c = bc
         ok = np.isfinite(x) & np.isfinite(lo) & np.isfinite(hi)
         order = np.argsort(x) if scatter else slice(None)
         ax.fill_between(x[order], lo[order], hi[order], where=ok[order], color=c, alpha=0.22, linewidth=0,
@@ -336,7 +337,11 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
         ax.set_aspect("equal", adjustable="datalim")
     ax.set_title(_mtext(textwrap.fill(s.title, 100)), fontsize=10)
     ax.set_xlabel(_mtext(s.x_label), fontsize=9)
-    ax.set_ylabel(_mtext(s.y_label), fontsize=9)
+    ylab = s.y_label
+    if len(ylab) > 28 and " [" in ylab:  # a long label in two lines (name, then [unit]) stays inside the axes
+        head, _, unit = ylab.rpartition(" [")
+        ylab = f"{head}\n[{unit}"
+    ax.set_ylabel(_mtext(ylab), fontsize=9 if len(s.y_label) <= 28 else 8)
     ax.tick_params(labelsize=8)
     ax.grid(True, which="major", alpha=0.35)
     if s.log_x or s.log_y:
@@ -493,7 +498,8 @@ def draw_plot(fig: Any, s: Series, rect: tuple[float, float, float, float] | Non
                         sf.remove()
                     raise
                 return []
-            left, right, top, bottom, gap = 0.75, 0.15, 0.3, 0.5, 0.62
+            left, right, top, bottom, gap = 0.75, 0.15, 0.3, 0.5, 0.7
+            top += 0.17 * textwrap.fill(s.title, 100).count("\n")  # a wrapped title needs its lines
             bars_w = 1.9 if s.bars else 0.0
             main_w = w - left - right - (bars_w + 0.35 if s.bars else 0.0)
             n_p = len(s.panels)
@@ -1004,7 +1010,8 @@ def _decisive_row(cert: Certificate) -> Any:
              and c.name not in ("A", "B", "A*")]
     failed = [c for c in conds if _status_outcome(c.status) == "FAIL"]
     pool = failed or conds
-    return min(pool, key=lambda c: c.margin) if pool else None
+    return min(pool, key=lambda c: float(c.margin) if isinstance(c.margin, int | float) else math.inf) if pool \
+        else None
 
 
 def summary_rows(cert: Certificate, st: IntegrityStatus) -> list[tuple[str, str, str, str | None]]:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -210,7 +211,7 @@ def is_number_text(s: str) -> bool:
     return bool(re.match(r"^\s*[\[(]?\s*[−\-+]?(\d|∞|NaN)", s))
 
 
-def _kv(rows: list[tuple[str, str, str, str | None]]) -> Table:
+def _kv(rows: Sequence[tuple[str, str, str, str | None]]) -> Table:
     """A quantity | value | unit table; rows (label, value, unit, field path)."""
     return Table([Column("quantity", "—"), Column("value", "per row", num=False), Column("unit", "—")],
                  [[a, b, c] for a, b, c, _ in rows], row_fields=[f for *_, f in rows], kv=True, size=9.0)
@@ -302,7 +303,8 @@ def measurement_unit(m: Any) -> str:
 
 
 def measurements_table(cert: Certificate) -> Table:
-    rows, colours = [], []
+    rows: list[list[str]] = []
+    colours: list[list[str | None]] = []
     for m in cert.measurements:
         rows.append([m.name, fmt(m.value), limits_text(m.lower, m.upper), measurement_unit(m), m.outcome,
                      m.description])
@@ -417,14 +419,14 @@ def report_sections(cert: Certificate) -> list[Section]:
         d = cert.design
         s = Section("design", "Design guidance")
         du = _u(d.unit or parameter_unit(d.parameter, u))
-        rows = [("free parameter", d.parameter, "—", None),
+        drows: list[tuple[str, str, str, str | None]] = [("free parameter", d.parameter, "—", None),
                 ("current value", fmt(d.current), du, "design.current"),
                 ("largest value meeting the requirement", fmt(d.max_value), du, "design.max_value"),
                 ("P(stable) at that value", fmt_p(d.probability_at_max), "1", "design.probability_at_max"),
                 ("required", fmt_p(d.required), "1", "robust.required")]
         if headroom(d):
-            rows.append(("headroom", headroom(d), "—", "design.max_value"))
-        s.blocks.append(Block("table", table=_kv(rows)))
+            drows.append(("headroom", headroom(d), "—", "design.max_value"))
+        s.blocks.append(Block("table", table=_kv(drows)))
         if d.note:
             s.blocks.append(Block("para", d.note))
         figures(s)
@@ -495,7 +497,8 @@ def _witness_section(cert: Certificate, figs: dict[str, list[str]]) -> Section:
                                                 Column("value", "per row", num=True), Column("unit", "—")], trows)))
     poles = w.closed_loop_poles
     rhp = [p for p in poles if p[0] > 0]
-    rows = [("drive frequency (most negative Re Z_in)", fmt_w(w.drive_frequency_rad_s), "rad/s",
+    rows: list[tuple[str, str, str, str | None]] = [
+            ("drive frequency (most negative Re Z_in)", fmt_w(w.drive_frequency_rad_s), "rad/s",
              "witness.drive_frequency_rad_s"),
             ("band where Re Z_in < 0", "—" if w.band_rad_s is None else fmt_range(*w.band_rad_s), "rad/s",
              "witness.band_rad_s"),
@@ -618,7 +621,8 @@ def _reliability_blocks(cert: Certificate) -> list[Block]:
     model = cert.nominal.network if cert.nominal is not None else ""
     mu = cert.nominal.parameters if cert.nominal is not None else {}
     beta = float(rel.beta) or 1.0
-    rows, colours = [], []
+    rows: list[list[str]] = []
+    colours: list[list[str | None]] = []
     u = _units(cert)
     for k, (name, th) in enumerate(rel.design_point.items()):
         uk = rel.design_point_u[k] if k < len(rel.design_point_u) else float("nan")
