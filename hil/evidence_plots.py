@@ -205,9 +205,18 @@ def decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
     pts: dict[str, tuple[float, float]] = {}
     vl: dict[str, float] = {}
     wf = shown.worst_frequency
-    if wf is not None and math.isfinite(wf) and wf > 0:
+    fin = np.isfinite(y)
+    k = int(np.argmin(np.where(fin, y, np.inf))) if fin.any() else -1
+    if wf is not None and math.isfinite(wf) and wf > 0 and (k < 0 or abs(math.log(wf / w[k])) <= math.log(1.5)):
         pts[f"worst: {shown.name} = {shown.margin:.3g} at ω = {wf:.4g} rad/s"] = (float(wf), float(shown.margin))
         vl["worst frequency"] = float(wf)
+    elif k >= 0:
+        # the criterion minimizes its margin function with the structural zeros at ω = 0 and ∞
+        # factored out, which can be as low at another frequency (a flat minimum): the point marks
+        # the plotted curve's own minimum, the line the criterion's worst frequency
+        pts[f"minimum of the curve: {y[k]:.3g} at ω = {w[k]:.4g} rad/s"] = (float(w[k]), float(y[k]))
+        if wf is not None and math.isfinite(wf) and wf > 0:
+            vl[f"criterion's worst frequency (margin {shown.margin:.3g}, structural zeros factored out)"] = float(wf)
     if shown is dec:
         title = f"Decisive condition {shown.name} ({r.criterion})"
     else:

@@ -335,7 +335,8 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
         ax.set_ylim(0.0, 1.05)
     if _standardized(s):  # posterior-standardized coordinates: a circle ‖u‖ = β must look like one
         ax.set_aspect("equal", adjustable="datalim")
-    ax.set_title(_mtext(textwrap.fill(s.title, 100)), fontsize=10)
+    width_in = ax.get_position().width * ax.figure.get_figwidth()
+    ax.set_title(_mtext(_wrap_title(s.title, width_in)), fontsize=10)
     ax.set_xlabel(_mtext(s.x_label), fontsize=9)
     ylab = s.y_label
     if len(ylab) > 28 and " [" in ylab:  # a long label in two lines (name, then [unit]) stays inside the axes
@@ -354,6 +355,12 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
         loc = "best" if n * max(1, len(s.lines)) <= 4000 else "upper right"
         ax.legend(loc=loc, fontsize=7, framealpha=0.85)
     return notes
+
+
+def _wrap_title(title: str, width_in: float) -> str:
+    """A title wrapped to an axes ``width_in`` inches wide at 10 pt (its own line breaks kept)."""
+    chars = max(30, int(width_in / 0.085))
+    return "\n".join(textwrap.fill(line, chars) for line in str(title).split("\n"))
 
 
 def _draw_bars(ax: Any, bars: dict[str, float]) -> None:
@@ -499,9 +506,9 @@ def draw_plot(fig: Any, s: Series, rect: tuple[float, float, float, float] | Non
                     raise
                 return []
             left, right, top, bottom, gap = 0.75, 0.15, 0.3, 0.5, 0.7
-            top += 0.17 * textwrap.fill(s.title, 100).count("\n")  # a wrapped title needs its lines
             bars_w = 1.9 if s.bars else 0.0
             main_w = w - left - right - (bars_w + 0.35 if s.bars else 0.0)
+            top += 0.17 * _wrap_title(s.title, main_w).count("\n")  # a wrapped title needs its lines
             n_p = len(s.panels)
             avail = h - top - bottom - gap * n_p
             unit = avail / (2.0 + n_p)
@@ -1025,6 +1032,16 @@ def summary_rows(cert: Certificate, st: IntegrityStatus) -> list[tuple[str, str,
         rows.append(("required: the lower bound must clear", fmt_p(r.required), "1", "robust.required"))
         rows.append((f"worst-case margin ({r.credible:.0%} credible region)", fmt(r.worst_case_margin), "1",
                      "robust.worst_case_margin"))
+        rel = r.reliability
+        if rel is not None:
+            rows.append(("reliability index β", f"{'≥ ' if rel.censored else ''}{fmt(rel.beta)} (a GO needs ≥ "
+                                                 f"{fmt(rel.required_beta)}; Φ(β) = {fmt_p(rel.phi_beta)})", "1",
+                         "robust.reliability.beta"))
+        ev = r.rare_event
+        if ev is not None:
+            rows.append((f"P(stable) by importance sampling, {ev.confidence:.0%} interval",
+                         f"{fmt_p(ev.p_stable)} [{fmt_p(ev.lower)}, {fmt_p(ev.upper)}]"
+                         + ("" if ev.reliable else " (not reliable: nothing certified)"), "1", "robust.rare_event"))
     n = cert.nominal
     if n is not None:
         rows.append(("nominal verdict", n.verdict + (" (weak)" if n.weak else ""), "—", "nominal.verdict"))
@@ -1040,6 +1057,12 @@ def summary_rows(cert: Certificate, st: IntegrityStatus) -> list[tuple[str, str,
         if d.current is not None:
             rows.append((f"current {d.parameter}", fmt(d.current) + (f" ({headroom(d)})" if headroom(d) else ""),
                          d.unit or "—", "design.current"))
+    if d is not None and (d.nominal_headroom is not None or d.posterior_headroom is not None):
+        def signed(v: float | None) -> str:
+            return "—" if v is None else f"{v:+.4g}"
+
+        rows.append((f"{d.parameter} headroom: nominal, posterior",
+                     f"{signed(d.nominal_headroom)}, {signed(d.posterior_headroom)}", "1", "design.posterior_headroom"))
     w = cert.witness
     if w is not None:
         from hil.report_units import termination_units
@@ -1089,7 +1112,9 @@ def _pdf_summary(doc: _PdfDoc, cert: Certificate) -> None:
     doc.subheading("Summary", 10)
     from hil.report_model import _kv
 
-    doc.model_table(_kv(summary_rows(cert, doc.integrity)))
+    t = _kv(summary_rows(cert, doc.integrity))
+    t.size = 8.5  # page 1 holds the summary and the signature block: one page a person can sign alone
+    doc.model_table(t)
     st = doc.integrity
     doc.subheading("Review and signature", 10)
     doc.kv([("digest (sha256, hil-c14n/1)", _digest_text(st)), ("electronic signature", st.signature_text())],
