@@ -216,12 +216,12 @@ def decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
         # the plotted curve's own minimum, the line the criterion's worst frequency
         pts[f"minimum of the curve: {y[k]:.3g} at ω = {w[k]:.4g} rad/s"] = (float(w[k]), float(y[k]))
         if wf is not None and math.isfinite(wf) and wf > 0:
-            vl[f"criterion's worst frequency (margin {shown.margin:.3g}, structural zeros factored out)"] = float(wf)
+            vl["criterion's worst ω (structural zeros factored out)"] = float(wf)
     if shown is dec:
         title = f"Decisive condition {shown.name} ({r.criterion})"
     else:
-        title = (f"Decisive condition {dec.name}: a residue (bars, right)\nfrequency condition with the "
-                 f"{'most negative' if shown.status == 'violated' else 'smallest'} margin: {shown.name}")
+        title = (f"Decisive condition {dec.name}: a residue (bars, right)\ncurve: the frequency condition with "
+                 f"the {'most negative' if shown.status == 'violated' else 'smallest'} margin, {shown.name}")
     plots["decided"] = Series(
         title=title, x=[float(v) for v in w], x_label="ω [rad/s]",
         y_label="normalized margin [1]", log_x=True, lines={f"{shown.name}: {shown.label}": _clean(y)},

@@ -353,13 +353,13 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
     handles, _ = ax.get_legend_handles_labels()
     if handles:
         loc = "best" if n * max(1, len(s.lines)) <= 4000 else "upper right"
-        ax.legend(loc=loc, fontsize=7, framealpha=0.85)
+        ax.legend(loc=loc, fontsize=7 if width_in >= 4.5 else 6, framealpha=0.85)
     return notes
 
 
 def _wrap_title(title: str, width_in: float) -> str:
     """A title wrapped to an axes ``width_in`` inches wide at 10 pt (its own line breaks kept)."""
-    chars = max(30, int(width_in / 0.085))
+    chars = max(30, int(width_in / 0.068))
     return "\n".join(textwrap.fill(line, chars) for line in str(title).split("\n"))
 
 
