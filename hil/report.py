@@ -820,7 +820,7 @@ class _PdfDoc:
         self.y -= h
 
     def heading(self, s: str, size: float = 14) -> None:
-        self.ensure(self._lh(size) + 0.5)  # keep a heading with what follows
+        self.ensure(self._lh(size) + 0.95)  # keep a heading with what follows (a table header and two rows)
         self.y -= self._lh(size)
         self._t(self.ML, self.y, s, size, weight="bold", color="#1d2733")
         self.y -= 0.08
