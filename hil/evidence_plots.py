@@ -480,12 +480,13 @@ def design_point_plot(plots: dict[str, Series], stable_u: Any, reliability: Any,
     up, dn = _circle(xs, R * R - rho2)
     lines[f"‖u‖ = β = {R:.4g} (in this slice)"] = up
     lines["_‖u‖ = β lower half"] = dn
+    small = " (a dot at the centre at this scale)"
     if math.isfinite(req) and req * req > rho2:
         up, dn = _circle(xs, req * req - rho2)
-        lines[f"‖u‖ = β required = {req:.4g}"] = up
+        lines[f"‖u‖ = β required = {req:.4g}" + (small if req < 0.04 * half else "")] = up
         lines["_‖u‖ = β required lower half"] = dn
     up, dn = _circle(xs, R99_2D ** 2)
-    lines[f"99 % of the posterior in (u[{pj}], u[{pu}])"] = up
+    lines[f"99 % of the posterior in (u[{pj}], u[{pu}])" + (small if R99_2D < 0.04 * half else "")] = up
     lines["_99 % lower half"] = dn
     pts = {f"design point u* (β = {beta:.4g})": (float(u_star[j]), float(u_star[i]))}
     if rho2 == 0.0:

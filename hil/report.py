@@ -371,7 +371,7 @@ def _draw_bars(ax: Any, bars: dict[str, float]) -> None:
     ax.set_yticks(range(len(names)), [_mtext(n) for n in names], fontsize=8)
     ax.axvline(0.0, color="#555555", linestyle="--", linewidth=1.0)
     ax.set_xlabel("margin [1]", fontsize=9)
-    ax.set_title("pole and residue conditions", fontsize=9)
+    ax.set_title("pole and residue conditions", fontsize=9, loc="right")  # the narrow panel: spill left
     ax.tick_params(axis="x", labelsize=7)
     ax.grid(True, axis="x", alpha=0.3)
 
