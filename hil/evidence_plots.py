@@ -486,7 +486,7 @@ def design_point_plot(plots: dict[str, Series], stable_u: Any, reliability: Any,
         lines[f"‖u‖ = β required = {req:.4g}" + (small if req < 0.04 * half else "")] = up
         lines["_‖u‖ = β required lower half"] = dn
     up, dn = _circle(xs, R99_2D ** 2)
-    lines[f"99 % of the posterior in (u[{pj}], u[{pu}])" + (small if R99_2D < 0.04 * half else "")] = up
+    lines[f"99 % of the posterior in (u[{pj}], u[{pu}])" + (small if 0.04 * half > R99_2D else "")] = up
     lines["_99 % lower half"] = dn
     pts = {f"design point u* (β = {beta:.4g})": (float(u_star[j]), float(u_star[i]))}
     if rho2 == 0.0:
