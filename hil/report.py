@@ -739,6 +739,8 @@ class _PdfDoc:
         self.y = 0.0
         self.section = ""
         self.captions: dict[int, tuple[str, str | None]] = {}  # id(figure Series) -> (caption, definition link)
+        self.figure_section: dict[int, str] = {}  # id(figure Series) -> title of the section it belongs to
+        self.current_section = ""
 
     @property
     def width(self) -> float:
@@ -963,6 +965,8 @@ class _PdfDoc:
         this page?"""
         h = min(_plot_height(s), self.H - self.MT - self.MB - 0.6)
         cap = self.caption_height(*self.captions.get(id(s), ("", None)))
+        if self.figure_section.get(id(s), self.current_section) != self.current_section:
+            cap += self._lh(7.5)  # its "(Figure of the section …)" prefix
         return self.fig is not None and 0.72 * h + cap <= self.y - self.MB - 0.25
 
     def caption(self, text: str, link: str | None) -> None:
@@ -994,6 +998,9 @@ class _PdfDoc:
 
     def figure(self, s: Series, caption: str = "", link: str | None = None) -> None:
         """A plot in the flow, 6.8 in wide; its height follows its panels."""
+        home = self.figure_section.get(id(s))
+        if home and home != self.current_section:  # a figure that floated into the next section says whose it is
+            caption = f"(Figure of the section {home}.) {caption}"
         cap = self.caption_height(caption, link)
         h = min(_plot_height(s), self.H - self.MT - self.MB - 0.6 - cap)
         room = self.y - self.MB - 0.25 - cap
@@ -1188,10 +1195,12 @@ def _pdf_section(doc: _PdfDoc, cert: Certificate, sec: Section, carried: list[Se
                 doc.figure(f, *doc.captions.get(id(f), ("", None)))
 
     doc.heading(sec.title, 13)
+    doc.current_section = sec.title
     for b in sec.blocks:
         if b.kind == "figure" and b.plot in cert.plots:
             s = cert.plots[b.plot]
             doc.captions[id(s)] = (b.text, b.link)
+            doc.figure_section[id(s)] = sec.title
             if carried or pending or not doc.fits(s):
                 pending.append(s)
             else:
