@@ -404,12 +404,14 @@ def _draw_corner(fig: Any, s: Series, rect: tuple[float, float, float, float]) -
     import numpy as np
     from matplotlib.gridspec import GridSpec
 
+    from hil.report_units import pretty_unit
+
     data = np.column_stack([_arr(s.lines[k]) for k in s.lines])
     data = data[np.all(np.isfinite(data), axis=1)]
     names = []
     for j, label in enumerate(s.lines):
         name, _, unit = label.rpartition(" [")
-        name, unit = (name, "[" + unit) if name else (label, "")
+        name, unit = (name, "[" + pretty_unit(unit)) if name else (label, "")
         ref = _corner_offset(data[:, j])
         if ref:
             data[:, j] -= ref

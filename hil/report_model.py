@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hil.certificate import Certificate, Series
-from hil.report_units import parameter_unit, termination_units
+from hil.report_units import parameter_unit, pretty_unit, termination_units
 
 __all__ = ["CHARTS", "DEFINITIONS", "DEFINITIONS_DOC", "Block", "Column", "Estimate", "Section", "Table",
            "definition_link", "failure_estimates", "figure_caption", "log10_phi_minus", "plot_sections",
@@ -403,8 +403,9 @@ def report_sections(cert: Certificate) -> list[Section]:
                 cols.append(Column("truth", "per row", num=True))
             rows = []
             for p in ident.parameters:
-                row = [p.name, _u(p.unit or parameter_unit(p.name, u)), fmt(p.mean), fmt(p.median), fmt(p.q05),
-                       fmt(p.q95), fmt(p.std), fmt(p.ls_std), fmt(p.crb_std)]
+                pu = _u(pretty_unit(p.unit or parameter_unit(p.name, u)))
+                row = [p.name, pu, fmt(p.mean), fmt(p.median), fmt(p.q05), fmt(p.q95), fmt(p.std), fmt(p.ls_std),
+                       fmt(p.crb_std)]
                 if show_truth:
                     row.append(fmt(p.truth))
                 rows.append(row)

@@ -179,3 +179,10 @@ def test_corner_plot_is_vector_text_in_the_pdf(tmp_path):
     assert "B" in text and "[N.m.s/rad]" in text
     # tick labels are text too (rotated 45°: pdftotext splits them into pieces, joined here)
     assert re.search(r"0\.1[678]\d", "".join(text.split()))
+
+
+def test_pretty_unit_prints_powers_as_superscripts():
+    from hil.report_units import pretty_unit, quantity_unit
+
+    assert pretty_unit("kg.m^2") == "kg.m²" == quantity_unit("mass", "rotary")
+    assert pretty_unit("rad/(N.m.s^2)") == "rad/(N.m.s²)" and pretty_unit("N.m/rad") == "N.m/rad"
