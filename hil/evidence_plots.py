@@ -36,7 +36,8 @@ from hil.report_units import frf_unit, parameter_unit, quantity_unit
 
 log = logging.getLogger(__name__)
 
-__all__ = ["decided_plot", "decisive_condition", "identification_plots", "immittance_db_label", "witness_response"]
+__all__ = ["decided_plot", "decisive_condition", "design_point_axes", "design_point_plot", "headroom_plot",
+           "identification_plots", "immittance_db_label", "witness_response"]
 
 
 def _clean(a: Any) -> list[float | None]:
@@ -159,13 +160,7 @@ def _condition_curve(tm: Any, r: Any, c: Any) -> tuple[np.ndarray, np.ndarray]:
         if entries is not tmn.entries:
             idx = list(range(len(idx))) if len(entries) == len(idx) else idx
     sub = [[entries[a][b] for b in idx] for a in idx]
-    if "Llewellyn" in c.label and len(idx) == 2:
-        fn = C._eta_ratio(sub)
-    else:
-        try:
-            fn = C._hermitian_ratio(sub, C._regular_part(sub))
-        except Exception:  # the regular part needs exact arithmetic; the plain ratio has the same sign
-            fn = C._hermitian_ratio(sub)
+    fn = C._eta_ratio(sub) if "Llewellyn" in c.label and len(idx) == 2 else C._hermitian_ratio(sub)
     with np.errstate(all="ignore"):
         y = np.asarray(fn(w), float)
     return w * w0, y
@@ -210,16 +205,25 @@ def decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
     pts: dict[str, tuple[float, float]] = {}
     vl: dict[str, float] = {}
     wf = shown.worst_frequency
-    if wf is not None and math.isfinite(wf) and wf > 0:
+    fin = np.isfinite(y)
+    k = int(np.argmin(np.where(fin, y, np.inf))) if fin.any() else -1
+    if wf is not None and math.isfinite(wf) and wf > 0 and (k < 0 or abs(math.log(wf / w[k])) <= math.log(1.5)):
         pts[f"worst: {shown.name} = {shown.margin:.3g} at ω = {wf:.4g} rad/s"] = (float(wf), float(shown.margin))
         vl["worst frequency"] = float(wf)
+    elif k >= 0:
+        # the criterion minimizes its margin function with the structural zeros at ω = 0 and ∞
+        # factored out, which can be as low at another frequency (a flat minimum): the point marks
+        # the plotted curve's own minimum, the line the criterion's worst frequency
+        pts[f"minimum of the curve: {y[k]:.3g} at ω = {w[k]:.4g} rad/s"] = (float(w[k]), float(y[k]))
+        if wf is not None and math.isfinite(wf) and wf > 0:
+            vl["criterion's worst ω (structural zeros factored out)"] = float(wf)
     if shown is dec:
         title = f"Decisive condition {shown.name} ({r.criterion})"
     else:
-        title = (f"Decisive condition {dec.name}: a residue (bars, right)\nfrequency condition with the "
-                 f"{'most negative' if shown.status == 'violated' else 'smallest'} margin: {shown.name}")
+        title = (f"Decisive condition {dec.name}: a residue (bars, right)\ncurve: the frequency condition with "
+                 f"the {'most negative' if shown.status == 'violated' else 'smallest'} margin, {shown.name}")
     plots["decided"] = Series(
-        title=title, x=_clean(w), x_label="ω [rad/s]",
+        title=title, x=[float(v) for v in w], x_label="ω [rad/s]",
         y_label="normalized margin [1]", log_x=True, lines={f"{shown.name}: {shown.label}": _clean(y)},
         points=pts, vlines=vl, hline=0.0, shade_negative=True, bars=residues)
 
@@ -289,7 +293,7 @@ def witness_response(w: Any, plots: dict[str, Series], scene: Any = None) -> dic
         hit = np.nonzero(vmag[:n_ok] > 1e3 * max(ref, 1e-12))[0]
         if hit.size:
             crossed["1000 × the initial velocity"] = int(hit[0])
-    first = min(crossed, key=crossed.get) if crossed else None
+    first = min(crossed, key=lambda name: crossed[name]) if crossed else None
     n_keep = (crossed[first] + 1) if first else n_ok
     n_keep = max(2, min(n_keep, n_ok))
     t, E, vmag = t[:n_keep], E[:n_keep], vmag[:n_keep]
@@ -335,27 +339,162 @@ def headroom_plot(plots: dict[str, Series], cert_cfg: Any, params: Any, draws: A
         return
     fixed = {k: float(v) for k, v in params.items() if isinstance(v, int | float)}
     n = len(next(iter(draws.values())))
+
+    def curve(xs: np.ndarray) -> tuple[list[float], list[float]]:
+        phat, lower = [], []
+        for x in xs:
+            dd = dict(draws)
+            dd[d.parameter] = np.full(n, x)
+            p, lo, _ = probability_of_stability(sdea_passivity_batch(dd, fixed=fixed)["passive"], policy.confidence)
+            phat.append(p)
+            lower.append(lo)
+        return phat, lower
+
+    limit = design.posterior_limit if design.posterior_limit is not None else design.max_value
+    has_limit = limit is not None and math.isfinite(limit)
     xs = np.linspace(float(d.range[0]), float(d.range[1]), n_grid)
-    if design.max_value is not None and math.isfinite(design.max_value):
-        xs = np.unique(np.concatenate([xs, [design.max_value]]))
-    phat, lower = [], []
-    for x in xs:
-        dd = dict(draws)
-        dd[d.parameter] = np.full(n, x)
-        p, lo, _ = probability_of_stability(sdea_passivity_batch(dd, fixed=fixed)["passive"], policy.confidence)
-        phat.append(p)
-        lower.append(lo)
+    if has_limit:
+        xs = np.unique(np.concatenate([xs, [limit]]))
+    phat, lower = curve(xs)
     unit = design.unit or parameter_unit(d.parameter, "rotary", "sdea")
+    req = float(policy.required_probability)
     pts: dict[str, tuple[float, float]] = {}
     vl: dict[str, float] = {}
-    if design.max_value is not None and math.isfinite(design.max_value):
-        pts[f"requirement crossing: {d.parameter} = {design.max_value:.4g} {unit}"] = (
-            float(design.max_value), float(policy.required_probability))
+    if has_limit:
+        hr = design.posterior_headroom
+        pts[f"requirement crossing (posterior limit): {d.parameter} = {limit:.5g} {unit}"
+            + ("" if hr is None else f", headroom {hr:+.1%}")] = (float(limit), req)
     if design.current is not None:
         vl[f"current {d.parameter}"] = float(design.current)
+    if design.nominal_limit is not None and math.isfinite(design.nominal_limit):
+        hn = design.nominal_headroom
+        vl[f"nominal limit {d.parameter}_max" + ("" if hn is None else f" (headroom {hn:+.1%})")] = \
+            float(design.nominal_limit)
+    panels = []
+    if has_limit and limit > 0:  # a zoom on the crossing: the drop is steep at the scale of the design range
+        span = [float(limit)] + [v for v in (design.nominal_limit,) if v is not None and math.isfinite(v)]
+        a, b = 0.97 * min(span), 1.03 * max(span)
+        zx = np.unique(np.concatenate([np.linspace(a, b, 25), span]))  # 25 points: the drop is within a few %
+        zp, zl = curve(zx)
+        zv = {k.split(" (")[0]: v for k, v in vl.items() if a <= v <= b}
+        panels.append(Series(title=f"zoom on the requirement crossing ({d.parameter} in [{a:.4g}, {b:.4g}] {unit})",
+                             x=zx.tolist(), x_label=f"{d.parameter} [{unit}]", y_label="P(stable) [1]",
+                             lines={"P̂(stable)": _clean(zp), f"lower {policy.confidence:.0%} bound": _clean(zl)},
+                             points={f"posterior limit {limit:.5g}": (float(limit), req)} if has_limit else {},
+                             vlines=zv, hline=req))
     plots["headroom"] = Series(
         title=f"Headroom: P(stable) against {d.parameter} (the lower {policy.confidence:.0%} bound must stay "
               f"≥ {policy.required_probability})", x=xs.tolist(), x_label=f"{d.parameter} [{unit}]",
         y_label="P(stable) [1]", lines={"P̂(stable)": _clean(phat), f"lower {policy.confidence:.0%} bound":
                                         _clean(lower)},
-        points=pts, vlines=vl, hline=float(policy.required_probability))
+        points=pts, vlines=vl, hline=req, panels=panels)
+
+
+# ---------------------------------------------------------------------------------------------
+# reliability: the design point in posterior-standardized coordinates
+
+#: 99 % of a 2-D standard normal lies within this radius: √χ²₂(0.99) = √(−2 ln 0.01)
+R99_2D = math.sqrt(-2.0 * math.log(0.01))
+
+
+def _circle(x: np.ndarray, r2: float) -> tuple[list[float | None], list[float | None]]:
+    """Upper and lower halves of the circle x² + y² = r2 over x (None outside it)."""
+    with np.errstate(invalid="ignore"):
+        y = np.sqrt(r2 - x * x)
+    y = np.where(np.isfinite(y), y, np.nan) if r2 > 0 else np.full(x.shape, np.nan)
+    return _clean(y), _clean(-y)
+
+
+def design_point_axes(u_star: Any) -> tuple[int, int]:
+    """The two coordinates of the projection: (i, j) with the largest |u*ₖ| (the FORM importance
+    factors αₖ = u*ₖ/β), ties in the coordinates' order. i is drawn upwards, j across."""
+    u = np.abs(np.asarray(u_star, float).reshape(-1))
+    order = sorted(range(u.size), key=lambda k: (-u[k], k))
+    return order[0], order[1]
+
+
+def design_point_plot(plots: dict[str, Series], stable_u: Any, reliability: Any, names: list[str],
+                      model: str = "", fast: bool = True) -> None:
+    """The ``reliability`` plot: the slice of posterior-standardized space u = L⁻¹(θ − μ) through
+    the design point u* along the two coordinates of largest importance (:func:`design_point_axes`;
+    the others held at their u* values). Drawn: the limit state g = 0 where the verdict
+    ``stable_u`` ((n, d) u-points → n bools) first differs from the centre's along u_i (columns
+    across u_j, grid then bisection), the region beyond it, the section of the sphere ‖u‖ = β (it
+    touches g = 0 at u*: β is the distance to the nearest non-stable point), the section of
+    ‖u‖ = β_required (what a GO needs), the 99 % circle of the 2-D standard-normal marginal of
+    (u_i, u_j), the design point and the centre. ``fast``: the verdict is cheap (SDEA closed form):
+    61 columns; otherwise 7 columns of the exact criterion (a coarse curve)."""
+    u_star = np.asarray(reliability.design_point_u, float).reshape(-1)
+    d = u_star.size
+    beta = float(reliability.beta)
+    if d < 2 or reliability.censored or not math.isfinite(beta) or beta == 0.0 or len(names) != d:
+        return
+    i, j = design_point_axes(u_star)
+    centre_ok = beta > 0
+    R = abs(beta)
+    rho2 = float(sum(u_star[k] ** 2 for k in range(d) if k not in (i, j)))
+    sgn = 1.0 if u_star[i] >= 0 else -1.0
+    half = max(1.25 * R, 4.0)
+    n_cols, n_grid, n_bisect = (121, 40, 24) if fast else (7, 4, 4)
+    req = float(getattr(reliability, "required_beta", float("nan")))
+    radii = [r for r in (math.sqrt(max(R * R - rho2, 0.0)), math.sqrt(max(req * req - rho2, 0.0))
+                         if math.isfinite(req) else 0.0, R99_2D) if 0 < r < half]
+    dense = np.unique(np.concatenate([np.linspace(-half, half, 161), [u_star[j]], radii, [-r for r in radii]]))
+    xs = dense if fast else np.unique(np.concatenate([np.linspace(-half, half, n_cols), [u_star[j]]]))
+    top = max(1.3 * R, R + 3.0)
+    base = u_star.copy()
+    base[i] = base[j] = 0.0
+
+    def points(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        U = np.repeat(base[None, :], x.size, axis=0)
+        U[:, j], U[:, i] = x, sgn * y
+        return U
+
+    grid = np.linspace(top / n_grid, top, n_grid)
+    X, Y = np.meshgrid(xs, grid, indexing="ij")
+    same = np.asarray(stable_u(points(X.ravel(), Y.ravel())), bool).reshape(X.shape) == centre_ok
+    has = ~same.all(axis=1)
+    k = np.argmax(~same, axis=1)
+    hi = np.where(has, grid[k], np.nan)
+    lo = np.where(has & (k > 0), grid[np.maximum(k - 1, 0)], 0.0)
+    idx = np.nonzero(has)[0]
+    for _ in range(n_bisect):
+        if idx.size == 0:
+            break
+        mid = 0.5 * (lo[idx] + hi[idx])
+        s = np.asarray(stable_u(points(xs[idx], mid)), bool) == centre_ok
+        lo[idx] = np.where(s, mid, lo[idx])
+        hi[idx] = np.where(s, hi[idx], mid)
+    yb = sgn * hi
+    if not fast:  # the exact criterion on a few columns: the curve between them is interpolated
+        keep = np.isfinite(yb)
+        yb = np.interp(dense, xs[keep], yb[keep], left=np.nan, right=np.nan) if keep.sum() >= 2 else \
+            np.full(dense.shape, np.nan)
+        has = np.isfinite(yb)
+        xs = dense
+    pu = names[i]
+    pj = names[j]
+    what = "non-stable" if centre_ok else "stable"
+    how = "" if fast else f", exact criterion on {n_cols} columns, interpolated"
+    lines: dict[str, list[float | None]] = {f"limit state g = 0 (the verdict turns {what}{how})": _clean(yb)}
+    up, dn = _circle(xs, R * R - rho2)
+    lines[f"‖u‖ = β = {R:.4g} (in this slice)"] = up
+    lines["_‖u‖ = β lower half"] = dn
+    small = " (a dot at the centre at this scale)"
+    if math.isfinite(req) and req * req > rho2:
+        up, dn = _circle(xs, req * req - rho2)
+        lines[f"‖u‖ = β required = {req:.4g}" + (small if req < 0.04 * half else "")] = up
+        lines["_‖u‖ = β required lower half"] = dn
+    up, dn = _circle(xs, R99_2D ** 2)
+    lines[f"99 % of the posterior in (u[{pj}], u[{pu}])" + (small if 0.04 * half > R99_2D else "")] = up
+    lines["_99 % lower half"] = dn
+    pts = {f"design point u* (β = {beta:.4g})": (float(u_star[j]), float(u_star[i]))}
+    if rho2 == 0.0:
+        pts["posterior centre u = 0"] = (0.0, 0.0)
+    plots["reliability"] = Series(
+        title=f"Design point u* and limit state g = 0 in standardized coordinates u = L⁻¹(θ − μ) "
+              f"({model or 'network'}): the slice through u* along u[{pj}] and u[{pu}]"
+              + ("" if rho2 == 0.0 else ", other coordinates at their u* values"),
+        x=[float(v) for v in xs], x_label=f"u[{pj}] (standardized) [1]", y_label=f"u[{pu}] (standardized) [1]",
+        lines=lines, bands={f"{what} side of g = 0": (_clean(yb), _clean(np.where(has, sgn * top, np.nan)))},
+        points=pts)

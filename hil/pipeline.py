@@ -98,7 +98,7 @@ from hil.certify_stages import (
 from hil.errors import HilError
 from hil.stopflag import StopRequested
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["build_network", "certify_scene", "model_params_from_scene"]
 
@@ -195,7 +195,7 @@ def _seal(cert: Certificate, scene: Any, out: Path) -> Certificate:
     for r in named:
         p = Path(r)
         if not p.is_file():
-            log.warning("evidence: record %s named by the certificate is not a file; not hashed", r)
+            logger.warning("evidence: record %s named by the certificate is not a file; not hashed", r)
         elif all(p.resolve() != q.resolve() for q in records):
             records.append(p)
     evidence += [file_evidence(out, r, "record") for r in records]
@@ -228,7 +228,7 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
     # hil.scene at load time
     ctx = Context(scene=scene, cert=cert, out=out, seed=int(scene.seed if seed is None else seed), policy=policy,
                   model=cert.model, criterion=_criterion(cert.model, cert.criterion),
-                  params=model_params_from_scene(scene), say=progress or (lambda msg: log.info(msg)))
+                  params=model_params_from_scene(scene), say=progress or (lambda msg: logger.info(msg)))
     sheet = Sheet()
     stage = "run"
     try:
@@ -251,7 +251,7 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
         raise
     except Exception as exc:  # a defect in a stage: ERROR with its reason, never FAIL
         reason = one_line(exc)
-        log.error("certification stage %s failed: %s", stage, reason, exc_info=True)
+        logger.error("certification stage %s failed: %s", stage, reason, exc_info=True)
         sheet.errors.append(f"stage {stage} failed: {reason}")
         return _certificate(ctx, sheet, Verdict(Decision.ERROR, (f"stage {stage} failed: {reason}",)))
     return _certificate(ctx, sheet, verdict, run=run, draws=draws, nominal=nominal, robust=robust, design=design,
@@ -483,7 +483,7 @@ def stage_robust(ctx: Context, sheet: Sheet, post: PosteriorDraws, nominal: Nomi
                         wc > float(nominal_res.margin):  # cannot happen: the centre is a candidate
                     errors.append(f"worst-case margin {wc} exceeds the nominal {nominal_res.margin}")
             except HilError as exc:
-                log.warning("worst-case search skipped: %s", exc)
+                logger.warning("worst-case search skipped: %s", exc)
         if band is None and nominal_res is not None and nominal_res.worst_frequency not in (None, 0.0) and \
                 math.isfinite(float(nominal_res.worst_frequency)):
             w = float(nominal_res.worst_frequency)
@@ -494,6 +494,9 @@ def stage_robust(ctx: Context, sheet: Sheet, post: PosteriorDraws, nominal: Nomi
         if X.shape[0] > X.shape[1] + 2 and (fast or not nominal_unstable):
             reliability, form_res, rare = _reliability_stage(ctx.model, criterion, params, names, X, centre,
                                                              stable_draws, policy, fast, seed, theta)
+            if reliability is not None:
+                sheet.optional("plots (design point)", _design_point_plot, sheet.plots, ctx.model, criterion,
+                               params, names, X, centre, reliability, fast)
         p_method: Literal["monte_carlo", "importance_sampling"] = (
             "importance_sampling" if rare is not None and rare.reliable else "monte_carlo")
         robust = Robust(n_draws=int(stable_draws.size), p_stable=p, lower=lo, upper=hi,
@@ -861,6 +864,18 @@ def _reliability_stage(model: str, criterion: str, params: Mapping[str, Any], na
                          p_stable=isr.p_stable, lower=1.0 - isr.upper, upper=1.0 - isr.lower,
                          confidence=isr.confidence, ess=isr.ess, reliable=isr.reliable)
     return rel, fr, rare
+
+
+def _design_point_plot(plots: dict[str, Series], model: str, criterion: str, params: Mapping[str, Any],
+                       names: list[str], X: np.ndarray, centre: np.ndarray, reliability: Any, fast: bool) -> None:
+    """The design point in the posterior-standardized coordinates of :func:`_reliability_stage`
+    with the limit state traced by the same verdict; see :func:`hil.evidence_plots.design_point_plot`."""
+    from hil.evidence_plots import design_point_plot
+    from hil.stability.reliability import Standardization
+
+    st = Standardization(centre, Standardization.from_draws(X).L)
+    verdict = _verdict_fn(model, criterion, params, names, fast)
+    design_point_plot(plots, lambda U: verdict(st.to_theta(U)), reliability, names, model=model, fast=fast)
 
 
 def _design(cert: Any, params: Mapping[str, Any], draws: Mapping[str, np.ndarray], policy: Policy,

@@ -55,10 +55,12 @@ from hil.certificate import SCHEMA_VERSION, Certificate, Series, content_digest,
 from hil.errors import HilError
 from hil.inputs import read_text_file
 from hil.report_model import (
+    CHARTS,
     Section,
     Table,
     _status_outcome,
     definition_link,
+    failure_estimates,
     fmt,
     fmt_p,
     fmt_range,
@@ -272,8 +274,11 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
         if y.size != n:
             notes.append(f"line {name!r} left out: {y.size} values for {n} x values")
             continue
-        c = next_colour(k)
-        k += 1
+        if name.startswith("_") and k:  # a continuation (e.g. a circle's lower half): same colour, no legend
+            c = _PALETTE[(k - 1) % len(_PALETTE)]
+        else:
+            c = next_colour(k)
+            k += 1
         colours[name] = c
         if first_line is None:
             first_line = y
@@ -290,10 +295,13 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
         if lo.size != n or hi.size != n:
             notes.append(f"band {name!r} left out: {lo.size}/{hi.size} values for {n} x values")
             continue
-        c = colours.get(name)
-        if c is None:
-            c = next_colour(k)
+        bc = colours.get(name)
+        if bc is None and name.startswith(("non-stable", "unstable")):
+            bc = "#c62828"
+        if bc is None:
+            bc = next_colour(k)
             k += 1
+        c = bc
         ok = np.isfinite(x) & np.isfinite(lo) & np.isfinite(hi)
         order = np.argsort(x) if scatter else slice(None)
         ax.fill_between(x[order], lo[order], hi[order], where=ok[order], color=c, alpha=0.22, linewidth=0,
@@ -312,9 +320,10 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
                 markerfacecolor="#d62728" if i == 0 else "#222222", markeredgecolor="white", markeredgewidth=1.0,
                 zorder=5, label=_mtext(name if "=" in name or "(" in name else f"{name} ({fmt(px)}, {fmt(py)})"))
         drawn += 1
-    for name, xv in s.vlines.items():
+    for i, (name, xv) in enumerate(s.vlines.items()):
         if math.isfinite(xv):
-            ax.axvline(xv, color="#c62828", linestyle=":", linewidth=1.2, label=_mtext(f"{name}: {fmt(xv)}"))
+            c, ls = (("#c62828", ":"), ("#6a3d9a", "-."), ("#8c564b", (0, (5, 2))))[i % 3]
+            ax.axvline(xv, color=c, linestyle=ls, linewidth=1.2, label=_mtext(f"{name}: {fmt(xv)}"))
     if s.hline is not None and math.isfinite(s.hline):
         ax.axhline(s.hline, color="#555555", linestyle="--", linewidth=1.0, label=f"reference {fmt(s.hline)}")
     if s.log_x:
@@ -323,9 +332,16 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
         ax.set_yscale("log")
     if s.y_label.startswith("γ²"):  # a coherence: always on [0, 1]
         ax.set_ylim(0.0, 1.05)
-    ax.set_title(_mtext(s.title), fontsize=10)
+    if _standardized(s):  # posterior-standardized coordinates: a circle ‖u‖ = β must look like one
+        ax.set_aspect("equal", adjustable="datalim")
+    width_in = ax.get_position().width * ax.figure.get_figwidth()
+    ax.set_title(_mtext(_wrap_title(s.title, width_in)), fontsize=10)
     ax.set_xlabel(_mtext(s.x_label), fontsize=9)
-    ax.set_ylabel(_mtext(s.y_label), fontsize=9)
+    ylab = s.y_label
+    if len(ylab) > 28 and " [" in ylab:  # a long label in two lines (name, then [unit]) stays inside the axes
+        head, _, unit = ylab.rpartition(" [")
+        ylab = f"{head}\n[{unit}"
+    ax.set_ylabel(_mtext(ylab), fontsize=9 if len(s.y_label) <= 28 else 8)
     ax.tick_params(labelsize=8)
     ax.grid(True, which="major", alpha=0.35)
     if s.log_x or s.log_y:
@@ -336,8 +352,14 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
     handles, _ = ax.get_legend_handles_labels()
     if handles:
         loc = "best" if n * max(1, len(s.lines)) <= 4000 else "upper right"
-        ax.legend(loc=loc, fontsize=7, framealpha=0.85)
+        ax.legend(loc=loc, fontsize=7 if width_in >= 4.5 else 6, framealpha=0.85)
     return notes
+
+
+def _wrap_title(title: str, width_in: float) -> str:
+    """A title wrapped to an axes ``width_in`` inches wide at 10 pt (its own line breaks kept)."""
+    chars = max(30, int(width_in / 0.068))
+    return "\n".join(textwrap.fill(line, chars) for line in str(title).split("\n"))
 
 
 def _draw_bars(ax: Any, bars: dict[str, float]) -> None:
@@ -348,39 +370,77 @@ def _draw_bars(ax: Any, bars: dict[str, float]) -> None:
     ax.set_yticks(range(len(names)), [_mtext(n) for n in names], fontsize=8)
     ax.axvline(0.0, color="#555555", linestyle="--", linewidth=1.0)
     ax.set_xlabel("margin [1]", fontsize=9)
-    ax.set_title("pole and residue conditions", fontsize=9)
+    ax.set_title("pole and residue conditions", fontsize=9, loc="right")  # the narrow panel: spill left
     ax.tick_params(axis="x", labelsize=7)
     ax.grid(True, axis="x", alpha=0.3)
 
 
-def _corner_png(s: Series, dpi: int) -> Any:
-    """A corner plot of the series' lines (each a parameter's draws) as an RGBA array."""
-    import matplotlib.image as mpimg
+def _superscript(e: int) -> str:
+    return str(e).translate(str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹"))
+
+
+def _corner_offset(x: Any) -> float:
+    """A round reference value to subtract from a parameter's draws when their spread is below
+    10⁻³ of their size (then plain tick labels would need ten digits): the median rounded one
+    decade below the spread. 0 when no offset is needed."""
     import numpy as np
 
-    names = list(s.lines)
-    data = np.column_stack([_arr(s.lines[k]) for k in names])
+    if x.size < 2:
+        return 0.0
+    med = float(np.median(x))
+    spread = float(np.quantile(x, 0.95) - np.quantile(x, 0.05))
+    if not (math.isfinite(med) and math.isfinite(spread)) or spread <= 0 or abs(med) < 1e3 * spread:
+        return 0.0
+    step = 10.0 ** (math.floor(math.log10(spread)) - 1)
+    return float(round(med / step) * step)
+
+
+def _draw_corner(fig: Any, s: Series, rect: tuple[float, float, float, float]) -> None:
+    """A corner plot of the series' lines (each a parameter's draws, named ``p [unit]``) drawn
+    into ``rect`` (inches) of ``fig`` as vector axes, ticks and labels; only the scatter of the
+    draws is rasterized (``corner`` does that for its data points, the fallback grid with
+    ``rasterized=True``), so a PDF keeps its text selectable without carrying thousands of markers."""
+    import numpy as np
+    from matplotlib.gridspec import GridSpec
+
+    from hil.report_units import pretty_unit
+
+    data = np.column_stack([_arr(s.lines[k]) for k in s.lines])
     data = data[np.all(np.isfinite(data), axis=1)]
+    names = []
+    for j, label in enumerate(s.lines):
+        name, _, unit = label.rpartition(" [")
+        name, unit = (name, "[" + pretty_unit(unit)) if name else (label, "")
+        ref = _corner_offset(data[:, j])
+        if ref:
+            data[:, j] -= ref
+            name = f"{name} − {fmt(ref, 10)}"
+        big = float(np.max(np.abs(data[:, j]))) if data.shape[0] else 0.0
+        e = 3 * math.floor(math.log10(big) / 3) if big > 0 and math.isfinite(big) else 0
+        if e < -3 or e > 3:  # engineering scale in the unit: ticks stay short, no floating "1e-6"
+            data[:, j] *= 10.0 ** (-e)
+            unit = f"[×10{_superscript(e)} {unit[1:]}" if unit else f"[×10{_superscript(e)}]"
+        names.append(f"{name}\n{unit}" if unit else name)
     try:
         import corner
     except ImportError:  # declared in the report extra; a plain grid otherwise
         corner = None
-    from matplotlib.figure import Figure
-
     k = len(names)
-    fig = Figure(figsize=(1.7 * k + 0.6, 1.7 * k + 0.6), dpi=dpi)
+    # a subfigure holds exactly the k x k axes corner expects; they are placed in ``rect`` afterwards
+    sub = fig.add_subfigure(GridSpec(1, 1, figure=fig)[0])
+    sub.set_facecolor("none")
+    axes = np.atleast_2d(np.asarray(sub.subplots(k, k, squeeze=False)))
     if corner is not None:
-        fig.subplots(k, k)
-        corner.corner(data, labels=[_mtext(n) for n in names], quantiles=[0.05, 0.5, 0.95], fig=fig,
-                      label_kwargs={"fontsize": 8}, max_n_ticks=3, plot_datapoints=True)
-        for ax in fig.axes:
+        corner.corner(data, labels=[_mtext(n) for n in names], quantiles=[0.05, 0.5, 0.95], fig=sub,
+                      label_kwargs={"fontsize": 8}, max_n_ticks=3, plot_datapoints=True, labelpad=0.12)
+        axes = np.asarray(sub.axes).reshape(k, k)
+        for ax in sub.axes:
             ax.tick_params(labelsize=6)
             for axis in (ax.xaxis, ax.yaxis):  # plain numbers, no "1e-12+3.62e2" offsets
                 fm = axis.get_major_formatter()
                 if hasattr(fm, "set_useOffset"):
                     fm.set_useOffset(False)
     else:
-        axes = fig.subplots(k, k, squeeze=False)
         for r in range(k):
             for c in range(k):
                 ax = axes[r, c]
@@ -389,21 +449,34 @@ def _corner_png(s: Series, dpi: int) -> Any:
                 elif r == c:
                     ax.hist(data[:, c], bins=30, histtype="step", color="k")
                 else:
-                    ax.plot(data[:, c], data[:, r], ",", color="k", alpha=0.4)
+                    ax.plot(data[:, c], data[:, r], ",", color="k", alpha=0.4, rasterized=True)
+                ax.tick_params(labelsize=6)
                 if r == k - 1:
                     ax.set_xlabel(_mtext(names[c]), fontsize=7)
                 if c == 0 and r > 0:
                     ax.set_ylabel(_mtext(names[r]), fontsize=7)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi, facecolor="white")
-    buf.seek(0)
-    return mpimg.imread(buf)
+    fw, fh = fig.get_size_inches()
+    x0, y0, w, h = rect
+    left, right, top, bottom, gap = 0.85, 0.25, 0.35, 0.85, 0.06
+    side = min((w - left - right - gap * (k - 1)) / k, (h - top - bottom - gap * (k - 1)) / k)
+    gx = x0 + left + max(0.0, (w - left - right - k * side - gap * (k - 1)) / 2)
+    for r in range(k):
+        for c in range(k):
+            axes[r, c].set_position(((gx + c * (side + gap)) / fw, (y0 + h - top - (r + 1) * side - r * gap) / fh,
+                                     side / fw, side / fh))
+    fig.text((x0 + w / 2) / fw, (y0 + h - 0.12) / fh, _mtext(s.title), fontsize=10, ha="center", va="top")
+
+
+def _standardized(s: Series) -> bool:
+    return "(standardized)" in s.x_label and "(standardized)" in s.y_label
 
 
 def _plot_height(s: Series) -> float:
     """Height in inches of a plot 6.8 in wide (panels stacked beneath the main axes)."""
     if s.kind == "corner":
         return min(6.8, 1.5 * max(2, len(s.lines)) + 0.8)
+    if _standardized(s):
+        return 4.6
     return 2.9 + 1.35 * len(s.panels)
 
 
@@ -425,16 +498,18 @@ def draw_plot(fig: Any, s: Series, rect: tuple[float, float, float, float] | Non
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # e.g. log axes with non-positive values (masked)
             if s.kind == "corner":
-                ax = axes(x0, y0, w, h - 0.05)
-                made.append(ax)
-                img = _corner_png(s, dpi=max(dpi, 150))
-                ax.imshow(img)
-                ax.set_axis_off()
-                ax.set_title(_mtext(s.title), fontsize=10)
+                n_sub = len(fig.subfigs)
+                try:
+                    _draw_corner(fig, s, (x0, y0, w, h))
+                except Exception:
+                    for sf in fig.subfigs[n_sub:]:
+                        sf.remove()
+                    raise
                 return []
-            left, right, top, bottom, gap = 0.75, 0.15, 0.3, 0.5, 0.62
+            left, right, top, bottom, gap = 0.75, 0.15, 0.3, 0.5, 0.7
             bars_w = 1.9 if s.bars else 0.0
             main_w = w - left - right - (bars_w + 0.35 if s.bars else 0.0)
+            top += 0.17 * _wrap_title(s.title, main_w).count("\n")  # a wrapped title needs its lines
             n_p = len(s.panels)
             avail = h - top - bottom - gap * n_p
             unit = avail / (2.0 + n_p)
@@ -591,6 +666,7 @@ def _html_context(cert: Certificate, st: IntegrityStatus) -> dict[str, Any]:
         "measurements": measurements_table(cert),
         "outcome_counts": _outcome_counts(cert),
         "plots": _plots_png(cert) if cert.plots else {},
+        "charts": _charts_png(cert) if cert.robust is not None else {},
         "robust_status": None,
         "gauge": None,
         "show_truth": False,
@@ -663,6 +739,9 @@ class _PdfDoc:
         self.page = 0
         self.y = 0.0
         self.section = ""
+        self.captions: dict[int, tuple[str, str | None]] = {}  # id(figure Series) -> (caption, definition link)
+        self.figure_section: dict[int, str] = {}  # id(figure Series) -> title of the section it belongs to
+        self.current_section = ""
 
     @property
     def width(self) -> float:
@@ -744,7 +823,7 @@ class _PdfDoc:
         self.y -= h
 
     def heading(self, s: str, size: float = 14) -> None:
-        self.ensure(self._lh(size) + 0.5)  # keep a heading with what follows
+        self.ensure(self._lh(size) + 0.95)  # keep a heading with what follows (a table header and two rows)
         self.y -= self._lh(size)
         self._t(self.ML, self.y, s, size, weight="bold", color="#1d2733")
         self.y -= 0.08
@@ -883,21 +962,55 @@ class _PdfDoc:
         self.y -= h + 0.05
 
     def fits(self, s: Series) -> bool:
-        """Would the plot fit (possibly shrunk to 72 %) in the space left on this page?"""
+        """Would the plot and its caption fit (the plot possibly shrunk to 72 %) in the space left on
+        this page?"""
         h = min(_plot_height(s), self.H - self.MT - self.MB - 0.6)
-        return self.fig is not None and 0.72 * h <= self.y - self.MB - 0.25
+        cap = self.caption_height(*self.captions.get(id(s), ("", None)))
+        if self.figure_section.get(id(s), self.current_section) != self.current_section:
+            cap += self._lh(7.5)  # its "(Figure of the section …)" prefix
+        return self.fig is not None and 0.72 * h + cap <= self.y - self.MB - 0.25
 
-    def figure(self, s: Series, caption: str = "") -> None:
+    def caption(self, text: str, link: str | None) -> None:
+        """A figure caption, with the link to the definition of what it shows."""
+        if text:
+            self.para(text, 7.5, color="#444444")
+        if link:
+            self.ensure(self._lh(7.5))
+            self.y -= self._lh(7.5)
+            t = self._t(self.ML, self.y, f"Definition: {link}", 7.5, color="#0b3d91")
+            t.set_url(link)
+            self.y -= 0.06
+
+    def caption_height(self, text: str, link: str | None) -> float:
+        chars = max(20, int(self.width * 72 / (self.SANS_EM * 7.5)))
+        n = (len(textwrap.wrap(_one_line(text), chars)) if text else 0) + (1 if link else 0)
+        return n * self._lh(7.5) + 0.14
+
+    def chart(self, cert: Certificate, key: str, caption: str = "", link: str | None = None) -> None:
+        """A chart drawn from the record (:func:`draw_chart`) in the flow, with its caption."""
+        h = chart_height(cert, key)
+        if h <= 0:
+            return
+        self.ensure(h + self.caption_height(caption, link) + 0.1)
+        draw_chart(self.fig, cert, key, (self.ML, self.y - h, self.width, h))
+        self.y -= h
+        self.caption(caption, link)
+        self.space(0.1)
+
+    def figure(self, s: Series, caption: str = "", link: str | None = None) -> None:
         """A plot in the flow, 6.8 in wide; its height follows its panels."""
-        h = min(_plot_height(s), self.H - self.MT - self.MB - 0.6)
-        room = self.y - self.MB - 0.25
+        home = self.figure_section.get(id(s))
+        if home and home != self.current_section:  # a figure that floated into the next section says whose it is
+            caption = f"(Figure of the section {home}.) {caption}"
+        cap = self.caption_height(caption, link)
+        h = min(_plot_height(s), self.H - self.MT - self.MB - 0.6 - cap)
+        room = self.y - self.MB - 0.25 - cap
         if self.fig is not None and 0.72 * h <= room < h:
             h = room - 0.02  # shrink a little rather than leave most of a page empty
-        self.ensure(h + 0.25)
+        self.ensure(h + 0.25 + cap)  # the caption stays with its figure
         notes = draw_plot(self.fig, s, (self.ML, self.y - h, self.width, h))
         self.y -= h
-        if caption:
-            self.para(caption, 8, color="#555555")
+        self.caption(caption, link)
         for n in notes:
             self.para(f"Note: {n}", 8, color="#8a5a00")
         self.space(0.1)
@@ -912,7 +1025,8 @@ def _decisive_row(cert: Certificate) -> Any:
              and c.name not in ("A", "B", "A*")]
     failed = [c for c in conds if _status_outcome(c.status) == "FAIL"]
     pool = failed or conds
-    return min(pool, key=lambda c: c.margin) if pool else None
+    return min(pool, key=lambda c: float(c.margin) if isinstance(c.margin, int | float) else math.inf) if pool \
+        else None
 
 
 def summary_rows(cert: Certificate, st: IntegrityStatus) -> list[tuple[str, str, str, str | None]]:
@@ -926,6 +1040,16 @@ def summary_rows(cert: Certificate, st: IntegrityStatus) -> list[tuple[str, str,
         rows.append(("required: the lower bound must clear", fmt_p(r.required), "1", "robust.required"))
         rows.append((f"worst-case margin ({r.credible:.0%} credible region)", fmt(r.worst_case_margin), "1",
                      "robust.worst_case_margin"))
+        rel = r.reliability
+        if rel is not None:
+            rows.append(("reliability index β", f"{'≥ ' if rel.censored else ''}{fmt(rel.beta)} (a GO needs ≥ "
+                                                 f"{fmt(rel.required_beta)}; Φ(β) = {fmt_p(rel.phi_beta)})", "1",
+                         "robust.reliability.beta"))
+        ev = r.rare_event
+        if ev is not None:
+            rows.append((f"P(stable) by importance sampling, {ev.confidence:.0%} interval",
+                         f"{fmt_p(ev.p_stable)} [{fmt_p(ev.lower)}, {fmt_p(ev.upper)}]"
+                         + ("" if ev.reliable else " (not reliable: nothing certified)"), "1", "robust.rare_event"))
     n = cert.nominal
     if n is not None:
         rows.append(("nominal verdict", n.verdict + (" (weak)" if n.weak else ""), "—", "nominal.verdict"))
@@ -941,6 +1065,12 @@ def summary_rows(cert: Certificate, st: IntegrityStatus) -> list[tuple[str, str,
         if d.current is not None:
             rows.append((f"current {d.parameter}", fmt(d.current) + (f" ({headroom(d)})" if headroom(d) else ""),
                          d.unit or "—", "design.current"))
+    if d is not None and (d.nominal_headroom is not None or d.posterior_headroom is not None):
+        def signed(v: float | None) -> str:
+            return "—" if v is None else f"{v:+.4g}"
+
+        rows.append((f"{d.parameter} headroom: nominal, posterior",
+                     f"{signed(d.nominal_headroom)}, {signed(d.posterior_headroom)}", "1", "design.posterior_headroom"))
     w = cert.witness
     if w is not None:
         from hil.report_units import termination_units
@@ -990,7 +1120,9 @@ def _pdf_summary(doc: _PdfDoc, cert: Certificate) -> None:
     doc.subheading("Summary", 10)
     from hil.report_model import _kv
 
-    doc.model_table(_kv(summary_rows(cert, doc.integrity)))
+    t = _kv(summary_rows(cert, doc.integrity))
+    t.size = 8.5  # page 1 holds the summary and the signature block: one page a person can sign alone
+    doc.model_table(t)
     st = doc.integrity
     doc.subheading("Review and signature", 10)
     doc.kv([("digest (sha256, hil-c14n/1)", _digest_text(st)), ("electronic signature", st.signature_text())],
@@ -1035,7 +1167,7 @@ def _pdf_block_flow(doc: _PdfDoc, cert: Certificate) -> None:
     for sec in report_sections(cert):
         floating = _pdf_section(doc, cert, sec, floating)
     for f in floating:
-        doc.figure(f)
+        doc.figure(f, *doc.captions.get(id(f), ("", None)))
     st = doc.integrity
     # the integrity block is kept together: a last page never holds only its tail
     doc.ensure(0.55 + 0.75 + 0.16 * (len(cert.evidence) + 1) + 0.4)
@@ -1060,21 +1192,26 @@ def _pdf_section(doc: _PdfDoc, cert: Certificate, sec: Section, carried: list[Se
     def place(force: bool = False) -> None:
         for queue in (carried, pending):
             while queue and (force or doc.fits(queue[0])):
-                doc.figure(queue.pop(0))
+                f = queue.pop(0)
+                doc.figure(f, *doc.captions.get(id(f), ("", None)))
 
     doc.heading(sec.title, 13)
+    doc.current_section = sec.title
     for b in sec.blocks:
         if b.kind == "figure" and b.plot in cert.plots:
             s = cert.plots[b.plot]
+            doc.captions[id(s)] = (b.text, b.link)
+            doc.figure_section[id(s)] = sec.title
             if carried or pending or not doc.fits(s):
                 pending.append(s)
             else:
-                doc.figure(s)
+                doc.figure(s, *doc.captions[id(s)])
             continue
         _pdf_block(doc, cert, b)
         place()
     while carried:
-        doc.figure(carried.pop(0))
+        f = carried.pop(0)
+        doc.figure(f, *doc.captions.get(id(f), ("", None)))
     place()
     return pending
 
@@ -1092,6 +1229,8 @@ def _pdf_block(doc: _PdfDoc, cert: Certificate, b: Any) -> None:
         doc.model_table(b.table)
     elif b.kind == "gauge" and cert.robust is not None:
         doc.pstable(cert)
+    elif b.kind == "chart":
+        doc.chart(cert, b.plot, b.text, b.link)
 
 
 def draw_pstable(ax: Any, cert: Certificate) -> None:
@@ -1116,6 +1255,112 @@ def draw_pstable(ax: Any, cert: Certificate) -> None:
     ax.tick_params(labelsize=8)
     ax.grid(True, axis="x", alpha=0.3)
     ax.legend(loc="upper left", fontsize=7, ncol=3, framealpha=0.9)
+
+
+def chart_height(cert: Certificate, key: str) -> float:
+    """Height in inches of a chart drawn from the record (:data:`hil.report_model.CHARTS`)."""
+    if key == "p_failure" and cert.robust is not None:
+        return 1.25 + 0.55 * len(failure_estimates(cert)) + (1.3 if cert.robust.reliability is not None else 0.0)
+    return 0.0
+
+
+def draw_chart(fig: Any, cert: Certificate, key: str, rect: tuple[float, float, float, float]) -> None:
+    """Draw a chart of the record into ``rect`` (inches) of ``fig``; only ``p_failure`` exists: every
+    estimate of P(not stable) = 1 − P(stable) (sampled with its Clopper-Pearson interval, FORM Φ(−β),
+    importance sampling with its interval) on one logarithmic axis against the allowance
+    1 − required, and β against the β a GO needs."""
+    r = cert.robust
+    if key != "p_failure" or r is None:
+        return
+    labels = CHARTS[key]
+    est = failure_estimates(cert)
+    allow = 1.0 - r.required
+    rel = r.reliability
+    fw, fh = fig.get_size_inches()
+    x0, y0, w, h = rect
+    beta_h = 1.3 if rel is not None else 0.0
+    ax = fig.add_axes(((x0 + 0.2) / fw, (y0 + beta_h + 0.5) / fh, (w - 0.35) / fw, (h - beta_h - 0.85) / fh))
+    cands = [v for e in est for v in (e.value, e.lower, e.upper) if v is not None and v > 0 and math.isfinite(v)]
+    cands = [v for v in [*cands, allow] if v >= 1e-15]
+    floor = max(10.0 ** (math.floor(math.log10(min(cands))) - 1), 1e-15) if cands else 1e-6
+    n = len(est)
+    ax.axvspan(allow, 1.3, color="#c62828", alpha=0.10, linewidth=0, label="above the allowance: not certified")
+    ax.axvline(allow, color="#1d2733", linestyle="--", linewidth=1.3, label=f"allowance 1 − required = {fmt(allow)}")
+    for k, e in enumerate(est):
+        y = n - 1 - k
+        c = "#0b3d91" if e.decides else "#6b7785"
+        if e.lower is not None and e.upper is not None:
+            lo, hi = max(e.lower, floor), max(e.upper, floor)
+            ax.barh([y], [max(hi - lo, 0.0)], left=[lo], height=0.28, color=c, alpha=0.35, edgecolor=c)
+        vtxt = fmt(e.value)
+        if e.value is not None and e.value > floor:
+            ax.plot([e.value], [y], "o", color=c, markersize=7)
+        elif e.value is not None:  # below the axis: at its left end, value printed
+            ax.plot([floor], [y], "<", color=c, markersize=8, clip_on=False)
+            if e.value == 0.0 and e.log10_value is None:
+                vtxt = "0"
+            elif e.log10_value is not None:
+                vtxt = f"10{_superscript(round(e.log10_value))}" if e.log10_value < -300 else fmt(e.value)
+        rng = "" if e.lower is None or e.upper is None else f", interval [{fmt(e.lower)}, {fmt(e.upper)}]"
+        text = f"{e.label}: {vtxt}{rng}" + (" — the decision uses it" if e.decides else "") + \
+            (f" ({e.note})" if e.note else "")
+        ax.text(floor * 1.15, y + 0.24, _mtext(text), fontsize=7.5, color=c, va="bottom",
+                weight="bold" if e.decides else "normal")
+    ax.set_xscale("log")
+    ax.set_xlim(floor, 1.3)
+    ax.set_ylim(-0.5, n - 0.1)
+    ax.set_yticks([])
+    ax.set_xlabel(_mtext(labels[0]), fontsize=9)
+    status, _ = robust_status(cert)
+    ax.set_title(f"P(not stable) against the allowance: {status}", fontsize=10)
+    ax.tick_params(labelsize=8)
+    ax.grid(True, axis="x", which="major", alpha=0.35)
+    ax.legend(loc="lower right", fontsize=7, framealpha=0.9)
+    if rel is None:
+        return
+    bx = fig.add_axes(((x0 + 0.2) / fw, (y0 + 0.45) / fh, (w - 0.35) / fw, (beta_h - 0.75) / fh))
+    b, breq = float(rel.beta), float(rel.required_beta)
+    ok = b >= breq
+    colour = "#1b7f3b" if ok else "#c62828"
+    bx.barh([0], [b], height=0.42, color=colour, alpha=0.75)
+    bx.axvline(breq, color="#1d2733", linestyle="--", linewidth=1.3)
+    lo_x = min(0.0, b, breq)
+    hi_x = max(b, breq, 0.0)
+    pad = 0.08 * (hi_x - lo_x or 1.0)
+    bx.set_xlim(lo_x - pad, hi_x + pad)
+    bx.set_ylim(-0.75, 0.75)
+    right = (breq - lo_x) < 0.6 * (hi_x - lo_x)  # room right of the required line for its label
+    bx.text(breq + (0.01 if right else -0.01) * (hi_x - lo_x), 0.3, f" required β = Φ⁻¹({fmt_p(r.required)}) = "
+            f"{fmt(breq)} ", fontsize=7.5, ha="left" if right else "right", va="bottom", color="#1d2733")
+    bx.text(b, -0.3, f" β = {'≥ ' if rel.censored else ''}{fmt(b)}, Φ(β) = {fmt_p(rel.phi_beta)} ", fontsize=7.5,
+            ha="right" if b > lo_x + 0.5 * (hi_x - lo_x) else "left", va="top", color=colour, weight="bold")
+    bx.set_yticks([])
+    bx.set_xlabel(_mtext(labels[1]), fontsize=9)
+    bx.tick_params(labelsize=8)
+    bx.grid(True, axis="x", alpha=0.35)
+    bx.set_title(f"reliability index β against the β a GO needs: {'PASS' if ok else 'FAIL'}", fontsize=9)
+
+
+def _charts_png(cert: Certificate, dpi: int = 110) -> dict[str, _Plot]:
+    """The charts of the report model (drawn from the record), as PNG for the HTML page."""
+    import warnings
+
+    from matplotlib.figure import Figure
+
+    out: dict[str, _Plot] = {}
+    keys = {b.plot for sec in report_sections(cert) for b in sec.blocks if b.kind == "chart"}
+    for key in sorted(keys):
+        h = chart_height(cert, key)
+        if h <= 0:
+            continue
+        fig = Figure(figsize=(9.0, 1.25 * h), dpi=dpi)
+        draw_chart(fig, cert, key, (0.3, 0.0, 8.6, 1.25 * h))
+        buf = io.BytesIO()
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", category=UserWarning)
+            fig.savefig(buf, format="png", dpi=dpi, facecolor="white")
+        out[key] = _Plot(key, key, base64.b64encode(buf.getvalue()).decode("ascii"))
+    return out
 
 
 def _status_class(status: str) -> str:

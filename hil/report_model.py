@@ -17,13 +17,15 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from hil.certificate import Certificate, Series
-from hil.report_units import parameter_unit, termination_units
+from hil.report_units import parameter_unit, pretty_unit, termination_units
 
-__all__ = ["DEFINITIONS", "DEFINITIONS_DOC", "Column", "Section", "Table", "definition_link", "plot_sections",
+__all__ = ["CHARTS", "DEFINITIONS", "DEFINITIONS_DOC", "Block", "Column", "Estimate", "Section", "Table",
+           "definition_link", "failure_estimates", "figure_caption", "log10_phi_minus", "plot_sections",
            "report_sections"]
 
 #: where the definitions live (relative to the repository root)
@@ -125,11 +127,17 @@ class Table:
 
 @dataclass
 class Block:
-    kind: str  # "para" | "h3" | "table" | "figure" | "gauge"
-    text: str = ""
+    kind: str  # "para" | "h3" | "table" | "figure" | "gauge" | "chart"
+    text: str = ""  # para/h3 text; figure/chart: the caption
     table: Table | None = None
-    plot: str = ""  # key into cert.plots
+    plot: str = ""  # figure: key into cert.plots; chart: a chart drawn from the record (CHARTS)
     style: str = ""  # para: "muted" | "strong-<OUTCOME>" | ""
+    axes: list[str] = field(default_factory=list)  # chart: its axis labels (each ends with [unit])
+    field: str | None = None  # figure/chart: the certificate field its caption's definition link names
+
+    @property
+    def link(self) -> str | None:
+        return definition_link(self.field)
 
 
 @dataclass
@@ -203,7 +211,7 @@ def is_number_text(s: str) -> bool:
     return bool(re.match(r"^\s*[\[(]?\s*[−\-+]?(\d|∞|NaN)", s))
 
 
-def _kv(rows: list[tuple[str, str, str, str | None]]) -> Table:
+def _kv(rows: Sequence[tuple[str, str, str, str | None]]) -> Table:
     """A quantity | value | unit table; rows (label, value, unit, field path)."""
     return Table([Column("quantity", "—"), Column("value", "per row", num=False), Column("unit", "—")],
                  [[a, b, c] for a, b, c, _ in rows], row_fields=[f for *_, f in rows], kv=True, size=9.0)
@@ -217,7 +225,8 @@ def _u(unit: str) -> str:
 # plots per section
 
 _PLOT_SECTION = (("frf_", "identification"), ("corner_", "identification"), ("decided", "nominal"),
-                 ("bode", "robust"), ("critical_band", "robust"), ("headroom", "design"), ("witness", "witness"),
+                 ("bode", "robust"), ("critical_band", "robust"),
+                 ("reliability", "robust"), ("headroom", "design"), ("witness", "witness"),
                  ("energy", "energy"))
 
 
@@ -294,7 +303,8 @@ def measurement_unit(m: Any) -> str:
 
 
 def measurements_table(cert: Certificate) -> Table:
-    rows, colours = [], []
+    rows: list[list[str]] = []
+    colours: list[list[str | None]] = []
     for m in cert.measurements:
         rows.append([m.name, fmt(m.value), limits_text(m.lower, m.upper), measurement_unit(m), m.outcome,
                      m.description])
@@ -323,7 +333,8 @@ def report_sections(cert: Certificate) -> list[Section]:
 
     def figures(sec: Section) -> None:
         for k in figs.get(sec.key, []):
-            sec.blocks.append(Block("figure", plot=k))
+            text, fld = figure_caption(cert, k)
+            sec.blocks.append(Block("figure", plot=k, text=text, field=fld))
 
     if cert.nominal is not None:
         n = cert.nominal
@@ -370,6 +381,7 @@ def report_sections(cert: Certificate) -> list[Section]:
              "robust.worst_case_margin"),
             ("critical band", "—" if band is None else fmt_range(*band), "rad/s", "robust.critical_band_rad_s"),
             ("method", r.method or "—", "—", "robust.method")])))
+        s.blocks.extend(_reliability_blocks(cert))
         if r.worst_case_parameters:
             s.blocks.append(Block("h3", "Worst-case parameters"))
             model = cert.nominal.network if cert.nominal is not None else ""
@@ -391,8 +403,9 @@ def report_sections(cert: Certificate) -> list[Section]:
                 cols.append(Column("truth", "per row", num=True))
             rows = []
             for p in ident.parameters:
-                row = [p.name, _u(p.unit or parameter_unit(p.name, u)), fmt(p.mean), fmt(p.median), fmt(p.q05),
-                       fmt(p.q95), fmt(p.std), fmt(p.ls_std), fmt(p.crb_std)]
+                pu = _u(pretty_unit(p.unit or parameter_unit(p.name, u)))
+                row = [p.name, pu, fmt(p.mean), fmt(p.median), fmt(p.q05), fmt(p.q95), fmt(p.std), fmt(p.ls_std),
+                       fmt(p.crb_std)]
                 if show_truth:
                     row.append(fmt(p.truth))
                 rows.append(row)
@@ -407,14 +420,14 @@ def report_sections(cert: Certificate) -> list[Section]:
         d = cert.design
         s = Section("design", "Design guidance")
         du = _u(d.unit or parameter_unit(d.parameter, u))
-        rows = [("free parameter", d.parameter, "—", None),
+        drows: list[tuple[str, str, str, str | None]] = [("free parameter", d.parameter, "—", None),
                 ("current value", fmt(d.current), du, "design.current"),
                 ("largest value meeting the requirement", fmt(d.max_value), du, "design.max_value"),
                 ("P(stable) at that value", fmt_p(d.probability_at_max), "1", "design.probability_at_max"),
                 ("required", fmt_p(d.required), "1", "robust.required")]
         if headroom(d):
-            rows.append(("headroom", headroom(d), "—", "design.max_value"))
-        s.blocks.append(Block("table", table=_kv(rows)))
+            drows.append(("headroom", headroom(d), "—", "design.max_value"))
+        s.blocks.append(Block("table", table=_kv(drows)))
         if d.note:
             s.blocks.append(Block("para", d.note))
         figures(s)
@@ -485,7 +498,8 @@ def _witness_section(cert: Certificate, figs: dict[str, list[str]]) -> Section:
                                                 Column("value", "per row", num=True), Column("unit", "—")], trows)))
     poles = w.closed_loop_poles
     rhp = [p for p in poles if p[0] > 0]
-    rows = [("drive frequency (most negative Re Z_in)", fmt_w(w.drive_frequency_rad_s), "rad/s",
+    rows: list[tuple[str, str, str, str | None]] = [
+            ("drive frequency (most negative Re Z_in)", fmt_w(w.drive_frequency_rad_s), "rad/s",
              "witness.drive_frequency_rad_s"),
             ("band where Re Z_in < 0", "—" if w.band_rad_s is None else fmt_range(*w.band_rad_s), "rad/s",
              "witness.band_rad_s"),
@@ -517,8 +531,150 @@ def _witness_section(cert: Certificate, figs: dict[str, list[str]]) -> Section:
         s.blocks.append(Block("para", "All closed-loop poles [1/s] (right-half plane first): "
                               + ", ".join(_pole(p) for p in poles), style="muted"))
     for k in figs.get("witness", []):
-        s.blocks.append(Block("figure", plot=k))
+        text, fld = figure_caption(cert, k)
+        s.blocks.append(Block("figure", plot=k, text=text, field=fld))
     return s
+
+
+# ---------------------------------------------------------------------------------------------
+# reliability: P(not stable) by every method, β, the design point
+
+
+#: charts drawn by the renderers from the record itself (not stored as plots): key -> axis labels
+CHARTS: dict[str, list[str]] = {
+    "p_failure": ["P(not stable) = 1 − P(stable) [1]", "reliability index β [1]"],
+}
+
+
+@dataclass
+class Estimate:
+    """One estimate of P(not stable) = 1 − P(stable) for the chart: its value and interval
+    (None: not available), the log10 of the value when it underflows double precision, and
+    whether the decision used it."""
+
+    label: str
+    value: float | None
+    lower: float | None = None
+    upper: float | None = None
+    log10_value: float | None = None
+    decides: bool = False
+    note: str = ""
+
+
+def log10_phi_minus(beta: float) -> float:
+    """log10 Φ(−β), also where Φ(−β) underflows (β > 37: the asymptotic series of the normal
+    tail, log Φ(−β) = −β²/2 − log(β√(2π)) + log(1 − 1/β² + 3/β⁴), relative error < 15/β⁶)."""
+    p = 0.5 * math.erfc(beta / math.sqrt(2.0))
+    if p > 1e-300:
+        return math.log10(p)
+    ln = -0.5 * beta * beta - math.log(beta * math.sqrt(2.0 * math.pi)) + math.log1p(-1 / beta ** 2 + 3 / beta ** 4)
+    return ln / math.log(10.0)
+
+
+def failure_estimates(cert: Certificate) -> list[Estimate]:
+    """P(not stable) by each method the record holds: sampled (Clopper-Pearson interval on the
+    independent draws), FORM Φ(−β), importance sampling (its interval); the one the decision used
+    (``robust.p_stable_method``) flagged."""
+    r = cert.robust
+    if r is None:
+        return []
+    is_used = r.p_stable_method == "importance_sampling"
+    out = [Estimate(f"sampled: {r.n_draws} independent draws, {r.confidence:.0%} Clopper-Pearson",
+                    1.0 - r.p_stable, 1.0 - r.upper, 1.0 - r.lower, decides=not is_used)]
+    rel = r.reliability
+    if rel is not None:
+        b = float(rel.beta)
+        lg = log10_phi_minus(b) if b > 0 else None
+        v = 0.5 * math.erfc(b / math.sqrt(2.0))
+        out.append(Estimate(f"FORM: Φ(−β), β = {'≥ ' if rel.censored else ''}{fmt(b)}", v, log10_value=lg,
+                            note="first-order approximation (no interval)"))
+    ev = r.rare_event
+    if ev is not None:
+        out.append(Estimate(f"importance sampling: {ev.n} samples, {ev.n_fail} failing, {ev.confidence:.0%} "
+                            "normal interval", ev.p_failure, 1.0 - ev.upper, 1.0 - ev.lower, decides=is_used,
+                            note="" if ev.reliable else "not reliable (too few failing samples): nothing certified"))
+    return out
+
+
+def _reliability_blocks(cert: Certificate) -> list[Block]:
+    """The P(not stable) chart and the design point table of the robust section."""
+    r = cert.robust
+    assert r is not None
+    allow = 1.0 - r.required
+    est = failure_estimates(cert)
+    used = next((e for e in est if e.decides), est[0])
+    text = (f"Every estimate of P(not stable) = 1 − P(stable) on one logarithmic axis against the allowance "
+            f"1 − required = {fmt(allow)}: a bar is an interval, a dot an estimate; a value below the axis is drawn "
+            f"at its left end with its value printed. The decision uses the upper end of the "
+            f"{'importance-sampling' if used is not est[0] else 'sampled'} interval "
+            f"(robust.p_stable_method = {r.p_stable_method}).")
+    blocks = [Block("chart", plot="p_failure", text=text, field="robust.p_stable_method",
+                    axes=list(CHARTS["p_failure"] if r.reliability is not None else CHARTS["p_failure"][:1]))]
+    rel = r.reliability
+    if rel is None:
+        return blocks
+    blocks.append(Block("h3", "Design point (FORM)"))
+    checked = "" if rel.verified is None else (" Checked by the exact criterion at 0.95·u* and 1.05·u*: "
+                                               + ("confirmed." if rel.verified else "NOT confirmed."))
+    blocks.append(Block("para", "θ* = μ + L u*: the nearest parameter set where the verdict changes, in posterior-"
+                                "standardized coordinates u* and in the parameters' units; α = u*/β are the FORM "
+                                "importance factors (Σα² = 1)." + checked))
+    model = cert.nominal.network if cert.nominal is not None else ""
+    mu = cert.nominal.parameters if cert.nominal is not None else {}
+    beta = float(rel.beta) or 1.0
+    rows: list[list[str]] = []
+    colours: list[list[str | None]] = []
+    u = _units(cert)
+    for k, (name, th) in enumerate(rel.design_point.items()):
+        uk = rel.design_point_u[k] if k < len(rel.design_point_u) else float("nan")
+        rows.append([name, _u(parameter_unit(name, u, model)), fmt(mu.get(name)), fmt(th), fmt(uk), fmt(uk / beta)])
+        colours.append([None] * 6)
+    blocks.append(Block("table", table=Table(
+        [Column("parameter", "—", "robust.reliability.design_point", nowrap=True), Column("unit", "—"),
+         Column("posterior centre μ", "per row", "robust.reliability.design_point", num=True),
+         Column("design point θ*", "per row", "robust.reliability.design_point", num=True),
+         Column("u*", "1", "robust.reliability.design_point", num=True),
+         Column("importance α = u*/β", "1", "robust.reliability.beta", num=True)], rows, colours)))
+    return blocks
+
+
+#: plot key prefix -> (caption, certificate field whose definition it links)
+_CAPTIONS: tuple[tuple[str, str, str], ...] = (
+    ("frf_", "Measured H1 with its ≈95 % band from the coherence, the posterior median fit with its 90 % band, phase, "
+             "coherence and the normalized residual (fit − H1)/σ (within ±2 for a consistent fit).",
+     "identification.parameters"),
+    ("corner_", "Posterior draws of the identified parameters: pair densities (contours) and marginals with the 5 %, "
+                "50 % and 95 % quantiles (dashed); a parameter whose spread is tiny against its size is drawn as the "
+                "offset from the value in its label.", "identification.parameters"),
+    ("decided", "The decisive condition of the nominal verdict (the violated one with the most negative margin for a "
+                "NO-GO, the one with the smallest margin otherwise): its normalized margin over ω, negative "
+                "(violated) region shaded, worst frequency marked; imaginary-axis and infinity conditions as bars of "
+                "their residue margins.", "nominal.margin"),
+    ("bode", "The immittance entry (1,1) over the posterior draws: median and 90 % band.", "robust.method"),
+    ("critical_band", "The coupler condition per draw around its minimum and the critical band, where it is within "
+                      "10 % of its minimum.", "robust.critical_band_rad_s"),
+    ("reliability", "The design point u* of the reliability index β in a slice of posterior-standardized space "
+                    "through u* along its two most important coordinates: the limit state g = 0 (where the verdict "
+                    "changes), the sphere ‖u‖ = β touching it at u*, the sphere of the required β (a GO needs it "
+                    "inside the stable side) and 99 % of the posterior's 2-D marginal.", "robust.reliability.beta"),
+    ("headroom", "P(stable) and its lower confidence bound against the design parameter; the requirement crossing "
+                 "(the posterior limit) and the nominal limit are marked, the headroom is limit / current − 1.",
+     "design.posterior_headroom"),
+    ("witness", "The response of the terminated network to a unit drive at the drive frequency: |V| until it "
+                "crosses the bench's first safety limit, and the port energy E_s over that time.",
+     "witness.time_to_limit_s"),
+    ("energy", "Port energy E_s(t) = ∫ F·V dt of the energy-injection experiment against its noise bound.",
+     "energy.min_energy"),
+)
+
+
+def figure_caption(cert: Certificate, key: str) -> tuple[str, str | None]:
+    """(caption, field path of its definition) of a stored plot; the plot's title when unknown."""
+    for prefix, text, fld in _CAPTIONS:
+        if key.startswith(prefix):
+            return text, fld
+    s = cert.plots.get(key)
+    return (s.title if s is not None else key), None
 
 
 def _pole(p: tuple[float, float]) -> str:
@@ -558,6 +714,13 @@ def missing_units(cert: Certificate, sections: list[Section] | None = None) -> l
         for row in t.rows:
             if is_number_text(row[1]) and row[3] in ("", "?", "—"):
                 bad.append(f"measurements: {row[0]!r} = {row[1]} has no unit")
+
+    for sec in sections if sections is not None else report_sections(cert):
+        for b in sec.blocks:
+            if b.kind == "chart":
+                for label in b.axes or ["(none)"]:
+                    if not _axis_ok(label):
+                        bad.append(f"{sec.key}: chart {b.plot} axis {label!r} has no unit")
 
     def walk(name: str, s: Series) -> None:
         if s.kind == "corner":

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import re
 
-__all__ = ["frf_unit", "parameter_unit", "quantity_unit", "termination_units", "unit_label"]
+__all__ = ["frf_unit", "parameter_unit", "pretty_unit", "quantity_unit", "termination_units", "unit_label"]
 
 _Q: dict[str, dict[str, str]] = {
     "linear": {"effort": "N", "velocity": "m/s", "position": "m", "stiffness": "N/m", "damping": "N.s/m",
@@ -108,3 +108,11 @@ def termination_units(params: dict[str, float], units: str | None) -> dict[str, 
 def unit_label(name: str, unit: str) -> str:
     """``name [unit]`` (``[1]`` for a dimensionless quantity)."""
     return f"{name} [{unit or '?'}]"
+
+
+def pretty_unit(unit: str) -> str:
+    """A unit as the report prints it: powers as superscripts (``kg.m^2`` -> ``kg.m²``), so a
+    model's own spelling and this module's agree."""
+    for a, b in (("^-1", "⁻¹"), ("^-2", "⁻²"), ("^2", "²"), ("^3", "³")):
+        unit = unit.replace(a, b)
+    return unit

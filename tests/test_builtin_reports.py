@@ -77,3 +77,16 @@ def test_builtin_scene_report_renders(name, reports, tmp_path):
         assert min(curve) < 0, name
     if cert.witness is not None and cert.witness.simulation.get("simulated"):
         assert cert.witness.growth_rate_1_s is not None and cert.witness.closed_loop_poles
+    # issue 18/11: the reliability numbers have figures: the design point sits on the traced limit
+    # state (the boundary at u*'s column is u*'s height within the bisection's bracket) and the
+    # headroom plot marks the nominal limit and zooms on the requirement crossing
+    rel = cert.robust.reliability if cert.robust is not None else None
+    if rel is not None and not rel.censored and len(rel.design_point_u) >= 2 and "reliability" in cert.plots:
+        s = cert.plots["reliability"]
+        (px, py), = [v for k, v in s.points.items() if k.startswith("design point")]
+        k = min(range(len(s.x)), key=lambda n: abs(s.x[n] - px))
+        yb = next(iter(s.lines.values()))[k]
+        assert yb is not None and abs(yb - py) <= 0.02 * abs(rel.beta) + 1e-9, (name, yb, py)
+    if cert.design is not None and "headroom" in cert.plots and cert.design.nominal_limit is not None:
+        h = cert.plots["headroom"]
+        assert any(k.startswith("nominal limit") for k in h.vlines) and h.panels, name

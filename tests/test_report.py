@@ -290,7 +290,9 @@ def test_html_has_only_present_sections(built, key):
         present = sec in PRESENT[key]
         assert (f'id="sec-{sec}"' in html) == present, sec
         assert (f">{heading}</h2>" in html) == present, sec
-    assert html.count("data:image/png;base64,") == len(cert.plots)
+    # every stored plot, and the P(not stable) chart drawn from the record when there is a robust section
+    assert html.count("data:image/png;base64,") == len(cert.plots) + (cert.robust is not None)
+    assert ('id="chart-p_failure"' in html) == (cert.robust is not None)
     for m in cert.measurements:
         assert m.name in html
 
