@@ -434,6 +434,14 @@ class CubeMarsMIT(Actuator):
         self._send(data, timeout)
         self._last_cmd = data
 
+    def effort_on_wire(self, effort: np.ndarray) -> np.ndarray:
+        """The torque (N.m) :meth:`command_effort` sends for ``effort``: the 12-bit t_ff field over the
+        model's [T_min, T_max] (manual 5.3, MIT mode; truncated as :func:`float_to_uint`), decoded
+        back (what hil.runner records as ``effort_cmd``; resolution (T_max - T_min) / 4095)."""
+        u = float(np.asarray(effort, dtype=float).reshape(-1)[0])
+        lim = self.limits
+        return np.array([uint_to_float(float_to_uint(u, lim.t_min, lim.t_max, 12), lim.t_min, lim.t_max, 12)])
+
     def command_effort(self, effort: np.ndarray, timeout: float = 0.1) -> None:
         """Torque-only command in N.m at the output (kp = kd = 0), clamped to the model's T range."""
         u = float(np.asarray(effort, dtype=float).reshape(-1)[0])

@@ -388,14 +388,25 @@ class CiA402Drive(Actuator):
     def counts_to_rad(self, counts: float) -> float:
         return 2.0 * math.pi * counts / (self.counts_per_rev * self.gear_ratio)
 
-    def command_effort(self, effort: np.ndarray, timeout: float = 0.1) -> None:
-        """Joint torque (N.m) as target torque in RPDO1 (controlword Enable operation)."""
+    def _encode_effort(self, effort: np.ndarray) -> int:
+        """Joint torque (N.m, dof 1) -> the target torque 0x6071 sent (clamped, per mille, int16)."""
         u = float(np.asarray(effort, dtype=float).reshape(-1)[0])
         if not math.isfinite(u):
             raise ValueError(f"non-finite effort {u!r}")
         if self.effort_limit is not None:
             u = min(max(u, -self.effort_limit), self.effort_limit)
-        self._rpdo(State402.CW_OPERATION_ENABLED, self.joint_torque_to_per_mille(u))
+        return self.joint_torque_to_per_mille(u)
+
+    def effort_on_wire(self, effort: np.ndarray) -> np.ndarray:
+        """The joint torque (N.m) that :meth:`command_effort` would send for ``effort``: clamped to
+        ``effort_limit``, rounded to the per mille of rated torque 0x6071 carries (CiA 402 §6.5.1;
+        resolution ``gear_ratio * rated_torque_mNm / 1e6`` N.m) and clamped to int16, decoded back.
+        The drive applies exactly this (the record's ``effort_cmd``, hil.runner)."""
+        return np.array([self.per_mille_to_joint_torque(self._encode_effort(effort))])
+
+    def command_effort(self, effort: np.ndarray, timeout: float = 0.1) -> None:
+        """Joint torque (N.m) as target torque in RPDO1 (controlword Enable operation)."""
+        self._rpdo(State402.CW_OPERATION_ENABLED, self._encode_effort(effort))
 
     def _rpdo(self, controlword: int, per_mille: int) -> None:
         r1 = self.node.rpdo[1]
