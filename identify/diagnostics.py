@@ -290,8 +290,8 @@ def check_saturation(
     A smooth signal touches its extreme once per peak; a clipped one stays there. Flagged when the
     fraction of such samples exceeds ``max_fraction``.
 
-    A quantized signal (an integer wire unit: ``steps[name]``, else :func:`quantization_step`
-    detects it from the samples) sits on its extreme level for a few samples at every slow peak
+    A quantized signal (an integer wire unit: ``steps[name]``, 0 for none; else
+    :func:`quantization_step` detects it from the samples) sits on its extreme level for a few samples at every slow peak
     without being clipped; such runs do not count when the peak's curvature explains them
     (:func:`_explained_by_quantization`: at most ``2 sqrt(2 q / c) + 1`` samples for step ``q``
     and curvature ``c`` per sample^2). A limit that cuts more than about one step off a peak still
@@ -307,7 +307,7 @@ def check_saturation(
         if hi == lo:  # constant: reported by check_dead, not as clipping
             continue
         tol = rel_tol * max(hi - lo, abs(hi), abs(lo), 1e-300)
-        q = float((steps or {}).get(name, 0.0)) or quantization_step(a)
+        q = float(steps[name]) if steps is not None and name in steps else quantization_step(a)
         frac_total = 0.0
         levels = []
         n_explained = 0
