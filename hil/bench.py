@@ -698,6 +698,10 @@ class Bench:
             ch = channels.setdefault((iface, scene_ch), f"{scene_ch}.bench{self._bench_id}")
             params.update(interface="virtual", channel=ch, clock=clock, timeout=self.timeout)
             params.pop("bus", None)
+            from hil.protocols import link_budget as lb  # the simulated bus carries what the scene's bit rate does
+
+            bitrate = int(params.get("bitrate") or (lb.ODRIVE_DEFAULT_BITRATE if drv == "odrive_can"
+                                                    else lb.CUBEMARS_DEFAULT_BITRATE))
             if drv == "odrive_can":
                 from hil.mocks.can_devices import SIM_WATCHDOG_ENDPOINTS
 
@@ -707,13 +711,14 @@ class Bench:
                                   gear_ratio=float(params.get("gear_ratio", 1.0)),
                                   linear_scale=params.get("linear_scale"), faults=faults, seed=seed, sync=True,
                                   heartbeat_every=max(1, round(0.01 * self.scene.rate_hz)), dt=self.dt,
-                                  firmware=str(params.get("firmware", "0.6")))
+                                  firmware=str(params.get("firmware", "0.6")), bitrate=bitrate)
                 params.setdefault("watchdog_endpoints", dict(SIM_WATCHDOG_ENDPOINTS))
                 if params.get("feedback") == "cyclic":
                     d.sim.encoder_every = 1
             else:
                 d.sim = SimCubeMars(point, ch, int(params.get("motor_id", 1)), "virtual",
-                                    model=params.get("model", "AK80-9"), faults=faults, seed=seed, sync=True)
+                                    model=params.get("model", "AK80-9"), faults=faults, seed=seed, sync=True,
+                                    bitrate=bitrate, tick_s=self.dt)
         elif drv == "bota_serial":
             from hil.mocks.serial_devices import SimBota
             from hil.protocols.link_budget import BOTA_DEFAULT_BAUD, bota_sinc_length
@@ -1011,7 +1016,11 @@ def _sim_cia402(point: Any, channel: str, params: dict[str, Any], faults: Any, s
     counts_per_rev, rated_torque_mNm, heartbeat_ms as the adapter's)."""
     from hil.mocks.cia402_drive import SimCiA402
 
+    from hil.protocols.link_budget import CIA402_DEFAULT_BITRATE
+
     kw = {k: params[k] for k in ("counts_per_rev", "rated_torque_mNm", "heartbeat_ms") if params.get(k) is not None}
+    if sync:  # the simulated bus carries what the scene's bit rate does
+        kw["bitrate"] = int(params.get("bitrate") or CIA402_DEFAULT_BITRATE)
     return SimCiA402(point, channel, int(params.get("node_id", 1)), interface,
                      gear_ratio=float(params.get("gear_ratio", 1.0)), faults=faults, seed=seed, sync=sync, dt=dt, **kw)
 
