@@ -810,7 +810,8 @@ class Bench:
         joints = points[0] if len(points) == 1 else _Concat(points)
         # the servos run at the scene's baudrate (configured servos; a factory one is at 57 600)
         baud = int(group[0].cfg.params.get("baudrate", 57_600))
-        chain = DynamixelChain(joints, ids, faults=faults, seed=seed, clock=self._clock, baudrate=baud)
+        chain = DynamixelChain(joints, ids, faults=faults, seed=seed, clock=self._clock, baudrate=baud,
+                               link_budget=True)  # baud/10 bytes per simulated second
         d.sim = chain  # owned (closed) by the first device of the group
         return chain
 
