@@ -1016,7 +1016,6 @@ def _sim_cia402(point: Any, channel: str, params: dict[str, Any], faults: Any, s
     """The simulated CiA 402 drive of a scene device (its ``params``: node_id, gear_ratio,
     counts_per_rev, rated_torque_mNm, heartbeat_ms as the adapter's)."""
     from hil.mocks.cia402_drive import SimCiA402
-
     from hil.protocols.link_budget import CIA402_DEFAULT_BITRATE
 
     kw = {k: params[k] for k in ("counts_per_rev", "rated_torque_mNm", "heartbeat_ms") if params.get(k) is not None}

@@ -257,7 +257,8 @@ def _probe_canopen(bus: Any, where: str, interface: str, channel: str, nodes: di
                              f"node {n}", details, params))
     finally:
         with contextlib.suppress(Exception):
-            network.notifier.stop(1.0)
+            if network.notifier is not None:
+                network.notifier.stop(1.0)
     return out
 
 
@@ -513,7 +514,7 @@ def run(args: argparse.Namespace) -> int:
         found = probe_modbus(args.modbus, args.unit, args.timeout)
         where = f"modbus {args.modbus} unit {args.unit}"
     if args.scene:
-        import yaml
+        import yaml  # type: ignore[import-untyped]  # PyYAML ships no stubs (types-PyYAML is not a dependency)
 
         stub = scene_stub(found)
         text = ("# written by hil probe from " + where + ": check every device, then add bodies (simulation),\n"

@@ -421,9 +421,10 @@ class Runner:
         what it opened, then closes) gives an outcome without a record."""
         ecfg = _dump(cfg)
         name = self._name(index, ecfg)
+        opening_errors: tuple[type[BaseException], ...] = (SafetyStop, DeviceError, *_PORT_ERRORS)
         try:
             bench = self.bench_factory(ecfg.get("variant"))
-        except (SafetyStop, DeviceError, *_PORT_ERRORS) as exc:
+        except opening_errors as exc:
             status, reason = classify(exc)
             reason = f"{reason} (while the bench was opening)"
             STOP.request(reason, status)
@@ -534,6 +535,7 @@ class Runner:
                         stats.add_late(late)
                         if late > self.dt:
                             stats.overruns += 1
+                        assert guard is not None  # created with the pacer
                         try:
                             guard.check(k, late)
                         except SafetyStop:  # the late tick's timing is in the record (device channels NaN)

@@ -291,7 +291,8 @@ def check_saturation(
     fraction of such samples exceeds ``max_fraction``.
 
     A quantized signal (an integer wire unit: ``steps[name]``, 0 for none; else
-    :func:`quantization_step` detects it from the samples) sits on its extreme level for a few samples at every slow peak
+    :func:`quantization_step` detects it from the samples) sits on its extreme level for a few
+    samples at every slow peak
     without being clipped; such runs do not count when the peak's curvature explains them
     (:func:`_explained_by_quantization`: at most ``2 sqrt(2 q / c) + 1`` samples for step ``q``
     and curvature ``c`` per sample^2). A limit that cuts more than about one step off a peak still

@@ -277,6 +277,7 @@ def estimate_frf(
         if acc_xx is None:
             acc_xx, acc_yx, acc_yy = K * Gxx, K * Gyx, K * Gyy
         else:
+            assert acc_yx is not None and acc_yy is not None  # set together with acc_xx
             if Gxx.shape != acc_xx.shape or Gyx.shape != acc_yx.shape:
                 raise DataQualityError("experiments have different numbers of inputs/outputs")
             acc_xx, acc_yx, acc_yy = acc_xx + K * Gxx, acc_yx + K * Gyx, acc_yy + K * Gyy

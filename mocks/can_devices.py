@@ -110,7 +110,8 @@ class CanBusBudget:
     tick the waiting frames go in arbitration order (lowest id first) as far as the tick's bits
     carry them. A sender holds at most :data:`CAN_TX_QUEUE_LEN` waiting frames, the ones of
     highest priority (a controller that transmits by identifier priority, as bxCAN's default):
-    with its queue full, its lowest-priority frame is lost (``dropped``). Up to ``burst_s`` of unused capacity is kept (plus one 8-byte
+    with its queue full, its lowest-priority frame is lost (``dropped``). Up to ``burst_s`` of
+    unused capacity is kept (plus one 8-byte
     frame), so the tick discretization's bursts (all of a tick's frames at one instant) pass
     when the average fits. Simulated time advances with the nodes' ticks (:meth:`advance_to`), so
     the outcome does not depend on the machine. Counters: ``stats`` (``delayed``, ``dropped``,

@@ -37,7 +37,8 @@ Writing Baud Rate(8) takes effect at once, as on the servo.
 (:class:`hil.mocks.pty.LinkBudget`, the budget :mod:`hil.protocols.link_budget` checks at load
 time); a status packet the line has no room left for is not sent (``link_dropped``): the host
 times out, as with a real line that cannot carry the traffic. Not enforced until the clock first
-moves (the adapter's open sequence paces itself on the wall clock, which lockstep does not model). Each status packet is sent after the
+moves (the adapter's open sequence paces itself on the wall clock, which lockstep does not model).
+Each status packet is sent after the
 servo's Return Delay Time (wall clock: a host that cares for speed writes 0 there, as the adapter
 does by default).
 
@@ -628,8 +629,8 @@ class DynamixelChain:
         if inst == INST_PING and dxl_id == BROADCAST_ID:
             return b"".join(self._ping_reply(self.servos[i]) for i in self.ids)
         if inst == INST_WRITE and dxl_id == BROADCAST_ID and len(p) >= 3:
-            for servo in self.servos.values():
-                self._write(servo, int.from_bytes(p[0:2], "little"), p[2:])
+            for each in self.servos.values():
+                self._write(each, int.from_bytes(p[0:2], "little"), p[2:])
             return b""
         servo = self.servos.get(dxl_id)
         if servo is None:

@@ -69,7 +69,8 @@ class SimBota:
     ASCII configuration protocol (Bota's ``bota_serial_example.py``): on power-up the sensor prints
     ``App Init`` (then ``name: PRODUCT``, ``S/N: N``, ``FW version: V``: Bota's ``rokubimini_serial``
     driver reads the product name, serial number and firmware from this boot text; ``#`` is its
-    hardware reset, which reboots the sensor and prints it again) and streams (RUN mode). ``C`` -> CONFIG mode (streaming stops), answer
+    hardware reset, which reboots the sensor and prints it again) and streams (RUN mode). ``C`` ->
+    CONFIG mode (streaming stops), answer
     ``r,0,C,0``; ``c,TEMP_COMP,USE_CALIB,DATA_FORMAT,BAUD_CODE`` -> ``r,0,c,0``;
     ``f,SINC,CHOP,FAST,FIR_DISABLE`` -> ``r,0,f,0``; ``R`` -> RUN mode, ``r,0,R,0``. The example
     sends no terminator: a ``c``/``f`` command ends with the one-digit fourth field (all of them are

@@ -194,7 +194,7 @@ class CiA402Drive(Actuator):
             self._bus, self._own_bus = bus, False
         self.network = canopen.Network(self._bus)
         self.network.NOTIFIER_CYCLE = 0.05  # receive-thread poll period: bounds how long close() waits
-        self.network.listeners.append(self._errors)
+        self.network.listeners.append(self._errors)  # type: ignore[arg-type]  # canopen types it as its own MessageListener; its Notifier takes any can.Listener
         od = canopen.import_od(default_eds() if eds is None else eds, self.node_id)
         self.node = canopen.RemoteNode(self.node_id, od)
         self.node.sdo.RESPONSE_TIMEOUT = self.timeout
@@ -297,7 +297,7 @@ class CiA402Drive(Actuator):
             node.rpdo.read()
             node.tpdo.read()
             for maps in (node.rpdo.map, node.tpdo.map):
-                for m in maps.values():
+                for m in (maps or {}).values():
                     m.enabled = False
             r1 = node.rpdo[1]
             r1.clear()
@@ -377,16 +377,25 @@ class CiA402Drive(Actuator):
         """Heartbeats received since open (not a fault counter)."""
         return self._hb_count
 
+    def _known(self, value: int | None, what: str) -> int:
+        """A drive constant read at open (or given); ProtocolError if neither happened."""
+        if value is None:
+            raise ProtocolError(f"CiA 402 node {self.node_id}: {what} unknown (give it, or open with enable=True "
+                                f"to read it from the drive)")
+        return value
+
     def joint_torque_to_per_mille(self, effort: float) -> int:
         """Joint torque (N.m) -> target torque 0x6071 (per mille of rated torque, int16)."""
-        pm = round(effort / self.gear_ratio / (self.rated_torque_mNm / 1000.0) * 1000.0)
+        rated = self._known(self.rated_torque_mNm, "rated torque 0x6076")
+        pm = round(effort / self.gear_ratio / (rated / 1000.0) * 1000.0)
         return max(-32768, min(32767, pm))
 
     def per_mille_to_joint_torque(self, pm: int) -> float:
-        return self.gear_ratio * pm / 1000.0 * self.rated_torque_mNm / 1000.0
+        return self.gear_ratio * pm / 1000.0 * self._known(self.rated_torque_mNm, "rated torque 0x6076") / 1000.0
 
     def counts_to_rad(self, counts: float) -> float:
-        return 2.0 * math.pi * counts / (self.counts_per_rev * self.gear_ratio)
+        cpr = self._known(self.counts_per_rev, "encoder resolution 0x608F")
+        return 2.0 * math.pi * counts / (cpr * self.gear_ratio)
 
     def _encode_effort(self, effort: np.ndarray) -> int:
         """Joint torque (N.m, dof 1) -> the target torque 0x6071 sent (clamped, per mille, int16)."""

@@ -181,10 +181,10 @@ def link_uses(devices: Iterable[Any], rate_hz: float) -> list[LinkUse]:
         out.append(LinkUse(f"serial {port}", tuple(n for n, _, _ in devs), per_tick * rate_hz, serial_capacity(baud),
                            "B/s", f"{per_tick} bytes per tick (sync write + sync read) at {rate_hz:g} Hz over "
                                   f"{baud} baud"))
-    for (iface, ch), devs in can_.items():
-        bitrate = max(b for _, _, b in devs)
-        need = sum(b for _, b, _ in devs)
-        out.append(LinkUse(f"CAN {iface}:{ch}", tuple(n for n, _, _ in devs), need, float(bitrate), "bit/s",
+    for (iface, ch), cdevs in can_.items():
+        bitrate = max(b for _, _, b in cdevs)
+        need = sum(b for _, b, _ in cdevs)
+        out.append(LinkUse(f"CAN {iface}:{ch}", tuple(n for n, _, _ in cdevs), need, float(bitrate), "bit/s",
                            f"{need / rate_hz:,.0f} worst-case bits per tick at {rate_hz:g} Hz incl. heartbeats "
                            f"at {bitrate:,} bit/s"))
     return out

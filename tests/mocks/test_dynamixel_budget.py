@@ -38,7 +38,7 @@ def _loop(dt: float, ticks: int, *, budget: bool) -> tuple[list[np.ndarray | Non
         DynamixelChain(plant, IDS, clock=clock, baudrate=BAUD, link_budget=budget) as chain,
         DynamixelX(chain.port, ids=IDS, baudrate=BAUD, clock=clock) as dx,
     ):
-        for k in range(ticks):
+        for _ in range(ticks):
             clock.t += dt
             dx.command_effort(np.array([0.05, -0.05, 0.02]), timeout=0.02)
             chain.sync(dx.tx_bytes)

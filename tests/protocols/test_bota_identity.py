@@ -11,12 +11,12 @@ import time
 
 import pytest
 
-serial = pytest.importorskip("serial")
-
 from hil.mocks.interfaces import FreeJoints
 from hil.mocks.serial_devices import SimBota
 from hil.mocks.serve import serve, shutdown
 from hil.probe import parse_bota_boot, probe_serial
+
+serial = pytest.importorskip("serial")
 
 pytestmark = pytest.mark.timeout(30)
 
