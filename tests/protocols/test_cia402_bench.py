@@ -68,3 +68,25 @@ def test_run_stops_safely_on_a_drive_fault(tmp_path):
     sim = benches[0]._devs[0].sim
     assert sim.state == "FAULT" and sim.applied_per_mille() == 0
     assert np.all(np.isfinite(rec.channels["motor.position"]))
+
+
+def test_record_holds_the_torque_as_sent(tmp_path):
+    """effort_cmd is the commanded torque as the drive receives it (per mille of the 1 N.m rated
+    torque: 1 mN.m steps), the excitation channel keeps the unrounded chirp, and the drive's own
+    torque actual (0x6077, read at the next SYNC) equals the recorded command of the tick before."""
+    import numpy as np
+
+    from hil.record import RunRecord
+    from hil.runner import Runner
+
+    sc = load_scene("cia402_bench")
+    (out,) = Runner(sc, tmp_path, max_ticks=400).run()
+    assert out.status == "completed", out.stop_reason
+    rec = RunRecord.open(out.record)
+    cmd = np.asarray(rec.channels["motor.effort_cmd"]).ravel()
+    exc = np.asarray(rec.channels["motor.excitation"]).ravel()
+    actual = np.asarray(rec.channels["motor.effort"]).ravel()
+    # open loop (controller: none): the command is the excitation, rounded to the nearest mN.m
+    np.testing.assert_array_equal(cmd, np.round(exc * 1000.0) / 1000.0)
+    assert np.any(cmd != exc) and np.max(np.abs(cmd - exc)) <= 0.5e-3 + 1e-12
+    np.testing.assert_array_equal(actual[1:], cmd[:-1])
