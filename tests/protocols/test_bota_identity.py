@@ -62,3 +62,23 @@ def test_probe_reports_the_bota_serial_number():
         assert g.details["serial"].startswith("(not asked")
     finally:
         shutdown(eps)
+
+
+def test_adapter_reads_the_identity_and_restores_its_configuration():
+    from hil.protocols.serial_bota import BotaSerial
+
+    sim = SimBota(FreeJoints(1), serial_number=31337, firmware="1.4.2")
+    try:
+        dev = BotaSerial(sim.path, sinc_length=64, timeout=0.5)
+        try:
+            assert sim.config["sinc_length"] == 64
+            got = dev.read_identity()
+            assert got == {"name": sim.product_name, "serial": "31337", "firmware": "1.4.2"}
+            assert (dev.info.serial, dev.info.model, dev.info.firmware) == ("31337", sim.product_name, "1.4.2")
+            # the reset restored the saved (default) configuration; the adapter sent its own again
+            assert sim.commands[-5:] == ["#", "C", "c,0,1,0,4", "f,64,0,0,1", "R"]
+            assert sim.config["sinc_length"] == 64 and sim.running
+        finally:
+            dev.close()
+    finally:
+        sim.close()
