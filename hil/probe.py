@@ -32,7 +32,11 @@
 Output: a table (family, driver, address, details) or, with ``--json``, one JSON object
 ``{"devices": [...]}`` whose entries carry the ``open_device`` parameters; ``--scene OUT.yaml``
 writes a scene stub with one device per find (refused if OUT exists, unless ``--overwrite``).
-Not read: the Bota sensor's serial number (its binary stream carries none; see the report).
+A Bota sensor found streaming is then asked who it is (:func:`bota_identity`): the hardware reset
+``#`` makes it reboot and print ``name: PRODUCT``, ``S/N: N`` and ``FW version: V`` after ``App Init``
+(Bota's ``rokubimini_serial`` driver, ``RokubiminiSerialCommunication.hpp`` / ``RokubiminiSerialImpl.cpp``
+``parseCommunicationMsgs``; its binary stream carries no identity); the sensor comes back streaming
+with its saved configuration. ``--bota-reset 0`` skips it.
 """
 
 from __future__ import annotations
@@ -54,7 +58,8 @@ from hil.errors import DeviceDisconnected, DeviceError, HilError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Found", "add_arguments", "probe_can", "probe_modbus", "probe_serial", "run", "scene_stub"]
+__all__ = ["Found", "add_arguments", "bota_identity", "parse_bota_boot", "probe_can", "probe_modbus", "probe_serial",
+           "run", "scene_stub"]
 
 
 @dataclass
@@ -278,9 +283,62 @@ def probe_modbus(url: str, unit: int = 9, timeout: float = 0.5) -> list[Found]:
         return []
 
 
+#: Bota boot text (Bota's rokubimini_serial driver, RokubiminiSerialCommunication.hpp: parsed after
+#: a hardware reset ``#``, once ``App Init`` is seen)
+_BOTA_BOOT = {"name": re.compile(rb"name:\s(.*?)\r"), "serial": re.compile(rb"S/N:\s(.*?)\r"),
+              "firmware": re.compile(rb"FW version:\s(.*?)\r")}
+
+
+def parse_bota_boot(text: bytes) -> dict[str, str]:
+    """Product name, serial number and firmware of a Bota serial sensor from its boot text (bytes
+    after ``App Init``; binary frames around it are ignored). Missing fields are left out."""
+    k = text.find(b"App Init")
+    if k < 0:
+        return {}
+    out = {}
+    for key, rx in _BOTA_BOOT.items():
+        m = rx.search(text, k)
+        if m:
+            out[key] = m.group(1).decode("ascii", errors="replace").strip()
+    return out
+
+
+def bota_identity(port: str, *, baudrate: int = 460800, timeout: float = 2.0) -> dict[str, str]:
+    """Ask a Bota serial sensor who it is: the hardware reset ``#`` (as Bota's rokubimini_serial
+    driver does at every start) makes it reboot and print its product name, serial number and
+    firmware (:func:`parse_bota_boot`); it then streams again with its *saved* configuration (an
+    adapter's unsaved ``c``/``f`` setup is gone: run the probe before the bench opens). ``{}`` if
+    no boot text arrives within ``timeout`` s (2 s: the driver's own wait)."""
+    import serial
+
+    try:
+        ser = serial.serial_for_url(port, baudrate=baudrate, timeout=0.05)
+    except (serial.SerialException, OSError, ValueError) as exc:
+        log.debug("Bota identity: cannot open %s: %s", port, exc)
+        return {}
+    buf = bytearray()
+    try:
+        ser.reset_input_buffer()
+        ser.write(b"#")
+        ser.flush()
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            buf += ser.read(4096)
+            got = parse_bota_boot(bytes(buf))
+            if len(got) == len(_BOTA_BOOT):
+                return got
+        return parse_bota_boot(bytes(buf))
+    except (serial.SerialException, OSError) as exc:
+        log.debug("Bota identity on %s: %s", port, exc)
+        return parse_bota_boot(bytes(buf))
+    finally:
+        ser.close()
+
+
 def probe_serial(port: str, *, baudrates: tuple[int, ...] = (57600, 1000000), listen_s: float = 0.3,
-                 unit: int = 9, timeout: float = 0.3) -> list[Found]:
-    """Devices on one serial port (module docstring)."""
+                 unit: int = 9, timeout: float = 0.3, bota_reset_s: float = 2.0) -> list[Found]:
+    """Devices on one serial port (module docstring). ``bota_reset_s``: how long to wait for a Bota
+    sensor's boot text after the identity reset (0: do not reset it; no serial number then)."""
     import serial  # lazy: the 'serial' extra
 
     from hil.protocols.modbus_robotiq import StreamParser
@@ -306,10 +364,14 @@ def probe_serial(port: str, *, baudrates: tuple[int, ...] = (57600, 1000000), li
     if len(frames) >= 2:
         ts = [f.timestamp for f in frames]
         dt_us = (ts[-1] - ts[0]) / (len(ts) - 1)
+        ident = bota_identity(port, timeout=bota_reset_s) if bota_reset_s > 0 else {}
         found.append(Found("bota", "bota_serial", port, "stream",
                            {"frames": len(frames), "status": f"0x{frames[-1].status:04X}",
                             "temperature": round(frames[-1].temperature, 2),
-                            "frame_period_us": round(dt_us, 1), "serial": "(not in the binary stream)"},
+                            "frame_period_us": round(dt_us, 1),
+                            "model": ident.get("name", ""), "firmware": ident.get("firmware", ""),
+                            "serial": ident.get("serial", "(no boot text after a reset)" if bota_reset_s > 0
+                                                else "(not asked: --bota-reset 0)")},
                            {"url": port, "period_s": round(dt_us * 1e-6, 9) if dt_us > 0 else 0.001},
                            role="force_sensor", dof=6))
         return found
@@ -410,6 +472,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--unit", type=int, default=9, help="Modbus slave id of --modbus / --serial (default 9)")
     p.add_argument("--baud", default="57600,1000000", help="--serial: DYNAMIXEL baud rates to ping")
     p.add_argument("--timeout", type=float, default=0.2, help="seconds per request (default 0.2)")
+    p.add_argument("--bota-reset", type=float, default=2.0, metavar="S",
+                   help="--serial: reset a Bota sensor found streaming ('#') and wait up to S s for its boot text "
+                        "(name, S/N, firmware); 0: do not reset (default 2)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--scene", metavar="OUT.yaml", help="write a scene stub with the devices found")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --scene file")
@@ -437,7 +502,7 @@ def run(args: argparse.Namespace) -> int:
         where = f"can {args.interface}:{args.can}"
     elif args.serial:
         found = probe_serial(args.serial, baudrates=tuple(_ints(args.baud, "--baud")), listen_s=args.listen,
-                             unit=args.unit, timeout=args.timeout)
+                             unit=args.unit, timeout=args.timeout, bota_reset_s=args.bota_reset)
         where = args.serial
     else:
         found = probe_modbus(args.modbus, args.unit, args.timeout)

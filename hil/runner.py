@@ -397,7 +397,8 @@ class Runner:
                 ch[f"{d.name}.position"] = ChannelSpec((n,), pu, "measured position")
                 ch[f"{d.name}.velocity"] = ChannelSpec((n,), vu, "measured velocity")
                 ch[f"{d.name}.effort"] = ChannelSpec((n,), fu, "effort reported by the drive (NaN if none)")
-                ch[f"{d.name}.effort_cmd"] = ChannelSpec((n,), fu, "commanded effort (controller + excitation)")
+                ch[f"{d.name}.effort_cmd"] = ChannelSpec((n,), fu, "commanded effort (controller + excitation), "
+                                                         "as encoded on the wire (adapter effort_on_wire)")
                 ch[f"{d.name}.excitation"] = ChannelSpec((n,), fu, "experiment part of the commanded effort")
             else:
                 nw = int(np.asarray(meas0[d.name].wrench).size)
@@ -538,6 +539,7 @@ class Runner:
                         stats.add_late(late)
                         if late > self.dt:
                             stats.overruns += 1
+                        assert guard is not None  # created with the pacer
                         try:
                             guard.check(k, late)
                         except SafetyStop:  # the late tick's timing is in the record (device channels NaN)
@@ -557,7 +559,7 @@ class Runner:
                     exc = exp.excitation(k, t, meas)
                     for key, v in (exc.effort or {}).items():
                         u[key] = u.get(key, np.zeros_like(np.asarray(v, float))) + np.asarray(v, float)
-                    values = self._sample_values(meas, u, exc, late, start)
+                    values = self._sample_values(meas, self._as_sent(u), exc, late, start)
                     self._port_energy(k, meas, exc, energy, last_power, values)
                     self._append(writer, t, values)  # before the checks: a breach sample is recorded
                     stats.ticks = k + 1
@@ -626,6 +628,31 @@ class Runner:
         except Exception as exc:  # partial data of a stopped run, an unreadable record: not the loop's concern
             logger.warning("%s: results not computed: %s", name, one_line(exc), exc_info=True)
             return {"error": one_line(exc)}
+
+    def _as_sent(self, u: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The commanded efforts as the adapters put them on the wire: an adapter that quantizes or
+        clamps its command (``effort_on_wire(effort) -> effort``, e.g. CiA 402 per-mille torque,
+        CubeMars 12-bit torque, DYNAMIXEL 2.69 mA current units) reports what it encodes, so the
+        record's ``effort_cmd`` is the effort the drive applies; others are recorded as commanded.
+        A group's effort is mapped member by member (in the group's order)."""
+        acts = getattr(self.bench, "actuators", None) or {}
+        out: dict[str, np.ndarray] = {}
+        for key, v in u.items():
+            group = self.scene.group(key) if hasattr(self.scene, "group") else None
+            members = list(group.devices) if group is not None else [key]
+            if not any(hasattr(acts.get(m), "effort_on_wire") for m in members):
+                out[key] = v
+                continue
+            arr = np.asarray(v, float).reshape(-1)
+            dofs = [int(self.scene.device(m).dof) for m in members]
+            if arr.size != sum(dofs) or not np.all(np.isfinite(arr)):  # refused after the record row: as is
+                out[key] = v
+                continue
+            parts = np.split(arr, np.cumsum(dofs)[:-1])
+            out[key] = np.concatenate([np.asarray(acts[m].effort_on_wire(p), float).reshape(-1)
+                                       if hasattr(acts.get(m), "effort_on_wire") else p
+                                       for m, p in zip(members, parts, strict=True)])
+        return out
 
     def _sample_values(self, meas: Mapping[str, Any], u: Mapping[str, np.ndarray], exc: Any,
                        late: float, start: float) -> dict[str, Any]:

@@ -17,6 +17,7 @@ failed diagnosis.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -39,6 +40,7 @@ __all__ = [
     "check_sample_times",
     "check_saturation",
     "check_timestamps",
+    "quantization_step",
     "run_checks",
 ]
 
@@ -174,13 +176,127 @@ def check_finite(signals: Mapping[str, ArrayLike]) -> list[Diagnosis]:
     return out
 
 
+#: :func:`quantization_step`: largest departure of a sample from the detected grid, in steps
+GRID_TOLERANCE = 0.01
+#: :func:`check_saturation`: margin on the flat-top length quantization explains (the curvature is
+#: estimated from a few quantized samples: ~10 % error for the shortest runs, doubled)
+QUANT_RUN_MARGIN = 1.25
+#: :func:`check_saturation`: how far (in steps) the flanks reach from a flat top's level: far enough
+#: that the parabola's curvature is set by several levels, near enough that the peak is parabolic
+#: (a sine of amplitude A departs from its parabola by (4 steps / A) / 6 of the departure)
+QUANT_FLANK_STEPS = 4.0
+#: :func:`check_saturation`: largest rms residual (in steps) of the flanks' parabola: rounding
+#: alone leaves q / sqrt(12) = 0.29 steps; a clipped flank (a corner, the opposite limit) leaves more
+QUANT_FIT_STEPS = 0.6
+#: :func:`check_saturation`: largest rise (in steps) of the flanks' parabola above the flat level
+#: that quantization explains: the true peak of a quantized flat top lies within half a step of
+#: its level; one more step covers the fit's error (a parabola through a fast sine peak's flanks,
+#: 8 samples reaching 9 steps down, overshoots the peak by up to 0.7 step)
+QUANT_PEAK_STEPS = 1.5
+
+
+#: :func:`quantization_step`: most steps a detected grid may span (the grid test resolves a
+#: hundredth of a step up to 2^24 steps in float64; a finer "grid" is a float format's own spacing)
+MAX_GRID_STEPS = 1 << 24
+
+
+def quantization_step(x: ArrayLike, *, tol: float = GRID_TOLERANCE) -> float:
+    """The step ``q`` of a quantized signal: all samples on a uniform grid ``x0 + n q`` (within
+    ``tol`` steps), as an integer wire quantity decoded to SI (CiA 402 per-mille torque, a 12-bit
+    CubeMars field, counts of an encoder). ``0.0`` when the samples are not on such a grid or the
+    grid would span more than :data:`MAX_GRID_STEPS` steps (a float signal: no common step can be
+    shown from its values). A float32 signal is on the grid of its smallest spacing; that step is
+    no coarser than the format's own rounding, so neither use of it (saturation, rounding floor)
+    changes for float signals."""
+    a = np.asarray(x, float).ravel()
+    a = a[np.isfinite(a)]
+    u = np.unique(a)
+    if u.size < 3:
+        return 0.0
+    q0 = float(np.min(np.diff(u)))
+    span = float(u[-1] - u[0])
+    n_steps = round(span / q0)
+    if q0 <= 0.0 or n_steps > MAX_GRID_STEPS:
+        return 0.0
+    q = span / n_steps  # the span over the whole number of steps: q0 refined by the grid's extent
+    r = (u - u[0]) / q
+    return q if bool(np.all(np.abs(r - np.round(r)) <= tol)) else 0.0
+
+
+def _explained_by_quantization(a: np.ndarray, start: int, end: int, level: float, sign: float, q: float) -> bool:
+    """Whether the flat run ``a[start:end]`` at an extreme ``level`` (``sign`` +1 at the max, -1 at
+    the min) of a signal quantized with step ``q`` is a rounded smooth peak rather than clipping.
+
+    A smooth peak ``x(d) = A - c d^2 / 2`` (``d`` in samples from the peak, ``c`` its curvature)
+    rounds to its level ``L`` (``|A - L| <= q/2``) on the samples with ``x > L - q/2``, i.e. where
+    ``A - x < q``: at most ``2 sqrt(2 q / c) + 1`` samples. The peak's parabola is the least-squares
+    one through its flanks (the samples either side of the run, which clipping does not touch, out
+    to where the signal has left the level by :data:`QUANT_FLANK_STEPS` steps, and at least as many
+    as the run has). The run is explained iff the flanks reach that far, the parabola fits them to
+    within quantization (rms residual <= :data:`QUANT_FIT_STEPS` steps), is concave towards the
+    level, has its vertex in the run (or beyond the record's edge the run touches), rises at most
+    :data:`QUANT_PEAK_STEPS` above the level, and the run is at most :data:`QUANT_RUN_MARGIN` times
+    the bound (+1). A clipped peak has lost its top: the flanks' parabola rises above the level by
+    what was cut, and the run outlasts the bound, as soon as the cut exceeds about one step (a
+    smaller cut is indistinguishable from rounding and biases a fit less than the rounding does).
+    """
+    k = end - start
+    first, last = start == 0, end == a.size
+    depart = QUANT_FLANK_STEPS * q
+    cap = a.size  # a peak that barely reaches its level stays on the level below for long
+    n_min = max(k, 4)  # a fast peak's flank leaves the level within a few samples
+    sides = []
+    for flank, at_edge in ((a[max(0, start - cap):start][::-1], start < cap), (a[end:end + cap], end + cap > a.size)):
+        y = sign * (flank - level)  # <= 0 on the flanks, 0 at the level
+        gone = np.flatnonzero(y <= -depart)
+        if gone.size == 0 and not at_edge:  # the signal never leaves the level: a plateau, not a peak
+            return False
+        sides.append(y.size if gone.size == 0 else min(y.size, max(n_min, int(gone[0]) + 1)))
+    n_left, n_right = sides
+    if n_left + n_right < 4:
+        return False
+    idx = np.r_[start - n_left:start, end:end + n_right]
+    d = idx - 0.5 * (start + end - 1)
+    y = sign * (a[idx] - level)
+    coef = np.polyfit(d, y, 2)
+    c = -2.0 * float(coef[0])  # curvature towards the level (> 0 at a peak)
+    d_vertex = -float(coef[1]) / (2.0 * float(coef[0])) if coef[0] != 0.0 else math.inf
+    half = 0.5 * k  # the vertex lies in the run, or (a run the record cuts) beyond the edge it touches
+    if (first or last) and ((d_vertex > half and first and not last) or (d_vertex < -half and last and not first)):
+        # one flank pins the vertex poorly: the best parabola with its vertex at the run's inner end
+        d_vertex = half if first else -half
+        sol, *_ = np.linalg.lstsq(np.c_[np.ones_like(d), (d - d_vertex) ** 2], y, rcond=None)
+        c = -2.0 * float(sol[1])
+        coef = np.array([-0.5 * c, c * d_vertex, float(sol[0]) - 0.5 * c * d_vertex**2])
+    resid = y - np.polyval(coef, d)
+    if not np.isfinite(c) or c <= 0.0 or float(np.sqrt(np.mean(resid**2))) > QUANT_FIT_STEPS * q:
+        return False
+    rise = float(np.polyval(coef, min(max(d_vertex, -half), half)))  # the top within the record
+    if (d_vertex > half + 1.0 and not last) or (d_vertex < -half - 1.0 and not first) or rise > QUANT_PEAK_STEPS * q:
+        return False
+    return k <= QUANT_RUN_MARGIN * 2.0 * math.sqrt(2.0 * q / c) + 1.0
+
+
 def check_saturation(
-    signals: Mapping[str, ArrayLike], *, max_fraction: float = 0.002, min_run: int = 3, rel_tol: float = 1e-9
+    signals: Mapping[str, ArrayLike],
+    *,
+    max_fraction: float = 0.002,
+    min_run: int = 3,
+    rel_tol: float = 1e-9,
+    steps: Mapping[str, float] | None = None,
 ) -> list[Diagnosis]:
     """Clipping: samples sitting at the signal's own max/min in runs of >= ``min_run`` (flat tops).
 
     A smooth signal touches its extreme once per peak; a clipped one stays there. Flagged when the
     fraction of such samples exceeds ``max_fraction``.
+
+    A quantized signal (an integer wire unit: ``steps[name]``, 0 for none; else
+    :func:`quantization_step` detects it from the samples) sits on its extreme level for a few
+    samples at every slow peak
+    without being clipped; such runs do not count when the peak's curvature explains them
+    (:func:`_explained_by_quantization`: at most ``2 sqrt(2 q / c) + 1`` samples for step ``q``
+    and curvature ``c`` per sample^2). A limit that cuts more than about one step off a peak still
+    counts. Unquantized (float) signals are judged as before (step 0: nothing is explained).
     """
     out = []
     for name, x in signals.items():
@@ -192,18 +308,27 @@ def check_saturation(
         if hi == lo:  # constant: reported by check_dead, not as clipping
             continue
         tol = rel_tol * max(hi - lo, abs(hi), abs(lo), 1e-300)
+        q = float(steps[name]) if steps is not None and name in steps else quantization_step(a)
         frac_total = 0.0
         levels = []
-        for level in (hi, lo):
+        n_explained = 0
+        for level, sign in ((hi, 1.0), (lo, -1.0)):
             at = np.abs(a - level) <= tol
             # runs of consecutive samples at the level
             edges = np.diff(np.concatenate([[0], at.astype(np.int8), [0]]))
             starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
             long = (ends - starts) >= min_run
+            if q > 0.0:
+                for i in np.flatnonzero(long):
+                    if _explained_by_quantization(a, int(starts[i]), int(ends[i]), level, sign, q):
+                        long[i] = False
+                        n_explained += 1
             n_flat = int(np.sum((ends - starts)[long]))
             if n_flat:
                 levels.append(level)
             frac_total += n_flat / a.size
+        if n_explained:
+            logger.debug("%s: %d flat peaks explained by its quantization step %.4g", name, n_explained, q)
         if frac_total > max_fraction:
             out.append(
                 Diagnosis(
@@ -212,7 +337,7 @@ def check_saturation(
                     f"{name}: {frac_total:.1%} of samples are clipped flat at {levels} (saturated run): "
                     "reduce the excitation amplitude or raise the limit; a linear fit would be biased",
                     channel=name,
-                    details={"fraction": frac_total, "levels": levels},
+                    details={"fraction": frac_total, "levels": levels, "quantization_step": q},
                 )
             )
     return out

@@ -190,13 +190,18 @@ def lattice_step(x: ArrayLike, *, min_ratio: float = 100.0) -> float | None:
     return q if q >= min_ratio * sp32 else None
 
 
-def rounding_variance(x: ArrayLike, resolution: Resolution) -> float:
+def rounding_variance(x: ArrayLike, resolution: Resolution, *, grid: bool = True) -> float:
     """Mean per-sample variance of the rounding error of ``x`` at ``resolution``.
 
     ``"float32"`` (or ``float16``/``float64``): round to nearest in that format, error uniform over
-    one spacing ``np.spacing(x)`` -> ``mean(spacing^2)/12``; a number: a fixed quantization step
-    ``q`` -> ``q^2/12``; None/0: no rounding; ``"auto"``: the step of :func:`lattice_step` when the
-    signal is quantized (``q^2/12``), else float32.
+    one spacing ``np.spacing(x)`` -> ``mean(spacing^2)/12``, or ``q^2/12`` when that is larger and
+    the samples sit on a uniform grid of step ``q``
+    (:func:`hil.identify.diagnostics.quantization_step`: an integer wire unit such as encoder
+    counts/s or per-mille torque, decoded to SI before it was stored); a number: a fixed
+    quantization step ``q`` -> ``q^2/12``; None/0: no rounding; ``"auto"``: the step of
+    :func:`lattice_step` when the signal is quantized (``q^2/12``), else float32. ``grid=False``: no grid detection
+    (the recorded input of a drive with integer units is the value it applies: hil.runner records
+    the effort as encoded on the wire, so its grid is not a rounding error).
     """
     if resolution is None:
         return 0.0
@@ -213,7 +218,10 @@ def rounding_variance(x: ArrayLike, resolution: Resolution) -> float:
             return 0.0
         with np.errstate(over="ignore"):
             sp = np.spacing(np.abs(a).astype(fmt)).astype(float)
-        return float(np.mean(sp**2) / 12.0)
+        from hil.identify.diagnostics import quantization_step  # (diagnostics imports this module)
+
+        step = quantization_step(a) if grid else 0.0
+        return max(float(np.mean(sp**2) / 12.0), step**2 / 12.0)
     step = float(resolution)
     if not np.isfinite(step) or step < 0:
         raise DataQualityError(f"quantization step must be >= 0, got {resolution!r}")
@@ -303,6 +311,7 @@ def estimate_frf(
         if acc_xx is None or acc_yx is None or acc_yy is None:
             acc_xx, acc_yx, acc_yy = K * Gxx, K * Gyx, K * Gyy
         else:
+            assert acc_yx is not None and acc_yy is not None  # set together with acc_xx
             if Gxx.shape != acc_xx.shape or Gyx.shape != acc_yx.shape:
                 raise DataQualityError("experiments have different numbers of inputs/outputs")
             acc_xx, acc_yx, acc_yy = acc_xx + K * Gxx, acc_yx + K * Gyx, acc_yy + K * Gyy
@@ -349,7 +358,7 @@ def estimate_frf(
     q_out = _per_channel(resolution, no, "resolution")
     q_in = _per_channel(input_resolution, ni, "input_resolution")
     qo = np.array([np.mean([rounding_variance(yy[:, o], q_out[o]) for _, yy in data]) for o in range(no)])
-    qi = np.array([np.mean([rounding_variance(uu[:, i], q_in[i]) for uu, _ in data]) for i in range(ni)])
+    qi = np.array([np.mean([rounding_variance(uu[:, i], q_in[i], grid=False) for uu, _ in data]) for i in range(ni)])
     floor = None
     if np.any(qo > 0) or np.any(qi > 0):
         Hz = np.nan_to_num(H)

@@ -39,7 +39,9 @@ import math
 import queue
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import can
@@ -49,6 +51,7 @@ from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 from hil.protocols.codecs import cubemars as cm
 from hil.protocols.codecs import odrive as od
+from hil.protocols.link_budget import can_frame_bits
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +76,139 @@ class _SyncQueue(queue.Queue):
         self._node._deliver_sync(item)
 
 
+#: Frames one sender may have waiting for the bus (Linux SocketCAN's default ``txqueuelen`` of a
+#: CAN interface is 10, ``drivers/net/can/dev/dev.c``); a frame beyond it is refused (ENOBUFS) and lost.
+CAN_TX_QUEUE_LEN = 10
+
+
+def frame_bits(msg: can.Message) -> int:
+    """Worst-case bits of ``msg`` on the wire (:func:`hil.protocols.link_budget.can_frame_bits`; a
+    remote frame carries no data; an error frame stands for the 8-byte frame it destroyed)."""
+    if msg.is_error_frame:
+        return can_frame_bits(8)
+    return can_frame_bits(0 if msg.is_remote_frame else min(len(msg.data), 8))
+
+
+@dataclass
+class _Pending:
+    prio: int  # arbitration id: the lower wins arbitration
+    seq: int
+    sender: str  # "host" or the node's kind/id
+    bits: int
+    action: Callable[[], None] | None = None  # a node frame: transmit it
+    copies: list[tuple[SimCanNode, can.Message]] = field(default_factory=list)  # a host frame: deliver these
+
+
+class CanBusBudget:
+    """The capacity of one simulated CAN channel: ``bitrate`` bits per *simulated* second, shared
+    by the host and every simulated node on the channel (the same budget the load-time check of
+    :mod:`hil.protocols.link_budget` applies to a scene).
+
+    Each frame costs its worst-case bits (:func:`frame_bits`). A frame that fits in the bits
+    accumulated so far goes at once (as before: a compliant run is unchanged); one that does not
+    waits for the bus, as a saturated bus delays a frame that keeps losing arbitration: at each
+    tick the waiting frames go in arbitration order (lowest id first) as far as the tick's bits
+    carry them. A sender holds at most :data:`CAN_TX_QUEUE_LEN` waiting frames, the ones of
+    highest priority (a controller that transmits by identifier priority, as bxCAN's default):
+    with its queue full, its lowest-priority frame is lost (``dropped``). Up to ``burst_s`` of
+    unused capacity is kept (plus one 8-byte
+    frame), so the tick discretization's bursts (all of a tick's frames at one instant) pass
+    when the average fits. Simulated time advances with the nodes' ticks (:meth:`advance_to`), so
+    the outcome does not depend on the machine. Counters: ``stats`` (``delayed``, ``dropped``,
+    ``frames``, ``bits``).
+    """
+
+    def __init__(self, bitrate: float, *, burst_s: float = 0.02, queue_len: int = CAN_TX_QUEUE_LEN) -> None:
+        if not bitrate > 0:
+            raise ValueError(f"CAN bitrate must be > 0, got {bitrate!r}")
+        self.bitrate = float(bitrate)
+        self.cap = self.bitrate * float(burst_s) + can_frame_bits(8)
+        self.credit = self.cap
+        self.queue_len = int(queue_len)
+        self.time = 0.0
+        self.pending: list[_Pending] = []
+        self.stats: Counter[str] = Counter()
+        self.sending = 0  # > 0 while a simulated node transmits (its copies reach the other nodes)
+        self._seq = 0
+        self._last: tuple[tuple[Any, ...], _Pending | bool | None] | None = None
+        self.users = 0
+
+    def _queued(self, sender: str) -> int:
+        return sum(1 for p in self.pending if p.sender == sender)
+
+    def _fits(self, bits: int) -> bool:
+        if not self.pending and bits <= self.credit:
+            self.credit -= bits
+            self.stats["frames"] += 1
+            self.stats["bits"] += bits
+            return True
+        return False
+
+    def _wait(self, sender: str, bits: int, prio: int) -> _Pending | None:
+        if self._queued(sender) >= self.queue_len:
+            worst = max((p for p in self.pending if p.sender == sender), key=lambda p: (p.prio, p.seq))
+            self.stats["dropped"] += 1
+            if worst.prio <= prio:  # the queue keeps its highest-priority frames: the new one is lost
+                return None
+            self.pending.remove(worst)  # ... or the lowest-priority one waiting makes room
+            self.stats["delayed"] -= 1
+        self._seq += 1
+        p = _Pending(prio, self._seq, sender, bits)
+        self.pending.append(p)
+        self.stats["delayed"] += 1
+        return p
+
+    def host_frame(self, node: SimCanNode, msg: can.Message) -> None:
+        """A frame from the host reaching ``node`` (one copy per node: the copies of one send share
+        its timestamp and are decided together)."""
+        key = (msg.timestamp, msg.arbitration_id, bytes(msg.data), msg.is_remote_frame, msg.is_error_frame)
+        if self._last is not None and self._last[0] == key:
+            decision = self._last[1]
+        else:
+            bits = frame_bits(msg)
+            decision = True if self._fits(bits) else self._wait("host", bits, msg.arbitration_id)
+            self._last = (key, decision)
+        if decision is True:
+            node._receive(msg)
+        elif isinstance(decision, _Pending):
+            decision.copies.append((node, msg))
+
+    def node_frame(self, node: SimCanNode, msg: can.Message) -> None:
+        """A frame ``node`` transmits: now if it fits, else when the bus carries it (or lost)."""
+        bits = frame_bits(msg)
+        if self._fits(bits):
+            node._transmit(msg)
+            return
+        p = self._wait(f"{node.kind}@{id(node):x}", bits, msg.arbitration_id)
+        if p is not None:
+            p.action = lambda: node._transmit(msg)
+
+    def advance_to(self, t: float) -> None:
+        """Simulated time ``t`` (s) reached: add its bits, then send what waits, in arbitration order."""
+        if t <= self.time:
+            return
+        self.credit = min(self.cap, self.credit + (t - self.time) * self.bitrate)
+        self.time = t
+        self._last = None
+        self.pending.sort(key=lambda p: (p.prio, p.seq))
+        while self.pending and self.pending[0].bits <= self.credit:
+            p = self.pending.pop(0)
+            self.credit -= p.bits
+            self.stats["frames"] += 1
+            self.stats["bits"] += p.bits
+            if p.action is not None:
+                p.action()
+            for n, m in p.copies:
+                with n._lock:
+                    if not n._closed:
+                        n._receive(m)
+
+
+#: One budget per simulated channel name (shared by the nodes on it; removed with the last one)
+_BUDGETS: dict[str, CanBusBudget] = {}
+_BUDGETS_LOCK = threading.Lock()
+
+
 class SimCanNode:
     """Common machinery of a simulated CAN node (see module docstring)."""
 
@@ -87,6 +223,8 @@ class SimCanNode:
         faults: FaultPlan | FaultInjector | None = None,
         seed: int | None = 0,
         sync: bool = False,
+        bitrate: float | None = None,
+        tick_s: float | None = None,
         **bus_kwargs: Any,
     ) -> None:
         self.joints = joints
@@ -108,6 +246,17 @@ class SimCanNode:
         self.sync = sync
         if sync:
             self._install_sync_queue()
+        #: simulated seconds per :meth:`tick` (the bus budget's clock): ``tick_s``, else the node's ``dt``
+        self.tick_s = float(tick_s if tick_s is not None else getattr(self, "dt", 0.001))
+        self.budget: CanBusBudget | None = None
+        if bitrate is not None:
+            if not sync:
+                raise ValueError("a bus budget (bitrate=) needs sync=True: lockstep on the simulated clock")
+            with _BUDGETS_LOCK:
+                self.budget = _BUDGETS.get(channel)
+                if self.budget is None:
+                    self.budget = _BUDGETS[channel] = CanBusBudget(bitrate)
+                self.budget.users += 1
 
     # -- transport ----------------------------------------------------------------------------
     def _install_sync_queue(self) -> None:
@@ -124,8 +273,15 @@ class SimCanNode:
 
     def _deliver_sync(self, msg: can.Message) -> None:
         with self._lock:
-            if not self._closed:
+            if self._closed:
+                return
+            b = self.budget
+            # no budget before the first tick: the open sequence's request/answer traffic paces
+            # itself on the wall clock, which lockstep does not model
+            if b is None or b.sending or self.tick_count == 0:
                 self._receive(msg)
+            else:
+                b.host_frame(self, msg)
 
     def _receive(self, msg: can.Message) -> None:
         if self.injector.is_disconnected(self.tick_count):
@@ -166,11 +322,23 @@ class SimCanNode:
         self._send_now(msg)
 
     def _send_now(self, msg: can.Message) -> None:
+        if self.budget is not None and self.tick_count > 0:
+            self.budget.node_frame(self, msg)
+        else:
+            self._transmit(msg)
+
+    def _transmit(self, msg: can.Message) -> None:
+        b = self.budget
+        if b is not None:
+            b.sending += 1  # the other nodes on the channel receive this copy at once
         try:
             self.bus.send(msg, timeout=0.1)
             self.frames_out += 1
         except can.CanError as exc:  # pragma: no cover
             log.warning("%s: send failed: %s", self.kind, exc)
+        finally:
+            if b is not None:
+                b.sending -= 1
 
     # -- lockstep -----------------------------------------------------------------------------
     def process_pending(self) -> int:
@@ -189,6 +357,8 @@ class SimCanNode:
         with self._lock:
             self.process_pending()
             self.tick_count += 1
+            if self.budget is not None:
+                self.budget.advance_to(self.tick_count * self.tick_s)
             if self._late:
                 due = [m for d, m in self._late if d <= self.tick_count]
                 self._late = [(d, m) for d, m in self._late if d > self.tick_count]
@@ -238,6 +408,11 @@ class SimCanNode:
         with self._lock:
             self._closed = True
             self.bus.shutdown()
+        if self.budget is not None:
+            with _BUDGETS_LOCK:
+                self.budget.users -= 1
+                if self.budget.users <= 0 and _BUDGETS.get(self.channel) is self.budget:
+                    del _BUDGETS[self.channel]
 
     def __enter__(self):
         return self

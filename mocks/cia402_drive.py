@@ -166,7 +166,7 @@ class SimCiA402(SimCanNode):
         store.setdefault(0x605A, {})[0] = struct.pack("<h", int(quick_stop_option))
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
-        for m in list(self.node.rpdo.map.values()):
+        for m in list((self.node.rpdo.map or {}).values()):
             m.add_callback(self._on_rpdo)
         self._boot()
 
@@ -336,7 +336,7 @@ class SimCiA402(SimCanNode):
         pending, self._pending_sync_rpdo = self._pending_sync_rpdo, []
         for pdo, payload in pending:
             self._write_rpdo(pdo, payload)
-        for pdo in self.node.tpdo.map.values():
+        for pdo in (self.node.tpdo.map or {}).values():
             tt = pdo.trans_type
             if not pdo.enabled or tt is None or tt > 240 or (tt and self._sync_count % tt):
                 continue

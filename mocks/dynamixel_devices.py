@@ -31,7 +31,14 @@ A chain can be built with other values (``baud_index``, ``return_delay``: a benc
 configured). The servo only understands the host at its own baud rate: the chain reads the line
 speed the host set on the pty (termios of the slave end; pyserial sets it) and ignores packets sent
 at another standard rate (counted in ``baud_mismatch``; a custom rate it cannot read is accepted).
-Writing Baud Rate(8) takes effect at once, as on the servo. Each status packet is sent after the
+Writing Baud Rate(8) takes effect at once, as on the servo.
+**Link budget** (``link_budget=True``, as a lockstep bench builds it): the half-duplex line carries
+``baud / 10`` bytes per ``clock`` second (8N1), instruction and status packets together
+(:class:`hil.mocks.pty.LinkBudget`, the budget :mod:`hil.protocols.link_budget` checks at load
+time); a status packet the line has no room left for is not sent (``link_dropped``): the host
+times out, as with a real line that cannot carry the traffic. Not enforced until the clock first
+moves (the adapter's open sequence paces itself on the wall clock, which lockstep does not model).
+Each status packet is sent after the
 servo's Return Delay Time (wall clock: a host that cares for speed writes 0 there, as the adapter
 does by default).
 
@@ -78,7 +85,7 @@ import numpy as np
 
 from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
-from hil.mocks.pty import close_fds, host_writes, open_raw_pty
+from hil.mocks.pty import LinkBudget, close_fds, host_writes, open_raw_pty
 from hil.protocols.codecs.crc import crc16_dynamixel
 from hil.protocols.codecs.dynamixel import BAUD_RATES as _BAUD_RATES
 
@@ -360,6 +367,7 @@ class DynamixelChain:
         clock: Callable[[], float] = time.monotonic,
         baudrate: int = BAUD_RATES[FACTORY_BAUD_INDEX],
         return_delay: int = FACTORY_RETURN_DELAY,
+        link_budget: bool = False,
     ) -> None:
         if joints.dof != len(ids):
             raise ValueError(f"joints.dof={joints.dof} but {len(ids)} servo ids")
@@ -388,6 +396,11 @@ class DynamixelChain:
         self.rx_frames: deque[bytes] = deque(maxlen=64)  # raw instruction frames, newest last
         self.clock = clock
         self._last_instruction = clock()
+        #: baud/10 bytes per ``clock`` second on the half-duplex line, instructions and replies
+        #: together (``link_budget=True``; meant for a simulated clock: a lockstep bench)
+        self.link: LinkBudget | None = LinkBudget(baudrate) if link_budget else None
+        self._link_t = self._link_t0 = clock()
+        self.link_dropped = 0  # status packets the line could not carry (not sent: the host times out)
         self.watchdog_expired = 0  # Bus Watchdog Errors raised so far (all servos)
         self._thread = threading.Thread(target=self._serve, name="sim-dynamixel", daemon=True)
         self._thread.start()
@@ -485,7 +498,30 @@ class DynamixelChain:
             code = self.injector.error_code(self.tick) & 0xFF
             for servo in self.servos.values():
                 servo.table[ADDR_HARDWARE_ERROR] = code
-            out += self._handle(pkt)
+            reply = self._handle(pkt)
+            if self.link is not None and not self._carried(len(pkt.raw), len(reply)):
+                continue
+            out += reply
+
+    def _carried(self, n_in: int, n_out: int) -> bool:
+        """Link budget of one exchange: the instruction's bytes were on the line (the host sent
+        them); the status packets go only if the bytes left since then carry them, else they are
+        lost (``link_dropped``; the host times out, as on a line that cannot carry its traffic)."""
+        link = self.link
+        assert link is not None
+        bps = BAUD_RATES.get(self.servos[self.ids[0]].table[ADDR_BAUD_RATE])
+        if bps is not None and bps != link.baud:  # Baud Rate(8) written: the line's new speed
+            link.baud, link.bytes_per_s = float(bps), bps / 10.0
+        now = self.clock()
+        if now <= self._link_t0:  # before the clock first moves (the adapter's open sequence: its
+            return True           # request/answer traffic paces itself on the wall clock)
+        link.advance(now - self._link_t)
+        self._link_t = now
+        link.credit -= n_in
+        if n_out == 0 or link.take(n_out):
+            return True
+        self.link_dropped += 1
+        return False
 
     def _send(self, data: bytes) -> None:
         try:
@@ -593,8 +629,8 @@ class DynamixelChain:
         if inst == INST_PING and dxl_id == BROADCAST_ID:
             return b"".join(self._ping_reply(self.servos[i]) for i in self.ids)
         if inst == INST_WRITE and dxl_id == BROADCAST_ID and len(p) >= 3:
-            for servo in self.servos.values():
-                self._write(servo, int.from_bytes(p[0:2], "little"), p[2:])
+            for each in self.servos.values():
+                self._write(each, int.from_bytes(p[0:2], "little"), p[2:])
             return b""
         servo = self.servos.get(dxl_id)
         if servo is None:

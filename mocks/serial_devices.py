@@ -66,7 +66,10 @@ class SimBota:
     code (0..4 = 9 600, 57 600, 115 200, 230 400, 460 800).
 
     ASCII configuration protocol (Bota's ``bota_serial_example.py``): on power-up the sensor prints
-    ``App Init`` and streams (RUN mode). ``C`` -> CONFIG mode (streaming stops), answer
+    ``App Init`` (then ``name: PRODUCT``, ``S/N: N``, ``FW version: V``: Bota's ``rokubimini_serial``
+    driver reads the product name, serial number and firmware from this boot text; ``#`` is its
+    hardware reset, which reboots the sensor and prints it again) and streams (RUN mode). ``C`` ->
+    CONFIG mode (streaming stops), answer
     ``r,0,C,0``; ``c,TEMP_COMP,USE_CALIB,DATA_FORMAT,BAUD_CODE`` -> ``r,0,c,0``;
     ``f,SINC,CHOP,FAST,FIR_DISABLE`` -> ``r,0,f,0``; ``R`` -> RUN mode, ``r,0,R,0``. The example
     sends no terminator: a ``c``/``f`` command ends with the one-digit fourth field (all of them are
@@ -94,8 +97,12 @@ class SimBota:
         tick_s: float | None = None,
         baudrate: int = 460_800,
         boot_message: bool = False,
+        product_name: str = "BFT-SENS-SER-M8",
+        serial_number: int = 0,
+        firmware: str = "1.0.0",
     ) -> None:
         self.joints = joints
+        self.product_name, self.serial_number, self.firmware = str(product_name), int(serial_number), str(firmware)
         self._default_period = float(period_s) if sinc_length is None else sinc_length / BOTA_BASE_HZ
         self.period_s = self._default_period
         self.tick_s = None if tick_s is None else float(tick_s)
@@ -144,17 +151,29 @@ class SimBota:
         self.tx_bytes += write_dropping(self._master, data, self.stats)
 
     # -- power and configuration ----------------------------------------------------------------
+    def boot_text(self) -> bytes:
+        """What the sensor prints when it boots: ``App Init``, then ``name: PRODUCT``, ``S/N: N``,
+        ``FW version: V``, each ended by CR (Bota's ``rokubimini_serial`` driver parses exactly these
+        after a reset: ``RokubiminiSerialCommunication.hpp`` regexes ``App Init``,
+        ``name:\\s(.*)\\r``, ``S/N:\\s(.*)\\r``, ``FW version:\\s(.*)\\r``)."""
+        return (f"App Init\r\nname: {self.product_name}\r\nS/N: {self.serial_number}\r\n"
+                f"FW version: {self.firmware}\r\n").encode("ascii")
+
     def power_on(self) -> None:
-        """Power cycle: print ``App Init``, default configuration, RUN mode."""
+        """Power cycle (or hardware reset ``#``): boot text (:meth:`boot_text`), default
+        configuration, RUN mode."""
         with self._lock:
-            if self._closed:
-                return
-            self.period_s = self._default_period
-            self.link = LinkBudget(self._default_baud)
-            self.running = True
-            self.config = {}
-            self._cmd.clear()
-            self._write(b"App Init\r\n")
+            self._boot()
+
+    def _boot(self) -> None:
+        if self._closed:
+            return
+        self.period_s = self._default_period
+        self.link = LinkBudget(self._default_baud)
+        self.running = True
+        self.config = {}
+        self._cmd.clear()
+        self._write(self.boot_text())
 
     def _serve(self) -> None:
         for data in host_writes(self._master, self._stop, poll_s=0.02):
@@ -168,7 +187,10 @@ class SimBota:
         ch = chr(b)
         buf = self._cmd
         if not buf:
-            if ch in "CR":
+            if ch == "#":  # hardware reset (rokubimini_serial's RokubiminiSerialCommandHardReset): reboot
+                self.commands.append(ch)
+                self._boot()
+            elif ch in "CR":
                 self._finish(ch)
             elif ch in "cf":
                 buf.append(b)

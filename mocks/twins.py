@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from hil.errors import SceneError
+from hil.protocols import link_budget as lb
 
 logger = logging.getLogger(__name__)
 
@@ -128,6 +129,12 @@ class CanTwin(Twin):
         return f"can {iface}:{params['channel']} {self.node_word} {node}", iface != "virtual"
 
 
+def _bitrate(params: dict[str, Any], default: int) -> int:
+    """The scene's CAN bit rate (bit/s), else the driver's factory default: in lockstep the simulated
+    bus carries at most that many bits per simulated second (hil.protocols.link_budget)."""
+    return int(params.get("bitrate") or default)
+
+
 class ODriveTwin(CanTwin):
     udp_multicast = True
     node_default = 0
@@ -140,7 +147,8 @@ class ODriveTwin(CanTwin):
         if ctx.lockstep:
             # heartbeat every 10 ms (a real ODrive sends one every 100 ms by default): on the
             # simulated bus every frame is copied to every node, so fewer frames = faster runs
-            kw = {"sync": True, "heartbeat_every": max(1, round(0.01 * ctx.rate_hz))}
+            kw = {"sync": True, "heartbeat_every": max(1, round(0.01 * ctx.rate_hz)),
+                  "bitrate": _bitrate(params, lb.ODRIVE_DEFAULT_BITRATE)}
             params.setdefault("watchdog_endpoints", dict(SIM_WATCHDOG_ENDPOINTS))
         sim = SimODrive(ctx.point, ch, int(params.get("node_id", 0)), ctx.can_interface,
                         gear_ratio=float(params.get("gear_ratio", 1.0)), linear_scale=params.get("linear_scale"),
@@ -166,7 +174,8 @@ class CubeMarsTwin(CanTwin):
         ch = _can_params(ctx, params)
         sim = SimCubeMars(ctx.point, ch, int(params.get("motor_id", 1)), ctx.can_interface,
                           model=params.get("model", "AK80-9"), faults=ctx.faults, seed=ctx.seed,
-                          **({"sync": True} if ctx.lockstep else {}))
+                          **({"sync": True, "bitrate": _bitrate(params, lb.CUBEMARS_DEFAULT_BITRATE),
+                              "tick_s": ctx.dt} if ctx.lockstep else {}))
         return sim, params
 
 
@@ -179,6 +188,8 @@ class CiA402Twin(CanTwin):
 
         ch = _can_params(ctx, params)
         kw = {k: params[k] for k in ("counts_per_rev", "rated_torque_mNm", "heartbeat_ms") if params.get(k) is not None}
+        if ctx.lockstep:
+            kw["bitrate"] = _bitrate(params, lb.CIA402_DEFAULT_BITRATE)
         sim = SimCiA402(ctx.point, ch, int(params.get("node_id", 1)), ctx.can_interface,
                         gear_ratio=float(params.get("gear_ratio", 1.0)), faults=ctx.faults, seed=ctx.seed,
                         sync=ctx.lockstep, dt=ctx.dt, **kw)
@@ -303,7 +314,8 @@ class DynamixelTwin(Twin):
             # the servos run at the scene's baudrate (configured servos; a factory one is at 57 600)
             baud = int(group[0].cfg.params.get("baudrate", 57_600))
             chain = sim = DynamixelChain(joints, ids, faults=ctx.faults, seed=ctx.seed, clock=ctx.clock,
-                                         baudrate=baud)  # owned (closed, ticked) by the first device of the group
+                                         baudrate=baud, link_budget=ctx.lockstep)
+            # owned (closed, ticked) by the first device of the group; in lockstep the line carries baud/10 B/s
         me.host = chain
         params.update(port=chain.port, clock=ctx.clock, timeout=ctx.timeout)
         return sim, params

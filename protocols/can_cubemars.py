@@ -77,8 +77,10 @@ from hil.protocols.codecs.cubemars import (
     MitCommand,
     MitLimits,
     MitReply,
+    float_to_uint,
     model_limits,
     pack_command,
+    uint_to_float,
     unpack_reply,
 )
 
@@ -268,6 +270,14 @@ class CubeMarsMIT(CanActuator):
         data = pack_command(MitCommand(p_des, v_des, kp, kd, t_ff), self.limits)
         self._send(data, timeout)
         self._last_cmd = data
+
+    def effort_on_wire(self, effort: np.ndarray) -> np.ndarray:
+        """The torque (N.m) :meth:`command_effort` sends for ``effort``: the 12-bit t_ff field over the
+        model's [T_min, T_max] (manual 5.3, MIT mode; truncated as :func:`float_to_uint`), decoded
+        back (what hil.runner records as ``effort_cmd``; resolution (T_max - T_min) / 4095)."""
+        u = float(np.asarray(effort, dtype=float).reshape(-1)[0])
+        lim = self.limits
+        return np.array([uint_to_float(float_to_uint(u, lim.t_min, lim.t_max, 12), lim.t_min, lim.t_max, 12)])
 
     def _send_effort(self, effort: np.ndarray, timeout: float) -> None:
         """Torque-only command in N.m at the output (kp = kd = 0), clamped to the model's T range."""

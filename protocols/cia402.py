@@ -374,25 +374,45 @@ class CiA402Drive(Actuator):
         """Heartbeats received since open (not a fault counter)."""
         return self._hb_count
 
+    def _known(self, value: int | None, what: str) -> int:
+        """A drive constant read at open (or given); ProtocolError if neither happened."""
+        if value is None:
+            raise ProtocolError(f"CiA 402 node {self.node_id}: {what} unknown (give it, or open with enable=True "
+                                f"to read it from the drive)")
+        return value
+
     def joint_torque_to_per_mille(self, effort: float) -> int:
         """Joint torque (N.m) -> target torque 0x6071 (per mille of rated torque, int16)."""
-        pm = round(effort / self.gear_ratio / (self.rated_torque_mNm / 1000.0) * 1000.0)
+        rated = self._known(self.rated_torque_mNm, "rated torque 0x6076")
+        pm = round(effort / self.gear_ratio / (rated / 1000.0) * 1000.0)
         return max(-32768, min(32767, pm))
 
     def per_mille_to_joint_torque(self, pm: int) -> float:
-        return self.gear_ratio * pm / 1000.0 * self.rated_torque_mNm / 1000.0
+        return self.gear_ratio * pm / 1000.0 * self._known(self.rated_torque_mNm, "rated torque 0x6076") / 1000.0
 
     def counts_to_rad(self, counts: float) -> float:
-        return 2.0 * math.pi * counts / (self.counts_per_rev * self.gear_ratio)
+        cpr = self._known(self.counts_per_rev, "encoder resolution 0x608F")
+        return 2.0 * math.pi * counts / (cpr * self.gear_ratio)
 
-    def _send_effort(self, effort: np.ndarray, timeout: float) -> None:
-        """Joint torque (N.m) as target torque in RPDO1 (controlword Enable operation)."""
+    def _encode_effort(self, effort: np.ndarray) -> int:
+        """Joint torque (N.m, dof 1) -> the target torque 0x6071 sent (clamped, per mille, int16)."""
         u = float(np.asarray(effort, dtype=float).reshape(-1)[0])
         if not math.isfinite(u):
             raise ValueError(f"non-finite effort {u!r}")
         if self.effort_limit is not None:
             u = min(max(u, -self.effort_limit), self.effort_limit)
-        self._rpdo(State402.CW_OPERATION_ENABLED, self.joint_torque_to_per_mille(u))
+        return self.joint_torque_to_per_mille(u)
+
+    def effort_on_wire(self, effort: np.ndarray) -> np.ndarray:
+        """The joint torque (N.m) that :meth:`command_effort` would send for ``effort``: clamped to
+        ``effort_limit``, rounded to the per mille of rated torque 0x6071 carries (CiA 402 §6.5.1;
+        resolution ``gear_ratio * rated_torque_mNm / 1e6`` N.m) and clamped to int16, decoded back.
+        The drive applies exactly this (the record's ``effort_cmd``, hil.runner)."""
+        return np.array([self.per_mille_to_joint_torque(self._encode_effort(effort))])
+
+    def _send_effort(self, effort: np.ndarray, timeout: float) -> None:
+        """Joint torque (N.m) as target torque in RPDO1 (controlword Enable operation)."""
+        self._rpdo(State402.CW_OPERATION_ENABLED, self._encode_effort(effort))
 
     def _rpdo(self, controlword: int, per_mille: int) -> None:
         r1 = self.node.rpdo[1]

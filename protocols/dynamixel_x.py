@@ -253,6 +253,13 @@ class DynamixelX(Actuator):
         e = np.asarray(effort, dtype=float).reshape(self.dof)
         return effort_to_current_raw(e, self.torque_constant, self.current_limit, self.directions)
 
+    def effort_on_wire(self, effort: np.ndarray) -> np.ndarray:
+        """The effort (N.m) :meth:`command_effort` sends for ``effort``: Goal Current(102) in units of
+        2.69 mA, clamped to +-Current Limit(38) (XM430 e-Manual, control table), decoded back as
+        ``d * raw * 2.69e-3 * kt`` (what hil.runner records as ``effort_cmd``)."""
+        raw = self.current_command(effort).astype(float)
+        return np.asarray(self.directions * raw * CURRENT_UNIT_A * self.torque_constant, dtype=float)
+
     def _send_effort(self, effort: np.ndarray, timeout: float) -> None:
         """Sync-write Goal Current for every joint (no reply on the bus, so it never waits)."""
         raw = self.current_command(effort)

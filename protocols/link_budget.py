@@ -34,6 +34,12 @@ ODrive 250 kbit/s, CubeMars 1 Mbit/s).
   (55) and the 8-byte answer, ``read_torque`` another RTR + 8-byte answer; ``cyclic`` adds one
   8-byte estimate frame. Plus the 8-byte heartbeat every 100 ms (factory rate).
 * ``cubemars_mit`` per tick: one 8-byte command, one 8-byte reply.
+* ``cia402`` per tick: SYNC (0 bytes), TPDO1 (8), TPDO2 (5), RPDO1 (4); plus the 1-byte heartbeat
+  every ``heartbeat_ms`` (default 100); default bit rate 1 Mbit/s.
+
+The simulated CAN channels enforce the same budget at run time
+(:class:`hil.mocks.can_devices.CanBusBudget`: frames that do not fit wait, in arbitration order,
+and a sender with a full transmit queue loses frames).
 """
 
 from __future__ import annotations
@@ -54,6 +60,12 @@ FT300_POLL_BYTES = 8 + 17
 DXL_DEFAULT_BAUD = 57_600
 ODRIVE_DEFAULT_BITRATE = 250_000
 CUBEMARS_DEFAULT_BITRATE = 1_000_000
+#: CiA 402 drive without a ``bitrate`` param: 1 Mbit/s, the highest CiA 301 bit rate (set
+#: ``bitrate`` for a drive configured slower)
+CIA402_DEFAULT_BITRATE = 1_000_000
+#: CiA 402 per tick (hil.protocols.cia402): SYNC (0 bytes), TPDO1 statusword + position actual +
+#: torque actual (8), TPDO2 velocity actual + modes display (5), RPDO1 controlword + target torque (4)
+CIA402_TICK_FRAME_BYTES = (0, 8, 5, 4)
 ODRIVE_HEARTBEAT_HZ = 10.0
 
 
@@ -141,9 +153,14 @@ def link_uses(devices: Iterable[Any], rate_hz: float) -> list[LinkUse]:
         elif drv == "dynamixel_x":
             n = len(p.get("ids", [1]))
             dxl.setdefault(str(p.get("port", "?")), []).append((d.name, n, int(p.get("baudrate", DXL_DEFAULT_BAUD))))
-        elif drv in ("odrive_can", "cubemars_mit"):
+        elif drv in ("odrive_can", "cubemars_mit", "cia402"):
             key = (str(p.get("interface", "socketcan")), str(p.get("channel", "can0")))
-            if drv == "odrive_can":
+            if drv == "cia402":  # plus the 1-byte heartbeat every heartbeat_ms (default 100)
+                hb_ms = float(p.get("heartbeat_ms", 100) or 0)
+                per_s = (sum(can_frame_bits(b) for b in CIA402_TICK_FRAME_BYTES) * rate_hz
+                         + (can_frame_bits(1) * 1000.0 / hb_ms if hb_ms > 0 else 0.0))
+                default = CIA402_DEFAULT_BITRATE
+            elif drv == "odrive_can":
                 bits = can_frame_bits(4)
                 if p.get("feedback", "poll") == "poll":
                     bits += can_frame_bits(0) + can_frame_bits(8)

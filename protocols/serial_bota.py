@@ -159,6 +159,7 @@ class BotaSerial(StreamingSensor):
             raise DeviceDisconnected(f"cannot open {url!r}: {exc}") from exc
         self.info = DeviceInfo(driver="bota_serial", transport=f"serial:{url}", vendor="Bota Systems",
                                extra={"sinc_length": self.sinc_length, "baudrate": int(baudrate)})
+        self._setup: list[str] = []  # the configuration commands sent on open (read_identity re-sends them)
         if configure:
             setup = [
                 "C",
@@ -166,6 +167,7 @@ class BotaSerial(StreamingSensor):
                 f"f,{self.sinc_length},{int(chop_enable)},{int(fast_enable)},{int(fir_disable)}",
                 "R",
             ]
+            self._setup = setup
             try:
                 for cmd in setup:
                     self._command(cmd, float(config_timeout))
@@ -289,6 +291,36 @@ class BotaSerial(StreamingSensor):
         self._last = WrenchSample(t=produced, seq=self._next_seq(), wrench=np.asarray(frame.wrench) - self._offset,
                                   status=frame.status, produced_at=produced)
         return self._last
+
+    def read_identity(self, timeout: float = 2.0, config_timeout: float = 1.0) -> dict[str, str]:
+        """Product name, serial number and firmware of the sensor: the hardware reset ``#`` makes it
+        reboot and print them after ``App Init`` (Bota's ``rokubimini_serial`` driver does this at
+        every start: RokubiminiSerialImpl.cpp ``parseCommunicationMsgs``; parsed with
+        :func:`hil.probe.parse_bota_boot`). Sets ``info.model``, ``info.serial``, ``info.firmware``.
+        The sensor comes back with its *saved* configuration, so the configuration sent on open is
+        sent again. Not during a run (the stream pauses for the reboot). Returns what was found
+        (``{}`` if no boot text arrived within ``timeout`` s)."""
+        from hil.probe import parse_bota_boot
+
+        try:
+            self._ser.reset_input_buffer()
+            self._ser.write(b"#")
+            self._ser.flush()
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceDisconnected(f"{self.url}: port lost: {exc}") from exc
+        buf = bytearray()
+        got: dict[str, str] = {}
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and len(got) < 3:
+            buf += self._read_bytes(block=True)
+            got = parse_bota_boot(bytes(buf))
+        self.info.model = got.get("name", self.info.model)
+        self.info.serial = got.get("serial", self.info.serial)
+        self.info.firmware = got.get("firmware", self.info.firmware)
+        self.parser = FrameParser()  # the reboot broke the stream: resynchronise on the next header
+        for cmd in self._setup:
+            self._command(cmd, float(config_timeout))
+        return got
 
     def tare(self, timeout: float = 0.5) -> None:
         """Software tare: subtract the current reading from all later readings."""

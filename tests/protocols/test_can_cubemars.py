@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import math
 
 import can
 import numpy as np
@@ -198,3 +199,19 @@ def test_reply_arrival_dates_the_sample_and_counters():
         assert s2.produced_at == 3.0 and s2.seq == 2
         assert dev.counters() == {"error_frames": 0, "decode_errors": 0, "skipped": 0, "timeouts": 0}
         assert node.commands_total >= 2
+
+
+def test_effort_on_wire_is_what_the_motor_applies(rig):
+    """effort_on_wire (hil.runner's effort_cmd) = the 12-bit t_ff field the motor decodes (manual
+    5.3: linear over [T_min, T_max], 4095 steps; truncated like the reference float_to_uint)."""
+    j, node, dev = rig
+    lim = dev.limits
+    step = (lim.t_max - lim.t_min) / 4095
+    for u in (5.0, -3.21, 0.0, 1e6):
+        wire = dev.effort_on_wire(np.array([u]))[0]
+        dev.command_effort(np.array([u]))
+        _, c = node.commands[-1]
+        assert wire == pytest.approx(c.t_ff, abs=1e-12) == pytest.approx(j.measured_force()[0], abs=1e-12)
+        # independent derivation: code = floor((clamp(u) - T_min) * 4095 / span), decoded linearly
+        code = math.floor((min(max(u, lim.t_min), lim.t_max) - lim.t_min) / step)
+        assert wire == pytest.approx(lim.t_min + code * step, abs=1e-9)

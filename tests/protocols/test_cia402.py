@@ -205,3 +205,20 @@ def test_scene_refuses_a_linear_cia402_axis():
     d["units"] = "linear"
     with pytest.raises(SceneError, match="one rotary actuator axis"):
         scene_from_dict(d, label="linear-cia402")
+
+
+def test_effort_on_wire_is_what_the_drive_applies(rig):
+    """The adapter's effort_on_wire (what hil.runner records as effort_cmd) is exactly the joint
+    torque the drive applies: per mille of rated torque (CiA 402 §6.5.1), here 2 x 0.5 N.m / 1000 =
+    1 mN.m steps at the joint, clamped by effort_limit before rounding."""
+    sim, drv, *_ = rig
+    for u in (0.1234, -0.0006, 0.0004999, 1e-9, -0.3):
+        drv.command_effort(np.array([u]))
+        # independent derivation: round(u / gear / rated[N.m] * 1000) per mille, decoded
+        pm = round(u / 2.0 / 0.5 * 1000.0)
+        assert sim.target_torque == pm
+        assert drv.effort_on_wire(np.array([u]))[0] == sim.applied_joint_torque() == pytest.approx(pm * 1e-3)
+    drv.effort_limit = 0.05
+    assert drv.effort_on_wire(np.array([0.2]))[0] == pytest.approx(0.05)
+    with pytest.raises(ValueError):
+        drv.effort_on_wire(np.array([math.nan]))

@@ -312,3 +312,22 @@ def test_bus_watchdog_kept_fed_by_a_running_host() -> None:
             assert chain.check_watchdog() == []
         assert chain.watchdog_expired == 0 and dx.counters() == {"crc_errors": 0, "timeouts": 0,
                                                                  "bus_watchdog_errors": 0}
+
+
+def test_effort_on_wire_is_what_the_servo_applies() -> None:
+    """effort_on_wire (hil.runner's effort_cmd) = the Goal Current the servo receives (2.69 mA
+    units, clamped to the Current Limit), decoded back to N.m in the joint frame (direction)."""
+    plant = FreeJoints(dof=3)
+    with (
+        DynamixelChain(plant, ids=[1, 2, 3]) as chain,
+        DynamixelX(chain.port, ids=[1, 2, 3], directions=[1, -1, 1], current_limit=1000) as dx,
+    ):
+        effort = np.array([0.5003, 0.5003, -50.0])
+        wire = dx.effort_on_wire(effort)
+        dx.command_effort(effort)
+        chain.sync(dx.tx_bytes)
+        # the plant gets the servo-frame torque; the joint frame flips joint 2 back
+        np.testing.assert_allclose(wire, np.array([1, -1, 1]) * plant.measured_force(), rtol=1e-12)
+        step = CURRENT_UNIT_A * KT
+        assert abs(wire[0] - 0.5003) <= step / 2 and wire[0] != 0.5003  # rounded to one current unit
+        assert wire[2] == pytest.approx(-1000 * step)  # the clamp
