@@ -55,6 +55,7 @@ from types import SimpleNamespace
 from typing import Any
 
 from hil.errors import DeviceDisconnected, DeviceError, HilError
+from hil.protocols.codecs.bota import BOTA_BOOT, parse_bota_boot
 
 log = logging.getLogger(__name__)
 
@@ -283,24 +284,6 @@ def probe_modbus(url: str, unit: int = 9, timeout: float = 0.5) -> list[Found]:
         return []
 
 
-#: Bota boot text (Bota's rokubimini_serial driver, RokubiminiSerialCommunication.hpp: parsed after
-#: a hardware reset ``#``, once ``App Init`` is seen)
-_BOTA_BOOT = {"name": re.compile(rb"name:\s(.*?)\r"), "serial": re.compile(rb"S/N:\s(.*?)\r"),
-              "firmware": re.compile(rb"FW version:\s(.*?)\r")}
-
-
-def parse_bota_boot(text: bytes) -> dict[str, str]:
-    """Product name, serial number and firmware of a Bota serial sensor from its boot text (bytes
-    after ``App Init``; binary frames around it are ignored). Missing fields are left out."""
-    k = text.find(b"App Init")
-    if k < 0:
-        return {}
-    out = {}
-    for key, rx in _BOTA_BOOT.items():
-        m = rx.search(text, k)
-        if m:
-            out[key] = m.group(1).decode("ascii", errors="replace").strip()
-    return out
 
 
 def bota_identity(port: str, *, baudrate: int = 460800, timeout: float = 2.0) -> dict[str, str]:
@@ -325,7 +308,7 @@ def bota_identity(port: str, *, baudrate: int = 460800, timeout: float = 2.0) ->
         while time.monotonic() < end:
             buf += ser.read(4096)
             got = parse_bota_boot(bytes(buf))
-            if len(got) == len(_BOTA_BOOT):
+            if len(got) == len(BOTA_BOOT):
                 return got
         return parse_bota_boot(bytes(buf))
     except (serial.SerialException, OSError) as exc:

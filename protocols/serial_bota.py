@@ -296,11 +296,11 @@ class BotaSerial(StreamingSensor):
         """Product name, serial number and firmware of the sensor: the hardware reset ``#`` makes it
         reboot and print them after ``App Init`` (Bota's ``rokubimini_serial`` driver does this at
         every start: RokubiminiSerialImpl.cpp ``parseCommunicationMsgs``; parsed with
-        :func:`hil.probe.parse_bota_boot`). Sets ``info.model``, ``info.serial``, ``info.firmware``.
+        :func:`hil.protocols.codecs.bota.parse_bota_boot`). Sets ``info.model``, ``info.serial``, ``info.firmware``.
         The sensor comes back with its *saved* configuration, so the configuration sent on open is
         sent again. Not during a run (the stream pauses for the reboot). Returns what was found
         (``{}`` if no boot text arrived within ``timeout`` s)."""
-        from hil.probe import parse_bota_boot
+        from hil.protocols.codecs.bota import parse_bota_boot
 
         try:
             self._ser.reset_input_buffer()

@@ -3,6 +3,7 @@ incremental parser (pure; no serial library). See :mod:`hil.protocols.serial_bot
 
 from __future__ import annotations
 
+import re
 import struct
 from collections import Counter
 from collections.abc import Iterable
@@ -79,3 +80,23 @@ class FrameParser:
                 i += 1  # resynchronise: look for the next header after this one
         del buf[:i]
         return out
+
+
+#: Bota boot text (Bota's rokubimini_serial driver, RokubiminiSerialCommunication.hpp: parsed after
+#: a hardware reset ``#``, once ``App Init`` is seen)
+BOTA_BOOT = {"name": re.compile(rb"name:\s(.*?)\r"), "serial": re.compile(rb"S/N:\s(.*?)\r"),
+              "firmware": re.compile(rb"FW version:\s(.*?)\r")}
+
+
+def parse_bota_boot(text: bytes) -> dict[str, str]:
+    """Product name, serial number and firmware of a Bota serial sensor from its boot text (bytes
+    after ``App Init``; binary frames around it are ignored). Missing fields are left out."""
+    k = text.find(b"App Init")
+    if k < 0:
+        return {}
+    out: dict[str, str] = {}
+    for key, rx in BOTA_BOOT.items():
+        m = rx.search(text, k)
+        if m:
+            out[key] = m.group(1).decode("ascii", errors="replace").strip()
+    return out
