@@ -55,6 +55,9 @@ the newest estimate is ``timeout`` old (host clock), then returns the previous e
 runner's watchdog stops the run when its age exceeds ``watchdog_ms``. Only the very first read
 raises DeviceTimeout. Poll mode: each answer to the RTR request is a new frame; a request that
 gets no answer is sent again (``retries``, within the same ``timeout``), then DeviceTimeout.
+Non-blocking poll (``read(timeout=0)``, what the realtime loop does): the read takes the answer
+to the request the previous read sent, if it has arrived (otherwise a stale sample), and sends
+the next request (send timeout 1 ms), so the round trip overlaps the loop's wait for its next tick.
 A frozen estimator that keeps answering with the same payload cannot be told from a joint at rest
 by the host: the drive itself reports that (axis_error MISSING_ESTIMATE).
 
@@ -131,6 +134,10 @@ from hil.protocols.codecs.odrive import (
 )
 
 log = logging.getLogger(__name__)
+
+
+#: send timeout (s) of the non-blocking poll's request frames: a full transmit queue is a fault
+POLL_AHEAD_SEND_TIMEOUT_S = 0.001
 
 
 class ODriveCAN(CanActuator):
@@ -411,7 +418,9 @@ class ODriveCAN(CanActuator):
         Raises DeviceTimeout when no estimate arrives in ``timeout`` (poll mode, or the first read
         in cyclic mode) and DeviceFault when the latest heartbeat carries a non-zero axis_error.
         """
-        if self.feedback == "poll":
+        if self.feedback == "poll" and timeout == 0.0:
+            self._poll_ahead()
+        elif self.feedback == "poll":
             self._poll(timeout)
         else:
             self._drain()
@@ -441,6 +450,16 @@ class ODriveCAN(CanActuator):
             produced_at=est[2],
         )
         return self._last
+
+    def _poll_ahead(self) -> None:
+        """A non-blocking poll (``timeout`` 0, the realtime loop): take the answer to the request
+        sent by the previous read if it has arrived (otherwise the read is stale), then send the
+        next request, answered while the loop waits for its next tick."""
+        self._drain()
+        self._raise_if_fault()
+        self._send(CMD_GET_ENCODER_ESTIMATES, remote=True, timeout=POLL_AHEAD_SEND_TIMEOUT_S)
+        if self.read_torque:
+            self._send(CMD_GET_TORQUES, remote=True, timeout=POLL_AHEAD_SEND_TIMEOUT_S)
 
     def _poll(self, timeout: float) -> None:
         """Request the estimate (and torques) with RTR frames; resend up to ``retries`` times within
