@@ -261,7 +261,7 @@ def realtime_scheduling(*, enabled: bool = True, priority: int = FIFO_PRIORITY,
     try:
         yield got
     finally:
-        if old_policy is not None:
+        if old_policy is not None and old_param is not None:
             with contextlib.suppress(OSError):
                 os.sched_setscheduler(0, old_policy, old_param)
         if got.memlock and libc is not None:
@@ -496,7 +496,7 @@ def lateness_measurements(outcomes: Mapping[str, Any], scene: Any) -> list[Any]:
     from hil.certificate import Measurement
 
     safety = getattr(scene, "safety", None)
-    limit = float(getattr(safety, "max_lateness_ms", None) or getattr(safety, "watchdog_ms", 50.0)) / 1e3
+    limit = float(getattr(safety, "max_lateness_ms", None) or getattr(safety, "watchdog_ms", None) or 50.0) / 1e3
     frac = float(getattr(safety, "max_overrun_fraction", DEFAULT_MAX_OVERRUN_FRACTION))
     rows: list[Any] = []
     for name, o in outcomes.items():

@@ -69,6 +69,9 @@ except ImportError:  # pragma: no cover - Windows
 
 log = logging.getLogger(__name__)
 
+#: what ends an experiment while its bench opens (a stop, a device or port failure)
+_OPEN_ERRORS: tuple[type[BaseException], ...] = (SafetyStop, DeviceError, *_PORT_ERRORS)
+
 #: per-tick device read timeout (s) of the realtime loop on external devices: 0, never wait for a
 #: sample (a device that falls silent is a watchdog stop on its samples' age, ``watchdog_ms``)
 REALTIME_READ_TIMEOUT_S = 0.0
@@ -434,7 +437,7 @@ class Runner:
         name = self._name(index, ecfg)
         try:
             bench = self.bench_factory(ecfg.get("variant"))
-        except (SafetyStop, DeviceError, *_PORT_ERRORS) as exc:
+        except _OPEN_ERRORS as exc:
             status, reason = classify(exc)
             reason = f"{reason} (while the bench was opening)"
             STOP.request(reason, status)
@@ -541,7 +544,7 @@ class Runner:
                     STOP.check()  # the safe point of a stop request (signal)
                     late = 0.0
                     start = t
-                    if pacer is not None:
+                    if pacer is not None and guard is not None:
                         late = pacer.wait(k) * 1e-9
                         start = (pacer.start_ns - pacer.t0) * 1e-9
                         stats.add_late(late)
