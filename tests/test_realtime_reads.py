@@ -13,6 +13,7 @@ import tracemalloc
 import numpy as np
 import pytest
 import yaml
+from test_realtime import FakeClock
 
 from hil.bench import Bench
 from hil.errors import DeviceTimeout
@@ -23,8 +24,6 @@ from hil.protocols.can_odrive import ODriveCAN
 from hil.record import RunRecord
 from hil.runner import REALTIME_READ_TIMEOUT_S, Runner
 from hil.scene import load_scene, scene_from_dict
-
-from test_realtime import FakeClock
 
 pytestmark = pytest.mark.timeout(120)
 _chan = itertools.count()
@@ -85,7 +84,7 @@ class _ExternalBench(Bench):
     def lockstep(self) -> bool:
         return False
 
-    def read(self, timeout: float | None = None):  # noqa: ANN201 - Bench.read's type
+    def read(self, timeout: float | None = None):
         self.timeouts.append(timeout)
         out = super().read()  # the simulation itself is still stepped in lockstep
         self.ages.append(sample_age(out["spring_ft"]))
