@@ -8,6 +8,7 @@ the adapters are driven against simulated devices that answer only when the test
 from __future__ import annotations
 
 import itertools
+import threading
 import tracemalloc
 
 import numpy as np
@@ -16,7 +17,6 @@ import yaml
 from test_realtime import FakeClock
 
 from hil.bench import Bench
-from hil.errors import DeviceTimeout
 from hil.mocks.can_devices import SimODrive
 from hil.mocks.interfaces import FreeJoints
 from hil.protocols.base import sample_age
@@ -45,29 +45,43 @@ def _scene(duration: float = 0.05, rate: float = 2000.0):
 def test_odrive_poll_with_zero_timeout_takes_the_previous_answer_and_never_waits():
     """read(timeout=0) in poll mode: the answer to the request of the previous read if it arrived
     (fresh: seq advances), else the previous sample again (stale: same seq and produced_at, counted);
-    each read sends the next request. The drive answers only in process_pending(), so a read that
-    waited for its answer could not return it: the first read has nothing and raises DeviceTimeout."""
+    each read sends the next request. After the first one (which polls once, nothing being requested
+    ahead) the drive answers only in process_pending(), so a read that waited for its answer could
+    not return it."""
     ch = f"test-rt-odrive-{next(_chan)}"
     j = FreeJoints(mass=2.0)
     clock = {"t": 0.0}
     with SimODrive(j, ch, node_id=5, heartbeat_every=0) as node, \
-            ODriveCAN(5, ch, "virtual", enable=False, clock=lambda: clock["t"]) as dev:
-        with pytest.raises(DeviceTimeout):
-            dev.read(timeout=0.0)  # the request went out, no answer yet
-        assert node.process_pending() == 1  # exactly the one RTR request
+            ODriveCAN(5, ch, "virtual", enable=False, clock=lambda: clock["t"], timeout=2.0) as dev:
+        stop = threading.Event()
+
+        def answer() -> None:  # the drive answering on its own, for the priming poll only
+            while not stop.is_set():
+                node.process_pending()
+                stop.wait(0.001)
+        th = threading.Thread(target=answer)
+        th.start()
+        try:
+            s0 = dev.read(timeout=0.0)  # primes: one blocking poll, then the request for the next read
+        finally:
+            stop.set()
+            th.join()
+        assert s0.seq == 1
+        pending = node.process_pending()  # the request sent ahead (the answer thread may have taken it)
+        assert pending in (0, 1)
         j.step(0.01)
         clock["t"] = 1.0
-        s1 = dev.read(timeout=0.0)  # the answer taken off the bus now; the next request sent
-        assert s1.seq == 1 and s1.produced_at == 1.0
+        s1 = dev.read(timeout=0.0)  # that answer, taken off the bus now; the next request sent
+        assert s1.seq == 2 and s1.produced_at == 1.0
         clock["t"] = 2.0
         s2 = dev.read(timeout=0.0)  # that request is not answered yet: stale
-        assert (s2.seq, s2.produced_at, s2.t) == (1, 1.0, 2.0)
+        assert (s2.seq, s2.produced_at, s2.t) == (2, 1.0, 2.0)
         assert sample_age(s2) == 1.0 and dev.counters()["stale"] == 1
         np.testing.assert_array_equal(s2.position, s1.position)
-        node.process_pending()
+        assert node.process_pending() == 2  # the requests of s1's and s2's reads
         clock["t"] = 3.0
         s3 = dev.read(timeout=0.0)
-        assert s3.seq == 2 and s3.produced_at == 3.0 and dev.counters()["stale"] == 1
+        assert s3.seq == 3 and s3.produced_at == 3.0 and dev.counters()["stale"] == 1
 
 
 # -- the loop -------------------------------------------------------------------------------------
