@@ -59,8 +59,9 @@ class _Interrupt(Exception):
 
 @pytest.fixture
 def signal_between_resize_and_write(monkeypatch: pytest.MonkeyPatch):
-    """SIGUSR1 (handler raising :class:`_Interrupt`) sent by the writer itself right after it resizes ``/t``,
-    i.e. exactly between the resize and the write of a block. Yields a dict counting the deliveries."""
+    """SIGUSR1 (handler raising :class:`_Interrupt`) sent by the writer itself inside a block: after
+    the channels were written, just before ``/t`` is grown and written (``hil.record._write_rows``).
+    Yields a dict counting the deliveries."""
     seen = {"sent": 0, "raised": 0}
 
     def handler(signum, frame):
@@ -68,15 +69,15 @@ def signal_between_resize_and_write(monkeypatch: pytest.MonkeyPatch):
         raise _Interrupt("SIGUSR1")
 
     old_handler = signal.signal(signal.SIGUSR1, handler)
-    real_resize = h5py.Dataset.resize
+    real_write_rows = record_mod._write_rows
 
-    def resize(self, size, axis=None):
-        real_resize(self, size, axis)
-        if self.name == "/t":
+    def write_rows(ds, start, data):
+        if ds.name == "/t":
             seen["sent"] += 1
             os.kill(os.getpid(), signal.SIGUSR1)
+        real_write_rows(ds, start, data)
 
-    monkeypatch.setattr(h5py.Dataset, "resize", resize)
+    monkeypatch.setattr(record_mod, "_write_rows", write_rows)
     try:
         yield seen
     finally:
@@ -116,16 +117,17 @@ def test_an_interrupted_flush_is_written_once_by_close_even_without_held_signals
     # write leaves the block half-written; close() then writes it at the same rows (absolute positions),
     # not after the half-written one (the old code wrote it twice, with 100 NaN times in between).
     monkeypatch.setattr(record_mod, "_signals_held", contextlib.nullcontext)
-    real_resize = h5py.Dataset.resize
+    real_write_rows = record_mod._write_rows
     armed = {"on": True}
 
-    def resize(self, size, axis=None):
-        real_resize(self, size, axis)
-        if self.name == "/t" and armed["on"] and size[0] > 100:
+    def write_rows(ds, start, data):  # the second block's /t: grown, then interrupted before its write
+        if ds.name == "/t" and armed["on"] and start >= 100:
             armed["on"] = False
+            ds.resize((start + len(data),))
             raise KeyboardInterrupt
+        real_write_rows(ds, start, data)
 
-    monkeypatch.setattr(h5py.Dataset, "resize", resize)
+    monkeypatch.setattr(record_mod, "_write_rows", write_rows)
     path = tmp_path / "ki.h5"
     w = _writer(path)
     with pytest.raises(KeyboardInterrupt):
