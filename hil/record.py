@@ -923,7 +923,8 @@ class RecordWriter:
     def _write_status(self, stop_reason: str, status: str) -> None:
         """Overwrite the fixed ``/status`` bytes with one JSON line (zero padded) and flush. The space
         was allocated at creation, so this cannot run out of disk."""
-        doc = {"stop_reason": stop_reason, "status": status, "closed_utc": _utc_now(), "samples": self.samples}
+        doc: dict[str, Any] = {"stop_reason": stop_reason, "status": status, "closed_utc": _utc_now(),
+                               "samples": self.samples}
         raw = (_to_json(doc, "status") + "\n").encode()
         if len(raw) > _STATUS_BYTES:  # a very long reason: shorten it, keep the line valid JSON
             doc["stop_reason"] = stop_reason[: max(0, len(stop_reason) - (len(raw) - _STATUS_BYTES) - 8)] + "..."
@@ -1045,7 +1046,10 @@ class RunRecord:
 
             for line in _json_lines(bytes(f["results"][:]), p, "results"):
                 index = line.get("arrays", {})
-                results[str(line["experiment"])] = _join_arrays(line["results"], lambda k, i=index: array(i[k]))
+
+                def get(k: str, i: Any = index) -> np.ndarray:
+                    return array(i[k])
+                results[str(line["experiment"])] = _join_arrays(line["results"], get)
         if isinstance(f.get("status"), h5py.Group):  # format_version 1
             stop_reason = _attr_str(f["status"].attrs["stop_reason"])
             status = _attr_str(f["status"].attrs["status"])
