@@ -529,6 +529,7 @@ class RecordWriter:
         self._hdf5_broken = False
         self.stop_reason: str | None = None
         self.status: str | None = None
+        self._dsets: dict[str, Any] = {}  # the sample datasets (and "/t"), looked up once (see _commit)
 
         if self.path.is_dir():
             raise RecordError(f"{self.path}: is a directory")
@@ -824,9 +825,15 @@ class RecordWriter:
             try:
                 if t is not None and block is not None and m:
                     g = f["channels"]
+                    dsets = self._dsets  # h5py's name lookup costs as much as the write: looked up once
                     for name, data in block.items():  # channels first, /t last: t's length commits samples
-                        _write_rows(g[name], rows, data)
-                    _write_rows(f["t"], rows, t)
+                        ds = dsets.get(name)
+                        if ds is None:
+                            ds = dsets[name] = g[name]
+                        _write_rows(ds, rows, data)
+                    if "/t" not in dsets:
+                        dsets["/t"] = f["t"]
+                    _write_rows(dsets["/t"], rows, t)
                     rows += m
                 for name, chunks in logs.items():
                     data = np.frombuffer(b"".join(chunks), dtype=np.uint8)
