@@ -17,9 +17,10 @@ import yaml
 from test_realtime import FakeClock
 
 from hil.bench import Bench
-from hil.mocks.can_devices import SimODrive
+from hil.mocks.can_devices import SimCubeMars, SimODrive
 from hil.mocks.interfaces import FreeJoints
 from hil.protocols.base import sample_age
+from hil.protocols.can_cubemars import CubeMarsMIT
 from hil.protocols.can_odrive import ODriveCAN
 from hil.record import RunRecord
 from hil.runner import REALTIME_READ_TIMEOUT_S, Runner
@@ -82,6 +83,25 @@ def test_odrive_poll_with_zero_timeout_takes_the_previous_answer_and_never_waits
         clock["t"] = 3.0
         s3 = dev.read(timeout=0.0)
         assert s3.seq == 3 and s3.produced_at == 3.0 and dev.counters()["stale"] == 1
+
+
+def test_cubemars_zero_timeout_read_without_a_new_reply_is_stale_and_sends_nothing():
+    """A CubeMars motor answers each command; a non-blocking read (timeout 0) with no reply since the
+    previous read repeats the previous sample (same seq and produced_at, counted as stale) instead of
+    re-sending the last command and waiting for its reply (what a blocking read does)."""
+    ch = f"test-rt-cubemars-{next(_chan)}"
+    j = FreeJoints()
+    with SimCubeMars(j, ch, motor_id=1, sync=True) as node, CubeMarsMIT(1, ch, "virtual") as dev:
+        dev.command_effort(np.array([1.0]))
+        s1 = dev.read(timeout=0.0)  # the reply to that command
+        sent = len(node.commands)
+        s2 = dev.read(timeout=0.0)
+        assert len(node.commands) == sent  # nothing re-sent
+        assert (s2.seq, s2.produced_at) == (s1.seq, s1.produced_at) and dev.counters()["stale"] == 1
+        dev.command_effort(np.array([1.0]))
+        assert dev.read(timeout=0.0).seq == s1.seq + 1
+        dev.read(timeout=0.2)  # a blocking read re-sends the last command and gets a fresh reply
+        assert len(node.commands) == sent + 2 and "stale" in dev.counters()
 
 
 # -- the loop -------------------------------------------------------------------------------------
