@@ -3,7 +3,8 @@
 One tick (period dt = 1/rate_hz):
 
 0. safe point: a stop request (SIGINT / SIGTERM / SIGHUP, :mod:`hil.stopflag`) raises here;
-1. read every device (adapters, with timeouts) -> measurements;
+1. read every device (adapters, with timeouts; realtime mode on external devices: timeout 0, the
+   newest sample that has arrived, its age recorded as ``<device>.age``) -> measurements;
 2. controller effort + experiment excitation -> commanded effort;
 3. append the sample to the run record (streamed to HDF5, flushed every 0.1 s of run time), so
    the sample that breaches a limit is in the record;
