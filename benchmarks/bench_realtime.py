@@ -144,8 +144,9 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(cyc, str):
             print(cyc)
             break
-        print(f"{'cyclictest':12s} {'FIFO':6s} {rate:5g} {us * cyc.p50:9.1f} {'(avg)':>9s} {us * cyc.max:9.1f} "
-              f"{cyc.overruns:8d}")
+        p99 = f"{us * cyc.p99:9.1f}" if np.isfinite(cyc.p99) else f"{'>period':>9s}"
+        print(f"{'cyclictest':12s} {'FIFO':6s} {rate:5g} {us * cyc.p50:9.1f} {p99} {us * cyc.max:9.1f} "
+              f"{cyc.overruns:8d}", flush=True)
     print(f"load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     return 0
 
