@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 import pytest
-import yaml
+import yaml  # type: ignore[import-untyped]  # no PyYAML stubs in the env
 
 from hil.bench import Bench
 from hil.errors import SafetyStop

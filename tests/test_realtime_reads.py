@@ -13,7 +13,7 @@ import tracemalloc
 
 import numpy as np
 import pytest
-import yaml
+import yaml  # type: ignore[import-untyped]  # no PyYAML stubs in the env
 from test_realtime import FakeClock
 
 from hil.bench import Bench
