@@ -2,20 +2,22 @@
 60 s and p99 lateness <= 100 µs; 2 kHz with <= 0.1 % overruns).
 
 For each rate (500 Hz, 1 kHz, 2 kHz), ``sdea_bench``'s locked chirp (f1 capped at rate / 10) runs in realtime mode for
-``--seconds`` under three configurations:
+``--seconds`` under four configurations:
 
 * ``before``: the simulated devices in the loop's own process (the in-process bench, plant stepped
   by the loop), sleep-only wait, no realtime scheduling, garbage collector on (what ``hil run
   --realtime`` did before issue 17);
 * ``without``: the devices served from another process (:class:`hil.bench.ProcessSimBench`, as at
-  a real bench), sleep-only wait, no realtime scheduling, garbage collector on;
-* ``with``: the same external devices, the hybrid wait (sleep, then spin the last 200 µs),
-  SCHED_FIFO 80 + mlockall + the loop pinned to its own CPU (where permitted), gc frozen/disabled;
-* ``stream``: as ``with``, and the ODrive streams its encoder estimates (``feedback: cyclic``) and
-  every read takes the newest sample without waiting for a fresh one (``Runner(read_timeout=0)``;
-  a device that stops sending is caught by the watchdog on the samples' ``produced_at``). The
-  other rows' reads wait for a fresh frame or reply (up to ``watchdog_ms``), which locks each tick
-  to the devices' streams.
+  a real bench), sleep-only wait, no realtime scheduling, garbage collector on, and every read
+  waits for a fresh frame or reply (up to ``watchdog_ms``), which locks each tick to the devices;
+* ``blocking``: as ``without`` but with the measures: the hybrid wait (sleep, then spin the last
+  200 µs), SCHED_FIFO 80 + mlockall + the loop pinned to its own CPU (where permitted), gc
+  frozen/disabled; reads still wait;
+* ``with``: all the measures and non-blocking reads, the realtime default
+  (:data:`hil.runner.REALTIME_READ_TIMEOUT_S` = 0): every read takes the newest sample that has
+  arrived (the polled ODrive's request for the next tick is sent ahead), a read without a new sample
+  is stale (counted in ``stale``); a device that stops sending is caught by the watchdog on the
+  samples' age (recorded per tick as ``<device>.age``).
 
 The late-loop safe stop is relaxed for the benchmark (``max_lateness_ms`` 10 s, overrun fraction
 1) so the whole distribution is measured; the device watchdog (50 ms) still applies: a row whose
@@ -32,13 +34,14 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
+import yaml  # type: ignore[import-untyped]  # no PyYAML stubs in the env
 
 from hil.bench import Bench, ProcessSimBench
 from hil.realtime import holdable_rates, measure_wakeup, realtime_scheduling, run_cyclictest
@@ -46,19 +49,21 @@ from hil.record import RunRecord
 from hil.runner import Runner
 from hil.scene import load_scene, scene_from_dict
 
-CONFIGS = {
+WATCHDOG_S = 0.050  # sdea_bench's watchdog_ms: the bench's own read timeout on external devices
+CONFIGS: dict[str, dict[str, Any]] = {
     "before": {"bench": Bench, "rt_scheduling": False, "gc_pause": False, "spin_ns": 0},
-    "without": {"bench": ProcessSimBench, "rt_scheduling": False, "gc_pause": False, "spin_ns": 0},
+    "without": {"bench": ProcessSimBench, "rt_scheduling": False, "gc_pause": False, "spin_ns": 0,
+                "read_timeout": WATCHDOG_S},
+    "blocking": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None,
+                 "read_timeout": WATCHDOG_S},
     "with": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None},
-    "stream": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None,
-               "feedback": "cyclic", "read_timeout": 0.0},
 }
+#: ticks after a record flush (every 0.1 s of run time) whose overruns are attributed to it
+FLUSH_SHADOW_TICKS = 8
 
 
-def _scene(rate: float, feedback: str = "poll") -> Any:
+def _scene(rate: float) -> Any:
     d = yaml.safe_load(load_scene("sdea_bench").source_text)
-    if feedback == "cyclic":
-        d["devices"][0]["params"]["feedback"] = "cyclic"
     d["rate_hz"] = rate
     d["experiments"] = d["experiments"][:1]
     d["experiments"][0]["f1"] = min(200.0, rate / 10.0)  # the scene's check: f1 <= Nyquist / 5
@@ -69,7 +74,7 @@ def _scene(rate: float, feedback: str = "poll") -> Any:
 
 def loop_row(rate: float, seconds: float, config: str, tmp: Path) -> dict[str, Any]:
     c = CONFIGS[config]
-    sc = _scene(rate, c.get("feedback", "poll"))
+    sc = _scene(rate)
     n = round(seconds * rate)
     t0 = time.perf_counter()
     r = Runner(sc, tmp / f"{config}-{rate:g}", realtime=True, max_ticks=n,
@@ -80,13 +85,17 @@ def loop_row(rate: float, seconds: float, config: str, tmp: Path) -> dict[str, A
     wall = time.perf_counter() - t0
     row = {"config": config, "rate": rate, "ticks": o.stats.get("ticks", 0), "status": o.status,
            "reason": o.stop_reason, "sched": o.stats.get("scheduling", ""), "wall": wall}
+    counters = o.results.get("device_counters", {}) if isinstance(o.results, dict) else {}
+    row["stale"] = sum(int(c.get("stale", 0)) for c in counters.values())
     if o.record is not None:
         late = RunRecord.open(o.record).channels["loop.late"][:, 0]
+        over = np.flatnonzero(np.isfinite(late) & (late > 1.0 / rate))
         late = late[np.isfinite(late)]
         if late.size:
+            flush_every = max(1, round(0.1 * rate))  # the record writer's flush period, in ticks
             row.update(p50=np.percentile(late, 50), p99=np.percentile(late, 99), max=late.max(),
-                       overruns=int(np.count_nonzero(late > 1.0 / rate)), frac=np.count_nonzero(late > 1.0 / rate)
-                       / late.size)
+                       overruns=over.size, frac=over.size / late.size,
+                       after_flush=int(np.count_nonzero(over % flush_every < FLUSH_SHADOW_TICKS)))
     return row
 
 
@@ -99,22 +108,26 @@ def main(argv: list[str] | None = None) -> int:
     logging.disable(logging.WARNING)
     us = 1e6
     print(f"Loop lateness, sdea_bench locked chirp in realtime mode, {args.seconds:g} s per row")
+    print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print(f"{'config':8s} {'rate':>5s} {'ticks':>7s} {'p50 µs':>9s} {'p99 µs':>9s} {'max µs':>9s} {'overruns':>8s} "
-          f"{'overrun %':>9s} {'status':12s} scheduling")
+          f"{'overrun %':>9s} {'<flush':>6s} {'stale':>6s} {'status':12s} scheduling")
     with tempfile.TemporaryDirectory() as d:
         for rate in args.rates:
             for config in args.configs:
                 r = loop_row(rate, args.seconds, config, Path(d))
                 if "p50" in r:
                     print(f"{config:8s} {rate:5g} {r['ticks']:7d} {us * r['p50']:9.1f} {us * r['p99']:9.1f} "
-                          f"{us * r['max']:9.1f} {r['overruns']:8d} {100 * r['frac']:9.3f} {r['status']:12s} "
+                          f"{us * r['max']:9.1f} {r['overruns']:8d} {100 * r['frac']:9.3f} {r['after_flush']:6d} "
+                          f"{r['stale']:6d} {r['status']:12s} "
                           f"{r['sched'] or 'SCHED_OTHER, no measures'}", flush=True)
                 else:
                     print(f"{config:8s} {rate:5g} {r['ticks']:7d}  no ticks: {r['status']} {r['reason']}", flush=True)
                 if r["status"] != "completed":
                     print(f"{'':8s} stopped: {r['reason']}", flush=True)
+    print(f"(<flush: overruns within {FLUSH_SHADOW_TICKS} ticks after a record flush; stale: reads without a "
+          "new sample)")
     print()
-    print(f"Machine wake-up latency, {args.seconds:g} s per row (same run)")
+    print(f"Machine wake-up latency, {args.seconds:g} s per row (same run; hil check-realtime's measurement)")
     print(f"{'method':12s} {'sched':6s} {'rate':>5s} {'p50 µs':>9s} {'p99 µs':>9s} {'max µs':>9s} {'overruns':>8s} "
           "holds (p99 <= 10 % period, max < period)")
     for rt in (False, True):
@@ -131,8 +144,10 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(cyc, str):
             print(cyc)
             break
-        print(f"{'cyclictest':12s} {'FIFO':6s} {rate:5g} {us * cyc.p50:9.1f} {'(avg)':>9s} {us * cyc.max:9.1f} "
-              f"{cyc.overruns:8d}")
+        p99 = f"{us * cyc.p99:9.1f}" if np.isfinite(cyc.p99) else f"{'>period':>9s}"
+        print(f"{'cyclictest':12s} {'FIFO':6s} {rate:5g} {us * cyc.p50:9.1f} {p99} {us * cyc.max:9.1f} "
+              f"{cyc.overruns:8d}", flush=True)
+    print(f"load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     return 0
 
 

@@ -3,7 +3,8 @@
 One tick (period dt = 1/rate_hz):
 
 0. safe point: a stop request (SIGINT / SIGTERM / SIGHUP, :mod:`hil.stopflag`) raises here;
-1. read every device (adapters, with timeouts) -> measurements;
+1. read every device (adapters, with timeouts; realtime mode on external devices: timeout 0, the
+   newest sample that has arrived, its age recorded as ``<device>.age``) -> measurements;
 2. controller effort + experiment excitation -> commanded effort;
 3. append the sample to the run record (streamed to HDF5, flushed every 0.1 s of run time), so
    the sample that breaches a limit is in the record;
@@ -57,6 +58,7 @@ from typing import Any
 import numpy as np
 
 from hil.errors import DeviceDisconnected, DeviceError, DeviceTimeout, HilError, SafetyStop
+from hil.protocols.base import sample_age
 from hil.stopflag import STOP, StopRequested
 
 try:  # a vanished serial port raises termios.error (not an OSError) from pyserial
@@ -69,6 +71,13 @@ except ImportError:  # pragma: no cover - Windows
 _OPEN_ERRORS: tuple[type[BaseException], ...] = (SafetyStop, DeviceError, *_PORT_ERRORS)
 
 logger = logging.getLogger(__name__)
+
+#: what ends an experiment while its bench opens (a stop, a device or port failure)
+_OPEN_ERRORS: tuple[type[BaseException], ...] = (SafetyStop, DeviceError, *_PORT_ERRORS)
+
+#: per-tick device read timeout (s) of the realtime loop on external devices: 0, never wait for a
+#: sample (a device that falls silent is a watchdog stop on its samples' age, ``watchdog_ms``)
+REALTIME_READ_TIMEOUT_S = 0.0
 
 __all__ = ["ExperimentOutcome", "LoopStats", "Runner", "SafetyMonitor", "one_line", "safe_stop_context"]
 
@@ -376,6 +385,9 @@ class Runner:
         self.devices = {d.name: d for d in scene.devices}
         self.devices.update({g.name: scene.device(g.name) for g in getattr(scene, "groups", [])})
         self.ports = list(getattr(getattr(scene, "network", None), "ports", None) or [])
+        #: per port: name, dofs, force sign, sensor, actuator, energy / human channel, zero force
+        self._port_plan = [(p.name, int(p.dofs), float(getattr(p, "force_sign", 1)), p.force_sensor, p.actuator,
+                            f"{p.name}.energy", f"{p.name}.human", np.zeros(int(p.dofs))) for p in self.ports]
 
     # -- channels ---------------------------------------------------------------------------------
     def _actuator_like(self) -> list[Any]:
@@ -407,6 +419,10 @@ class Runner:
             if getattr(p, "force_sensor", None):
                 ch[f"{p.name}.energy"] = ChannelSpec((1,), "J", "E_s(t) = ∫ F_port·V dt into the device at the port")
                 ch[f"{p.name}.human"] = ChannelSpec((int(p.dofs),), fu, "active force of the simulated operator")
+        if self.realtime:  # realtime records only (a lockstep record's channels are unchanged)
+            for d in self.scene.devices:
+                ch[f"{d.name}.age"] = ChannelSpec((1,), "s", "age of the device's sample when the tick read it "
+                                                  "(sample.t - produced_at, adapter clock; 0 if unknown)")
         ch["loop.late"] = ChannelSpec((1,), "s", "tick start after its deadline (realtime mode; 0 in lockstep)")
         ch["loop.tick_start"] = ChannelSpec((1,), "s", "actual start of the tick on the loop's monotonic clock, "
                                             "since the deadline of tick 0 (lockstep: the simulated time)")
@@ -527,6 +543,8 @@ class Runner:
                                   **({} if self.spin_ns is None else {"spin_ns": self.spin_ns}))
                     guard = LatenessGuard(self.rate_hz, safety.max_lateness_s, safety.max_overrun_fraction)
                     pacer.start()
+                read_timeout = self._tick_read_timeout()
+                row = _TickRow(self, meas0)  # the record row's keys and constant arrays, built once
                 for k in range(n):
                     t = k * self.dt
                     now["t"] = t
@@ -547,19 +565,18 @@ class Runner:
                             stats.ticks = k + 1
                             raise
                     # DeviceTimeout/Disconnected -> "watchdog: ...", faults -> "device: ..."
-                    meas = self.bench.read() if self.read_timeout is None else self.bench.read(self.read_timeout)
+                    meas = self.bench.read() if read_timeout is None else self.bench.read(read_timeout)
                     try:
                         safety.check_finite(k, t, meas)
                     except SafetyStop:  # the breach sample goes into the record (nothing computed from it)
-                        nan_u = {a.name: np.full(int(a.dof), np.nan) for a in self._actuator_like()}
-                        self._append(writer, t, self._sample_values(meas, nan_u, no_exc, late, start))
+                        self._append(writer, t, row.fill(meas, row.nan_u, no_exc, late, start))
                         stats.ticks = k + 1
                         raise
                     u = {key: np.asarray(v, float).copy() for key, v in ctrl.update(t, self.dt, meas).items()}
                     exc = exp.excitation(k, t, meas)
                     for key, v in (exc.effort or {}).items():
                         u[key] = u.get(key, np.zeros_like(np.asarray(v, float))) + np.asarray(v, float)
-                    values = self._sample_values(meas, self._as_sent(u), exc, late, start)
+                    values = row.fill(meas, self._as_sent(u), exc, late, start)
                     self._port_energy(k, meas, exc, energy, last_power, values)
                     self._append(writer, t, values)  # before the checks: a breach sample is recorded
                     stats.ticks = k + 1
@@ -654,39 +671,34 @@ class Runner:
                                        for m, p in zip(members, parts, strict=True)])
         return out
 
-    def _sample_values(self, meas: Mapping[str, Any], u: Mapping[str, np.ndarray], exc: Any,
-                       late: float, start: float) -> dict[str, Any]:
-        """The record row of one tick (device channels; ports are added by :meth:`_port_energy`)."""
-        values: dict[str, Any] = {"loop.late": late, "loop.tick_start": start}
-        for dname, s in meas.items():
-            d = self.devices[dname]
-            n = int(d.dof)
-            if d.role == "actuator":
-                values[f"{dname}.position"] = s.position
-                values[f"{dname}.velocity"] = s.velocity
-                values[f"{dname}.effort"] = s.effort if s.effort is not None else np.full(n, np.nan)
-                values[f"{dname}.effort_cmd"] = u.get(dname, np.zeros(n))
-                values[f"{dname}.excitation"] = (exc.effort or {}).get(dname, np.zeros(n))
-            else:
-                values[f"{dname}.wrench"] = s.wrench
-        return values
+    def _tick_read_timeout(self) -> float | None:
+        """The per-tick read timeout (s): ``read_timeout`` when given; otherwise, in realtime mode on
+        a bench whose devices are external (hardware, :class:`hil.bench.ProcessSimBench`),
+        :data:`REALTIME_READ_TIMEOUT_S` (0: take the newest sample that has arrived, never wait;
+        a device that stops sending is the watchdog's, on the samples' age); None (the bench's own,
+        ``watchdog_ms``-based) in lockstep mode, whose devices publish one sample per tick."""
+        if self.read_timeout is not None:
+            return self.read_timeout
+        if self.realtime and not getattr(self.bench, "lockstep", False):
+            return REALTIME_READ_TIMEOUT_S
+        return None
 
     def _port_energy(self, k: int, meas: Mapping[str, Any], exc: Any, energy: dict[str, float],
                      last_power: dict[str, float], values: dict[str, Any]) -> None:
         """Advance E_s(t) = ∫ F_port·V dt (trapezoid) at every port with a force sensor."""
-        for p in self.ports:
-            if p.name not in energy:
+        human_by_port = exc.human
+        for pname, dofs, sign, sensor, actuator, ke, kh, zeros in self._port_plan:
+            if pname not in energy:
                 continue
-            dofs = int(p.dofs)
-            f_port = float(getattr(p, "force_sign", 1)) * np.asarray(self.bench.force(meas, p.force_sensor))[:dofs]
-            v_port = np.asarray(meas[p.actuator].velocity)[:dofs]
+            f_port = sign * np.asarray(self.bench.force(meas, sensor))[:dofs]
+            v_port = np.asarray(meas[actuator].velocity)[:dofs]
             power = float(f_port @ v_port)
             if k > 0:
-                energy[p.name] += 0.5 * (power + last_power[p.name]) * self.dt
-            last_power[p.name] = power
-            values[f"{p.name}.energy"] = energy[p.name]
-            human = (exc.human or {}).get(p.name, np.zeros(dofs))
-            values[f"{p.name}.human"] = np.asarray(human, float)[:dofs]
+                energy[pname] += 0.5 * (power + last_power[pname]) * self.dt
+            last_power[pname] = power
+            values[ke] = energy[pname]
+            human = human_by_port.get(pname, zeros) if human_by_port else zeros
+            values[kh] = np.asarray(human, float)[:dofs]
 
     def run(self, select: list[int] | None = None) -> list[ExperimentOutcome]:
         """Run the scene's experiments (or the indices ``select``) in order, one bench each.
@@ -719,6 +731,52 @@ class Runner:
             if STOP.requested:
                 self.stop_status, self.stop_reason = STOP.status or "safety_stop", STOP.reason
         return outcomes
+
+
+class _TickRow:
+    """One record row, reused on every tick: its channel names and constant arrays (zero commands,
+    NaN efforts of a drive that reports none) are built once, so the per-tick path creates no keys,
+    dicts or arrays of its own (the record writer copies the values into its preallocated chunk)."""
+
+    def __init__(self, runner: Runner, meas0: Mapping[str, Any]) -> None:
+        self.values: dict[str, Any] = {"loop.late": 0.0, "loop.tick_start": 0.0}
+        self.act: list[tuple[str, str, str, str, str, str, np.ndarray, np.ndarray]] = []
+        self.sensors: list[tuple[str, str]] = []
+        for dname in meas0:
+            d = runner.devices[dname]
+            if d.role == "actuator":
+                n = int(d.dof)
+                zeros = np.zeros(n)
+                zeros.flags.writeable = False  # shared by every row: nobody may change it
+                nans = np.full(n, np.nan)
+                nans.flags.writeable = False
+                self.act.append((dname, f"{dname}.position", f"{dname}.velocity", f"{dname}.effort",
+                                 f"{dname}.effort_cmd", f"{dname}.excitation", zeros, nans))
+            else:
+                self.sensors.append((dname, f"{dname}.wrench"))
+        self.nan_u = {a.name: np.full(int(a.dof), np.nan) for a in runner._actuator_like()}
+        self.ages: list[tuple[str, str]] = ([(d.name, f"{d.name}.age") for d in runner.scene.devices]
+                                            if runner.realtime else [])
+
+    def fill(self, meas: Mapping[str, Any], u: Mapping[str, np.ndarray], exc: Any, late: float,
+             start: float) -> dict[str, Any]:
+        """The row of one tick (device channels; ports are added by :meth:`Runner._port_energy`)."""
+        values = self.values
+        values["loop.late"] = late
+        values["loop.tick_start"] = start
+        exc_effort = exc.effort
+        for dname, kp, kv, ke, kc, kx, zeros, nans in self.act:
+            s = meas[dname]
+            values[kp] = s.position
+            values[kv] = s.velocity
+            values[ke] = s.effort if s.effort is not None else nans
+            values[kc] = u.get(dname, zeros)
+            values[kx] = exc_effort.get(dname, zeros) if exc_effort else zeros
+        for dname, kw in self.sensors:
+            values[kw] = meas[dname].wrench
+        for dname, ka in self.ages:
+            values[ka] = sample_age(meas[dname])
+        return values
 
 
 class _NoExcitation:

@@ -49,7 +49,9 @@ Freshness: a reply carries no timestamp or counter; ``JointSample.produced_at`` 
 of the state reply (adapter clock, when it was taken off the bus) and ``seq`` advances with each
 new reply. :meth:`CubeMarsMIT.read` uses the reply to the latest command if one arrived since the
 previous read, else re-sends the last command to get one; no reply within ``timeout`` raises
-DeviceTimeout. Counters (:meth:`CubeMarsMIT.counters`): ``error_frames`` (CAN error frames: a
+DeviceTimeout. A non-blocking read (``timeout`` 0, the realtime loop) that finds no new reply
+returns the previous sample again (stale: same ``seq`` and ``produced_at``; the runner's watchdog
+judges its age) instead of re-sending. Counters (:meth:`CubeMarsMIT.counters`): ``error_frames`` (CAN error frames: a
 destroyed reply), ``decode_errors``, ``skipped`` (replies superseded before a read), ``timeouts``.
 """
 
@@ -145,6 +147,7 @@ class CubeMarsMIT(CanActuator):
         self.decode_errors = 0
         self.error_frames = 0  # CAN error frames seen (e.g. a corrupted reply)
         self._fresh_at = math.nan  # adapter clock when self._fresh arrived
+        self._last_sample: JointSample | None = None  # the newest sample read (non-blocking reads repeat it)
         self._skipped = 0
         self._timeouts = 0
         # no acceptance filter: error frames must reach us; reply filtering is done in _handle
@@ -209,9 +212,13 @@ class CubeMarsMIT(CanActuator):
         return raw + self._wraps * span
 
     def counters(self) -> dict[str, int]:
-        """error_frames, decode_errors, skipped, timeouts (see the module docstring)."""
-        return {"error_frames": self.error_frames, "decode_errors": self.decode_errors, "skipped": self._skipped,
-                "timeouts": self._timeouts}
+        """error_frames, decode_errors, skipped, timeouts, and ``stale`` (non-blocking reads without a
+        new reply; listed once there is one) (see the module docstring)."""
+        out = {"error_frames": self.error_frames, "decode_errors": self.decode_errors, "skipped": self._skipped,
+               "timeouts": self._timeouts}
+        if self._stale_reads:
+            out["stale"] = self._stale_reads
+        return out
 
     def _await_reply(self, deadline: float) -> MitReply:
         while self._fresh is None:
@@ -288,6 +295,11 @@ class CubeMarsMIT(CanActuator):
         """The newest reply since the previous read, else the reply to the last command sent again."""
         deadline = time.monotonic() + timeout
         self._drain()
+        if self._fresh is None and timeout == 0.0 and self._last_sample is not None:
+            # non-blocking read (realtime loop): the previous reply again; the next command's reply
+            # arrives while the loop waits for its next tick
+            self._last_sample = self._stale(self._last_sample, self.clock(), "")
+            return self._last_sample
         if self._fresh is None:
             self._send(self._last_cmd, timeout)
             self._await_reply(deadline)
@@ -300,7 +312,7 @@ class CubeMarsMIT(CanActuator):
         if err:
             what = ERROR_CODES.get(err, "unknown")
             raise DeviceFault(f"CubeMars {self.motor_id}: error {err} ({what})", code=err)
-        return JointSample(
+        self._last_sample = JointSample(
             t=self.clock(),
             seq=self._next_seq(),
             position=np.array([r.position]),
@@ -309,6 +321,7 @@ class CubeMarsMIT(CanActuator):
             fault=err,
             produced_at=produced,
         )
+        return self._last_sample
 
     def _close_steps(self) -> tuple[StopStep, ...]:
         """After the safe stop (zero torque) on close: leave motor mode."""

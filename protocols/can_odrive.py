@@ -55,6 +55,10 @@ the newest estimate is ``timeout`` old (host clock), then returns the previous e
 runner's watchdog stops the run when its age exceeds ``watchdog_ms``. Only the very first read
 raises DeviceTimeout. Poll mode: each answer to the RTR request is a new frame; a request that
 gets no answer is sent again (``retries``, within the same ``timeout``), then DeviceTimeout.
+Non-blocking poll (``read(timeout=0)``, what the realtime loop does): the read takes the answer
+to the request the previous read sent, if it has arrived (otherwise a stale sample), and sends
+the next request (send timeout 1 ms), so the round trip overlaps the loop's wait for its next tick;
+the first such read after a blocking one (nothing requested ahead) polls once, with ``timeout``.
 A frozen estimator that keeps answering with the same payload cannot be told from a joint at rest
 by the host: the drive itself reports that (axis_error MISSING_ESTIMATE).
 
@@ -131,6 +135,10 @@ from hil.protocols.codecs.odrive import (
 )
 
 log = logging.getLogger(__name__)
+
+
+#: send timeout (s) of the non-blocking poll's request frames: a full transmit queue is a fault
+POLL_AHEAD_SEND_TIMEOUT_S = 0.001
 
 
 class ODriveCAN(CanActuator):
@@ -213,6 +221,7 @@ class ODriveCAN(CanActuator):
         self.retries = max(0, int(retries))
         self.error_frames = 0  # CAN error frames seen (e.g. a corrupted answer)
         self.stale_discarded = 0  # poll mode: late answers discarded before a new request
+        self._ahead = False  # non-blocking poll: a request for the next read is outstanding
         self._stale_reads = 0
         self._retried = 0
         self._timeouts = 0
@@ -411,7 +420,9 @@ class ODriveCAN(CanActuator):
         Raises DeviceTimeout when no estimate arrives in ``timeout`` (poll mode, or the first read
         in cyclic mode) and DeviceFault when the latest heartbeat carries a non-zero axis_error.
         """
-        if self.feedback == "poll":
+        if self.feedback == "poll" and timeout == 0.0:
+            self._poll_ahead()
+        elif self.feedback == "poll":
             self._poll(timeout)
         else:
             self._drain()
@@ -442,10 +453,26 @@ class ODriveCAN(CanActuator):
         )
         return self._last
 
+    def _poll_ahead(self) -> None:
+        """A non-blocking poll (``timeout`` 0, the realtime loop): take the answer to the request
+        sent by the previous read if it has arrived (otherwise the read is stale), then send the
+        next request, answered while the loop waits for its next tick. The first one after a
+        blocking read (no request outstanding) polls once with the adapter's ``timeout``."""
+        if not self._ahead:
+            self._poll(self.timeout)
+        else:
+            self._drain()
+        self._raise_if_fault()
+        self._ahead = True
+        self._send(CMD_GET_ENCODER_ESTIMATES, remote=True, timeout=POLL_AHEAD_SEND_TIMEOUT_S)
+        if self.read_torque:
+            self._send(CMD_GET_TORQUES, remote=True, timeout=POLL_AHEAD_SEND_TIMEOUT_S)
+
     def _poll(self, timeout: float) -> None:
         """Request the estimate (and torques) with RTR frames; resend up to ``retries`` times within
         ``timeout``; DeviceTimeout if no answer."""
         deadline = time.monotonic() + timeout
+        self._ahead = False  # a request sent ahead (non-blocking poll) is answered here, as a stale one
         self._drain()
         if self._estimate is not None:
             self.stale_discarded += 1

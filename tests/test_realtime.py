@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 import pytest
-import yaml
+import yaml  # type: ignore[import-untyped]  # no PyYAML stubs in the env
 
 from hil.bench import Bench
 from hil.cli import main as hil_main
@@ -348,8 +348,32 @@ def test_cyclictest_missing_is_said_in_one_line_and_its_output_is_parsed():
     st = run_cyclictest(1000.0, 1.0, which=lambda name: "/usr/bin/cyclictest",
                         run=lambda cmd, **kw: seen.setdefault("cmd", cmd) and CP())
     assert st.method == "cyclictest" and st.p50 == pytest.approx(6e-6) and st.max == pytest.approx(42e-6)
-    assert seen["cmd"][1:] == ["-m", "-q", "-p", "80", "-i", "1000", "-l", "1000"]
-    assert st.to_dict()["p99"] is None  # cyclictest gives no p99: JSON null, not NaN
+    assert seen["cmd"][1:] == ["-m", "-q", "-p", "80", "-i", "1000", "-l", "1000", "-h", "1000"]
+    assert st.to_dict()["p99"] is None  # no histogram in that output: no p99, JSON null, not NaN
+
+
+def test_cyclictest_histogram_gives_nearest_rank_percentiles_and_overflows_as_overruns():
+    # 100 wake-ups: 60 at 20 µs, 38 at 21 µs, 1 at 50 µs, 1 beyond the 1000 µs histogram (overflow).
+    # Nearest rank: p50 = smallest bin with >= 50 wake-ups at or below it = 20 µs; p99: 99 at or
+    # below 50 µs -> 50 µs; Max and the overflow count are cyclictest's own lines.
+    bins = {20: 60, 21: 38, 50: 1}
+    body = "".join(f"{b:06d} {bins.get(b, 0):06d}\n" for b in range(1000))
+
+    class CP:
+        returncode = 0
+        stdout = ("# /dev/cpu_dma_latency set to 0us\n# Histogram\n" + body + "# Total: 000000099\n"
+                  "# Min Latencies: 00020\n# Avg Latencies: 00031\n# Max Latencies: 01234\n"
+                  "# Histogram Overflows: 00001\n# Histogram Overflow at cycle number:\n# Thread 0: 00077\n")
+        stderr = ""
+
+    st = run_cyclictest(1000.0, 0.1, which=lambda name: "/usr/bin/cyclictest", run=lambda cmd, **kw: CP())
+    assert (st.samples, st.overruns) == (100, 1)
+    assert st.p50 == pytest.approx(20e-6) and st.p99 == pytest.approx(50e-6) and st.max == pytest.approx(1234e-6)
+    bins[50] = 0  # now the 99th wake-up is the overflow one: p99 is not known from the histogram
+    body = "".join(f"{b:06d} {bins.get(b, 0):06d}\n" for b in range(1000))
+    CP.stdout = "# Histogram\n" + body + "# Max Latencies: 01234\n# Histogram Overflows: 00002\n"
+    st = run_cyclictest(1000.0, 0.1, which=lambda name: "/usr/bin/cyclictest", run=lambda cmd, **kw: CP())
+    assert st.overruns == 2 and math.isnan(st.p99) and st.p50 == pytest.approx(20e-6)
 
 
 def test_check_realtime_prints_a_table(capsys, monkeypatch):

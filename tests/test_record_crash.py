@@ -19,6 +19,7 @@ import sys
 import textwrap
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import h5py
 import numpy as np
@@ -33,13 +34,13 @@ RATE = 1000.0
 CHANNELS = {"motor.position": ChannelSpec((), "rad"), "master.position": ChannelSpec((2,), "rad")}
 
 
-def _vals(k: int) -> dict[str, object]:
+def _vals(k: int) -> dict[str, Any]:
     return {"motor.position": math.sin(0.01 * k), "master.position": [k / 7, -3.25 * k]}
 
 
 def _writer(path: Path, **kw) -> RecordWriter:
-    args = {"scene_text": "name: crash\n", "scene_sha256": "x", "meta": {"seed": 3}, "channels": CHANNELS,
-            "rate_hz": RATE, "flush_every_s": 0.1}
+    args: dict[str, Any] = {"scene_text": "name: crash\n", "scene_sha256": "x", "meta": {"seed": 3},
+                            "channels": CHANNELS, "rate_hz": RATE, "flush_every_s": 0.1}
     args.update(kw)
     return RecordWriter(path, **args)
 
@@ -60,8 +61,9 @@ class _Interrupt(Exception):
 
 @pytest.fixture
 def signal_between_resize_and_write(monkeypatch: pytest.MonkeyPatch):
-    """SIGUSR1 (handler raising :class:`_Interrupt`) sent by the writer itself right after it resizes ``/t``,
-    i.e. exactly between the resize and the write of a block. Yields a dict counting the deliveries."""
+    """SIGUSR1 (handler raising :class:`_Interrupt`) sent by the writer itself inside a block: after
+    the channels were written, just before ``/t`` is grown and written (``hil.record._write_rows``).
+    Yields a dict counting the deliveries."""
     seen = {"sent": 0, "raised": 0}
 
     def handler(signum, frame):
@@ -69,15 +71,15 @@ def signal_between_resize_and_write(monkeypatch: pytest.MonkeyPatch):
         raise _Interrupt("SIGUSR1")
 
     old_handler = signal.signal(signal.SIGUSR1, handler)
-    real_resize = h5py.Dataset.resize
+    real_write_rows = record_mod._write_rows
 
-    def resize(self, size, axis=None):
-        real_resize(self, size, axis)
-        if self.name == "/t":
+    def write_rows(ds, start, data):
+        if ds.name == "/t":
             seen["sent"] += 1
             os.kill(os.getpid(), signal.SIGUSR1)
+        real_write_rows(ds, start, data)
 
-    monkeypatch.setattr(h5py.Dataset, "resize", resize)
+    monkeypatch.setattr(record_mod, "_write_rows", write_rows)
     try:
         yield seen
     finally:
@@ -117,16 +119,17 @@ def test_an_interrupted_flush_is_written_once_by_close_even_without_held_signals
     # write leaves the block half-written; close() then writes it at the same rows (absolute positions),
     # not after the half-written one (the old code wrote it twice, with 100 NaN times in between).
     monkeypatch.setattr(record_mod, "_signals_held", contextlib.nullcontext)
-    real_resize = h5py.Dataset.resize
+    real_write_rows = record_mod._write_rows
     armed = {"on": True}
 
-    def resize(self, size, axis=None):
-        real_resize(self, size, axis)
-        if self.name == "/t" and armed["on"] and size[0] > 100:
+    def write_rows(ds, start, data):  # the second block's /t: grown, then interrupted before its write
+        if ds.name == "/t" and armed["on"] and start >= 100:
             armed["on"] = False
+            ds.resize((start + len(data),))
             raise KeyboardInterrupt
+        real_write_rows(ds, start, data)
 
-    monkeypatch.setattr(h5py.Dataset, "resize", resize)
+    monkeypatch.setattr(record_mod, "_write_rows", write_rows)
     path = tmp_path / "ki.h5"
     w = _writer(path)
     with pytest.raises(KeyboardInterrupt):
@@ -179,6 +182,7 @@ def _kill_child(tmp_path: Path, mode: str, arg: str, delay_s: float = 0.0) -> tu
     p = subprocess.Popen([sys.executable, str(script), str(path), mode, arg], stdin=subprocess.PIPE,
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     last_kind, last = "", 0
+    assert p.stdin is not None and p.stdout is not None and p.stderr is not None
     try:
         while True:
             line = p.stdout.readline()
@@ -197,8 +201,8 @@ def _kill_child(tmp_path: Path, mode: str, arg: str, delay_s: float = 0.0) -> tu
         os.kill(p.pid, signal.SIGKILL)
     finally:
         p.wait(timeout=30)
-        for s in (p.stdin, p.stdout, p.stderr):
-            s.close()
+        for pipe in (p.stdin, p.stdout, p.stderr):
+            pipe.close()
     assert p.returncode == -signal.SIGKILL
     return path, last_kind, last
 
@@ -265,6 +269,7 @@ def test_sigkill_at_random_moments_while_streaming_keeps_every_flushed_sample(tm
         p = subprocess.Popen([sys.executable, str(script), str(path)], stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True)
         last = 0
+        assert p.stdout is not None and p.stderr is not None
         try:
             while last < target:
                 line = p.stdout.readline()
@@ -339,7 +344,7 @@ def test_full_disk_is_a_one_line_error_and_keeps_what_was_flushed(tmp_path: Path
     rec = RunRecord.open(path)
     assert rec.t.size == out["flushed"] > (0 if limit > 100_000 else -1)
     _check_exact(rec)
-    assert rec.status == "error" and "File too large" in rec.stop_reason
+    assert rec.status == "error" and "File too large" in (rec.stop_reason or "")
 
 
 @pytest.mark.timeout(60)
@@ -527,13 +532,14 @@ def test_device_counters_are_stored_and_shown_by_replay(tmp_path: Path, capsys: 
         w.set_device_counters({"odrive0": {"crc_errors": 1}})
         for k in range(150):
             w.append(k / RATE, _vals(k))
-        w.set_device_counters({"odrive0": {"crc_errors": 3, "resyncs": 1, "dropped": 0, "late": 2, "stale": 0,
-                                           "retries": np.int64(7)},
-                               "bota": {"crc_errors": 0}})
+        numpy_counts: Any = {"odrive0": {"crc_errors": 3, "resyncs": 1, "dropped": 0, "late": 2, "stale": 0,
+                                         "retries": np.int64(7)},
+                             "bota": {"crc_errors": 0}}
+        w.set_device_counters(numpy_counts)
         with pytest.raises(RecordError, match="counter 'late' must be an integer"):
-            w.set_device_counters({"odrive0": {"late": 1.5}})
+            w.set_device_counters({"odrive0": {"late": 1.5}})  # type: ignore[dict-item]  # the bad input tested
         with pytest.raises(RecordError, match="counters must be a mapping"):
-            w.set_device_counters({"odrive0": 3})
+            w.set_device_counters({"odrive0": 3})  # type: ignore[dict-item]  # the bad input tested
     rec = RunRecord.open(path)
     want = {"odrive0": {"crc_errors": 3, "resyncs": 1, "dropped": 0, "late": 2, "stale": 0, "retries": 7},
             "bota": {"crc_errors": 0}}
