@@ -47,7 +47,7 @@ import numpy as np
 
 from hil.errors import HilError
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "Decision",

@@ -604,7 +604,10 @@ class FourChannelMCET:
         for k, (sensor, sign, axes) in enumerate(zip(self.sensors, self.signs, self.axes, strict=True)):
             if sensor is None:
                 continue
-            w = np.asarray(meas[sensor].wrench, dtype=float).reshape(-1)
+            sample = meas[sensor]
+            if not isinstance(sample, WrenchSample):
+                raise SceneError(f"MCET: no wrench from force sensor {sensor!r}")
+            w = np.asarray(sample.wrench, dtype=float).reshape(-1)
             w = w[list(axes)] if axes is not None else w[: self.d]
             f[k * self.d:(k + 1) * self.d] = sign * w
         uf = self.G @ f

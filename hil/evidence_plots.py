@@ -34,7 +34,7 @@ from hil.certificate import Series
 from hil.errors import HilError
 from hil.report_units import frf_unit, parameter_unit, quantity_unit
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["decided_plot", "decisive_condition", "design_point_axes", "design_point_plot", "headroom_plot",
            "identification_plots", "immittance_db_label", "witness_response"]

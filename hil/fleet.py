@@ -28,7 +28,7 @@ from typing import Any
 
 from hil.errors import DECISION_EXIT, HilError
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["DECISION_ORDER", "FleetEntry", "FleetResult", "certify_fleet", "expand_scenes", "transport_groups"]
 

@@ -363,7 +363,7 @@ def stage_identify(ctx: Context, sheet: Sheet, run: RunOutput) -> PosteriorDraws
                     errors.append(f"identification from {spec.experiment}: {exc}")
                     continue
                 if getattr(res, "misfit", False):  # a misfit model never feeds a GO (issue 12)
-                    why = "; ".join(res.adequacy.reasons)
+                    why = "; ".join(res.adequacy.reasons) if res.adequacy is not None else "flagged"
                     errors.append(f"identification from {spec.experiment}: model misfit: {why}")
                     continue
                 converged = converged and res.converged

@@ -128,7 +128,7 @@ class ExperimentPrediction:
 
 def _nominal_model(scene: Any, exp: Any) -> tuple[Any, dict[str, float]]:
     """(model, noise std per output) that identification would use for ``exp``'s record."""
-    from hil.identify.models import MbkModel, SdeaFreeOutput, SdeaLockedOutput
+    from hil.identify.models import GreyBoxModel, MbkModel, SdeaFreeOutput, SdeaLockedOutput
 
     sim = scene.simulation
     if sim is None:
@@ -141,6 +141,7 @@ def _nominal_model(scene: Any, exp: Any) -> tuple[Any, dict[str, float]]:
         has_force = bool(scene.force_sensors)
         chans = ("velocity", "force") if has_force else ("velocity",)
         nom = {"K_f": sdea.K_f, "B_f": sdea.B_f, "M": sdea.M, "B": sdea.B}
+        mdl: GreyBoxModel
         if variant == "locked":
             mdl = SdeaLockedOutput(chans, nominal=nom, zoh_fs=rate)
         else:
@@ -163,9 +164,9 @@ def _nominal_model(scene: Any, exp: Any) -> tuple[Any, dict[str, float]]:
         return a * np.eye(n) if a.ndim == 0 else (np.diag(a) if a.ndim == 1 else a)
 
     sel = list(exp.dofs) if exp.dofs is not None else list(range(n))
-    mdl = MbkModel(n, M=mat(body.M), B=mat(body.B), K=mat(body.K), inputs=sel, outputs=list(range(n)),
+    mdl_mbk = MbkModel(n, M=mat(body.M), B=mat(body.B), K=mat(body.K), inputs=sel, outputs=list(range(n)),
                    zoh_fs=rate, units=scene.units if scene.units in ("linear", "rotary") else "linear")
-    return mdl, {o: float(noise.velocity_std) for o in mdl.output_names}
+    return mdl_mbk, {o: float(noise.velocity_std) for o in mdl_mbk.output_names}
 
 
 def _dofs_motion(mdl: Any, theta: np.ndarray, u: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:

@@ -57,7 +57,7 @@ from typing import Any
 from hil.errors import DeviceDisconnected, DeviceError, HilError
 from hil.protocols.codecs.bota import BOTA_BOOT, parse_bota_boot
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["Found", "add_arguments", "bota_identity", "parse_bota_boot", "probe_can", "probe_modbus", "probe_serial",
            "run", "scene_stub"]
@@ -82,7 +82,7 @@ class Found:
 
 
 def _odrive_state_name(state: int) -> str:
-    from hil.protocols.can_odrive import AxisState
+    from hil.protocols.codecs.odrive import AxisState
 
     names = {1: "IDLE", 2: "STARTUP_SEQUENCE", 3: "FULL_CALIBRATION_SEQUENCE", 4: "MOTOR_CALIBRATION",
              6: "ENCODER_INDEX_SEARCH", 7: "ENCODER_OFFSET_CALIBRATION", 8: "CLOSED_LOOP_CONTROL",
@@ -108,7 +108,7 @@ def _sdo_u(node: Any, index: int, sub: int, fmt: str) -> int | None:
         data = node.sdo.upload(index, sub)
         return struct.unpack_from(fmt, data.ljust(struct.calcsize(fmt), b"\0"))[0]
     except Exception as exc:  # abort or timeout: object absent or node gone
-        log.debug("SDO 0x%04X:%d of node %d: %s", index, sub, node.id, exc)
+        logger.debug("SDO 0x%04X:%d of node %d: %s", index, sub, node.id, exc)
         return None
 
 
@@ -157,8 +157,8 @@ def probe_can(channel: str, interface: str = "socketcan", *, bitrate: int | None
     """Devices on one CAN channel (module docstring); ``timeout`` (s) per request."""
     import can  # lazy: the 'can' extra
 
-    from hil.protocols import can_cubemars as cm  # lazy: hil probe is parsed by every hil command
-    from hil.protocols import can_odrive as od
+    from hil.protocols.codecs import cubemars as cm  # lazy: hil probe is parsed by every hil command
+    from hil.protocols.codecs import odrive as od
 
     kw = dict(bus_kwargs)
     if bitrate is not None:
@@ -280,7 +280,7 @@ def probe_modbus(url: str, unit: int = 9, timeout: float = 0.5) -> list[Found]:
                           {"firmware": info.firmware, "serial": info.serial}, {"url": url, "slave": unit},
                           role="force_sensor", dof=6)]
     except DeviceError as exc:
-        log.debug("no FT-300 at %s unit %d: %s", url, unit, exc)
+        logger.debug("no FT-300 at %s unit %d: %s", url, unit, exc)
         return []
 
 
@@ -297,7 +297,7 @@ def bota_identity(port: str, *, baudrate: int = 460800, timeout: float = 2.0) ->
     try:
         ser = serial.serial_for_url(port, baudrate=baudrate, timeout=0.05)
     except (serial.SerialException, OSError, ValueError) as exc:
-        log.debug("Bota identity: cannot open %s: %s", port, exc)
+        logger.debug("Bota identity: cannot open %s: %s", port, exc)
         return {}
     buf = bytearray()
     try:
@@ -312,7 +312,7 @@ def bota_identity(port: str, *, baudrate: int = 460800, timeout: float = 2.0) ->
                 return got
         return parse_bota_boot(bytes(buf))
     except (serial.SerialException, OSError) as exc:
-        log.debug("Bota identity on %s: %s", port, exc)
+        logger.debug("Bota identity on %s: %s", port, exc)
         return parse_bota_boot(bytes(buf))
     finally:
         ser.close()
@@ -324,8 +324,8 @@ def probe_serial(port: str, *, baudrates: tuple[int, ...] = (57600, 1000000), li
     sensor's boot text after the identity reset (0: do not reset it; no serial number then)."""
     import serial  # lazy: the 'serial' extra
 
-    from hil.protocols.modbus_robotiq import StreamParser
-    from hil.protocols.serial_bota import FrameParser
+    from hil.protocols.codecs.bota import FrameParser
+    from hil.protocols.codecs.robotiq import StreamParser
 
     try:
         ser = serial.serial_for_url(port, baudrate=460800, timeout=0.05)
@@ -374,7 +374,7 @@ def _dynamixel_ping(port: str, baudrates: tuple[int, ...]) -> list[Found]:
     try:
         import dynamixel_sdk as sdk
     except ImportError:
-        log.info("dynamixel-sdk not installed: no DYNAMIXEL ping")
+        logger.info("dynamixel-sdk not installed: no DYNAMIXEL ping")
         return []
     for baud in baudrates:
         ph_port = sdk.PortHandler(port)
@@ -386,7 +386,7 @@ def _dynamixel_ping(port: str, baudrates: tuple[int, ...]) -> list[Found]:
             ph = sdk.PacketHandler(2.0)
             data, result = ph.broadcastPing(ph_port)
         except Exception as exc:
-            log.debug("DYNAMIXEL ping at %d baud failed: %s", baud, exc)
+            logger.debug("DYNAMIXEL ping at %d baud failed: %s", baud, exc)
             data, result = {}, -1
         finally:
             with contextlib.suppress(Exception):

@@ -72,9 +72,6 @@ _OPEN_ERRORS: tuple[type[BaseException], ...] = (SafetyStop, DeviceError, *_PORT
 
 logger = logging.getLogger(__name__)
 
-#: what ends an experiment while its bench opens (a stop, a device or port failure)
-_OPEN_ERRORS: tuple[type[BaseException], ...] = (SafetyStop, DeviceError, *_PORT_ERRORS)
-
 #: per-tick device read timeout (s) of the realtime loop on external devices: 0, never wait for a
 #: sample (a device that falls silent is a watchdog stop on its samples' age, ``watchdog_ms``)
 REALTIME_READ_TIMEOUT_S = 0.0

@@ -48,7 +48,7 @@ import numpy as np
 
 from hil.errors import HilError
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "EXECUTORS",
@@ -292,7 +292,7 @@ def evaluate_points(model: str, criterion: str, params: Mapping[str, Any], names
         try:
             r = check(build_network(model, p), criterion)
         except HilError as exc:
-            log.info("sweep point %s: %s", p, exc)
+            logger.info("sweep point %s: %s", p, exc)
             verdict[i] = VERDICT_CODES["not_applicable"]
             continue
         verdict[i] = VERDICT_CODES[str(r.verdict)]
@@ -533,7 +533,7 @@ class TaskCache:
             with np.load(p, allow_pickle=False) as z:
                 out = {k: z[k] for k in z.files}
         except (OSError, ValueError) as exc:  # a damaged file is recomputed, never trusted
-            log.warning("sweep cache %s unreadable (%s): recomputing", p, exc)
+            logger.warning("sweep cache %s unreadable (%s): recomputing", p, exc)
             return None
         self.hits += 1
         return {k: (v.item() if v.shape == () else v) for k, v in out.items()}
@@ -550,7 +550,7 @@ class TaskCache:
             os.replace(tmp, p)
         except OSError as exc:
             tmp.unlink(missing_ok=True)
-            log.warning("sweep cache %s not written (%s)", p, exc)
+            logger.warning("sweep cache %s not written (%s)", p, exc)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -895,7 +895,7 @@ def posterior_from_record(path: str, name: str | None = None, network_model: str
         out.update({k: np.asarray(v, dtype=float) for k, (v, _u) in
                     make_model(str(summary.get("model"))).derived(samples[:, : len(names)]).items()})
     except HilError as exc:
-        log.info("posterior %s: no derived parameters (%s)", path, exc)
+        logger.info("posterior %s: no derived parameters (%s)", path, exc)
     if network_model is not None:
         from hil.models import get_model
 

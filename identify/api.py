@@ -44,7 +44,7 @@ import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -486,9 +486,9 @@ def _frf_path_crb(mdl: GreyBoxModel, theta: np.ndarray, pairs: Sequence[tuple[np
     density: ``E|V_k|^2 = N fs Gvv / 2``) plus the known rounding floor of the outputs (and of the
     inputs through ``|H|^2``), on the analysis band."""
     recs = dft_records(pairs, fs, (float(est.f[0]), float(est.f[-1])))
-    rv = est.meta.get("rounding_variance") or {}
-    qo = np.asarray(rv.get("outputs", np.zeros(len(mdl.output_names))), float)
-    qi = np.asarray(rv.get("inputs", np.zeros(len(mdl.input_names))), float)
+    rv = cast(dict[str, Any], est.meta.get("rounding_variance") or {})
+    qo = np.asarray(rv.get("outputs", np.zeros(len(mdl.output_names))), dtype=np.float64)
+    qi = np.asarray(rv.get("inputs", np.zeros(len(mdl.input_names))), dtype=np.float64)
     noise_var = []
     for r in recs:
         gvv = np.column_stack([np.interp(r.f, est.f, est.Gvv[:, o]) for o in range(est.Gvv.shape[1])])

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["HELD_FRACTION", "MAX_AGE", "age_distribution", "compensate_frf", "held_outputs", "hold_response"]
 
@@ -105,7 +105,7 @@ def compensate_frf(est: Any, held: Mapping[str, NDArray[np.float64]], fs: float)
             A = hold_response(held[name], w, fs)
             H[:, o, :] /= A[:, None]
             sigma[:, o, :] /= np.abs(A)[:, None]
-            log.info("output %s is sampled-and-held (mean age %.2f ticks): H1 compensated by A(ω)", name,
+            logger.info("output %s is sampled-and-held (mean age %.2f ticks): H1 compensated by A(ω)", name,
                      float(np.arange(held[name].size) @ held[name]))
     return dataclasses.replace(est, H=H, sigma=sigma)
 

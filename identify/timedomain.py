@@ -142,7 +142,7 @@ def simulate_zoh(model: GreyBoxModel, theta: ArrayLike, u: ArrayLike, x0: ArrayL
     uu = np.asarray(u, float)
     uu = uu[:, None] if uu.ndim == 1 else uu
     ss = StateSpace(A, Bm, C, np.zeros((C.shape[0], Bm.shape[1])))
-    _, y = ss.discretize(1.0 / model.zoh_fs, "zoh").simulate(uu, x0)
+    _, y = ss.discretize(1.0 / model.zoh_fs, "zoh").simulate(uu, None if x0 is None else np.asarray(x0, float))
     if model.has_gain:
         y = y * th[model.n_core : model.n_core + len(model.output_names)]
     return y

@@ -37,6 +37,7 @@ from __future__ import annotations
 import logging
 import math
 import queue
+import struct
 import threading
 import time
 from collections import Counter, deque
@@ -53,7 +54,7 @@ from hil.protocols.codecs import cubemars as cm
 from hil.protocols.codecs import odrive as od
 from hil.protocols.link_budget import can_frame_bits
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 AXIS_ERROR_WATCHDOG_TIMER_EXPIRED = od.AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
 
@@ -290,7 +291,7 @@ class SimCanNode:
         try:
             self.handle(msg)
         except Exception:  # a malformed frame must not kill the simulated device
-            log.exception("%s: error handling %s", self.kind, msg)
+            logger.exception("%s: error handling %s", self.kind, msg)
 
     def send(self, arb_id: int, data: bytes, *, stale_key: int | None = None, stale: str = "repeat") -> None:
         """Send one frame through the fault injector (drop / stale / corrupt / late). ``stale``:
@@ -335,7 +336,7 @@ class SimCanNode:
             self.bus.send(msg, timeout=0.1)
             self.frames_out += 1
         except can.CanError as exc:  # pragma: no cover
-            log.warning("%s: send failed: %s", self.kind, exc)
+            logger.warning("%s: send failed: %s", self.kind, exc)
         finally:
             if b is not None:
                 b.sending -= 1
@@ -550,7 +551,7 @@ class SimODrive(SimCanNode):
         if op != od.SDO_WRITE:
             return
         if ep == self.watchdog_endpoints.get("watchdog_timeout") and len(value) >= 4:
-            timeout_s = od.struct.unpack_from("<f", value)[0]
+            timeout_s = struct.unpack_from("<f", value)[0]
             self.watchdog_ticks = max(1, math.ceil(timeout_s / self.dt * (1 - 1e-6)))  # float32 on the wire
             self.watchdog_configured = True
         elif ep == self.watchdog_endpoints.get("enable_watchdog"):
@@ -573,18 +574,18 @@ class SimODrive(SimCanNode):
         is_request = msg.is_remote_frame or len(data) == 0
         self._last_torque_tick = self.tick_count  # can_simple.cpp: every message of the node feeds the watchdog
         if cmd == od.CMD_SET_INPUT_TORQUE and len(data) >= 4:
-            self.input_torque = od.struct.unpack_from("<f", data)[0]
+            self.input_torque = struct.unpack_from("<f", data)[0]
             self.commands.append((self.tick_count, self.input_torque))
             self.commands_total += 1
             self._apply()
         elif cmd == od.CMD_SET_AXIS_STATE and len(data) >= 4:
-            req = od.struct.unpack_from("<I", data)[0]
+            req = struct.unpack_from("<I", data)[0]
             if req == od.AxisState.CLOSED_LOOP_CONTROL and self.axis_error:
                 req = od.AxisState.IDLE  # refuses to arm while in error
             self.axis_state = int(req)
             self._apply()
         elif cmd == od.CMD_SET_CONTROLLER_MODE and len(data) >= 8:
-            self.control_mode, self.input_mode = od.struct.unpack_from("<II", data)
+            self.control_mode, self.input_mode = struct.unpack_from("<II", data)
             self._apply()
         elif cmd == od.CMD_ESTOP:
             self.latched_error |= od.AXIS_ERROR_ESTOP_REQUESTED
@@ -609,7 +610,7 @@ class SimODrive(SimCanNode):
             self.axis_state = int(od.AxisState.IDLE)  # a fault disarms the axis
         if (self.watchdog_enabled and self.watchdog_ticks and self.axis_state == od.AxisState.CLOSED_LOOP_CONTROL
                 and self.tick_count - self._last_torque_tick > self.watchdog_ticks):
-            log.warning("odrive node %d: CAN watchdog expired: WATCHDOG_TIMER_EXPIRED, axis idle", self.node_id)
+            logger.warning("odrive node %d: CAN watchdog expired: WATCHDOG_TIMER_EXPIRED, axis idle", self.node_id)
             self.axis_state = int(od.AxisState.IDLE)  # the drive's own watchdog (axis.cpp)
             self.input_torque = 0.0
             self.latched_error |= AXIS_ERROR_WATCHDOG_TIMER_EXPIRED

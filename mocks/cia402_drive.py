@@ -57,7 +57,7 @@ from canopen.sdo import SdoAbortedError
 from hil.mocks.can_devices import LOG_LEN, SimCanNode
 from hil.mocks.interfaces import SimulatedJoints
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 #: Modes of operation the simulated drive supports (0x6060): profile torque, cyclic synchronous torque
 SUPPORTED_MODES = (4, 10)
@@ -301,7 +301,7 @@ class SimCiA402(SimCanNode):
             if s in ("READY TO SWITCH ON", "SWITCHED ON") or back:
                 self.state = "OPERATION ENABLED"
         if self.state != s:
-            log.debug("cia402 node %d: %s -> %s (controlword 0x%04X)", self.node_id, s, self.state, cw)
+            logger.debug("cia402 node %d: %s -> %s (controlword 0x%04X)", self.node_id, s, self.state, cw)
         self._apply()
 
     # -- PDOs ----------------------------------------------------------------------------------
@@ -325,7 +325,7 @@ class SimCiA402(SimCanNode):
             try:
                 self.node.set_data(var.index, var.subindex, var.get_data())
             except SdoAbortedError as exc:
-                log.warning("cia402 node %d: RPDO write of 0x%04X refused: %s", self.node_id, var.index, exc)
+                logger.warning("cia402 node %d: RPDO write of 0x%04X refused: %s", self.node_id, var.index, exc)
         self._apply()
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
@@ -355,7 +355,7 @@ class SimCiA402(SimCanNode):
     def on_tick(self) -> None:
         code = self.injector.error_code(self.tick_count) & 0xFFFF
         if code and self.state != "FAULT":
-            log.warning("cia402 node %d: fault 0x%04X", self.node_id, code)
+            logger.warning("cia402 node %d: fault 0x%04X", self.node_id, code)
             self.state = "FAULT"
             self.fault_code = code
             self.emcy_sent.append(code)

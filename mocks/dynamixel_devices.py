@@ -89,7 +89,7 @@ from hil.mocks.pty import LinkBudget, close_fds, host_writes, open_raw_pty
 from hil.protocols.codecs.crc import crc16_dynamixel
 from hil.protocols.codecs.dynamixel import BAUD_RATES as _BAUD_RATES
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE
@@ -404,7 +404,7 @@ class DynamixelChain:
         self.watchdog_expired = 0  # Bus Watchdog Errors raised so far (all servos)
         self._thread = threading.Thread(target=self._serve, name="sim-dynamixel", daemon=True)
         self._thread.start()
-        log.debug("simulated DYNAMIXEL chain %s on %s", self.ids, self.port)
+        logger.debug("simulated DYNAMIXEL chain %s on %s", self.ids, self.port)
 
     # -- public -------------------------------------------------------------------------------
     def sync(self, tx_bytes: int, timeout: float = 1.0) -> None:
@@ -435,7 +435,7 @@ class DynamixelChain:
                 expired.append(i)
         if expired:
             self.watchdog_expired += len(expired)
-            log.warning("simulated DYNAMIXEL ids %s: Bus Watchdog expired after %.3f s without a packet",
+            logger.warning("simulated DYNAMIXEL ids %s: Bus Watchdog expired after %.3f s without a packet",
                         expired, silent)
             self.joints.apply_effort(self.effort())
         return expired
@@ -527,7 +527,7 @@ class DynamixelChain:
         try:
             os.write(self._master, data)
         except OSError:
-            log.debug("simulated DYNAMIXEL chain: host side closed, reply lost")
+            logger.debug("simulated DYNAMIXEL chain: host side closed, reply lost")
 
     # -- instruction handling -------------------------------------------------------------------
     def _status(self, servo: SimulatedServo, error: int, params: bytes = b"") -> bytes:

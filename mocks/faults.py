@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 _STREAMS = ("drop", "corrupt", "late", "stale", "garbage")
 

@@ -64,7 +64,7 @@ from hil.protocols.codecs.robotiq import (
     rtu_frame,
 )
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 WrenchSource = Callable[[], Any]
 
@@ -137,7 +137,7 @@ class SimFT300Stream:
         self._master, self._slave, self.path = open_raw_pty()
         self._rx_thread = threading.Thread(target=self._serve, name="sim-ft300-stream-rx", daemon=True)
         self._rx_thread.start()
-        log.debug("simulated FT-300 (stream) on %s", self.path)
+        logger.debug("simulated FT-300 (stream) on %s", self.path)
 
     # -- public -----------------------------------------------------------------------------------
     @property

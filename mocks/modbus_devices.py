@@ -61,7 +61,7 @@ import numpy as np
 from hil.mocks.faults import BoundedLog, FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 WrenchSource = Callable[[], np.ndarray]
 
@@ -206,7 +206,7 @@ class SimulatedFT300:
         self.port: int = server.transport.sockets[0].getsockname()[1]
         if not auto_update:
             self.update()
-        log.debug("simulated FT-300 (%s framing) on %s:%d", framing, host, self.port)
+        logger.debug("simulated FT-300 (%s framing) on %s:%d", framing, host, self.port)
 
     # -- public -------------------------------------------------------------------------------
     @property
@@ -233,7 +233,7 @@ class SimulatedFT300:
             try:
                 fut.result(timeout=5.0)
             except Exception:
-                log.warning("simulated FT-300: server shutdown did not complete cleanly")
+                logger.warning("simulated FT-300: server shutdown did not complete cleanly")
         self._thread.join(timeout=5.0)
         if not self._loop.is_closed() and not self._loop.is_running():
             self._loop.close()

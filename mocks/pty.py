@@ -16,7 +16,7 @@ import tty
 from collections import Counter
 from collections.abc import Iterator, MutableMapping
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 
 def open_raw_pty(*, nonblocking_master: bool = True) -> tuple[int, int, str]:
@@ -43,7 +43,7 @@ def write_dropping(fd: int, data: bytes, stats: MutableMapping[str, int] | Count
     except BlockingIOError:  # nobody reads: the pty buffer is full -> frame lost
         stats["overflow_frames"] += 1
     except OSError as exc:
-        log.debug("pty write failed: %s", exc)
+        logger.debug("pty write failed: %s", exc)
     return 0
 
 

@@ -43,7 +43,7 @@ from hil.mocks.periodic import PeriodicThread
 from hil.mocks.pty import LinkBudget, close_fds, host_writes, open_raw_pty, write_dropping
 from hil.protocols.codecs.bota import BOTA_BASE_HZ, BOTA_BAUD_CODES, STATUS_RAW, encode_frame
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 
 class SimBota:

@@ -172,10 +172,11 @@ class CubeMarsTwin(CanTwin):
         from hil.mocks.can_devices import SimCubeMars
 
         ch = _can_params(ctx, params)
+        _lockstep_kw: dict[str, Any] = {"sync": True, "bitrate": _bitrate(params, lb.CUBEMARS_DEFAULT_BITRATE),
+                                        "tick_s": ctx.dt}
         sim = SimCubeMars(ctx.point, ch, int(params.get("motor_id", 1)), ctx.can_interface,
                           model=params.get("model", "AK80-9"), faults=ctx.faults, seed=ctx.seed,
-                          **({"sync": True, "bitrate": _bitrate(params, lb.CUBEMARS_DEFAULT_BITRATE),
-                              "tick_s": ctx.dt} if ctx.lockstep else {}))
+                          **(_lockstep_kw if ctx.lockstep else {}))
         return sim, params
 
 

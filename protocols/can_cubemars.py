@@ -86,7 +86,7 @@ from hil.protocols.codecs.cubemars import (
     unpack_reply,
 )
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 
 class CubeMarsMIT(CanActuator):

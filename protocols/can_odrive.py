@@ -134,7 +134,7 @@ from hil.protocols.codecs.odrive import (
     split_id,
 )
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 
 #: send timeout (s) of the non-blocking poll's request frames: a full transmit queue is a fault
@@ -265,7 +265,7 @@ class ODriveCAN(CanActuator):
         ``enable_watchdog`` to the endpoint ids of the drive's firmware (its flat_endpoints.json);
         without them nothing is sent and False is returned."""
         if not endpoints or not {"watchdog_timeout", "enable_watchdog"} <= set(endpoints):
-            log.warning("ODrive node %d: drive watchdog not armed: endpoint ids of watchdog_timeout and "
+            logger.warning("ODrive node %d: drive watchdog not armed: endpoint ids of watchdog_timeout and "
                         "enable_watchdog not given (see the firmware's flat_endpoints.json)", self.node_id)
             return False
         if not (math.isfinite(timeout_s) and timeout_s > 0):
@@ -274,7 +274,7 @@ class ODriveCAN(CanActuator):
                    timeout=timeout)
         self._send(CMD_RX_SDO, encode_sdo_write(int(endpoints["enable_watchdog"]), b"\x01"), timeout=timeout)
         self.watchdog_armed = True
-        log.info("ODrive node %d: drive watchdog armed (%.3f s)", self.node_id, timeout_s)
+        logger.info("ODrive node %d: drive watchdog armed (%.3f s)", self.node_id, timeout_s)
         return True
 
     # -- unit conversion --------------------------------------------------------------------
@@ -319,9 +319,9 @@ class ODriveCAN(CanActuator):
             err, state = decode_heartbeat(msg.data)
             if err != self._fault:
                 if err:
-                    log.warning("ODrive node %d: axis_error 0x%X (%s)", node, err, describe_axis_error(err))
+                    logger.warning("ODrive node %d: axis_error 0x%X (%s)", node, err, describe_axis_error(err))
                 else:
-                    log.info("ODrive node %d: axis_error cleared", node)
+                    logger.info("ODrive node %d: axis_error cleared", node)
             self._fault, self.axis_state = err, state
             self._hb_count += 1
         elif cmd == CMD_GET_ENCODER_ESTIMATES:

@@ -74,7 +74,7 @@ from canopen.profiles.p402 import State402
 from hil.errors import DeviceDisconnected, DeviceFault, DeviceTimeout, ProtocolError
 from hil.protocols.base import Actuator, DeviceInfo, JointSample
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 #: modes of operation (0x6060) the adapter drives, by name
 MODES = {"profile_torque": 4, "pt": 4, "cyclic_synchronous_torque": 10, "cst": 10}
@@ -341,7 +341,7 @@ class CiA402Drive(Actuator):
             if state_of(sw) != target:
                 raise DeviceFault(f"CiA 402 node {self.node_id}: controlword 0x{cw:04X} did not reach {target} "
                                   f"(statusword 0x{sw:04X}: {state_of(sw)})", code=sw)
-        log.info("CiA 402 node %d: operation enabled, mode %d", self.node_id, self.mode)
+        logger.info("CiA 402 node %d: operation enabled, mode %d", self.node_id, self.mode)
 
     # -- callbacks (canopen's notifier thread) -------------------------------------------------
     def _on_tpdo(self, k: int) -> None:
@@ -356,7 +356,7 @@ class CiA402Drive(Actuator):
             return
         self._emcy_count += 1
         self._emcy = entry
-        log.warning("CiA 402 node %d: EMCY 0x%04X (%s), error register 0x%02X", self.node_id, entry.code,
+        logger.warning("CiA 402 node %d: EMCY 0x%04X (%s), error register 0x%02X", self.node_id, entry.code,
                     describe_emcy(entry.code), entry.register)
 
     def _on_heartbeat(self, state: int) -> None:
@@ -509,7 +509,7 @@ class CiA402Drive(Actuator):
         finally:
             self.node.sdo.RESPONSE_TIMEOUT = old
         self.last_stop = rec
-        log.info("CiA 402 node %d: safe stop %s", self.node_id, rec)
+        logger.info("CiA 402 node %d: safe stop %s", self.node_id, rec)
 
     def _armed(self) -> bool:
         return bool(self._enable)

@@ -113,7 +113,7 @@ from hil.protocols.codecs.dynamixel import (
     to_unsigned,
 )
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -240,7 +240,7 @@ class DynamixelX(Actuator):
         self._gsr_wd = GroupSyncRead(self._port, self._ph, ADDR_BUS_WATCHDOG, 1)
         for i in self.ids:
             self._gsr_wd.addParam(i)
-        log.info("DYNAMIXEL %s ids %s on %s opened", self.model.name, self.ids, port)
+        logger.info("DYNAMIXEL %s ids %s on %s opened", self.model.name, self.ids, port)
 
     # -- Actuator ---------------------------------------------------------------------------------
     @property
@@ -365,7 +365,7 @@ class DynamixelX(Actuator):
             self._port.setBaudRate(bps)
             found: tuple[int, int, int] = self._ph.ping(self._port, first)
             if found[1] == COMM_SUCCESS:
-                log.warning("DYNAMIXEL id %d answers at %d bps, not %d: continuing at %d bps (set baudrate: %d "
+                logger.warning("DYNAMIXEL id %d answers at %d bps, not %d: continuing at %d bps (set baudrate: %d "
                             "in the scene)", first, bps, self.baudrate, bps, bps)
                 self.baudrate = bps
                 self.info.extra["baudrate"] = bps
@@ -381,7 +381,7 @@ class DynamixelX(Actuator):
             self._check_comm(result, f"ping id {i}")
             self._raise_for_error(i, error, None)
             if model_number != self.model.model_number:
-                log.warning("id %d reports model %d, expected %d (%s)", i, model_number,
+                logger.warning("id %d reports model %d, expected %d (%s)", i, model_number,
                             self.model.model_number, self.model.name)
             limits.append(self._read(i, ADDR_CURRENT_LIMIT, 2, None))
             self.info.extra.setdefault("firmware", {})[i] = self._read(i, ADDR_FIRMWARE_VERSION, 1, None)
@@ -401,7 +401,7 @@ class DynamixelX(Actuator):
             if self.bus_watchdog_units:
                 for i in self.ids:
                     self._write(i, ADDR_BUS_WATCHDOG, 1, self.bus_watchdog_units, None)
-                log.info("DYNAMIXEL ids %s: Bus Watchdog armed (%d ms)", self.ids, 20 * self.bus_watchdog_units)
+                logger.info("DYNAMIXEL ids %s: Bus Watchdog armed (%d ms)", self.ids, 20 * self.bus_watchdog_units)
 
     def _check_comm(self, result: int, what: str) -> None:
         from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, COMM_TX_FAIL

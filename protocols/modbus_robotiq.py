@@ -107,7 +107,7 @@ from hil.protocols.codecs.robotiq import (
     stream_start_request,
 )
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 
 def stop_stream_on_line(ser: Any, *, listen_s: float = 0.05, stop_s: float = STREAM_STOP_S,
@@ -124,7 +124,7 @@ def stop_stream_on_line(ser: Any, *, listen_s: float = 0.05, stop_s: float = STR
         heard = bool(ser.read(ser.in_waiting or 1))
     if not heard:
         return None
-    log.info("FT-300: a data stream is running; jamming it with 0xFF (Robotiq's stop sequence)")
+    logger.info("FT-300: a data stream is running; jamming it with 0xFF (Robotiq's stop sequence)")
     end = time.monotonic() + stop_s
     next_jam = 0.0
     quiet_since = time.monotonic()
@@ -232,7 +232,7 @@ class RobotiqFT300(ForceSensor):
         except BaseException:
             self.close()
             raise
-        log.info("FT-300 opened on %s (slave %d, %s)", url, self.slave, self.info.firmware or "fw ?")
+        logger.info("FT-300 opened on %s (slave %d, %s)", url, self.slave, self.info.firmware or "fw ?")
 
     def _stop_stream(self, ep: ModbusEndpoint) -> bool | None:
         """Open the serial line raw and stop a data stream left running (:func:`stop_stream_on_line`);
@@ -277,7 +277,7 @@ class RobotiqFT300(ForceSensor):
                 if attempt == self.retries:
                     raise
                 self._counts["retries"] += 1
-                log.debug("FT-300: %s; asking again", exc)
+                logger.debug("FT-300: %s; asking again", exc)
         raise AssertionError("unreachable")  # pragma: no cover
 
     def tare(self, timeout: float = 0.5) -> None:
@@ -461,7 +461,7 @@ class RobotiqFT300Stream(StreamingSensor):
         except BaseException:
             self.close()
             raise
-        log.info("FT-300 stream on %s (%s, %s)", url, self.info.extra["start"], self.info.firmware or "fw ?")
+        logger.info("FT-300 stream on %s (%s, %s)", url, self.info.extra["start"], self.info.firmware or "fw ?")
 
     # -- ForceSensor ------------------------------------------------------------------------------
     @property
@@ -524,7 +524,7 @@ class RobotiqFT300Stream(StreamingSensor):
                 if now >= deadline:
                     break
         except Exception as exc:  # a lost port cannot be stopped; close anyway
-            log.debug("FT-300: stopping the stream failed: %s", exc)
+            logger.debug("FT-300: stopping the stream failed: %s", exc)
         self.streaming = False
         self.stream_stopped = stopped
         return stopped

@@ -33,7 +33,7 @@ from typing import Any
 
 from hil.errors import DeviceError
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 
 class UnknownDriverError(DeviceError, KeyError):
@@ -133,7 +133,7 @@ def load_entry_points() -> list[str]:
             register_device(kind)
             out.append(kind.name)
         except Exception:
-            log.warning("device entry point %r (%s) could not be registered", ep.name, ep.value, exc_info=True)
+            logger.warning("device entry point %r (%s) could not be registered", ep.name, ep.value, exc_info=True)
     return out
 
 
@@ -204,7 +204,7 @@ def resolve_driver(name: str) -> type:
 def open_device(driver: str, **params: Any) -> Any:
     """Instantiate the adapter registered as ``driver`` with ``params`` (its constructor args)."""
     cls = resolve_driver(driver)
-    log.debug("opening %s (%s.%s) with %s", driver, cls.__module__, cls.__name__, params)
+    logger.debug("opening %s (%s.%s) with %s", driver, cls.__module__, cls.__name__, params)
     return cls(**params)
 
 

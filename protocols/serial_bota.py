@@ -80,7 +80,7 @@ from hil.protocols.codecs.bota import (
     FrameParser,
 )
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 
 class BotaSerial(StreamingSensor):

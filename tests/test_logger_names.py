@@ -15,18 +15,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 FOLDERS = ("hil", "identify", "protocols", "mocks")
 
-#: modules (paths) that still bind ``log = logging.getLogger(__name__)`` (issue 13, work in progress;
-#: hil/probe.py: issue 14 adds ``log`` calls to it in parallel)
-KNOWN_OTHER_NAMES = {
-    "hil/certify.py", "hil/evidence_plots.py", "hil/fleet.py", "hil/models/design.py", "hil/pipeline.py",
-    "hil/probe.py",
-    "hil/stability/criteria.py", "hil/stability/exact.py", "hil/stability/rational.py", "hil/stability/reliability.py",
-    "hil/stability/witness.py", "hil/sweep.py", "identify/sensor_hold.py", "mocks/can_devices.py",
-    "mocks/cia402_drive.py", "mocks/dynamixel_devices.py", "mocks/faults.py", "mocks/ft300_stream.py",
-    "mocks/modbus_devices.py", "mocks/pty.py", "mocks/serial_devices.py", "protocols/can_cubemars.py",
-    "protocols/can_odrive.py", "protocols/cia402.py", "protocols/dynamixel_x.py", "protocols/modbus_robotiq.py",
-    "protocols/registry.py", "protocols/serial_bota.py",
-}
+#: modules (paths) that still bind another logger name (none left: every module follows the convention)
+KNOWN_OTHER_NAMES: set[str] = set()
 
 
 def _get_logger_calls(path: Path) -> list[tuple[str | None, str | None, int]]:

@@ -36,7 +36,7 @@ from hil.stability.criteria import (
 )
 from hil.stability.exact import DEFAULT_TOL, decide_nonnegative
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["DESIGN_FIXED", "K22Design", "check_design_inputs", "k22_headroom", "k22_max", "optimize_coupler"]
 

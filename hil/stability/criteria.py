@@ -48,7 +48,7 @@ from hil.stability.jpoly import JPoly, XPoly, trim_back
 from hil.stability.rational import _RF, Rational, TransferMatrix, _to_rf
 from hil.stability.results import Condition, ConditionStatus, StabilityResult, combine
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 POLE_TOL = 1e-9
 RESIDUE_TOL = 1e-9

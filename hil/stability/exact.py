@@ -41,7 +41,7 @@ from hil.stability.jpoly import XPoly, trim_back
 if TYPE_CHECKING:
     from flint import fmpq_poly
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 DEFAULT_TOL = 1e-10
 
@@ -408,7 +408,7 @@ def _isolate(ip: list[int], seq: list[list[int]], q: np.ndarray, n_roots: int) -
             continue
         guard += 1
         if guard > 4000:  # pragma: no cover - pathological clusters
-            log.warning("root isolation did not converge; %d roots in one interval", cnt)
+            logger.warning("root isolation did not converge; %d roots in one interval", cnt)
             intervals.append((a, b))
             continue
         mid = nudge((a + b) / 2 if a == 0 or b / a < 4 else Fraction(float(math.sqrt(float(a) * float(b)))))
@@ -418,7 +418,7 @@ def _isolate(ip: list[int], seq: list[list[int]], q: np.ndarray, n_roots: int) -
         stack.extend([(a, mid), (mid, b)])
     intervals.sort()
     if sum(var[a] - var[b] for a, b in intervals) != n_roots:  # pragma: no cover - defensive
-        log.warning("root isolation count mismatch")
+        logger.warning("root isolation count mismatch")
     out = []
     for a, b in intervals:
         sl = _eval_sign(ip, a) if a != 0 else (1 if ip[-1] > 0 else -1)
@@ -856,7 +856,7 @@ def decide_exact(p: fmpq_poly, m: np.ndarray | None = None, margin: bool = True)
                      touching, len(events), "exact (Arb isolation over Q)", c)
     _exact_depths(p, d, mm, m_rep, margin)
     if d.status == "violated" and not d.negative_bands:  # pragma: no cover - defensive
-        log.warning("exact classification says violated but no negative band was isolated")
+        logger.warning("exact classification says violated but no negative band was isolated")
     return d
 
 

@@ -36,7 +36,7 @@ from numpy.polynomial import polynomial as P
 from hil.errors import ConversionError, ModelError
 from hil.stability.jpoly import trim_back
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 ImmittanceKind = Literal["impedance", "admittance", "hybrid", "inverse_hybrid"]
 KINDS: tuple[str, ...] = ("impedance", "admittance", "hybrid", "inverse_hybrid")
@@ -303,7 +303,7 @@ class TransferMatrix:
         for i, row in enumerate(self.entries):
             for j, e in enumerate(row):
                 if not e.is_proper():
-                    log.debug("entry (%d, %d) is improper (degree num > den)", i, j)
+                    logger.debug("entry (%d, %d) is improper (degree num > den)", i, j)
 
     # -- constructors ---------------------------------------------------------------------------
     @staticmethod

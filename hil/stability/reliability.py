@@ -35,7 +35,7 @@ import numpy as np
 
 from hil.errors import HilError
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["FormResult", "ISResult", "Standardization", "form", "importance_sampling"]
 
@@ -213,7 +213,7 @@ def form(stable_fn: StableFn, d: int, *, hints: Sequence[np.ndarray] | np.ndarra
                        budget=None if budget is None else budget - fn.n, r_limit=r_limit)
             res.evaluations += fn.n
             return res
-        log.info("FORM: no %s point within r_max = %g", "unstable" if centre_ok else "stable", r_max)
+        logger.info("FORM: no %s point within r_max = %g", "unstable" if centre_ok else "stable", r_max)
         return FormResult(sign * r_max, np.zeros(d), (r_max, math.inf), True, fn.n, n_dirs)
     best = []
     for i in np.argsort(r_hi)[:n_refine_starts]:

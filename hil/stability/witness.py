@@ -31,7 +31,7 @@ from hil.stability.criteria import Tolerances, positive_real
 from hil.stability.rational import Rational, S, TransferMatrix
 from hil.stability.results import StabilityResult
 
-log = logging.getLogger(__name__)
+logger = logging.getLogger(__name__)
 
 __all__ = ["Termination", "Witness", "find_witness", "input_impedance", "termination_family"]
 
@@ -173,7 +173,7 @@ def find_witness(Z: TransferMatrix, port: int = 0, candidates: Sequence[Terminat
         try:
             zin = input_impedance(Z, port, terms)
         except ConversionError as exc:
-            log.debug("witness candidate %s skipped: %s", cand.describe(), exc)
+            logger.debug("witness candidate %s skipped: %s", cand.describe(), exc)
             continue
         # Z_in is derived in floating point: a witness must survive a relative perturbation of 1e-9
         # of its coefficients (round-off of the derivation is never a witness)
