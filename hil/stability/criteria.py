@@ -46,6 +46,7 @@ from hil.stability.exact import (
 )
 from hil.stability.jpoly import JPoly, XPoly, trim_back
 from hil.stability.rational import _RF, Rational, TransferMatrix, _to_rf
+from hil.stability.residues import _xq  # N(jω) = a(x) + jω·b(x), shared with the residue tests
 from hil.stability.results import Condition, ConditionStatus, StabilityResult, combine
 
 logger = logging.getLogger(__name__)
@@ -523,16 +524,6 @@ def _qpoly_float(p: fmpq_poly) -> np.ndarray:
 # monomials in the coefficients of u and D. It bounds the effect of relative perturbations of those
 # coefficients (|Δp(x)| ≤ ((1+r)^K - 1)·m(x) for relative perturbations ≤ r, K the number of
 # coefficient factors per term) and normalizes the frequency-domain margin (docs/VERDICTS.md).
-
-
-def _xq(c: fmpq_poly) -> tuple[fmpq_poly, fmpq_poly]:
-    """N(jω) = a(x) + jω·b(x) for an exact polynomial N(s)."""
-    co = c.coeffs()  # c_0 + c_1 s + ...: at s = jω, s^k = (jω)^k = (-x)^(k//2)·(jω)^(k%2)
-    a = co[0::2]
-    b = co[1::2]
-    a[1::2] = [-v for v in a[1::2]]
-    b[1::2] = [-v for v in b[1::2]]
-    return fmpq_poly(a), fmpq_poly(b)
 
 
 _X = fmpq_poly([0, 1])

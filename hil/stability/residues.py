@@ -55,7 +55,7 @@ def _sgn(v: Any) -> int:
     return int(v > 0) - int(v < 0)
 
 
-def _xq(c: fmpq_poly) -> Pair:
+def _xq(c: fmpq_poly) -> Pair:  # also used by hil.stability.criteria
     """N(jω) = a(x) + jω·b(x) for an exact polynomial N(s)."""
     co = c.coeffs()  # c_0 + c_1 s + ...: at s = jω, s^k = (jω)^k = (-x)^(k//2)·(jω)^(k%2)
     a = co[0::2]
