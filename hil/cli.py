@@ -35,7 +35,7 @@ import warnings
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from hil.errors import (  # the exit codes: one table in hil.errors (re-exported here for callers)
     DECISION_EXIT,
@@ -779,6 +779,18 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------------------------
 
 
+class _Discard:
+    """Stands in for the parser of a command that does not run (:func:`build_parser`): every
+    argparse call on it (add_argument, set_defaults, groups, nested subparsers) is accepted and
+    does nothing, so those commands' argument lists cost nothing at start-up."""
+
+    def __getattr__(self, name: str) -> Callable[..., _Discard]:
+        return lambda *a, **kw: self
+
+
+_DISCARD = _Discard()
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser of ``hil``. With ``command`` (the subcommand about to run, as :func:`main` passes
     it) only that subcommand gets its arguments; the others are listed by name and help, which is
@@ -796,11 +808,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="cmd", metavar="COMMAND", parser_class=OneLineArgumentParser)
 
     def add(name: str, **kw: Any) -> argparse.ArgumentParser:  # every subcommand also takes --debug
+        if command is not None and name != command:  # not the command that runs: listed, never parsed
+            sub.add_parser(name, help=kw.get("help"), add_help=False)
+            return cast(argparse.ArgumentParser, _DISCARD)  # its arguments go nowhere
         kw.setdefault("parents", [common])
-        registered = sub.add_parser(name, **kw)
-        if command is None or name == command:
-            return registered
-        return OneLineArgumentParser(add_help=False)  # not the command that runs: its arguments go nowhere
+        return sub.add_parser(name, **kw)
 
     s = add("stability", help="check passivity / absolute stability of a network (file or built-in model)")
     s.add_argument("file", nargs="?", help="network file (YAML or JSON): type, ports, matrix of {num, den}")
