@@ -112,7 +112,7 @@ def _stages(cert: dict[str, Any]) -> tuple[dict[str, float], float]:
 
 def certify_process(quick: bool) -> None:
     extra = ["--no-experiments"] if quick else []
-    print(f"\n3. `hil certify {' '.join(extra)}` on the default scene (sdea_bench), one run (goal: ≤ 8 s)")
+    print(f"\n3. `{' '.join(['hil certify', *extra])}` on the default scene (sdea_bench), one run (goal: ≤ 8 s)")
     with tempfile.TemporaryDirectory() as d:
         out = Path(d) / "cert"
         t0 = time.perf_counter()
