@@ -35,7 +35,7 @@ import warnings
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from hil.errors import (  # the exit codes: one table in hil.errors (re-exported here for callers)
     DECISION_EXIT,
@@ -54,8 +54,9 @@ from hil.errors import (  # the exit codes: one table in hil.errors (re-exported
     SafetyStop,
 )
 from hil.inputs import number_type, seed_type  # both are needed to build the parser of every command
-from hil.probe import add_arguments as _probe_arguments
-from hil.probe import run as _probe_run
+
+# hil.probe (its codecs, link budgets) is imported by _cmd_probe and by build_parser only for
+# ``hil probe``: importing it here cost every command's start-up (issue 15, ``hil stability``).
 
 __all__ = ["DECISION_EXIT", "EXIT_ERROR", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "EXIT_MARGINAL", "EXIT_NOT_APPLICABLE",
            "EXIT_NOT_HELD", "EXIT_OK", "EXIT_SAFETY_STOP", "EXIT_UNSTABLE", "EXIT_USAGE", "VERDICT_EXIT",
@@ -778,7 +779,23 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------------------------
 
 
-def build_parser() -> argparse.ArgumentParser:
+class _Discard:
+    """Stands in for the parser of a command that does not run (:func:`build_parser`): every
+    argparse call on it (add_argument, set_defaults, groups, nested subparsers) is accepted and
+    does nothing, so those commands' argument lists cost nothing at start-up."""
+
+    def __getattr__(self, name: str) -> Callable[..., _Discard]:
+        return lambda *a, **kw: self
+
+
+_DISCARD = _Discard()
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of ``hil``. With ``command`` (the subcommand about to run, as :func:`main` passes
+    it) only that subcommand gets its arguments; the others are listed by name and help, which is
+    all ``hil --help`` and the "invalid choice" error show (start-up time, issue 15: adding every
+    command's arguments, and importing what they need, is work a single command never uses)."""
     from hil.stability.criteria import CRITERIA  # the criterion names, from their registry
 
     p = OneLineArgumentParser(
@@ -791,6 +808,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="cmd", metavar="COMMAND", parser_class=OneLineArgumentParser)
 
     def add(name: str, **kw: Any) -> argparse.ArgumentParser:  # every subcommand also takes --debug
+        if command is not None and name != command:  # not the command that runs: listed, never parsed
+            sub.add_parser(name, help=kw.get("help"), add_help=False)
+            return cast(argparse.ArgumentParser, _DISCARD)  # its arguments go nowhere
         kw.setdefault("parents", [common])
         return sub.add_parser(name, **kw)
 
@@ -942,7 +962,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     pb = add("probe", help="list what answers on a CAN channel, serial port or Modbus address "
                            "(--scene writes a scene stub)")
-    _probe_arguments(pb)
+    if command in (None, "probe"):  # lazy: start-up time of the other commands (see the imports above)
+        from hil.probe import add_arguments as _probe_arguments
+
+        _probe_arguments(pb)
     pb.set_defaults(func=_cmd_probe)
 
     m = add("mock", help="simulated devices: 'hil mock serve SPEC' starts them and prints endpoints")
@@ -956,6 +979,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_probe(args: argparse.Namespace) -> int:
+    from hil.probe import run as _probe_run  # lazy: start-up time of the other commands
+
     return _probe_run(args)
 
 
@@ -1210,7 +1235,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return int(importlib.import_module(_PASSTHROUGH[argv[0]]).main(rest) or 0)
 
         return _guarded(cmd, debug, passthrough)
-    parser = build_parser()
+    parser = build_parser(argv[0] if argv and not argv[0].startswith("-") else None)
     try:
         args, extra = parser.parse_known_args(argv)
         if extra:  # named by the subcommand's parser: "hil report: error: unrecognized arguments: ..."

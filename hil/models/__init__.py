@@ -195,8 +195,40 @@ SDEA_UNITS = {"M": "kg.m²", "B": "N.m.s/rad", "B_f": "N.m.s/rad", "P_m": "N.m.s
               "alpha": "1"}
 
 
+# The scene mappings import hil.models.scene_params (and through it hil.schema, i.e. pydantic) only
+# when a scene is mapped: importing them in _defaults() cost ~90 ms of the start-up of every
+# ``hil stability --model NAME`` (issue 15), which never maps a scene.
+def _sdea_from_scene(scene: Any, cfg: dict[str, Any]) -> dict[str, Any]:
+    from hil.models.scene_params import sdea_params
+
+    return sdea_params(scene, cfg)
+
+
+def _mcet_from_scene(scene: Any, cfg: dict[str, Any]) -> dict[str, Any]:
+    from hil.models.scene_params import mcet_params
+
+    return mcet_params(scene, cfg)
+
+
+def _bilateral_2dof_from_scene(scene: Any, cfg: dict[str, Any]) -> dict[str, Any]:
+    from hil.models.scene_params import bilateral_2dof_params
+
+    return bilateral_2dof_params(scene, cfg)
+
+
+def _bilateral_1dof_from_scene(scene: Any, cfg: dict[str, Any]) -> dict[str, Any]:
+    from hil.models.scene_params import bilateral_1dof_params
+
+    return bilateral_1dof_params(scene, cfg)
+
+
+def _dual_master_3dof_from_scene(scene: Any, cfg: dict[str, Any]) -> dict[str, Any]:
+    from hil.models.scene_params import dual_master_3dof_params
+
+    return dual_master_3dof_params(scene, cfg)
+
+
 def _defaults() -> dict[str, BuiltinModel]:
-    from hil.models import scene_params as S
     from hil.models.sdea import SDEA_TABLE1
     from hil.models.teleop import (
         BILATERAL_1DOF,
@@ -209,23 +241,23 @@ def _defaults() -> dict[str, BuiltinModel]:
 
     return {
         "sdea": BuiltinModel("sdea", "SDEA under VSIC with virtual coupler (002 eq. 12, Table I)", "passivity",
-                             dict(SDEA_TABLE1), _sdea, from_scene=S.sdea_params, batch={"passivity": _sdea_batch},
+                             dict(SDEA_TABLE1), _sdea, from_scene=_sdea_from_scene, batch={"passivity": _sdea_batch},
                              design={"k22": DesignParameter("N.m/rad", _k22_headroom),
                                      "b22": DesignParameter("N.m.s/rad")},
                              band_condition=_sdea_coupler_condition, units=dict(SDEA_UNITS)),
         "mcet_trilateral": BuiltinModel("mcet_trilateral", "dual-user MCET trilateral system (000 eq. 25, Table I)",
-                                        "absolute_stability", dict(MCET_TABLE1), _mcet, from_scene=S.mcet_params),
+                                        "absolute_stability", dict(MCET_TABLE1), _mcet, from_scene=_mcet_from_scene),
         "bilateral_2dof": BuiltinModel("bilateral_2dof", "2-DOF bilateral position-position (000 eq. 44, Table II)",
                                        "absolute_stability",
                                        {"gains": "A1", **{f"k_{p}{a}": None for p in "pv" for a in ("yy", "zz", "yz")},
-                                        **TWO_DOF_ROBOT}, _bilateral, from_scene=S.bilateral_2dof_params,
+                                        **TWO_DOF_ROBOT}, _bilateral, from_scene=_bilateral_2dof_from_scene,
                                        table="gains", choices={"gains": tuple(TWO_DOF_TABLE2)}),
         "bilateral_1dof": BuiltinModel("bilateral_1dof", "1-DOF bilateral position-position (eq. 44, m = 1)",
                                        "llewellyn", dict(BILATERAL_1DOF), _bilateral1,
-                                       from_scene=S.bilateral_1dof_params),
+                                       from_scene=_bilateral_1dof_from_scene),
         "dual_master_3dof": BuiltinModel("dual_master_3dof", "dual-master/single-slave 3-DOF (001 eq. 17, Table I)",
                                          "absolute_stability", dict(DUAL_MASTER_TABLE1), _dual,
-                                         from_scene=S.dual_master_3dof_params),
+                                         from_scene=_dual_master_3dof_from_scene),
         "mbk_impedance": BuiltinModel("mbk_impedance", "m-DOF mass-damper-spring device, Z = (M s² + B s + K)/s",
                                       "positive_real", {**MBK_2DOF, "dof": 2}, _mbk),
         "T1": BuiltinModel("T1", "2-DOF termination T1 of 000 eq. (1) (not passive)", "positive_real", {}, _t1),
