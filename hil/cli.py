@@ -796,7 +796,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     it) only that subcommand gets its arguments; the others are listed by name and help, which is
     all ``hil --help`` and the "invalid choice" error show (start-up time, issue 15: adding every
     command's arguments, and importing what they need, is work a single command never uses)."""
-    from hil.stability.criteria import CRITERIA  # the criterion names, from their registry
+    from hil.stability.criteria import CriterionChoices  # the criterion names, from their registry
 
     p = OneLineArgumentParser(
         prog="hil", description="Hardware-in-the-loop identification and stability certification of haptic "
@@ -818,7 +818,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     s.add_argument("file", nargs="?", help="network file (YAML or JSON): type, ports, matrix of {num, den}")
     s.add_argument("--model", help="built-in model name (see --list-models)")
     s.add_argument("--set", action="append", metavar="PARAM=VALUE", help="override a model parameter (repeatable)")
-    s.add_argument("--criterion", choices=["auto", *CRITERIA],
+    s.add_argument("--criterion", choices=CriterionChoices(),
                    help="criterion to apply (default: the file's, or the model's, or auto)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
     s.add_argument("--rtol", type=float, metavar="R",
@@ -844,7 +844,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     sw.add_argument("--grid", action="append", required=True, metavar="NAME=LO:HI:N",
                     help="swept parameter (repeatable, 1-3; NAME=log:LO:HI:N for log spacing)")
     sw.add_argument("--set", action="append", metavar="PARAM=VALUE", help="fix a model parameter (repeatable)")
-    sw.add_argument("--criterion", choices=list(CRITERIA),
+    sw.add_argument("--criterion", choices=CriterionChoices(auto=False),
                     help="criterion (default: the model's)")
     sw.add_argument("--no-refine", action="store_true", help="grid only: no bisection of the boundary")
     sw.add_argument("--boundary-tol", type=float, default=1e-4,

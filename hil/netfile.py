@@ -39,6 +39,7 @@ from pydantic import (
 
 from hil.errors import HilError, SceneError
 from hil.inputs import field_path, parse_yaml, read_text_file
+from hil.schema import CriterionName
 from hil.stability.rational import TransferMatrix
 
 __all__ = ["NetworkFile", "load_network"]
@@ -86,7 +87,7 @@ class NetworkFile(BaseModel):
     name: str = ""
     type: Literal["impedance", "admittance", "hybrid", "inverse_hybrid"] = "impedance"
     ports: list[Annotated[int, Strict(), Field(ge=1)]] | None = None
-    criterion: Literal["auto", "positive_real", "passivity", "llewellyn", "absolute_stability"] = "auto"
+    criterion: CriterionName = "auto"  # auto | positive_real | passivity | llewellyn | absolute_stability | registered
     matrix: list[list[Entry]] = Field(min_length=1)
 
     @field_validator("matrix")

@@ -93,6 +93,7 @@ from hil.experiments import (
 from hil.inputs import SEED_MAX, DuplicateKeyError, unique_key_loader
 from hil.inputs import parse_yaml as _parse_yaml
 from hil.schema import (
+    CriterionName,
     DampMat,
     DampNonneg,
     DofList,
@@ -541,7 +542,7 @@ class CertificationCfg(_Strict):
     only with an uncertainty, the criterion, a design parameter and the verdict policy."""
 
     model: str
-    criterion: Literal["auto", "passivity", "absolute_stability", "llewellyn", "positive_real"] = "auto"
+    criterion: CriterionName = "auto"
     parameters: dict[str, Any] = Field(default_factory=dict)
     identify: list[IdentifyCfg] = Field(default_factory=list)
     uncertain: dict[str, UncertainCfg] = Field(default_factory=dict)

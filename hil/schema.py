@@ -36,6 +36,7 @@ from hil.errors import SceneError
 from hil.inputs import SEED_MAX, field_path
 
 __all__ = [
+    "CriterionName",
     "DofList",
     "FieldError",
     "Name",
@@ -193,6 +194,21 @@ def _seed(value: Any) -> Any:
 Seed = Annotated[int, BeforeValidator(_seed), Field(ge=0, le=SEED_MAX)]
 #: a device, body, port or experiment name
 Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", max_length=64)]
+
+
+def _criterion_name(v: Any) -> str:
+    """A criterion :func:`hil.stability.criteria.check` runs: ``auto``, a built-in or a
+    registered one (entry points are read only for a name that is not built in)."""
+    from hil.stability.criteria import criterion_names, is_criterion
+
+    if not isinstance(v, str) or not is_criterion(v):
+        raise PydanticCustomError("criterion", "unknown criterion '{v}': expected auto, {names}",
+                                  {"v": v, "names": ", ".join(criterion_names())})
+    return v
+
+
+#: a stability criterion's name (``auto`` or one of :func:`hil.stability.criteria.criterion_names`)
+CriterionName = Annotated[str, BeforeValidator(_criterion_name)]
 #: DOF indices (of a body or a device), at least one
 DofList = Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=1)]
 #: wrench components (Fx, Fy, Fz, Tx, Ty, Tz) by index

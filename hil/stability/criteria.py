@@ -28,7 +28,7 @@ import itertools
 import logging
 import math
 import re
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any, cast
 
@@ -1307,14 +1307,119 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool 
     return combine("absolute_stability_nport", [*_rescale(conds, w0), infinity_condition(tm0, "minors", margins)], net)
 
 
+#: a criterion's function: (network, tolerances, margins) -> result; ``margins=False`` may skip
+#: the margins (the same verdict, faster)
+CriterionFn = Callable[[TransferMatrix, Tolerances, bool], StabilityResult]
+
+
+@dataclass(frozen=True)
+class Criterion:
+    """A named stability criterion :func:`check` can run: ``run(tm, tol, margins)``."""
+
+    name: str
+    run: CriterionFn
+    description: str = ""
+
+
+def _passivity(tm: TransferMatrix, tol: Tolerances, margins: bool) -> StabilityResult:
+    return two_port_passivity(tm, tol, margins) if tm.n_ports == 2 else positive_real(tm, tol, margins)
+
+
+#: the built-in criteria :func:`check` runs by name (besides ``auto``, which picks one by the
+#: network's size)
+CRITERIA: tuple[str, ...] = ("positive_real", "passivity", "llewellyn", "absolute_stability")
+
+#: criterion name -> :class:`Criterion`: the built-ins, then those registered with
+#: :func:`register_criterion` or through the entry-point group :data:`ENTRY_POINT_GROUP`
+_REGISTRY: dict[str, Criterion] = {
+    "positive_real": Criterion("positive_real", positive_real, "positive realness (one-port or matrix)"),
+    "passivity": Criterion("passivity", _passivity, "two-port passivity (002 Theorem 2)"),
+    "llewellyn": Criterion("llewellyn", llewellyn, "Llewellyn's absolute stability (002 Theorem 3)"),
+    "absolute_stability": Criterion("absolute_stability", absolute_stability, "m-DOF n-port (000 Theorem 1)"),
+}
+#: entry points of other distributions: each loads a :class:`Criterion` (or a zero-argument
+#: callable returning one); read once, on the first name that is not built in
+ENTRY_POINT_GROUP = "hil_certify.criteria"
+_entry_points_loaded = False
+
+
+def register_criterion(criterion: Criterion, *, replace: bool = False) -> None:
+    """Add a criterion :func:`check`, ``hil stability --criterion``, scenes and network files
+    accept by name; refuses to shadow an existing name unless ``replace``."""
+    if not re.fullmatch(r"[a-z][a-z0-9_]*", criterion.name) or criterion.name == "auto":
+        raise ValueError(f"criterion name {criterion.name!r}: lower-case identifier other than 'auto' expected")
+    if criterion.name in _REGISTRY and not replace and _REGISTRY[criterion.name] is not criterion:
+        raise ValueError(f"criterion {criterion.name!r} is already registered")
+    _REGISTRY[criterion.name] = criterion
+
+
+def load_entry_points() -> list[str]:
+    """Register the criteria other distributions declare in :data:`ENTRY_POINT_GROUP` (once; a
+    broken entry point is logged and skipped). Returns the names registered."""
+    global _entry_points_loaded
+    if _entry_points_loaded:
+        return []
+    _entry_points_loaded = True
+    from importlib.metadata import entry_points  # scanned only when a name is not built in
+
+    out: list[str] = []
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        try:
+            obj = ep.load()
+            crit = obj() if callable(obj) and not isinstance(obj, Criterion) else obj
+            if not isinstance(crit, Criterion):
+                raise TypeError(f"{ep.value} is not a Criterion")
+            register_criterion(crit)
+            out.append(crit.name)
+        except Exception:
+            logger.warning("criterion entry point %r (%s) could not be registered", ep.name, ep.value,
+                           exc_info=True)
+    return out
+
+
+def criterion_names() -> tuple[str, ...]:
+    """Every criterion :func:`check` runs by name (built-in first, then registered ones)."""
+    load_entry_points()
+    return tuple(_REGISTRY)
+
+
+def is_criterion(name: str) -> bool:
+    """Whether :func:`check` runs ``name`` (``auto`` included); entry points are read only for a
+    name that is not built in."""
+    if name == "auto" or name in _REGISTRY:
+        return True
+    load_entry_points()
+    return name in _REGISTRY
+
+
+class CriterionChoices(tuple[str, ...]):
+    """``auto`` (optional) and the criterion names, for argparse ``choices``: membership of a
+    built-in name reads no entry points (start-up time); iteration (an error message, help)
+    lists every registered name."""
+
+    _auto: bool
+
+    def __new__(cls, auto: bool = True) -> CriterionChoices:
+        obj = super().__new__(cls, (("auto",) if auto else ()) + CRITERIA)
+        obj._auto = auto
+        return obj
+
+    def __contains__(self, name: object) -> bool:
+        return isinstance(name, str) and (self._auto or name != "auto") and is_criterion(name)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter((("auto",) if self._auto else ()) + criterion_names())
+
+
 def check(tm: TransferMatrix | Rational, criterion: str = "auto", tol: Tolerances = TOL,
           margins: bool = True) -> StabilityResult:
     """Run the criterion that fits the network (``auto``) or the named one.
 
     ``auto``: a one-port → positive realness; a 1-DOF two-port → Llewellyn; anything larger →
     Theorem 1 (which reduces to Llewellyn for m = 1, n = 2). Names: ``positive_real``,
-    ``passivity`` (two-port passivity), ``llewellyn``, ``absolute_stability``. ``margins=False``:
-    the same verdict without margins (faster).
+    ``passivity`` (two-port passivity), ``llewellyn``, ``absolute_stability``, and any criterion
+    registered (:func:`register_criterion`, entry points). ``margins=False``: the same verdict
+    without margins (faster).
     """
     tm = _as_tm(tm)
     if criterion == "auto":
@@ -1323,21 +1428,9 @@ def check(tm: TransferMatrix | Rational, criterion: str = "auto", tol: Tolerance
         if tm.n == 2 and tm.n_ports == 2:
             return llewellyn(tm, tol, margins)
         return absolute_stability(tm, tol, margins)
-    if criterion == "positive_real":
-        return positive_real(tm, tol, margins)
-    if criterion == "passivity":
-        return two_port_passivity(tm, tol, margins) if tm.n_ports == 2 else positive_real(tm, tol, margins)
-    if criterion == "llewellyn":
-        return llewellyn(tm, tol, margins)
-    if criterion == "absolute_stability":
-        return absolute_stability(tm, tol, margins)
-    raise ModelError(f"unknown criterion {criterion!r}; expected auto, positive_real, passivity, llewellyn or "
-                     "absolute_stability")
-
-
-#: the criteria :func:`check` runs by name (besides ``auto``, which picks one by the network's
-#: size): the one list other modules read (CLI choices, scene and network-file checks)
-CRITERIA: tuple[str, ...] = ("positive_real", "passivity", "llewellyn", "absolute_stability")
+    if not is_criterion(criterion):
+        raise ModelError(f"unknown criterion {criterion!r}; expected auto, {', '.join(criterion_names())}")
+    return _REGISTRY[criterion].run(tm, tol, margins)
 
 
 def margin_curve(g: TransferMatrix | Rational, condition: str = "E{1}") -> Callable[[np.ndarray], np.ndarray]:
