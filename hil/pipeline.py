@@ -715,15 +715,19 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
         ok = np.isfinite(lo_e) & np.isfinite(hi_e) & (hi_e > lo_e)
         band = (float(np.quantile(lo_e[ok], 0.05)), float(np.quantile(hi_e[ok], 0.95))) if ok.any() else None
         return res["passive"], margin, "vectorized closed form (Theorem 5), exact fallback near the boundary", band
-    stable = np.zeros(n, bool)
-    for i in range(n):
-        q = dict(params)
-        q.update({k: float(v[i]) for k, v in draws.items()})
+    from hil.models.batch_general import screened_stability
+
+    def exact_one(q: Mapping[str, Any]) -> bool:
         try:
-            stable[i] = str(_check(build_network(model, q), criterion, margins=False).verdict) == "stable"
+            return str(_check(build_network(model, q), criterion, margins=False).verdict) == "stable"
         except HilError:
-            stable[i] = False
-    return stable, None, "general exact criterion per draw", None
+            return False
+
+    # draws the vectorized screen rejects on a necessary condition (beyond its error bound) skip the
+    # exact path; every other draw is decided exactly (hil.models.batch_general)
+    res = screened_stability(model, criterion, params, draws, exact_one)
+    assert res["stable"].shape == (n,)
+    return res["stable"], None, str(res["method"]), None
 
 
 def _exact_margin_fn(model: str, criterion: str, params: Mapping[str, Any],
