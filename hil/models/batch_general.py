@@ -236,7 +236,7 @@ def screened_stability(model: str, criterion: str, params: Mapping[str, Any],
         q.update(th)
         return m.network(q)
 
-    cmap = coefficient_map(build, names, X) if N > len(names) + 4 else None
+    cmap = coefficient_map(build, names, X) if len(names) + 4 < N else None
     if cmap is not None:
         rejected, margin = screen(cmap, X, criterion)
     else:
