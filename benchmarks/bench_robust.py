@@ -74,7 +74,10 @@ def main() -> None:
         names = sorted(draws)
         X = np.column_stack([draws[k] for k in names])
         t0 = time.perf_counter()
-        cmap = coefficient_map(lambda th, m=m, params=params: m.network({**params, **th}), names, X)
+        def build(th: Mapping[str, float], m: Any = m, params: dict[str, Any] = params) -> Any:
+            return m.network({**params, **th})
+
+        cmap = coefficient_map(build, names, X)
         rej = screen(cmap, X, m.criterion)[0] if cmap is not None else np.zeros(n, bool)
         t_screen = time.perf_counter() - t0
         t0 = time.perf_counter()

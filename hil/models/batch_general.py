@@ -6,10 +6,11 @@ per-draw stability it returns is the exact path's on every draw:
 
 1. **Coefficient map.** The network's entries n_ij(s)/d_ij(s) of the built-in models have
    coefficients affine in the drawn parameters (masses, dampings, gains). The map θ → (all
-   numerator and denominator coefficients) is measured once with d + 1 builds (the centre and one
-   step per parameter) and checked against real builds at three more draws (the farthest from the
-   centre among them): a map that is not affine, or whose builds change shape, is refused and
-   every draw takes the exact path. The map's measured mismatch (relative, per coefficient) enters
+   numerator and denominator coefficients) is measured once with d + 1 builds (the draws' mean
+   and one step per parameter, to the farthest draw along its axis) and checked against real
+   builds at three more draws (the first, the last and the farthest from the mean): a map that is
+   not affine, or whose builds change shape or fail, is refused and every draw takes the exact
+   path. The map's measured mismatch (relative, per coefficient) enters
    the error bound below.
 2. **Vectorized screen.** Z(jω) of all draws on a log-spaced grid (from the centre network's poles
    and zeros, two decades beyond each side) is evaluated in float, with a first-order bound on its
@@ -116,7 +117,12 @@ def coefficient_map(build: Callable[[Mapping[str, float]], Any], names: list[str
         d = len(names)
         dnum, dden = np.zeros((d, *num0.shape)), np.zeros((d, *den0.shape))
         for k in range(d):
-            h = 0.25 * abs(centre[k]) if centre[k] != 0 else 1.0
+            # a step inside the draws' range (a parameter with a bound, e.g. alpha ≤ 1, may refuse a
+            # step beyond it): towards the draw farthest from the centre along this axis
+            lo_k, hi_k = float(X[:, k].min()), float(X[:, k].max())
+            h = (hi_k - centre[k]) if hi_k - centre[k] >= centre[k] - lo_k else (lo_k - centre[k])
+            if h == 0:
+                h = 0.25 * abs(centre[k]) if centre[k] != 0 else 1.0
             th = centre.copy()
             th[k] += h
             got = _arrays(build(dict(zip(names, th.tolist(), strict=True))), L)
