@@ -36,7 +36,7 @@ def _rel(rng: np.random.Generator, n: int, spec: Mapping[str, tuple[float, float
 CASES: list[tuple[str, str, Posterior]] = [
     ("mbk_impedance", "straddling",
      lambda r, n: {**_rel(r, n, {"B_00": (8.0, 0.05), "B_11": (6.0, 0.05)}),
-                   "B_01": -2.0 + 3.5 * r.standard_normal(n)}),
+                   "B_01": -2.0 + 3.5 * r.standard_normal(n), "M_01": 0.2 + 0.3 * r.standard_normal(n)}),
     ("mbk_impedance", "stable",
      lambda r, n: _rel(r, n, {"B_00": (8.0, 0.05), "B_11": (6.0, 0.05), "B_01": (-2.0, 0.1)})),
     ("bilateral_1dof", "straddling",

@@ -154,3 +154,21 @@ def test_screen_rejects_a_clear_violation() -> None:
     assert rejected.all()
     assert np.all(margin < 0)
     assert not _exact("mbk_impedance", "positive_real", params, draws).any()
+
+
+def test_screen_rejects_an_indefinite_mass_matrix_at_infinity() -> None:
+    # Re Z(jω) = B is PSD, but the residue at s = ∞ (the mass matrix) has M_00 M_11 − M_01² =
+    # 0.6 − 0.81 < 0: not positive real (a condition the frequency grid cannot see); M_01 = 0.5 is PSD
+    n = 30
+    m01 = np.where(np.arange(n) % 2 == 0, 0.9, 0.5) * (1 + 1e-3 * np.arange(n) / n)
+    draws = {"M_01": m01, "B_00": np.full(n, 8.0) + 1e-3 * np.arange(n)}
+    names = sorted(draws)
+    X = np.column_stack([draws[k] for k in names])
+    params = _params("mbk_impedance", draws)
+    m = get_model("mbk_impedance")
+    cmap = coefficient_map(lambda th: m.network({**params, **th}), names, X)
+    assert cmap is not None
+    rejected, _ = screen(cmap, X, "positive_real")
+    ref = _exact("mbk_impedance", "positive_real", params, draws)
+    assert np.array_equal(rejected, m01 > 0.8)
+    assert np.array_equal(ref, m01 < 0.8)

@@ -25,6 +25,9 @@ per-draw stability it returns is the exact path's on every draw:
    * ``positive_real`` / ``passivity``: the 2×2 principal minors of the Hermitian part,
      Re z_ii·Re z_jj − |z_ij + conj(z_ji)|²/4 ≥ 0.
 
+   At s = ∞ (entries with a simple pole there): the residue matrix's diagonal ≥ 0 and, for
+   positive realness, its symmetric part's 2×2 minors ≥ 0.
+
    A draw with a condition below −:data:`SAFETY` × its error bound at some grid point has a real
    violation of a necessary condition, so the exact criterion cannot call it ``stable``: it is
    **rejected** without the exact path.
@@ -164,6 +167,44 @@ def _eval(c: np.ndarray, S: np.ndarray, A: np.ndarray, gamma: float) -> tuple[np
     return val, gamma * mag
 
 
+def _infinity_rejects(num: np.ndarray, den: np.ndarray, gamma: float, hermitian: bool) -> np.ndarray:
+    """(N,) bool: a necessary condition at s = ∞ clearly violated. For entries with a simple pole at
+    ∞ in every draw (den of degree k at the centre's structure, num of degree k + 1: the residue
+    R_ij = num_{k+1}/den_k), the residue matrix must have R_ii ≥ 0 (every criterion: its diagonal
+    is a principal minor) and, for ``hermitian`` (positive realness: R Hermitian PSD), the 2×2
+    minors of (R + Rᵀ)/2 ≥ 0. Entries without that structure give no condition."""
+    N, n, _, L = num.shape
+    R = np.zeros((N, n, n))
+    eR = np.full((N, n, n), np.inf)
+    for i in range(n):
+        for j in range(n):
+            dn, dd = num[:, i, j], den[:, i, j]
+            nz = np.nonzero(np.any(dd != 0, axis=0))[0]
+            if nz.size == 0:
+                continue
+            k = int(nz[-1])
+            if k + 1 >= L or np.any(num[:, i, j, k + 2:] != 0):
+                continue
+            lead_n, lead_d = dn[:, k + 1], dd[:, k]
+            ok = lead_d != 0
+            with np.errstate(invalid="ignore", divide="ignore"):
+                R[:, i, j] = np.where(ok, lead_n / np.where(ok, lead_d, 1.0), 0.0)
+                eR[:, i, j] = np.where(ok, 4.0 * gamma * np.abs(R[:, i, j]) + 1e-300, np.inf)
+    bad = np.zeros(N, bool)
+    for i in range(n):
+        bad |= np.isfinite(eR[:, i, i]) & (R[:, i, i] < -SAFETY * eR[:, i, i])
+    if hermitian:
+        for i in range(n):
+            for j in range(i + 1, n):
+                h = 0.5 * (R[:, i, j] + R[:, j, i])
+                eh = 0.5 * (eR[:, i, j] + eR[:, j, i])
+                val = R[:, i, i] * R[:, j, j] - h * h
+                err = (np.abs(R[:, i, i]) * eR[:, j, j] + np.abs(R[:, j, j]) * eR[:, i, i] + eR[:, i, i] * eR[:, j, j]
+                       + eh * (2.0 * np.abs(h) + eh))
+                bad |= np.isfinite(err) & (val < -SAFETY * err)
+    return bad
+
+
 def screen(cmap: CoefficientMap, X: np.ndarray, criterion: str,
            grid_points: int = GRID_POINTS) -> tuple[np.ndarray, np.ndarray]:
     """(rejected (N,) bool, screen margin (N,)): a draw is rejected when a necessary condition of
@@ -187,6 +228,7 @@ def screen(cmap: CoefficientMap, X: np.ndarray, criterion: str,
     margin = np.full(N, np.inf)
     for a in range(0, N, _CHUNK):
         num, den = cmap.coefficients(X[a:a + _CHUNK])
+        rejected[a:a + _CHUNK] |= _infinity_rejects(num, den, gamma, pairs_mode == "h")
         nv, ne = _eval(num, S, A, gamma)
         dv, de = _eval(den, S, A, gamma)
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
