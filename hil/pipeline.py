@@ -696,7 +696,9 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
     least to most stable (the model's vectorized criterion, e.g. the SDEA's closed-form margin; None
     on the general path), the method,
     and the critical band (5 % quantile of the draws' lower edges to 95 % of their upper edges, see
-    hil.models.batch) (None when the path does not provide it)."""
+    hil.models.batch) (None when the path does not provide it). Without a closed-form batch, the
+    exact criterion decides every draw that hil.models.batch_general's vectorized screen does not
+    reject on a clearly violated necessary condition (the same per-draw verdicts, fewer exact runs)."""
     from hil.models import get_model
 
     n = len(next(iter(draws.values())))
