@@ -696,7 +696,9 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
     least to most stable (the model's vectorized criterion, e.g. the SDEA's closed-form margin; None
     on the general path), the method,
     and the critical band (5 % quantile of the draws' lower edges to 95 % of their upper edges, see
-    hil.models.batch) (None when the path does not provide it)."""
+    hil.models.batch) (None when the path does not provide it). Without a closed-form batch, the
+    exact criterion decides every draw that hil.models.batch_general's vectorized screen does not
+    reject on a clearly violated necessary condition (the same per-draw verdicts, fewer exact runs)."""
     from hil.models import get_model
 
     n = len(next(iter(draws.values())))
@@ -715,15 +717,22 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
         ok = np.isfinite(lo_e) & np.isfinite(hi_e) & (hi_e > lo_e)
         band = (float(np.quantile(lo_e[ok], 0.05)), float(np.quantile(hi_e[ok], 0.95))) if ok.any() else None
         return res["passive"], margin, "vectorized closed form (Theorem 5), exact fallback near the boundary", band
-    stable = np.zeros(n, bool)
-    for i in range(n):
-        q = dict(params)
-        q.update({k: float(v[i]) for k, v in draws.items()})
+    from hil.models.batch_general import screened_stability
+
+    def exact_one(q: Mapping[str, Any]) -> bool:
         try:
-            stable[i] = str(_check(build_network(model, q), criterion, margins=False).verdict) == "stable"
+            return str(_check(build_network(model, q), criterion, margins=False).verdict) == "stable"
         except HilError:
-            stable[i] = False
-    return stable, None, "general exact criterion per draw", None
+            return False
+
+    # draws the vectorized screen rejects on a necessary condition (beyond its error bound) skip the
+    # exact path; every other draw is decided exactly (hil.models.batch_general)
+    # the certificate's method stays the exact criterion's: the screen only skips it where its
+    # verdict is already determined, so every per-draw verdict is the exact criterion's
+    res = screened_stability(model, criterion, params, draws, exact_one)
+    assert res["stable"].shape == (n,)
+    logger.info("robust draws: %s", res["method"])
+    return res["stable"], None, "general exact criterion per draw", None
 
 
 def _exact_margin_fn(model: str, criterion: str, params: Mapping[str, Any],
