@@ -3,8 +3,10 @@
 For every built-in scene, the first experiment runs through the full :class:`hil.runner.Runner`
 in lockstep (every device read over its real transport: python-can virtual bus, pty, loopback
 Modbus; controller, safety, record, plant advance) for ``--ticks`` ticks; the table prints runner
-ticks per second, the bench alone (read/command/advance with zero effort, no runner) and, as the
-baseline measured in the same run, the scene's physics alone (``Simulator.tick``).
+ticks per second (bench opening and record included), the bench alone (read/command/advance with
+zero effort, no runner; wall clock, and per second of this process's CPU time, which a loaded
+machine disturbs less) and, as the baseline measured in the same run, the scene's physics alone
+(``Simulator.tick``).
 
 ``--digest`` also prints the SHA-256 over every record channel and ``/t`` of each run (the
 bit-identity check: the same seed must give the same digest before and after an optimisation).
@@ -53,16 +55,17 @@ def runner_tps(name: str, ticks: int, digest: bool) -> tuple[float, str, str]:
     return ticks / dt, o.status, dig
 
 
-def bench_tps(name: str, ticks: int) -> tuple[float, float]:
+def bench_tps(name: str, ticks: int) -> tuple[float, float, float]:
+    """(bench ticks/s wall clock, bench ticks/s of this process's CPU time, plant-only ticks/s)."""
     sc = load_scene(name)
     with Bench(sc, seed=sc.seed) as bench:
         zero = {a: np.zeros(sc.device(a).dof) for a in bench.actuators}
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         for _ in range(ticks):
             bench.read()
             bench.command(zero)
             bench.advance()
-        b = time.perf_counter() - t0
+        b, c = time.perf_counter() - t0, time.process_time() - c0
         bench.safe_stop()
     with Bench(sc, seed=sc.seed) as bench:
         sim = bench.simulator
@@ -70,7 +73,7 @@ def bench_tps(name: str, ticks: int) -> tuple[float, float]:
         for _ in range(ticks):
             sim.tick()
         p = time.perf_counter() - t0
-    return ticks / b, ticks / p
+    return ticks / b, ticks / c, ticks / p
 
 
 def main() -> None:
@@ -81,12 +84,13 @@ def main() -> None:
     a = ap.parse_args()
     names = [s for s in a.scenes.split(",") if s] or [n for n, _ in builtin_scenes()]
     print(f"Lockstep throughput, {a.ticks} ticks per scene (first experiment of each scene)")
-    print(f"{'scene':28s} {'runner ticks/s':>15s} {'bench ticks/s':>14s} {'plant ticks/s':>14s} {'plant/runner':>13s}"
-          f" status" + ("   record sha256" if a.digest else ""))
+    print(f"{'scene':28s} {'runner ticks/s':>15s} {'bench ticks/s':>14s} {'bench CPU t/s':>14s} {'plant ticks/s':>14s}"
+          f" {'plant/bench':>12s} status" + ("   record sha256" if a.digest else ""))
     for name in names:
         r, status, dig = runner_tps(name, a.ticks, a.digest)
-        b, p = bench_tps(name, a.ticks)
-        print(f"{name:28s} {r:15.0f} {b:14.0f} {p:14.0f} {p / r:13.1f} {status}" + (f"   {dig[:16]}" if dig else ""))
+        b, c, p = bench_tps(name, a.ticks)
+        print(f"{name:28s} {r:15.0f} {b:14.0f} {c:14.0f} {p:14.0f} {p / b:12.1f} {status}"
+              + (f"   {dig[:16]}" if dig else ""))
 
 
 if __name__ == "__main__":
