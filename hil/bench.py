@@ -236,6 +236,8 @@ class Bench:
         self._closed = False
         self._ticks = 0
         self._cache: tuple[int, Measurements] | None = None
+        self._command_plan: Any = None  # see _build_command_plan
+        self._sim_plan_cache: list[tuple[Twin, Any, list[Any]]] | None = None  # see _sim_plan
         with _BENCH_IDS_LOCK:
             self._bench_id = next(_BENCH_IDS)
         if variant not in (None, "locked", "free"):
@@ -344,27 +346,30 @@ class Bench:
         ValueError before anything is sent.
         """
         self._check_open()
-        acts = self.actuators
+        plan = self._command_plan
+        if plan is None:  # built once the devices are open (name lookups, not per tick)
+            plan = self._command_plan = self._build_command_plan()
+        acts, groups, dofs_of = plan
         t = self.timeout if timeout is None else float(timeout)
         checked: list[tuple[Any, np.ndarray]] = []
         expanded: dict[str, Any] = {}
         for name, e in efforts.items():  # a group's effort is split over its members, in order
-            g = self.scene.group(name)
+            g = groups.get(name)
             if g is None:
                 expanded[name] = e
                 continue
+            members, dofs, split = g
             arr = np.asarray(e, dtype=float).reshape(-1)
-            dofs = [self.scene.device(m).dof for m in g.devices]
             if arr.size != sum(dofs):
                 raise ValueError(f"command: group {name!r} has {sum(dofs)} DOF, got {arr.size} efforts")
-            for m, part in zip(g.devices, np.split(arr, np.cumsum(dofs)[:-1]), strict=True):
+            for m, part in zip(members, np.split(arr, split), strict=True):
                 expanded[m] = part
         for name, e in expanded.items():
             if name not in acts:
                 raise ValueError(f"command: {name!r} is not an actuator of scene {self.scene.name!r}; "
                                  f"actuators: {sorted(acts)}")
             arr = np.asarray(e, dtype=float).reshape(-1)
-            dof = self.scene.device(name).dof
+            dof = dofs_of[name]
             if arr.size != dof:
                 raise ValueError(f"command: {name!r} has {dof} DOF, got {arr.size} efforts")
             if not np.all(np.isfinite(arr)):
@@ -372,6 +377,18 @@ class Bench:
             checked.append((acts[name], arr))
         for adapter, arr in checked:
             adapter.command_effort(arr, timeout=t)
+
+    def _build_command_plan(self) -> tuple[dict[str, Any], dict[str, tuple[list[str], list[int], Any]],
+                                           dict[str, int]]:
+        """(actuator adapters by name, group name -> (members, member dofs, split indices), actuator
+        name -> dof): what :meth:`command` looks up, computed once per opened bench."""
+        sc = self.scene
+        groups: dict[str, tuple[list[str], list[int], Any]] = {}
+        for g in sc.groups:
+            dofs = [sc.device(m).dof for m in g.devices]
+            groups[g.name] = (list(g.devices), dofs, np.cumsum(dofs)[:-1])
+        acts = self.actuators
+        return acts, groups, {name: sc.device(name).dof for name in acts}
 
     def set_human_force(self, port_or_body: str | Mapping[str, Any], force: Any = None) -> None:
         """Set the active force (N or N.m) of the simulated human at a port, held until changed.
@@ -409,9 +426,8 @@ class Bench:
             return
         self._flush_devices()
         self.simulator.tick()
-        for d in self._devs:
-            if d.sim is not None and d.twin is not None:
-                d.twin.tick(d.sim)
+        for twin, sim, _ in self._sim_plan():
+            twin.tick(sim)
 
     def safe_stop(self) -> dict[str, str]:
         """Zero effort on every actuator (and disable where the adapter does so). Never raises.
@@ -690,10 +706,22 @@ class Bench:
     def _flush_devices(self) -> None:
         """Let simulated devices process what the host has sent (each twin's ``flush``; e.g. a
         DYNAMIXEL chain waits until it consumed every byte the adapters on it wrote)."""
-        for d in self._devs:
-            if d.sim is not None and d.twin is not None:
-                adapters = [x.adapter for x in self._devs if x.host is d.sim and x.adapter is not None]
-                d.twin.flush(d.sim, adapters, max(1.0, 10 * self.timeout))
+        wait = max(1.0, 10 * self.timeout)
+        for twin, sim, adapters in self._sim_plan():
+            twin.flush(sim, adapters, wait)
+
+    def _sim_plan(self) -> list[tuple[Twin, Any, list[Any]]]:
+        """(twin, simulated device, adapters it serves) of every simulated device, in device order.
+        While the devices are being opened it is rebuilt on each call (adapters appear one by
+        one); once every device is open it is computed once (the per-tick loops use it)."""
+        plan = self._sim_plan_cache
+        if plan is not None:
+            return plan
+        plan = [(d.twin, d.sim, [x.adapter for x in self._devs if x.host is d.sim and x.adapter is not None])
+                for d in self._devs if d.sim is not None and d.twin is not None]
+        if self._devs and all(d.adapter is not None for d in self._devs):
+            self._sim_plan_cache = plan
+        return plan
 
 
 @dataclasses.dataclass(frozen=True)

@@ -82,12 +82,16 @@ class _SyncQueue(queue.Queue):
 CAN_TX_QUEUE_LEN = 10
 
 
+#: can_frame_bits(n) for n = 0..8 payload bytes (worst case, standard identifier), computed once
+_FRAME_BITS = tuple(can_frame_bits(n) for n in range(9))
+
+
 def frame_bits(msg: can.Message) -> int:
     """Worst-case bits of ``msg`` on the wire (:func:`hil.protocols.link_budget.can_frame_bits`; a
     remote frame carries no data; an error frame stands for the 8-byte frame it destroyed)."""
     if msg.is_error_frame:
-        return can_frame_bits(8)
-    return can_frame_bits(0 if msg.is_remote_frame else min(len(msg.data), 8))
+        return _FRAME_BITS[8]
+    return _FRAME_BITS[0 if msg.is_remote_frame else min(len(msg.data), 8)]
 
 
 @dataclass

@@ -86,7 +86,7 @@ class Joints:
         e = np.asarray(effort, dtype=float).reshape(-1)
         if e.size != self.dof:
             raise ModelError(f"{self.name}: effort has {e.size} values, the body has {self.dof} DOF")
-        if not np.all(np.isfinite(e)):
+        if not np.isfinite(e).all():
             raise ModelError(f"{self.name}: non-finite effort {e}")
         self._cmd = e.copy()
 
@@ -224,11 +224,11 @@ class Simulator:
         for h in self.handles.values():
             self._u[h._jm.effort] = h._effective_effort()
         if self._exact:
-            prods = (self._W * np.concatenate([self._x, self._u])[None, :]).tolist()
-            x_new = np.fromiter((math.fsum(r) for r in prods), dtype=float, count=self.n)
+            prods = (self._W * np.concatenate((self._x, self._u))).tolist()
+            x_new = np.fromiter(map(math.fsum, prods), dtype=float, count=self.n)
         else:
             x_new = self.Ad @ self._x + self.Bd @ self._u
-        if not np.all(np.isfinite(x_new)):
+        if not np.isfinite(x_new).all():
             raise ModelError(f"simulation diverged at t = {self.time:.6g} s (non-finite state)")
         self._x = x_new
         self.last_input = self._u.copy()
