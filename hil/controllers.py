@@ -73,6 +73,7 @@ from pydantic import BeforeValidator, Field, model_validator
 from pydantic_core import PydanticCustomError
 
 from hil.errors import SceneError
+from hil.plugins import load_group
 from hil.protocols.base import JointSample, WrenchSample
 from hil.schema import (
     DampMat,
@@ -929,7 +930,9 @@ def register_controller(name: str, schema: type[ControllerConfig],
 
 
 def controller_schemas() -> tuple[type[ControllerConfig], ...]:
-    """The schemas of every registered controller type (registration order)."""
+    """The schemas of every registered controller type (registration order), after those of the
+    ``hil_certify.controllers`` entry points (:mod:`hil.plugins`, read once)."""
+    load_group("controllers", ControllerType, lambda t: register_controller(t.name, t.schema, t.build))
     return tuple(t.schema for t in CONTROLLER_TYPES.values())
 
 

@@ -38,6 +38,7 @@ from pydantic import BeforeValidator, Field, model_validator
 from pydantic_core import PydanticCustomError
 
 from hil.errors import SceneError
+from hil.plugins import load_group
 from hil.schema import (
     DampNonneg,
     DofList,
@@ -1135,7 +1136,9 @@ def register_experiment(name: str, schema: type[ExperimentConfig], impl: Callabl
 
 
 def experiment_schemas() -> tuple[type[ExperimentConfig], ...]:
-    """The schemas of every registered experiment type (registration order)."""
+    """The schemas of every registered experiment type (registration order), after those of the
+    ``hil_certify.experiments`` entry points (:mod:`hil.plugins`, read once)."""
+    load_group("experiments", ExperimentType, lambda t: register_experiment(t.name, t.schema, t.impl))
     return tuple(t.schema for t in EXPERIMENT_TYPES.values())
 
 

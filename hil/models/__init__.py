@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from hil.errors import ModelError
+from hil.plugins import load_group
 from hil.stability.rational import TransferMatrix
 
 __all__ = ["BUILTIN_MODELS", "BatchCriterion", "BuiltinModel", "DesignParameter", "get_model", "model_names"]
@@ -268,10 +269,33 @@ def _defaults() -> dict[str, BuiltinModel]:
 BUILTIN_MODELS: dict[str, BuiltinModel] = {}
 
 
-def get_model(name: str) -> BuiltinModel:
-    """Look a built-in model up by name (KeyError with the known names otherwise)."""
+def register_model(model: BuiltinModel, *, replace: bool = False) -> None:
+    """Add a network model (``hil stability --model``, scenes' ``certification.model``, ``hil
+    sweep``); refuses to shadow a registered name unless ``replace``."""
+    _fill()
+    if model.name in BUILTIN_MODELS and not replace and BUILTIN_MODELS[model.name] is not model:
+        raise ValueError(f"model {model.name!r} is already registered")
+    BUILTIN_MODELS[model.name] = model
+
+
+def _fill() -> None:
+    """The built-in models (entry points are read by :func:`_plugins`)."""
     if not BUILTIN_MODELS:
         BUILTIN_MODELS.update(_defaults())
+
+
+def _plugins() -> None:
+    """The models of the ``hil_certify.models`` entry points (:mod:`hil.plugins`; read once, and
+    only when a name is not built in or the list is asked for: start-up time)."""
+    _fill()
+    load_group("models", BuiltinModel, register_model)
+
+
+def get_model(name: str) -> BuiltinModel:
+    """Look a model up by name (KeyError with the known names otherwise)."""
+    _fill()
+    if name not in BUILTIN_MODELS:
+        _plugins()
     try:
         return BUILTIN_MODELS[name]
     except KeyError:
@@ -280,6 +304,5 @@ def get_model(name: str) -> BuiltinModel:
 
 def model_names() -> list[str]:
     """The names of the registered models."""
-    if not BUILTIN_MODELS:
-        BUILTIN_MODELS.update(_defaults())
+    _plugins()
     return list(BUILTIN_MODELS)
