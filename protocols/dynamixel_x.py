@@ -256,8 +256,9 @@ class DynamixelX(Actuator):
     def effort_on_wire(self, effort: np.ndarray) -> np.ndarray:
         """The effort (N.m) :meth:`command_effort` sends for ``effort``: Goal Current(102) in units of
         2.69 mA, clamped to +-Current Limit(38) (XM430 e-Manual, control table), decoded back as
-        ``d * raw * 2.69e-3 * kt`` (what hil.runner records as ``effort_cmd``)."""
-        raw = self.current_command(effort).astype(float)
+        ``d * raw * 2.69e-3 * kt`` (what hil.runner records as ``effort_cmd``), after the same
+        ``effort_limit`` clamp as :meth:`command_effort`."""
+        raw = self.current_command(self._checked_effort(effort)).astype(float)
         return np.asarray(self.directions * raw * CURRENT_UNIT_A * self.torque_constant, dtype=float)
 
     def _send_effort(self, effort: np.ndarray, timeout: float) -> None:

@@ -215,3 +215,15 @@ def test_effort_on_wire_is_what_the_motor_applies(rig):
         # independent derivation: code = floor((clamp(u) - T_min) * 4095 / span), decoded linearly
         code = math.floor((min(max(u, lim.t_min), lim.t_max) - lim.t_min) / step)
         assert wire == pytest.approx(lim.t_min + code * step, abs=1e-9)
+
+
+def test_effort_on_wire_applies_the_effort_limit_like_command_effort(rig):
+    """The recorded effort of a command beyond the adapter's effort_limit is the clamped one the
+    motor receives (command_effort clamps before encoding; effort_on_wire must do the same)."""
+    j, node, dev = rig
+    dev.effort_limit = 2.0
+    wire = dev.effort_on_wire(np.array([7.5]))[0]
+    dev.command_effort(np.array([7.5]))
+    _, c = node.commands[-1]
+    assert wire == pytest.approx(c.t_ff, abs=1e-12)
+    assert abs(wire - 2.0) <= (dev.limits.t_max - dev.limits.t_min) / 4095  # one code of the clamp

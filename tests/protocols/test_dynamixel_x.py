@@ -331,3 +331,15 @@ def test_effort_on_wire_is_what_the_servo_applies() -> None:
         step = CURRENT_UNIT_A * KT
         assert abs(wire[0] - 0.5003) <= step / 2 and wire[0] != 0.5003  # rounded to one current unit
         assert wire[2] == pytest.approx(-1000 * step)  # the clamp
+
+
+def test_effort_on_wire_applies_the_effort_limit_like_command_effort() -> None:
+    """A command beyond effort_limit is recorded as the clamped effort the servo receives."""
+    plant = FreeJoints(dof=1)
+    with DynamixelChain(plant, ids=[1]) as chain, DynamixelX(chain.port, ids=[1], current_limit=1000) as dx:
+        dx.effort_limit = 0.2
+        wire = dx.effort_on_wire(np.array([0.9]))
+        dx.command_effort(np.array([0.9]))
+        chain.sync(dx.tx_bytes)
+        np.testing.assert_allclose(wire, plant.measured_force(), rtol=1e-12)
+        assert abs(wire[0] - 0.2) <= CURRENT_UNIT_A * KT / 2  # the clamp, rounded to one current unit
