@@ -220,7 +220,7 @@ def test_effort_on_wire_is_what_the_motor_applies(rig):
 def test_effort_on_wire_applies_the_effort_limit_like_command_effort(rig):
     """The recorded effort of a command beyond the adapter's effort_limit is the clamped one the
     motor receives (command_effort clamps before encoding; effort_on_wire must do the same)."""
-    j, node, dev = rig
+    _, node, dev = rig
     dev.effort_limit = 2.0
     wire = dev.effort_on_wire(np.array([7.5]))[0]
     dev.command_effort(np.array([7.5]))
