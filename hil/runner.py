@@ -366,6 +366,9 @@ class Runner:
                 return cls(scene, seed=scene.seed, variant=variant)
 
         self.bench_factory = bench_factory
+        # _as_sent: whether the current bench has an adapter that quantizes its effort (per bench)
+        self._wire_checked: Any = None
+        self._wire_any = False
         self.bench: Any = None
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
@@ -643,13 +646,19 @@ class Runner:
             logger.warning("%s: results not computed: %s", name, one_line(exc), exc_info=True)
             return {"error": one_line(exc)}
 
-    def _as_sent(self, u: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    def _as_sent(self, u: Mapping[str, np.ndarray]) -> Mapping[str, np.ndarray]:
         """The commanded efforts as the adapters put them on the wire: an adapter that quantizes or
         clamps its command (``effort_on_wire(effort) -> effort``, e.g. CiA 402 per-mille torque,
         CubeMars 12-bit torque, DYNAMIXEL 2.69 mA current units) reports what it encodes, so the
         record's ``effort_cmd`` is the effort the drive applies; others are recorded as commanded.
-        A group's effort is mapped member by member (in the group's order)."""
+        A group's effort is mapped member by member (in the group's order). A bench none of whose
+        adapters quantizes gets ``u`` back unchanged (decided once per bench: the tick path)."""
         acts = getattr(self.bench, "actuators", None) or {}
+        if self._wire_checked is not self.bench:
+            self._wire_checked = self.bench
+            self._wire_any = any(hasattr(a, "effort_on_wire") for a in acts.values())
+        if not self._wire_any:
+            return u
         out: dict[str, np.ndarray] = {}
         for key, v in u.items():
             group = self.scene.group(key) if hasattr(self.scene, "group") else None
