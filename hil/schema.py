@@ -202,8 +202,10 @@ def _criterion_name(v: Any) -> str:
     from hil.stability.criteria import criterion_names, is_criterion
 
     if not isinstance(v, str) or not is_criterion(v):
-        raise PydanticCustomError("criterion", "unknown criterion '{v}': expected auto, {names}",
-                                  {"v": v, "names": ", ".join(criterion_names())})
+        names = ("auto", *criterion_names())
+        hint = near(v, names) if isinstance(v, str) else ""
+        raise PydanticCustomError("criterion", "unknown criterion: expected one of {names}, got {got}{hint}",
+                                  {"names": ", ".join(names), "got": repr(v), "hint": hint if "did you" in hint else ""})
     return v
 
 
