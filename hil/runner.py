@@ -346,6 +346,11 @@ class Runner:
     devices from another process (:class:`hil.bench.ProcessSimBench`).
     """
 
+    #: realtime mode: the record is written by a writer thread (:class:`hil.record.RecordWriter`
+    #: ``background=True``), so no HDF5 write or flush runs inside a tick; False: synchronous flushes
+    #: in the tick (as in lockstep mode, which always writes synchronously)
+    record_thread: bool = True
+
     def __init__(self, scene: Any, out_dir: str | Path, *, bench_factory: Callable[[str | None], Any] | None = None,
                  realtime: bool | None = None, progress: Callable[[str, int, int], None] | None = None,
                  max_ticks: int | None = None, overwrite: bool = False,
@@ -517,9 +522,12 @@ class Runner:
                 "network": [p.model_dump() if hasattr(p, "model_dump") else dict(p) for p in self.ports],
                 "units": units}
         try:
+            # realtime: blocks are written by the record's writer thread, off the tick (a write error or a
+            # writer that falls behind is raised by the next tick's append: a safe stop with the reason)
             writer = RecordWriter(path, scene_text=self.scene.source_text, scene_sha256=self.scene.sha256,
                                   meta=meta, channels=self._channels(meas0), rate_hz=self.rate_hz,
-                                  overwrite=self.overwrite, planned_samples=n)
+                                  overwrite=self.overwrite, planned_samples=n,
+                                  background=self.realtime and self.record_thread)
         except BaseException:
             self.bench.safe_stop()
             raise
