@@ -42,6 +42,15 @@ kill in the middle of a flush never yields a half-written sample. The writer tra
 bytes the file holds and writes each block at those absolute positions, so a block is never
 written twice (an interrupted write that is retried lands on the same rows).
 
+Background writing (``RecordWriter(background=True)``, used by the realtime runner): the same
+blocks are written, in the same order and to the same positions, by a writer thread instead of
+the appending thread; ``append`` only copies the sample into a preallocated block. During the run
+every h5py call on the file is made by that thread. The blocks not yet written are bounded
+(``max_pending_blocks``): a writer that falls behind further is a :class:`RecordLagError` (the
+samples are kept and written by ``close``), never unbounded memory or a silent loss. A kill loses
+at most the blocks not yet written; a write error in the thread fails the writer as above and is
+raised by the next call (see :class:`RecordWriter`).
+
 Signals. While a block (and the whole of ``close()``) is written, the Python handlers of SIGINT,
 SIGTERM, SIGHUP, SIGQUIT, SIGUSR1/2 and SIGALRM are deferred (swapped for a handler that notes the
 signal; re-delivered afterwards), so a handler that raises never runs between a resize and its

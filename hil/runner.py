@@ -6,7 +6,8 @@ One tick (period dt = 1/rate_hz):
 1. read every device (adapters, with timeouts; realtime mode on external devices: timeout 0, the
    newest sample that has arrived, its age recorded as ``<device>.age``) -> measurements;
 2. controller effort + experiment excitation -> commanded effort;
-3. append the sample to the run record (streamed to HDF5, flushed every 0.1 s of run time), so
+3. append the sample to the run record (streamed to HDF5, flushed every 0.1 s of run time; in
+   realtime mode written by the record's writer thread, off the tick), so
    the sample that breaches a limit is in the record;
 4. safety check (non-finite feedback, effort, velocity, position, injected port energy, stale
    feedback, loop overrun); a breach raises :class:`hil.errors.SafetyStop`;
