@@ -1052,6 +1052,22 @@ class RecordWriter:
                 if block is not None:
                     self._free.put(block)
 
+    def set_writer_scheduling(self, priority: int) -> str | None:
+        """Background mode: give the writer thread SCHED_FIFO ``priority`` (Linux). The realtime
+        runner uses one below its loop's: the writer then is not preempted by ordinary processes
+        while it holds the interpreter lock the loop waits for (priority inversion), and the loop
+        still preempts it. Returns None on success, else a one-line reason (nothing changed)."""
+        th = self._thread
+        if th is None or th.native_id is None:
+            return "no writer thread"
+        if not hasattr(os, "sched_setscheduler"):  # pragma: no cover - not Linux
+            return "SCHED_FIFO not available on this platform"
+        try:
+            os.sched_setscheduler(th.native_id, os.SCHED_FIFO, os.sched_param(int(priority)))
+        except OSError as exc:
+            return f"writer thread SCHED_FIFO {priority} not permitted: {exc.strerror or exc}"
+        return None
+
     def _stop_writer(self) -> bool:
         """Background mode: let the writer thread finish what is queued and exit (at most
         ``writer_timeout_s``). False when it is still running (stuck in a write)."""

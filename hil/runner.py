@@ -542,6 +542,12 @@ class Runner:
 
                     sched = rt.enter_context(realtime_scheduling(enabled=self.rt_scheduling))
                     stats.scheduling = sched.describe()
+                    if writer.background and sched.policy.startswith("SCHED_FIFO"):  # below the loop's priority
+                        from hil.realtime import FIFO_PRIORITY
+
+                        why = writer.set_writer_scheduling(FIFO_PRIORITY - 1)
+                        if why:
+                            logger.warning("%s: record writer thread: %s", name, why)
                     self._append_event(writer, 0.0, "realtime", f"loop scheduling: {sched.describe()}"
                                        + (f"; warning: {sched.warning}" if sched.warning else ""))
                     rt.enter_context(gc_paused(self.gc_pause))

@@ -317,3 +317,24 @@ def test_realtime_runner_writer_behind_is_a_safe_stop_and_every_sample_is_record
     np.testing.assert_array_equal(rec.t, np.arange(1000) * (1 / 2000.0))
     assert np.all(np.isfinite(rec.channels["motor.position"]))
     assert rec.status == "safety_stop" and "fell behind" in (rec.stop_reason or "")
+
+
+def test_writer_scheduling_is_applied_to_the_writer_thread_or_explained(tmp_path: Path) -> None:
+    sync = _writer(tmp_path / "sync.h5")
+    assert sync.set_writer_scheduling(79) == "no writer thread"
+    sync.close()
+    w = _writer(tmp_path / "bg.h5", background=True)
+    try:
+        why = w.set_writer_scheduling(79)
+        assert w._thread is not None and w._thread.native_id is not None
+        policy = os.sched_getscheduler(w._thread.native_id)
+        if why is None:  # permitted (root / CAP_SYS_NICE): the writer thread, not this one, is FIFO 79
+            assert policy == os.SCHED_FIFO and os.sched_getparam(w._thread.native_id).sched_priority == 79
+            assert os.sched_getscheduler(0) != os.SCHED_FIFO
+        else:
+            assert "not permitted" in why and "\n" not in why and policy != os.SCHED_FIFO
+        for k in range(150):
+            w.append(k / RATE, _vals(k))
+    finally:
+        w.close()
+    _check_exact(RunRecord.open(tmp_path / "bg.h5"), 150)
