@@ -2,7 +2,7 @@
 60 s and p99 lateness <= 100 µs; 2 kHz with <= 0.1 % overruns).
 
 For each rate (500 Hz, 1 kHz, 2 kHz), ``sdea_bench``'s locked chirp (f1 capped at rate / 10) runs in realtime mode for
-``--seconds`` under four configurations:
+``--seconds`` under five configurations:
 
 * ``before``: the simulated devices in the loop's own process (the in-process bench, plant stepped
   by the loop), sleep-only wait, no realtime scheduling, garbage collector on (what ``hil run
@@ -17,7 +17,10 @@ For each rate (500 Hz, 1 kHz, 2 kHz), ``sdea_bench``'s locked chirp (f1 capped a
   (:data:`hil.runner.REALTIME_READ_TIMEOUT_S` = 0): every read takes the newest sample that has
   arrived (the polled ODrive's request for the next tick is sent ahead), a read without a new sample
   is stale (counted in ``stale``); a device that stops sending is caught by the watchdog on the
-  samples' age (recorded per tick as ``<device>.age``).
+  samples' age (recorded per tick as ``<device>.age``); the record is written by its writer thread
+  (:class:`hil.record.RecordWriter` ``background=True``), so no HDF5 write or flush runs in a tick;
+* ``syncrec``: as ``with`` but the record blocks are written and flushed inside the tick that
+  fills them (``Runner.record_thread = False``; what ``with`` did before the writer thread).
 
 The late-loop safe stop is relaxed for the benchmark (``max_lateness_ms`` 10 s, overrun fraction
 1) so the whole distribution is measured; the device watchdog (50 ms) still applies: a row whose
@@ -57,6 +60,8 @@ CONFIGS: dict[str, dict[str, Any]] = {
     "blocking": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None,
                  "read_timeout": WATCHDOG_S},
     "with": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None},
+    "syncrec": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None,
+                "record_thread": False},
 }
 #: ticks after a record flush (every 0.1 s of run time) whose overruns are attributed to it
 FLUSH_SHADOW_TICKS = 8
@@ -81,6 +86,7 @@ def loop_row(rate: float, seconds: float, config: str, tmp: Path) -> dict[str, A
                bench_factory=lambda v: c["bench"](sc, seed=sc.seed, variant=v),
                rt_scheduling=c["rt_scheduling"], gc_pause=c["gc_pause"], spin_ns=c["spin_ns"],
                read_timeout=c.get("read_timeout"))
+    r.record_thread = c.get("record_thread", True)
     o = r.run(select=[0])[0]
     wall = time.perf_counter() - t0
     row = {"config": config, "rate": rate, "ticks": o.stats.get("ticks", 0), "status": o.status,

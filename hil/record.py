@@ -42,6 +42,15 @@ kill in the middle of a flush never yields a half-written sample. The writer tra
 bytes the file holds and writes each block at those absolute positions, so a block is never
 written twice (an interrupted write that is retried lands on the same rows).
 
+Background writing (``RecordWriter(background=True)``, used by the realtime runner): the same
+blocks are written, in the same order and to the same positions, by a writer thread instead of
+the appending thread; ``append`` only copies the sample into a preallocated block. During the run
+every h5py call on the file is made by that thread. The blocks not yet written are bounded
+(``max_pending_blocks``): a writer that falls behind further is a :class:`RecordLagError` (the
+samples are kept and written by ``close``), never unbounded memory or a silent loss. A kill loses
+at most the blocks not yet written; a write error in the thread fails the writer as above and is
+raised by the next call (see :class:`RecordWriter`).
+
 Signals. While a block (and the whole of ``close()``) is written, the Python handlers of SIGINT,
 SIGTERM, SIGHUP, SIGQUIT, SIGUSR1/2 and SIGALRM are deferred (swapped for a handler that notes the
 signal; re-delivered afterwards), so a handler that raises never runs between a resize and its
@@ -69,6 +78,7 @@ All channel values are stored as float64 (booleans and counters too), so a chann
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import ctypes
 import dataclasses
@@ -82,11 +92,13 @@ import logging
 import math
 import os
 import platform
+import queue
 import re
 import shutil
 import signal
 import threading
 import warnings
+import weakref
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from importlib import metadata as _metadata
@@ -108,6 +120,7 @@ __all__ = [
     "FORMAT_VERSION",
     "ChannelSpec",
     "RecordError",
+    "RecordLagError",
     "RecordWriteError",
     "RecordWriter",
     "RunRecord",
@@ -453,6 +466,35 @@ def _write_rows(ds: Any, start: int, data: np.ndarray) -> None:
     dsid.write(h5py.h5s.create_simple(arr.shape), fspace, arr)
 
 
+#: background writers whose thread is running: stopped at interpreter exit (see :func:`_stop_writers_at_exit`)
+_LIVE_WRITERS: weakref.WeakSet[RecordWriter] = weakref.WeakSet()
+
+
+@atexit.register
+def _stop_writers_at_exit() -> None:
+    """A writer never closed (an exception escaped its owner): let its thread finish the queued
+    blocks and exit before the interpreter finalizes. A daemon thread left inside h5py while the
+    interpreter shuts down would hold h5py's lock forever (the finalizer's h5py calls would hang)."""
+    for w in list(_LIVE_WRITERS):
+        with contextlib.suppress(Exception):
+            w._stop_writer()
+
+
+class _Block:
+    """One preallocated block of samples: ``t`` (n,) and ``cols[name]`` (n, *shape), NaN filled."""
+
+    __slots__ = ("cols", "t")
+
+    def __init__(self, n: int, specs: Mapping[str, ChannelSpec]) -> None:
+        self.t = np.full(n, np.nan)
+        self.cols = {k: np.full((n, *s.shape), np.nan) for k, s in specs.items()}
+
+
+class RecordLagError(RecordWriteError):
+    """The background writer fell behind: every preallocated block is waiting to be written. The
+    samples taken so far are kept (in memory) and written by :meth:`RecordWriter.close`."""
+
+
 class RecordWriter:
     """Stream one run to an HDF5 file (layout and crash-safety guarantees in the module docstring).
 
@@ -471,6 +513,25 @@ class RecordWriter:
 
     Use as a context manager; an exception inside the ``with`` closes the record with
     ``status="error"`` and the exception's message as stop reason, then propagates.
+
+    Background writing (``background=True``, the realtime runner's mode): :meth:`append` only copies
+    the sample into the current preallocated block; a full block (or one older than
+    ``flush_every_s``) is handed, with the queued events/results/counters, to a writer thread that
+    writes it and flushes the file -- the same blocks, positions and file contents as the
+    synchronous mode, so the guarantees above hold (a kill loses at most the blocks not yet
+    written: at most ``max_pending_blocks + 1`` blocks). During the run *every* h5py call on the
+    file happens in the writer thread; the caller's thread touches the file only while no block is
+    in flight (after :meth:`flush` has waited for the writer, and in :meth:`close` after the writer
+    thread has exited). The pool holds ``max_pending_blocks`` free blocks besides the current one,
+    so memory is bounded: when the current block is full and none is free, :meth:`append` raises
+    :class:`RecordLagError` (nothing is lost: the samples stay in memory and :meth:`close` writes
+    them). A write error in the writer thread makes the writer *failed* (as above) and is raised by
+    the next :meth:`append` / :meth:`event` / :meth:`flush` (the loop's next tick: a safe stop with
+    the reason). :meth:`flush` waits (at most ``writer_timeout_s`` [s]) until everything handed over
+    is on disk; :meth:`close` flushes, then joins the writer thread (bounded the same way; signals
+    held, like the rest of close). A writer that does not finish in time is left alone (the file is
+    not touched again from the caller's thread: what was flushed is on disk, as after a kill) and
+    :meth:`close` raises :class:`RecordWriteError`.
     """
 
     def __init__(
@@ -485,14 +546,25 @@ class RecordWriter:
         flush_every_s: float = 0.1,
         overwrite: bool = False,
         planned_samples: int | None = None,
+        background: bool = False,
+        max_pending_blocks: int = 4,
+        writer_timeout_s: float = 10.0,
     ) -> None:
         self.path = Path(path)
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise RecordError(f"rate_hz must be positive and finite, got {rate_hz!r}")
         if not (math.isfinite(flush_every_s) and flush_every_s > 0):
             raise RecordError(f"flush_every_s must be positive and finite, got {flush_every_s!r}")
+        if int(max_pending_blocks) < 1:
+            raise RecordError(f"max_pending_blocks must be >= 1, got {max_pending_blocks!r}")
+        if not (math.isfinite(writer_timeout_s) and writer_timeout_s > 0):
+            raise RecordError(f"writer_timeout_s must be positive and finite, got {writer_timeout_s!r}")
         self.rate_hz = float(rate_hz)
         self.flush_every_s = float(flush_every_s)
+        #: blocks are written by a writer thread (see the class docstring), not by append()
+        self.background = bool(background)
+        self.max_pending_blocks = int(max_pending_blocks)
+        self.writer_timeout_s = float(writer_timeout_s)
         #: samples per flush (the buffer size)
         self.flush_samples = max(1, round(self.rate_hz * self.flush_every_s))
         self.specs: dict[str, ChannelSpec] = {}
@@ -507,9 +579,19 @@ class RecordWriter:
             logger.info("scene_sha256 %s is not the SHA-256 of scene_text (stored as given)", scene_sha256[:12])
 
         n = self.flush_samples
-        self._t_buf = np.full(n, np.nan)
-        self._buf = {k: np.full((n, *s.shape), np.nan) for k, s in self.specs.items()}
+        self._cur = _Block(n, self.specs)
+        self._t_buf = self._cur.t
+        self._buf = self._cur.cols
         self._nbuf = 0
+        #: background mode: the free preallocated blocks (the writer puts written ones back) and the
+        #: jobs for the writer thread: (block or None, rows, byte logs, samples after it), a
+        #: threading.Event to set once everything before it is written, or None (exit)
+        self._free: queue.SimpleQueue[_Block] = queue.SimpleQueue()
+        self._jobs: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._thread: threading.Thread | None = None
+        self._writer_stuck = False
+        #: bytes of each byte log handed to a write so far (the file's size once they are written)
+        self._queued_bytes: dict[str, int] = dict.fromkeys(_BYTE_LOGS, 0)
         self._events: list[bytes] = []
         #: JSON-lines / byte logs waiting for the next flush: dataset name -> chunks
         self._pending: dict[str, list[bytes]] = {}
@@ -554,7 +636,16 @@ class RecordWriter:
             if isinstance(exc, OSError | RuntimeError):
                 raise RecordWriteError(f"{self.path}: cannot create record: {_one_line(exc)}") from None
             raise
-        logger.debug("record %s: %d channels, %d samples per flush", self.path, len(self.specs), n)
+        if self.background:
+            for _ in range(self.max_pending_blocks):
+                self._free.put(_Block(n, self.specs))
+            self._thread = threading.Thread(target=self._writer_main, name=f"hil-record-writer {self.path.name}",
+                                            daemon=True)
+            self._thread.start()
+            _LIVE_WRITERS.add(self)
+        logger.debug("record %s: %d channels, %d samples per flush%s", self.path, len(self.specs), n,
+                     f", written by a writer thread (at most {self.max_pending_blocks} blocks queued)"
+                     if self.background else "")
 
     # -- disk space
     def bytes_per_sample(self) -> int:
@@ -681,6 +772,8 @@ class RecordWriter:
         if not (math.isfinite(t) and t > self._t_last):
             raise RecordError(f"sample time {t!r} s is not finite or not after the previous one ({self._t_last} s)")
         coerced = [(name, self._coerce(name, v)) for name, v in values.items()]
+        if self._nbuf >= self.flush_samples:  # background: a full block no writer could take yet
+            self._hand_over()
         i = self._nbuf
         if len(coerced) != len(self._buf):
             given = {name for name, _ in coerced}
@@ -696,7 +789,10 @@ class RecordWriter:
         self._t_last = t
         self.samples += 1
         if self._nbuf >= self.flush_samples or t - self._t_first_buffered >= self.flush_every_s:
-            self.flush()
+            if self.background:
+                self._hand_over()
+            else:
+                self.flush()
 
     def append_block(self, t: np.ndarray, values: Mapping[str, np.ndarray]) -> None:
         """Append many samples at once: ``t`` (m,) [s] strictly increasing, ``values[name]`` (m, *shape).
@@ -712,7 +808,7 @@ class RecordWriter:
         if t[0] <= self._t_last or np.any(np.diff(t) <= 0):
             raise RecordError("sample times must be strictly increasing")
         coerced = {name: self._coerce(name, v, (m,)) for name, v in values.items()}
-        self.flush()
+        self.flush()  # background: waits for the writer, so this thread may write (nothing in flight)
         block = {name: coerced.get(name, np.full((m, *spec.shape), np.nan)) for name, spec in self.specs.items()}
 
         def done() -> None:
@@ -720,7 +816,7 @@ class RecordWriter:
             self.samples += m
             self.samples_flushed = self.samples
 
-        self._commit(t, block, done)
+        self._commit(t, block, self._take_logs(), done)
 
     def event(self, t: float, kind: str, message: str) -> None:
         """Record an event at run time ``t`` [s] (written with the next flush)."""
@@ -744,7 +840,7 @@ class RecordWriter:
             logger.warning("record %s: results of %r replaced", self.path, experiment)
         self._results_set.add(experiment)
         blobs = []
-        offset = self._bytes["results_npy"] + sum(len(b) for b in self._pending.get("results_npy", []))
+        offset = self._queued_bytes["results_npy"] + sum(len(b) for b in self._pending.get("results_npy", []))
         index: dict[str, list[int]] = {}
         for key, arr in arrays.items():
             bio = io.BytesIO()
@@ -806,17 +902,25 @@ class RecordWriter:
         logger.error("%s", err)
         return err
 
+    def _take_logs(self) -> dict[str, list[bytes]]:
+        """The byte-log chunks waiting for the next block (events, results, counters), taken out of
+        the writer's queue (counted in ``_queued_bytes``, so results offsets stay exact)."""
+        logs = {k: v for k, v in ((k, self._pending.pop(k, None)) for k in _BYTE_LOGS) if v}
+        if self._events:
+            logs["events"] = [*logs.get("events", []), *self._events]
+            self._events = []
+        for name, chunks in logs.items():
+            self._queued_bytes[name] += sum(len(c) for c in chunks)
+        return logs
+
     def _commit(self, t: np.ndarray | None, block: Mapping[str, np.ndarray] | None,
-                on_commit: Callable[[], None] | None = None) -> None:
+                logs: Mapping[str, list[bytes]], on_commit: Callable[[], None] | None = None) -> None:
         """Write one block (samples, then every byte log) at the positions the file is known to hold,
         flush the file, then update the writer's state (and run ``on_commit``). Signals are held for
         all of it, so a handler (which may raise) runs only after the block and the state that says
         it is written are both done: a block is never written twice nor half. Any write failure makes
         the writer failed (a failed write is never re-applied)."""
         f = self._f
-        logs = {k: v for k, v in ((k, self._pending.get(k)) for k in _BYTE_LOGS) if v}
-        if self._events:
-            logs["events"] = [*logs.get("events", []), *self._events]
         rows = self._rows
         sizes = dict(self._bytes)
         m = 0 if t is None else t.shape[0]
@@ -851,9 +955,6 @@ class RecordWriter:
             else:
                 self._rows = rows
                 self._bytes = sizes
-                self._events.clear()
-                for name in logs:
-                    self._pending.pop(name, None)
                 self.flushes += 1
                 if on_commit is not None:
                     on_commit()
@@ -869,13 +970,117 @@ class RecordWriter:
             return
         if self.failure is not None:
             raise self.failure
+        if self.background:
+            self._hand_over(wait=True)
+            self._wait_written()
+            return
         k = self._nbuf
 
         def done() -> None:
             self._nbuf = 0
             self.samples_flushed = self.samples
 
-        self._commit(self._t_buf[:k], {name: buf[:k] for name, buf in self._buf.items()}, done)
+        self._commit(self._t_buf[:k], {name: buf[:k] for name, buf in self._buf.items()}, self._take_logs(), done)
+
+    # -- background writer
+    def _hand_over(self, wait: bool = False) -> None:
+        """Background mode: queue the current block (and the byte logs) for the writer thread and
+        continue in a free block. No free block: :class:`RecordLagError` (``wait``: wait for one, at
+        most ``writer_timeout_s``)."""
+        k = self._nbuf
+        block: _Block | None = None
+        if k:
+            try:
+                nxt = self._free.get(timeout=self.writer_timeout_s) if wait else self._free.get_nowait()
+            except queue.Empty:
+                if self.failure is not None:
+                    raise self.failure from None
+                lag = self.max_pending_blocks
+                err = RecordLagError(
+                    f"{self.path}: the record writer fell behind: {lag} blocks ({lag * self.flush_samples} samples, "
+                    f"{lag * self.flush_every_s:g} s) wait to be written; the {self.samples} samples taken are kept "
+                    "and written at close")
+                logger.error("%s", err)
+                raise err from None
+            block, self._cur = self._cur, nxt
+            self._t_buf, self._buf, self._nbuf = nxt.t, nxt.cols, 0
+        logs = self._take_logs()
+        if block is None and not logs:
+            return
+        self._jobs.put((block, k, logs, self.samples))
+
+    def _wait_written(self) -> None:
+        """Background mode: wait (at most ``writer_timeout_s``) until every job handed over is
+        written; then raise the writer's failure, if any."""
+        done = threading.Event()
+        self._jobs.put(done)
+        if not done.wait(self.writer_timeout_s):
+            self._writer_stuck = True
+            err = self._fail(TimeoutError(f"the writer thread did not finish within {self.writer_timeout_s:g} s"),
+                             "background write")
+            raise err
+        if self.failure is not None:
+            raise self.failure
+
+    def _writer_main(self) -> None:
+        """The writer thread: write each queued block (the only thread calling h5py during the run),
+        put the block back in the free pool. After a failure, queued blocks are dropped (the writer
+        is failed: nothing more is written) and the failure waits for the caller's next call."""
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            if isinstance(job, threading.Event):
+                job.set()
+                continue
+            block, k, logs, samples_after = job
+            try:
+                if self.failure is None:
+                    def done(n: int = samples_after) -> None:
+                        self.samples_flushed = n
+
+                    if block is None:
+                        self._commit(None, None, logs, done)
+                    else:
+                        self._commit(block.t[:k], {name: c[:k] for name, c in block.cols.items()}, logs, done)
+            except RecordWriteError:
+                pass  # self.failure is set: the caller raises it at its next call
+            except BaseException as exc:  # never lose a writer failure silently
+                if self.failure is None:
+                    self._fail(exc, "background write")
+            finally:
+                if block is not None:
+                    self._free.put(block)
+
+    def set_writer_scheduling(self, priority: int) -> str | None:
+        """Background mode: give the writer thread SCHED_FIFO ``priority`` (Linux). The realtime
+        runner uses one below its loop's: the writer then is not preempted by ordinary processes
+        while it holds the interpreter lock the loop waits for (priority inversion), and the loop
+        still preempts it. Returns None on success, else a one-line reason (nothing changed)."""
+        th = self._thread
+        if th is None or th.native_id is None:
+            return "no writer thread"
+        if not hasattr(os, "sched_setscheduler"):  # pragma: no cover - not Linux
+            return "SCHED_FIFO not available on this platform"
+        try:
+            os.sched_setscheduler(th.native_id, os.SCHED_FIFO, os.sched_param(int(priority)))
+        except OSError as exc:
+            return f"writer thread SCHED_FIFO {priority} not permitted: {exc.strerror or exc}"
+        return None
+
+    def _stop_writer(self) -> bool:
+        """Background mode: let the writer thread finish what is queued and exit (at most
+        ``writer_timeout_s``). False when it is still running (stuck in a write)."""
+        th = self._thread
+        if th is None:
+            return True
+        self._jobs.put(None)
+        th.join(self.writer_timeout_s)
+        if th.is_alive():
+            self._writer_stuck = True
+            return False
+        self._thread = None
+        return True
 
     def close(self, stop_reason: str = "completed", status: str = "ok") -> None:
         """Flush, write the final ``/status`` (stop reason, status) in place and flush again, then
@@ -900,9 +1105,13 @@ class RecordWriter:
                     self.flush()
                 except RecordWriteError as exc:
                     failure = exc
+            if not self._stop_writer() or self._writer_stuck:
+                # a thread may still be inside h5py: the file is not touched again (left as a kill leaves it)
+                failure = failure or self._fail(TimeoutError(
+                    f"the writer thread did not finish within {self.writer_timeout_s:g} s"), "background write")
             if _TEST_HOOK is not None:
                 _TEST_HOOK("close:flushed", self)
-            if not self._hdf5_broken:
+            if not self._hdf5_broken and not self._writer_stuck:
                 if failure is not None and status == "ok":
                     stop_reason, status = str(failure), "error"
                 self._write_status(str(stop_reason), str(status))
@@ -913,7 +1122,8 @@ class RecordWriter:
         finally:
             self.closed = True
             try:
-                self._f.close()
+                if not self._writer_stuck:
+                    self._f.close()
             except Exception as exc:  # the samples flushed before are on disk; the handle is gone
                 if failure is None:
                     failure = self._fail(exc, "close")

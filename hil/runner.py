@@ -6,7 +6,8 @@ One tick (period dt = 1/rate_hz):
 1. read every device (adapters, with timeouts; realtime mode on external devices: timeout 0, the
    newest sample that has arrived, its age recorded as ``<device>.age``) -> measurements;
 2. controller effort + experiment excitation -> commanded effort;
-3. append the sample to the run record (streamed to HDF5, flushed every 0.1 s of run time), so
+3. append the sample to the run record (streamed to HDF5, flushed every 0.1 s of run time; in
+   realtime mode written by the record's writer thread, off the tick), so
    the sample that breaches a limit is in the record;
 4. safety check (non-finite feedback, effort, velocity, position, injected port energy, stale
    feedback, loop overrun); a breach raises :class:`hil.errors.SafetyStop`;
@@ -346,6 +347,11 @@ class Runner:
     devices from another process (:class:`hil.bench.ProcessSimBench`).
     """
 
+    #: realtime mode: the record is written by a writer thread (:class:`hil.record.RecordWriter`
+    #: ``background=True``), so no HDF5 write or flush runs inside a tick; False: synchronous flushes
+    #: in the tick (as in lockstep mode, which always writes synchronously)
+    record_thread: bool = True
+
     def __init__(self, scene: Any, out_dir: str | Path, *, bench_factory: Callable[[str | None], Any] | None = None,
                  realtime: bool | None = None, progress: Callable[[str, int, int], None] | None = None,
                  max_ticks: int | None = None, overwrite: bool = False,
@@ -520,9 +526,12 @@ class Runner:
                 "network": [p.model_dump() if hasattr(p, "model_dump") else dict(p) for p in self.ports],
                 "units": units}
         try:
+            # realtime: blocks are written by the record's writer thread, off the tick (a write error or a
+            # writer that falls behind is raised by the next tick's append: a safe stop with the reason)
             writer = RecordWriter(path, scene_text=self.scene.source_text, scene_sha256=self.scene.sha256,
                                   meta=meta, channels=self._channels(meas0), rate_hz=self.rate_hz,
-                                  overwrite=self.overwrite, planned_samples=n)
+                                  overwrite=self.overwrite, planned_samples=n,
+                                  background=self.realtime and self.record_thread)
         except BaseException:
             self.bench.safe_stop()
             raise
@@ -536,6 +545,12 @@ class Runner:
 
                     sched = rt.enter_context(realtime_scheduling(enabled=self.rt_scheduling))
                     stats.scheduling = sched.describe()
+                    if writer.background and sched.policy.startswith("SCHED_FIFO"):  # below the loop's priority
+                        from hil.realtime import FIFO_PRIORITY
+
+                        why = writer.set_writer_scheduling(FIFO_PRIORITY - 1)
+                        if why:
+                            logger.warning("%s: record writer thread: %s", name, why)
                     self._append_event(writer, 0.0, "realtime", f"loop scheduling: {sched.describe()}"
                                        + (f"; warning: {sched.warning}" if sched.warning else ""))
                     rt.enter_context(gc_paused(self.gc_pause))

@@ -239,14 +239,24 @@ def test_sigkill_at_random_moments_around_close_leaves_a_readable_record(tmp_pat
 
 STREAM_CHILD = textwrap.dedent(
     """
-    import math, sys
-    from hil.record import ChannelSpec, RecordWriter
+    import logging, math, sys, time
+    from hil.record import ChannelSpec, RecordLagError, RecordWriter
+    logging.disable(logging.ERROR)  # the lag's log line per retry would fill the unread stderr pipe
     ch = {"motor.position": ChannelSpec((), "rad"), "master.position": ChannelSpec((2,), "rad")}
     w = RecordWriter(sys.argv[1], scene_text="", scene_sha256="", meta={}, channels=ch, rate_hz=1000.0,
-                     flush_every_s=0.007)  # 7-sample blocks: a kill mostly lands inside some write
+                     flush_every_s=0.007,  # 7-sample blocks: a kill mostly lands inside some write
+                     background=sys.argv[2] == "background")  # writer thread: blocks written off this thread
     flushed = 0
     for k in range(10**7):
-        w.append(k / 1000, {"motor.position": math.sin(0.01 * k), "master.position": [k / 7, -3.25 * k]})
+        while True:  # background: a writer behind refuses the sample (not stored) until a block is free
+            n0 = w.samples
+            try:
+                w.append(k / 1000, {"motor.position": math.sin(0.01 * k), "master.position": [k / 7, -3.25 * k]})
+                break
+            except RecordLagError:
+                if w.samples > n0:  # stored; only its block's hand-over was refused
+                    break
+                time.sleep(0.001)
         if k % 97 == 0:
             w.event(k / 1000, "mark", str(k))
         if k % 1000 == 999:
@@ -259,14 +269,15 @@ STREAM_CHILD = textwrap.dedent(
 
 
 @pytest.mark.timeout(180)
-def test_sigkill_at_random_moments_while_streaming_keeps_every_flushed_sample(tmp_path: Path) -> None:
+@pytest.mark.parametrize("mode", ["sync", "background"])
+def test_sigkill_at_random_moments_while_streaming_keeps_every_flushed_sample(tmp_path: Path, mode: str) -> None:
     script = tmp_path / "stream.py"
     script.write_text(STREAM_CHILD)
     rng = random.Random(99)
     for i in range(5):
         path = tmp_path / f"s{i}.h5"
         target = rng.randrange(500, 6000)
-        p = subprocess.Popen([sys.executable, str(script), str(path)], stdout=subprocess.PIPE,
+        p = subprocess.Popen([sys.executable, str(script), str(path), mode], stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True)
         last = 0
         assert p.stdout is not None and p.stderr is not None
