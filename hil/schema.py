@@ -204,8 +204,9 @@ def _criterion_name(v: Any) -> str:
     if not isinstance(v, str) or not is_criterion(v):
         names = ("auto", *criterion_names())
         hint = near(v, names) if isinstance(v, str) else ""
+        hint = hint if "did you" in hint else ""  # the names are listed already
         raise PydanticCustomError("criterion", "unknown criterion: expected one of {names}, got {got}{hint}",
-                                  {"names": ", ".join(names), "got": repr(v), "hint": hint if "did you" in hint else ""})
+                                  {"names": ", ".join(names), "got": repr(v), "hint": hint})
     return v
 
 

@@ -46,7 +46,7 @@ def test_criterion_names_have_one_source():
         adapter = pydantic.TypeAdapter(Annotated[fi.annotation, *fi.metadata])
         for name in offered:
             assert adapter.validate_python(name) == name
-        with pytest.raises(pydantic.ValidationError, match="unknown criterion: expected one of auto, .*got 'nyquist'"):
+        with pytest.raises(pydantic.ValidationError, match=r"unknown criterion: expected one of auto, .*got 'nyquist'"):
             adapter.validate_python("nyquist")
     sub = next(a for a in build_parser()._actions if a.dest == "cmd")
     for cmd, want in (("stability", offered), ("sweep", CRITERIA)):
