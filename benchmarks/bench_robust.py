@@ -21,10 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from hil.errors import HilError
 from hil.models import get_model
 from hil.models.batch_general import coefficient_map, screen
-from hil.pipeline import _check, _robust_eval, build_network
+from hil.pipeline import _robust_eval, exactly_stable
 
 Posterior = Callable[[np.random.Generator, int], dict[str, np.ndarray]]
 
@@ -50,15 +49,8 @@ CASES: list[tuple[str, str, Posterior]] = [
 
 def _exact(model: str, criterion: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray]) -> np.ndarray:
     n = len(next(iter(draws.values())))
-    out = np.zeros(n, bool)
-    for i in range(n):
-        q = dict(params)
-        q.update({k: float(v[i]) for k, v in draws.items()})
-        try:
-            out[i] = str(_check(build_network(model, q), criterion, margins=False).verdict) == "stable"
-        except HilError:
-            out[i] = False
-    return out
+    return np.array([exactly_stable(model, criterion, {**params, **{k: float(v[i]) for k, v in draws.items()}})
+                     for i in range(n)], dtype=bool)
 
 
 def main() -> None:

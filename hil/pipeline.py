@@ -720,10 +720,7 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
     from hil.models.batch_general import screened_stability
 
     def exact_one(q: Mapping[str, Any]) -> bool:
-        try:
-            return str(_check(build_network(model, q), criterion, margins=False).verdict) == "stable"
-        except HilError:
-            return False
+        return exactly_stable(model, criterion, q)
 
     # draws the vectorized screen rejects on a necessary condition (beyond its error bound) skip the
     # exact path; every other draw is decided exactly (hil.models.batch_general)
@@ -777,18 +774,20 @@ def _verdict_fn(model: str, criterion: str, params: Mapping[str, Any], names: li
         return vec
 
     def one(T: np.ndarray) -> np.ndarray:
-        T = np.atleast_2d(T)
-        out = np.zeros(T.shape[0], bool)
-        for i, row in enumerate(T):
-            q = dict(params)
-            q.update({k: float(v) for k, v in zip(names, row, strict=True)})
-            try:
-                out[i] = str(_check(build_network(model, q), criterion, margins=False).verdict) == "stable"
-            except HilError:
-                out[i] = False
-        return out
+        return np.array([exactly_stable(model, criterion, {**params, **dict(zip(names, map(float, row), strict=True))})
+                         for row in np.atleast_2d(T)], dtype=bool)
 
     return one
+
+
+def exactly_stable(model: str, criterion: str, params: Mapping[str, Any]) -> bool:
+    """Whether the network of ``model`` at ``params`` is ``stable`` under the exact ``criterion``
+    (verdict only, no margins); a network that cannot be built is not stable. The per-draw
+    reference of every vectorized path."""
+    try:
+        return str(_check(build_network(model, params), criterion, margins=False).verdict) == "stable"
+    except HilError:
+        return False
 
 
 #: the design point is checked with the exact criterion at (1 ∓ this)·u*

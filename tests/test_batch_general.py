@@ -10,25 +10,17 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hil.errors import HilError
 from hil.models import get_model
 from hil.models.batch_general import coefficient_map, screen, screened_stability
-from hil.pipeline import _check, _robust_eval, build_network
+from hil.pipeline import _check, _robust_eval, build_network, exactly_stable
 from hil.stability.rational import Rational, TransferMatrix
 
 
 def _exact(model: str, criterion: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray]) -> np.ndarray:
     """The reference: build each draw's network and run the exact criterion (no screen)."""
     n = len(next(iter(draws.values())))
-    out = np.zeros(n, bool)
-    for i in range(n):
-        q = dict(params)
-        q.update({k: float(v[i]) for k, v in draws.items()})
-        try:
-            out[i] = str(_check(build_network(model, q), criterion, margins=False).verdict) == "stable"
-        except HilError:
-            out[i] = False
-    return out
+    return np.array([exactly_stable(model, criterion, {**params, **{k: float(v[i]) for k, v in draws.items()}})
+                     for i in range(n)], dtype=bool)
 
 
 def _params(model: str, drawn: Mapping[str, Any]) -> dict[str, Any]:
