@@ -91,6 +91,7 @@ from hil.schema import (
     matrix_shape,
     number,
     parse_matrix,
+    register_tagged,
     validate,
 )
 
@@ -921,12 +922,7 @@ def register_controller(name: str, schema: type[ControllerConfig],
     """Add a controller type: ``schema`` is a :class:`ControllerConfig` whose ``type`` field is
     ``Literal[name]``; ``build(cfg, where, scene)`` makes the :class:`Controller` from a validated
     ``cfg`` (``where``: the field path for messages, ``scene``: the scene or None)."""
-    tag = schema.model_fields["type"].annotation
-    if getattr(tag, "__args__", None) != (name,):
-        raise TypeError(f"{schema.__name__}.type must be Literal[{name!r}], got {tag!r}")
-    if name in CONTROLLER_TYPES and CONTROLLER_TYPES[name].schema is not schema:
-        raise ValueError(f"controller type {name!r} is already registered")
-    CONTROLLER_TYPES[name] = ControllerType(name, schema, build)
+    register_tagged(CONTROLLER_TYPES, name, schema, ControllerType(name, schema, build), "controller type")
 
 
 def controller_schemas() -> tuple[type[ControllerConfig], ...]:

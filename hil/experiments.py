@@ -57,6 +57,7 @@ from hil.schema import (
     StrictModel,
     near,
     number,
+    register_tagged,
     validate,
 )
 
@@ -1127,12 +1128,7 @@ EXPERIMENT_TYPES: dict[str, ExperimentType] = {}
 def register_experiment(name: str, schema: type[ExperimentConfig], impl: Callable[[Any, float], Experiment]) -> None:
     """Add an experiment type: ``schema`` is a :class:`ExperimentConfig` whose ``type`` field is
     ``Literal[name]``; ``impl(cfg, rate_hz)`` builds the :class:`Experiment` from a validated ``cfg``."""
-    tag = schema.model_fields["type"].annotation
-    if getattr(tag, "__args__", None) != (name,):
-        raise TypeError(f"{schema.__name__}.type must be Literal[{name!r}], got {tag!r}")
-    if name in EXPERIMENT_TYPES and EXPERIMENT_TYPES[name].schema is not schema:
-        raise ValueError(f"experiment type {name!r} is already registered")
-    EXPERIMENT_TYPES[name] = ExperimentType(name, schema, impl)
+    register_tagged(EXPERIMENT_TYPES, name, schema, ExperimentType(name, schema, impl), "experiment type")
 
 
 def experiment_schemas() -> tuple[type[ExperimentConfig], ...]:

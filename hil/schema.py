@@ -48,6 +48,7 @@ __all__ = [
     "near",
     "number",
     "parse_matrix",
+    "register_tagged",
     "unknown_key_message",
     "validate",
 ]
@@ -195,6 +196,18 @@ Seed = Annotated[int, BeforeValidator(_seed), Field(ge=0, le=SEED_MAX)]
 #: a device, body, port or experiment name
 Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", max_length=64)]
 
+
+def register_tagged(registry: dict[str, Any], name: str, schema: type[BaseModel], entry: Any, what: str) -> None:
+    """Put ``entry`` into ``registry`` under ``name``: ``schema.type`` must be ``Literal[name]``
+    (the discriminator of the scene's union); a name already registered with another schema is
+    refused. ``what``: ``experiment type`` / ``controller type`` (messages). The one registration
+    rule of the scene's tagged unions (experiments, controllers)."""
+    tag = schema.model_fields["type"].annotation
+    if getattr(tag, "__args__", None) != (name,):
+        raise TypeError(f"{schema.__name__}.type must be Literal[{name!r}], got {tag!r}")
+    if name in registry and registry[name].schema is not schema:
+        raise ValueError(f"{what} {name!r} is already registered")
+    registry[name] = entry
 
 def _criterion_name(v: Any) -> str:
     """A criterion :func:`hil.stability.criteria.check` runs: ``auto``, a built-in or a
