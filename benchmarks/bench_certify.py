@@ -17,10 +17,10 @@ import time
 
 import numpy as np
 
+from hil.certify.pipeline import certify_scene
 from hil.models.batch import sdea_passivity_batch
 from hil.models.sdea import SDEA_TABLE1
-from hil.pipeline import certify_scene
-from hil.scene import builtin_scenes, load_scene
+from hil.scene.spec import builtin_scenes, load_scene
 
 
 def stages() -> None:
@@ -68,7 +68,7 @@ def draws_error() -> None:
             t0 = time.perf_counter()
             s = sdea_passivity_batch({**d, "k22": np.full(n, k22)})["passive"]
             times.append(time.perf_counter() - t0)
-            from hil.certify import probability_of_stability
+            from hil.certify.statistics import probability_of_stability
 
             p, lo, hi = probability_of_stability(s, 0.95)
             errs.append(abs(p - p_ref))

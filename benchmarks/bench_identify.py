@@ -109,11 +109,11 @@ def _sdea_ident(rec, **kw):
 
 def periodic_log_chirp_record(seed: int, noise: float, duration: float, period: float = 0.5, fs: float = 5000.0):
     """Exactly periodic log chirp 2-400 Hz (one sweep per ``period``), steady state (one period dropped),
-    simulated like the non-periodic records (hil.mocks.lti exact ZOH), noise as a fraction of output RMS."""
+    simulated like the non-periodic records (hil.lti exact ZOH), noise as a fraction of output RMS."""
     from conftest import SimRecord
     from scipy import signal as sg
 
-    from hil.mocks.lti import StateSpace
+    from hil.lti import StateSpace
 
     n_per = round(period * fs)
     t1 = np.arange(n_per) / fs

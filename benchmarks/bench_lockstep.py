@@ -1,6 +1,6 @@
 """Benchmark: lockstep throughput of the mocked bench (issue 15).
 
-For every built-in scene, the first experiment runs through the full :class:`hil.runner.Runner`
+For every built-in scene, the first experiment runs through the full :class:`hil.run.runner.Runner`
 in lockstep (every device read over its real transport: python-can virtual bus, pty, loopback
 Modbus; controller, safety, record, plant advance) for ``--ticks`` ticks; the table prints runner
 ticks per second (bench opening and record included), the bench alone (read/command/advance with
@@ -26,9 +26,9 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from hil.bench import Bench
-from hil.runner import Runner
-from hil.scene import builtin_scenes, load_scene
+from hil.bench.runtime import Bench
+from hil.run.runner import Runner
+from hil.scene.spec import builtin_scenes, load_scene
 
 
 def record_digest(out_dir: Path) -> str:

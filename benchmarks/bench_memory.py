@@ -12,7 +12,7 @@ imports, buffers, HDF5 chunk cache -- do not count as growth).
 ``--tracemalloc`` also traces Python allocations and prints the allocation sites that grew most
 between the end of the warm-up and the end of the run (much slower: use a short run).
 
-``--writer-only`` measures :class:`hil.record.RecordWriter` alone streaming a record of the same
+``--writer-only`` measures :class:`hil.record.hdf5.RecordWriter` alone streaming a record of the same
 size (no runner, no devices): the record's own share of the growth.
 
 Run: ``python benchmarks/bench_memory.py [--seconds 20] [--every 5] [--tracemalloc] [--writer-only]``.
@@ -31,9 +31,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from hil.bench import Bench
-from hil.runner import Runner
-from hil.scene import load_scene, scene_from_dict
+from hil.bench.runtime import Bench
+from hil.run.runner import Runner
+from hil.scene.spec import load_scene, scene_from_dict
 
 
 def rss_mb() -> float:
@@ -110,9 +110,9 @@ def run(seconds: float, every_s: float, warmup_s: float, trace: bool) -> tuple[l
 
 
 def writer_only(seconds: float, every_s: float, rate: float = 2000.0) -> list[dict[str, float]]:
-    """The record alone: :class:`hil.record.RecordWriter` streaming ``seconds`` of ``rate`` samples of
+    """The record alone: :class:`hil.record.hdf5.RecordWriter` streaming ``seconds`` of ``rate`` samples of
     40 scalar channels and one 6-vector (about the runner's sdea_bench record), RSS every ``every_s``."""
-    from hil.record import ChannelSpec, RecordWriter
+    from hil.record.hdf5 import ChannelSpec, RecordWriter
 
     specs = {f"c{i}": ChannelSpec((), "1") for i in range(40)}
     specs["wrench"] = ChannelSpec((6,), "N")

@@ -5,7 +5,7 @@ Plant: m x'' + b x' + k x = F (step force from rest), m = 1e-3 kg, k = 1e6 N/m
 at the sample instants is the closed form; the error is max |x - x_exact| / (F/k) over 1 s.
 
 Methods (all stepping the same numpy state vector in a Python loop, so the per-step overhead is
-comparable): exact ZOH (``x <- Ad x + Bd u`` from :mod:`hil.mocks.lti`), forward Euler,
+comparable): exact ZOH (``x <- Ad x + Bd u`` from :mod:`hil.lti`), forward Euler,
 semi-implicit (symplectic) Euler, classical RK4; plus the lockstep
 :class:`hil.mocks.simulator.Simulator` (``exact_sum=True``: fsum-based, bit-reproducible step).
 Run time is wall time for 1 s of simulated time; ``ratio`` is relative to the exact-ZOH run at
@@ -24,7 +24,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from hil.mocks.lti import StateSpace
+from hil.lti import StateSpace
 from hil.mocks.physics import mbk_plant
 from hil.mocks.simulator import Simulator
 

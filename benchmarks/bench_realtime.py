@@ -7,18 +7,18 @@ For each rate (500 Hz, 1 kHz, 2 kHz), ``sdea_bench``'s locked chirp (f1 capped a
 * ``before``: the simulated devices in the loop's own process (the in-process bench, plant stepped
   by the loop), sleep-only wait, no realtime scheduling, garbage collector on (what ``hil run
   --realtime`` did before issue 17);
-* ``without``: the devices served from another process (:class:`hil.bench.ProcessSimBench`, as at
+* ``without``: the devices served from another process (:class:`hil.bench.runtime.ProcessSimBench`, as at
   a real bench), sleep-only wait, no realtime scheduling, garbage collector on, and every read
   waits for a fresh frame or reply (up to ``watchdog_ms``), which locks each tick to the devices;
 * ``blocking``: as ``without`` but with the measures: the hybrid wait (sleep, then spin the last
   200 µs), SCHED_FIFO 80 + mlockall + the loop pinned to its own CPU (where permitted), gc
   frozen/disabled; reads still wait;
 * ``with``: all the measures and non-blocking reads, the realtime default
-  (:data:`hil.runner.REALTIME_READ_TIMEOUT_S` = 0): every read takes the newest sample that has
+  (:data:`hil.run.runner.REALTIME_READ_TIMEOUT_S` = 0): every read takes the newest sample that has
   arrived (the polled ODrive's request for the next tick is sent ahead), a read without a new sample
   is stale (counted in ``stale``); a device that stops sending is caught by the watchdog on the
   samples' age (recorded per tick as ``<device>.age``); the record is written by its writer thread
-  (:class:`hil.record.RecordWriter` ``background=True``), so no HDF5 write or flush runs in a tick;
+  (:class:`hil.record.hdf5.RecordWriter` ``background=True``), so no HDF5 write or flush runs in a tick;
 * ``syncrec``: as ``with`` but the record blocks are written and flushed inside the tick that
   fills them (``Runner.record_thread = False``; what ``with`` did before the writer thread).
 
@@ -26,7 +26,7 @@ The late-loop safe stop is relaxed for the benchmark (``max_lateness_ms`` 10 s, 
 1) so the whole distribution is measured; the device watchdog (50 ms) still applies: a row whose
 devices stop answering ends early with its status. Lateness = tick start - deadline (s); overrun =
 a tick later than one period. Next to them, in the same run: the machine's wake-up latency
-(:func:`hil.realtime.measure_wakeup`, cyclictest's method, and the loop's hybrid wait) with the
+(:func:`hil.run.realtime.measure_wakeup`, cyclictest's method, and the loop's hybrid wait) with the
 same scheduling, and rt-tests' ``cyclictest`` when installed.
 
 Run: ``python benchmarks/bench_realtime.py [--seconds 60] [--rates 500 1000 2000]``. Not a test:
@@ -46,11 +46,11 @@ from typing import Any
 import numpy as np
 import yaml  # type: ignore[import-untyped]  # no PyYAML stubs in the env
 
-from hil.bench import Bench, ProcessSimBench
-from hil.realtime import holdable_rates, measure_wakeup, realtime_scheduling, run_cyclictest
-from hil.record import RunRecord
-from hil.runner import Runner
-from hil.scene import load_scene, scene_from_dict
+from hil.bench.runtime import Bench, ProcessSimBench
+from hil.record.hdf5 import RunRecord
+from hil.run.realtime import holdable_rates, measure_wakeup, realtime_scheduling, run_cyclictest
+from hil.run.runner import Runner
+from hil.scene.spec import load_scene, scene_from_dict
 
 WATCHDOG_S = 0.050  # sdea_bench's watchdog_ms: the bench's own read timeout on external devices
 CONFIGS: dict[str, dict[str, Any]] = {

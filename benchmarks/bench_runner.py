@@ -17,9 +17,9 @@ import time
 
 import numpy as np
 
-from hil.bench import Bench
-from hil.runner import Runner
-from hil.scene import builtin_scenes, load_scene
+from hil.bench.runtime import Bench
+from hil.run.runner import Runner
+from hil.scene.spec import builtin_scenes, load_scene
 
 
 class _InstantBench:

@@ -19,8 +19,8 @@ import time
 
 import numpy as np
 
+from hil.certify.sweep import DaskExecutor, ProcessExecutor, SerialExecutor, SweepSpec, parse_grid, run_sweep
 from hil.models.design import k22_max
-from hil.sweep import DaskExecutor, ProcessExecutor, SerialExecutor, SweepSpec, parse_grid, run_sweep
 
 
 def _spec(n: int, chunk: int = 32, refine: bool = False) -> SweepSpec:

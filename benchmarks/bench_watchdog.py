@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from hil.record import RunRecord
-from hil.runner import Runner
-from hil.scene import load_scene, scene_from_dict
+from hil.record.hdf5 import RunRecord
+from hil.run.runner import Runner
+from hil.scene.spec import load_scene, scene_from_dict
 
 FAULTS: dict[str, tuple[int, str, dict[str, Any], str]] = {
     # name: (device index, channel, sim settings, extra params)

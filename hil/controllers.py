@@ -51,7 +51,7 @@ Configuration
 -------------
 Each controller type has one pydantic schema here (:class:`NoController`, :class:`PdPositionPosition`,
 :class:`Mcet`, :class:`DualMaster`, :class:`Vsic`; their docstrings list every field) and one builder,
-registered in :data:`CONTROLLER_TYPES` (``register_controller``); :mod:`hil.scene` composes the
+registered in :data:`CONTROLLER_TYPES` (``register_controller``); :mod:`hil.scene.spec` composes the
 scene's ``controller`` block from that registry. :func:`make_controller` takes the validated model
 (or validates a mapping once against the same schema).
 
@@ -66,7 +66,7 @@ import logging
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Protocol, TypeAlias, runtime_checkable
+from typing import Annotated, Any, ClassVar, Literal, Protocol, TypeAlias, runtime_checkable
 
 import numpy as np
 from pydantic import BeforeValidator, Field, model_validator
@@ -83,6 +83,7 @@ from hil.schema import (
     Fraction,
     MatrixValue,
     Name,
+    SceneView,
     StiffMat,
     StiffNonneg,
     StrictModel,
@@ -94,9 +95,6 @@ from hil.schema import (
     register_tagged,
     validate,
 )
-
-if TYPE_CHECKING:
-    from hil.scene import Scene
 
 logger = logging.getLogger(__name__)
 
@@ -269,28 +267,28 @@ class PositionPD:
 
 
 # ---------------------------------------------------------------------------------------------
-# schemas: one pydantic model per controller type, validated once (by hil.scene or make_controller)
+# schemas: one pydantic model per controller type, validated once (by hil.scene.spec or make_controller)
 
 
 class ControllerConfig(StrictModel):
     """A scene's ``controller`` block; ``type`` selects the schema (:data:`CONTROLLER_TYPES`).
 
-    Subclasses may add two scene-level steps, both called by :mod:`hil.scene` after validation:
+    Subclasses may add two scene-level steps, both called by :mod:`hil.scene.spec` after validation:
     :meth:`normalized` (the final values: gains expanded to the devices' sizes) and
     :meth:`check_scene` (pure: cross-references and shapes; raises :class:`hil.schema.FieldError`)."""
 
     type: str
 
-    def normalized(self, scene: Scene) -> ControllerConfig:
+    def normalized(self, scene: SceneView) -> ControllerConfig:
         """This configuration with its final values for ``scene`` (a copy; unknown devices are left
         for :meth:`check_scene` to report)."""
         return self
 
-    def check_scene(self, scene: Scene) -> None:
+    def check_scene(self, scene: SceneView) -> None:
         """Refuse broken references to ``scene``'s devices (pure: changes nothing)."""
 
 
-def _dof_of(scene: Scene, name: str) -> int | None:
+def _dof_of(scene: SceneView, name: str) -> int | None:
     try:
         return scene.device(name).dof
     except KeyError:
@@ -318,13 +316,13 @@ class PdPositionPosition(ControllerConfig):
     Kv_s: DampMat
     dof: int | None = Field(default=None, ge=1, le=6)
 
-    def normalized(self, scene: Scene) -> PdPositionPosition:
+    def normalized(self, scene: SceneView) -> PdPositionPosition:
         n = _dof_of(scene, self.master)
         if n is None:
             return self
         return self.model_copy(update={k: _full(getattr(self, k), n) for k in ("Kp_m", "Kv_m", "Kp_s", "Kv_s")})
 
-    def check_scene(self, scene: Scene) -> None:
+    def check_scene(self, scene: SceneView) -> None:
         m = scene.require("controller.master", self.master, "actuator")
         s = scene.require("controller.slave", self.slave, "actuator")
         if m.dof != s.dof:
@@ -393,7 +391,7 @@ class Mcet(ControllerConfig):
     GAINS: ClassVar[tuple[str, ...]] = ("k_pm1", "k_vm1", "k_pm2", "k_vm2", "k_ps", "k_vs")
     CHANNELS: ClassVar[tuple[str, ...]] = ("k_p4m1", "k_v4m1", "k_p4m2", "k_v4m2", "k_p1", "k_v1")
 
-    def check_scene(self, scene: Scene) -> None:
+    def check_scene(self, scene: SceneView) -> None:
         devs = [scene.require(f"controller.masters[{k}]", m, "actuator") for k, m in enumerate(self.masters)]
         devs.append(scene.require("controller.slave", self.slave, "actuator"))
         d = self.dof if self.dof is not None else devs[0].dof
@@ -453,14 +451,14 @@ class DualMaster(ControllerConfig):
         """The slave's DOF count as the masters' maps give it."""
         return sum(len(m.slave_dofs) for m in self.masters)
 
-    def normalized(self, scene: Scene) -> DualMaster:
+    def normalized(self, scene: SceneView) -> DualMaster:
         n = _dof_of(scene, self.slave)
         if n is None:
             return self
         gains = {key: getattr(self, key) for key in ("C_m", "C_4", "C_s", "C_1")}
         return self.model_copy(update={key: PdGain(kp=_full(g.kp, n), kv=_full(g.kv, n)) for key, g in gains.items()})
 
-    def check_scene(self, scene: Scene) -> None:
+    def check_scene(self, scene: SceneView) -> None:
         s = scene.require("controller.slave", self.slave, "actuator")
         covered: list[int] = []
         for k, mm in enumerate(self.masters):
@@ -541,7 +539,7 @@ class Vsic(ControllerConfig):
             raise PydanticCustomError("coupler", "the virtual coupler needs k22 > 0 or b22 > 0", {"key": "k22"})
         return self
 
-    def check_scene(self, scene: Scene) -> None:
+    def check_scene(self, scene: SceneView) -> None:
         a = scene.require("controller.actuator", self.actuator, "actuator")
         if a.dof != 1:
             raise FieldError("controller.actuator", "vsic controls a 1-DOF SDEA (actuator and sensor with dof 1)")
@@ -884,7 +882,7 @@ class VSIC:
 
 def vsic_controller(cfg: Vsic | Mapping[str, Any], where: str = "controller", scene: Any = None) -> VSIC:
     """:class:`VSIC` from a :class:`Vsic` configuration. Without ``force_axis`` the force sensor's
-    wrench component is the first of its ``axes`` in ``scene`` (a :class:`hil.scene.Scene`), else 0."""
+    wrench component is the first of its ``axes`` in ``scene`` (a :class:`hil.scene.spec.Scene`), else 0."""
     c = validate(Vsic, cfg, where)
     axis = c.force_axis
     if axis is None and c.force_sensor is not None and scene is not None:
@@ -912,8 +910,8 @@ class ControllerType:
     build: Callable[[Any, str, Any], Controller]
 
 
-#: controller type name -> (schema, builder); :mod:`hil.scene` builds its ``controller`` union
-#: from it (register before importing :mod:`hil.scene`)
+#: controller type name -> (schema, builder); :mod:`hil.scene.spec` builds its ``controller`` union
+#: from it (register before importing :mod:`hil.scene.spec`)
 CONTROLLER_TYPES: dict[str, ControllerType] = {}
 
 
@@ -952,7 +950,7 @@ def make_controller(cfg: ControllerConfig | Mapping[str, Any] | None, *, units: 
     | ``rotary``) is validated and logged; the laws are unit-agnostic. Raises :class:`SceneError`
     naming the offending field.
 
-    ``scene`` (optional, a :class:`hil.scene.Scene`): used to resolve the VSIC force sensor's
+    ``scene`` (optional, a :class:`hil.scene.spec.Scene`): used to resolve the VSIC force sensor's
     wrench component (``devices[].axes``) when ``force_axis`` is not given. Without it the VSIC
     reads wrench component 0 (or the only component)."""
     if units not in ("linear", "rotary"):

@@ -3,7 +3,7 @@ injection, static hold.
 
 Each experiment type has one pydantic schema here (:class:`ChirpExperiment`,
 :class:`MultisineExperiment`, :class:`EnergyInjectionExperiment`, :class:`StaticHoldExperiment`) and
-one implementation, registered in :data:`EXPERIMENT_TYPES` (``register_experiment``); :mod:`hil.scene`
+one implementation, registered in :data:`EXPERIMENT_TYPES` (``register_experiment``); :mod:`hil.scene.spec`
 composes the scene's ``experiments`` list from that registry. Each experiment is built from one
 validated entry by :func:`make_experiment` and then
 
@@ -31,7 +31,7 @@ import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import ModuleType
-from typing import TYPE_CHECKING, Annotated, Any, Generic, Literal, Protocol, TypeVar
+from typing import Annotated, Any, Generic, Literal, Protocol, TypeVar
 
 import numpy as np
 from pydantic import BeforeValidator, Field, model_validator
@@ -50,6 +50,7 @@ from hil.schema import (
     Name,
     Number,
     Positive,
+    SceneView,
     Seconds,
     SecondsOrZero,
     Seed,
@@ -60,9 +61,6 @@ from hil.schema import (
     register_tagged,
     validate,
 )
-
-if TYPE_CHECKING:
-    from hil.scene import Scene
 
 
 def _sps() -> ModuleType:  # scipy.signal takes seconds to import: only some profiles need it
@@ -125,24 +123,24 @@ class Experiment(Protocol):
 
 
 # ---------------------------------------------------------------------------------------------
-# schemas: one pydantic model per experiment type, validated once (by hil.scene or make_experiment)
+# schemas: one pydantic model per experiment type, validated once (by hil.scene.spec or make_experiment)
 
 
 class ExperimentConfig(StrictModel):
     """Fields every experiment has. ``controller``: ``scene`` runs the scene's controller during
     the experiment, ``none`` runs it open loop (identification). ``name`` defaults to the type
-    (``<type>_<n>`` when several of one type are unnamed; filled in by :class:`hil.scene.Scene`)."""
+    (``<type>_<n>`` when several of one type are unnamed; filled in by :class:`hil.scene.spec.Scene`)."""
 
     type: str
     name: Name | None = None
     controller: Literal["scene", "none"] = "scene"
 
-    def check_scene(self, scene: Scene, path: str) -> None:
+    def check_scene(self, scene: SceneView, path: str) -> None:
         """Refuse broken references to ``scene`` (pure; ``path``: ``experiments[i]``). The checks
         that need the control rate run when the experiment is built (:meth:`Experiment.check`)."""
 
 
-def _check_target(cfg: _PeriodicConfig | StaticHoldExperiment, scene: Scene, path: str) -> None:
+def _check_target(cfg: _PeriodicConfig | StaticHoldExperiment, scene: SceneView, path: str) -> None:
     d = scene.require(f"{path}.target", cfg.target, "actuator")
     if cfg.dofs is not None and max(cfg.dofs) >= d.dof:
         raise FieldError(f"{path}.dofs", f"device {d.name!r} has {d.dof} DOF")
@@ -178,7 +176,7 @@ class _PeriodicConfig(ExperimentConfig):
     periods: int = Field(default=1, ge=1)
     variant: Literal["locked", "free"] | None = None
 
-    def check_scene(self, scene: Scene, path: str) -> None:
+    def check_scene(self, scene: SceneView, path: str) -> None:
         _check_target(self, scene, path)
 
     @model_validator(mode="after")
@@ -249,7 +247,7 @@ class EnergyInjectionExperiment(ExperimentConfig):
     k_sigma: Positive = 4.0
     bound_mode: Literal["final", "running"] = "final"
 
-    def check_scene(self, scene: Scene, path: str) -> None:
+    def check_scene(self, scene: SceneView, path: str) -> None:
         pnames = sorted(p.name for p in scene.network.ports)
         if self.port not in pnames:
             raise FieldError(f"{path}.port", f"unknown port {self.port!r}{near(self.port, pnames)}")
@@ -273,7 +271,7 @@ class StaticHoldExperiment(ExperimentConfig):
     settle: SecondsOrZero = 0.0
     variant: Literal["locked", "free"] | None = None
 
-    def check_scene(self, scene: Scene, path: str) -> None:
+    def check_scene(self, scene: SceneView, path: str) -> None:
         _check_target(self, scene, path)
 
     @model_validator(mode="after")
@@ -285,7 +283,7 @@ class StaticHoldExperiment(ExperimentConfig):
 
 
 # ---------------------------------------------------------------------------------------------
-# scene access (works on the pydantic Scene of hil.scene and on plain mappings)
+# scene access (works on the pydantic Scene of hil.scene.spec and on plain mappings)
 
 
 def _get(obj: Any, key: str, default: Any = None) -> Any:
@@ -1120,8 +1118,8 @@ class ExperimentType:
     impl: Callable[[Any, float], Experiment]
 
 
-#: experiment type name -> (schema, implementation); :mod:`hil.scene` builds its ``experiments``
-#: union from it (register before importing :mod:`hil.scene`)
+#: experiment type name -> (schema, implementation); :mod:`hil.scene.spec` builds its ``experiments``
+#: union from it (register before importing :mod:`hil.scene.spec`)
 EXPERIMENT_TYPES: dict[str, ExperimentType] = {}
 
 
@@ -1146,7 +1144,7 @@ register_experiment("static_hold", StaticHoldExperiment, StaticHold)
 
 def make_experiment(cfg: ExperimentConfig | Mapping[str, Any], *, rate_hz: float) -> Experiment:
     """Build one experiment at the control rate from its validated configuration (a scene's
-    ``experiments`` entry, e.g. :meth:`hil.scene.Scene.experiment_models`), or from a mapping,
+    ``experiments`` entry, e.g. :meth:`hil.scene.spec.Scene.experiment_models`), or from a mapping,
     which is validated here against the schema of its ``type``."""
     if isinstance(cfg, ExperimentConfig):
         etype = cfg.type

@@ -18,8 +18,8 @@ Devices (``hil_certify.devices``, :mod:`hil.protocols.registry`) and criteria
 packages import nothing else of ``hil`` (the import rule, docs/ARCHITECTURE.md).
 
 Each group is read once, on first use, by the registry that owns it (this module imports nothing of
-``hil``): experiments and controllers when :mod:`hil.scene` composes its schema (so a plugin module
-must not import :mod:`hil.scene` at import time), models on the first lookup of a name that is not
+``hil``): experiments and controllers when :mod:`hil.scene.spec` composes its schema (so a plugin module
+must not import :mod:`hil.scene.spec` at import time), models on the first lookup of a name that is not
 built in (or a listing). A broken entry point is logged and skipped, never fatal: the suite keeps
 working without it.
 """

@@ -24,7 +24,7 @@ import pytest
 
 @dataclass
 class HilRun:
-    """Outcome of :func:`hil_run`: one :class:`hil.runner.ExperimentOutcome` per experiment."""
+    """Outcome of :func:`hil_run`: one :class:`hil.run.runner.ExperimentOutcome` per experiment."""
 
     scene: Any
     outcomes: list[Any]
@@ -49,8 +49,8 @@ def hil_run(tmp_path: Path) -> Callable[..., HilRun]:
     def run(scene: str | Path, seed: int | None = None, experiments: list[int] | None = None,
             max_ticks: int | None = None) -> HilRun:
         # lazy: pytest loads this plugin in every session of an environment with hil installed
-        from hil.runner import Runner
-        from hil.scene import load_scene
+        from hil.run.runner import Runner
+        from hil.scene.spec import load_scene
 
         sc = load_scene(scene)
         if seed is not None:

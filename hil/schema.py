@@ -3,7 +3,7 @@ and the one formatter that turns a pydantic :class:`~pydantic.ValidationError` i
 
 Each concept of a scene owns its schema next to the code that uses it (the experiments in
 :mod:`hil.experiments`, the controllers in :mod:`hil.controllers`, devices, simulation and
-certification in :mod:`hil.scene`); they all derive from :class:`StrictModel` and use the field
+certification in :mod:`hil.scene.spec`); they all derive from :class:`StrictModel` and use the field
 types below, so a mistyped key, a unit written into a number or a ragged matrix is answered the same
 way wherever it is.
 
@@ -26,7 +26,7 @@ import logging
 import math
 import re
 from collections.abc import Callable, Sequence
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any, Protocol, TypeVar
 
 import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
@@ -40,6 +40,7 @@ __all__ = [
     "DofList",
     "FieldError",
     "Name",
+    "SceneView",
     "Seed",
     "StrictModel",
     "as_matrix",
@@ -369,3 +370,27 @@ def validate(schema: type[M], data: Any, where: str = "") -> M:
             msg = f"{where}: {msg.removeprefix('(top level): ')}" if msg.startswith("(top level)") \
                 else f"{where}.{msg}"
         raise SceneError(msg) from None
+
+
+class SceneView(Protocol):
+    """What the scene-level checks of an experiment type or a controller read of the scene
+    (:class:`hil.scene.spec.Scene` provides it). The scene composes their schemas, so they see it
+    only through this interface (the import rule: the scene imports them, not the reverse)."""
+
+    @property
+    def simulation(self) -> Any:
+        """The simulated plant block, or None at a real bench."""
+
+    @property
+    def network(self) -> Any:
+        """The scene's network block (``ports``: the interaction ports)."""
+
+    def device(self, name: str) -> Any:
+        """The device called ``name`` (a group of devices is one device of summed ``dof``)."""
+
+    def port(self, name: str) -> Any:
+        """The network port called ``name``."""
+
+    def require(self, path: str, name: str, role: str | None = None) -> Any:
+        """The device ``name``, refused as a field error at ``path`` when it is missing or (with
+        ``role``) has another role."""

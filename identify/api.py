@@ -3,7 +3,7 @@
 * :func:`identify_arrays` -- one experiment given as arrays.
 * :func:`identify_experiments` -- several experiments (e.g. one chirp per input of an m-DOF device).
 * :func:`identify_record` -- a run record (a :class:`hil.identify.source.RecordSource`, e.g. a
-  :class:`hil.record.RunRecord` adapted by its backend, or its path: ``.h5`` written by ``hil run`` or
+  :class:`hil.record.hdf5.RunRecord` adapted by its backend, or its path: ``.h5`` written by ``hil run`` or
   ``hil import``; ``.csv``/``.mat`` imported on the fly; ``.npz``), or the
   dict ``{"t": ..., "signals": {name: array}, "meta": {...}}``. For run records the model,
   channels, windows, Welch segment and band are inferred from the record's meta, results and scene
@@ -12,9 +12,10 @@
   (measured model outputs), ``band`` [Hz], ``period`` [s] of the periodic chirp (sets the Welch
   segment), ``nperseg``, ``skip`` [s], ``seed``, ``model_options``, ``noise``.
 * :func:`store_result` -- posterior samples, summary and convergence diagnostics into the record
-  (``/identification/<model>``, through the record backend: :func:`hil.record.store_identification`);
+  (``/identification/<model>``, through the record backend: :func:`hil.record.hdf5.store_identification`);
   :func:`load_identification`.
-* :func:`main` -- ``hil identify RECORD [--model NAME] [--json] ...``. Exit codes (the CLI's): 0 ok;
+* the command ``hil identify RECORD [--model NAME] [--json] ...`` is :func:`hil.cli.identify.main`.
+  Exit codes (the CLI's): 0 ok;
   2 usage or input error (unreadable file, unknown model, missing channel); 13 the data cannot
   give a trustworthy estimate (data quality, not identifiable, posterior not converged, model misfit
   unless ``--accept-misfit``), with a one-line message; 1 only for bugs.
@@ -38,7 +39,6 @@ from __future__ import annotations
 
 import json
 import logging
-import sys
 import time
 import zipfile
 from collections.abc import Mapping, Sequence
@@ -49,14 +49,13 @@ from typing import Any, cast
 import numpy as np
 from numpy.typing import ArrayLike
 
-from hil.errors import ExitCode, HilError
+from hil.errors import HilError
 from hil.identify.adequacy import AdequacyReport, check_frf_fit, check_ml_fit
 from hil.identify.diagnostics import DataReport, Diagnosis, check_excitation, run_checks
 from hil.identify.errors import (
     ConvergenceError,
     DataQualityError,
     ModelSpecError,
-    NotIdentifiableError,
 )
 from hil.identify.fisher import IdentifiabilityReport, check_identifiability, crb
 from hil.identify.fit import LsResult, fit_least_squares
@@ -72,7 +71,6 @@ from hil.identify.timedomain import (
     is_periodic,
     laplace_posterior,
 )
-from hil.inputs import number_type, seed_type
 
 logger = logging.getLogger(__name__)
 
@@ -82,12 +80,9 @@ __all__ = [
     "identify_experiments",
     "identify_record",
     "load_identification",
-    "main",
     "store_result",
 ]
 
-#: exit codes: the one table (hil.errors.ExitCode)
-EXIT_OK, EXIT_USAGE, EXIT_ERROR = ExitCode.OK, ExitCode.USAGE, ExitCode.ERROR
 
 
 @dataclass
@@ -621,7 +616,7 @@ def identify_record(record: Any, **overrides: Any) -> IdentificationResult:
     """Identify from a run record or a record dict (module docstring).
 
     ``record``: a :class:`~hil.identify.source.RecordSource` (or an object a registered record backend
-    adapts to one, e.g. a :class:`hil.record.RunRecord`), a path (``.npz``; ``.h5`` run record,
+    adapts to one, e.g. a :class:`hil.record.hdf5.RunRecord`), a path (``.npz``; ``.h5`` run record,
     ``.csv``/``.mat`` imported with the importers' defaults, through the registered backend,
     :mod:`hil.identify.source`), or ``{"t", "signals", "meta"}``.
     Run records: everything is inferred (:func:`hil.identify.records.plan_from_record`) and
@@ -773,188 +768,3 @@ def load_identification(path: str | Path, name: str | None = None) -> dict[str, 
             return {"samples": np.array(grp["samples"]), "summary": json.loads(grp["summary"][()])}
     except OSError as exc:
         raise error(f"{path}: cannot read: {exc}") from None
-
-
-def _kv(items: Sequence[str] | None, what: str) -> dict[str, str]:
-    out: dict[str, str] = {}
-    for it in items or []:
-        if "=" not in it:
-            raise ModelSpecError(f"{what} expects NAME=VALUE, got {it!r}")
-        k, v = it.split("=", 1)
-        if not k.strip() or not v.strip():
-            raise ModelSpecError(f"{what} {it}: expects NAME=VALUE with both parts non-empty")
-        out[k.strip()] = v.strip()
-    return out
-
-
-def _resolution_arg(v: str | None) -> Resolution | None:
-    if v is None:
-        return None
-    if v in ("none", "0"):
-        return None if v == "none" else 0.0
-    if v in ("float16", "float32", "float64", "auto"):
-        return v
-    try:
-        step = float(v)
-    except ValueError:
-        step = float("nan")
-    if not np.isfinite(step) or step < 0:
-        raise ModelSpecError(f"--resolution {v}: expected auto, float16, float32, float64, none, or a non-negative "
-                             "quantization step")
-    return step
-
-
-def _theta0(items: Sequence[str] | None) -> dict[str, float] | None:
-    out: dict[str, float] = {}
-    for k, v in _kv(items, "--set").items():
-        try:
-            x = float(v)
-        except ValueError:
-            x = float("nan")
-        if not np.isfinite(x):
-            raise ModelSpecError(f"--set {k}={v}: the starting value of {k} must be a finite number")
-        out[k] = x
-    return out or None
-
-
-def _print_table(res: IdentificationResult) -> None:
-    units = dict(zip(res.model.names, res.model.units, strict=True))
-    print(f"model {res.model.name}; method {res.method}; converged: {res.converged}; "
-          f"misfit: {res.misfit}{' (accepted)' if res.misfit_accepted else ''}")
-    for note in res.record.get("mapping", {}).get("notes", []):
-        print(f"  {note}")
-    print(f"{'param':>10} {'median':>12} {'q05':>12} {'q95':>12} {'std':>10} {'ls_std':>10} {'crb_std':>10}  unit")
-    for n, r in res.summary().items():
-        print(
-            f"{n:>10} {r['median']:12.5g} {r['q05']:12.5g} {r['q95']:12.5g} {r['std']:10.3g} "
-            f"{r.get('ls_std', float('nan')):10.3g} {r.get('crb_std', float('nan')):10.3g}  {units.get(n, '')}"
-        )
-    for n, d in res.derived_summary().items():
-        print(f"{n:>10} {d['median']:12.5g} {d['q05']:12.5g} {d['q95']:12.5g} {d['std']:10.3g}  (derived)  {d['unit']}")
-    if res.adequacy is not None:
-        for t in res.adequacy.tests:
-            rng = f" expected {t.expected[0]:.3g}..{t.expected[1]:.3g}" if t.expected else ""
-            pv = f" p={t.p_value:.2g}" if t.p_value is not None else ""
-            print(f"  adequacy {t.name} ({t.channel}): {t.statistic:.4g}{rng}{pv} {'ok' if t.passed else 'FAIL'}")
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``hil identify RECORD [--model NAME] [--json] ...``. Exit codes: 0 ok; 2 usage or input error
-    (file, record, model, channel); 13 no trustworthy estimate (data quality, not identifiable,
-    posterior not converged; one-line message on stderr). 1 is left to bugs."""
-    from hil.cli import OneLineArgumentParser
-
-    p = OneLineArgumentParser(
-        prog="hil identify",
-        description="Identify a grey-box model (SDEA: K_f, B_f, M, B; m-DOF: M, B, K) from a chirp/multisine run. "
-        "The model, channels, period and band are inferred from the record; flags override them.",
-    )
-    p.add_argument("record", help="run record .h5 (hil run / hil import), .csv/.mat (imported on the fly), or .npz")
-    p.add_argument("--model", default=None, help="sdea_locked | sdea_free | mbk (default: inferred)")
-    p.add_argument("--experiment", default=None, help="experiment name in the record (when it holds several)")
-    p.add_argument("--target", default=None, help="actuator (device or group) whose effort command is the input")
-    p.add_argument("--input", action="append", metavar="SIGNAL", help="input signal, repeatable (model order)")
-    p.add_argument("--output", action="append", metavar="CHANNEL=SIGNAL",
-                   help="model output from a signal, e.g. force=spring_ft.wrench[5] (a leading - negates)")
-    p.add_argument("--band", nargs=2, type=number_type("nonnegative"), metavar=("F_MIN", "F_MAX"), default=None,
-                   help="analysis band [Hz], 0 <= F_MIN < F_MAX")
-    p.add_argument("--period", type=number_type("positive"), default=None,
-                   help="excitation period [s] (Welch segment length)")
-    p.add_argument("--skip", type=number_type("nonnegative"), default=None, help="start-up transient to drop [s]")
-    p.add_argument("--sampling", choices=["zoh", "continuous"], default=None,
-                   help="plant behind a zero-order hold at the record's rate (default for records) or continuous")
-    p.add_argument("--resolution", default=None,
-                   help="rounding of the recorded signals: float32 (default), auto (a whole-count quantizer "
-                   "detected from the values, else float32), float64, none, or a step")
-    p.add_argument("--noise", choices=["student", "gaussian", "scaled"], default=None)
-    p.add_argument("--set", action="append", metavar="PARAM=VALUE", help="starting value of a parameter (theta0)")
-    p.add_argument("--seed", type=seed_type, default=None)
-    p.add_argument("--max-seconds", type=number_type("positive"), default=None, help="time budget of the sampler [s]")
-    p.add_argument("--excitation", choices=["refuse", "warn"], default=None, help="a band that cannot pin a parameter: "
-                   "refuse (default, exit 13) or warn and fit anyway (hil.identify.excitation)")
-    p.add_argument("--method", choices=["auto", "frf", "ml"], default=None,
-                   help="estimator: auto (H1 FRF for periodic records, output-error ML otherwise), frf, ml")
-    p.add_argument("--posterior", choices=["emcee", "laplace"], default=None,
-                   help="ML path: emcee on the ML likelihood (default) or its Laplace approximation (fast)")
-    p.add_argument("--accept-misfit", action="store_true",
-                   help="exit 0 although an adequacy test flags a model misfit (the result stays flagged)")
-    p.add_argument("--json", action="store_true", help="print the full result as JSON")
-    p.add_argument("--no-store", action="store_true", help="do not write the posterior into the record")
-    p.add_argument("--out", default=None, help="for .csv/.mat input: keep the imported record (with the result) here")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing record at --out")
-    a = p.parse_args(argv)
-    if a.band is not None and not a.band[0] < a.band[1]:
-        p.error(f"argument --band: F_MIN must be below F_MAX, got {a.band[0]:g} {a.band[1]:g}")
-    try:
-        outputs = _kv(a.output, "--output") or None
-        theta0 = _theta0(a.set)
-        res_spec = _resolution_arg(a.resolution)
-        record_path = Path(a.record)
-        target_path: Path | None = record_path
-        suffix = record_path.suffix.lower()
-        if record_path.is_dir():
-            raise ModelSpecError(f"{record_path}: is a folder, not a record")
-        if a.out and suffix not in (".csv", ".mat"):
-            raise ModelSpecError(f"--out applies to .csv/.mat input (the result goes into {target_path} itself)")
-        if suffix in (".csv", ".mat"):
-            if a.out:  # the backend imports the file into a record kept at --out
-                target_path = backend_for(record_path).import_to(record_path, a.out, overwrite=a.overwrite)
-                rec: Any = load_record(target_path)
-            else:
-                rec, target_path = load_record(a.record), None
-        elif suffix == ".npz":
-            import zipfile
-
-            try:
-                rec = load_record(a.record)
-            except HilError:
-                raise
-            except (ValueError, EOFError, zipfile.BadZipFile) as exc:  # garbage, pickled objects, truncated
-                raise ModelSpecError(f"{a.record}: not a readable .npz record ({type(exc).__name__})") from None
-            target_path = None
-        else:
-            rec = load_record(a.record)
-        kw = {"model": a.model, "band": a.band, "period": a.period, "seed": a.seed, "skip": a.skip,
-              "noise": a.noise, "max_seconds": a.max_seconds, "theta0": theta0, "sampling": a.sampling,
-              "method": a.method, "posterior": a.posterior, "accept_misfit": a.accept_misfit or None}
-        kw["excitation"] = a.excitation
-        if a.resolution is not None:
-            kw["resolution"] = kw["input_resolution"] = res_spec
-        if isinstance(rec, Mapping):  # .npz record dict
-            if a.input or outputs:
-                kw["inputs"], kw["outputs"] = a.input, outputs
-            res = identify_record(rec, **kw)
-        else:
-            kw.update(experiment=a.experiment, target=a.target, inputs=a.input, outputs=outputs)
-            res = identify_record(rec, **{k: v for k, v in kw.items() if v is not None})
-    except (DataQualityError, NotIdentifiableError, ConvergenceError) as exc:
-        print(f"hil identify: {type(exc).__name__}: {' '.join(str(exc).split())}", file=sys.stderr)
-        return EXIT_ERROR
-    except (HilError, OSError, UnicodeDecodeError) as exc:  # ModelSpecError, RecordError, SceneError: input
-        msg = " ".join(str(exc).split())
-        if isinstance(exc, OSError) and exc.filename is not None:
-            msg = f"{exc.filename}: {exc.strerror or msg}"
-        elif isinstance(exc, UnicodeDecodeError):
-            msg = f"{a.record}: not UTF-8 text ({exc.reason} at byte {exc.start})"
-        print(f"hil identify: error: {msg}", file=sys.stderr)
-        return EXIT_USAGE
-    if target_path is not None and not a.no_store:
-        try:
-            key = store_result(target_path, res)
-            res.record["stored"] = f"{target_path}:/identification/{key}"
-        except HilError as exc:
-            print(f"hil identify: warning: result not stored: {exc}", file=sys.stderr)
-    if a.json:
-        print(res.to_json())
-    else:
-        _print_table(res)
-    if not res.converged:
-        reasons = "; ".join(res.posterior.diagnostics.reasons)
-        print(f"hil identify: ConvergenceError: posterior not converged: {reasons}", file=sys.stderr)
-        return EXIT_ERROR
-    if res.misfit and not a.accept_misfit:
-        why = "; ".join(res.adequacy.reasons) if res.adequacy is not None else ""
-        print(f"hil identify: ModelMisfit: the model does not describe the data ({why}); "
-              "use a richer model, or --accept-misfit", file=sys.stderr)
-        return EXIT_ERROR
-    return EXIT_OK

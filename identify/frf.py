@@ -200,7 +200,7 @@ def rounding_variance(x: ArrayLike, resolution: Resolution, *, grid: bool = True
     counts/s or per-mille torque, decoded to SI before it was stored); a number: a fixed
     quantization step ``q`` -> ``q^2/12``; None/0: no rounding; ``"auto"``: the step of
     :func:`lattice_step` when the signal is quantized (``q^2/12``), else float32. ``grid=False``: no grid detection
-    (the recorded input of a drive with integer units is the value it applies: hil.runner records
+    (the recorded input of a drive with integer units is the value it applies: hil.run.runner records
     the effort as encoded on the wire, so its grid is not a rounding error).
     """
     if resolution is None:

@@ -11,7 +11,7 @@
 
 Backends are registered by the side that owns the file format: :func:`register_backend` at import, or
 the entry-point group ``hil.identify.record_backends`` (the suite's own HDF5 run records register
-``hil.identify_records:BACKEND`` there, see pyproject.toml), looked up the first time a file or a
+``hil.record.identify_source:BACKEND`` there, see pyproject.toml), looked up the first time a file or a
 foreign record object is handed to identification. ``.npz`` files (``t``, signals, a JSON ``meta``)
 are read here with numpy alone.
 """

@@ -7,7 +7,7 @@ it swamps the coherence-based noise estimate and biases the FRF (measured: B_f +
 
 Model (exact, no approximation). The plant behind the bench's zero-order hold at ``T = 1/fs`` is
 ``x_{t+1} = Phi x_t + Gamma u_t``, ``y_t = C x_t + v_t`` (``Phi = e^{AT}``; the sampled model of
-:mod:`hil.identify.models` and :func:`hil.mocks.lti.zoh_matrices`), ``v_t`` white Gaussian noise of
+:mod:`hil.identify.models` and :func:`hil.lti.zoh_matrices`), ``v_t`` white Gaussian noise of
 variance ``sigma_o^2`` per output ``o`` (the fitted noise model). With the DFT over the ``N``
 samples of one record, ``X_k = sum_t x_t z_k^-t`` at ``z_k = e^{j 2 pi k / N}``, summing the state
 equation over the record and using ``z_k^N = 1``::
@@ -132,8 +132,8 @@ def is_periodic(u: ArrayLike, n_period: int, rtol: float = 1e-5) -> bool:
 def simulate_zoh(model: GreyBoxModel, theta: ArrayLike, u: ArrayLike, x0: ArrayLike | None = None) -> NDArray:
     """Noise-free outputs (n, n_out) of ``model`` behind a zero-order hold at ``model.zoh_fs`` for
     input samples ``u`` (n, n_in), using the suite's exact discretization
-    (:meth:`hil.mocks.lti.StateSpace.discretize`); nuisance gains applied, delay not supported."""
-    from hil.mocks.lti import StateSpace
+    (:meth:`hil.lti.StateSpace.discretize`); nuisance gains applied, delay not supported."""
+    from hil.lti import StateSpace
 
     if model.zoh_fs is None:
         raise ModelSpecError("simulate_zoh needs a model built with zoh_fs")

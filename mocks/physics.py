@@ -2,7 +2,7 @@
 
 Everything in a :class:`Scene` (bodies, springs/dampers between bodies or to ground, passive
 terminations, humans) is assembled into ONE continuous-time state space and discretized once
-(exactly, ZOH, :mod:`hil.mocks.lti`), so dampers and terminations with direct feedthrough never
+(exactly, ZOH, :mod:`hil.lti`), so dampers and terminations with direct feedthrough never
 form an algebraic loop and stiff couplings cannot destabilize the integration.
 
 Units and signs
@@ -40,7 +40,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from hil.errors import ModelError
-from hil.mocks.lti import ArrayLike, StateSpace
+from hil.lti import ArrayLike, StateSpace
 from hil.mocks.terminations import ForceProfile, Human, Impedance, Termination, WallSpring, _psd_matrix
 
 logger = logging.getLogger(__name__)

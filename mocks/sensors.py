@@ -21,8 +21,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from hil.errors import ModelError
+from hil.lti import ArrayLike
 from hil.mocks.interfaces import SimulatedJoints
-from hil.mocks.lti import ArrayLike
 
 logger = logging.getLogger(__name__)
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hil.errors import ModelError
-from hil.mocks.lti import ArrayLike
+from hil.lti import ArrayLike
 from hil.mocks.physics import JointMap, Plant
 from hil.mocks.terminations import profile_value
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hil.errors import ModelError
-from hil.mocks.lti import ArrayLike, StateSpace, TFEntry, tf_matrix
+from hil.lti import ArrayLike, StateSpace, TFEntry, tf_matrix
 
 logger = logging.getLogger(__name__)
 
@@ -83,7 +83,7 @@ class Impedance:
 
     @classmethod
     def from_tf(cls, entries: Sequence[Sequence[TFEntry]], name: str = "impedance") -> Impedance:
-        """From a transfer matrix ``entries[i][j] = (num, den)`` (see :func:`hil.mocks.lti.tf_matrix`)."""
+        """From a transfer matrix ``entries[i][j] = (num, den)`` (see :func:`hil.lti.tf_matrix`)."""
         return cls(tf_matrix(entries), name)
 
 

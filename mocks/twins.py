@@ -1,8 +1,8 @@
 """Simulated twins: what a bench needs of each device kind's simulated counterpart.
 
 A device kind registered in :mod:`hil.protocols.registry` names, next to its adapter, a *twin*
-(``"module:attribute"``, an instance of a :class:`Twin` subclass). :class:`hil.bench.Bench` and
-:class:`hil.bench.SimulatedScene` call only these methods, so they have no per-kind branches:
+(``"module:attribute"``, an instance of a :class:`Twin` subclass). :class:`hil.bench.runtime.Bench` and
+:class:`hil.bench.runtime.SimulatedScene` call only these methods, so they have no per-kind branches:
 
 * :meth:`Twin.start` builds the simulated device on its transport for one scene device (the
   :class:`TwinContext` carries its measurement point, seed, fault plan, clock, private channel
@@ -40,7 +40,7 @@ class TwinContext:
     DOFs (noise included); ``seed``/``faults``: its generator seed and
     :class:`hil.mocks.faults.FaultPlan`; ``dt`` (s) and ``rate_hz``: the control period;
     ``clock``: the simulated clock (s) for the adapter; ``timeout`` (s): the adapter's per-call
-    timeout; ``lockstep``: True on a :class:`hil.bench.Bench` (the bench ticks the device), False
+    timeout; ``lockstep``: True on a :class:`hil.bench.runtime.Bench` (the bench ticks the device), False
     when served free-running; ``can_interface``: the python-can interface the simulated CAN nodes
     use; ``channel(interface, scene_channel)``: the private channel standing for a scene channel;
     ``devices``: every opened device record of the bench (``.cfg``, ``.point``, ``.host``), for

@@ -281,7 +281,7 @@ class CubeMarsMIT(CanActuator):
     def effort_on_wire(self, effort: np.ndarray) -> np.ndarray:
         """The torque (N.m) :meth:`command_effort` sends for ``effort``: the 12-bit t_ff field over the
         model's [T_min, T_max] (manual 5.3, MIT mode; truncated as :func:`float_to_uint`), decoded
-        back (what hil.runner records as ``effort_cmd``; resolution (T_max - T_min) / 4095)."""
+        back (what hil.run.runner records as ``effort_cmd``; resolution (T_max - T_min) / 4095)."""
         u = float(self._checked_effort(effort)[0])  # the same effort_limit clamp as command_effort
         lim = self.limits
         return np.array([uint_to_float(float_to_uint(u, lim.t_min, lim.t_max, 12), lim.t_min, lim.t_max, 12)])

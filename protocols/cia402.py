@@ -407,7 +407,7 @@ class CiA402Drive(Actuator):
         """The joint torque (N.m) that :meth:`command_effort` would send for ``effort``: clamped to
         ``effort_limit``, rounded to the per mille of rated torque 0x6071 carries (CiA 402 §6.5.1;
         resolution ``gear_ratio * rated_torque_mNm / 1e6`` N.m) and clamped to int16, decoded back.
-        The drive applies exactly this (the record's ``effort_cmd``, hil.runner)."""
+        The drive applies exactly this (the record's ``effort_cmd``, hil.run.runner)."""
         return np.array([self.per_mille_to_joint_torque(self._encode_effort(effort))])
 
     def _send_effort(self, effort: np.ndarray, timeout: float) -> None:

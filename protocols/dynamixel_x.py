@@ -30,7 +30,7 @@ Delay Time(9) = 250 (500 us), ID 1. The adapter's default ``baudrate`` is that 5
 first id does not answer a ping at ``baudrate`` and ``scan_baudrates`` is on (default), it pings
 it at every other X-series rate (9 600 ... 4.5 Mbps, :data:`BAUD_RATES`) and continues at the rate
 that answers, with a warning naming it (set ``baudrate`` in the scene to skip the scan). A fast
-loop needs a faster bus than 57 600 bps (see the link budget in ``hil.scene``): configure the
+loop needs a faster bus than 57 600 bps (see the link budget in ``hil.scene.spec``): configure the
 servos (e.g. with DYNAMIXEL Wizard) and give their rate as ``baudrate``. On open the adapter writes
 Return Delay Time(9) = ``return_delay`` (default 0, in 2 us units; ``None`` leaves it): a factory
 servo otherwise waits 0.5 ms before every status packet.
@@ -256,7 +256,7 @@ class DynamixelX(Actuator):
     def effort_on_wire(self, effort: np.ndarray) -> np.ndarray:
         """The effort (N.m) :meth:`command_effort` sends for ``effort``: Goal Current(102) in units of
         2.69 mA, clamped to +-Current Limit(38) (XM430 e-Manual, control table), decoded back as
-        ``d * raw * 2.69e-3 * kt`` (what hil.runner records as ``effort_cmd``), after the same
+        ``d * raw * 2.69e-3 * kt`` (what hil.run.runner records as ``effort_cmd``), after the same
         ``effort_limit`` clamp as :meth:`command_effort`."""
         raw = self.current_command(self._checked_effort(effort)).astype(float)
         return np.asarray(self.directions * raw * CURRENT_UNIT_A * self.torque_constant, dtype=float)

@@ -1,6 +1,6 @@
 """Link budgets: can the bus a scene describes carry the traffic it asks for?
 
-A scene is refused at load time (``hil.scene``: one line with the numbers, exit 2) when a link
+A scene is refused at load time (``hil.scene.spec``: one line with the numbers, exit 2) when a link
 would need more than it can carry; the simulated serial links enforce the same budget
 (:class:`hil.mocks.pty.LinkBudget`). Pure arithmetic, no driver imports.
 

@@ -2,7 +2,7 @@
 
 Modelled on python-can's backend registry (and its ``can.interface`` entry points): one
 :class:`DeviceKind` per device kind names the adapter (``"module:Class"``), its simulated twin
-(``"module:attribute"``, a :class:`hil.mocks.twins.Twin`: what :mod:`hil.bench` needs to start,
+(``"module:attribute"``, a :class:`hil.mocks.twins.Twin`: what :mod:`hil.bench.runtime` needs to start,
 tick, flush and serve it), its transport and its optional imports; the strings are resolved with
 :mod:`importlib` on first use, so a scene using only CAN never imports ``pymodbus`` or
 ``dynamixel_sdk``. Another distribution adds a device with an entry point in the

@@ -1,4 +1,4 @@
-"""Shared check for malformed-input tests: a bad input through ``hil.cli.main`` must end with one
+"""Shared check for malformed-input tests: a bad input through ``hil.cli.main.main`` must end with one
 line on stderr naming the offending file or flag, the documented exit code, and no traceback.
 
 Used by tests/test_malformed_inputs.py (files, records, flags) and tests/test_malformed_scenes.py
@@ -20,8 +20,8 @@ __all__ = ["assert_one_line_error", "run_cli"]
 
 
 def run_cli(argv: Sequence[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    """``hil.cli.main(argv)`` in-process: (exit code, stdout, stderr); earlier captured output is dropped."""
-    from hil.cli import main
+    """``hil.cli.main.main(argv)`` in-process: (exit code, stdout, stderr); earlier captured output is dropped."""
+    from hil.cli.main import main
 
     capsys.readouterr()
     code = main([str(a) for a in argv])

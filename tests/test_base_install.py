@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from hil.protocols import registry
-from hil.scene import load_scene
+from hil.scene.spec import load_scene
 
 BLOCKED = ("can", "serial", "pymodbus", "dynamixel_sdk", "matplotlib", "jinja2")
 
@@ -33,7 +33,7 @@ _RUNNER = textwrap.dedent("""
             return None
 
     sys.meta_path.insert(0, _NotInstalled())
-    from hil.cli import main
+    from hil.cli.main import main
 
     sys.exit(main(sys.argv[2:]))
 """)

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import yaml
 
-from hil.bench import Bench
+from hil.bench.runtime import Bench
 from hil.errors import HilError, SceneError
 from hil.protocols.base import JointSample, WrenchSample
-from hil.scene import builtin_scenes, load_scene, scene_from_dict
+from hil.scene.spec import builtin_scenes, load_scene, scene_from_dict
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -11,11 +11,11 @@ from pathlib import Path
 import pytest
 from test_report import _chromium_shot, _console_errors, _png_stats, _tool, assert_pages_carry_content
 
-from hil.certificate import Certificate
-from hil.pipeline import certify_scene
-from hil.report import build_reports
-from hil.report_model import missing_units
-from hil.scene import builtin_scenes, load_scene
+from hil.certify.certificate import Certificate
+from hil.certify.pipeline import certify_scene
+from hil.report.render import build_reports
+from hil.report.sections import missing_units
+from hil.scene.spec import builtin_scenes, load_scene
 
 SCENES = [n for n, _ in builtin_scenes()]
 SECTION_IDS = {f: f"sec-{f}" for f in ("nominal", "robust", "identification", "design", "witness", "energy",

@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 from pydantic import BaseModel
 
-from hil.certificate import Certificate, Series, content_digest
-from hil.report import load_certificate
+from hil.certify.certificate import Certificate, Series, content_digest
+from hil.report.render import load_certificate
 
 DATA = Path(__file__).parent / "data" / "certificates_v1_1"
 
@@ -78,7 +78,7 @@ def test_a_new_field_with_a_value_is_covered_by_the_digest() -> None:
     """Left out only at its default: set, it is part of the content like any other field."""
     base = Series(title="t", x=[1.0, 2.0], x_label="x [1]", y_label="y [1]", lines={"a": [0.0, 1.0]})
     marked = base.model_copy(update={"shade_negative": True})
-    from hil.certificate import drop_new_defaults
+    from hil.certify.certificate import drop_new_defaults
 
     d0 = json.loads(base.model_dump_json())
     d1 = json.loads(marked.model_dump_json())

@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from hil.certify import Decision, Policy, decide, max_safe_parameter, probability_of_stability, worst_case_margin
+from hil.certify.statistics import (
+    Decision,
+    Policy,
+    decide,
+    max_safe_parameter,
+    probability_of_stability,
+    worst_case_margin,
+)
 
 
 def test_clopper_pearson_all_stable_closed_form():
@@ -107,7 +114,7 @@ def test_go_rule_ignores_the_frequency_margin():
 def test_beta_required_is_the_normal_quantile():
     from scipy.stats import norm
 
-    from hil.certify import beta_required
+    from hil.certify.statistics import beta_required
 
     for p in (0.9, 0.95, 0.999, 1 - 1e-6):
         assert norm.cdf(beta_required(p)) == pytest.approx(p, rel=1e-12)
@@ -140,7 +147,7 @@ def test_thinned_ar1_chain_interval_as_wide_as_for_n_over_tau_independent_draws(
     the thinned chain is as wide as the one for n/τ independent draws, not √τ times narrower."""
     from scipy.stats import norm
 
-    from hil.certify import autocorrelation_time, thin_indices
+    from hil.certify.statistics import autocorrelation_time, thin_indices
 
     rng = np.random.default_rng(11)
     phi = 0.95
@@ -164,7 +171,7 @@ def test_thinned_chain_interval_covers_the_true_probability():
     allowing for Monte Carlo noise, where the unthinned interval covers far less often."""
     from scipy.stats import norm
 
-    from hil.certify import autocorrelation_time, thin_indices
+    from hil.certify.statistics import autocorrelation_time, thin_indices
 
     rng = np.random.default_rng(5)
     phi, n_steps, n_walkers, reps = 0.9, 2000, 8, 150
@@ -183,7 +190,7 @@ def test_thinned_chain_interval_covers_the_true_probability():
 
 
 def test_thin_indices_layout():
-    from hil.certify import thin_indices
+    from hil.certify.statistics import thin_indices
 
     idx = thin_indices(10, 3, 3.2)  # every 4th step of each of 3 walkers: steps 0, 4, 8
     assert idx.tolist() == [0, 1, 2, 12, 13, 14, 24, 25, 26]

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 import yaml
 
-from hil.certificate import Certificate
-from hil.cli import main
+from hil.certify.certificate import Certificate
+from hil.certify.pipeline import certify_scene
+from hil.cli.main import main
 from hil.models.batch import sdea_passivity_batch
 from hil.models.sdea import SDEA_TABLE1
-from hil.pipeline import certify_scene
-from hil.runner import Runner
-from hil.scene import load_scene, scene_from_dict
+from hil.run.runner import Runner
+from hil.scene.spec import load_scene, scene_from_dict
 
 
 def _sdea_scene(k22: float | None = None):
@@ -158,7 +158,7 @@ def test_independent_samples_thin_the_chain_without_duplicates():
     of PosteriorResult.samples; every kept sample is a distinct stored one."""
     from types import SimpleNamespace
 
-    from hil.pipeline import _independent_samples
+    from hil.certify.pipeline import _independent_samples
 
     n_steps, n_walkers = 100, 4
     chain = np.arange(n_steps * n_walkers * 2, dtype=float).reshape(n_steps, n_walkers, 2)

@@ -1,4 +1,4 @@
-"""hil certify as stages (hil.certify_stages, hil.pipeline.stage_*): measurements that declare
+"""hil certify as stages (hil.certify.stages, hil.certify.pipeline.stage_*): measurements that declare
 their limits as data and derive their outcome, a stage that raises is ERROR (never FAIL), and the
 refactor into stages changed no certificate (reference certificates written by the pipeline before
 it, tests/data/certify_reference/).
@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 import yaml
 
-from hil.certify import Policy
-from hil.certify_stages import (
+from hil.certify.pipeline import certify_scene
+from hil.certify.stages import (
     HEADROOM_TOL,
     MARGIN_TOL,
     NOMINAL_MARGIN,
@@ -34,8 +34,8 @@ from hil.certify_stages import (
     p_stable_spec,
     worst_case_spec,
 )
-from hil.pipeline import certify_scene
-from hil.scene import load_scene, scene_from_dict
+from hil.certify.statistics import Policy
+from hil.scene.spec import load_scene, scene_from_dict
 
 REFERENCE = Path(__file__).parent / "data" / "certify_reference"
 
@@ -195,7 +195,7 @@ def test_a_stage_that_raises_is_ERROR_with_its_reason_never_FAIL(monkeypatch, tm
     """A defect inside a stage (here the robust stage's evaluation raising ZeroDivisionError) ends
     the certification as ERROR naming the stage and the reason; what the stages before it measured
     is kept, and no row is FAIL."""
-    import hil.pipeline as pl
+    import hil.certify.pipeline as pl
 
     def broken(*a: Any, **k: Any) -> Any:
         raise ZeroDivisionError("division by zero in the robust evaluation")
@@ -209,7 +209,7 @@ def test_a_stage_that_raises_is_ERROR_with_its_reason_never_FAIL(monkeypatch, tm
     assert "nominal margin" in names and "P(stable), lower confidence bound" not in names
     assert all(m.outcome != "FAIL" for m in cert.measurements)
     assert cert.nominal is None and cert.robust is None  # only a completed certification carries sections
-    from hil.verify import check_certificate
+    from hil.certify.verify import check_certificate
 
     assert check_certificate(cert, tmp_path).valid  # still a sealed, verifiable record
 
@@ -217,8 +217,8 @@ def test_a_stage_that_raises_is_ERROR_with_its_reason_never_FAIL(monkeypatch, tm
 def test_stage_outputs_are_frozen():
     import dataclasses
 
-    from hil.certify import Decision
-    from hil.certify_stages import PosteriorDraws, Verdict
+    from hil.certify.stages import PosteriorDraws, Verdict
+    from hil.certify.statistics import Decision
 
     v = Verdict(decision=Decision.GO, reasons=("x",))
     with pytest.raises(dataclasses.FrozenInstanceError):
@@ -244,8 +244,8 @@ if __name__ == "__main__":  # write the reference certificates (see the module d
 def test_an_error_of_ours_in_a_stage_propagates_with_its_exit_code(monkeypatch, tmp_path):
     """A HilError (a device that cannot be opened, a record that cannot be written) is not a
     defect: it reaches the CLI, which maps it to one line and its exit code, as before the stages."""
-    import hil.pipeline as pl
-    from hil.record import RecordError
+    import hil.certify.pipeline as pl
+    from hil.record.hdf5 import RecordError
 
     def unwritable(*a: Any, **k: Any) -> Any:
         raise RecordError("x.h5: cannot create record: disk full")

@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 from malformed_helpers import assert_one_line_error, run_cli
 
-from hil import outdir
-from hil.outdir import OutputPathError, check_out_file, prepare_out_dir, remove_if_empty
+from hil.record import outdir
+from hil.record.outdir import OutputPathError, check_out_file, prepare_out_dir, remove_if_empty
 
 
 class _FrozenClock(dt.datetime):
@@ -40,7 +40,7 @@ def _digest(folder: Path) -> dict[str, str]:
     return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir())}
 
 
-# ------------------------------------------------------------------------------------------ hil.outdir
+# ------------------------------------------------------------------------------------------ hil.record.outdir
 
 
 def test_default_folders_in_the_same_second_differ(tmp_path, same_second):
@@ -133,14 +133,14 @@ def test_a_refused_run_leaves_no_folder(tmp_path, capsys, monkeypatch):
 
 
 def test_a_failing_run_removes_the_empty_folder_it_made(tmp_path, capsys, monkeypatch):
-    import hil.runner
+    import hil.run.runner
 
     def broken(self, select=None):  # e.g. a bench that cannot open (a missing extra)
         from hil.errors import DeviceError
 
         raise DeviceError("the simulated ODrive needs python-can")
 
-    monkeypatch.setattr(hil.runner.Runner, "run", broken)
+    monkeypatch.setattr(hil.run.runner.Runner, "run", broken)
     out = tmp_path / "runs" / "x"
     assert_one_line_error(["run", "sdea_bench", "--out", str(out)], capsys, "python-can")
     assert not out.exists()
@@ -205,7 +205,7 @@ def test_stability_output_at_80_columns_keeps_values_whole(capsys, monkeypatch):
 
 
 def test_progress_prints_plain_lines_when_not_a_tty(monkeypatch):
-    from hil.cli import _Progress
+    from hil.cli.main import _Progress
 
     buf = io.StringIO()
     monkeypatch.setattr(sys, "stderr", buf)
@@ -220,7 +220,7 @@ def test_progress_prints_plain_lines_when_not_a_tty(monkeypatch):
 
 
 def test_progress_is_silent_for_short_steps(monkeypatch):
-    from hil.cli import _Progress
+    from hil.cli.main import _Progress
 
     buf = io.StringIO()
     monkeypatch.setattr(sys, "stderr", buf)

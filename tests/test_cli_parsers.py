@@ -1,6 +1,6 @@
-"""One command-line parser family: only hil.cli builds argument parsers (docs/ARCHITECTURE.md, "Exit
-codes and the one parser"). Modules contribute options through a function (``hil.probe.add_arguments``,
-``hil.cli._mock_serve_arguments``) and run from the parsed namespace."""
+"""One command-line parser family: only hil.cli.main builds argument parsers (docs/ARCHITECTURE.md, "Exit
+codes and the one parser"). Modules contribute options through a function (``hil.bench.probe.add_arguments``,
+``hil.cli.main._mock_serve_arguments``) and run from the parsed namespace."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import argparse
 import ast
 from pathlib import Path
 
-from hil.cli import build_parser, main
-from hil.mocks.serve import MOCK_KINDS
+from hil.bench.serve import MOCK_KINDS
+from hil.cli.main import build_parser, main
 
 ROOT = Path(__file__).resolve().parents[1]
 #: modules that still build a parser of their own (issue 13, owned by other work): may only shrink
@@ -34,7 +34,7 @@ def _builds_parser(path: Path) -> bool:
 
 def _parser_modules() -> set[str]:
     return {str(p.relative_to(ROOT)) for folder in ("hil", "identify", "protocols", "mocks")
-            for p in (ROOT / folder).rglob("*.py") if _builds_parser(p)} - {"hil/cli.py"}
+            for p in (ROOT / folder).rglob("*.py") if _builds_parser(p)} - {"hil/cli/main.py"}
 
 
 def test_the_scan_sees_a_parser(tmp_path: Path) -> None:
@@ -48,7 +48,7 @@ def test_the_scan_sees_a_parser(tmp_path: Path) -> None:
 
 def test_only_the_cli_builds_parsers() -> None:
     extra = _parser_modules() - KNOWN_OWN_PARSERS
-    assert not extra, f"build the options in hil.cli (an add_arguments function), not a parser: {sorted(extra)}"
+    assert not extra, f"build the options in hil.cli.main (an add_arguments function), not a parser: {sorted(extra)}"
 
 
 def test_known_own_parsers_only_shrink() -> None:

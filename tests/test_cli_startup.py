@@ -2,7 +2,7 @@
 ``hil stability --model NAME`` imports none of the modules other commands need.
 
 No wall-clock assertion (benchmarks/bench_speed.py times it): what is asserted is which modules a
-process imports and that the parser :func:`hil.cli.main` builds for one command is the full parser's
+process imports and that the parser :func:`hil.cli.main.main` builds for one command is the full parser's
 subparser for that command, option for option and help text for help text.
 """
 
@@ -15,7 +15,7 @@ import sys
 
 import pytest
 
-from hil.cli import build_parser
+from hil.cli.main import build_parser
 
 
 def _subparsers(p: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
@@ -59,7 +59,7 @@ def test_hil_stability_imports_no_scene_schema_probe_or_plotting() -> None:
     the modules of other commands (scene schema / pydantic, probe, codecs, plotting, HDF5, emcee,
     scipy, yaml) was imported."""
     code = ("import sys, json, contextlib, io\n"
-            "from hil.cli import main\n"
+            "from hil.cli.main import main\n"
             "buf = io.StringIO()\n"
             "with contextlib.redirect_stdout(buf):\n"
             "    rc = main(['stability', '--model', 'sdea'])\n"
@@ -69,6 +69,6 @@ def test_hil_stability_imports_no_scene_schema_probe_or_plotting() -> None:
     assert got["rc"] == 0 and "verdict: stable" in got["out"]
     mods = set(got["mods"])
     assert "hil.stability.criteria" in mods  # the test sees the imports of the run
-    for heavy in ("pydantic", "hil.schema", "hil.scene", "hil.models.scene_params", "hil.probe",
+    for heavy in ("pydantic", "hil.schema", "hil.scene.spec", "hil.models.scene_params", "hil.bench.probe",
                   "hil.protocols.codecs.bota", "matplotlib", "h5py", "emcee", "scipy", "yaml"):
         assert heavy not in mods, heavy

@@ -561,9 +561,9 @@ def test_position_pd_is_stateless_and_reports_layout():
 
 
 def test_builtin_scenes_build_their_controllers():
-    """The controllers of the shipped scenes (hil.scene schema: dual_master ``{device,
+    """The controllers of the shipped scenes (hil.scene.spec schema: dual_master ``{device,
     slave_dofs}``, VSIC force sensor ``axes: [5]`` resolved from the scene)."""
-    from hil.scene import builtin_scenes, load_scene
+    from hil.scene.spec import builtin_scenes, load_scene
 
     for name, _ in builtin_scenes():
         sc = load_scene(name)

@@ -5,8 +5,11 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from hil import cli, errors, fleet, realtime
+from hil import errors
+from hil.certify import fleet
+from hil.cli import main as cli
 from hil.errors import DECISION_EXIT, EXIT_MEANINGS, VERDICT_EXIT, ExitCode
+from hil.run import realtime
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -30,7 +30,7 @@ pytestmark = pytest.mark.timeout(120)
 
 
 def scene(dof: int = 1, max_effort: float = 5.0, **extra):
-    """A minimal scene mapping (check() accepts mappings as well as hil.scene.Scene)."""
+    """A minimal scene mapping (check() accepts mappings as well as hil.scene.spec.Scene)."""
     base = {
         "devices": [{"name": "motor", "role": "actuator", "dof": dof, "body": "motor"},
                     {"name": "ft", "role": "force_sensor", "dof": dof, "body": "motor", "axes": list(range(dof))}],
@@ -249,7 +249,7 @@ def test_construction_errors_name_the_field(cfg, match):
 
 
 def test_builtin_scene_experiments_through_the_pydantic_models():
-    from hil.scene import load_scene
+    from hil.scene.spec import load_scene
 
     sc = load_scene("dynamixel_leader_follower")
     for cfg in sc.experiment_configs():

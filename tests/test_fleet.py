@@ -11,7 +11,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from hil.fleet import DECISION_ORDER, FleetEntry, FleetResult, expand_scenes, transport_groups, write_index
+from hil.certify.fleet import DECISION_ORDER, FleetEntry, FleetResult, expand_scenes, transport_groups, write_index
 
 
 def _hil(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:

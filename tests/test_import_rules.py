@@ -6,9 +6,11 @@ Every module's imports are read with :mod:`ast` (imports inside functions and un
 ``hil.mocks`` mocks/). Two rules:
 
 * :data:`MAY_IMPORT`: what the lower layers may import from the rest of ``hil``;
-* no import cycle between packages: the module graph collapsed to its nodes (each subpackage
-  ``hil.stability``, ``hil.models``, ``hil.identify``, ``hil.protocols``, ``hil.mocks`` is one node, each
-  top-level module of hil/ another) has no strongly connected component of more than one node.
+* no import cycle between packages: the module graph collapsed to its nodes (each subpackage of
+  :data:`SUBPACKAGES` is one node, each top-level module of hil/ another) has no strongly connected
+  component of more than one node;
+* :data:`LAYERS`: every edge of that graph points down the data flow (cli -> report -> certify ->
+  run -> bench / record -> scene -> experiments / controllers -> models / mocks -> ... -> errors).
 
 Work in progress is listed in :data:`KNOWN_VIOLATIONS` and :data:`KNOWN_CYCLES`. These lists may only
 shrink: a listed case that no longer occurs fails the test too, so whoever fixes it removes its line.
@@ -24,41 +26,50 @@ ROOT = Path(__file__).resolve().parents[1]
 #: import name -> folder (pyproject.toml [tool.setuptools] package-dir; tests/test_types.py checks it)
 FOLDERS = {"hil.identify": "identify", "hil.protocols": "protocols", "hil.mocks": "mocks", "hil": "hil"}
 #: the nodes of the package graph besides the top-level modules of hil/
-SUBPACKAGES = ("hil.stability", "hil.models", "hil.identify", "hil.protocols", "hil.mocks")
+SUBPACKAGES = ("hil.scene", "hil.bench", "hil.run", "hil.record", "hil.certify", "hil.report", "hil.cli",
+               "hil.stability", "hil.models", "hil.identify", "hil.protocols", "hil.mocks")
 
 #: the protocol codec modules (frame layouts, CRCs, link budgets: no transport, no adapter) that the
 #: simulated devices may import to speak the same bytes as the adapters. One table: update it when
 #: codecs move.
 CODEC_MODULES = ("hil.protocols.codecs", "hil.protocols.crc", "hil.protocols.link_budget")
 
-#: package (prefix) -> what its modules may import from ``hil`` outside the package itself (prefixes)
+#: package (prefix) -> what its modules may import from ``hil`` outside the package itself (prefixes).
+#: ``hil.lti`` is the exact LTI core (state space, ZOH/FOH discretization) that the simulated plants
+#: and the time-domain identification share.
 MAY_IMPORT: dict[str, tuple[str, ...]] = {
     "hil.protocols": ("hil.errors",),
-    "hil.mocks": ("hil.errors", *CODEC_MODULES),
-    "hil.identify": ("hil.errors",),
+    "hil.mocks": ("hil.errors", "hil.lti", *CODEC_MODULES),
+    "hil.identify": ("hil.errors", "hil.lti"),
     "hil.stability": ("hil.errors",),
+    "hil.lti": ("hil.errors",),
 }
 
-#: (importing module, imported module) pairs that break MAY_IMPORT today (work in progress, issue 13)
-KNOWN_VIOLATIONS: set[tuple[str, str]] = {
-    # identify/ still reads records and scenes through hil (h12: a small record interface)
-    ("hil.identify.api", "hil.inputs"),
-    ("hil.identify.api", "hil.cli"),
-    ("hil.identify.timedomain", "hil.mocks.lti"),
-    # mocks/serve.py serves scenes: it belongs with the bench (h13a)
-    ("hil.mocks.serve", "hil.bench"),
-    ("hil.mocks.serve", "hil.scene"),
-    ("hil.mocks.serve", "hil.protocols.registry"),
-}
-
-#: strongly connected components of the package graph that exist today (work in progress, issue 13)
-KNOWN_CYCLES: list[frozenset[str]] = [
-    # experiments/controllers join it through their type-only ``check_scene(scene: Scene)`` hooks
-    frozenset({"hil.bench", "hil.cli", "hil.controllers", "hil.evidence_plots", "hil.experiments", "hil.fleet",
-               "hil.identify", "hil.identify_records", "hil.mocks", "hil.pipeline", "hil.plan", "hil.realtime",
-               "hil.runner", "hil.scene",
-               "hil.sweep"}),
+#: the data flow as layers, top (the command line) to bottom (the error hierarchy): every import
+#: between nodes points strictly down this list (so nodes of one layer never import each other).
+#: A new subpackage or top-level module must be placed here.
+LAYERS: list[tuple[str, ...]] = [
+    ("hil.__main__",),
+    ("hil.cli",),
+    ("hil.report",),
+    ("hil.certify", "hil.pytest_plugin"),
+    ("hil.run",),
+    ("hil.bench", "hil.record"),
+    ("hil.scene",),
+    ("hil.experiments", "hil.controllers"),
+    ("hil.models", "hil.mocks"),
+    ("hil.identify", "hil.protocols", "hil.schema"),
+    ("hil.stability", "hil.lti"),
+    ("hil", "hil.inputs", "hil.plugins"),
+    ("hil.errors",),
 ]
+
+#: (importing module, imported module) pairs that break MAY_IMPORT today (work in progress). Empty:
+#: keep it so.
+KNOWN_VIOLATIONS: set[tuple[str, str]] = set()
+
+#: strongly connected components of the package graph that exist today. Empty: keep it so.
+KNOWN_CYCLES: list[frozenset[str]] = []
 
 
 def _modules() -> dict[str, Path]:
@@ -189,11 +200,11 @@ def cycles(graph: dict[str, set[str]]) -> list[frozenset[str]]:
 def test_the_reader_sees_every_kind_of_import(tmp_path: Path) -> None:
     # a function-level import, a relative import, a from-import of a submodule and of a name
     src = ("import hil.errors\nfrom hil.stability import rational\nfrom .criteria import check\n"
-           "def f():\n    from hil.models.sdea import sdea_vsic\n    import hil.cli as c\n")
+           "def f():\n    from hil.models.sdea import sdea_vsic\n    import hil.cli.main as c\n")
     p = tmp_path / "criteria_user.py"
     p.write_text(src, encoding="utf-8")
     got = {t for t, _ in imports_of("hil.stability.criteria_user", p)}
-    assert got == {"hil.errors", "hil.stability.rational", "hil.stability.criteria", "hil.models.sdea", "hil.cli"}
+    assert got == {"hil.errors", "hil.stability.rational", "hil.stability.criteria", "hil.models.sdea", "hil.cli.main"}
 
 
 def test_tarjan_finds_cycles_and_only_cycles() -> None:
@@ -230,3 +241,34 @@ def test_known_cycles_only_shrink() -> None:
     stale = [sorted(k) for k in KNOWN_CYCLES if k not in found]
     assert not stale, (f"KNOWN_CYCLES is out of date (a cycle shrank or is gone): {stale}; today's cycles: "
                        f"{sorted(sorted(c) for c in found)}")
+
+
+def layer_of(node: str) -> int:
+    for i, layer in enumerate(LAYERS):
+        if node in layer:
+            return i
+    raise KeyError(node)
+
+
+def test_every_node_has_one_layer() -> None:
+    nodes = set(package_graph())
+    placed = [n for layer in LAYERS for n in layer]
+    assert len(placed) == len(set(placed)), "a node is in two layers"
+    assert nodes <= set(placed), f"place these in LAYERS: {sorted(nodes - set(placed))}"
+
+
+def test_imports_point_down_the_data_flow() -> None:
+    up = []
+    for src, dst in sorted(_edges()):
+        a, b = node_of(src), node_of(dst)
+        if a != b and layer_of(a) >= layer_of(b):
+            up.append(f"{src} -> {dst}")
+    assert not up, "imports against the data flow (tests/test_import_rules.py LAYERS): " + ", ".join(up)
+
+
+def test_the_layer_check_sees_an_upward_import(tmp_path: Path) -> None:
+    # a scene module importing the certification would be refused
+    p = tmp_path / "x.py"
+    p.write_text("def f():\n    from hil.certify.pipeline import certify_scene\n", encoding="utf-8")
+    (dst, _), = imports_of("hil.scene.x", p)
+    assert layer_of(node_of("hil.scene.x")) > layer_of(node_of(dst))

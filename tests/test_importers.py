@@ -1,4 +1,4 @@
-"""Importers (hil.importers): CSV and .mat runs from the same data as a native run give the same record."""
+"""Importers (hil.record.importers): CSV and .mat runs from the same data as a native run give the same record."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pytest
 import scipy.io
 import yaml
 
-from hil.importers import import_csv, import_mat
-from hil.record import ChannelSpec, RecordError, RecordWriter, RunRecord
+from hil.record.hdf5 import ChannelSpec, RecordError, RecordWriter, RunRecord
+from hil.record.importers import import_csv, import_mat
 
 RATE = 500.0
 N = 400
@@ -181,7 +181,7 @@ def test_input_errors_name_the_problem(tmp_path: Path) -> None:
 
 @pytest.mark.timeout(60)
 def test_map_without_time_uses_the_default_time_column(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from hil.cli import main
+    from hil.cli.main import main
 
     t, d = _data()
     _write_csv(tmp_path / "run.csv", t, d)  # time column "time"
@@ -213,7 +213,7 @@ def test_imported_chirp_band_follows_the_input_spectrum(tmp_path: Path) -> None:
     the velocity's coherence sits at the noise-only level)."""
     from sdea_synth import log_chirp_record
 
-    from hil.cli import main
+    from hil.cli.main import main
     from hil.identify.api import identify_record
     from hil.identify.errors import DataQualityError
     from hil.identify.records import plan_from_record

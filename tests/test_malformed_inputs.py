@@ -1,4 +1,4 @@
-"""Malformed inputs of every kind through ``hil.cli.main``: each one exits 2 with exactly one stderr
+"""Malformed inputs of every kind through ``hil.cli.main.main``: each one exits 2 with exactly one stderr
 line naming the offending file or flag, and no traceback (issue 9, item 3).
 
 The table lists (id, files to write, argv, strings the message must contain). File contents are
@@ -217,10 +217,10 @@ def _write(d: Path, files: dict[str, str | bytes]) -> None:
         p = d / name
         p.parent.mkdir(parents=True, exist_ok=True)
         if isinstance(content, str) and content.startswith("SCENE:"):  # the built-in sdea_bench with one edit
-            import hil.scene
+            import hil.scene.spec
 
             old, new = content[6:].split("=", 1)
-            text = (Path(hil.scene.__file__).parent / "scenes" / "sdea_bench.yaml").read_text()
+            text = (Path(hil.scene.spec.__file__).parent / "scenes" / "sdea_bench.yaml").read_text()
             assert old in text
             p.write_text(text.replace(old, new, 1))
         elif isinstance(content, str) and content.startswith("MAT:"):
@@ -272,7 +272,7 @@ def test_unwritable_out_is_one_line(tmp_path, capsys) -> None:
 
 
 def test_unexpected_exception_is_one_line_exit_1_and_traceback_only_with_debug(capsys, monkeypatch) -> None:
-    import hil.cli as cli
+    import hil.cli.main as cli
 
     def boom(args):  # stands for a bug
         raise ZeroDivisionError("division by zero")
@@ -298,7 +298,7 @@ def test_quoted_numbers_are_refused_but_yaml_exponents_are_numbers(tmp_path, cap
     # PyYAML reads 3.96e4 (no sign in the exponent) as a string; it must still be the number 39600
     f = tmp_path / "n.yaml"
     f.write_text("type: impedance\nmatrix: [[{num: [3.96e4, 1e3], den: [1, 0]}]]\n")
-    from hil.netfile import load_network
+    from hil.scene.netfile import load_network
 
     tm, _ = load_network(f)
     z = tm.entries[0][0]

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from hil.cli import main
-from hil.scene import load_scene
+from hil.cli.main import main
+from hil.scene.spec import load_scene
 
 
 def _one_line_error(argv: list[str], capsys: pytest.CaptureFixture[str], must_contain: list[str]) -> str:

@@ -11,10 +11,10 @@ import pydantic
 import pytest
 import yaml
 
+from hil.certify.pipeline import build_network, certify_scene, model_params_from_scene
 from hil.errors import ModelError
 from hil.models import BUILTIN_MODELS, BuiltinModel, get_model, model_names
-from hil.pipeline import build_network, certify_scene, model_params_from_scene
-from hil.scene import load_scene, scene_from_dict
+from hil.scene.spec import load_scene, scene_from_dict
 from hil.stability.criteria import CRITERIA, check
 
 
@@ -30,9 +30,9 @@ def test_every_model_builds_and_names_a_registered_criterion():
 def test_criterion_names_have_one_source():
     """check() runs exactly the names of CRITERIA (and auto), and the scene schema, the network
     file schema and the CLI offer exactly those."""
-    from hil.cli import build_parser
-    from hil.netfile import NetworkFile
-    from hil.scene import CertificationCfg
+    from hil.cli.main import build_parser
+    from hil.scene.netfile import NetworkFile
+    from hil.scene.spec import CertificationCfg
 
     tm = get_model("bilateral_1dof").network({})  # a 1-DOF two-port: every criterion applies
     for name in CRITERIA:
@@ -92,7 +92,7 @@ def test_scene_parameters_are_read_from_the_scene_file():
 def test_a_new_model_is_one_registration(monkeypatch, tmp_path):
     """A model registered from outside (a 1-DOF mass-damper one-port, the leader joint of the
     dynamixel scene, mapped from the scene's simulated body) is certified end to end with no
-    change to hil.pipeline: its builder, criterion and scene mapping are all the pipeline uses."""
+    change to hil.certify.pipeline: its builder, criterion and scene mapping are all the pipeline uses."""
     from hil.models.teleop import mbk_impedance
 
     def joint(scene: Any, c: dict[str, Any]) -> dict[str, Any]:

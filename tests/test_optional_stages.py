@@ -14,10 +14,10 @@ from types import SimpleNamespace
 import pytest
 import yaml
 
-from hil.certificate import Certificate
+from hil.certify.certificate import Certificate
+from hil.certify.pipeline import certify_scene
 from hil.errors import ModelError
-from hil.pipeline import certify_scene
-from hil.scene import load_scene, scene_from_dict
+from hil.scene.spec import load_scene, scene_from_dict
 
 
 def _scene(name: str, **cert):
@@ -50,13 +50,13 @@ def test_bilateral_2dof_B_NO_GO_carries_its_witness_without_sympy(no_sympy, tmp_
 def test_a_failing_witness_search_is_recorded_logged_and_reported(monkeypatch, tmp_path, caplog):
     pytest.importorskip("jinja2")
     import hil.stability.witness as W
-    from hil.report import render_html
+    from hil.report.render import render_html
 
     def broken(*_a, **_k):
         raise ModuleNotFoundError("No module named 'sympy'")
 
     monkeypatch.setattr(W, "find_witness", broken)
-    with caplog.at_level(logging.WARNING, logger="hil.pipeline"):
+    with caplog.at_level(logging.WARNING, logger="hil.certify.pipeline"):
         c = certify_scene(_scene("bilateral_2dof_B"), tmp_path, run_experiments=False)
     assert c.decision == "NO-GO", c.reasons  # the decision is the criterion's, not the witness's
     assert c.witness is None
@@ -73,7 +73,7 @@ def test_a_failing_witness_search_is_recorded_logged_and_reported(monkeypatch, t
 
 @pytest.mark.timeout(300)
 def test_failing_plots_and_witness_simulation_are_recorded_and_decide_nothing(monkeypatch, tmp_path):
-    import hil.pipeline as pl
+    import hil.certify.pipeline as pl
 
     def plot_fails(*_a, **_k):
         raise ModelError("cannot normalize")  # a HilError: it used to turn the certificate into ERROR

@@ -1,4 +1,4 @@
-"""Experiment planning (hil.plan, ``hil plan``): predicted posterior sd against the sd the mocked bench
+"""Experiment planning (hil.run.plan, ``hil plan``): predicted posterior sd against the sd the mocked bench
 achieves, the safety prediction against the recorded peaks, proposals for a requested precision, CLI."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import yaml
 
-from hil.cli import main
+from hil.cli.main import main
 from hil.errors import SceneError
-from hil.plan import SAFETY_MARGIN, PlanError, plan_scene, predict_experiment
-from hil.scene import load_scene, scene_from_dict
+from hil.run.plan import SAFETY_MARGIN, PlanError, plan_scene, predict_experiment
+from hil.scene.spec import load_scene, scene_from_dict
 
 
 def _scene(velocity_std: float = 0.0, **chirp: object) -> object:
@@ -36,8 +36,8 @@ def test_predicted_sd_matches_the_achieved_posterior_sd_on_the_mocked_bench(velo
     record is identified as ``hil certify`` does. velocity_std 0: the velocity is known to its float32
     rounding (K_f, M to ~1e-9); 0.02 rad/s: white-noise limited (K_f to ~1e-3)."""
     from hil.identify.api import identify_record
-    from hil.record import RunRecord
-    from hil.runner import Runner
+    from hil.record.hdf5 import RunRecord
+    from hil.run.runner import Runner
 
     sc = _scene(velocity_std)
     pred = predict_experiment(sc, sc.experiments[0])
@@ -166,8 +166,8 @@ def test_predicted_sd_matches_the_achieved_posterior_sd_on_the_mbk_2dof_bench(tm
     assumes is the bench's: the recorded velocity scatters about its period mean by 0.00199 m/s (measured;
     the mock's only noise source is sensor_noise.velocity_std, the float32 feedback adds ~1e-8)."""
     from hil.identify.api import identify_record
-    from hil.record import RunRecord
-    from hil.runner import Runner
+    from hil.record.hdf5 import RunRecord
+    from hil.run.runner import Runner
 
     sc = load_scene("mbk_2dof_bench")
     pred = predict_experiment(sc, sc.experiments[0])
@@ -195,9 +195,9 @@ def test_cia402_velocity_quantization_is_in_the_plan(tmp_path) -> None:
     the lattice 2 pi / counts_per_rev rad/s that the plan takes as its velocity rounding floor (800 x the
     float32 spacing at 0.5 rad/s), which raises the predicted sd of the velocity-limited K_f and M."""
     pytest.importorskip("canopen")
-    from hil.plan import _velocity_steps
-    from hil.record import RunRecord
-    from hil.runner import Runner
+    from hil.record.hdf5 import RunRecord
+    from hil.run.plan import _velocity_steps
+    from hil.run.runner import Runner
 
     d = yaml.safe_load(load_scene("cia402_bench").source_text)
     d["experiments"] = [dict(d["experiments"][0], duration=0.5, periods=1)]

@@ -17,10 +17,10 @@ import pytest
 import yaml
 
 from hil import controllers, experiments, models, plugins
-from hil.cli import main
+from hil.cli.main import main
 from hil.errors import ExitCode, SceneError
-from hil.runner import Runner
-from hil.scene import load_scene, refresh_schema, scene_from_dict
+from hil.run.runner import Runner
+from hil.scene.spec import load_scene, refresh_schema, scene_from_dict
 from hil.stability import criteria
 
 pytestmark = pytest.mark.timeout(120)

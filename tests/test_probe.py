@@ -1,4 +1,4 @@
-"""``hil probe``: finds each simulated device family (served by hil.mocks.serve, the same objects
+"""``hil probe``: finds each simulated device family (served by hil.bench.serve, the same objects
 ``hil mock serve --device`` starts) with the identity the simulated device holds, and writes a
 scene stub that loads; bad input is one line and nothing is overwritten."""
 
@@ -11,10 +11,10 @@ import pytest
 
 pytest.importorskip("can")
 
-from hil.cli import main
-from hil.mocks.serve import serve, shutdown
-from hil.probe import probe_can, probe_modbus, probe_serial
-from hil.scene import load_scene
+from hil.bench.probe import probe_can, probe_modbus, probe_serial
+from hil.bench.serve import serve, shutdown
+from hil.cli.main import main
+from hil.scene.spec import load_scene
 
 pytestmark = pytest.mark.timeout(60)
 _chan = itertools.count()

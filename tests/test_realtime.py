@@ -18,24 +18,24 @@ import numpy as np
 import pytest
 import yaml  # type: ignore[import-untyped]  # no PyYAML stubs in the env
 
-from hil.bench import Bench
-from hil.cli import main as hil_main
+from hil.bench.runtime import Bench
+from hil.certify.lateness import lateness_measurements
+from hil.cli.main import main as hil_main
 from hil.errors import SafetyStop
 from hil.identify.diagnostics import check_sample_times
-from hil.realtime import (
+from hil.record.hdf5 import RunRecord, lateness_distribution
+from hil.run.realtime import (
     LatenessGuard,
     Pacer,
     WakeupStats,
     gc_paused,
     holdable_rates,
-    lateness_measurements,
     measure_wakeup,
     realtime_scheduling,
     run_cyclictest,
 )
-from hil.record import RunRecord, lateness_distribution
-from hil.runner import Runner
-from hil.scene import load_scene, scene_from_dict
+from hil.run.runner import Runner
+from hil.scene.spec import load_scene, scene_from_dict
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -286,16 +286,16 @@ def test_refused_scheduling_gives_one_warning_line_and_restores(monkeypatch, cap
 
     calls = []
     monkeypatch.setattr(os, "sched_setscheduler", lambda *a: (_ for _ in ()).throw(PermissionError(1, "denied")))
-    monkeypatch.setattr("hil.realtime._libc", lambda: None)
+    monkeypatch.setattr("hil.run.realtime._libc", lambda: None)
     monkeypatch.setattr(os, "sched_setaffinity", lambda pid, cpus: calls.append(set(cpus)))
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
-    monkeypatch.setattr("hil.realtime._WARNED", set())
-    with caplog.at_level(logging.WARNING, logger="hil.realtime"):
+    monkeypatch.setattr("hil.run.realtime._WARNED", set())
+    with caplog.at_level(logging.WARNING, logger="hil.run.realtime"):
         with realtime_scheduling(cpu=1) as got:
             assert got.policy == "SCHED_OTHER" and not got.memlock
         with realtime_scheduling(cpu=1) as again:  # the next experiment: recorded, not logged again
             assert again.warning == got.warning
-    msgs = [r.getMessage() for r in caplog.records if r.name == "hil.realtime"]
+    msgs = [r.getMessage() for r in caplog.records if r.name == "hil.run.realtime"]
     assert len(msgs) == 1 and "\n" not in msgs[0] and "SCHED_FIFO (denied)" in msgs[0] and "mlockall" in msgs[0]
     assert got.warning == msgs[0]
     assert calls == [{1}, {0, 1}] * 2  # pinned for the block, restored after
@@ -377,9 +377,9 @@ def test_cyclictest_histogram_gives_nearest_rank_percentiles_and_overflows_as_ov
 
 
 def test_check_realtime_prints_a_table(capsys, monkeypatch):
-    from hil.cli import main
+    from hil.cli.main import main
 
-    monkeypatch.setattr("hil.realtime.shutil.which", lambda name: None)
+    monkeypatch.setattr("hil.run.realtime.shutil.which", lambda name: None)
     code = main(["check-realtime", "--rate", "1000", "--seconds", "0.02", "--no-rt"])
     out = capsys.readouterr().out
     assert code in (0, 21)  # held or not: depends on this machine (not asserted)

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import yaml
 
-from hil.bench import Bench, ProcessSimBench
-from hil.scene import load_scene, scene_from_dict
+from hil.bench.runtime import Bench, ProcessSimBench
+from hil.scene.spec import load_scene, scene_from_dict
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -46,11 +46,12 @@ def test_devices_are_served_by_another_process_and_stop_with_the_bench():
 
 
 def test_runner_uses_the_process_bench_for_a_simulated_scene_in_realtime_mode(monkeypatch, tmp_path):
-    from hil.runner import Runner
+    from hil.run.runner import Runner
 
     sc, _ = _scene()
     made = []
-    monkeypatch.setattr("hil.bench.ProcessSimBench", lambda scene, **kw: made.append("process") or Bench(scene, **kw))
+    monkeypatch.setattr("hil.bench.runtime.ProcessSimBench",
+                        lambda scene, **kw: made.append("process") or Bench(scene, **kw))
     r = Runner(sc, tmp_path, realtime=True, rt_scheduling=False)
     r.bench_factory("locked").close()
     assert made == ["process"]
@@ -63,9 +64,9 @@ def test_runner_uses_the_process_bench_for_a_simulated_scene_in_realtime_mode(mo
 def test_hil_run_realtime_late_tick_is_exit_20_with_the_reason(monkeypatch, tmp_path, capsys):
     """``hil run --realtime`` with a tick made 30 ms late (fake clock charged by a slow read): exit
     20, the reason in the JSON output and in the record."""
-    import hil.realtime as rt
-    from hil.cli import main
-    from hil.record import RunRecord
+    import hil.run.realtime as rt
+    from hil.cli.main import main
+    from hil.record.hdf5 import RunRecord
 
     _, d = _scene()
     d["safety"]["max_lateness_ms"] = 10
@@ -100,7 +101,7 @@ def test_hil_run_realtime_late_tick_is_exit_20_with_the_reason(monkeypatch, tmp_
         b.read = read
         return b
 
-    monkeypatch.setattr("hil.bench.ProcessSimBench", slow_bench)
+    monkeypatch.setattr("hil.bench.runtime.ProcessSimBench", slow_bench)
     code = main(["run", str(f), "--realtime", "--out", str(tmp_path / "out"), "--json"])
     out = json.loads(capsys.readouterr().out)
     assert code == 20

@@ -16,15 +16,15 @@ import pytest
 import yaml  # type: ignore[import-untyped]  # no PyYAML stubs in the env
 from test_realtime import FakeClock
 
-from hil.bench import Bench
+from hil.bench.runtime import Bench
 from hil.mocks.can_devices import SimCubeMars, SimODrive
 from hil.mocks.interfaces import FreeJoints
 from hil.protocols.base import sample_age
 from hil.protocols.can_cubemars import CubeMarsMIT
 from hil.protocols.can_odrive import ODriveCAN
-from hil.record import RunRecord
-from hil.runner import REALTIME_READ_TIMEOUT_S, Runner
-from hil.scene import load_scene, scene_from_dict
+from hil.record.hdf5 import RunRecord
+from hil.run.runner import REALTIME_READ_TIMEOUT_S, Runner
+from hil.scene.spec import load_scene, scene_from_dict
 
 pytestmark = pytest.mark.timeout(120)
 _chan = itertools.count()
@@ -173,7 +173,7 @@ def test_lockstep_reads_and_channels_are_unchanged(tmp_path):
 
 @pytest.mark.slow
 def test_steady_state_realtime_tick_keeps_no_memory(tmp_path):
-    """tracemalloc: live blocks allocated by the loop's own code (hil/runner.py) between tick 200
+    """tracemalloc: live blocks allocated by the loop's own code (hil/run/runner.py) between tick 200
     and tick 800 of a realtime run on the fake clock. The record's chunk is preallocated and the
     tick row is built once, so a steady-state tick leaves nothing behind: the bound, 0.01 block
     per tick (6 blocks over 600 ticks), allows a few lazily created objects (a dict resize, an
@@ -195,7 +195,7 @@ def test_steady_state_realtime_tick_keeps_no_memory(tmp_path):
     finally:
         tracemalloc.stop()
     assert out.status == "completed", out.stop_reason
-    flt = [tracemalloc.Filter(True, "*hil/runner.py")]
+    flt = [tracemalloc.Filter(True, "*hil/run/runner.py")]
     diff = snaps[800].filter_traces(flt).compare_to(snaps[200].filter_traces(flt), "lineno")
     grown = sum(max(0, st.count_diff) for st in diff)
     assert grown / 600 <= 0.01, [str(st) for st in diff[:5]]

@@ -1,4 +1,4 @@
-"""Run records (hil.record): round trip, flush cadence, errors, crash safety under SIGKILL, summary, replay."""
+"""Run records (hil.record.hdf5): round trip, flush cadence, errors, crash safety under SIGKILL, summary, replay."""
 
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ import h5py
 import numpy as np
 import pytest
 
-from hil.cli import main as hil_main
-from hil.record import FORMAT_VERSION, ChannelSpec, RecordError, RecordWriter, RunRecord
+from hil.cli.main import main as hil_main
+from hil.record.hdf5 import FORMAT_VERSION, ChannelSpec, RecordError, RecordWriter, RunRecord
 
 SCENE = "name: bench\n# µ-scene with unicode: Ω\nrate_hz: 1000\n"
 SHA = hashlib.sha256(SCENE.encode()).hexdigest()
@@ -172,7 +172,7 @@ CHILD = textwrap.dedent(
     """
     import math, sys, time
     import numpy as np
-    from hil.record import ChannelSpec, RecordWriter
+    from hil.record.hdf5 import ChannelSpec, RecordWriter
     path, pause_at = sys.argv[1], int(sys.argv[2])
     ch = {"motor.position": ChannelSpec((), "rad"), "master.position": ChannelSpec((2,), "rad")}
     w = RecordWriter(path, scene_text="name: kill\\n", scene_sha256="x", meta={"seed": 1}, channels=ch,

@@ -25,10 +25,10 @@ import h5py
 import numpy as np
 import pytest
 
-import hil.record as record_mod
-from hil.cli import main as hil_main
+import hil.record.hdf5 as record_mod
+from hil.cli.main import main as hil_main
 from hil.errors import HilError
-from hil.record import ChannelSpec, RecordError, RecordWriter, RunRecord
+from hil.record.hdf5 import ChannelSpec, RecordError, RecordWriter, RunRecord
 
 RATE = 1000.0
 CHANNELS = {"motor.position": ChannelSpec((), "rad"), "master.position": ChannelSpec((2,), "rad")}
@@ -62,7 +62,7 @@ class _Interrupt(Exception):
 @pytest.fixture
 def signal_between_resize_and_write(monkeypatch: pytest.MonkeyPatch):
     """SIGUSR1 (handler raising :class:`_Interrupt`) sent by the writer itself inside a block: after
-    the channels were written, just before ``/t`` is grown and written (``hil.record._write_rows``).
+    the channels were written, just before ``/t`` is grown and written (``hil.record.hdf5._write_rows``).
     Yields a dict counting the deliveries."""
     seen = {"sent": 0, "raised": 0}
 
@@ -147,8 +147,8 @@ def test_an_interrupted_flush_is_written_once_by_close_even_without_held_signals
 CHILD = textwrap.dedent(
     """
     import math, os, sys, time
-    import hil.record as R
-    from hil.record import ChannelSpec, RecordWriter
+    import hil.record.hdf5 as R
+    from hil.record.hdf5 import ChannelSpec, RecordWriter
     path, mode, arg = sys.argv[1], sys.argv[2], sys.argv[3]
     ch = {"motor.position": ChannelSpec((), "rad"), "master.position": ChannelSpec((2,), "rad")}
 
@@ -240,7 +240,7 @@ def test_sigkill_at_random_moments_around_close_leaves_a_readable_record(tmp_pat
 STREAM_CHILD = textwrap.dedent(
     """
     import logging, math, sys, time
-    from hil.record import ChannelSpec, RecordLagError, RecordWriter
+    from hil.record.hdf5 import ChannelSpec, RecordLagError, RecordWriter
     logging.disable(logging.ERROR)  # the lag's log line per retry would fill the unread stderr pipe
     ch = {"motor.position": ChannelSpec((), "rad"), "master.position": ChannelSpec((2,), "rad")}
     w = RecordWriter(sys.argv[1], scene_text="", scene_sha256="", meta={}, channels=ch, rate_hz=1000.0,
@@ -306,7 +306,7 @@ FULL_CHILD = textwrap.dedent(
     """
     import json, math, resource, signal, sys
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # writes past the limit then fail with EFBIG
-    from hil.record import ChannelSpec, RecordError, RecordWriter
+    from hil.record.hdf5 import ChannelSpec, RecordError, RecordWriter
     path, limit = sys.argv[1], int(sys.argv[2])
     ch = {"motor.position": ChannelSpec((), "rad"), "master.position": ChannelSpec((2,), "rad")}
     w = RecordWriter(path, scene_text="name: full\\n", scene_sha256="x", meta={}, channels=ch, rate_hz=1000.0,
@@ -383,7 +383,7 @@ def test_planned_run_size_is_checked_against_free_space(tmp_path: Path, monkeypa
 FSIZE_CHILD = textwrap.dedent(
     """
     import resource, sys
-    from hil.record import ChannelSpec, RecordError, RecordWriter
+    from hil.record.hdf5 import ChannelSpec, RecordError, RecordWriter
     resource.setrlimit(resource.RLIMIT_FSIZE, (1 << 20, resource.RLIM_INFINITY))
     try:
         RecordWriter(sys.argv[1], scene_text="", scene_sha256="", meta={}, rate_hz=1000.0,
@@ -527,7 +527,7 @@ def test_cli_replay_and_identify_on_a_truncated_record_exit_2_with_one_line(tmp_
     path = tmp_path / "trunc.h5"
     path.write_bytes(data[: _stored_end(data) // 2])
     for argv in (["replay", str(path)], ["replay", str(path), "--json"], ["identify", str(path)]):
-        p = subprocess.run([sys.executable, "-m", "hil.cli", *argv], capture_output=True, text=True, timeout=60)
+        p = subprocess.run([sys.executable, "-m", "hil.cli.main", *argv], capture_output=True, text=True, timeout=60)
         assert p.returncode == 2, (argv, p.stderr)
         lines = p.stderr.strip().splitlines()
         assert len(lines) == 1 and str(path) in lines[0] and "truncated HDF5 file" in lines[0], (argv, p.stderr)

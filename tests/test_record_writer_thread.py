@@ -23,11 +23,11 @@ import numpy as np
 import pytest
 import yaml  # type: ignore[import-untyped]  # no PyYAML stubs in the env
 
-import hil.record as record_mod
-from hil.bench import Bench
-from hil.record import ChannelSpec, RecordLagError, RecordWriteError, RecordWriter, RunRecord
-from hil.runner import Runner
-from hil.scene import load_scene, scene_from_dict
+import hil.record.hdf5 as record_mod
+from hil.bench.runtime import Bench
+from hil.record.hdf5 import ChannelSpec, RecordLagError, RecordWriteError, RecordWriter, RunRecord
+from hil.run.runner import Runner
+from hil.scene.spec import load_scene, scene_from_dict
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -225,7 +225,7 @@ def test_flush_waits_until_everything_handed_over_is_readable(tmp_path: Path) ->
     try:
         w.flush()
         # a SWMR reader of the live file (another process, as the same one is refused by HDF5's locking)
-        code = ("import sys; from hil.record import RunRecord; r = RunRecord.open(sys.argv[1]); "
+        code = ("import sys; from hil.record.hdf5 import RunRecord; r = RunRecord.open(sys.argv[1]); "
                 "print(r.t.size, float(r.t[-1]), [e['message'] for e in r.events], r.closed)")
         p = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=60)
         assert p.returncode == 0, p.stderr[-2000:]

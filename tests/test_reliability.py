@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2, norm
 
-from hil.certify import posterior_limit, probability_of_stability, worst_case_margin
+from hil.certify.statistics import posterior_limit, probability_of_stability, worst_case_margin
 from hil.stability.reliability import Standardization, form, importance_sampling
 
 
@@ -123,8 +123,8 @@ def test_sdea_worst_case_exact_margin_below_nominal(k22):
     """Defect 7 reproducer: with the exact criterion's margin (the nominal margin's function), the
     worst case over the credible region is ≤ the nominal margin at k22 = 300, 408.0, 408.04 (the old
     vectorized quantity read 0.685 > nominal at all three)."""
+    from hil.certify.pipeline import _exact_margin_fn
     from hil.models.sdea import SDEA_TABLE1
-    from hil.pipeline import _exact_margin_fn
 
     names = ["B", "B_f", "K_f", "M"]
     rng = np.random.default_rng(1)
@@ -197,10 +197,10 @@ def test_sdea_rare_event_path_agrees_with_plain_monte_carlo_on_the_same_gaussian
     reached by 2000 draws, so the stage runs importance sampling around the FORM design point; its
     P_f agrees with plain Monte Carlo on 4e5 draws of the same N(μ, Σ) (an independent estimate)
     within 4 combined standard errors, and Φ(−β) is within 30 % of it (FORM is first order)."""
-    from hil.certify import Policy
+    from hil.certify.pipeline import _reliability_stage
+    from hil.certify.statistics import Policy
     from hil.models.batch import sdea_passivity_batch
     from hil.models.sdea import SDEA_TABLE1
-    from hil.pipeline import _reliability_stage
 
     names = ["B", "B_f", "K_f", "M"]
     rng = np.random.default_rng(0)

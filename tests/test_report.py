@@ -1,4 +1,4 @@
-"""Certificate reports (hil.report): JSON round trip against the schema, only the sections present
+"""Certificate reports (hil.report.render): JSON round trip against the schema, only the sections present
 in the record appear, the HTML renders in headless Chromium without console errors, the PDF
 rasterizes, ``hil report`` rebuilds from a stored record and fails in one line on a broken one.
 
@@ -23,10 +23,10 @@ import pytest
 pytest.importorskip("matplotlib")
 pytest.importorskip("jinja2")
 
-from hil.certificate import Certificate
-from hil.cli import main as hil_main
+from hil.certify.certificate import Certificate
+from hil.cli.main import main as hil_main
 from hil.errors import HilError
-from hil.report import (
+from hil.report.render import (
     ReportError,
     build_reports,
     load_certificate,
@@ -34,7 +34,7 @@ from hil.report import (
     render_pdf,
     write_json,
 )
-from hil.report_model import DEFINITIONS_DOC
+from hil.report.sections import DEFINITIONS_DOC
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = ROOT / "docs" / "certificate.schema.json"
@@ -506,6 +506,6 @@ def test_render_functions_return_paths_and_create_folders(tmp_path):
 
 
 def test_module_imports_neither_matplotlib_nor_jinja2():
-    code = "import sys, hil.report; print(sorted(m for m in ('matplotlib', 'jinja2') if m in sys.modules))"
+    code = "import sys, hil.report.render; print(sorted(m for m in ('matplotlib', 'jinja2') if m in sys.modules))"
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     assert p.stdout.strip() == "[]"

@@ -11,12 +11,12 @@ import re
 import numpy as np
 import pytest
 
-from hil import pipeline as pl
-from hil.certificate import Certificate, Series
-from hil.evidence_plots import decisive_condition, witness_response
-from hil.report_model import DEFINITIONS, fmt_range, missing_units, report_sections
-from hil.report_units import parameter_unit, termination_units
-from hil.scene import builtin_scenes, load_scene
+from hil.certify import pipeline as pl
+from hil.certify.certificate import Certificate, Series
+from hil.certify.figures import decisive_condition, witness_response
+from hil.certify.units import parameter_unit, termination_units
+from hil.report.sections import DEFINITIONS, fmt_range, missing_units, report_sections
+from hil.scene.spec import builtin_scenes, load_scene
 from hil.stability.witness import find_witness, termination_family
 
 
@@ -224,7 +224,7 @@ def test_condition_names_do_not_wrap_in_the_pdf(tmp_path):
     pytest.importorskip("matplotlib")
     from test_report import _pdftext, two_port_nogo
 
-    from hil.report import render_pdf
+    from hil.report.render import render_pdf
 
     cert = two_port_nogo()
     cert.nominal.conditions = [cert.nominal.conditions[0].model_copy(update={
@@ -238,7 +238,7 @@ def test_every_linked_field_has_an_anchor_and_the_html_links_it(tmp_path):
     pytest.importorskip("jinja2")
     from test_report import sdea_go
 
-    from hil.report import render_html
+    from hil.report.render import render_html
 
     cert = sdea_go()
     fields = set()
@@ -275,7 +275,7 @@ def test_identification_plots_show_magnitude_phase_coherence_residuals_and_the_c
     Bendat & Piersol, the residual is (model − H1)/σ, and every axis carries its unit."""
     from types import SimpleNamespace
 
-    from hil.evidence_plots import identification_plots
+    from hil.certify.figures import identification_plots
 
     f = np.geomspace(1.0, 200.0, 60)
     w = 2 * np.pi * f
@@ -321,13 +321,13 @@ def test_identification_plots_show_magnitude_phase_coherence_residuals_and_the_c
 
 
 def test_every_definition_link_points_at_a_heading_of_certification_md() -> None:
-    """The report's links (hil.report_model.DEFINITIONS) land on headings of docs/CERTIFICATION.md
+    """The report's links (hil.report.sections.DEFINITIONS) land on headings of docs/CERTIFICATION.md
     (GitHub anchors: lower case, spaces to '-'), and every field path of the document's index that
     the report model links is mapped to that path's section."""
     import re
     from pathlib import Path
 
-    from hil.report_model import DEFINITIONS, DEFINITIONS_DOC
+    from hil.report.sections import DEFINITIONS, DEFINITIONS_DOC
 
     doc = (Path(__file__).resolve().parents[1] / DEFINITIONS_DOC).read_text(encoding="utf-8")
     anchors = {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-")

@@ -18,10 +18,10 @@ pytest.importorskip("matplotlib")
 
 from test_report import _tool, sdea_go
 
-from hil.certificate import Certificate, Series
-from hil.evidence_plots import design_point_axes, design_point_plot
-from hil.report import _corner_offset, render_pdf
-from hil.report_model import (
+from hil.certify.certificate import Certificate, Series
+from hil.certify.figures import design_point_axes, design_point_plot
+from hil.report.render import _corner_offset, render_pdf
+from hil.report.sections import (
     CHARTS,
     Block,
     Section,
@@ -182,7 +182,7 @@ def test_corner_plot_is_vector_text_in_the_pdf(tmp_path):
 
 
 def test_pretty_unit_prints_powers_as_superscripts():
-    from hil.report_units import pretty_unit, quantity_unit
+    from hil.certify.units import pretty_unit, quantity_unit
 
     assert pretty_unit("kg.m^2") == "kg.m²" == quantity_unit("mass", "rotary")
     assert pretty_unit("rad/(N.m.s^2)") == "rad/(N.m.s²)" and pretty_unit("N.m/rad") == "N.m/rad"

@@ -14,9 +14,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hil.record import RunRecord
-from hil.runner import Runner
-from hil.scene import load_scene, scene_from_dict
+from hil.record.hdf5 import RunRecord
+from hil.run.runner import Runner
+from hil.scene.spec import load_scene, scene_from_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -51,7 +51,7 @@ def test_tolerated_crc_errors_are_stored_in_the_record(tmp_path):
 def test_fault_counters_become_info_measurements():
     from types import SimpleNamespace
 
-    from hil.pipeline import _fault_measurements
+    from hil.certify.pipeline import _fault_measurements
 
     faulty = SimpleNamespace(results={"device_counters": {"spring_ft": {"crc_errors": 3, "resync_bytes": 40,
                                                                         "stale": 0}, "motor": {"timeouts": 0}}})
@@ -69,7 +69,7 @@ def test_stale_reads_are_not_faults():
     """A sensor slower than the loop leaves ticks without a new sample: listed, not counted."""
     from types import SimpleNamespace
 
-    from hil.pipeline import _fault_measurements
+    from hil.certify.pipeline import _fault_measurements
 
     slow = SimpleNamespace(results={"device_counters": {"spring_ft": {"crc_errors": 1, "stale": 15937}}})
     ms: list = []
@@ -85,7 +85,7 @@ def test_stale_reads_are_not_faults():
 def test_a_signal_during_the_runs_of_certify_ends_the_command(tmp_path, sig, code):
     out = tmp_path / "cert"
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200"}
-    p = subprocess.Popen([sys.executable, "-m", "hil.cli", "certify", "sdea_bench", "--out", str(out)],
+    p = subprocess.Popen([sys.executable, "-m", "hil.cli.main", "certify", "sdea_bench", "--out", str(out)],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=env)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not list((out / "records").glob("*.h5")):

@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 import yaml
 
-from hil.bench import Bench
-from hil.cli import main
-from hil.record import RunRecord
-from hil.runner import Runner
-from hil.scene import builtin_scenes, load_scene, scene_from_dict
+from hil.bench.runtime import Bench
+from hil.cli.main import main
+from hil.record.hdf5 import RunRecord
+from hil.run.runner import Runner
+from hil.scene.spec import builtin_scenes, load_scene, scene_from_dict
 
 BUILTINS = [n for n, _ in builtin_scenes()]
 
@@ -159,7 +159,7 @@ def test_watchdog_miss_on_device_disconnect(tmp_path):
 @pytest.mark.timeout(300)
 def test_sigkill_mid_run_leaves_readable_record(tmp_path):
     out = tmp_path / "killed"
-    p = subprocess.Popen([sys.executable, "-m", "hil.cli", "run", "mcet_trilateral", "--out", str(out), "--json"],
+    p = subprocess.Popen([sys.executable, "-m", "hil.cli.main", "run", "mcet_trilateral", "--out", str(out), "--json"],
                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     rec_path = out / "00_energy_injection.h5"
     deadline = time.monotonic() + 120

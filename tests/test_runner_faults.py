@@ -20,11 +20,11 @@ import numpy as np
 import pytest
 import yaml
 
-from hil.bench import Bench
+from hil.bench.runtime import Bench
 from hil.errors import ChecksumError, DeviceFault, SafetyStop
-from hil.record import RunRecord
-from hil.runner import LoopStats, Runner, SafetyMonitor
-from hil.scene import load_scene
+from hil.record.hdf5 import RunRecord
+from hil.run.runner import LoopStats, Runner, SafetyMonitor
+from hil.scene.spec import load_scene
 
 SCENE_YAML = Path(__file__).resolve().parents[1] / "hil" / "scenes" / "sdea_bench.yaml"
 
@@ -145,7 +145,7 @@ def test_device_failures_are_safe_stops(tmp_path, monkeypatch, make_exc, want):
 
 
 def test_record_write_error_is_a_safe_stop_and_the_flushed_samples_stay(tmp_path, monkeypatch):
-    from hil.record import RecordWriter
+    from hil.record.hdf5 import RecordWriter
 
     seen = _zeroed(monkeypatch)
     orig = RecordWriter.append
@@ -164,7 +164,7 @@ def test_record_write_error_is_a_safe_stop_and_the_flushed_samples_stay(tmp_path
 
 
 def test_record_that_cannot_be_closed_is_still_a_safe_stop(tmp_path, monkeypatch):
-    from hil.record import RecordError, RecordWriter
+    from hil.record.hdf5 import RecordError, RecordWriter
 
     orig = RecordWriter.close
 
@@ -193,7 +193,7 @@ def _cli_scene(tmp_path, faults):
 def test_cli_device_fault_mid_run_exits_20_with_the_reason_in_json(tmp_path):
     scene = _cli_scene(tmp_path, {"error_code": 1, "error_at_tick": 300})
     out = tmp_path / "out"
-    p = subprocess.run([sys.executable, "-m", "hil.cli", "run", str(scene), "--lockstep", "--out", str(out),
+    p = subprocess.run([sys.executable, "-m", "hil.cli.main", "run", str(scene), "--lockstep", "--out", str(out),
                         "--json"], capture_output=True, text=True, timeout=120)
     assert p.returncode == 20, p.stderr[-2000:]
     doc = json.loads(p.stdout)
@@ -207,10 +207,10 @@ def test_cli_device_fault_mid_run_exits_20_with_the_reason_in_json(tmp_path):
 
 _VANISH = r"""
 import sys, termios
-import hil.bench
-from hil.cli import main
+import hil.bench.runtime
+from hil.cli.main import main
 
-orig_open = hil.bench.Bench._open_devices
+orig_open = hil.bench.runtime.Bench._open_devices
 
 def opened(self):
     orig_open(self)
@@ -225,7 +225,7 @@ def opened(self):
                 return read(*a, **kw)
             ad.read = vanishing
 
-hil.bench.Bench._open_devices = opened
+hil.bench.runtime.Bench._open_devices = opened
 sys.exit(main(sys.argv[2:]))
 """
 
@@ -251,10 +251,10 @@ def test_cli_vanished_port_exits_20_with_the_reason_in_json(tmp_path, kind, want
 
 def _runner_bytes_at_end(tmp_path, n):
     """Bytes allocated by the runner and the experiments, still held near the end of an ``n``-tick
-    lockstep run (tracemalloc, attributed to hil/runner.py and hil/experiments.py)."""
+    lockstep run (tracemalloc, attributed to hil/run/runner.py and hil/experiments.py)."""
     scene = _scene()
     held = {}
-    files = [tracemalloc.Filter(True, "*hil/runner.py"), tracemalloc.Filter(True, "*hil/experiments.py")]
+    files = [tracemalloc.Filter(True, "*hil/run/runner.py"), tracemalloc.Filter(True, "*hil/experiments.py")]
 
     def progress(name, k, total):
         if k + 200 >= total and "b" not in held:
@@ -277,7 +277,7 @@ def test_runner_memory_does_not_grow_with_the_tick_count(tmp_path):
     small = _runner_bytes_at_end(tmp_path, n)
     large = _runner_bytes_at_end(tmp_path, 4 * n)
     # Bound: ONE flush block of every channel (200 samples x 14 values x 8 B; the record's own
-    # buffer of that size lives in hil/record.py, not counted here). Keeping the samples, as the
+    # buffer of that size lives in hil/record/hdf5.py, not counted here). Keeping the samples, as the
     # runner did before, adds ~1.7 KiB per sample: 3n more samples = ~2 MiB, 90x this bound.
     flush_block = 200 * 8 * (1 + 1 + 1 + 1 + 1 + 6 + 1 + 1 + 1)
     assert large - small < flush_block, (small, large)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hil.errors import SafetyStop
-from hil.runner import SafetyMonitor, safe_stop_context
+from hil.run.runner import SafetyMonitor, safe_stop_context
 
 
 def sample(seq, pos=0.0, vel=0.0):
@@ -79,7 +79,7 @@ def test_other_exceptions_are_reraised_after_the_safe_stop():
 
 
 def test_sigterm_becomes_a_safe_stop():
-    from hil.stopflag import STOP
+    from hil.bench.stopflag import STOP
 
     events = []
     with _ctx(events):

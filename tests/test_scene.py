@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from hil.errors import SceneError
-from hil.scene import Scene, builtin_scenes, load_scene
+from hil.scene.spec import Scene, builtin_scenes, load_scene
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -84,7 +84,7 @@ def test_paper_parameters_in_builtin_scenes() -> None:
 
 
 def test_loading_imports_no_driver() -> None:
-    code = ("import sys; from hil.scene import load_scene\n"
+    code = ("import sys; from hil.scene.spec import load_scene\n"
             "[load_scene(n) for n in ('sdea_bench', 'bilateral_2dof_A1', 'mcet_trilateral')]\n"
             "bad = [m for m in ('can', 'pymodbus', 'dynamixel_sdk', 'serial', 'hil.protocols.can_odrive') "
             "if m in sys.modules]\nprint(bad)\n")
@@ -231,7 +231,7 @@ def test_yaml11_exponent_strings_are_numbers(tmp_path: Path) -> None:
 
 
 def test_scalar_gain_means_identity_and_flat_list_diagonal(tmp_path: Path) -> None:
-    from hil.scene import as_matrix
+    from hil.scene.spec import as_matrix
 
     d = _set("controller.Kp_m", 500.0, "bilateral_2dof_A1")
     d["controller"]["Kv_m"] = [300.0, 200.0]
@@ -246,7 +246,7 @@ def test_scalar_gain_means_identity_and_flat_list_diagonal(tmp_path: Path) -> No
 def test_cross_checks_are_pure_and_normalization_is_a_validator(tmp_path: Path) -> None:
     """issue 13: the checks change nothing; the final values (full gain matrices) come from the
     Scene model validator, so a scene validated without the checks already holds them."""
-    from hil.scene import _cross_check
+    from hil.scene.spec import _cross_check
 
     d = _set("controller.C_4", {"kp": 7.0, "kv": [1.0, 2.0, 3.0]}, "dual_master_3dof")
     d.pop("certification")
@@ -270,7 +270,7 @@ def test_units_have_one_default() -> None:
     assert Scene.model_validate(d).units == DEFAULT_UNITS == "linear"
     import inspect
 
-    from hil import runner
+    from hil.run import runner
 
     src = inspect.getsource(runner)
     assert '"units", "rotary"' not in src and src.count('"units", DEFAULT_UNITS') >= 2
@@ -283,7 +283,7 @@ def test_a_registered_experiment_type_is_a_scene_option(tmp_path: Path) -> None:
     from typing import Literal
 
     import hil.experiments as ex
-    from hil.scene import refresh_schema
+    from hil.scene.spec import refresh_schema
 
     class PulseExperiment(ex.ExperimentConfig):
         """A single effort pulse of ``amplitude`` (N) on ``target`` for ``duration`` s."""

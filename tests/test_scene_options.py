@@ -2,7 +2,7 @@
 reaches the implementation (issue 13: one schema per concept).
 
 Where the options are documented: the schemas and implementations of :mod:`hil.experiments` and
-:mod:`hil.controllers` (``hil.scene`` points there: "see ``hil.scene`` for every field", README's
+:mod:`hil.controllers` (``hil.scene.spec`` points there: "see ``hil.scene.spec`` for every field", README's
 scene section), docs/RUNNER_SPEC.md's scene example and README's minimal scene. The tests below
 
 * load one scene per option (a built-in scene with one experiment or controller entry replaced by
@@ -28,7 +28,7 @@ import yaml
 from hil.controllers import CONTROLLER_TYPES, FourChannelMCET, NullController, make_controller
 from hil.errors import SceneError
 from hil.experiments import EXPERIMENT_TYPES, ExperimentConfig, make_experiment
-from hil.scene import Scene, load_scene
+from hil.scene.spec import Scene, load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -351,7 +351,7 @@ def test_every_controller_field_is_documented(name: str) -> None:
 
 def _runner_spec_yaml() -> str:
     text = (ROOT / "docs" / "RUNNER_SPEC.md").read_text(encoding="utf-8")
-    i = text.index("## `hil/scene.py`")
+    i = text.index("## `hil/scene/spec.py`")
     block = text[text.index("```yaml", i) + len("```yaml"):]
     return block[:block.index("```")]
 

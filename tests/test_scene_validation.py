@@ -15,9 +15,9 @@ from typing import Any
 import pytest
 import yaml
 
-from hil.cli import main
+from hil.cli.main import main
 from hil.errors import SceneError
-from hil.scene import load_scene
+from hil.scene.spec import load_scene
 
 
 def _data(name: str) -> dict[str, Any]:
@@ -168,12 +168,12 @@ CLI_CASES = [c for c in CASES if c[0] in (
 def test_hil_certify_refuses_a_bad_scene_before_running(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                         capsys: pytest.CaptureFixture[str], desc: str, base: str,
                                                         mutate: Mutation, field: str, fragment: str) -> None:
-    import hil.runner
+    import hil.run.runner
 
     def must_not_run(*_a: Any, **_k: Any) -> None:
         raise AssertionError("the runner was started for a scene that does not load")
 
-    monkeypatch.setattr(hil.runner.Runner, "__init__", must_not_run)
+    monkeypatch.setattr(hil.run.runner.Runner, "__init__", must_not_run)
     monkeypatch.chdir(tmp_path)
     d = copy.deepcopy(_data(base))
     mutate(d)
@@ -262,7 +262,7 @@ def test_duplicate_keys_are_refused_at_any_depth(tmp_path: Path, old: str, new: 
 
 
 def test_merge_keys_may_override() -> None:
-    from hil.scene import parse_yaml
+    from hil.scene.spec import parse_yaml
 
     d = parse_yaml("lim: &lim {max_effort: 1.0, max_velocity: 60.0}\nsafety:\n  <<: *lim\n  max_effort: 2.0\n",
                    "merge.yaml")

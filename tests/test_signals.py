@@ -23,11 +23,11 @@ import numpy as np
 import pytest
 import yaml
 
-from hil.bench import Bench
-from hil.record import RunRecord
-from hil.runner import Runner
-from hil.scene import load_scene
-from hil.stopflag import STOP, StopRequest
+from hil.bench.runtime import Bench
+from hil.bench.stopflag import STOP, StopRequest
+from hil.record.hdf5 import RunRecord
+from hil.run.runner import Runner
+from hil.scene.spec import load_scene
 
 SCENE_YAML = Path(__file__).resolve().parents[1] / "hil" / "scenes" / "sdea_bench.yaml"
 EXPECTED = {"SIGTERM": ("safety_stop", 20), "SIGHUP": ("safety_stop", 20), "SIGINT": ("interrupted", 130)}
@@ -90,7 +90,7 @@ def test_signal_at_random_points_ends_the_whole_run_with_closed_records(short_sc
         out = tmp_path / f"run{trial}"
         marker = out / f"{names[rng.choice([0, 0, 1])]}.h5"  # readiness: that experiment's record exists
         delay = rng.uniform(0.0, 0.8)
-        p = subprocess.Popen([sys.executable, "-m", "hil.cli", "run", str(short_scene), "--lockstep", "--out",
+        p = subprocess.Popen([sys.executable, "-m", "hil.cli.main", "run", str(short_scene), "--lockstep", "--out",
                               str(out), "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             t_end = time.monotonic() + 60
@@ -168,7 +168,7 @@ def test_signal_while_a_bench_closes_stops_before_the_next_experiment(short_scen
 
 
 def test_signal_while_the_last_bench_closes_is_reported_by_the_run(short_scene, tmp_path, monkeypatch):
-    from hil.cli import _run_exit_code
+    from hil.cli.main import _run_exit_code
 
     orig = Bench.close
 
@@ -274,11 +274,11 @@ def test_stop_request_counts_and_escalation_rules():
 _SLOW_STOP = r'''
 import json, sys, time
 import numpy as np
-from hil.bench import Bench
-from hil.cli import _run_exit_code
-from hil.runner import Runner
-from hil.scene import load_scene
-from hil.stopflag import STOP
+from hil.bench.runtime import Bench
+from hil.cli.main import _run_exit_code
+from hil.run.runner import Runner
+from hil.scene.spec import load_scene
+from hil.bench.stopflag import STOP
 
 out, slow = sys.argv[1], float(sys.argv[2])
 sc = load_scene("dual_master_3dof")

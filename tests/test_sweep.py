@@ -10,9 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from hil.models.design import k22_max
-from hil.models.sdea import SDEA_TABLE1
-from hil.sweep import (
+from hil.certify.sweep import (
     ProcessExecutor,
     SerialExecutor,
     SweepError,
@@ -23,6 +21,8 @@ from hil.sweep import (
     run_sweep,
     save_sweep,
 )
+from hil.models.design import k22_max
+from hil.models.sdea import SDEA_TABLE1
 
 SPEC_GRID = ["b22=0.05:0.19:4", "k22=150:450:7"]
 
@@ -131,7 +131,7 @@ def test_process_pool_matches_serial() -> None:
 def test_dask_local_cluster_matches_serial() -> None:
     import distributed
 
-    from hil.sweep import DaskExecutor
+    from hil.certify.sweep import DaskExecutor
 
     ref = run_sweep(_spec(), SerialExecutor())
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cl, \
@@ -189,9 +189,9 @@ def _posterior(n: int = 400, seed: int = 1) -> dict[str, np.ndarray]:
 
 def test_p_stable_per_point_matches_the_per_draw_exact_path() -> None:
     """The vectorized SDEA path against one exact verdict per draw (the general path)."""
+    from hil.certify.sweep import _draw_subset, _p_stable
     from hil.models.sdea import sdea_vsic
     from hil.stability.criteria import check
-    from hil.sweep import _draw_subset, _p_stable
 
     post = _posterior()
     draws = _draw_subset(post, 60, "seed text")
@@ -263,8 +263,8 @@ def test_cli_sweep_bad_input_is_one_line(tmp_path, args, msg) -> None:
 
 def test_scene_network_sweep_uses_the_scenes_parameters() -> None:
     """--scene: the scene's model, gains and plant; a swept gain of a gain table replaces its entry."""
-    from hil.pipeline import build_network, model_params_from_scene
-    from hil.scene import load_scene
+    from hil.certify.pipeline import build_network, model_params_from_scene
+    from hil.scene.spec import load_scene
     from hil.stability.criteria import check
 
     sc = load_scene("sdea_bench")
@@ -298,8 +298,8 @@ def test_posterior_from_a_stored_identification(tmp_path) -> None:
     """Sampled parameters plus the identification model's derived ones, kept where the network takes them."""
     import h5py
 
+    from hil.certify.sweep import posterior_from_record
     from hil.identify.models import make_model
-    from hil.sweep import posterior_from_record
 
     mdl = make_model("mbk")
     rng = np.random.default_rng(0)

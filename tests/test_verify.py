@@ -22,11 +22,11 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hil.certificate import Certificate, canonical_json, content_digest, seal
-from hil.cli import main
-from hil.pipeline import certify_scene
-from hil.report import ReportError, build_reports
-from hil.scene import load_scene
+from hil.certify.certificate import Certificate, canonical_json, content_digest, seal
+from hil.certify.pipeline import certify_scene
+from hil.cli.main import main
+from hil.report.render import ReportError, build_reports
+from hil.scene.spec import load_scene
 
 pytest.importorskip("matplotlib")
 pytest.importorskip("jinja2")
@@ -274,7 +274,7 @@ def test_signature_holds_with_the_signers_key(signed_dir, keys, capsys):
     cert = Certificate.model_validate_json((signed_dir / "certificate.json").read_text(encoding="utf-8"))
     sig = cert.integrity.signature
     assert sig is not None and sig.signer == "A. Reviewer" and sig.algorithm == "ed25519"
-    from hil.signing import load_public_key
+    from hil.certify.signing import load_public_key
 
     assert sig.public_key_sha256 == load_public_key(keys["pub"]).fingerprint
     code, out, err = _run(["verify", str(signed_dir), "--public-key", str(keys["pub"])], capsys)
@@ -355,7 +355,7 @@ class _NoCryptography:
             raise ModuleNotFoundError(f"No module named {name!r}")
         return None
 sys.meta_path.insert(0, _NoCryptography())
-from hil.cli import main
+from hil.cli.main import main
 sys.exit(main(sys.argv[1:]))
 """
 
@@ -385,7 +385,7 @@ def test_missing_cryptography_extra_is_one_line_naming_the_extra(tmp_path, keys,
 def test_exported_schema_is_the_model_schema():
     text = (ROOT / "docs" / "certificate.schema.json").read_text(encoding="utf-8")
     assert text == json.dumps(Certificate.model_json_schema(), indent=1, ensure_ascii=False), (
-        "regenerate: python -c \"import json; from hil.certificate import Certificate; "
+        "regenerate: python -c \"import json; from hil.certify.certificate import Certificate; "
         "open('docs/certificate.schema.json', 'w').write(json.dumps(Certificate.model_json_schema(), indent=1, "
         "ensure_ascii=False))\"")
     props = json.loads(text)["properties"]

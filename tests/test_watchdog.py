@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 import yaml
 
-from hil.bench import LOCKSTEP_WAIT_FACTOR, Bench
-from hil.cli import main
+from hil.bench.runtime import LOCKSTEP_WAIT_FACTOR, Bench
+from hil.cli.main import main
 from hil.errors import SafetyStop
-from hil.record import RunRecord
-from hil.runner import Runner, SafetyMonitor
-from hil.scene import load_scene, scene_from_dict
+from hil.record.hdf5 import RunRecord
+from hil.run.runner import Runner, SafetyMonitor
+from hil.scene.spec import load_scene, scene_from_dict
 
 pytestmark = pytest.mark.timeout(300)
 

@@ -24,7 +24,8 @@ from hil.errors import ModelError
 from hil.plugins import load_group
 from hil.stability.rational import TransferMatrix
 
-__all__ = ["BUILTIN_MODELS", "BatchCriterion", "BuiltinModel", "DesignParameter", "get_model", "model_names"]
+__all__ = ["BUILTIN_MODELS", "BatchCriterion", "BuiltinModel", "DesignParameter", "build_network", "get_model",
+           "model_names", "model_params_from_scene"]
 
 #: a vectorized criterion: (draws: name -> (N,) arrays, fixed: name -> value, band: bool,
 #: exact_fallback: bool) -> {"passive": (N,) bool, "margin": (N,), "band_lo", "band_hi": (N,) rad/s}
@@ -306,3 +307,21 @@ def model_names() -> list[str]:
     """The names of the registered models."""
     _plugins()
     return list(BUILTIN_MODELS)
+
+
+def model_params_from_scene(scene: Any) -> dict[str, Any]:
+    """The network model's fixed parameters implied by the scene's controller and simulation
+    (the model's :meth:`~hil.models.BuiltinModel.params_from_scene`), overridden by
+    ``certification.parameters``."""
+    cert = scene.certification
+    p = get_model(cert.model).params_from_scene(scene)
+    p.update(cert.parameters)
+    return p
+
+
+def build_network(model: str, params: Mapping[str, Any]) -> TransferMatrix:
+    """The network (immittance matrix) of built-in ``model`` with ``params``. A gain table
+    (``gains``: a mapping, as a scene's controller gives it) takes any of its entries given at the
+    top level too (``k_pmyz=...``: a swept or overridden gain); see
+    :meth:`hil.models.BuiltinModel.network`."""
+    return get_model(model).network(params)

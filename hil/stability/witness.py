@@ -162,7 +162,7 @@ def find_witness(Z: TransferMatrix, port: int = 0, candidates: Sequence[Terminat
     for the most non-passive operator-port impedance. Returns ``None`` if every candidate leaves
     Z_in positive real (which a potentially unstable network need not contradict: the family is
     finite). A candidate for which Z_in does not exist (``Z_rr + T`` identically singular) is
-    skipped; any other failure propagates (the caller records it, see hil.pipeline)."""
+    skipped; any other failure propagates (the caller records it, see hil.certify.pipeline)."""
     others = [p for p in range(Z.n_ports) if p != port]
     best: Witness | None = None
     cands = list(candidates or termination_family(max(Z.port_dofs)))

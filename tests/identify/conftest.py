@@ -232,11 +232,11 @@ def make_nonperiodic_record(
     **override: float,
 ) -> SimRecord:
     """One-shot (non-periodic) logarithmic chirp through the plant ``ss`` behind a zero-order hold at
-    ``fs``, simulated with the suite's exact ZOH discretization (:mod:`hil.mocks.lti`, independent of
+    ``fs``, simulated with the suite's exact ZOH discretization (:mod:`hil.lti`, independent of
     the identification models' modal formulas). With ``n_in`` > 1 every input gets its own chirp
     (sweeps of different phase and direction, so the inputs are not collinear). ``noise``: white
     Gaussian noise std as a fraction of each noise-free output's RMS."""
-    from hil.mocks.lti import StateSpace
+    from hil.lti import StateSpace
 
     cfg = {**NONPERIODIC_SETUP, **override}
     rng = np.random.default_rng(seed)
@@ -284,7 +284,7 @@ def make_multisine_record(
     ``[f0, f1]`` (input i every ``n_in``-th line from line i), so they are never collinear; each input
     has RMS ``rms``. The phases come from ``phase_seed`` (the same excitation for every noise seed);
     ``noise`` is white Gaussian noise std as a fraction of each noise-free output's RMS (``seed``)."""
-    from hil.mocks.lti import StateSpace
+    from hil.lti import StateSpace
 
     rng_p = np.random.default_rng(phase_seed)
     n_pre, n = round(pre_roll * fs), round(duration * fs)

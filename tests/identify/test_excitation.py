@@ -81,7 +81,7 @@ def test_warn_mode_fits_and_keeps_the_flags_in_the_data_checks(caplog) -> None:
 
 
 def test_cli_exit_13_one_line(tmp_path, capsys) -> None:
-    from hil.cli import main
+    from hil.cli.main import main
 
     c = log_chirp_record(1, 100.0, 140.0)
     np.savez(tmp_path / "narrow.npz", t=c.t, torque=c.u, velocity=c.v, force=c.f,
@@ -184,7 +184,7 @@ def test_excited_band_brackets_the_sweep(f0, f1) -> None:
 
 
 def test_cli_warn_fits_and_reports_the_flags(tmp_path, capsys) -> None:
-    from hil.cli import main
+    from hil.cli.main import main
 
     c = log_chirp_record(1, 100.0, 140.0)
     np.savez(tmp_path / "narrow.npz", t=c.t, torque=c.u, velocity=c.v, force=c.f,

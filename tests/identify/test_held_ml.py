@@ -17,7 +17,7 @@ from hil.identify.api import identify_arrays
 from hil.identify.held_ml import HeldProblem, held_records
 from hil.identify.models import SdeaLockedOutput
 from hil.identify.timedomain import dft_records, fit_ml
-from hil.mocks.lti import StateSpace
+from hil.lti import StateSpace
 
 FS = 2000.0
 RATE = 51200 / 51
@@ -32,7 +32,7 @@ def _held_record(seed: int, duration: float, noise: float = 0.01, phase: float =
 
 def test_held_problem_responses_are_the_exact_zoh_recursion() -> None:
     """The forced response from rest and the free response of an initial state equal the suite's own ZOH
-    recursion (:class:`hil.mocks.lti.StateSpace`, a different algorithm: matrix exponential and a loop) to
+    recursion (:class:`hil.lti.StateSpace`, a different algorithm: matrix exponential and a loop) to
     round-off (measured 7e-16 and 5e-16 relative)."""
     rec = make_nonperiodic_record(sdea_locked_ss(**SDEA_TRUTH), 5, 0.0, fs=FS, duration=0.5, f1=400.0)
     prob = HeldProblem(MODEL, held_records([(rec.u, rec.y)], MODEL.output_names, {}))

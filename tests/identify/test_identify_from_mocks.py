@@ -20,13 +20,13 @@ import numpy as np
 import pytest
 import yaml
 
-from hil.cli import main as hil_main
+from hil.cli.main import main as hil_main
 from hil.identify.api import identify_record, load_identification, store_result
 from hil.identify.fisher import crb, fisher_information
 from hil.identify.frf import rounding_variance
-from hil.record import RunRecord
-from hil.runner import Runner
-from hil.scene import load_scene, scene_from_dict
+from hil.record.hdf5 import RunRecord
+from hil.run.runner import Runner
+from hil.scene.spec import load_scene, scene_from_dict
 
 SDEA_TRUTH = {"K_f": 362.0, "B_f": 0.05, "M": 6.399e-4, "B": 0.169}
 M_OUT = 2.0e-3  # output inertia of the free variant (scene: simulation.sdea.m_out)

@@ -19,8 +19,9 @@ from conftest import (
     sdea_locked_ss,
 )
 
+from hil.cli.identify import main
 from hil.identify.adequacy import cross_correlation_test, lpm_noise, whiteness_test
-from hil.identify.api import _frf_path_crb, identify_arrays, main
+from hil.identify.api import _frf_path_crb, identify_arrays
 from hil.identify.fisher import crb, fisher_information
 from hil.identify.models import MbkModel, SdeaLockedOutput
 from hil.identify.timedomain import _Problem, dft_records, fit_ml, is_periodic, simulate_zoh
@@ -35,7 +36,7 @@ def _ident(rec, **kw):
 
 
 def test_dft_model_with_transient_is_exact_for_a_record_starting_mid_motion() -> None:
-    # noise-free record simulated by the time recursion of hil.mocks.lti (record starts 0.1 s into the
+    # noise-free record simulated by the time recursion of hil.lti (record starts 0.1 s into the
     # motion, so x_0 != 0 and x_N != 0): Y_k - G(z_k) U_k must lie in the n-dimensional transient span.
     rec = make_nonperiodic_record(sdea_locked_ss(**SDEA_TRUTH), 0, 0.0, duration=1.0)
     m = SdeaLockedOutput(zoh_fs=FS)
@@ -197,10 +198,10 @@ def test_a_misfit_identification_makes_the_certificate_error(tmp_path, monkeypat
     import yaml
 
     import hil.identify.api as api
+    from hil.certify.pipeline import certify_scene
     from hil.identify.adequacy import AdequacyReport, AdequacyTest
-    from hil.pipeline import certify_scene
-    from hil.runner import Runner
-    from hil.scene import load_scene, scene_from_dict
+    from hil.run.runner import Runner
+    from hil.scene.spec import load_scene, scene_from_dict
 
     d = yaml.safe_load(load_scene("sdea_bench").source_text)
     d["experiments"] = [e for e in d["experiments"] if e.get("name") == "chirp_locked"]

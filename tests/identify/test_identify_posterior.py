@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from conftest import MBK_SETUP, MBK_TRUTH, SDEA_SETUP, SDEA_TRUTH
 
-from hil.identify.api import identify_arrays, identify_experiments, identify_record, main
+from hil.cli.identify import main
+from hil.identify.api import identify_arrays, identify_experiments, identify_record
 from hil.identify.errors import ConvergenceError
 from hil.identify.fisher import ExperimentPlan, check_identifiability
 from hil.identify.models import MbkModel, SdeaLockedOutput

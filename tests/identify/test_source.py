@@ -17,7 +17,7 @@ from hil.identify.errors import ModelSpecError
 from hil.identify.source import ENTRY_POINT_GROUP, RecordSource, as_source, backend_for
 
 IDENTIFY = Path(__file__).resolve().parents[2] / "identify"
-FORBIDDEN = ("hil.record", "hil.scene", "hil.importers")
+FORBIDDEN = ("hil.record.hdf5", "hil.scene.spec", "hil.record.importers")
 
 
 def test_identify_imports_no_record_scene_or_importer_module() -> None:
@@ -74,7 +74,7 @@ def test_files_are_opened_by_the_registered_backend(tmp_path) -> None:
 
     from hil.identify.api import load_record
 
-    assert any(ep.value == "hil.identify_records:BACKEND" for ep in entry_points(group=ENTRY_POINT_GROUP))
+    assert any(ep.value == "hil.record.identify_source:BACKEND" for ep in entry_points(group=ENTRY_POINT_GROUP))
     b = backend_for("run.h5")
     assert ".h5" in b.suffixes and backend_for("run.csv") is b
     # a file that is not a record: the backend's error, one line naming the file

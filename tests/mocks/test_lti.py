@@ -1,4 +1,4 @@
-"""Exact discretization and realizations of hil.mocks.lti against closed-form responses.
+"""Exact discretization and realizations of hil.lti against closed-form responses.
 
 Every expected value is derived in this file from the textbook solution of the ODE; nothing is
 hard-coded. Tolerances are relative to the natural scale of the signal (static deflection
@@ -14,7 +14,7 @@ import pytest
 import scipy.linalg as sla
 
 from hil.errors import ModelError
-from hil.mocks.lti import (
+from hil.lti import (
     StateSpace,
     append,
     expm_accurate,

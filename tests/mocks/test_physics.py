@@ -15,7 +15,7 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import eigh
 
 from hil.errors import ModelError
-from hil.mocks.lti import StateSpace, tf
+from hil.lti import StateSpace, tf
 from hil.mocks.physics import Scene, mbk_plant, sdea_plant
 from hil.mocks.simulator import simulate
 from hil.mocks.terminations import (

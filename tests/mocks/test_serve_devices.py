@@ -11,8 +11,8 @@ import sys
 import numpy as np
 import pytest
 
-from hil.cli import main as hil_main
-from hil.mocks.serve import MOCK_KINDS, serve, shutdown
+from hil.bench.serve import MOCK_KINDS, serve, shutdown
+from hil.cli.main import main as hil_main
 from hil.protocols.registry import open_device
 
 pytestmark = pytest.mark.timeout(60)
@@ -57,7 +57,7 @@ def test_served_device_answers_its_adapter(spec):
 
 
 def _start(*args: str) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "hil.cli", "mock", "serve", *args]
+    cmd = [sys.executable, "-m", "hil.cli.main", "mock", "serve", *args]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

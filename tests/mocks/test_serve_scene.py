@@ -18,15 +18,15 @@ import numpy as np
 import pytest
 import yaml
 
-from hil.cli import main as hil_main
-from hil.mocks.serve import serve_scene
+from hil.bench.serve import serve_scene
+from hil.cli.main import main as hil_main
 from hil.protocols.registry import open_device
 from hil.protocols.serial_bota import FrameParser
-from hil.scene import load_scene
+from hil.scene.spec import load_scene
 
 
 def _start(*args: str) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "hil.cli", "mock", "serve", *args]
+    cmd = [sys.executable, "-m", "hil.cli.main", "mock", "serve", *args]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

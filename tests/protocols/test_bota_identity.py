@@ -11,10 +11,10 @@ import time
 
 import pytest
 
+from hil.bench.probe import parse_bota_boot, probe_serial
+from hil.bench.serve import serve, shutdown
 from hil.mocks.interfaces import FreeJoints
 from hil.mocks.serial_devices import SimBota
-from hil.mocks.serve import serve, shutdown
-from hil.probe import parse_bota_boot, probe_serial
 
 serial = pytest.importorskip("serial")
 

@@ -202,7 +202,7 @@ def test_reply_arrival_dates_the_sample_and_counters():
 
 
 def test_effort_on_wire_is_what_the_motor_applies(rig):
-    """effort_on_wire (hil.runner's effort_cmd) = the 12-bit t_ff field the motor decodes (manual
+    """effort_on_wire (hil.run.runner's effort_cmd) = the 12-bit t_ff field the motor decodes (manual
     5.3: linear over [T_min, T_max], 4095 steps; truncated like the reference float_to_uint)."""
     j, node, dev = rig
     lim = dev.limits

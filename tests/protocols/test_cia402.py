@@ -199,7 +199,7 @@ def test_scene_refuses_a_linear_cia402_axis():
     import yaml
 
     from hil.errors import SceneError
-    from hil.scene import load_scene, scene_from_dict
+    from hil.scene.spec import load_scene, scene_from_dict
 
     d = yaml.safe_load(load_scene("cia402_bench").source_text)
     d["units"] = "linear"
@@ -208,7 +208,7 @@ def test_scene_refuses_a_linear_cia402_axis():
 
 
 def test_effort_on_wire_is_what_the_drive_applies(rig):
-    """The adapter's effort_on_wire (what hil.runner records as effort_cmd) is exactly the joint
+    """The adapter's effort_on_wire (what hil.run.runner records as effort_cmd) is exactly the joint
     torque the drive applies: per mille of rated torque (CiA 402 §6.5.1), here 2 x 0.5 N.m / 1000 =
     1 mN.m steps at the joint, clamped by effort_limit before rounding."""
     sim, drv, *_ = rig

@@ -9,8 +9,8 @@ import pytest
 
 pytest.importorskip("canopen")
 
-from hil.cli import main
-from hil.scene import load_scene
+from hil.cli.main import main
+from hil.scene.spec import load_scene
 
 
 @pytest.mark.slow
@@ -42,10 +42,10 @@ def test_run_stops_safely_on_a_drive_fault(tmp_path):
     import numpy as np
     import yaml
 
-    from hil.bench import Bench
-    from hil.record import RunRecord
-    from hil.runner import Runner
-    from hil.scene import scene_from_dict
+    from hil.bench.runtime import Bench
+    from hil.record.hdf5 import RunRecord
+    from hil.run.runner import Runner
+    from hil.scene.spec import scene_from_dict
 
     d = yaml.safe_load(load_scene("cia402_bench").source_text)
     d["devices"][0]["sim"] = {"faults": {"error_code": 0x2310, "error_at_tick": 300}}
@@ -76,8 +76,8 @@ def test_record_holds_the_torque_as_sent(tmp_path):
     torque actual (0x6077, read at the next SYNC) equals the recorded command of the tick before."""
     import numpy as np
 
-    from hil.record import RunRecord
-    from hil.runner import Runner
+    from hil.record.hdf5 import RunRecord
+    from hil.run.runner import Runner
 
     sc = load_scene("cia402_bench")
     (out,) = Runner(sc, tmp_path, max_ticks=400).run()

@@ -315,7 +315,7 @@ def test_bus_watchdog_kept_fed_by_a_running_host() -> None:
 
 
 def test_effort_on_wire_is_what_the_servo_applies() -> None:
-    """effort_on_wire (hil.runner's effort_cmd) = the Goal Current the servo receives (2.69 mA
+    """effort_on_wire (hil.run.runner's effort_cmd) = the Goal Current the servo receives (2.69 mA
     units, clamped to the Current Limit), decoded back to N.m in the joint frame (direction)."""
     plant = FreeJoints(dof=3)
     with (

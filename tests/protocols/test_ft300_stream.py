@@ -456,8 +456,8 @@ def test_lockstep_bench_with_streaming_ft300_is_deterministic():
     simulated clock (manual, "Data stream"; not one per 0.5 ms control period), reproducible."""
     import yaml
 
-    from hil.bench import Bench
-    from hil.scene import load_scene, scene_from_dict
+    from hil.bench.runtime import Bench
+    from hil.scene.spec import load_scene, scene_from_dict
 
     data = yaml.safe_load(load_scene("sdea_bench").source_text)
     data["devices"][1].update(driver="robotiq_ft300_stream", params={"url": "/dev/ttyUSB0"})

@@ -8,10 +8,10 @@ import copy
 import pytest
 import yaml
 
-from hil.cli import main
+from hil.cli.main import main
 from hil.errors import SceneError
 from hil.protocols import link_budget as lb
-from hil.scene import builtin_scenes, load_scene, scene_from_dict
+from hil.scene.spec import builtin_scenes, load_scene, scene_from_dict
 
 
 def _data(name: str) -> dict:

@@ -91,8 +91,8 @@ def test_open_bota_via_registry():
 def test_mock_serve_endpoints_open_through_registry():
     import numpy as np
 
-    from hil.cli import main as hil_main
-    from hil.mocks.serve import serve, shutdown
+    from hil.bench.serve import serve, shutdown
+    from hil.cli.main import main as hil_main
 
     eps = serve(
         [

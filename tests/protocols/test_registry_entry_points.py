@@ -16,10 +16,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hil.bench import Bench
+from hil.bench.runtime import Bench
 from hil.protocols import registry
-from hil.runner import Runner
-from hil.scene import load_scene, scene_from_dict
+from hil.run.runner import Runner
+from hil.scene.spec import load_scene, scene_from_dict
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -6,7 +6,7 @@ import re
 
 import numpy as np
 
-from hil.cli import EXIT_UNSTABLE, main
+from hil.cli.main import EXIT_UNSTABLE, main
 from hil.models import get_model
 from hil.stability.criteria import check
 

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from hil.cli import EXIT_MARGINAL, EXIT_NOT_APPLICABLE, EXIT_OK, EXIT_UNSTABLE, EXIT_USAGE, main
+from hil.cli.main import EXIT_MARGINAL, EXIT_NOT_APPLICABLE, EXIT_OK, EXIT_UNSTABLE, EXIT_USAGE, main
 
 
 def run(argv, capsys):
@@ -98,7 +98,7 @@ def test_unknown_model_and_parameter_suggest(capsys):
 
 
 def test_console_script_runs_without_traceback():
-    p = subprocess.run([sys.executable, "-m", "hil.cli", "stability", "--model", "sdea"], capture_output=True,
+    p = subprocess.run([sys.executable, "-m", "hil.cli.main", "stability", "--model", "sdea"], capture_output=True,
                        text=True, timeout=120)
     assert p.returncode == 0 and "stable" in p.stdout
 

@@ -7,7 +7,7 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from hil.cli import EXIT_OK, EXIT_UNSTABLE, main
+from hil.cli.main import EXIT_OK, EXIT_UNSTABLE, main
 from hil.models.teleop import bilateral_1dof, mbk_impedance
 from hil.stability.criteria import check, infinity_condition, llewellyn, positive_real
 from hil.stability.rational import Rational, S, TransferMatrix

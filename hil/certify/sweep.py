@@ -143,9 +143,9 @@ class SweepSpec:
     def from_scene(cls, scene: Any, axes: list[GridAxis], params: Mapping[str, Any] | None = None,
                    criterion: str | None = None, **kw: Any) -> SweepSpec:
         """A sweep of a scene's certification network: its model, the fixed parameters its
-        controller and simulation imply (:func:`hil.pipeline.model_params_from_scene`), ``params``
+        controller and simulation imply (:func:`hil.certify.pipeline.model_params_from_scene`), ``params``
         on top, and its criterion unless ``criterion`` is given."""
-        from hil.pipeline import model_params_from_scene
+        from hil.certify.pipeline import model_params_from_scene
 
         cert = scene.certification
         sp = {k: v for k, v in model_params_from_scene(scene).items() if k not in {a.name for a in axes}}
@@ -247,9 +247,9 @@ def _draw_subset(posterior: Mapping[str, np.ndarray], n: int, seed_text: str) ->
 
 
 def build_network(model: str, params: Mapping[str, Any]) -> Any:
-    """The network of a built-in model: :func:`hil.pipeline.build_network` (which also takes a
+    """The network of a built-in model: :func:`hil.certify.pipeline.build_network` (which also takes a
     scene's gain table, with swept gains given at the top level)."""
-    from hil.pipeline import build_network as build
+    from hil.certify.pipeline import build_network as build
 
     return build(model, params)
 
@@ -632,7 +632,7 @@ def _run_tasks(executor: Executor, cache: TaskCache, tasks: list[tuple[str, dict
         if progress:
             progress(done, total)
         if should_stop is not None:
-            should_stop()  # raises (e.g. hil.stopflag.StopRequested) to end the sweep here
+            should_stop()  # raises (e.g. hil.bench.stopflag.StopRequested) to end the sweep here
 
 
 def run_sweep(spec: SweepSpec, executor: Executor | None = None, cache_dir: str | Path | None = None,
@@ -641,7 +641,7 @@ def run_sweep(spec: SweepSpec, executor: Executor | None = None, cache_dir: str 
     """Evaluate the grid, then (``spec.refine``) bisect every stable/unstable neighbour pair.
 
     ``progress(done, total)`` is called after every task (grid points, then boundary segments); ``should_stop()`` is
-    called between tasks and ends the sweep by raising (e.g. ``hil.stopflag.STOP.check``); every
+    called between tasks and ends the sweep by raising (e.g. ``hil.bench.stopflag.STOP.check``); every
     task finished by then is in the cache."""
     spec.validate()
     executor = executor or SerialExecutor()

@@ -36,7 +36,7 @@ with their SHA-256, size in bytes and a path relative to the certificate's folde
 Because the digest is computed from the validated record, re-indenting or re-ordering the keys of
 ``certificate.json`` does not change it, while any change of a value (a decision, a measurement, a
 reason, an evidence hash) does. ``integrity.signature`` (optional, Ed25519, see
-:mod:`hil.signing`) signs the digest together with the signer's name and key fingerprint.
+:mod:`hil.certify.signing`) signs the digest together with the signer's name and key fingerprint.
 """
 
 from __future__ import annotations
@@ -323,7 +323,7 @@ class Evidence(_M):
 
 
 class Signature(_M):
-    """An Ed25519 signature over the digest (see :func:`hil.signing.signed_message`)."""
+    """An Ed25519 signature over the digest (see :func:`hil.certify.signing.signed_message`)."""
 
     algorithm: Literal["ed25519"] = "ed25519"
     public_key: str = Field(description="the signer's raw 32-byte public key, base64")

@@ -7,7 +7,7 @@ linking every report, and an exit code that is the worst decision (ERROR > NO-GO
 a scene whose run fails without a certificate counts as ERROR).
 
 Scheduling: scenes with a simulated bench (``simulation:`` present) run in parallel on the
-executor (:data:`hil.sweep.EXECUTORS`: a local process pool by default, Dask with a scheduler
+executor (:data:`hil.certify.sweep.EXECUTORS`: a local process pool by default, Dask with a scheduler
 address). Scenes on real devices never share a transport: those naming the same CAN channel,
 serial port or Modbus address form one group run one after another; distinct groups may run in
 parallel with the rest.
@@ -172,11 +172,11 @@ def certify_fleet(scenes: Sequence[str], out_root: str | Path, *, executor: Any 
                   progress: Callable[[int, int, FleetEntry], None] | None = None,
                   should_stop: Callable[[], bool] | None = None) -> FleetResult:
     """Certify every scene (names or files) into ``out_root/<scene name>``; see the module docstring.
-    ``executor`` is a :class:`hil.sweep.Executor` (default a local process pool). When
+    ``executor`` is a :class:`hil.certify.sweep.Executor` (default a local process pool). When
     ``should_stop()`` turns true no further scene is started (those running finish or stop on their
     own signal handling); the scenes not run are ERROR entries saying so, and the index is written."""
-    from hil.scene import load_scene
-    from hil.sweep import ProcessExecutor
+    from hil.certify.sweep import ProcessExecutor
+    from hil.scene.spec import load_scene
 
     args = expand_scenes(scenes)
     loaded = [load_scene(s) for s in args]  # every scene loads before anything runs

@@ -1,6 +1,6 @@
 """Realtime at the bench: a loop that holds its deadlines, lateness as evidence, the machine's latency.
 
-Pieces (each usable on its own; :class:`hil.runner.Runner` uses them in realtime mode):
+Pieces (each usable on its own; :class:`hil.run.runner.Runner` uses them in realtime mode):
 
 * :class:`Pacer` -- absolute deadlines ``t0 + k * period`` on a nanosecond monotonic clock
   (``time.perf_counter_ns``, CLOCK_MONOTONIC on Linux); a *hybrid wait*: sleep until
@@ -22,12 +22,12 @@ Pieces (each usable on its own; :class:`hil.runner.Runner` uses them in realtime
   libc, else ``time.sleep``), lateness of each wake-up; :func:`run_cyclictest` runs rt-tests'
   ``cyclictest`` when it is installed; :func:`holdable_rates` says which loop rates the
   measured latency allows; :func:`check_realtime` is ``hil check-realtime``.
-* :func:`lateness_measurements` -- the certificate rows (p50/p99/max lateness, overruns, sample
+* :func:`hil.certify.lateness.lateness_measurements` -- the certificate rows (p50/p99/max lateness, overruns, sample
   timing) of the experiments' outcomes, with limits from the scene.
 
 Definitions (also in the README, "Realtime at the bench"): percentiles are of the per-tick lateness
 of one experiment (``numpy.percentile``, linear interpolation, on the recorded ``loop.late``
-channel; :class:`hil.runner.LoopStats` keeps a ±2.4 % histogram estimate in bounded memory);
+channel; :class:`hil.run.runner.LoopStats` keeps a ±2.4 % histogram estimate in bounded memory);
 overruns count ticks with lateness > one period; the overrun fraction is overruns / ticks.
 """
 
@@ -48,11 +48,12 @@ import subprocess
 import sys
 import time
 import types
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
 
+from hil.bench.affinity import loop_cpu
 from hil.errors import EXIT_NOT_HELD, SafetyStop
 
 logger = logging.getLogger(__name__)
@@ -67,7 +68,6 @@ __all__ = [
     "check_realtime",
     "gc_paused",
     "holdable_rates",
-    "lateness_measurements",
     "measure_wakeup",
     "realtime_scheduling",
     "run_cyclictest",
@@ -198,16 +198,6 @@ _WARNED: set[str] = set()
 def _libc() -> Any:
     name = ctypes.util.find_library("c")
     return ctypes.CDLL(name, use_errno=True) if name else None
-
-
-def loop_cpu() -> int | None:
-    """The CPU for the loop: the last one this process may run on (the devices' process gets the
-    others), or None when only one is available or affinity is not supported."""
-    try:
-        cpus = sorted(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        return None
-    return cpus[-1] if len(cpus) > 1 else None
 
 
 @contextlib.contextmanager
@@ -494,64 +484,3 @@ def check_realtime(rate_hz: float = 2000.0, seconds: float = 5.0, *, rt: bool = 
               highlight=False)
     con.print(f"{a.rate:g} Hz: {'held' if ok else 'NOT held'}", highlight=False)
     return 0 if ok else EXIT_NOT_HELD
-
-
-# ---------------------------------------------------------------------------------------------
-# certificate rows
-
-
-def lateness_measurements(outcomes: Mapping[str, Any], scene: Any) -> list[Any]:
-    """Certificate rows for the loop timing of each realtime experiment in ``outcomes`` (name ->
-    :class:`hil.runner.ExperimentOutcome`): p50 / p99 / max lateness [s] (upper limit: the scene's
-    ``max_lateness_ms``; PASS when within), overrun fraction (upper: ``max_overrun_fraction``),
-    and the sample-timing check of :func:`hil.identify.diagnostics.check_sample_times` on the
-    record's ``loop.tick_start`` (FAIL when the timing departs from the nominal rate beyond its
-    tolerance). Lockstep experiments (the simulated clock: no lateness) give no rows."""
-    from hil.certificate import Measurement
-
-    safety = getattr(scene, "safety", None)
-    limit = float(getattr(safety, "max_lateness_ms", None) or getattr(safety, "watchdog_ms", None) or 50.0) / 1e3
-    frac = float(getattr(safety, "max_overrun_fraction", DEFAULT_MAX_OVERRUN_FRACTION))
-    rows: list[Any] = []
-    for name, o in outcomes.items():
-        if (getattr(o, "stats", {}) or {}).get("mode") != "realtime" or getattr(o, "record", None) is None:
-            continue
-        try:
-            from hil.record import RunRecord
-
-            rec = RunRecord.open(o.record)
-        except Exception as exc:  # the record is evidence; an unreadable one is said, not hidden
-            rows.append(Measurement(name=f"loop lateness ({name})", value=None, outcome="ERROR",
-                                    description=f"record unreadable: {exc}"))
-            continue
-        late = rec.channels.get("loop.late")
-        if late is None or late.size == 0:
-            continue
-        late = late.reshape(late.shape[0], -1)[:, 0]
-        late = late[np.isfinite(late)]
-        dt = 1.0 / float(scene.rate_hz)
-        for q in (50, 99):
-            v = float(np.percentile(late, q))
-            rows.append(Measurement(name=f"loop lateness p{q} ({name})", value=v, unit="s", upper=limit,
-                                    outcome="PASS" if v <= limit else "FAIL",
-                                    description=f"tick start after its deadline, {q}th percentile of "
-                                                f"{late.size} ticks"))
-        mx = float(late.max())
-        rows.append(Measurement(name=f"loop lateness max ({name})", value=mx, unit="s", upper=limit,
-                                outcome="PASS" if mx <= limit else "FAIL",
-                                description="latest tick start after its deadline (limit max_lateness_ms)"))
-        over = int(np.count_nonzero(late > dt))
-        f = over / late.size
-        rows.append(Measurement(name=f"loop overruns ({name})", value=f, unit="fraction", upper=frac,
-                                outcome="PASS" if f <= frac else "FAIL",
-                                description=f"{over} of {late.size} ticks later than one period ({1e3 * dt:g} ms)"))
-        start = rec.channels.get("loop.tick_start")
-        if start is not None and start.size:
-            from hil.identify.diagnostics import check_sample_times
-
-            diags = check_sample_times(rec.t, start.reshape(start.shape[0], -1)[:, 0], rate_hz=float(scene.rate_hz))
-            rows.append(Measurement(
-                name=f"sample timing ({name})", value="uniform" if not diags else "departs", outcome=(
-                    "PASS" if not diags else "FAIL"),
-                description=diags[0].message if diags else "tick starts within the tolerance of k / rate_hz"))
-    return rows

@@ -53,18 +53,18 @@ from typing import Any
 
 import numpy as np
 
+from hil.bench.stopflag import STOP
 from hil.errors import DeviceDisconnected, DeviceTimeout, HilError, ModelError, SceneError
 from hil.mocks.twins import Twin, TwinContext
 from hil.protocols.base import JointSample, WrenchSample
 from hil.protocols.registry import device_kind, open_device, resolve_twin, simulated_drivers
-from hil.scene import (
+from hil.scene.spec import (
     HumanCfg,
     ImpedanceTermination,
     NamedTermination,
     Scene,
     WallTermination,
 )
-from hil.stopflag import STOP
 
 __all__ = ["LOCKSTEP_WAIT_FACTOR", "SIMULATED_DRIVERS", "Bench", "Measurements", "ProcessSimBench", "SimEndpoint",
            "SimulatedScene"]
@@ -194,7 +194,7 @@ class Bench:
 
     Parameters
     ----------
-    scene: a validated :class:`hil.scene.Scene`.
+    scene: a validated :class:`hil.scene.spec.Scene`.
     seed: seed of every simulated noise/fault generator (default: ``scene.seed``).
     variant: plant configuration of a simulated SDEA: ``"locked"`` (output fixed), ``"free"``
         (output inertia ``m_out``) or ``None`` (as the scene says: free iff ``m_out`` is set).
@@ -432,7 +432,7 @@ class Bench:
     def safe_stop(self) -> dict[str, str]:
         """Zero effort on every actuator (and disable where the adapter does so). Never raises.
 
-        Runs as a :meth:`hil.stopflag.StopRequest.critical` section: a signal cannot cut it short.
+        Runs as a :meth:`hil.bench.stopflag.StopRequest.critical` section: a signal cannot cut it short.
         Every actuator is attempted, even when an earlier one raises or hangs: each adapter's
         ``safe_stop`` (whose bus calls have short timeouts of their own, 0.05 s per frame) runs in a
         worker thread given at most :attr:`safe_stop_timeout` s (default ``max(1 s, 10 x timeout)``)
@@ -533,8 +533,8 @@ class Bench:
                          f"{ {n: b for n, (b, _, _) in self._humans.items()} }")
 
     def _build_simulation(self) -> None:
+        from hil.lti import tf_matrix
         from hil.mocks import physics, terminations
-        from hil.mocks.lti import tf_matrix
         from hil.mocks.simulator import Simulator
 
         sc = self.scene
@@ -963,7 +963,7 @@ class ProcessSimBench(Bench):
         if scene.simulation is None:
             raise SceneError(f"{scene.path or scene.name}: no 'simulation' block: nothing to serve")
         if cpus is None:
-            from hil.realtime import loop_cpu
+            from hil.bench.affinity import loop_cpu
 
             lc = loop_cpu()
             with contextlib.suppress(OSError, AttributeError):

@@ -1,8 +1,8 @@
-"""Evidence plots and the witness response, as certificate data (:class:`hil.certificate.Series`).
+"""Evidence plots and the witness response, as certificate data (:class:`hil.certify.certificate.Series`).
 
-Called by the plot builders of :mod:`hil.pipeline` (one line each); rendered by :mod:`hil.report`.
+Called by the plot builders of :mod:`hil.certify.pipeline` (one line each); rendered by :mod:`hil.report.render`.
 Every axis label ends with its SI unit in brackets (``[1]`` for a dimensionless quantity), from
-the scene's ``units`` (:mod:`hil.report_units`).
+the scene's ``units`` (:mod:`hil.certify.units`).
 
 * :func:`identification_plots` -- per FRF output: magnitude (measured H1 with its confidence band
   from the coherence, the posterior median and its 90 % band), phase, coherence and normalized
@@ -30,9 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from hil.certificate import Series
+from hil.certify.certificate import Series
+from hil.certify.units import frf_unit, parameter_unit, quantity_unit
 from hil.errors import HilError
-from hil.report_units import frf_unit, parameter_unit, quantity_unit
 
 logger = logging.getLogger(__name__)
 
@@ -238,7 +238,7 @@ def witness_response(w: Any, plots: dict[str, Series], scene: Any = None) -> dic
     V = Y_in F under F = F0 d sin(ωt) (F0 = 1 N or N.m, d the most non-passive direction) until
     the velocity, position (∫V) or port energy crosses the scene's safety limits. Returns the
     simulation summary; the keys in ``witness_response.FIELDS`` are Witness fields."""
-    from hil.mocks.lti import StateSpace, tf_matrix
+    from hil.lti import StateSpace, tf_matrix
 
     y = w.z_in.to("admittance")
     m = y.n
@@ -313,7 +313,7 @@ def witness_response(w: Any, plots: dict[str, Series], scene: Any = None) -> dic
                 "energy_to_limit_J": float(E[-1]) if first else None,
                 "min_energy": float(np.min(E)), "went_negative": bool(np.min(E) < 0),
                 "diverged": bool(growth is not None and growth > 0),
-                "method": "exact-ZOH simulation (hil.mocks.lti) of V = Y_in F"})
+                "method": "exact-ZOH simulation (hil.lti) of V = Y_in F"})
     return out
 
 
@@ -331,7 +331,7 @@ def headroom_plot(plots: dict[str, Series], cert_cfg: Any, params: Any, draws: A
     """P(stable) and its lower confidence bound against the SDEA design parameter (k22 or b22)
     over the scene's design range, with the requirement, the current value and the largest value
     meeting the requirement (where the lower bound crosses it: the headroom) marked."""
-    from hil.certify import probability_of_stability
+    from hil.certify.statistics import probability_of_stability
     from hil.models.batch import sdea_passivity_batch
 
     d = cert_cfg.design

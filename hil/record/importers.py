@@ -1,4 +1,4 @@
-"""Import runs recorded by other tools (CSV, MATLAB ``.mat``) into the run-record format of :mod:`hil.record`.
+"""Import runs recorded by other tools (CSV, MATLAB ``.mat``) into the run-record format of :mod:`hil.record.hdf5`.
 
 Mapping (a dict, or a YAML/JSON *sidecar* file with the same content)::
 
@@ -24,7 +24,7 @@ importer does the same with the variables (or with the fields of the only struct
 Time must be finite and strictly increasing, and sampled on a grid: every interval must be an integer
 multiple of the median interval within ``max_jitter`` (fraction of it). Missing samples (gaps) are
 accepted, logged and recorded as ``import.gap`` events (the identification package diagnoses gaps);
-decreasing or repeated times and off-grid (variable-step) time raise :class:`~hil.record.RecordError`.
+decreasing or repeated times and off-grid (variable-step) time raise :class:`~hil.record.hdf5.RecordError`.
 Imported records have an empty scene text and scene hash and close with stop reason ``imported``.
 """
 
@@ -45,7 +45,7 @@ import numpy as np
 import yaml
 
 from hil.inputs import read_text_file
-from hil.record import ChannelSpec, RecordError, RecordWriter
+from hil.record.hdf5 import ChannelSpec, RecordError, RecordWriter
 
 logger = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """SI units of the quantities a certificate reports, from the scene's ``units`` (linear or rotary).
 
 A scene is either linear (forces in N, positions in m, velocities in m/s) or rotary (torques in
-N.m, angles in rad, angular velocities in rad/s); see :class:`hil.scene.Scene`. Every number in a
+N.m, angles in rad, angular velocities in rad/s); see :class:`hil.scene.spec.Scene`. Every number in a
 report table and every plot axis carries its unit; a dimensionless quantity says ``1``
 explicitly. This module is the one place that names them:
 
@@ -13,7 +13,7 @@ explicitly. This module is the one place that names them:
 * :func:`termination_units` -- the parameters of a witness termination (``k`` [N/m] ...).
 
 Unknown names return ``""`` (the report tests fail on them: a new parameter must be named here).
-No heavy imports: :mod:`hil.report` uses it on every render.
+No heavy imports: :mod:`hil.report.render` uses it on every render.
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """The certification stages' typed inputs and outputs, and measurements that declare their limits.
 
-``hil certify`` (:func:`hil.pipeline.certify_scene`) runs seven stages in order -- **run**,
+``hil certify`` (:func:`hil.certify.pipeline.certify_scene`) runs seven stages in order -- **run**,
 **identify**, **nominal**, **robust**, **design**, **decide**, **witness** -- each a function of
-:mod:`hil.pipeline` taking the :class:`Context` and the outputs of the stages before it (frozen
+:mod:`hil.certify.pipeline` taking the :class:`Context` and the outputs of the stages before it (frozen
 dataclasses defined here) and returning its own::
 
     run(ctx)                         -> RunOutput      records, energy evidence
@@ -45,9 +45,18 @@ from typing import Any, Literal
 
 import numpy as np
 
-from hil.certificate import Design, EnergyEvidence, Identification, Measurement, Nominal, RareEvent, Robust, Series
-from hil.certificate import Witness as WitnessSection
-from hil.certify import Decision, Policy
+from hil.certify.certificate import (
+    Design,
+    EnergyEvidence,
+    Identification,
+    Measurement,
+    Nominal,
+    RareEvent,
+    Robust,
+    Series,
+)
+from hil.certify.certificate import Witness as WitnessSection
+from hil.certify.statistics import Decision, Policy
 from hil.errors import HilError
 
 logger = logging.getLogger(__name__)
@@ -282,7 +291,7 @@ class Context:
     seed, the verdict policy, the network model's name, criterion and fixed parameters."""
 
     scene: Any
-    cert: Any  # hil.scene.CertificationCfg
+    cert: Any  # hil.scene.spec.CertificationCfg
     out: Path
     seed: int
     policy: Policy
@@ -313,7 +322,7 @@ class Sheet:
         recorded as one line ``"<stage> failed: <reason>"``, and the stage yields ``default``."""
         try:
             return fn(*args)
-        except Exception as exc:  # recorded, never swallowed (hil.pipeline's docstring)
+        except Exception as exc:  # recorded, never swallowed (hil.certify.pipeline's docstring)
             reason = one_line(exc)
             logger.warning("optional stage %s failed: %s", name, reason, exc_info=logger.isEnabledFor(logging.DEBUG))
             self.optional_errors.append(f"{name} failed: {reason}")
@@ -348,7 +357,7 @@ def one_line(exc: BaseException, limit: int = 300) -> str:
 
 @dataclass(frozen=True)
 class RunOutput:
-    """The run stage: each experiment's outcome (name -> hil.runner.ExperimentOutcome) and the
+    """The run stage: each experiment's outcome (name -> hil.run.runner.ExperimentOutcome) and the
     energy evidence read from them."""
 
     outcomes: Mapping[str, Any]

@@ -7,7 +7,7 @@ that uses it: devices, simulation, network, safety and certification here; each 
 (``EXPERIMENT_TYPES``, ``CONTROLLER_TYPES``: type name -> schema, implementation) this module
 composes into the discriminated unions of ``experiments[]`` and ``controller``.
 
-* :func:`load_scene` takes a YAML path or the name of a built-in scene (``hil/scenes/<name>.yaml``,
+* :func:`load_scene` takes a YAML path or the name of a built-in scene (``hil/scene/builtin/<name>.yaml``,
   shipped as package data) and returns a validated :class:`Scene` with ``source_text`` (the exact
   YAML text) and ``sha256`` (of that text, UTF-8) set.
 * :func:`builtin_scenes` lists ``(name, description)`` of the built-in scenes.
@@ -149,8 +149,8 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-_BUILTIN_PACKAGE = "hil"
-_BUILTIN_DIR = "scenes"
+_BUILTIN_PACKAGE = "hil.scene"
+_BUILTIN_DIR = "builtin"
 
 _Strict = StrictModel
 _number = number
@@ -455,7 +455,7 @@ else:
 class Safety(_Strict):
     """Limits checked every tick (per DOF, SI): effort N or N.m, velocity m/s or rad/s, position
     m or rad, energy J (|E_s| at any port), watchdog ms; realtime loop: ``max_lateness_ms`` (default
-    ``watchdog_ms``) and ``max_overrun_fraction`` (see :mod:`hil.realtime`)."""
+    ``watchdog_ms``) and ``max_overrun_fraction`` (see :mod:`hil.run.realtime`)."""
 
     max_effort: Annotated[float, BeforeValidator(lambda v: _number(v, "N or N.m")), Field(gt=0)] = 5.0
     max_velocity: Annotated[float, BeforeValidator(lambda v: _number(v, "m/s or rad/s")), Field(gt=0)] = 20.0
@@ -529,7 +529,7 @@ class DesignCfg(_Strict):
 
 
 class PolicyCfg(_Strict):
-    """The verdict policy (:class:`hil.certify.Policy`): probabilities strictly inside (0, 1)."""
+    """The verdict policy (:class:`hil.certify.statistics.Policy`): probabilities strictly inside (0, 1)."""
 
     required_probability: Probability = 0.95
     confidence: Probability = 0.95
@@ -1061,7 +1061,7 @@ def _check_network_builds(sc: Scene, cert: CertificationCfg) -> None:
     ``parameters``, the uncertain values; identified ones at the model defaults) and check that
     the criterion applies to its shape."""
     from hil.errors import HilError
-    from hil.pipeline import build_network, model_params_from_scene
+    from hil.models import build_network, model_params_from_scene
 
     q = model_params_from_scene(sc)
     q.update({k: u.value for k, u in cert.uncertain.items()})

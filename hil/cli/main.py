@@ -11,7 +11,7 @@ Errors: an expected failure (a :class:`~hil.errors.HilError`, an unreadable or u
 file that is not UTF-8 text, a bad flag or value) prints exactly one line on stderr,
 ``hil <command>: error: <file or flag>: <what is wrong>``, and exits 2; anything else is a bug:
 one line pointing at ``--debug`` and exit 1. ``--debug`` adds the traceback (and debug logs).
-Output folders never overwrite: see :mod:`hil.outdir` (``--overwrite``).
+Output folders never overwrite: see :mod:`hil.record.outdir` (``--overwrite``).
 
 Exit codes: one table, :class:`hil.errors.ExitCode` with :data:`hil.errors.EXIT_MEANINGS` (README.md
 shows it; tests/test_exit_codes.py compares the two).
@@ -55,7 +55,7 @@ from hil.errors import (  # the exit codes: one table in hil.errors (re-exported
 )
 from hil.inputs import number_type, seed_type  # both are needed to build the parser of every command
 
-# hil.probe (its codecs, link budgets) is imported by _cmd_probe and by build_parser only for
+# hil.bench.probe (its codecs, link budgets) is imported by _cmd_probe and by build_parser only for
 # ``hil probe``: importing it here cost every command's start-up (issue 15, ``hil stability``).
 
 __all__ = ["DECISION_EXIT", "EXIT_ERROR", "EXIT_INTERNAL", "EXIT_INTERRUPTED", "EXIT_MARGINAL", "EXIT_NOT_APPLICABLE",
@@ -149,7 +149,7 @@ def _cmd_stability(args: argparse.Namespace) -> int:
     if bool(args.file) == bool(args.model):
         raise UsageError("give either a network FILE or --model NAME (see --list-models)")
     if args.file:
-        from hil.netfile import load_network
+        from hil.scene.netfile import load_network
 
         if args.set:
             raise UsageError("--set applies to built-in models (--model), not to files")
@@ -276,15 +276,15 @@ def _cmd_design(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
+    from hil.bench.stopflag import STOP, StopRequested
+    from hil.certify.sweep import SweepSpec, iter_table, make_executor, parse_grid, plot_sweep, run_sweep, save_sweep
     from hil.models import get_model, model_names
-    from hil.stopflag import STOP, StopRequested
-    from hil.sweep import SweepSpec, iter_table, make_executor, parse_grid, plot_sweep, run_sweep, save_sweep
 
     if bool(args.model) == bool(args.scene):
         raise UsageError("give either --model NAME or --scene SCENE (the network of its certification)")
     scene = None
     if args.scene:
-        from hil.scene import load_scene
+        from hil.scene.spec import load_scene
 
         scene = load_scene(args.scene)
         if scene.certification is None:
@@ -299,7 +299,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     params = _parse_set(args.set or [], m.defaults, f"model {m.name}")
     posterior = None
     if args.posterior:
-        from hil.sweep import posterior_from_record
+        from hil.certify.sweep import posterior_from_record
 
         path, _, name = args.posterior.partition(":")
         posterior = posterior_from_record(path, name or None, args.model)
@@ -358,7 +358,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _cmd_scenes(args: argparse.Namespace) -> int:
-    from hil.scene import builtin_scenes
+    from hil.scene.spec import builtin_scenes
 
     rows = builtin_scenes()
     if args.json:
@@ -376,8 +376,8 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from hil.protocols.registry import extras_message
-    from hil.runner import Runner
-    from hil.scene import check_seed, load_scene
+    from hil.run.runner import Runner
+    from hil.scene.spec import check_seed, load_scene
 
     scene = load_scene(args.scene)
     if args.seed is not None:
@@ -426,7 +426,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         def progress_cb(name: str, k: int, n: int) -> None:
             beat.message = f"{name}: {k}/{n} ticks ({100.0 * k / max(n, 1):.0f} %)"
 
-    from hil.stopflag import STOP
+    from hil.bench.stopflag import STOP
 
     runner = Runner(scene, out, realtime=realtime, progress=progress_cb, overwrite=args.overwrite)
     with STOP.install():  # signals stay stop requests until the results are printed
@@ -489,9 +489,9 @@ def _short(v: Any) -> str:
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
-    """``hil plan SCENE``: predicted posterior sd and safety of the identification experiments (hil.plan)."""
-    from hil.plan import plan_scene
-    from hil.scene import load_scene
+    """``hil plan SCENE``: predicted posterior sd and safety of the identification experiments (hil.run.plan)."""
+    from hil.run.plan import plan_scene
+    from hil.scene.spec import load_scene
 
     scene = load_scene(args.scene)
     precision = _parse_set(args.precision or [], None, flag="--precision")
@@ -527,8 +527,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
 
 def _cmd_import(args: argparse.Namespace) -> int:
-    from hil.importers import import_csv, import_mat
-    from hil.outdir import check_out_file
+    from hil.record.importers import import_csv, import_mat
+    from hil.record.outdir import check_out_file
 
     src = Path(args.file)
     if src.is_dir():
@@ -551,7 +551,7 @@ def _cmd_import(args: argparse.Namespace) -> int:
             if not ch.strip() or not parts:
                 raise UsageError(f"--map {item}: expects CHANNEL=COLUMN[,COLUMN...]")
             mapping[ch.strip()] = parts[0] if len(parts) == 1 else parts
-        # without --time the importer takes the t/time column (hil.importers)
+        # without --time the importer takes the t/time column (hil.record.importers)
     suffix = src.suffix.lower()
     if suffix not in (".mat", ".csv", ".txt", ".tsv"):
         raise UsageError(f"{src}: expected a .csv or .mat file")
@@ -569,9 +569,9 @@ def _cmd_import(args: argparse.Namespace) -> int:
 
 
 def _cmd_certify(args: argparse.Namespace) -> int:
-    from hil.pipeline import certify_scene
+    from hil.certify.pipeline import certify_scene
     from hil.protocols.registry import extras_message
-    from hil.scene import check_seed, load_scene
+    from hil.scene.spec import check_seed, load_scene
 
     if len(args.scene) > 1 or (args.scene and Path(args.scene[0]).is_dir()):
         return _cmd_certify_fleet(args)
@@ -586,7 +586,7 @@ def _cmd_certify(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     key = None
     if args.sign:  # read the key (and check the extra) before anything runs or is written
-        from hil.signing import load_private_key
+        from hil.certify.signing import load_private_key
 
         key = load_private_key(args.sign)
     elif args.signer:
@@ -602,12 +602,12 @@ def _cmd_certify(args: argparse.Namespace) -> int:
 
     with beat:
         cert = certify_scene(scene, out, progress=say, run_experiments=not args.no_experiments)  # sealed
-    from hil.report import build_reports
+    from hil.report.render import build_reports
 
     integrity = None
     if key is not None:
-        from hil.signing import sign_certificate
-        from hil.verify import check_certificate
+        from hil.certify.signing import sign_certificate
+        from hil.certify.verify import check_certificate
 
         cert = sign_certificate(cert, key, args.signer or "")
         integrity = check_certificate(cert, public_key=key.public(),
@@ -649,10 +649,10 @@ def _cmd_certify(args: argparse.Namespace) -> int:
 
 
 def _cmd_certify_fleet(args: argparse.Namespace) -> int:
-    from hil.fleet import certify_fleet, expand_scenes
+    from hil.certify.fleet import certify_fleet, expand_scenes
+    from hil.certify.sweep import make_executor
     from hil.protocols.registry import extras_message
-    from hil.scene import check_seed, load_scene
-    from hil.sweep import make_executor
+    from hil.scene.spec import check_seed, load_scene
 
     if args.sign or args.signer:
         raise UsageError("--sign signs one certificate: sign the scenes of a fleet one by one")
@@ -673,7 +673,7 @@ def _cmd_certify_fleet(args: argparse.Namespace) -> int:
         if not args.json:
             print(f"[{done}/{total}] {e.name}: {e.decision} ({e.seconds:.0f} s)", file=sys.stderr)
 
-    from hil.stopflag import STOP
+    from hil.bench.stopflag import STOP
 
     try:
         with STOP.install():
@@ -712,14 +712,14 @@ def _short_value(v: Any) -> str:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from hil.outdir import check_out_dir
     from hil.protocols.registry import extras_message
+    from hil.record.outdir import check_out_dir
 
     if need := extras_message(report=True):
         print(f"hil report {args.path}: {need}", file=sys.stderr)
         return EXIT_USAGE
-    from hil.report import rebuild_reports
-    from hil.verify import MODIFIED
+    from hil.certify.verify import MODIFIED
+    from hil.report.render import rebuild_reports
 
     if args.out:  # another folder than the certificate's must be new or empty (or --overwrite)
         src = Path(args.path)
@@ -734,15 +734,15 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 def _cmd_verify(args: argparse.Namespace) -> int:
     """``hil verify DIR [--public-key PUB]``: exit 0 and ``OK …`` on stdout, or 2 and one line on
-    stderr saying what does not match (hil.verify); a bad input raises (one line, exit 2)."""
-    from hil.report import _resolve, load_certificate
-    from hil.verify import check_certificate, ok_summary
+    stderr saying what does not match (hil.certify.verify); a bad input raises (one line, exit 2)."""
+    from hil.certify.verify import check_certificate, ok_summary
+    from hil.report.render import _resolve, load_certificate
 
     where = _resolve(args.path)
     cert = load_certificate(args.path)
     key = None
     if args.public_key:
-        from hil.signing import load_public_key
+        from hil.certify.signing import load_public_key
 
         key = load_public_key(args.public_key)
     st = check_certificate(cert, where.parent, key)
@@ -756,7 +756,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
 
 
 def _cmd_keygen(args: argparse.Namespace) -> int:
-    from hil.signing import generate_keypair, load_public_key
+    from hil.certify.signing import generate_keypair, load_public_key
 
     priv, pub = generate_keypair(args.out)
     print(f"private key {priv} (mode 0600: keep it secret; hil certify --sign {priv})")
@@ -765,13 +765,13 @@ def _cmd_keygen(args: argparse.Namespace) -> int:
 
 
 def _cmd_check_realtime(args: argparse.Namespace) -> int:
-    from hil.realtime import check_realtime
+    from hil.run.realtime import check_realtime
 
     return check_realtime(args.rate, args.seconds, rt=not args.no_rt, as_json=args.json)
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from hil.record import replay
+    from hil.record.hdf5 import replay
 
     return replay(args.record, as_json=args.json)
 
@@ -963,7 +963,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     pb = add("probe", help="list what answers on a CAN channel, serial port or Modbus address "
                            "(--scene writes a scene stub)")
     if command in (None, "probe"):  # lazy: start-up time of the other commands (see the imports above)
-        from hil.probe import add_arguments as _probe_arguments
+        from hil.bench.probe import add_arguments as _probe_arguments
 
         _probe_arguments(pb)
     pb.set_defaults(func=_cmd_probe)
@@ -972,22 +972,22 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     msub = m.add_subparsers(dest="mock_cmd", metavar="serve", parser_class=OneLineArgumentParser, required=True)
     ms = msub.add_parser("serve", parents=[common], help="start simulated devices and print their endpoints",
                          description="Start a scene's simulated devices (or a spec's, or one --device) on their "
-                                     "own and print where each one listens (hil.mocks.serve).")
+                                     "own and print where each one listens (hil.bench.serve).")
     _mock_serve_arguments(ms)
     ms.set_defaults(func=_cmd_mock_serve)
     return p
 
 
 def _cmd_probe(args: argparse.Namespace) -> int:
-    from hil.probe import run as _probe_run  # lazy: start-up time of the other commands
+    from hil.bench.probe import run as _probe_run  # lazy: start-up time of the other commands
 
     return _probe_run(args)
 
 
 def _mock_serve_arguments(ap: argparse.ArgumentParser) -> None:
-    """The options of ``hil mock serve`` (checked together by :func:`hil.mocks.serve.run`)."""
+    """The options of ``hil mock serve`` (checked together by :func:`hil.bench.serve.run`)."""
     ap.add_argument("scene", nargs="?", help="scene file or built-in scene name (see 'hil scenes')")
-    ap.add_argument("--spec", help="instead of a scene: JSON string or .json/.yaml file (see hil.mocks.serve)")
+    ap.add_argument("--spec", help="instead of a scene: JSON string or .json/.yaml file (see hil.bench.serve)")
     ap.add_argument("--duration", type=number_type("non-negative"), default=None,
                     help="seconds to run (default: until Ctrl-C/SIGTERM)")
     ap.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
@@ -1018,12 +1018,12 @@ def _mock_serve_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def _cmd_mock_serve(args: argparse.Namespace) -> int:
-    from hil.mocks.serve import run
+    from hil.bench.serve import run
 
     return run(args)
 
 
-_PASSTHROUGH = {"identify": "hil.identify_records"}  # identify: api.main + the record backend
+_PASSTHROUGH = {"identify": "hil.cli.identify"}  # identify owns its parser (hil.cli.identify.main)
 
 # ---------------------------------------------------------------------------------------------
 # output folders, progress, numeric guard, error mapping
@@ -1033,8 +1033,8 @@ _CREATED: list[Path] = []
 
 
 def _out_dir(path: str | None, default_stem: str, overwrite: bool) -> Path:
-    """:func:`hil.outdir.prepare_out_dir`, remembering a folder it created for clean-up on failure."""
-    from hil.outdir import prepare_out_dir
+    """:func:`hil.record.outdir.prepare_out_dir`, remembering a folder it created for clean-up on failure."""
+    from hil.record.outdir import prepare_out_dir
 
     existed = path is not None and Path(path).exists()
     out = prepare_out_dir(path, default_stem=default_stem, overwrite=overwrite)
@@ -1044,7 +1044,7 @@ def _out_dir(path: str | None, default_stem: str, overwrite: bool) -> Path:
 
 
 def _cleanup_created() -> None:
-    from hil.outdir import remove_if_empty
+    from hil.record.outdir import remove_if_empty
 
     while _CREATED:
         remove_if_empty(_CREATED.pop())

@@ -3,17 +3,17 @@
 Three checks, each answered in the one output line:
 
 1. **digest** -- ``integrity.digest`` against the SHA-256 of the certificate's canonical content
-   (``hil-c14n/1``, :func:`hil.certificate.content_digest`): any edited value (a decision changed
+   (``hil-c14n/1``, :func:`hil.certify.certificate.content_digest`): any edited value (a decision changed
    from NO-GO to GO, a measurement, a reason, an evidence hash) or a removed digest fails;
 2. **evidence** -- every file in ``evidence`` (run records, the scene text), relative to the
    certificate's folder, is present with the recorded size and SHA-256;
 3. **signature** (with ``--public-key PUB``) -- ``integrity.signature`` was made by that key over
-   the recorded digest (:func:`hil.signing.verify_signature`; needs the ``sign`` extra).
+   the recorded digest (:func:`hil.certify.signing.verify_signature`; needs the ``sign`` extra).
 
-``hil verify`` (hil.cli) exits 0 with one line ``OK …`` (:func:`ok_summary`) on stdout, or 2 with one
+``hil verify`` (hil.cli.main) exits 0 with one line ``OK …`` (:func:`ok_summary`) on stdout, or 2 with one
 line on stderr naming what does not match. :func:`check_certificate` is the library form (``hil
 report`` uses it to refuse or mark a modified certificate); :func:`file_evidence` hashes a file for
-the certificate (``hil.pipeline``).
+the certificate (``hil.certify.pipeline``).
 """
 
 from __future__ import annotations
@@ -25,9 +25,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from hil.certificate import Certificate, Evidence, content_digest
+from hil.certify.certificate import Certificate, Evidence, content_digest
+from hil.certify.signing import verify_signature
 from hil.errors import HilError
-from hil.signing import verify_signature
 
 logger = logging.getLogger(__name__)
 
@@ -151,7 +151,7 @@ class IntegrityStatus:
 def check_certificate(cert: Certificate, folder: str | os.PathLike[str] | None = None,
                       public_key: Any = None, *, verified_with: str | None = None) -> IntegrityStatus:
     """Check the digest; the evidence files too when ``folder`` is given; the signature too when
-    ``public_key`` (a :class:`hil.signing.VerifyKey`) is given. ``verified_with`` names the key in
+    ``public_key`` (a :class:`hil.certify.signing.VerifyKey`) is given. ``verified_with`` names the key in
     the report (default: its file)."""
     integ = cert.integrity
     st = IntegrityStatus(recorded_digest=None if integ is None else integ.digest,

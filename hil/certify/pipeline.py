@@ -2,9 +2,9 @@
 criteria -> GO / MARGINAL / NO-GO (or ERROR) -> certificate record (and reports).
 
 Stages (timed; ``Certificate.measurements`` records what each produced), each a function
-``stage_<name>`` here taking the :class:`~hil.certify_stages.Context`, the
-:class:`~hil.certify_stages.Sheet` it records on and the earlier stages' outputs, and returning
-its own typed output (:mod:`hil.certify_stages`: the dataclasses and the measurements' declared
+``stage_<name>`` here taking the :class:`~hil.certify.stages.Context`, the
+:class:`~hil.certify.stages.Sheet` it records on and the earlier stages' outputs, and returning
+its own typed output (:mod:`hil.certify.stages`: the dataclasses and the measurements' declared
 limits); :func:`certify_scene` composes them (decide runs before witness: the witness only adds
 reasons). An exception escaping a stage makes the certificate ERROR with the stage and reason
 recorded, never FAIL:
@@ -53,7 +53,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from hil.certificate import (
+from hil.bench.stopflag import StopRequested
+from hil.certify.certificate import (
     Certificate,
     ConditionRow,
     DecisionStr,
@@ -71,8 +72,7 @@ from hil.certificate import (
     Witness,
     seal,
 )
-from hil.certify import Decision, Policy, decide, max_safe_parameter, probability_of_stability, worst_case_margin
-from hil.certify_stages import (
+from hil.certify.stages import (
     NOMINAL_MARGIN,
     Context,
     DesignOutput,
@@ -95,8 +95,16 @@ from hil.certify_stages import (
     p_stable_spec,
     worst_case_spec,
 )
+from hil.certify.statistics import (
+    Decision,
+    Policy,
+    decide,
+    max_safe_parameter,
+    probability_of_stability,
+    worst_case_margin,
+)
 from hil.errors import HilError
-from hil.stopflag import StopRequested
+from hil.models import build_network, model_params_from_scene
 
 logger = logging.getLogger(__name__)
 
@@ -107,28 +115,6 @@ Progress = Callable[[str], None]
 
 # ---------------------------------------------------------------------------------------------
 # model parameters (each model's scene mapping is registered with it, hil.models)
-
-
-def model_params_from_scene(scene: Any) -> dict[str, Any]:
-    """The network model's fixed parameters implied by the scene's controller and simulation
-    (the model's :meth:`~hil.models.BuiltinModel.params_from_scene`), overridden by
-    ``certification.parameters``."""
-    from hil.models import get_model
-
-    cert = scene.certification
-    p = get_model(cert.model).params_from_scene(scene)
-    p.update(cert.parameters)
-    return p
-
-
-def build_network(model: str, params: Mapping[str, Any]) -> Any:
-    """The network (immittance matrix) of built-in ``model`` with ``params``. A gain table
-    (``gains``: a mapping, as a scene's controller gives it) takes any of its entries given at the
-    top level too (``k_pmyz=...``: a swept or overridden gain); see
-    :meth:`hil.models.BuiltinModel.network`."""
-    from hil.models import get_model
-
-    return get_model(model).network(params)
 
 
 def _criterion(model: str, cfg: str) -> str:
@@ -169,7 +155,7 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
     The certificate comes back sealed: ``evidence`` holds the SHA-256 of the scene text (written
     to ``out_dir/scene.yaml``) and of every record it rests on (the records written under
     ``out_dir/records`` and any reused record it names), ``integrity.digest`` the digest of its
-    content (see :mod:`hil.certificate`)."""
+    content (see :mod:`hil.certify.certificate`)."""
     cert = _assess(scene, out_dir, seed=seed, progress=progress, run_experiments=run_experiments,
                    max_ticks=max_ticks, outcomes=outcomes)
     return _seal(cert, scene, Path(out_dir))
@@ -177,7 +163,7 @@ def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, p
 
 def _seal(cert: Certificate, scene: Any, out: Path) -> Certificate:
     """Evidence hashes (records are closed by now: runs and identification are done) and digest."""
-    from hil.verify import file_evidence
+    from hil.certify.verify import file_evidence
 
     scene_path = out / "scene.yaml"
     text = scene.source_text.encode("utf-8")
@@ -225,7 +211,7 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
     out.mkdir(parents=True, exist_ok=True)
     policy = Policy(cert.policy.required_probability, cert.policy.confidence, cert.policy.credible)
     # the scene's names and ranges (model, parameters, identify entries, design) were checked by
-    # hil.scene at load time
+    # hil.scene.spec at load time
     ctx = Context(scene=scene, cert=cert, out=out, seed=int(scene.seed if seed is None else seed), policy=policy,
                   model=cert.model, criterion=_criterion(cert.model, cert.criterion),
                   params=model_params_from_scene(scene), say=progress or (lambda msg: logger.info(msg)))
@@ -305,7 +291,7 @@ def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_t
             _energy_stage(sheet, i_name, o, energy, sheet.measurements, sheet.plots)
         _fault_measurements(given, sheet.measurements)
     elif run_experiments and scene.experiments:
-        from hil.runner import Runner
+        from hil.run.runner import Runner
 
         with sheet.timed("run", ctx.say, scene.name):
             runner = Runner(scene, out / "records", max_ticks=max_ticks)
@@ -326,7 +312,7 @@ def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_t
                                     runner.stop_status or "safety_stop")
             _fault_measurements(done, sheet.measurements)
 
-    from hil.realtime import lateness_measurements  # realtime runs: loop lateness and sample timing rows
+    from hil.certify.lateness import lateness_measurements  # realtime runs: loop lateness and sample timing rows
 
     sheet.measurements += lateness_measurements(done, scene)
     return RunOutput(outcomes=done, energy=tuple(energy))
@@ -354,7 +340,7 @@ def stage_identify(ctx: Context, sheet: Sheet, run: RunOutput) -> PosteriorDraws
                     continue
                 try:
                     from hil.identify.api import identify_record, store_result
-                    from hil.identify_records import open_source  # the record as identification reads it
+                    from hil.record.identify_source import open_source  # the record as identification reads it
 
                     kw = {"model": spec.model} if spec.model else {}
                     res = identify_record(open_source(o.record), seed=seed, **kw)
@@ -565,7 +551,7 @@ def stage_design(ctx: Context, sheet: Sheet, post: PosteriorDraws, nominal: Nomi
 
 def stage_decide(ctx: Context, sheet: Sheet, run: RunOutput, post: PosteriorDraws, nominal: NominalOutput,
                  robust: RobustOutput, design: DesignOutput) -> Verdict:
-    """The verdict policy (:func:`hil.certify.decide`) on the stages' findings; evidence errors
+    """The verdict policy (:func:`hil.certify.statistics.decide`) on the stages' findings; evidence errors
     give ERROR. A GO whose energy evidence went below its bound, or could not be read, becomes
     MARGINAL."""
     nominal_res, draws, d = nominal.result, post.draws, design.design
@@ -632,7 +618,7 @@ def _independent_samples(res: Any) -> tuple[np.ndarray, str]:
     kept emcee chain keeps one sample per ⌈τ⌉ steps, τ the largest integrated autocorrelation time
     over the parameters (``diagnostics.tau``, or estimated from the chain when missing). Returns the
     (n_independent, p) samples and one sentence saying how they were obtained."""
-    from hil.certify import autocorrelation_time, thin_indices
+    from hil.certify.statistics import autocorrelation_time, thin_indices
 
     post = res.posterior
     samples = np.asarray(post.samples)[:, : len(res.names)]
@@ -806,8 +792,8 @@ def _reliability_stage(model: str, criterion: str, params: Mapping[str, Any], na
     around the design point. Returns (Reliability, FormResult, RareEvent) (None where not made)."""
     from scipy.stats import norm
 
-    from hil.certificate import RareEvent, Reliability
-    from hil.certify import beta_required
+    from hil.certify.certificate import RareEvent, Reliability
+    from hil.certify.statistics import beta_required
     from hil.stability.reliability import Standardization, form, importance_sampling
 
     st = Standardization.from_draws(X)
@@ -877,8 +863,8 @@ def _reliability_stage(model: str, criterion: str, params: Mapping[str, Any], na
 def _design_point_plot(plots: dict[str, Series], model: str, criterion: str, params: Mapping[str, Any],
                        names: list[str], X: np.ndarray, centre: np.ndarray, reliability: Any, fast: bool) -> None:
     """The design point in the posterior-standardized coordinates of :func:`_reliability_stage`
-    with the limit state traced by the same verdict; see :func:`hil.evidence_plots.design_point_plot`."""
-    from hil.evidence_plots import design_point_plot
+    with the limit state traced by the same verdict; see :func:`hil.certify.figures.design_point_plot`."""
+    from hil.certify.figures import design_point_plot
     from hil.stability.reliability import Standardization
 
     st = Standardization(centre, Standardization.from_draws(X).L)
@@ -914,7 +900,7 @@ def _design(cert: Any, params: Mapping[str, Any], draws: Mapping[str, np.ndarray
     if dp.headroom is not None and cur is not None and cur > 0:
         # parametric headroom (docs/CERTIFICATION.md): k22_max/k22 − 1 at the nominal plant, and the
         # posterior limit (lower bound of P(stable) = required) / k22 − 1
-        from hil.certify import posterior_limit
+        from hil.certify.statistics import posterior_limit
 
         plant = {k: float(v) for k, v in (nominal_params or params).items()
                  if k in m.defaults and isinstance(v, int | float)}
@@ -932,8 +918,8 @@ def _witness(tm: Any, plots: dict[str, Series], opt: Sheet, scene: Any = None) -
     """Search a passive termination set and simulate the driven, terminated one-port exactly
     (a failure of the simulation is recorded by ``opt``; the witness is kept without it). With the
     scene, the witness says what a reader needs: the closed-loop poles the termination creates,
-    and when the response crosses the bench's safety limits (hil.evidence_plots.witness_response)."""
-    from hil.evidence_plots import witness_response
+    and when the response crosses the bench's safety limits (hil.certify.figures.witness_response)."""
+    from hil.certify.figures import witness_response
     from hil.stability.witness import find_witness, termination_family
 
     port = 0
@@ -958,22 +944,22 @@ def _simulate_witness(w: Any, plots: dict[str, Series], scene: Any = None) -> di
     non-passive direction, F0 = 1 N or N.m) and integrate E_s(t) = ∫ Fᵀ V dt, V = Y_in(s) F, with the
     exact-ZOH engine of hil.mocks (admittance state space from the exact rational Y_in = Z_in⁻¹),
     until the response crosses the scene's safety limits (or grows a thousandfold without a scene);
-    see :func:`hil.evidence_plots.witness_response`."""
-    from hil.evidence_plots import witness_response
+    see :func:`hil.certify.figures.witness_response`."""
+    from hil.certify.figures import witness_response
 
     return witness_response(w, plots, scene)
 
 
 
 # ---------------------------------------------------------------------------------------------
-# plots (as data series; rendered by hil.report)
+# plots (as data series; rendered by hil.report.render)
 
 
 def _identification_plots(plots: dict[str, Series], name: str, res: Any, seed: int, units: str | None = None) -> None:
     """FRF evidence (measured H1 with its coherence-based confidence band, the posterior fit band,
     magnitude and phase, coherence and normalized residuals beneath) per output, and the corner
-    plot of the posterior; see :func:`hil.evidence_plots.identification_plots`."""
-    from hil.evidence_plots import identification_plots
+    plot of the posterior; see :func:`hil.certify.figures.identification_plots`."""
+    from hil.certify.figures import identification_plots
 
     identification_plots(plots, name, res, seed, units)
 
@@ -1024,7 +1010,7 @@ def _energy_evidence(name: str, o: Any, energy: list[EnergyEvidence], measuremen
 
 
 def _energy_plot(plots: dict[str, Series], name: str, outcome: Any) -> None:
-    from hil.record import RunRecord
+    from hil.record.hdf5 import RunRecord
 
     try:
         rec = RunRecord.open(outcome.record)
@@ -1043,8 +1029,8 @@ def _energy_plot(plots: dict[str, Series], name: str, outcome: Any) -> None:
 def _decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
     """The decisive condition against frequency (the failing one of a NO-GO, the one with the
     smallest margin otherwise), negative band shaded, worst frequency marked, and the imaginary-axis
-    and infinity conditions as their residue margins; see :func:`hil.evidence_plots.decided_plot`."""
-    from hil.evidence_plots import decided_plot
+    and infinity conditions as their residue margins; see :func:`hil.certify.figures.decided_plot`."""
+    from hil.certify.figures import decided_plot
 
     decided_plot(plots, tm, r)
 
@@ -1123,7 +1109,7 @@ def _bode_plot(plots: dict[str, Series], model: str, params: Mapping[str, Any], 
     M = np.array(mags)
     q05, q50, q95 = np.quantile(M, [0.05, 0.5, 0.95], axis=0)
     db = lambda a: (20 * np.log10(np.maximum(a, 1e-300))).tolist()  # noqa: E731
-    from hil.evidence_plots import immittance_db_label
+    from hil.certify.figures import immittance_db_label
 
     plots["bode"] = Series(title=f"|{tm0.kind} entry (1,1)| over the posterior", x=w.tolist(), x_label="ω [rad/s]",
                            y_label=immittance_db_label(tm0.kind, units), log_x=True,
@@ -1134,8 +1120,8 @@ def _bode_plot(plots: dict[str, Series], model: str, params: Mapping[str, Any], 
 def _headroom_plot(plots: dict[str, Series], cert_cfg: Any, params: Mapping[str, Any],
                    draws: Mapping[str, np.ndarray], policy: Policy, design: Design) -> None:
     """P(stable) against the design parameter, requirement crossing marked; see
-    :func:`hil.evidence_plots.headroom_plot`."""
-    from hil.evidence_plots import headroom_plot
+    :func:`hil.certify.figures.headroom_plot`."""
+    from hil.certify.figures import headroom_plot
 
     headroom_plot(plots, cert_cfg, params, draws, policy, design)
 

@@ -1,10 +1,10 @@
-"""The suite's run records (:mod:`hil.record`, :mod:`hil.importers`) as identification sources.
+"""The suite's run records (:mod:`hil.record.hdf5`, :mod:`hil.record.importers`) as identification sources.
 
 :mod:`hil.identify` reads records only through its interface :class:`hil.identify.source.RecordSource`
 and file backends (:class:`hil.identify.source.RecordBackend`); this module is the backend of the
 suite's own HDF5 run records (``.h5``; ``.csv`` and ``.mat`` imported into a temporary record with the
 importers' defaults). It is registered in the entry-point group ``hil.identify.record_backends``
-(pyproject.toml) and on import. The record's scene text is parsed here (:mod:`hil.scene`), so the
+(pyproject.toml) and on import. The record's scene text is parsed here (:mod:`hil.scene.spec`), so the
 identification side never imports the scene schema.
 """
 
@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from hil.errors import HilError, SceneError
 from hil.identify.errors import ModelSpecError
 from hil.identify.source import register_backend
-from hil.record import RecordError, RunRecord, store_identification
+from hil.record.hdf5 import RecordError, RunRecord, store_identification
 
 logger = logging.getLogger(__name__)
 
@@ -32,14 +32,14 @@ __all__ = ["BACKEND", "RunRecordSource", "open_source", "scene_of_record"]
 
 
 def scene_of_record(rec: Any) -> Any:
-    """The validated :class:`hil.scene.Scene` stored in a record, or None (imported records have no
+    """The validated :class:`hil.scene.spec.Scene` stored in a record, or None (imported records have no
     scene text; an unreadable scene is logged and ignored)."""
     text = getattr(rec, "scene_text", "") or ""
     if not text.strip():
         return None
     import yaml  # type: ignore[import-untyped]  # PyYAML ships no stubs (types-PyYAML is not a dependency)
 
-    from hil.scene import scene_from_dict
+    from hil.scene.spec import scene_from_dict
 
     try:
         return scene_from_dict(yaml.safe_load(text), label="record scene", source_text=text)
@@ -50,7 +50,7 @@ def scene_of_record(rec: Any) -> Any:
 
 @dataclass
 class RunRecordSource:
-    """A :class:`hil.record.RunRecord` with its scene parsed: a :class:`hil.identify.source.RecordSource`."""
+    """A :class:`hil.record.hdf5.RunRecord` with its scene parsed: a :class:`hil.identify.source.RecordSource`."""
 
     record: RunRecord
     scene: Any
@@ -94,7 +94,7 @@ def open_source(path_or_record: str | Path | RunRecord) -> RunRecordSource:
         rec = RunRecord.open(p)  # raises RecordError naming the file
         return RunRecordSource(rec, scene_of_record(rec))
     try:  # an unreadable file is one line naming it, never a traceback
-        from hil.importers import import_csv, import_mat
+        from hil.record.importers import import_csv, import_mat
 
         with tempfile.TemporaryDirectory(prefix="hil-identify-") as tmp:
             out = Path(tmp) / (p.stem + ".h5")
@@ -128,8 +128,8 @@ class _Backend:
         store_identification(path, name, samples, summary)
 
     def import_to(self, src: str | Path, out: str | Path, *, overwrite: bool = False) -> Path:
-        from hil.importers import import_csv, import_mat
-        from hil.outdir import check_out_file
+        from hil.record.importers import import_csv, import_mat
+        from hil.record.outdir import check_out_file
 
         s = Path(src)
         if not s.is_file():
@@ -141,10 +141,3 @@ class _Backend:
 #: the backend instance (the entry point's target)
 BACKEND = _Backend()
 register_backend(BACKEND)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``hil identify ...`` (:func:`hil.identify.api.main`) with this backend registered."""
-    from hil.identify.api import main as identify_main
-
-    return identify_main(argv)

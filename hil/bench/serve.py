@@ -1,7 +1,7 @@
 """Start simulated devices on their own and report where each one listens (``hil mock serve``).
 
 ``hil mock serve SCENE`` (a scene file or a built-in scene name) builds the scene's physics and
-simulated devices exactly as :class:`hil.bench.Bench` does (:class:`hil.bench.SimulatedScene`), steps
+simulated devices exactly as :class:`hil.bench.runtime.Bench` does (:class:`hil.bench.runtime.SimulatedScene`), steps
 the plant in real time at the scene's rate, and prints one line per device: its name, driver and the
 ``open_device(...)`` call that connects an adapter to it (pty path, TCP URL, CAN interface +
 channel); ``--json`` prints the same as one JSON line. It runs for ``--duration`` seconds or until
@@ -247,10 +247,10 @@ def load_spec(text_or_path: str) -> list[dict[str, Any]]:
 def serve_scene(scene: Any, *, seed: int | None = None, variant: str | None = None,
                 can_interface: str = "virtual", can_channels: dict[str, str] | None = None,
                 stream_rate_hz: float = 100.0) -> Any:
-    """Build and start a scene's simulated devices (a :class:`hil.bench.SimulatedScene`; a
-    :class:`hil.scene.Scene`, a path or a built-in name). Stop it with ``.close()``."""
-    from hil.bench import SimulatedScene
-    from hil.scene import load_scene
+    """Build and start a scene's simulated devices (a :class:`hil.bench.runtime.SimulatedScene`; a
+    :class:`hil.scene.spec.Scene`, a path or a built-in name). Stop it with ``.close()``."""
+    from hil.bench.runtime import SimulatedScene
+    from hil.scene.spec import load_scene
 
     sc = scene if hasattr(scene, "devices") else load_scene(scene)
     sim = SimulatedScene(sc, seed=seed, variant=variant, can_interface=can_interface,
@@ -307,7 +307,7 @@ def _wait(duration: float | None, stop: threading.Event) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """``hil mock serve [SCENE | --spec SPEC | --device KIND] [--duration S] [--json] ...`` (the
-    arguments are parsed by hil.cli): serve simulated devices and print their endpoints (see the
+    arguments are parsed by hil.cli.main): serve simulated devices and print their endpoints (see the
     module docstring). A bad combination of options raises ValueError (one line, exit 2)."""
     if sum(map(bool, (args.scene, args.spec, args.device))) > 1:
         raise ValueError("give one of SCENE, --spec or --device")
@@ -383,7 +383,7 @@ def _device_spec(args: argparse.Namespace) -> dict[str, Any]:
 
 def _serve_scene_main(args: argparse.Namespace, stop: threading.Event) -> int:
     from hil.protocols.registry import extras_message
-    from hil.scene import load_scene
+    from hil.scene.spec import load_scene
 
     scene = load_scene(args.scene)
     if need := extras_message(scene, adapters=False):  # a base install: name the extra, start nothing

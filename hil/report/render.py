@@ -1,10 +1,10 @@
 """Certificate reports: one self-contained HTML page and a PDF for signing, from the record alone.
 
-Everything a report shows comes from a :class:`hil.certificate.Certificate` (plots included, as
+Everything a report shows comes from a :class:`hil.certify.certificate.Certificate` (plots included, as
 data series), so ``hil report PATH`` rebuilds both documents later from ``certificate.json``.
 
 * :func:`render_html` -- one HTML file, no external resources: CSS inline, plots as base64 PNG
-  (matplotlib Agg), printable. Jinja2 templates from ``hil/templates/`` with autoescaping.
+  (matplotlib Agg), printable. Jinja2 templates from ``hil/report/templates/`` with autoescaping.
 * :func:`render_pdf` -- a PDF laid out with matplotlib only (``PdfPages``): a title page (decision,
   reasons, policy, measurements; long tables continue on the next pages), one page per section
   present in the record, plot pages and a signature page.
@@ -13,9 +13,9 @@ data series), so ``hil report PATH`` rebuilds both documents later from ``certif
 * :func:`build_reports` -- ``certificate.json`` (sealed: it carries its digest), ``report.html``
   and ``report.pdf`` in one folder.
 * :func:`rebuild_reports` -- what ``hil report PATH [--out DIR] [--public-key PUB] [--allow-modified]``
-  does (hil.cli parses it): exit 0, or 2 with a one-line error.
+  does (hil.cli.main parses it): exit 0, or 2 with a one-line error.
 
-Integrity (see :mod:`hil.verify`): the reports show the certificate's digest, its evidence files
+Integrity (see :mod:`hil.certify.verify`): the reports show the certificate's digest, its evidence files
 and, on the signature page/section, who signed and whether the signature holds (when checked with
 a public key). A certificate whose content does not match its digest (or has none, or whose
 signature fails with the given key) is refused by ``hil report``; with ``--allow-modified`` it is
@@ -28,7 +28,7 @@ Only the sections present in the record appear (an absent section is not rendere
 matplotlib and jinja2 (the ``report`` extra) are imported inside the functions that need them,
 so importing this module costs neither.
 
-Plot convention (:class:`hil.certificate.Series`): ``lines`` are drawn as lines over ``x`` when
+Plot convention (:class:`hil.certify.certificate.Series`): ``lines`` are drawn as lines over ``x`` when
 ``x`` is monotonic and as markers (a scatter, e.g. posterior draws of two parameters) when it is
 not; ``bands`` are shaded between (lo, hi) in the colour of the line of the same name when there
 is one; ``points`` are marked and named in the legend; ``hline`` is a dashed reference line.
@@ -51,10 +51,11 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from hil.certificate import SCHEMA_VERSION, Certificate, Series, content_digest, seal
+from hil.certify.certificate import SCHEMA_VERSION, Certificate, Series, content_digest, seal
+from hil.certify.verify import MODIFIED, IntegrityStatus, check_certificate
 from hil.errors import HilError
 from hil.inputs import read_text_file
-from hil.report_model import (
+from hil.report.sections import (
     CHARTS,
     Section,
     Table,
@@ -70,7 +71,6 @@ from hil.report_model import (
     report_sections,
     robust_status,
 )
-from hil.verify import MODIFIED, IntegrityStatus, check_certificate
 
 __all__ = [
     "ReportError",
@@ -403,7 +403,7 @@ def _draw_corner(fig: Any, s: Series, rect: tuple[float, float, float, float]) -
     import numpy as np
     from matplotlib.gridspec import GridSpec
 
-    from hil.report_units import pretty_unit
+    from hil.certify.units import pretty_unit
 
     data = np.column_stack([_arr(s.lines[k]) for k in s.lines])
     data = data[np.all(np.isfinite(data), axis=1)]
@@ -565,7 +565,7 @@ def _plots_png(cert: Certificate, dpi: int = 110) -> dict[str, _Plot]:
 def _canonical_json(cert: Certificate) -> str:
     """The stored text: every field, except those added after schema 1.1 while at their default
     (so the file minus ``integrity`` is exactly the digested content, hil-c14n/1)."""
-    from hil.certificate import drop_new_defaults
+    from hil.certify.certificate import drop_new_defaults
 
     data = json.loads(cert.model_dump_json())
     drop_new_defaults(cert, data)
@@ -681,7 +681,7 @@ def _html_context(cert: Certificate, st: IntegrityStatus) -> dict[str, Any]:
 
 
 def _kv_table(rows: list[tuple[str, str, str, str | None]]) -> Table:
-    from hil.report_model import _kv
+    from hil.report.sections import _kv
 
     return _kv(rows)
 
@@ -1073,7 +1073,7 @@ def summary_rows(cert: Certificate, st: IntegrityStatus) -> list[tuple[str, str,
                      f"{signed(d.nominal_headroom)}, {signed(d.posterior_headroom)}", "1", "design.posterior_headroom"))
     w = cert.witness
     if w is not None:
-        from hil.report_units import termination_units
+        from hil.certify.units import termination_units
 
         terms = []
         for t in w.terminations.values():
@@ -1118,7 +1118,7 @@ def _pdf_summary(doc: _PdfDoc, cert: Certificate) -> None:
     doc.subheading("Reasons", 10)
     doc.bullets(cert.reasons or ["(no reasons recorded)"], 8.5)
     doc.subheading("Summary", 10)
-    from hil.report_model import _kv
+    from hil.report.sections import _kv
 
     t = _kv(summary_rows(cert, doc.integrity))
     t.size = 8.5  # page 1 holds the summary and the signature block: one page a person can sign alone
@@ -1258,7 +1258,7 @@ def draw_pstable(ax: Any, cert: Certificate) -> None:
 
 
 def chart_height(cert: Certificate, key: str) -> float:
-    """Height in inches of a chart drawn from the record (:data:`hil.report_model.CHARTS`)."""
+    """Height in inches of a chart drawn from the record (:data:`hil.report.sections.CHARTS`)."""
     if key == "p_failure" and cert.robust is not None:
         return 1.25 + 0.55 * len(failure_estimates(cert)) + (1.3 if cert.robust.reliability is not None else 0.0)
     return 0.0
@@ -1438,7 +1438,7 @@ def build_reports(cert: Certificate, out_dir: str | os.PathLike[str], *,
 def rebuild_reports(path: str | Path, out: str | Path | None = None, public_key: str | Path | None = None,
                     allow_modified: bool = False) -> tuple[Certificate, IntegrityStatus, dict[str, Path]]:
     """What ``hil report PATH [--out DIR] [--public-key PUB] [--allow-modified]`` does (parsed by
-    hil.cli): rebuild report.html and report.pdf from a stored certificate.json (``path`` is the file
+    hil.cli.main): rebuild report.html and report.pdf from a stored certificate.json (``path`` is the file
     or a folder holding it) into ``out`` (default: the certificate's folder). Returns the
     certificate, its integrity status and the two paths.
 
@@ -1448,7 +1448,7 @@ def rebuild_reports(path: str | Path, out: str | Path | None = None, public_key:
     cert = load_certificate(path)
     key = None
     if public_key:
-        from hil.signing import load_public_key
+        from hil.certify.signing import load_public_key
 
         key = load_public_key(public_key)
     st = check_certificate(cert, public_key=key)

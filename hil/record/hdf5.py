@@ -1,7 +1,7 @@
 """Run records: every sample streamed to HDF5 as it is taken, readable even after ``kill -9``.
 
 Writer: :class:`RecordWriter` (context manager). Reader: :class:`RunRecord`. CLI: :func:`replay`
-(``hil replay RECORD [--json]``). Importers of other tools' runs: :mod:`hil.importers`.
+(``hil replay RECORD [--json]``). Importers of other tools' runs: :mod:`hil.record.importers`.
 
 File layout (format ``hil-record``, ``format_version`` 2; all values SI, time in seconds)::
 
@@ -1497,7 +1497,7 @@ def _print_summary(s: Mapping[str, Any]) -> None:
 
 
 def replay(record: str | Path, as_json: bool = False) -> int:
-    """``hil replay RECORD [--json]`` (parsed by hil.cli): print a record's summary and return 0;
+    """``hil replay RECORD [--json]`` (parsed by hil.cli.main): print a record's summary and return 0;
     a missing file or one that is not a readable run record raises :class:`RecordError` (one line,
     exit 2)."""
     s = RunRecord.open(record).summary()

@@ -1,6 +1,6 @@
 """The report model: what the HTML and the PDF show, as sections of tables, paragraphs and figures.
 
-Both renderers of :mod:`hil.report` draw this one model, so a test can walk it: every table
+Both renderers of :mod:`hil.report.render` draw this one model, so a test can walk it: every table
 column carries its unit (:class:`Column`; ``"1"`` for a dimensionless number, ``"—"`` for a text
 column, ``"per row"`` when a ``unit`` column next to it gives each row's unit), every number in a
 key-value table has its unit in that row, and every plot axis label ends with ``[unit]``.
@@ -10,7 +10,7 @@ path (``robust.p_stable``) to its anchor in ``docs/CERTIFICATION.md`` (one headi
 renderers turn it into a link (:func:`definition_link`).
 
 Units come from the scene's ``units`` (``cert.scene.units``: linear or rotary, SI) through
-:mod:`hil.report_units`. No heavy imports.
+:mod:`hil.certify.units`. No heavy imports.
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from hil.certificate import Certificate, Series
-from hil.report_units import parameter_unit, pretty_unit, termination_units
+from hil.certify.certificate import Certificate, Series
+from hil.certify.units import parameter_unit, pretty_unit, termination_units
 
 __all__ = ["CHARTS", "DEFINITIONS", "DEFINITIONS_DOC", "Block", "Column", "Estimate", "Section", "Table",
            "definition_link", "failure_estimates", "figure_caption", "log10_phi_minus", "plot_sections",
@@ -148,7 +148,7 @@ class Section:
 
 
 # ---------------------------------------------------------------------------------------------
-# formatting (shared with hil.report)
+# formatting (shared with hil.report.render)
 
 
 def fmt(v: Any, digits: int = 4) -> str:

@@ -1,7 +1,7 @@
 """Optional Ed25519 signatures of certificates (``hil certify --sign KEY``, ``hil verify --public-key PUB``,
 ``hil keygen --out DIR``).
 
-The signature covers the certificate's digest (``integrity.digest``, see :mod:`hil.certificate`)
+The signature covers the certificate's digest (``integrity.digest``, see :mod:`hil.certify.certificate`)
 together with who signed: the signed message is the ``hil-c14n/1`` canonical JSON of ::
 
     {"context": "hil-certify certificate signature v1", "digest": <hex>,
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from hil.certificate import Certificate, Signature, canonical_json, content_digest
+from hil.certify.certificate import Certificate, Signature, canonical_json, content_digest
 from hil.errors import HilError
 
 logger = logging.getLogger(__name__)

@@ -2,7 +2,7 @@
 
 One tick (period dt = 1/rate_hz):
 
-0. safe point: a stop request (SIGINT / SIGTERM / SIGHUP, :mod:`hil.stopflag`) raises here;
+0. safe point: a stop request (SIGINT / SIGTERM / SIGHUP, :mod:`hil.bench.stopflag`) raises here;
 1. read every device (adapters, with timeouts; realtime mode on external devices: timeout 0, the
    newest sample that has arrived, its age recorded as ``<device>.age``) -> measurements;
 2. controller effort + experiment excitation -> commanded effort;
@@ -14,7 +14,7 @@ One tick (period dt = 1/rate_hz):
 5. command the actuators, set the simulated human's active force;
 6. lockstep: advance the simulated plant by exactly dt.
 
-Realtime mode (:mod:`hil.realtime`): before step 0 of each tick the loop waits for the tick's
+Realtime mode (:mod:`hil.run.realtime`): before step 0 of each tick the loop waits for the tick's
 absolute deadline (``t0 + k / rate_hz`` on ``time.perf_counter_ns``; sleep, then spin for the last
 200 µs); the tick's actual start (``loop.tick_start``, s since t0) and lateness (``loop.late``, s)
 go into the record. A tick later than ``safety.max_lateness_ms`` (default ``watchdog_ms``), or
@@ -23,13 +23,13 @@ is a safe stop ("late loop: ..."; the late tick's timing is in the record, its d
 NaN). The loop runs with SCHED_FIFO, locked memory and its own CPU where permitted (one warning
 line otherwise, also a ``realtime`` event in the record), and without garbage collection (frozen
 and disabled during an experiment, collected between experiments). A simulated scene in
-realtime mode serves its devices from a separate process (:class:`hil.bench.ProcessSimBench`),
+realtime mode serves its devices from a separate process (:class:`hil.bench.runtime.ProcessSimBench`),
 so the loop under test talks to external devices as at a real bench.
 
 Everything runs inside :func:`safe_stop_context`: on a limit breach, watchdog miss, signal, device
 failure (DeviceFault, CRC/protocol error past the adapter's tolerance, timeout, OSError or termios
 error of a lost port), record write error or any other exception, every actuator is commanded
-zero effort (an uninterruptible :meth:`hil.stopflag.StopRequest.critical` section), the reason is
+zero effort (an uninterruptible :meth:`hil.bench.stopflag.StopRequest.critical` section), the reason is
 recorded, and the record is closed with every sample taken so far. A stop ends the whole
 :meth:`Runner.run`: no further experiment starts (:attr:`Runner.stop_status` / ``stop_reason``).
 
@@ -39,7 +39,7 @@ loop-timing percentiles come from a fixed log-spaced histogram.
 
 Port energy. For each network port with a force sensor, the power into the device is F_port · V
 with F_port = ``force_sign`` × (the sensor's port axes): the force applied *to* the device,
-positive along the port velocity (see ``hil.scene.PortCfg``). E_s(t) = ∫ F_port · V dt (paper 000
+positive along the port velocity (see ``hil.scene.spec.PortCfg``). E_s(t) = ∫ F_port · V dt (paper 000
 eq. 6) is integrated with the trapezoid rule and recorded as ``<port>.energy``.
 
 Each experiment opens its own bench (``bench_factory(variant)``): an SDEA experiment may need the
@@ -58,9 +58,9 @@ from typing import Any
 
 import numpy as np
 
+from hil.bench.stopflag import STOP, StopRequested
 from hil.errors import DeviceDisconnected, DeviceError, DeviceTimeout, HilError, SafetyStop
 from hil.protocols.base import sample_age
-from hil.stopflag import STOP, StopRequested
 
 try:  # a vanished serial port raises termios.error (not an OSError) from pyserial
     import termios
@@ -227,10 +227,10 @@ def classify(exc: BaseException) -> tuple[str, str]:
 def safe_stop_context(stop: Callable[[], Any], on_stop: Callable[[str, str], None]) -> Iterator[None]:
     """Run a block so that any way out of it other than normal completion commands zero effort.
 
-    ``stop()`` must command zero effort and never raise (:meth:`hil.bench.Bench.safe_stop`: an
+    ``stop()`` must command zero effort and never raise (:meth:`hil.bench.runtime.Bench.safe_stop`: an
     uninterruptible section); ``on_stop(reason, status)`` records why (see :func:`classify`).
-    Signals are stop requests (:data:`hil.stopflag.STOP`, installed for the block) that the block
-    turns into a :class:`~hil.stopflag.StopRequested` at its safe points. Only exceptions
+    Signals are stop requests (:data:`hil.bench.stopflag.STOP`, installed for the block) that the block
+    turns into a :class:`~hil.bench.stopflag.StopRequested` at its safe points. Only exceptions
     classified ``error`` (bugs) are re-raised after the safe stop; safety stops, interrupts,
     device and record failures end the block normally.
     """
@@ -333,7 +333,7 @@ def _dump(cfg: Any) -> dict[str, Any]:
 
 
 class Runner:
-    """Runs a scene's experiments on a :class:`hil.bench.Bench`, one record file per experiment.
+    """Runs a scene's experiments on a :class:`hil.bench.runtime.Bench`, one record file per experiment.
 
     ``realtime=None`` takes the scene's mode (lockstep for simulated benches). ``progress`` is a
     callable ``(name, k, n)`` called every ~0.1 s of run time (the CLI draws a progress bar).
@@ -344,10 +344,10 @@ class Runner:
     garbage collector alone), ``spin_ns`` (the hybrid wait's spin window, default 200 µs; 0: sleep
     only), ``read_timeout`` (s, passed to every tick's ``bench.read``; None: the bench's own,
     ``watchdog_ms`` on hardware). The default bench of a simulated scene in realtime mode serves its
-    devices from another process (:class:`hil.bench.ProcessSimBench`).
+    devices from another process (:class:`hil.bench.runtime.ProcessSimBench`).
     """
 
-    #: realtime mode: the record is written by a writer thread (:class:`hil.record.RecordWriter`
+    #: realtime mode: the record is written by a writer thread (:class:`hil.record.hdf5.RecordWriter`
     #: ``background=True``), so no HDF5 write or flush runs inside a tick; False: synchronous flushes
     #: in the tick (as in lockstep mode, which always writes synchronously)
     record_thread: bool = True
@@ -364,7 +364,7 @@ class Runner:
         mode = getattr(scene, "mode", None) or ("lockstep" if getattr(scene, "simulation", None) else "realtime")
         self.realtime = (mode == "realtime") if realtime is None else realtime
         if bench_factory is None:
-            from hil.bench import Bench, ProcessSimBench
+            from hil.bench.runtime import Bench, ProcessSimBench
 
             cls = ProcessSimBench if self.realtime and getattr(scene, "simulation", None) is not None else Bench
 
@@ -404,7 +404,7 @@ class Runner:
     def _channels(self, meas0: Mapping[str, Any]) -> dict[str, Any]:
         """Channel specs; sensor wrench sizes come from a first reading ``meas0``."""
         from hil.controllers import DEFAULT_UNITS
-        from hil.record import ChannelSpec
+        from hil.record.hdf5 import ChannelSpec
 
         lin = getattr(self.scene, "units", DEFAULT_UNITS) == "linear"
         pu, vu, fu = ("m", "m/s", "N") if lin else ("rad", "rad/s", "N.m")
@@ -479,7 +479,7 @@ class Runner:
     def _run(self, index: int, ecfg: dict[str, Any], cfg: Any = None) -> ExperimentOutcome:
         from hil.controllers import DEFAULT_UNITS, make_controller
         from hil.experiments import make_experiment
-        from hil.record import RecordWriter
+        from hil.record.hdf5 import RecordWriter
 
         name = self._name(index, ecfg)
         # the validated scene entry (hil.experiments schemas) when there is one; a mapping is validated once
@@ -541,12 +541,12 @@ class Runner:
             with contextlib.ExitStack() as rt, safe_stop_context(stop, on_stop):
                 pacer = guard = None
                 if self.realtime:
-                    from hil.realtime import LatenessGuard, Pacer, gc_paused, realtime_scheduling
+                    from hil.run.realtime import LatenessGuard, Pacer, gc_paused, realtime_scheduling
 
                     sched = rt.enter_context(realtime_scheduling(enabled=self.rt_scheduling))
                     stats.scheduling = sched.describe()
                     if writer.background and sched.policy.startswith("SCHED_FIFO"):  # below the loop's priority
-                        from hil.realtime import FIFO_PRIORITY
+                        from hil.run.realtime import FIFO_PRIORITY
 
                         why = writer.set_writer_scheduling(FIFO_PRIORITY - 1)
                         if why:
@@ -694,7 +694,7 @@ class Runner:
 
     def _tick_read_timeout(self) -> float | None:
         """The per-tick read timeout (s): ``read_timeout`` when given; otherwise, in realtime mode on
-        a bench whose devices are external (hardware, :class:`hil.bench.ProcessSimBench`),
+        a bench whose devices are external (hardware, :class:`hil.bench.runtime.ProcessSimBench`),
         :data:`REALTIME_READ_TIMEOUT_S` (0: take the newest sample that has arrived, never wait;
         a device that stops sending is the watchdog's, on the samples' age); None (the bench's own,
         ``watchdog_ms``-based) in lockstep mode, whose devices publish one sample per tick."""
@@ -724,7 +724,7 @@ class Runner:
     def run(self, select: list[int] | None = None) -> list[ExperimentOutcome]:
         """Run the scene's experiments (or the indices ``select``) in order, one bench each.
 
-        Signal handlers (:data:`hil.stopflag.STOP`) are installed for the whole run. Any stop
+        Signal handlers (:data:`hil.bench.stopflag.STOP`) are installed for the whole run. Any stop
         (limit, watchdog, device or record failure, signal, error) ends the run: no further
         experiment starts. A stop requested between experiments or while a bench closes adds an
         outcome for the next experiment (``"<reason> (before it started)"``, no record); after
