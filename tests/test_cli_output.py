@@ -205,11 +205,11 @@ def test_stability_output_at_80_columns_keeps_values_whole(capsys, monkeypatch):
 
 
 def test_progress_prints_plain_lines_when_not_a_tty(monkeypatch):
-    from hil.cli.main import _Progress
+    from hil.cli.common import StepProgress
 
     buf = io.StringIO()
     monkeypatch.setattr(sys, "stderr", buf)
-    with _Progress("hil design", interval=0.01) as p:
+    with StepProgress("hil design", interval=0.01) as p:
         p.update("alpha = 0.5")
         deadline = time.monotonic() + 30
         while "alpha = 0.5" not in buf.getvalue() and time.monotonic() < deadline:
@@ -220,11 +220,11 @@ def test_progress_prints_plain_lines_when_not_a_tty(monkeypatch):
 
 
 def test_progress_is_silent_for_short_steps(monkeypatch):
-    from hil.cli.main import _Progress
+    from hil.cli.common import StepProgress
 
     buf = io.StringIO()
     monkeypatch.setattr(sys, "stderr", buf)
-    with _Progress("hil stability", interval=600) as p:
+    with StepProgress("hil stability", interval=600) as p:
         p.update("checking")
     assert buf.getvalue() == ""
 

@@ -220,7 +220,7 @@ def _write(d: Path, files: dict[str, str | bytes]) -> None:
             import hil.scene.spec
 
             old, new = content[6:].split("=", 1)
-            text = (Path(hil.scene.spec.__file__).parent / "scenes" / "sdea_bench.yaml").read_text()
+            text = (Path(hil.scene.spec.__file__).parent / "builtin" / "sdea_bench.yaml").read_text()
             assert old in text
             p.write_text(text.replace(old, new, 1))
         elif isinstance(content, str) and content.startswith("MAT:"):
@@ -272,12 +272,12 @@ def test_unwritable_out_is_one_line(tmp_path, capsys) -> None:
 
 
 def test_unexpected_exception_is_one_line_exit_1_and_traceback_only_with_debug(capsys, monkeypatch) -> None:
-    import hil.cli.main as cli
+    import hil.cli.scenes as cli_scenes
 
     def boom(args):  # stands for a bug
         raise ZeroDivisionError("division by zero")
 
-    monkeypatch.setattr(cli, "_cmd_scenes", boom)
+    monkeypatch.setattr(cli_scenes, "run", boom)
     line = assert_one_line_error(["scenes"], capsys, ["internal error", "ZeroDivisionError", "--debug"], code=1)
     assert line.startswith("hil scenes: error:")
     code, _out, err = run_cli(["--debug", "scenes"], capsys)

@@ -29,7 +29,7 @@ from hil.record.hdf5 import RunRecord
 from hil.run.runner import Runner
 from hil.scene.spec import load_scene
 
-SCENE_YAML = Path(__file__).resolve().parents[1] / "hil" / "scenes" / "sdea_bench.yaml"
+SCENE_YAML = Path(__file__).resolve().parents[1] / "hil" / "scene" / "builtin" / "sdea_bench.yaml"
 EXPECTED = {"SIGTERM": ("safety_stop", 20), "SIGHUP": ("safety_stop", 20), "SIGINT": ("interrupted", 130)}
 
 
@@ -168,7 +168,7 @@ def test_signal_while_a_bench_closes_stops_before_the_next_experiment(short_scen
 
 
 def test_signal_while_the_last_bench_closes_is_reported_by_the_run(short_scene, tmp_path, monkeypatch):
-    from hil.cli.main import _run_exit_code
+    from hil.cli.run import run_exit_code
 
     orig = Bench.close
 
@@ -181,7 +181,7 @@ def test_signal_while_the_last_bench_closes_is_reported_by_the_run(short_scene, 
     outs = r.run([2])
     assert [o.status for o in outs] == ["completed"]
     assert (r.stop_status, r.stop_reason) == ("safety_stop", "signal: SIGHUP")
-    assert _run_exit_code(outs, r) == 20
+    assert run_exit_code(outs, r) == 20
 
 
 def test_safe_stop_attempts_every_actuator_even_if_one_raises(tmp_path):
@@ -275,7 +275,7 @@ _SLOW_STOP = r'''
 import json, sys, time
 import numpy as np
 from hil.bench.runtime import Bench
-from hil.cli.main import _run_exit_code
+from hil.cli.run import run_exit_code
 from hil.run.runner import Runner
 from hil.scene.spec import load_scene
 from hil.bench.stopflag import STOP
@@ -315,7 +315,7 @@ def progress(name, k, n):
 r = Runner(sc, out, bench_factory=factory, progress=progress, max_ticks=20000)
 outs = r.run()
 print("RESULT", json.dumps({"outcomes": [o.to_dict() for o in outs], "stop": r.stop_reason}, default=str), flush=True)
-sys.exit(_run_exit_code(outs, r))
+sys.exit(run_exit_code(outs, r))
 '''
 
 

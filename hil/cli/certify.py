@@ -1,0 +1,173 @@
+"""``hil certify``: experiments -> identification -> criteria over the posterior -> GO / MARGINAL /
+NO-GO report (default: the mocked SDEA bench)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from hil.cli.common import StepProgress, UsageError, out_dir
+from hil.errors import DECISION_EXIT, EXIT_USAGE
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", nargs="*", help="scene file, built-in name or folder of scenes (default "
+                   "sdea_bench); several: a fleet certified in parallel (see README, Fleet certification)")
+    p.add_argument("--workers", type=int, help="fleet: parallel scenes (default: all cores)")
+    p.add_argument("--scheduler", metavar="ADDR", help="fleet: run on a Dask scheduler (tcp://host:8786; "
+                   "extra 'dask')")
+    p.add_argument("--out", help="output folder (default reports/<scene>-<UTC time>-<id>); an existing "
+                   "non-empty folder is refused unless --overwrite")
+    p.add_argument("--overwrite", action="store_true", help="write into an existing --out folder, replacing "
+                   "files of the same name")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--no-experiments", action="store_true", help="skip the runs (certify from the scene's priors)")
+    p.add_argument("--sign", metavar="KEY", help="sign the certificate's digest with this Ed25519 private key "
+                                                 "(PEM, see hil keygen; needs the 'sign' extra)")
+    p.add_argument("--signer", metavar="NAME", help="who signs (recorded and signed with --sign)")
+    p.add_argument("--json", action="store_true")
+
+
+def run(args: argparse.Namespace) -> int:
+    from hil.certify.pipeline import certify_scene
+    from hil.protocols.registry import extras_message
+    from hil.scene.spec import check_seed, load_scene
+
+    if len(args.scene) > 1 or (args.scene and Path(args.scene[0]).is_dir()):
+        return run_fleet(args)
+    if args.workers is not None or args.scheduler:
+        raise UsageError("--workers and --scheduler apply to a fleet (several scenes or a folder)")
+    args.scene = args.scene[0] if args.scene else None
+    scene = load_scene(args.scene or "sdea_bench")
+    if args.seed is not None:
+        scene.seed = check_seed(args.seed)
+    if need := extras_message(None if args.no_experiments else scene, report=True):  # before any folder
+        print(f"hil certify {args.scene or 'sdea_bench'}: {need}", file=sys.stderr)
+        return EXIT_USAGE
+    key = None
+    if args.sign:  # read the key (and check the extra) before anything runs or is written
+        from hil.certify.signing import load_private_key
+
+        key = load_private_key(args.sign)
+    elif args.signer:
+        raise UsageError("--signer names who signs: give the key with --sign KEY")
+    out = out_dir(args.out, f"reports/{scene.name}", args.overwrite)
+
+    beat = StepProgress(f"hil certify {scene.name}", enabled=not sys.stderr.isatty())  # stage lines on a terminal
+
+    def say(msg: str) -> None:
+        beat.message = f"{msg.removeprefix(scene.name + ': ')} (still running)"
+        if not args.json:
+            print(msg, file=sys.stderr)
+
+    with beat:
+        cert = certify_scene(scene, out, progress=say, run_experiments=not args.no_experiments)  # sealed
+    from hil.report.render import build_reports
+
+    integrity = None
+    if key is not None:
+        from hil.certify.signing import sign_certificate
+        from hil.certify.verify import check_certificate
+
+        cert = sign_certificate(cert, key, args.signer or "")
+        integrity = check_certificate(cert, public_key=key.public(),
+                                      verified_with="the signing key's public half, when signing")
+    files = build_reports(cert, out, integrity=integrity)
+    if args.json:
+        print(json.dumps({"decision": cert.decision, "reasons": cert.reasons, "scene": scene.name,
+                          "files": {k: str(v) for k, v in files.items()},
+                          "digest": cert.integrity.digest if cert.integrity else None,
+                          "signed": bool(cert.integrity and cert.integrity.signature),
+                          "measurements": [m.model_dump() for m in cert.measurements]}, indent=2, default=str))
+    else:
+        from rich.console import Console
+        from rich.markup import escape
+        from rich.table import Table
+
+        con = Console(highlight=False, soft_wrap=True)  # prose and paths are never broken by the console
+        colour = {"GO": "green", "MARGINAL": "yellow", "NO-GO": "red", "ERROR": "magenta"}[cert.decision]
+        con.print(f"[bold]{escape(scene.name)}[/bold]: [bold {colour}]{cert.decision}[/]")
+        for r in cert.reasons:
+            con.print(f"  - {escape(r)}")
+        tab = Table()
+        tab.add_column("measurement", min_width=16)  # a name: wraps between words if it must
+        for col in ("value", "limits", "outcome"):  # values never wrap
+            tab.add_column(col, no_wrap=True)
+        for m in cert.measurements:
+            lim = " ".join(x for x in (f"≥ {m.lower:g}" if m.lower is not None else "",
+                                       f"≤ {m.upper:g}" if m.upper is not None else "") if x)
+            tab.add_row(escape(m.name), escape(f"{_short_value(m.value)} {m.unit}".strip()), lim, m.outcome)
+        con.print(tab)
+        for k, v in files.items():
+            con.print(f"{k}: {escape(str(v))}")
+        if cert.integrity is not None:
+            sig = cert.integrity.signature
+            signed = f", signed with key {sig.public_key_sha256[:16]}…" if sig is not None else ""
+            print(f"digest: {cert.integrity.digest}{signed}")
+            print(f"check with: hil verify {out}")
+    return DECISION_EXIT[cert.decision]
+
+
+def run_fleet(args: argparse.Namespace) -> int:
+    from hil.certify.fleet import certify_fleet, expand_scenes
+    from hil.certify.sweep import make_executor
+    from hil.protocols.registry import extras_message
+    from hil.scene.spec import check_seed, load_scene
+
+    if args.sign or args.signer:
+        raise UsageError("--sign signs one certificate: sign the scenes of a fleet one by one")
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers {args.workers}: give at least 1")
+    scenes = expand_scenes(args.scene)
+    seed = None if args.seed is None else check_seed(args.seed)
+    for s in scenes:  # every scene loads and has its extras before anything runs or is written
+        sc = load_scene(s)
+        if need := extras_message(None if args.no_experiments else sc, report=True):
+            print(f"hil certify {s}: {need}", file=sys.stderr)
+            return EXIT_USAGE
+    ex = make_executor("dask" if args.scheduler else "process", args.workers, args.scheduler)
+    out = out_dir(args.out, "reports/fleet", args.overwrite)
+    extra = ["--no-experiments"] if args.no_experiments else []
+
+    def said(done: int, total: int, e: Any) -> None:
+        if not args.json:
+            print(f"[{done}/{total}] {e.name}: {e.decision} ({e.seconds:.0f} s)", file=sys.stderr)
+
+    from hil.bench.stopflag import STOP
+
+    try:
+        with STOP.install():
+            res = certify_fleet(scenes, out, executor=ex, seed=seed, extra_args=extra, progress=said,
+                                should_stop=lambda: STOP.requested)
+    finally:
+        ex.close()
+    if args.json:
+        print(json.dumps(res.to_dict(), indent=2))
+    else:
+        from rich.console import Console
+        from rich.markup import escape
+        from rich.table import Table
+
+        con = Console(highlight=False, soft_wrap=True)
+        colour = {"GO": "green", "MARGINAL": "yellow", "NO-GO": "red", "ERROR": "magenta"}
+        tab = Table(title=f"fleet: {len(res.entries)} scene(s)")
+        for col in ("scene", "decision", "bench", "time [s]"):
+            tab.add_column(col, no_wrap=True)
+        tab.add_column("first reason", min_width=20)
+        for e in res.entries:
+            tab.add_row(escape(e.name), f"[{colour[e.decision]}]{e.decision}[/]",
+                        "simulated" if e.simulated else "real", f"{e.seconds:.1f}",
+                        escape(e.reasons[0] if e.reasons else ""))
+        con.print(tab)
+        con.print(f"[bold]fleet decision: [{colour[res.decision]}]{res.decision}[/][/bold] (the worst scene)")
+        con.print(f"index: {escape(str(out / 'index.html'))}")
+    STOP.check()  # a signal stopped the fleet: exit 130 / 20 after the summary and the index
+    return res.exit_code
+
+def _short_value(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)

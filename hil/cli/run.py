@@ -1,0 +1,139 @@
+"""``hil run``: run a scene's experiments (chirp, energy injection, static hold) and record them."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from hil.cli.common import StepProgress, UsageError, out_dir
+from hil.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_SAFETY_STOP, EXIT_USAGE
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", help="scene YAML file or built-in scene name (see hil scenes)")
+    p.add_argument("--out", help="output folder for the records (default runs/<scene>-<UTC time>-<id>); "
+                   "an existing non-empty folder is refused unless --overwrite")
+    p.add_argument("--overwrite", action="store_true", help="write into an existing --out folder, replacing "
+                   "records of the same name")
+    p.add_argument("--seed", type=int, help="override the scene's seed")
+    p.add_argument("--experiment", action="append", help="run only this experiment (index or type; repeatable)")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--realtime", action="store_true", help="fixed-rate loop on the wall clock")
+    mode.add_argument("--lockstep", action="store_true",
+                      help="as fast as possible; the plant advances one period per tick")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def run(args: argparse.Namespace) -> int:
+    from hil.protocols.registry import extras_message
+    from hil.run.runner import Runner
+    from hil.scene.spec import check_seed, load_scene
+
+    scene = load_scene(args.scene)
+    if args.seed is not None:
+        scene.seed = check_seed(args.seed)
+    if need := extras_message(scene):  # a base install: say which extra, before anything is on disk
+        print(f"hil run {args.scene}: {need}", file=sys.stderr)
+        return EXIT_USAGE
+    select = None
+    if args.experiment:
+        select = []
+        for item in args.experiment:
+            try:
+                select.append(int(item))
+            except ValueError:
+                idx = [i for i, e in enumerate(scene.experiments) if getattr(e, "type", None) == item]
+                if not idx:
+                    names = [str(getattr(e, "type", "?")) for e in scene.experiments]
+                    raise UsageError(f"--experiment {item}: no such experiment in scene {scene.name} "
+                                     f"(indices 0-{len(names) - 1}, types: {', '.join(dict.fromkeys(names))})"
+                                     ) from None
+                select += idx
+        bad = [i for i in select if not 0 <= i < len(scene.experiments)]
+        if bad:
+            raise UsageError(f"--experiment {bad[0]}: scene {scene.name} has experiments 0-"
+                             f"{len(scene.experiments) - 1}")
+    out = out_dir(args.out, f"runs/{scene.name}", args.overwrite)
+    realtime = True if args.realtime else (False if args.lockstep else None)
+    progress_cb = None
+    prog = None
+    if not args.json and sys.stderr.isatty():
+        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+        prog = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                        TimeRemainingColumn(), transient=True)
+        tasks: dict[str, Any] = {}
+
+        def progress_cb(name: str, k: int, n: int) -> None:
+            if name not in tasks:
+                tasks[name] = prog.add_task(name, total=n)
+            prog.update(tasks[name], completed=k)
+
+    beat: Any = None
+    if prog is None:  # not a terminal: a plain line every few seconds (StepProgress)
+        beat = StepProgress(f"hil run {scene.name}")
+
+        def progress_cb(name: str, k: int, n: int) -> None:
+            beat.message = f"{name}: {k}/{n} ticks ({100.0 * k / max(n, 1):.0f} %)"
+
+    from hil.bench.stopflag import STOP
+
+    runner = Runner(scene, out, realtime=realtime, progress=progress_cb, overwrite=args.overwrite)
+    with STOP.install():  # signals stay stop requests until the results are printed
+        with prog if prog is not None else beat:
+            outcomes = runner.run(select)
+        code = run_exit_code(outcomes, runner)
+        _print_run(args, scene, out, outcomes, runner)
+    return code
+
+
+def run_exit_code(outcomes: Sequence[Any], runner: Any) -> int:
+    """130 if a run was interrupted (SIGINT), 20 for any other stop (limit, watchdog, device or record
+    failure, SIGTERM/SIGHUP, error), 0 when every experiment completed."""
+    statuses = [o.status for o in outcomes] + [getattr(runner, "stop_status", None)]
+    if "interrupted" in statuses:
+        return EXIT_INTERRUPTED
+    if any(s in ("safety_stop", "error") for s in statuses):
+        return EXIT_SAFETY_STOP
+    return EXIT_OK
+
+def _print_run(args: argparse.Namespace, scene: Any, out: Any, outcomes: Sequence[Any], runner: Any) -> None:
+    stop = None
+    if getattr(runner, "stop_status", None):
+        stop = {"status": runner.stop_status, "reason": runner.stop_reason}
+    if args.json:
+        print(json.dumps({"scene": scene.name, "out": str(out), "stop": stop,
+                          "experiments": [o.to_dict() for o in outcomes]}, indent=2, default=str), flush=True)
+    else:
+        from rich.console import Console
+        from rich.table import Table
+
+        con = Console(highlight=False, soft_wrap=True)
+        tab = Table(title=f"hil run {scene.name}")
+        tab.add_column("experiment", no_wrap=True)
+        tab.add_column("status", no_wrap=True)
+        tab.add_column("stop reason", min_width=12)
+        tab.add_column("key results", min_width=24)
+        for o in outcomes:
+            scalars = [(k, v) for k, v in o.results.items() if not isinstance(v, dict | list)][:4]
+            keys = ", ".join(f"{k}={_short(v)}" for k, v in scalars)  # wraps after a comma, never inside a value
+            tab.add_row(o.name, o.status, o.stop_reason if o.status != "completed" else "", keys)
+        con.print(tab)
+        if stop is not None:
+            con.print(f"run stopped: {stop['reason']}")
+        con.print(f"records in {out}:")  # paths outside the table: never split across lines
+        for o in outcomes:
+            con.print(f"  {o.record}")
+
+def _short(v: Any) -> str:
+    if isinstance(v, bool):
+        return str(v)
+    if isinstance(v, float | int) or hasattr(v, "dtype"):
+        try:
+            return f"{float(v):.4g}"
+        except (TypeError, ValueError):
+            pass
+    return str(v)[:24]
