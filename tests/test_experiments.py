@@ -15,12 +15,12 @@ from hil.experiments import (
     Excitation,
     Multisine,
     StaticHold,
-    crest_factor,
     force_profile,
     make_experiment,
     port_energy,
     schroeder_phases,
 )
+from hil.experiments.signals import crest_factor
 from hil.mocks.physics import Scene as PhysScene
 from hil.mocks.simulator import Simulator
 from hil.mocks.terminations import Human

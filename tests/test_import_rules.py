@@ -26,7 +26,8 @@ ROOT = Path(__file__).resolve().parents[1]
 #: import name -> folder (pyproject.toml [tool.setuptools] package-dir; tests/test_types.py checks it)
 FOLDERS = {"hil.identify": "identify", "hil.protocols": "protocols", "hil.mocks": "mocks", "hil": "hil"}
 #: the nodes of the package graph besides the top-level modules of hil/
-SUBPACKAGES = ("hil.scene", "hil.bench", "hil.run", "hil.record", "hil.certify", "hil.report", "hil.cli",
+SUBPACKAGES = ("hil.scene", "hil.experiments", "hil.controllers", "hil.bench", "hil.run", "hil.record", "hil.certify",
+               "hil.report", "hil.cli",
                "hil.stability", "hil.models", "hil.identify", "hil.protocols", "hil.mocks")
 
 #: the protocol codec modules (frame layouts, CRCs, link budgets: no transport, no adapter) that the

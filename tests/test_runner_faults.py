@@ -251,10 +251,10 @@ def test_cli_vanished_port_exits_20_with_the_reason_in_json(tmp_path, kind, want
 
 def _runner_bytes_at_end(tmp_path, n):
     """Bytes allocated by the runner and the experiments, still held near the end of an ``n``-tick
-    lockstep run (tracemalloc, attributed to hil/run/runner.py and hil/experiments.py)."""
+    lockstep run (tracemalloc, attributed to hil/run/runner.py and hil/experiments/)."""
     scene = _scene()
     held = {}
-    files = [tracemalloc.Filter(True, "*hil/run/runner.py"), tracemalloc.Filter(True, "*hil/experiments.py")]
+    files = [tracemalloc.Filter(True, "*hil/run/runner.py"), tracemalloc.Filter(True, "*hil/experiments/*")]
 
     def progress(name, k, total):
         if k + 200 >= total and "b" not in held:

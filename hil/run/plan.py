@@ -62,7 +62,7 @@ MAX_DURATION = 600.0
 
 
 class _PeriodicExperiment(Protocol):
-    """What planning reads of a chirp/multisine (:class:`hil.experiments._PeriodicEffort` subclasses set
+    """What planning reads of a chirp/multisine (:class:`hil.experiments.periodic._PeriodicEffort` subclasses set
     these when built): one period of ``n_period`` samples per selected DOF in ``wave`` (n_sel, n_period),
     laid out in ``n_blocks`` blocks of ``n_block`` samples."""
 
@@ -190,7 +190,7 @@ def _dofs_motion(mdl: Any, theta: np.ndarray, u: np.ndarray, fs: float) -> tuple
 
 def _command(exp: Any) -> np.ndarray:
     """The effort the runner plays, (n_ticks, n_sel): the per-DOF periodic table laid out in blocks
-    (vectorized :meth:`hil.experiments._PeriodicEffort._sample`)."""
+    (vectorized :meth:`hil.experiments.periodic._PeriodicEffort._sample`)."""
     n = round(exp.duration * exp.rate_hz)
     wave = np.asarray(exp.wave, float)
     one = np.tile(wave, (1, exp.n_block // exp.n_period))  # (n_sel, n_block)
@@ -318,7 +318,7 @@ def predict_experiment(scene: Any, exp_cfg: Any, *, requested: Mapping[str, floa
 
 
 def _propose(scene: Any, exp_cfg: Any, requested: Mapping[str, float]) -> ExperimentPrediction:
-    from hil.experiments import BAND_LIMIT_FRACTION
+    from hil.experiments.base import BAND_LIMIT_FRACTION
     from hil.identify.excitation import reference_band
 
     cfg = exp_cfg.model_dump() if hasattr(exp_cfg, "model_dump") else dict(exp_cfg)
