@@ -1,7 +1,7 @@
 """Shared check for malformed-input tests: a bad input through ``hil.cli.main.main`` must end with one
 line on stderr naming the offending file or flag, the documented exit code, and no traceback.
 
-Used by tests/test_malformed_inputs.py (files, records, flags) and tests/test_malformed_scenes.py
+Used by tests/cli/test_malformed_inputs.py (files, records, flags) and tests/scene/test_malformed_scenes.py
 (scenes)::
 
     from malformed_helpers import assert_one_line_error

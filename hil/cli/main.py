@@ -18,7 +18,7 @@ one line pointing at ``--debug`` and exit 1. ``--debug`` adds the traceback (and
 Output folders never overwrite: see :mod:`hil.record.outdir` (``--overwrite``).
 
 Exit codes: one table, :class:`hil.errors.ExitCode` with :data:`hil.errors.EXIT_MEANINGS` (README.md
-shows it; tests/test_exit_codes.py compares the two).
+shows it; tests/cli/test_exit_codes.py compares the two).
 """
 
 from __future__ import annotations

@@ -193,7 +193,7 @@ def test_mbk_cross_coupled_from_simultaneous_nonperiodic_chirps() -> None:
 
 
 def test_a_misfit_identification_makes_the_certificate_error(tmp_path, monkeypatch) -> None:
-    # the mocked SDEA bench (whose model fits, GO in tests/test_certify_pipeline.py) with the
+    # the mocked SDEA bench (whose model fits, GO in tests/certify/test_certify_pipeline.py) with the
     # identification's adequacy forced to fail: the certificate must not be GO, and must say why
     import yaml
 

@@ -18,7 +18,7 @@ from hil.record.hdf5 import RunRecord
 from hil.run.runner import Runner
 from hil.scene.spec import load_scene, scene_from_dict
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _sdea_with_corrupt_frames(prob: float) -> object:

@@ -329,7 +329,7 @@ def test_every_definition_link_points_at_a_heading_of_certification_md() -> None
 
     from hil.report.sections import DEFINITIONS, DEFINITIONS_DOC
 
-    doc = (Path(__file__).resolve().parents[1] / DEFINITIONS_DOC).read_text(encoding="utf-8")
+    doc = (Path(__file__).resolve().parents[2] / DEFINITIONS_DOC).read_text(encoding="utf-8")
     anchors = {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-")
                for h in re.findall(r"^#{2,3} (.+)$", doc, flags=re.M)}
     bad = {k: v for k, v in DEFINITIONS.items() if v not in anchors}

@@ -36,7 +36,7 @@ from hil.report.render import (
 )
 from hil.report.sections import DEFINITIONS_DOC
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SCHEMA = ROOT / "docs" / "certificate.schema.json"
 SECTIONS = {  # section key -> heading, in the HTML (id sec-<key>) and in the PDF
     "nominal": "Nominal verdict",

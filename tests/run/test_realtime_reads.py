@@ -2,7 +2,7 @@
 
 What is asserted is what a read returns and what the loop records or keeps alive, never how fast:
 the adapters are driven against simulated devices that answer only when the test tells them to
-(``process_pending``), and the loop runs on the fake clock of ``tests/test_realtime.py``.
+(``process_pending``), and the loop runs on the fake clock of ``tests/run/test_realtime.py``.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ from pathlib import Path
 from hil.bench.serve import MOCK_KINDS
 from hil.cli.main import build_parser, main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: modules outside hil/cli/ that still build a parser of their own: may only shrink (empty: keep it so)
 KNOWN_OWN_PARSERS: set[str] = set()
 

@@ -11,7 +11,7 @@ from hil.cli import main as cli
 from hil.errors import DECISION_EXIT, EXIT_MEANINGS, VERDICT_EXIT, ExitCode
 from hil.run import realtime
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _table(text: str, header: str) -> list[list[str]]:

@@ -19,7 +19,7 @@ from pydantic import BaseModel
 from hil.certify.certificate import Certificate, Series, content_digest
 from hil.report.render import load_certificate
 
-DATA = Path(__file__).parent / "data" / "certificates_v1_1"
+DATA = Path(__file__).resolve().parents[1] / "data" / "certificates_v1_1"
 
 
 def _fixtures() -> list[Path]:

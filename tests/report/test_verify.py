@@ -32,7 +32,7 @@ pytest.importorskip("matplotlib")
 pytest.importorskip("jinja2")
 from test_report import COLOURS, _colour_pixels, _png_stats, _tool
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 MARK = "MODIFIED: NOT A VALID CERTIFICATE"
 RECORD = "records/00_energy_injection.h5"
 

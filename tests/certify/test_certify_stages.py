@@ -6,7 +6,7 @@ it, tests/data/certify_reference/).
 The reference files hold every field of a certificate but its wall-clock fields (``created_utc``,
 the run-time row, ``integrity``), the software versions and the plots' data (only each plot's
 title, line and band names and lengths): they were written by the single-function pipeline of
-commit 326bb3a (``python tests/test_certify_stages.py --write DIR`` with that commit's ``hil`` on
+commit 326bb3a (``python tests/certify/test_certify_stages.py --write DIR`` with that commit's ``hil`` on
 the path). Rewrite them only for an intended change of the certificate's content.
 """
 
@@ -37,7 +37,7 @@ from hil.certify.stages import (
 from hil.certify.statistics import Policy
 from hil.scene.spec import load_scene, scene_from_dict
 
-REFERENCE = Path(__file__).parent / "data" / "certify_reference"
+REFERENCE = Path(__file__).resolve().parents[1] / "data" / "certify_reference"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -229,7 +229,7 @@ def test_stage_outputs_are_frozen():
 
 if __name__ == "__main__":  # write the reference certificates (see the module docstring)
     if len(sys.argv) != 3 or sys.argv[1] != "--write":
-        sys.exit("usage: python tests/test_certify_stages.py --write DIR")
+        sys.exit("usage: python tests/certify/test_certify_stages.py --write DIR")
     import tempfile
 
     target = Path(sys.argv[2])

@@ -49,7 +49,7 @@ def test_builtin_scene_report_renders(name, reports, tmp_path):
     except ImportError:
         jsonschema = None
     if jsonschema is not None:
-        schema = json.loads((Path(__file__).parents[1] / "docs" / "certificate.schema.json").read_text())
+        schema = json.loads((Path(__file__).parents[2] / "docs" / "certificate.schema.json").read_text())
         jsonschema.validate(json.loads(text), schema)
     # HTML in headless Chromium
     png, stderr = _chromium_shot(Path(files["html"]), tmp_path)

@@ -29,7 +29,7 @@ from hil.record.hdf5 import RunRecord
 from hil.run.runner import Runner
 from hil.scene.spec import load_scene
 
-SCENE_YAML = Path(__file__).resolve().parents[1] / "hil" / "scene" / "builtin" / "sdea_bench.yaml"
+SCENE_YAML = Path(__file__).resolve().parents[2] / "hil" / "scene" / "builtin" / "sdea_bench.yaml"
 EXPECTED = {"SIGTERM": ("safety_stop", 20), "SIGHUP": ("safety_stop", 20), "SIGINT": ("interrupted", 130)}
 
 

@@ -30,7 +30,7 @@ from hil.errors import SceneError
 from hil.experiments import EXPERIMENT_TYPES, ExperimentConfig, make_experiment
 from hil.scene.spec import Scene, load_scene
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 # ---------------------------------------------------------------------------------------------
 # scenes: a built-in scene with its controller or experiments replaced

@@ -26,7 +26,7 @@ from hil.record.hdf5 import RunRecord
 from hil.run.runner import LoopStats, Runner, SafetyMonitor
 from hil.scene.spec import load_scene
 
-SCENE_YAML = Path(__file__).resolve().parents[1] / "hil" / "scene" / "builtin" / "sdea_bench.yaml"
+SCENE_YAML = Path(__file__).resolve().parents[2] / "hil" / "scene" / "builtin" / "sdea_bench.yaml"
 
 
 def _scene():
