@@ -195,7 +195,7 @@ class SweepProgress(StepProgress):
         super().__exit__(*exc)
 
 
-def debug_parent() -> argparse.ArgumentParser:
+def debug_parent() -> OneLineArgumentParser:
     """The parent parser every (sub)command takes: ``--debug`` after the command name too."""
     common = OneLineArgumentParser(add_help=False)
     common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
