@@ -99,7 +99,7 @@ def test_mypy_config_is_the_documented_one() -> None:
 
 def test_tree_maps_paths_back() -> None:
     assert _repo_path("hil/identify/api.py") == "identify/api.py"
-    assert _repo_path("hil/mocks/serve.py") == "hil/bench/serve.py"
+    assert _repo_path("hil/mocks/physics.py") == "mocks/physics.py"
     assert _repo_path("hil/stability/exact.py") == "hil/stability/exact.py"
     tree = build_tree()
     assert (tree / "hil" / "protocols" / "base.py").resolve() == (ROOT / "protocols" / "base.py").resolve()

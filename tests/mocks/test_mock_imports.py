@@ -12,7 +12,7 @@ import pytest
 MOCKS = Path(__file__).resolve().parents[2] / "mocks"
 #: ``hil mock serve``'s command line (scene loading, the bench's SimulatedScene, the CLI parser)
 COMMAND_LINE = {"serve.py"}
-ALLOWED = ("hil.errors", "hil.mocks", "hil.protocols.codecs", "hil.protocols.link_budget")
+ALLOWED = ("hil.errors", "hil.lti", "hil.mocks", "hil.protocols.codecs", "hil.protocols.link_budget")
 
 
 def _hil_imports(path: Path) -> list[tuple[int, str]]:
