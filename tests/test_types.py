@@ -103,7 +103,7 @@ def test_tree_maps_paths_back() -> None:
     assert _repo_path("hil/stability/exact.py") == "hil/stability/exact.py"
     tree = build_tree()
     assert (tree / "hil" / "protocols" / "base.py").resolve() == (ROOT / "protocols" / "base.py").resolve()
-    assert (tree / "hil" / "cli.py").resolve() == (ROOT / "hil" / "cli.py").resolve()
+    assert (tree / "hil" / "cli" / "main.py").resolve() == (ROOT / "hil" / "cli" / "main.py").resolve()
 
 
 @pytest.mark.slow  # mypy over ~90 modules: about a minute without its cache
