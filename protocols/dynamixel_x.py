@@ -80,7 +80,10 @@ Status packets of a given-up request are ``late`` (dropped). With the Bus Watchd
 read (no sample yet) reads once with ``timeout``; a blocking read (timeout > 0) after non-blocking
 ones first lets the outstanding sync read finish (at most its time on the line) and then works as
 the request/answer exchange above. :meth:`close` with a request outstanding does the same before
-the zero current and torque off.
+the zero current and torque off. Non-blocking reads need the adapter to own its port: two
+adapters open on one port (one bus; the lockstep scene ``dynamixel_leader_follower`` does this)
+would take each other's status packets and transmit over each other's replies, so their reads
+stay blocking (with a warning); one adapter with all the ids of the bus reads without waiting.
 
 Bus Watchdog(98) (e-manual: 1 byte, RAM; 0 = off and clears the error, 1..127 = armed in units of
 20 ms, -1 = Bus Watchdog Error): with ``bus_watchdog_s`` the adapter arms it on open (rounded up
@@ -96,10 +99,11 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
 import select
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -195,6 +199,9 @@ class DynamixelX(Actuator):
     """
 
     units = "rotary"
+    #: open adapters per serial port (os.path.realpath): non-blocking reads need the port to themselves
+    _port_users: ClassVar[dict[str, int]] = {}
+    _port_key = ""
 
     def __init__(
         self,
@@ -284,6 +291,9 @@ class DynamixelX(Actuator):
         self._gsr_wd = GroupSyncRead(self._port, self._ph, ADDR_BUS_WATCHDOG, 1)
         for i in self.ids:
             self._gsr_wd.addParam(i)
+        self._port_key = os.path.realpath(port)
+        DynamixelX._port_users[self._port_key] = DynamixelX._port_users.get(self._port_key, 0) + 1
+        self._warned_shared = False
         logger.info("DYNAMIXEL %s ids %s on %s opened", self.model.name, self.ids, port)
 
     # -- Actuator ---------------------------------------------------------------------------------
@@ -322,7 +332,14 @@ class DynamixelX(Actuator):
         from dynamixel_sdk import COMM_SUCCESS
 
         if timeout == 0.0:
-            return self._read_ahead()
+            if DynamixelX._port_users.get(self._port_key, 1) <= 1:
+                return self._read_ahead()
+            if not self._warned_shared:  # another adapter on this port would take our status packets
+                self._warned_shared = True
+                logger.warning("%s: the port is open in another adapter too: reads wait for their status "
+                               "packets (timeout %.3f s); give one adapter all the ids of a bus for "
+                               "non-blocking reads", self.label, self.timeout)
+            timeout = self.timeout
         if self._ahead is not None or self._due:  # after non-blocking reads: back to request/answer
             self._settle(timeout)
         self._port.call_timeout_ms = 1000.0 * timeout
@@ -540,6 +557,12 @@ class DynamixelX(Actuator):
         return self._enabled
 
     def _release(self) -> None:
+        if self._port_key:
+            n = DynamixelX._port_users.get(self._port_key, 1) - 1
+            if n > 0:
+                DynamixelX._port_users[self._port_key] = n
+            else:
+                DynamixelX._port_users.pop(self._port_key, None)
         self._port.closePort()
 
     # -- internals --------------------------------------------------------------------------------

@@ -552,3 +552,22 @@ def test_cia402_half_a_pair_is_not_a_sample(drive):
     _wait(lambda: dev._t1 is not None)
     s = dev.read(timeout=0.0)
     assert _pairs(dev) == p and dev.counters()["stale"] >= 1 and s.position[0] == 0.0
+
+
+def test_dynamixel_two_adapters_on_one_port_keep_blocking_reads(caplog):
+    """Two adapters on one bus (the lockstep leader/follower scene opens it so) would take each
+    other's status packets: their non-blocking reads stay request/answer (fresh every time)."""
+    joints = FreeJoints(2)
+    with DynamixelChain(joints, [1, 2], baudrate=BAUD, return_delay=0) as chain, \
+            DynamixelX(chain.port, [1], baudrate=BAUD, timeout=0.5) as a, \
+            DynamixelX(chain.port, [2], baudrate=BAUD, timeout=0.5) as b:
+        joints._x[:] = [0.5, -0.25]
+        for k in range(3):
+            sa, sb = a.read(timeout=0.0), b.read(timeout=0.0)
+            assert (sa.seq, sb.seq) == (k + 1, k + 1)
+        np.testing.assert_allclose([sa.position[0], sb.position[0]], [0.5, -0.25], atol=RAD_PER_TICK)
+        assert "stale" not in a.counters() and "another adapter" in caplog.text
+    with DynamixelChain(joints, [1, 2], baudrate=BAUD, return_delay=0) as chain, \
+            DynamixelX(chain.port, [1, 2], baudrate=BAUD, timeout=0.5) as one:
+        one.read(timeout=0.0)
+        assert one._due  # alone on its port again (the closed adapters were counted out): reads ahead
