@@ -5,9 +5,10 @@ collect the answer to the request sent ahead, send the next one).
 Per device, ``--ticks`` ticks of a ``--rate`` Hz loop: the loop sleeps to its next tick (the
 simulated device, in a process of its own as the realtime runner serves them, answers meanwhile,
 as a real device answers while the host waits), then the timed part: ``read`` (and, for
-actuators, ``command_effort``: the DYNAMIXEL adapter sends its sync read after the sync write). Printed: median and p99 wall time of
-the timed part (us), its median CPU time of this thread (us), the fraction of fresh samples, and
-the ratio blocking / non-blocking measured in the same run. CAN runs on python-can's
+actuators, ``command_effort``: the DYNAMIXEL adapter sends its sync read after the sync write).
+Printed: median and p99 wall time of the timed part (us), its median CPU time of this thread
+(us), the fraction of fresh samples, and the ratio blocking / non-blocking measured in the same
+run. CAN runs on python-can's
 ``udp_multicast`` interface (a process-local virtual bus cannot cross processes).
 
     python benchmarks/bench_realtime_polled_reads.py [--rate 1000] [--ticks 2000]

@@ -309,6 +309,12 @@ class CiA402Drive(Actuator):
         self._send(lambda: setattr(node.nmt, "state", "OPERATIONAL"), "NMT start")
         self._last_hb = self.clock()
         self.enable_operation()
+        # A heartbeat the drive sent before it processed the NMT start (still PRE-OPERATIONAL) may
+        # have arrived after that command went out; the drive's SDO answers since then prove it
+        # processed the start (one producer: its frames arrive in order), so only heartbeats from
+        # now on tell its NMT state.
+        with self._cond:
+            self._hb_state = None
 
     def _map_pdos(self) -> None:
         node = self.node

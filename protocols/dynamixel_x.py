@@ -76,8 +76,9 @@ itself. A status packet failing its CRC is dropped and counted (``crc_errors``),
 ``baudrate``); a set incomplete after ``timeout`` (host clock) is given up (``timeouts``) and asked
 again: the samples' age grows meanwhile, and the runner's watchdog (``watchdog_ms``) stops the run.
 Status packets of a given-up request are ``late`` (dropped). With the Bus Watchdog armed every
-``watchdog_check_every``-th request reads 98 instead (that read is stale). The first non-blocking
-read (no sample yet) reads once with ``timeout``; a blocking read (timeout > 0) after non-blocking
+``watchdog_check_every``-th request reads 98 instead (that read is stale). A non-blocking read with
+nothing requested ahead (the first one, or the first after blocking reads) reads once with
+``timeout``; a blocking read (timeout > 0) after non-blocking
 ones first lets the outstanding sync read finish (at most its time on the line) and then works as
 the request/answer exchange above. :meth:`close` with a request outstanding does the same before
 the zero current and torque off. Non-blocking reads need the adapter to own its port: two
@@ -375,9 +376,9 @@ class DynamixelX(Actuator):
     def _read_ahead(self) -> JointSample:
         """The non-blocking read: collect the status packets of the sync read sent ahead (fresh
         sample when every servo answered), else the previous sample again (stale); see the module
-        docstring. The first one with nothing outstanding and no sample yet reads once with the
-        adapter's ``timeout``."""
-        if self._ahead is None and not self._due and self._last is None:
+        docstring. One with nothing outstanding or due (the first, or the first after blocking
+        reads) reads once with the adapter's ``timeout``."""
+        if self._ahead is None and not self._due:
             sample = self._read_sample(self.timeout)
             self._due = True  # sent after the next sync write (half duplex: never over a reply)
             return sample
