@@ -192,9 +192,10 @@ class RobotiqFT300(ForceSensor):
     device server) the next request is sent by the first read at least t3.5 after the read that saw
     the reply's last byte (a reply seen just now may have ended just now). At 19200 bps a
     request/reply takes about 13 ms: a fast loop gets a fresh sample every ~15 ms and stale ones in
-    between, with their age recorded. The first non-blocking read (no sample yet) polls once with
-    ``timeout``; a blocking call after non-blocking reads first waits (at most its timeout) for the
-    outstanding reply, drops it and keeps t3.5, then uses pymodbus as before.
+    between, with their age recorded. The first non-blocking read (or the first after blocking
+    ones: nothing was requested ahead) polls once with ``timeout``; a blocking call after
+    non-blocking reads first waits (at most its timeout) for the outstanding reply, drops it and
+    keeps t3.5, then uses pymodbus as before.
     """
 
     axes = 6
@@ -235,6 +236,7 @@ class RobotiqFT300(ForceSensor):
         self._tid = 0x8000  # Modbus/TCP transaction ids of the requests sent ahead
         self._quiet_since = -float("inf")  # host monotonic: no reply byte has arrived since then
         self._nb_reads = 0
+        self._reading_ahead = False  # non-blocking reads since the last blocking one
         self._late = 0
         self._last: WrenchSample | None = None
         self._stale_reads = 0
@@ -294,6 +296,7 @@ class RobotiqFT300(ForceSensor):
         ProtocolError / DeviceFault."""
         if timeout == 0.0:
             return self._read_ahead()
+        self._reading_ahead = False
         if self._ahead:
             self._settle(timeout)
         raw = self._read_wrench(timeout)
@@ -315,10 +318,12 @@ class RobotiqFT300(ForceSensor):
     def _read_ahead(self) -> WrenchSample:
         """Collect the reply to the request sent ahead (fresh sample when it is complete and valid,
         else the previous one again: stale), then send the next request when the line allows it
-        (see the class doc). The first one, with no sample yet, reads once with ``timeout``."""
+        (see the class doc). The first one, or the first after blocking reads, polls once with
+        ``timeout`` (the sample it returns is not older than the read)."""
         self._nb_reads += 1
-        if self._last is None and not self._ahead:
+        if not self._reading_ahead:  # the first one, or the first after blocking reads: poll once
             sample = self._read_sample(self.timeout)
+            self._reading_ahead = True
             self._request_if_quiet()
             return sample
         fresh = self._collect()
