@@ -196,7 +196,7 @@ def test_dynamixel_sync_read_follows_the_sync_write_and_is_collected_by_the_next
     n1 = chain.packets
     dev.read(timeout=0.0)
     dev.read(timeout=0.0)
-    _wait(lambda: chain.packets == n1 + 1)
+    _wait(lambda: chain.packets == n1 + 1 and len(relay.held) >= REPLY)
     assert list(chain.rx_frames)[-1][7] == 0x82
     relay.release()
     _wait(lambda: dev._port.ser.in_waiting >= REPLY)
@@ -383,6 +383,14 @@ def ft300(request):
     sim.close()
 
 
+def _received(dev) -> int:
+    """Bytes waiting in the adapter's socket (peeked, not taken)."""
+    try:
+        return len(dev._client.socket.recv(4096, socket.MSG_PEEK | socket.MSG_DONTWAIT))
+    except BlockingIOError:
+        return 0
+
+
 def _reply_len(framing: str) -> int:
     return 5 + 12 if framing == "rtu" else 7 + 2 + 12
 
@@ -405,9 +413,10 @@ def test_ft300_reply_split_over_reads_is_stale_until_complete(ft300):
     _wait(lambda: len(relay.held) == _reply_len(framing))
     wrench[0] = 9.0  # the device sampled before this
     relay.release(5)
+    _wait(lambda: _received(dev) >= 5)
     assert dev.read(timeout=0.0).seq == base
-    relay.release()
-    _wait(lambda: select.select([dev._client.socket], [], [], 0)[0] != [])
+    n = relay.release()
+    _wait(lambda: _received(dev) >= n)
     s = dev.read(timeout=0.0)
     assert s.seq == base + 1 and sample_age(s) == 0.0
     np.testing.assert_allclose(s.wrench, [1.0, -2.0, 3.5, 0.1, -0.2, 0.3])
@@ -424,8 +433,8 @@ def test_ft300_corrupt_reply_is_dropped_and_counted(ft300):
     sim.injector = FaultInjector(FaultPlan(corrupt_ticks={sim._tick + 1}))
     _send_request(dev, sim, framing)
     _wait(lambda: len(relay.held) >= 5)
-    relay.release()
-    _wait(lambda: select.select([dev._client.socket], [], [], 0)[0] != [])
+    n = relay.release()
+    _wait(lambda: _received(dev) >= n)
     s = dev.read(timeout=0.0)
     c = dev.counters()
     assert s.seq == base and c["stale"] >= 1
@@ -434,8 +443,8 @@ def test_ft300_corrupt_reply_is_dropped_and_counted(ft300):
     assert c["crc_errors" if framing == "rtu" else "gateway_errors"] == 1
     _send_request(dev, sim, framing)  # asked again: the next reply is fresh
     _wait(lambda: len(relay.held) == _reply_len(framing))
-    relay.release()
-    _wait(lambda: select.select([dev._client.socket], [], [], 0)[0] != [])
+    n = relay.release()
+    _wait(lambda: _received(dev) >= n)
     assert dev.read(timeout=0.0).seq == base + 1
 
 
@@ -452,8 +461,8 @@ def test_ft300_reply_that_never_comes_times_out_and_is_asked_again(ft300):
     assert dev._ahead == (framing == "tcp")  # asked again at once; on RTU after t3.5 of silence
     _send_request(dev, sim, framing)
     _wait(lambda: len(relay.held) == _reply_len(framing))
-    relay.release()
-    _wait(lambda: select.select([dev._client.socket], [], [], 0)[0] != [])
+    n = relay.release()
+    _wait(lambda: _received(dev) >= n)
     assert dev.read(timeout=0.0).seq == base + 1
 
 
@@ -462,8 +471,8 @@ def test_ft300_exception_reply_is_a_fault(ft300):
     sim.injector = FaultInjector(FaultPlan(error_code=4, error_at_tick=sim._tick + 1, error_until_tick=sim._tick + 2))
     _send_request(dev, sim, framing)
     _wait(lambda: len(relay.held) >= 5)
-    relay.release()
-    _wait(lambda: select.select([dev._client.socket], [], [], 0)[0] != [])
+    n = relay.release()
+    _wait(lambda: _received(dev) >= n)
     with pytest.raises(DeviceFault) as err:
         dev.read(timeout=0.0)
     assert err.value.code == 4
