@@ -184,6 +184,8 @@ class CubeMarsTwin(CanTwin):
 class CiA402Twin(CanTwin):
     """A canopen LocalNode on a private CAN channel."""
 
+    udp_multicast = True  # served to a realtime run's adapters from another process, as the ODrive
+
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         from hil.mocks.cia402_drive import SimCiA402
 

@@ -29,6 +29,20 @@ Per tick: :meth:`CiA402Drive.read` sends one SYNC and waits for TPDO1 and TPDO2 
 samples them at the SYNC); :meth:`CiA402Drive.command_effort` sends RPDO1 (controlword 0x0F,
 target torque).
 
+Non-blocking reads (``read(timeout=0)``, the realtime loop): PDOs with SYNC are already
+asynchronous on the host side (canopen's notifier thread receives the TPDOs), but the blocking read
+waits for the TPDOs answering its own SYNC: a bus round trip plus the drive's processing inside the
+tick. A non-blocking read instead takes the newest complete TPDO1 + TPDO2 pair received since the
+previous read (the answer to the SYNC that read sent; a TPDO2 completes the TPDO1 received before
+it, so a sample never mixes two SYNCs), then sends the next SYNC (one SYNC per read: the cyclic
+synchronous modes need it every cycle). ``produced_at`` is the pair's arrival (adapter clock, in
+the notifier thread), one SYNC period older than a blocking read's. No new pair (partial, lost,
+never sent): the previous sample again (stale: same ``seq`` and ``produced_at``,
+``counters()["stale"]``), whose growing age the runner's watchdog judges; EMCY, heartbeat and
+statusword checks are those of the blocking read. A frame destroyed by a CRC error is an error
+frame (``error_frames``): its TPDO is missing and the read stale. The first non-blocking read
+(nothing outstanding) reads once with ``timeout``.
+
 Units (SI at this boundary; rotary joints only): ``q [rad] = 2 pi counts / (cpr * gear_ratio)``,
 ``qd [rad/s]`` the same scale applied to 0x606C in counts/s (the drive's velocity unit must be
 encoder increments per second: factor group 0x6091/0x6092/0x6096 at identity), torque ``[N.m at
@@ -177,6 +191,15 @@ class CiA402Drive(Actuator):
         self._cond = threading.Condition()
         self._rx = [0, 0]  # TPDO1, TPDO2 receptions
         self._rx_at = [math.nan, math.nan]
+        # non-blocking reads (timeout 0): the newest complete TPDO1 + TPDO2 pair (notifier thread)
+        self._t1: tuple[int, int, int] | None = None  # statusword, position, torque of the newest TPDO1
+        self._pair: tuple[int, int, int, int, float] | None = None  # + velocity, arrival (clock)
+        self._pairs = 0  # complete pairs received
+        self._pairs_taken = 0
+        self._ahead = False  # a SYNC sent by a non-blocking read is outstanding
+        self._nb_reads = 0
+        self._last: JointSample | None = None
+        self._stale_reads = 0
         self._emcy: Any = None
         self._hb_state: int | None = None
         self._last_hb = clock()
@@ -286,6 +309,12 @@ class CiA402Drive(Actuator):
         self._send(lambda: setattr(node.nmt, "state", "OPERATIONAL"), "NMT start")
         self._last_hb = self.clock()
         self.enable_operation()
+        # A heartbeat the drive sent before it processed the NMT start (still PRE-OPERATIONAL) may
+        # have arrived after that command went out; the drive's SDO answers since then prove it
+        # processed the start (one producer: its frames arrive in order), so only heartbeats from
+        # now on tell its NMT state.
+        with self._cond:
+            self._hb_state = None
 
     def _map_pdos(self) -> None:
         node = self.node
@@ -311,8 +340,8 @@ class CiA402Drive(Actuator):
             node.tpdo.save()  # type: ignore[no-untyped-call]  # (same)
 
         self._sdo(configure, "PDO mapping")
-        node.tpdo[1].add_callback(lambda m: self._on_tpdo(0))
-        node.tpdo[2].add_callback(lambda m: self._on_tpdo(1))
+        node.tpdo[1].add_callback(lambda m: self._on_tpdo(0, m))
+        node.tpdo[2].add_callback(lambda m: self._on_tpdo(1, m))
 
     def _await_state(self, target: str, deadline: float) -> int:
         while True:
@@ -344,10 +373,17 @@ class CiA402Drive(Actuator):
         logger.info("CiA 402 node %d: operation enabled, mode %d", self.node_id, self.mode)
 
     # -- callbacks (canopen's notifier thread) -------------------------------------------------
-    def _on_tpdo(self, k: int) -> None:
+    def _on_tpdo(self, k: int, pdo: Any = None) -> None:
         with self._cond:
             self._rx[k] += 1
             self._rx_at[k] = self.clock()
+            if pdo is not None:  # pairing for the non-blocking read: TPDO2 completes the TPDO1 before it
+                if k == 0:
+                    self._t1 = (int(pdo[0x6041].raw), int(pdo[0x6064].raw), int(pdo[0x6077].raw))
+                elif self._t1 is not None:
+                    self._pair = (*self._t1, int(pdo[0x606C].raw), self._rx_at[1])
+                    self._t1 = None
+                    self._pairs += 1
             self._cond.notify_all()
 
     def _on_emcy(self, entry: Any) -> None:
@@ -366,8 +402,12 @@ class CiA402Drive(Actuator):
 
     # -- role API -----------------------------------------------------------------------------
     def counters(self) -> dict[str, int]:
-        """error_frames, timeouts, emcy (module docstring); heartbeats received: ``heartbeats``."""
-        return {"error_frames": self._errors.count, "timeouts": self._timeouts, "emcy": self._emcy_count}
+        """error_frames, timeouts, emcy (module docstring), and once a non-blocking read ran
+        ``stale`` (reads without a new TPDO pair); heartbeats received: ``heartbeats``."""
+        out = {"error_frames": self._errors.count, "timeouts": self._timeouts, "emcy": self._emcy_count}
+        if self._nb_reads:
+            out["stale"] = self._stale_reads
+        return out
 
     @property
     def heartbeats(self) -> int:
@@ -449,7 +489,10 @@ class CiA402Drive(Actuator):
     def _read_sample(self, timeout: float) -> JointSample:
         """SYNC, then TPDO1 + TPDO2 as a JointSample (rad, rad/s, N.m). DeviceTimeout when they do
         not arrive within ``timeout``; DeviceFault on EMCY, Fault, lost heartbeat or a state other
-        than Operation enabled."""
+        than Operation enabled. ``timeout`` 0: the non-blocking read (module docstring)."""
+        if timeout == 0.0:
+            return self._read_ahead()
+        self._ahead = False
         self._raise_if_fault()
         with self._cond:
             before = list(self._rx)
@@ -469,9 +512,41 @@ class CiA402Drive(Actuator):
             vel = int(t2[0x606C].raw)
         self._raise_if_fault(sw)
         self._seq += 1
-        return JointSample(t=self.clock(), seq=self._seq, position=np.array([self.counts_to_rad(pos)]),
-                           velocity=np.array([self.counts_to_rad(vel)]),
-                           effort=np.array([self.per_mille_to_joint_torque(tq)]), fault=0, produced_at=produced)
+        self._last = JointSample(t=self.clock(), seq=self._seq, position=np.array([self.counts_to_rad(pos)]),
+                                 velocity=np.array([self.counts_to_rad(vel)]),
+                                 effort=np.array([self.per_mille_to_joint_torque(tq)]), fault=0, produced_at=produced)
+        return self._last
+
+    def _read_ahead(self) -> JointSample:
+        """The non-blocking read: the newest complete TPDO1 + TPDO2 pair received since the previous
+        read (the answer to the SYNC that read sent) as a fresh sample, else the previous sample
+        again (stale); then the next SYNC. The first one, with no SYNC outstanding, reads once with
+        the adapter's ``timeout``."""
+        self._nb_reads += 1
+        if not self._ahead:
+            self._read_sample(self.timeout)
+            with self._cond:
+                self._pairs_taken = self._pairs  # that SYNC's pair is in the sample just read
+            sample = self._last
+            assert sample is not None
+        else:
+            self._raise_if_fault()
+            with self._cond:
+                pair = self._pair if self._pairs > self._pairs_taken else None
+                self._pairs_taken = self._pairs
+            if pair is None:
+                sample = self._stale(self._last, self.clock(), f"CiA 402 node {self.node_id}: no TPDO answer yet")
+            else:
+                sw, pos, tq, vel, produced = pair
+                self._raise_if_fault(sw)
+                self._seq += 1
+                sample = self._last = JointSample(
+                    t=self.clock(), seq=self._seq, position=np.array([self.counts_to_rad(pos)]),
+                    velocity=np.array([self.counts_to_rad(vel)]), effort=np.array([self.per_mille_to_joint_torque(tq)]),
+                    fault=0, produced_at=produced)
+        self._send(self.network.sync.transmit, "SYNC")
+        self._ahead = True
+        return sample
 
     def quick_stop(self, timeout: float = 0.05) -> str:
         """Controlword Quick stop (0x02) by SDO; returns the state reached (statusword)."""

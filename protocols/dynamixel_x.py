@@ -61,6 +61,31 @@ sync read's status packets (adapter clock) and ``seq`` advances with each comple
 status packet raises DeviceTimeout (counted in ``counters()["timeouts"]``), a corrupt one
 ChecksumError (``crc_errors``).
 
+Non-blocking reads (``read(timeout=0)``, what the realtime loop does: take the newest sample
+that has arrived, never wait): the sync read is split into its request and its status packets.
+A read collects the status packets that arrived since the sync read sent ahead (a packet split
+over several reads is kept until complete, :class:`~hil.protocols.codecs.dynamixel.StatusParser`):
+all servos answered -> a fresh sample (``produced_at`` = the read that completed the set, adapter
+clock: at most one read period after the data left the servos); otherwise the previous sample
+again (stale: same ``seq`` and ``produced_at``, ``counters()["stale"]``). The next sync read is
+sent right after the next Goal Current sync write (:meth:`DynamixelX.command_effort`), so that on
+the half-duplex line the host never transmits over the servos' status packets (the sync write
+gets no reply); a read with nothing outstanding and no command since the previous read sends it
+itself. A status packet failing its CRC is dropped and counted (``crc_errors``), its set given up
+(stale) and asked again once its status packets are over on the line (their duration at
+``baudrate``); a set incomplete after ``timeout`` (host clock) is given up (``timeouts``) and asked
+again: the samples' age grows meanwhile, and the runner's watchdog (``watchdog_ms``) stops the run.
+Status packets of a given-up request are ``late`` (dropped). With the Bus Watchdog armed every
+``watchdog_check_every``-th request reads 98 instead (that read is stale). A non-blocking read with
+nothing requested ahead (the first one, or the first after blocking reads) reads once with
+``timeout``; a blocking read (timeout > 0) after non-blocking
+ones first lets the outstanding sync read finish (at most its time on the line) and then works as
+the request/answer exchange above. :meth:`close` with a request outstanding does the same before
+the zero current and torque off. Non-blocking reads need the adapter to own its port: two
+adapters open on one port (one bus; the lockstep scene ``dynamixel_leader_follower`` does this)
+would take each other's status packets and transmit over each other's replies, so their reads
+stay blocking (with a warning); one adapter with all the ids of the bus reads without waiting.
+
 Bus Watchdog(98) (e-manual: 1 byte, RAM; 0 = off and clears the error, 1..127 = armed in units of
 20 ms, -1 = Bus Watchdog Error): with ``bus_watchdog_s`` the adapter arms it on open (rounded up
 to 20 ms, at most 2.54 s; the bench passes the scene's ``watchdog_ms``), after clearing it. While
@@ -75,10 +100,11 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
 import select
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -105,7 +131,9 @@ from hil.protocols.codecs.dynamixel import (
     MODELS,
     PRESENT_BLOCK_LEN,
     RAD_PER_TICK,
+    STATUS_OVERHEAD,
     VELOCITY_UNIT_RAD_S,
+    StatusParser,
     XModel,
     bus_watchdog_units,
     decode_present_block,
@@ -114,6 +142,9 @@ from hil.protocols.codecs.dynamixel import (
 )
 
 logger = logging.getLogger(__name__)
+
+#: write timeout (s) of a sync read sent ahead (non-blocking reads)
+POLL_AHEAD_SEND_TIMEOUT_S = 0.001
 
 
 # ------------------------------------------------------------------------------------------------
@@ -130,6 +161,13 @@ def _make_port_handler(port_name: str) -> Any:
             super().__init__(name)
             self.call_timeout_ms = 100.0
             self.tx_bytes = 0
+            #: a sync read is outstanding (non-blocking read): the SDK's flush of the input before
+            #: every packet it sends would throw its status packets away
+            self.hold_input = False
+
+        def clearPort(self) -> None:
+            if not self.hold_input:
+                super().clearPort()
 
         def setPacketTimeout(self, packet_length: int) -> None:
             self.packet_start_time = self.getCurrentTime()
@@ -162,6 +200,9 @@ class DynamixelX(Actuator):
     """
 
     units = "rotary"
+    #: open adapters per serial port (os.path.realpath): non-blocking reads need the port to themselves
+    _port_users: ClassVar[dict[str, int]] = {}
+    _port_key = ""
 
     def __init__(
         self,
@@ -205,7 +246,18 @@ class DynamixelX(Actuator):
         self.watchdog_check_every = max(1, int(watchdog_check_every))
         self._counts = {"crc_errors": 0, "timeouts": 0, "bus_watchdog_errors": 0}
         self._reads = 0
+        self._requests = 0  # sync reads sent ahead (non-blocking reads)
         self._enabled = False
+        # non-blocking reads (timeout 0): the sync read sent ahead and what came back of it
+        self._status = StatusParser()
+        self._ahead: str | None = None  # "present" / "watchdog": the request outstanding
+        self._ahead_at = 0.0  # host monotonic time it was sent
+        self._due = False  # a request is to be sent after the next sync write (or by the next read)
+        self._due_reads = 0  # reads since it became due without a command sending it
+        self._quiet_until = 0.0  # host monotonic: the status packets of a dropped request are over
+        self._got: dict[int, tuple[int, bytes]] = {}
+        self._last: JointSample | None = None
+        self._stale_reads = 0
         self.port_name = port
         self.label = f"DYNAMIXEL ids {self.ids} on {port}"
         self.info = DeviceInfo(
@@ -240,6 +292,9 @@ class DynamixelX(Actuator):
         self._gsr_wd = GroupSyncRead(self._port, self._ph, ADDR_BUS_WATCHDOG, 1)
         for i in self.ids:
             self._gsr_wd.addParam(i)
+        self._port_key = os.path.realpath(port)
+        DynamixelX._port_users[self._port_key] = DynamixelX._port_users.get(self._port_key, 0) + 1
+        self._warned_shared = False
         logger.info("DYNAMIXEL %s ids %s on %s opened", self.model.name, self.ids, port)
 
     # -- Actuator ---------------------------------------------------------------------------------
@@ -269,11 +324,25 @@ class DynamixelX(Actuator):
             self._gsw.changeParam(i, [u & 0xFF, u >> 8])
         self._port.call_timeout_ms = 1000.0 * timeout
         self._check_comm(self._gsw.txPacket(), "sync write Goal Current")
+        if self._due and time.monotonic() >= self._quiet_until:  # non-blocking reads: the next sync
+            self._request()                                          # read follows the command
 
     def _read_sample(self, timeout: float) -> JointSample:
-        """Sync-read Present Current/Velocity/Position of every joint."""
+        """Sync-read Present Current/Velocity/Position of every joint; ``timeout`` 0: the
+        non-blocking read of the module docstring ("Non-blocking reads")."""
         from dynamixel_sdk import COMM_SUCCESS
 
+        if timeout == 0.0:
+            if DynamixelX._port_users.get(self._port_key, 1) <= 1:
+                return self._read_ahead()
+            if not self._warned_shared:  # another adapter on this port would take our status packets
+                self._warned_shared = True
+                logger.warning("%s: the port is open in another adapter too: reads wait for their status "
+                               "packets (timeout %.3f s); give one adapter all the ids of a bus for "
+                               "non-blocking reads", self.label, self.timeout)
+            timeout = self.timeout
+        if self._ahead is not None or self._due:  # after non-blocking reads: back to request/answer
+            self._settle(timeout)
         self._port.call_timeout_ms = 1000.0 * timeout
         self._check_comm(self._gsr.txPacket(), "sync read")
         blocks: list[bytes] = []
@@ -293,7 +362,7 @@ class DynamixelX(Actuator):
         self._reads += 1
         if self.bus_watchdog_units and self._reads % self.watchdog_check_every == 0:
             self._raise_if_watchdog_expired(timeout)
-        return JointSample(
+        self._last = JointSample(
             t=produced,
             seq=seq,
             position=d * (pos - self.zero_ticks) * RAD_PER_TICK,
@@ -301,16 +370,155 @@ class DynamixelX(Actuator):
             effort=d * cur * CURRENT_UNIT_A * self.torque_constant,
             produced_at=produced,
         )
+        return self._last
+
+    # -- non-blocking reads (timeout 0) ----------------------------------------------------------
+    def _read_ahead(self) -> JointSample:
+        """The non-blocking read: collect the status packets of the sync read sent ahead (fresh
+        sample when every servo answered), else the previous sample again (stale); see the module
+        docstring. One with nothing outstanding or due (the first, or the first after blocking
+        reads) reads once with the adapter's ``timeout``."""
+        if self._ahead is None and not self._due:
+            sample = self._read_sample(self.timeout)
+            self._due = True  # sent after the next sync write (half duplex: never over a reply)
+            return sample
+        fresh = self._collect()
+        if self._ahead is None and self._due:
+            self._due_reads += 1
+            # a whole tick without a command to send it after: the bus is quiet, send it now
+            if self._due_reads > 1 and time.monotonic() >= self._quiet_until:
+                self._request()
+        if fresh is not None:
+            return fresh
+        return self._stale(self._last, self._clock(), f"{self.label}: no status packets yet")
+
+    def _request(self) -> None:
+        """Send the sync read ahead without waiting (every ``watchdog_check_every``-th one reads
+        Bus Watchdog(98) instead when it is armed)."""
+        self._requests += 1
+        kind = "present"
+        if self.bus_watchdog_units and self._requests % self.watchdog_check_every == 0:
+            kind = "watchdog"
+        self._status.clear()
+        self._got.clear()
+        self._port.hold_input = False
+        self._port.clearPort()  # the bus is quiet: nothing outstanding is in flight
+        self._port.call_timeout_ms = 1000.0 * POLL_AHEAD_SEND_TIMEOUT_S
+        group = self._gsr if kind == "present" else self._gsr_wd
+        result = group.txPacket()
+        self._port.is_using = False  # the SDK's receive half, which would release the port, is ours
+        self._check_comm(result, f"sync read ({kind}) sent ahead")
+        self._port.hold_input = True
+        self._ahead, self._ahead_at, self._due = kind, time.monotonic(), False
+
+    def _pump(self) -> None:
+        ser = self._port.ser
+        try:
+            n = ser.in_waiting
+            data = ser.read(n) if n else b""
+        except OSError as exc:  # pyserial's SerialException is an OSError
+            raise DeviceDisconnected(f"{self.label}: port lost: {exc}") from exc
+        if not data:
+            return
+        crc0 = self._status.crc_errors
+        for dxl_id, err, params in self._status.feed(data):
+            if dxl_id in self.ids and self._ahead is not None:
+                self._got[dxl_id] = (err, params)
+            else:
+                self._counts["late"] = self._counts.get("late", 0) + 1
+        if self._status.crc_errors != crc0:
+            self._counts["crc_errors"] += self._status.crc_errors - crc0
+
+    def _collect(self) -> JointSample | None:
+        """Take what arrived of the outstanding sync read; a fresh sample when it is complete."""
+        if self._ahead is None:
+            return None
+        crc0 = self._counts["crc_errors"]
+        self._pump()
+        kind = self._ahead
+        size = PRESENT_BLOCK_LEN if kind == "present" else 1
+        if self._counts["crc_errors"] != crc0:  # a status packet was lost to its CRC: give the set up,
+            self._quiet_until = self._ahead_at + 2.0 * self._reply_time_s()  # ask again once the line
+            self._drop_request(due=True)                                      # is quiet
+            return None
+        if len(self._got) < len(self.ids):
+            if time.monotonic() - self._ahead_at > self.timeout:  # never came: ask again
+                self._counts["timeouts"] += 1
+                self._drop_request(due=True)
+            return None
+        got = [self._got[i] for i in self.ids]
+        self._drop_request(due=True)
+        for i, (err, params) in zip(self.ids, got, strict=True):
+            if len(params) != size:
+                raise ProtocolError(f"{self.label}: id {i} answered {len(params)} bytes, {size} asked")
+            self._raise_for_error(i, err, self.timeout)
+        if kind == "watchdog":
+            expired = [i for i, (_e, p) in zip(self.ids, got, strict=True) if p[0] == BUS_WATCHDOG_ERROR]
+            if expired:
+                self._counts["bus_watchdog_errors"] += 1
+                raise DeviceFault(f"DYNAMIXEL ids {expired}: Bus Watchdog expired (servo stopped by itself)",
+                                  code=FAULT_BUS_WATCHDOG)
+            return None
+        cur, vel, pos = (np.array(v, dtype=float)
+                         for v in zip(*(decode_present_block(p) for _e, p in got), strict=True))
+        produced = self._clock()
+        d = self.directions
+        self._reads += 1
+        self._last = JointSample(
+            t=produced,
+            seq=self._next_seq(),
+            position=d * (pos - self.zero_ticks) * RAD_PER_TICK,
+            velocity=d * vel * VELOCITY_UNIT_RAD_S,
+            effort=d * cur * CURRENT_UNIT_A * self.torque_constant,
+            produced_at=produced,
+        )
+        return self._last
+
+    def _drop_request(self, due: bool) -> None:
+        self._ahead = None
+        self._due, self._due_reads = due, 0
+        self._got.clear()
+        self._status.clear()
+        self._port.hold_input = False
+
+    def _reply_time_s(self) -> float:
+        """How long the status packets of one sync read of the present block take on the line
+        (8N1: 10 bits a byte) plus every servo's Return Delay Time, s."""
+        nbytes = len(self.ids) * (STATUS_OVERHEAD + PRESENT_BLOCK_LEN)
+        delay = 2e-6 * 254 if self.return_delay is None else 2e-6 * self.return_delay
+        return 10.0 * nbytes / self.baudrate + len(self.ids) * delay
+
+    def _settle(self, limit: float) -> None:
+        """Before a request/answer exchange of the SDK: let the outstanding sync read finish (at
+        most the time its status packets take on the line, and ``limit``), so that no instruction
+        is sent over a reply on the half-duplex line and no late status packet is taken for an
+        answer; then forget it and flush the input."""
+        if self._ahead is not None:
+            wait = min(limit, 2.0 * self._reply_time_s() + 0.001)
+            deadline = time.monotonic() + wait
+            while len(self._got) < len(self.ids) and time.monotonic() < deadline:
+                select.select([self._port.ser.fileno()], [], [], max(0.0, deadline - time.monotonic()))
+                self._pump()
+        self._drop_request(due=False)
+        self._port.clearPort()
 
     def counters(self) -> dict[str, int]:
-        """crc_errors, timeouts, bus_watchdog_errors (see the module docstring)."""
-        return dict(self._counts)
+        """crc_errors, timeouts, bus_watchdog_errors; once a non-blocking read ran also ``stale``
+        (reads that returned the previous sample) and ``late`` (status packets of an abandoned
+        sync read); see the module docstring."""
+        out = dict(self._counts)
+        if self._requests:
+            out["stale"] = self._stale_reads
+            out.setdefault("late", 0)
+        return out
 
     def bus_watchdog_expired(self, timeout: float | None = None) -> list[int]:
         """Ids whose Bus Watchdog(98) reads -1 (Bus Watchdog Error), with one sync read."""
         from dynamixel_sdk import COMM_SUCCESS
 
         self._check_open()
+        if self._ahead is not None:
+            self._settle(self.timeout if timeout is None else timeout)
         self._with_timeout(timeout)
         self._check_comm(self._gsr_wd.txPacket(), "sync read Bus Watchdog")
         out = []
@@ -337,8 +545,11 @@ class DynamixelX(Actuator):
         self._enabled = on
 
     def _stop_steps(self) -> list[StopStep]:
-        """Safe stop: zero current, then torque off on every servo (each attempted)."""
-        steps: list[StopStep] = [lambda: self.command_effort(np.zeros(self.dof), timeout=0.05)]
+        """Safe stop: zero current, then torque off on every servo (each attempted). A sync read
+        outstanding (non-blocking reads) is let finish first (bounded by its time on the line and
+        0.05 s) and not renewed."""
+        steps: list[StopStep] = [lambda: self._settle(0.05),
+                                 lambda: self.command_effort(np.zeros(self.dof), timeout=0.05)]
         steps += [functools.partial(self._write, i, ADDR_TORQUE_ENABLE, 1, 0, 0.05) for i in self.ids]
         steps.append(lambda: setattr(self, "_enabled", False))
         return steps
@@ -347,6 +558,12 @@ class DynamixelX(Actuator):
         return self._enabled
 
     def _release(self) -> None:
+        if self._port_key:
+            n = DynamixelX._port_users.get(self._port_key, 1) - 1
+            if n > 0:
+                DynamixelX._port_users[self._port_key] = n
+            else:
+                DynamixelX._port_users.pop(self._port_key, None)
         self._port.closePort()
 
     # -- internals --------------------------------------------------------------------------------
@@ -435,6 +652,8 @@ class DynamixelX(Actuator):
         self._port.call_timeout_ms = 1000.0 * (self.timeout if timeout is None else timeout)
 
     def _read(self, dxl_id: int, addr: int, size: int, timeout: float | None, check_alert: bool = True) -> int:
+        if self._ahead is not None:
+            self._settle(self.timeout if timeout is None else timeout)
         self._with_timeout(timeout)
         data, result, error = self._ph.readTxRx(self._port, dxl_id, addr, size)
         self._check_comm(result, f"read {addr} of id {dxl_id}")
@@ -445,6 +664,8 @@ class DynamixelX(Actuator):
         return int.from_bytes(bytes(data[:size]), "little")
 
     def _write(self, dxl_id: int, addr: int, size: int, value: int, timeout: float | None) -> None:
+        if self._ahead is not None:
+            self._settle(self.timeout if timeout is None else timeout)
         self._with_timeout(timeout)
         u = to_unsigned(int(value), size)
         result, error = self._ph.writeTxRx(self._port, dxl_id, addr, size, list(u.to_bytes(size, "little")))

@@ -57,6 +57,7 @@ current reading), as Robotiq's own driver does; the sensor frame is reported unc
 from __future__ import annotations
 
 import logging
+import select
 import struct
 import time
 from collections.abc import Callable
@@ -102,9 +103,13 @@ from hil.protocols.codecs.robotiq import (
     decode_serial,
     decode_stream_frame,
     encode_stream_frame,
+    mbap_frame,
+    parse_mbap_reply,
     registers_to_wrench,
     rtu_frame,
+    rtu_silence_s,
     stream_start_request,
+    wrench_request_pdu,
 )
 
 logger = logging.getLogger(__name__)
@@ -170,6 +175,27 @@ class RobotiqFT300(ForceSensor):
 
     ``clock`` gives the sample time ``t`` (host monotonic clock by default; the lockstep runner
     passes the simulated clock).
+
+    Non-blocking reads (``read(timeout=0)``, the realtime loop): the FC03 transaction is split
+    into its request and its reply, framed by the adapter itself on the transport pymodbus opened
+    (RTU: slave, PDU, CRC-16; Modbus/TCP: MBAP header with the adapter's own transaction ids). A
+    read takes the bytes received since the request sent ahead; a complete reply that passes the
+    checks above is a fresh sample (``produced_at`` = that read, adapter clock); an incomplete one
+    (split over reads), none, or one failing a check (CRC: dropped, ``crc_errors``; bad byte count,
+    out of range, gateway exception: counted as above) gives the previous sample again (stale,
+    ``counters()["stale"]``); a Modbus exception from the sensor raises DeviceFault as usual. A
+    request unanswered after ``timeout`` (host clock) is given up (``timeouts``) and sent again:
+    the samples' age grows and the runner's watchdog judges it. Modbus RTU timing ("Modbus over
+    serial line" V1.02 §2.5.1.1): a frame is separated from the next by t3.5 of silence
+    (:func:`~hil.protocols.codecs.robotiq.rtu_silence_s`: 3.5 characters of 11 bits, 2.0 ms at
+    19200 bps; 1.75 ms above 19200), so on RTU framing (a serial line, or the serial side of an RTU
+    device server) the next request is sent by the first read at least t3.5 after the read that saw
+    the reply's last byte (a reply seen just now may have ended just now). At 19200 bps a
+    request/reply takes about 13 ms: a fast loop gets a fresh sample every ~15 ms and stale ones in
+    between, with their age recorded. The first non-blocking read (or the first after blocking
+    ones: nothing was requested ahead) polls once with ``timeout``; a blocking call after
+    non-blocking reads first waits (at most its timeout) for the outstanding reply, drops it and
+    keeps t3.5, then uses pymodbus as before.
     """
 
     axes = 6
@@ -203,7 +229,21 @@ class RobotiqFT300(ForceSensor):
         self.max_torque = float(max_torque)
         self._counts = {"crc_errors": 0, "invalid_replies": 0, "out_of_range": 0, "gateway_errors": 0,
                         "exceptions": 0, "retries": 0, "timeouts": 0}
+        # non-blocking reads (timeout 0): the request sent ahead and its reply so far
+        self._ahead = False
+        self._ahead_at = 0.0  # host monotonic time the request went out
+        self._abuf = bytearray()
+        self._tid = 0x8000  # Modbus/TCP transaction ids of the requests sent ahead
+        self._quiet_since = -float("inf")  # host monotonic: no reply byte has arrived since then
+        self._nb_reads = 0
+        self._reading_ahead = False  # non-blocking reads since the last blocking one
+        self._late = 0
+        self._last: WrenchSample | None = None
+        self._stale_reads = 0
         ep = self.endpoint
+        #: t3.5 before the next request on a serial line (RTU framing; the serial side of an RTU
+        #: device server too), 0 on Modbus/TCP (the gateway keeps the serial timing)
+        self.silence_s = 0.0 if ep.kind == "tcp" else rtu_silence_s(ep.baudrate)
         client: Any
         self.stream_stopped: bool | None = None
         if ep.kind == "rtu" and stop_stream:
@@ -254,13 +294,177 @@ class RobotiqFT300(ForceSensor):
     def _read_sample(self, timeout: float) -> WrenchSample:
         """Poll Fx..Mz once (validated, see the class doc). Raises DeviceTimeout / ChecksumError /
         ProtocolError / DeviceFault."""
+        if timeout == 0.0:
+            return self._read_ahead()
+        self._reading_ahead = False
+        if self._ahead:
+            self._settle(timeout)
         raw = self._read_wrench(timeout)
         produced = self._clock()
-        return WrenchSample(t=produced, seq=self._next_seq(), wrench=raw - self._offset, produced_at=produced)
+        self._quiet_since = time.monotonic()  # the reply is complete: the line's silence starts
+        self._last = WrenchSample(t=produced, seq=self._next_seq(), wrench=raw - self._offset, produced_at=produced)
+        return self._last
 
     def counters(self) -> dict[str, int]:
-        """crc_errors, invalid_replies, out_of_range, gateway_errors, exceptions, retries, timeouts."""
-        return dict(self._counts)
+        """crc_errors, invalid_replies, out_of_range, gateway_errors, exceptions, retries, timeouts;
+        once a non-blocking read ran also ``stale`` (reads that returned the previous sample) and
+        ``late`` (reply bytes of an abandoned request, discarded)."""
+        out = dict(self._counts)
+        if self._nb_reads:
+            out["stale"], out["late"] = self._stale_reads, self._late
+        return out
+
+    # -- non-blocking reads (timeout 0) ----------------------------------------------------------
+    def _read_ahead(self) -> WrenchSample:
+        """Collect the reply to the request sent ahead (fresh sample when it is complete and valid,
+        else the previous one again: stale), then send the next request when the line allows it
+        (see the class doc). The first one, or the first after blocking reads, polls once with
+        ``timeout`` (the sample it returns is not older than the read)."""
+        self._nb_reads += 1
+        if not self._reading_ahead:  # the first one, or the first after blocking reads: poll once
+            sample = self._read_sample(self.timeout)
+            self._reading_ahead = True
+            self._request_if_quiet()
+            return sample
+        fresh = self._collect()
+        self._request_if_quiet()
+        if fresh is not None:
+            return fresh
+        return self._stale(self._last, self._clock(), f"FT-300 on {self.url}: no reply yet")
+
+    def _raw(self) -> Any:
+        sock = self._client.socket
+        if sock is None:
+            raise DeviceDisconnected(f"FT-300 on {self.url}: connection closed")
+        return sock
+
+    def _pump(self) -> bytes:
+        """What the transport has received, without waiting."""
+        self._check_open()
+        sock = self._raw()
+        try:
+            if self.endpoint.kind == "rtu":
+                n = sock.in_waiting
+                return bytes(sock.read(n)) if n else b""
+            if not select.select([sock], [], [], 0.0)[0]:
+                return b""
+            data = bytes(sock.recv(4096))
+        except OSError as exc:  # pyserial's SerialException is an OSError
+            raise DeviceDisconnected(f"FT-300 on {self.url}: {exc}") from exc
+        if not data:  # the peer closed the connection
+            raise DeviceDisconnected(f"FT-300 on {self.url}: connection closed by the peer")
+        return data
+
+    def _request_if_quiet(self) -> None:
+        """Send the wrench request ahead unless one is outstanding or the line's t3.5 silence
+        since the last reply byte seen is not over (RTU framing)."""
+        if self._ahead or time.monotonic() - self._quiet_since < self.silence_s:
+            return
+        late = self._pump()  # bytes of an abandoned request: not an answer to the next one
+        if late:
+            self._late += len(late)
+            self._quiet_since = time.monotonic()
+            return
+        pdu = wrench_request_pdu()
+        if self.endpoint.kind == "tcp":
+            self._tid = 0x8000 + (self._tid + 1) % 0x8000
+            frame = mbap_frame(self._tid, self.slave, pdu)
+        else:
+            frame = rtu_frame(self.slave, pdu)
+        sock = self._raw()
+        try:
+            sent = sock.write(frame) if self.endpoint.kind == "rtu" else sock.send(frame)
+        except OSError as exc:
+            raise DeviceDisconnected(f"FT-300 on {self.url}: {exc}") from exc
+        if sent != len(frame):
+            raise DeviceDisconnected(f"FT-300 on {self.url}: request not sent ({sent} of {len(frame)} bytes)")
+        self._abuf.clear()
+        self._ahead, self._ahead_at = True, time.monotonic()
+
+    def _give_up(self) -> None:
+        self._ahead = False
+        self._abuf.clear()
+        self._quiet_since = time.monotonic()
+
+    def _collect(self) -> WrenchSample | None:
+        """The outstanding request's reply if it is complete: validated as a blocking read's (a
+        reply failing a check is dropped and counted, the read is stale, the request is sent
+        again once the line is quiet); a Modbus exception other than a gateway's raises."""
+        if not self._ahead:
+            return None
+        data = self._pump()
+        if data:
+            self._abuf += data
+            self._quiet_since = time.monotonic()
+        if self.endpoint.kind == "tcp":
+            pdu, used = parse_mbap_reply(self._abuf, self._tid, self.slave)
+            if used and pdu is None:  # another transaction's reply or a broken header
+                self._late += used
+                del self._abuf[:used]
+                return None
+            bad_crc = False
+        else:
+            frame, _end, bad_crc = _parse_rtu_reply(self._abuf, self.slave, FC_READ_HOLDING)
+            pdu = None if frame is None else frame[1:-2]
+        if bad_crc:
+            self._counts["crc_errors"] += 1
+            self._give_up()
+            return None
+        if pdu is None:
+            if time.monotonic() - self._ahead_at > self.timeout:  # the reply never came
+                self._counts["timeouts"] += 1
+                self._give_up()
+            return None
+        self._give_up()
+        return self._decode(pdu)
+
+    def _decode(self, pdu: bytes) -> WrenchSample | None:
+        fc = pdu[0]
+        if fc & 0x80:
+            code = pdu[1] if len(pdu) > 1 else None
+            if code not in MODBUS_EXCEPTION_CODES:
+                self._counts["invalid_replies"] += 1
+                return None
+            if code in GATEWAY_EXCEPTION_CODES:
+                self._counts["gateway_errors"] += 1
+                return None
+            self._counts["exceptions"] += 1
+            raise DeviceFault(f"FT-300 answered with Modbus exception {code}", code=code)
+        if fc != FC_READ_HOLDING or len(pdu) != 14 or pdu[1] != 12:
+            self._counts["invalid_replies"] += 1
+            return None
+        w = registers_to_wrench(list(struct.unpack(">6H", pdu[2:14])))
+        if self.endpoint.kind == "tcp":  # RTU replies are CRC-checked
+            try:
+                check_wrench_range(w, self.max_force, self.max_torque)
+            except ProtocolError:
+                self._counts["out_of_range"] += 1
+                return None
+        produced = self._clock()
+        self._last = WrenchSample(t=produced, seq=self._next_seq(), wrench=w - self._offset, produced_at=produced)
+        return self._last
+
+    def _settle(self, limit: float) -> None:
+        """Before a pymodbus transaction: wait (at most ``limit`` s) for the reply to the request
+        sent ahead, so that it is not taken for the transaction's answer, then drop it and keep
+        the line's t3.5 silence."""
+        deadline = time.monotonic() + limit
+        while self._ahead and time.monotonic() < deadline:
+            self._collect_quietly()
+            if self._ahead:
+                time.sleep(0.0005)
+        self._give_up()
+        wait = self._quiet_since + self.silence_s - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+
+    def _collect_quietly(self) -> None:
+        """One :meth:`_collect` whose sample is dropped (a Modbus exception too: the transaction
+        that follows reports its own)."""
+        try:
+            self._collect()
+        except DeviceFault:
+            self._give_up()
 
     def _read_wrench(self, timeout: float | None) -> np.ndarray:
         for attempt in range(self.retries + 1):
@@ -310,6 +514,8 @@ class RobotiqFT300(ForceSensor):
 
         self._check_open()
         t = self.timeout if timeout is None else float(timeout)
+        if self._ahead:
+            self._settle(t)
         self._client.comm_params.timeout_connect = t
         self._rx = b""
         try:

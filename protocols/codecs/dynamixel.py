@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hil.errors import ProtocolError
+from hil.protocols.codecs.crc import crc16_dynamixel
 
 ADDR_MODEL_NUMBER = 0
 ADDR_FIRMWARE_VERSION = 6
@@ -101,3 +102,82 @@ def decode_present_block(block: bytes | Sequence[int]) -> tuple[int, int, int]:
     vel = to_signed(int.from_bytes(b[2:6], "little"), 4)
     pos = to_signed(int.from_bytes(b[6:10], "little"), 4)
     return cur, vel, pos
+
+
+# ------------------------------------------------------------------------------------------------
+# Protocol 2.0 status packets on a byte stream (the non-blocking read collects them itself)
+# ------------------------------------------------------------------------------------------------
+STATUS_HEADER = b"\xff\xff\xfd\x00"
+INST_STATUS = 0x55
+#: bytes of a status packet around its data: header 4, id 1, length 2, instruction 1, error 1, CRC 2
+STATUS_OVERHEAD = 11
+
+
+def _unstuff(body: bytes) -> bytes:
+    """Protocol 2.0 byte stuffing undone: the ``FD`` inserted after each ``FF FF FD`` is dropped."""
+    if b"\xff\xff\xfd\xfd" not in body:
+        return body
+    return body.replace(b"\xff\xff\xfd\xfd", b"\xff\xff\xfd")
+
+
+@dataclass
+class StatusParser:
+    """Incremental parser of Protocol 2.0 status packets (ROBOTIS e-manual, "Protocol 2.0": status
+    packet ``FF FF FD 00 ID LEN_L LEN_H 55 ERR PARAM... CRC_L CRC_H``, ``LEN`` = stuffed bytes
+    from the instruction to the CRC inclusive, CRC-16 (poly 0x8005) over everything before it).
+
+    :meth:`feed` takes bytes as they arrive (a packet may be split over several calls) and returns
+    the complete packets as ``(id, error, params)`` (``params`` unstuffed). A frame whose CRC fails
+    is dropped and counted in ``crc_errors``; bytes before a header are skipped (``skipped_bytes``).
+    """
+
+    crc_errors: int = 0
+    skipped_bytes: int = 0
+
+    def __post_init__(self) -> None:
+        self._buf = bytearray()
+
+    @property
+    def pending(self) -> int:
+        """Bytes held (the start of a packet not complete yet)."""
+        return len(self._buf)
+
+    def clear(self) -> None:
+        """Forget the bytes held (a request abandoned: its late bytes must not start a packet)."""
+        self._buf.clear()
+
+    def feed(self, data: bytes) -> list[tuple[int, int, bytes]]:
+        buf = self._buf
+        buf += data
+        out: list[tuple[int, int, bytes]] = []
+        while True:
+            j = buf.find(STATUS_HEADER)
+            if j < 0:
+                keep = 3 if buf.endswith(b"\xff\xff\xfd") else 2 if buf.endswith(b"\xff\xff") else (
+                    1 if buf.endswith(b"\xff") else 0)
+                self.skipped_bytes += len(buf) - keep
+                del buf[: len(buf) - keep]
+                return out
+            if j:
+                self.skipped_bytes += j
+                del buf[:j]
+            if len(buf) < 7:
+                return out
+            length = buf[5] | (buf[6] << 8)
+            if length < 4 or length > 1024:  # not a status packet header: resynchronise after it
+                self.skipped_bytes += 1
+                del buf[:1]
+                continue
+            total = 7 + length
+            if len(buf) < total:
+                return out
+            frame = bytes(buf[:total])
+            del buf[:total]
+            if crc16_dynamixel(frame[:-2]) != int.from_bytes(frame[-2:], "little"):
+                self.crc_errors += 1
+                continue
+            if frame[7] != INST_STATUS or length < 4:  # an instruction packet (an echoing line): not ours
+                self.skipped_bytes += total
+                continue
+            body = _unstuff(frame[8:-2])
+            out.append((frame[4], body[0], body[1:]))

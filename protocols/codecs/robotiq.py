@@ -245,3 +245,46 @@ def _parse_rtu_reply(buf: bytearray, slave: int, fc: int) -> tuple[bytes | None,
             return frame, i + n, bad_crc
         bad_crc = True
         start = i + 1
+
+
+# ------------------------------------------------------------------------------------------------
+# the wrench request and its reply on the wire (the non-blocking read frames them itself)
+# ------------------------------------------------------------------------------------------------
+#: bits of one character on a Modbus serial line as the spec counts them (start, 8 data, parity
+#: or a second stop bit, stop: "Modbus over serial line" V1.02 §2.5.1): 11
+MODBUS_CHAR_BITS = 11
+
+
+def rtu_silence_s(baudrate: float) -> float:
+    """t3.5 (s), the silent interval that separates Modbus RTU frames ("Modbus over serial line"
+    V1.02 §2.5.1.1): 3.5 character times, fixed 1.750 ms above 19200 bps."""
+    if baudrate > 19200:
+        return 1.750e-3
+    return 3.5 * MODBUS_CHAR_BITS / float(baudrate)
+
+
+def wrench_request_pdu() -> bytes:
+    """FC03, registers 180..185 (the manual's ``09 03 00 B4 00 06 84 A6`` without address / CRC)."""
+    return struct.pack(">BHH", FC_READ_HOLDING, REG_WRENCH, 6)
+
+
+def mbap_frame(transaction: int, unit: int, pdu: bytes) -> bytes:
+    """Modbus/TCP ADU: MBAP header (transaction id, protocol 0, length = unit + PDU, unit id), PDU."""
+    return struct.pack(">HHHB", transaction & 0xFFFF, 0, len(pdu) + 1, unit & 0xFF) + bytes(pdu)
+
+
+def parse_mbap_reply(buf: bytearray, transaction: int, unit: int) -> tuple[bytes | None, int]:
+    """The PDU of the Modbus/TCP reply to ``transaction`` at the start of ``buf``: (PDU or None if
+    incomplete, bytes to drop). An ADU of another transaction (a late reply) is dropped whole;
+    a header that cannot be one (protocol id not 0, length out of 2..254) drops everything."""
+    if len(buf) < 7:
+        return None, 0
+    tid, pid, length = struct.unpack_from(">HHH", buf, 0)
+    if pid != 0 or not 2 <= length <= 254:
+        return None, len(buf)
+    total = 6 + length
+    if len(buf) < total:
+        return None, 0
+    if tid != (transaction & 0xFFFF) or buf[6] != (unit & 0xFF):
+        return None, total
+    return bytes(buf[7:total]), total

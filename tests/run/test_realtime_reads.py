@@ -199,3 +199,63 @@ def test_steady_state_realtime_tick_keeps_no_memory(tmp_path):
     diff = snaps[800].filter_traces(flt).compare_to(snaps[200].filter_traces(flt), "lineno")
     grown = sum(max(0, st.count_diff) for st in diff)
     assert grown / 600 <= 0.01, [str(st) for st in diff[:5]]
+
+
+# -- polled adapters: DYNAMIXEL X, FT-300 (Modbus), CiA 402 ------------------------------------------
+
+
+def _short(name: str, duration: float = 0.3):
+    d = yaml.safe_load(load_scene(name).source_text)
+    d["experiments"] = d["experiments"][:1]
+    e = d["experiments"][0]
+    e["duration"] = duration
+    if e["type"].startswith("chirp"):
+        e.update(fade=0.0, f0=max(float(e.get("f0", 1.0)), 4.0))
+    d.pop("certification", None)
+    return scene_from_dict(d, label=f"{name}-short")
+
+
+@pytest.mark.parametrize("name", ["dual_master_3dof", "cia402_bench"])
+def test_lockstep_never_takes_the_non_blocking_path(name, tmp_path, monkeypatch):
+    """Lockstep runs read with the bench's own timeout, so the polled adapters' request/collect
+    split is never entered there: their records are those of the request/answer reads (the branch
+    compared them bit for bit against the adapters before the split; see the report)."""
+    from hil.protocols.cia402 import CiA402Drive
+    from hil.protocols.dynamixel_x import DynamixelX
+    from hil.protocols.modbus_robotiq import RobotiqFT300
+
+    def refuse(self):
+        raise AssertionError(f"{type(self).__name__}: non-blocking read in a lockstep run")
+    for cls in (DynamixelX, RobotiqFT300, CiA402Drive):
+        monkeypatch.setattr(cls, "_read_ahead", refuse)
+    out = Runner(_short(name), tmp_path).run()[0]
+    assert out.status == "completed", out.stop_reason
+    counters = out.results["device_counters"]
+    polled = [n for n in counters if n in ("master2", "slave", "master2_ft", "motor")]
+    assert polled and all("stale" not in counters[n] for n in polled)  # the read-ahead counters never appear
+
+
+@pytest.mark.parametrize("name", ["dual_master_3dof", "cia402_bench"])
+def test_polled_adapters_read_without_waiting_from_devices_served_by_another_process(name):
+    """Devices served by ``hil mock serve`` in a child process (the realtime runner's bench):
+    every non-blocking read returns (fresh or the previous sample), and each polled device's
+    samples advance once its answers to the requests sent ahead arrive."""
+    from hil.bench import ProcessSimBench
+
+    sc = _short(name)
+    polled = [d.name for d in sc.devices if d.driver in ("dynamixel_x", "robotiq_ft300", "cia402")]
+    with ProcessSimBench(sc, timeout=2.0) as b:
+        first = b.read()  # the runner's first reading: the bench's own timeout
+        zeros = {a: np.zeros(sc.device(a).dof) for a in b.actuators}
+        fresh: set[str] = set()
+        for _ in range(2000):  # a bounded number of ticks, each short of any wait
+            meas = b.read(REALTIME_READ_TIMEOUT_S)
+            b.command(zeros)
+            fresh |= {n for n in polled if meas[n].seq > first[n].seq}
+            assert all(sample_age(meas[n]) >= 0.0 for n in polled)
+            if fresh == set(polled):
+                break
+            threading.Event().wait(0.002)  # the loop's wait for its next tick
+        assert fresh == set(polled)
+        counters = b.device_counters()
+    assert all("stale" in counters[n] for n in polled)  # they ran the non-blocking path
