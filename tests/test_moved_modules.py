@@ -58,3 +58,37 @@ def test_package_facade_gives_the_old_names_and_refuses_others() -> None:
         hil.scene.no_such_name  # type: ignore[attr-defined]  # noqa: B018
     with pytest.raises(ImportError):
         from hil.bench import no_such_name  # type: ignore[attr-defined]  # noqa: F401
+
+
+def _is_module(name: str) -> bool:
+    try:
+        return importlib.util.find_spec(name) is not None
+    except ModuleNotFoundError:
+        return False
+
+
+def test_the_suite_itself_uses_the_new_paths() -> None:
+    """Code, tests and benchmarks import the moved modules by their new paths (an old path works for
+    outside code, but it would hide a dependency from tests/test_import_rules.py)."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    old_names = set(hil.MOVED_MODULES)
+    old_facade = {f"{pkg}.{n}" for pkg in hil.MOVED_INTO_PACKAGE for n in dir(importlib.import_module(
+        hil.MOVED_INTO_PACKAGE[pkg])) if not n.startswith("__")}
+    bad = []
+    for folder in ("hil", "identify", "protocols", "mocks", "tests", "benchmarks"):
+        for p in sorted((root / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"), str(p))):
+                mods: list[str] = []
+                if isinstance(node, ast.Import):
+                    mods = [a.name for a in node.names]
+                elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                    mods = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+                for m in mods:
+                    if m in old_names or (m in old_facade and p.name != "test_moved_modules.py"
+                                          and importlib.util.find_spec(m.rpartition(".")[0]) is not None
+                                          and not _is_module(m)):
+                        bad.append(f"{p.relative_to(root)}:{node.lineno}: {m}")
+    assert not bad, "old import paths (use hil.MOVED_MODULES' new ones): " + ", ".join(bad)

@@ -240,7 +240,7 @@ def test_polled_adapters_read_without_waiting_from_devices_served_by_another_pro
     """Devices served by ``hil mock serve`` in a child process (the realtime runner's bench):
     every non-blocking read returns (fresh or the previous sample), and each polled device's
     samples advance once its answers to the requests sent ahead arrive."""
-    from hil.bench import ProcessSimBench
+    from hil.bench.runtime import ProcessSimBench
 
     sc = _short(name)
     polled = [d.name for d in sc.devices if d.driver in ("dynamixel_x", "robotiq_ft300", "cia402")]
