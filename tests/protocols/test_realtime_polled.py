@@ -11,6 +11,7 @@ states a test sets, never races it hopes to win. Nothing asserts wall-clock time
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import select
@@ -18,6 +19,8 @@ import socket
 import termios
 import threading
 import time
+from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 import pytest
@@ -35,6 +38,24 @@ from hil.protocols.dynamixel_x import DynamixelX
 pytestmark = pytest.mark.timeout(60)
 _chan = itertools.count()
 BAUD = 1_000_000
+
+@contextlib.contextmanager
+def _released(relay: Any) -> Iterator[None]:
+    """For the block, the relay lets the bytes through as they come (a thread releases them)."""
+    done = threading.Event()
+
+    def pass_through() -> None:
+        while not done.is_set():
+            relay.release()
+            time.sleep(0.0005)
+    th = threading.Thread(target=pass_through, daemon=True)
+    th.start()
+    try:
+        yield
+    finally:
+        done.set()
+        th.join()
+
 
 
 def _wait(cond, timeout: float = 5.0) -> None:
@@ -131,19 +152,8 @@ def dxl():
     joints = FreeJoints(2)
     chain = DynamixelChain(joints, [1, 2], baudrate=BAUD, return_delay=0)
     relay = PtyRelay(chain)
-    opening = threading.Event()
-
-    def pass_through() -> None:  # the open sequence's request/answer traffic: released as it comes
-        while not opening.is_set():
-            relay.release()
-            time.sleep(0.0005)
-    th = threading.Thread(target=pass_through, daemon=True)
-    th.start()
-    try:
+    with _released(relay):  # the open sequence's request/answer traffic: released as it comes
         dev = DynamixelX(relay.port, [1, 2], baudrate=BAUD, timeout=0.5, scan_baudrates=False)
-    finally:
-        opening.set()
-        th.join()
     relay.release()
     yield dev, chain, relay, joints
     dev.close()
@@ -156,19 +166,8 @@ REPLY = 2 * (11 + 10)  # two status packets of the 10-byte present block
 
 def _prime(dev, relay) -> None:
     """The first non-blocking read reads once, waiting for its answer (released as it comes)."""
-    done = threading.Event()
-
-    def pass_through() -> None:
-        while not done.is_set():
-            relay.release()
-            time.sleep(0.0005)
-    th = threading.Thread(target=pass_through, daemon=True)
-    th.start()
-    try:
+    with _released(relay):
         s = dev.read(timeout=0.0)
-    finally:
-        done.set()
-        th.join()
     assert s.seq == 1
 
 
@@ -253,20 +252,9 @@ def test_dynamixel_close_with_a_request_outstanding_still_stops_and_is_idempoten
     servo = chain.servos[1]
     assert servo.get(ADDR_GOAL_CURRENT, 2, signed=True) != 0
 
-    done = threading.Event()
-
-    def pass_through() -> None:  # the line carries the stop's request/answer traffic
-        while not done.is_set():
-            relay.release()
-            time.sleep(0.0005)
-    th = threading.Thread(target=pass_through, daemon=True)
-    th.start()
-    try:
+    with _released(relay):  # the line carries the stop's request/answer traffic
         dev.close()
         dev.close()
-    finally:
-        done.set()
-        th.join()
     for sv in chain.servos.values():
         assert sv.get(ADDR_GOAL_CURRENT, 2, signed=True) == 0 and sv.table[ADDR_TORQUE_ENABLE] == 0
     assert dev.closed
@@ -278,19 +266,8 @@ def test_dynamixel_blocking_read_after_non_blocking_ones_answers_its_own_request
     dev.command_effort(np.zeros(2))
     _wait(lambda: len(relay.held) >= REPLY)
     joints.step(0.02)
-    done = threading.Event()
-
-    def pass_through() -> None:
-        while not done.is_set():
-            relay.release()
-            time.sleep(0.0005)
-    th = threading.Thread(target=pass_through, daemon=True)
-    th.start()
-    try:
+    with _released(relay):
         s = dev.read(timeout=0.5)
-    finally:
-        done.set()
-        th.join()
     assert s.seq == 2  # the outstanding sync read is settled and dropped, not taken as this answer
     np.testing.assert_allclose(s.position, np.round(joints.position() / RAD_PER_TICK) * RAD_PER_TICK)
 
@@ -359,21 +336,10 @@ def ft300(request):
     sim = SimulatedFT300(lambda: wrench, framing=request.param)
     relay = TcpRelay(sim.port)
     scheme = "rtu-over-tcp" if request.param == "rtu" else "tcp"
-    stop = threading.Event()
-
-    def pass_through() -> None:
-        while not stop.is_set():
-            relay.release()
-            time.sleep(0.0005)
-    th = threading.Thread(target=pass_through, daemon=True)
-    th.start()
-    try:
+    with _released(relay):
         dev = RobotiqFT300(f"{scheme}://127.0.0.1:{relay.port}", timeout=0.5)
         s = dev.read(timeout=0.0)  # primes with one blocking read (Modbus/TCP: and sends the next request)
         dev._settle(0.5)  # that request answered and dropped: the tests start with nothing outstanding
-    finally:
-        stop.set()
-        th.join()
     relay.release()
     assert s.seq == 1
     assert not dev._ahead
