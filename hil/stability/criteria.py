@@ -371,9 +371,11 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian", marg
                     return Condition(name, label, "violated", -1.0, math.inf,
                                      f"r{i + 1}{j + 1}·r{j + 1}{i + 1} = {float(R[i][j] * R[j][i]):.4g} < 0 "
                                      "at s = ∞", ev)
-    from hil.stability.residues import principal_minors
+    from hil.stability.residues import _scaled_int_minors, principal_minors
 
-    minors = principal_minors(R)
+    # without margins only the signs and zeros of the minors are read: those of a positive
+    # integer multiple of R (cheaper than rational arithmetic)
+    minors: dict[tuple[int, ...], Any] = principal_minors(R) if margins else _scaled_int_minors(R)
     perm_of: dict[tuple[int, ...], float] = {}
 
     def perm(idx: tuple[int, ...]) -> float:

@@ -628,14 +628,12 @@ def _descartes(c: list[Any]) -> int:
     return v
 
 
-def _pos_root_log2_bound(c: list[Any]) -> int | None:
+def _pos_root_log2_bound(c: list[Any], z: Any = 0) -> int | None:
     """An integer e with every positive root of Σ c_i x^i below 2^e (c ascending, c[-1] ≠ 0), or
     None when there is no positive root (no coefficient of sign opposite to the leading one).
     Rigorous from bit lengths: a positive root r satisfies r < 2·max (|c_i|/|c_n|)^(1/(n-i)) over
-    those c_i (Fujiwara), and |c_i|/|c_n| < 2^(bitlen c_i - bitlen c_n + 1)."""
-    from flint import fmpz
-
-    z = fmpz(0) if c and isinstance(c[0], fmpz) else 0  # compare like with like (faster)
+    those c_i (Fujiwara), and |c_i|/|c_n| < 2^(bitlen c_i - bitlen c_n + 1). ``z``: the zero the
+    coefficients are compared with (``fmpz(0)`` for FLINT integers: like with like is faster)."""
     n = len(c) - 1
     lead = c[n]
     bl_n = lead.bit_length()
@@ -650,12 +648,10 @@ def _pos_root_log2_bound(c: list[Any]) -> int | None:
     return None if best is None else best + 1
 
 
-def _variations_z(c: list[Any]) -> int:
+def _variations_z(c: list[Any], z: Any) -> int:
     """Sign variations of a list of FLINT integers (zeros skipped): :func:`_descartes` with one
-    comparison against an ``fmpz`` zero per positive coefficient (the hot loop of :func:`_vas_count`)."""
-    from flint import fmpz
-
-    z = fmpz(0)
+    comparison against the ``fmpz`` zero ``z`` per positive coefficient (the hot loop of
+    :func:`_vas_count`)."""
     v = 0
     prev = 0
     for x in c:
@@ -679,8 +675,9 @@ def _vas_count(f: Any, max_nodes: int = 2000) -> int | None:
     None when ``max_nodes`` subdivisions do not suffice (the caller then uses root isolation).
     For a polynomial that is not squarefree a result of 0 still proves that it has no positive
     root (every leaf has no sign variation); other counts are only meaningful when squarefree."""
-    from flint import fmpz_poly
+    from flint import fmpz, fmpz_poly
 
+    z = fmpz(0)
     x_plus_1 = fmpz_poly([1, 1])
     x_minus_1 = fmpz_poly([-1, 1])
     stack = [f]
@@ -692,15 +689,15 @@ def _vas_count(f: Any, max_nodes: int = 2000) -> int | None:
             return None
         g = stack.pop()
         c = g.coeffs()
-        v = _variations_z(c)
+        v = _variations_z(c, z)
         if v < 2:
             count += v
             continue
-        e = _pos_root_log2_bound(c[::-1])  # positive roots of the reverse < 2^e: of g > 2^-e
+        e = _pos_root_log2_bound(c[::-1], z)  # positive roots of the reverse < 2^e: of g > 2^-e
         if e is not None and e <= -1:
             g = g(fmpz_poly([1 << (-e), 1]))  # shift by the lower bound 2^-e ≥ 2 (< every root)
             c = g.coeffs()
-            v = _variations_z(c)
+            v = _variations_z(c, z)
             if v < 2:
                 count += v
                 continue
@@ -783,7 +780,7 @@ class ExactSign:
 
 def exact_sign(p: fmpq_poly) -> ExactSign:
     """Classify an exact polynomial ``p`` (``flint.fmpq_poly`` in x = ω²) on x ≥ 0 without rounding."""
-    from flint import fmpq_poly
+    from flint import fmpq_poly, fmpz, fmpz_poly
 
     if p.is_zero():
         return ExactSign("equality", 0, 0, 0)
@@ -794,11 +791,12 @@ def exact_sign(p: fmpq_poly) -> ExactSign:
     low = ci[k]
     if p.degree() == k:
         return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
-    if _descartes(ci) == 0:  # Descartes: no sign change, p has the sign of low on x > 0
+    if _variations_z(ci, fmpz(0)) == 0:  # Descartes: no sign change, p has the sign of low on x > 0
         return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
     # the factor x^k (the boundary x = 0) removed first, so no squarefree factor contains x; p0 is
     # a positive multiple of p/x^k (the same roots and signs)
-    p0 = fmpq_poly(ci[k:]) if k else fmpq_poly(ci)
+    z0 = fmpz_poly(ci[k:])
+    p0 = fmpq_poly(z0)
     # the common case first: a proof that p0 has no positive root at all (whatever the
     # multiplicities), so p has the sign of its lowest coefficient on x > 0 and the squarefree
     # decomposition is not needed -- small degree: the Sturm sequence of p0 itself (it counts
@@ -806,7 +804,7 @@ def exact_sign(p: fmpq_poly) -> ExactSign:
     if p0.degree() <= 4:
         if _sturm_distinct_positive(p0) == 0:
             return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
-    elif _vas_count(p0.numer(), max_nodes=64) == 0:
+    elif _vas_count(z0, max_nodes=64) == 0:
         return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
     _c, facs = p0.factor_squarefree()
     q_odd, q_even = fmpq_poly([1]), fmpq_poly([1])

@@ -260,3 +260,24 @@ def test_lcm_is_the_running_product_formula():
         for d in dens:
             ref = ref * d // ref.gcd(d)
         assert _lcm(dens) == ref
+
+
+def test_integer_scaled_residue_minors_have_the_signs_of_the_rational_ones():
+    from flint import fmpq
+
+    from hil.stability.residues import _scaled_int_minors, principal_minors
+
+    rng = random.Random(4)
+    zeros = 0
+    for _ in range(200):
+        n = rng.randint(1, 4)
+        K = [[fmpq(rng.randint(-3, 3), rng.choice([1, 2, 3, 7])) for _ in range(n)] for _ in range(n)]
+        if rng.random() < 0.3:  # a rank-one PSD matrix: zero minors
+            v = [fmpq(rng.randint(-3, 3), rng.choice([1, 5])) for _ in range(n)]
+            K = [[v[i] * v[j] for j in range(n)] for i in range(n)]
+        ref, got = principal_minors(K), _scaled_int_minors(K)
+        assert ref.keys() == got.keys()
+        for idx, m in ref.items():
+            assert (m > 0) == (got[idx] > 0) and (m == 0) == (got[idx] == 0)
+            zeros += m == 0
+    assert zeros > 20
