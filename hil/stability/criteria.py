@@ -700,10 +700,30 @@ def _exact_minor_polys(sub: list[list[Rational]], need_m: bool = True, q: QEntri
         memof[(rows, cols)] = acc
         return acc
 
+    memor: dict[tuple[tuple[int, ...], tuple[int, ...]], fmpq_poly] = {}
+
+    def detr(rows: tuple[int, ...], cols: tuple[int, ...]) -> fmpq_poly:
+        """det for entrywise_real: every entry is real (imaginary part the zero polynomial), so
+        the complex products of ``det`` reduce to real ones (the same polynomials, exactly)."""
+        if len(rows) == 1:
+            return Pm[rows[0]][cols[0]][0]
+        key = (rows, cols)
+        if key in memor:
+            return memor[key]
+        acc = fmpq_poly([])
+        for k, c in enumerate(cols):
+            a = Pm[rows[0]][c][0]
+            if a.is_zero():
+                continue
+            t = a * detr(rows[1:], cols[:k] + cols[k + 1:])
+            acc = acc + t if k % 2 == 0 else acc - t
+        memor[key] = acc
+        return acc
+
     out = {}
     for k in range(1, n + 1):
         for idx in itertools.combinations(range(n), k):
-            p, cut = _cancel(det(idx, idx)[0], st.h, k * st.mu)
+            p, cut = _cancel(detr(idx, idx) if entrywise_real else det(idx, idx)[0], st.h, k * st.mu)
             out[idx] = (p, cut, detf(idx, idx).real().m if need_m else None)
     return out
 
