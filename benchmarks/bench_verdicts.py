@@ -10,18 +10,27 @@ project and is not run). Warm medians of process CPU time over repeated calls; t
 object is fresh for each call (no per-object cache).
 
 Not a test: prints a table, asserts nothing. Run: ``python benchmarks/bench_verdicts.py``
-(about 30 s on one core). A before/after comparison runs the same script against another
-checkout of ``hil`` (``PYTHONPATH=<that checkout> python benchmarks/bench_verdicts.py``).
+(about 30 s on one core). Before/after in the same run: ``python benchmarks/bench_verdicts.py
+--before <root of another checkout>`` times the verdict-only path with that checkout's ``hil``
+in child processes interleaved with this one's (``--rounds`` each, per-row medians), and stops
+if any verdict differs.
 Results: docs/BENCHMARKS.md, "Exact verdict time (issue 15)".
 """
 
 from __future__ import annotations
 
+import argparse
 import itertools
+import json
+import math
+import os
 import statistics
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 from functools import partial
+from typing import cast
 
 import numpy as np
 
@@ -87,33 +96,93 @@ def median_time(f: Callable[[], object], reps: int) -> float:
     return statistics.median(ts)
 
 
-def _call(make: Callable[[], TransferMatrix], crit: Callable[..., object], **kw: bool) -> object:
-    return crit(make(), **kw)
+def median_time_fresh(make: Callable[[], TransferMatrix], crit: Callable[..., object], reps: int,
+                      **kw: bool) -> float:
+    """Median process CPU time of ``crit(tm, **kw)`` over ``reps`` calls, each on a network built
+    beforehand by ``make()`` (fresh: nothing cached on it), after one warm-up call. Building the
+    network is outside the timed region (no subtraction of separately measured medians)."""
+    nets = [make() for _ in range(reps + 1)]
+    crit(nets[0], **kw)
+    ts = []
+    for tm in nets[1:]:
+        t0 = time.process_time()
+        crit(tm, **kw)
+        ts.append(time.process_time() - t0)
+    return statistics.median(ts)
 
 
-def main(reps: int = 41) -> None:
-    hdr = (f"{'work':34s} {'verdict':22s} {'exact':>10s} {'no margins':>11s} {'grid 1e4':>10s} "
-           f"{'exact/grid':>10s} {'nm/grid':>8s}")
+def measure(reps: int, grid_too: bool = True) -> list[dict[str, object]]:
+    """One pass over the rows: verdict, exact time with margins, verdict-only time, grid time (s)."""
+    out: list[dict[str, object]] = []
+    for name, make, crit, kind in rows():
+        tm = make()
+        verdict = str(crit(tm).verdict)  # type: ignore[attr-defined]
+        verdict_nm = str(crit(make(), margins=False).verdict)  # type: ignore[attr-defined]
+        te = median_time_fresh(make, crit, reps)
+        tn = median_time_fresh(make, crit, reps, margins=False)
+        tg = median_time(partial(grid, tm, kind), max(5, reps // 4)) if grid_too else math.nan
+        out.append({"name": name, "verdict": verdict, "verdict_nm": verdict_nm, "exact": te, "nm": tn, "grid": tg})
+    return out
+
+
+def _child(before: str | None, reps: int, grid_too: bool) -> list[dict[str, object]]:
+    """The measurement in a fresh interpreter, with ``hil`` imported from ``before`` (a checkout's
+    root) when given, else from this checkout."""
+    env = dict(os.environ)
+    if before:
+        env["PYTHONPATH"] = before + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    cmd = [sys.executable, os.path.abspath(__file__), "--child", "--reps", str(reps)]
+    if not grid_too:
+        cmd.append("--no-grid")
+    res = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True)
+    return cast("list[dict[str, object]]", json.loads(res.stdout.strip().splitlines()[-1]))
+
+
+def main(reps: int = 41, before: str | None = None, rounds: int = 3) -> None:
+    if before is None:
+        res = measure(reps)
+        tb: list[float] = [math.nan] * len(res)
+    else:
+        # before/after interleaved in the same run: `rounds` child processes each, alternating,
+        # per-row median over the rounds (the load of a shared machine drifts over a run)
+        runs_a: list[list[dict[str, object]]] = []
+        runs_b: list[list[dict[str, object]]] = []
+        for r in range(rounds):
+            runs_b.append(_child(before, reps, grid_too=False))
+            runs_a.append(_child(None, reps, grid_too=r == 0))
+        res = runs_a[0]
+        for k, row in enumerate(res):
+            for key in ("exact", "nm"):
+                row[key] = statistics.median(float(cast(float, ra[k][key])) for ra in runs_a)
+            vb = {str(rb[k]["verdict_nm"]) for rb in runs_b} | {str(rb[k]["verdict"]) for rb in runs_b}
+            va = {str(ra[k]["verdict_nm"]) for ra in runs_a} | {str(ra[k]["verdict"]) for ra in runs_a}
+            if vb != va:
+                raise SystemExit(f"verdicts differ on {row['name']}: before {vb}, after {va}")
+        tb = [statistics.median(float(cast(float, rb[k]["nm"])) for rb in runs_b) for k in range(len(res))]
+    hdr = (f"{'work':34s} {'verdict':22s} {'exact':>9s} {'no margins':>11s} {'before':>9s} {'speed-up':>8s} "
+           f"{'grid 1e4':>9s} {'grid/nm':>8s}")
     print("Exact verdict time, warm median per call (fresh network each call), against a 1e4-point numpy grid")
     print(hdr)
     print("-" * len(hdr))
-    for name, make, crit, kind in rows():
-        tm = make()
-        verdict = crit(tm).verdict  # type: ignore[attr-defined]
-        te = median_time(partial(_call, make, crit), reps)
-        tb = median_time(make, reps)  # building the network, subtracted
-        try:
-            crit(make(), margins=False)
-            tn = median_time(partial(_call, make, crit, margins=False), reps) - tb
-        except TypeError:  # an older hil.stability without the switch (for before/after runs)
-            tn = float("nan")
-        te -= tb
-        tg = median_time(partial(grid, tm, kind), max(5, reps // 4))
-        print(f"{name:34s} {verdict!s:22s} {te * 1e6:8.0f}µs {tn * 1e6:9.0f}µs {tg * 1e6:8.0f}µs "
-              f"{te / tg:10.2f} {tn / tg:8.2f}")
-    print("(exact: the criterion with margins; no margins: verdict only (margins=False); times are process CPU "
-          "time, excluding building the network; grid: numpy, decides nothing exactly)")
+    for row, b in zip(res, tb, strict=True):
+        te, tn, tg = (float(cast(float, row[k])) for k in ("exact", "nm", "grid"))
+        print(f"{row['name']!s:34s} {row['verdict']!s:22s} {te * 1e6:7.0f}µs {tn * 1e6:9.0f}µs "
+              f"{b * 1e6:7.0f}µs {b / tn:7.2f}x {tg * 1e6:7.0f}µs {tg / tn:7.1f}x")
+    print("(exact: the criterion with margins; no margins: verdict only (margins=False); before: verdict only "
+          "with the hil given by --before, same run, interleaved; grid/nm: how many times faster the verdict-only "
+          "exact path is than the grid; times are process CPU time, excluding building the network; grid: numpy, "
+          "decides nothing exactly)")
 
 
 if __name__ == "__main__":
-    main()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--reps", type=int, default=41)
+    ap.add_argument("--before", help="root of another checkout whose hil is timed in the same run (before/after)")
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved child runs per side with --before")
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--no-grid", action="store_true", help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.child:
+        print(json.dumps(measure(a.reps, grid_too=not a.no_grid)))
+    else:
+        main(a.reps, a.before, a.rounds)

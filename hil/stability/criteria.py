@@ -43,6 +43,7 @@ from hil.stability.exact import (
     decide_exact,
     exact_poles,
     flips_within,
+    strictly_hurwitz,
 )
 from hil.stability.jpoly import JPoly, XPoly, trim_back
 from hil.stability.rational import _RF, Rational, TransferMatrix, _to_rf
@@ -145,7 +146,17 @@ def _normalize(tm: TransferMatrix) -> tuple[TransferMatrix, float]:
 def _scaled_exact(e: Rational, e0: int) -> Rational:
     """e(w0·s̃) with w0 = 2^e0, divided by a power of two near den's largest coefficient: every
     coefficient is scaled exactly (``ldexp``), barring under/overflow (then the checked
-    constructor)."""
+    constructor). Pure Python on the (short) coefficient lists first, the same two ``ldexp`` steps
+    as the array version below, which runs only when a step overflows."""
+    try:
+        dl = [math.ldexp(v, e0 * k) for k, v in enumerate(e.den.tolist())]
+        es_ = round(math.log2(max(abs(v) for v in dl)))
+        dl = [math.ldexp(v, -es_) for v in dl]
+        nl = [math.ldexp(v, e0 * k - es_) for k, v in enumerate(e.num.tolist())]
+        if nl[-1] != 0 and dl[-1] != 0:
+            return Rational.trusted(np.array(nl), np.array(dl))
+    except (OverflowError, ValueError):
+        pass
     den = np.ldexp(e.den, e0 * np.arange(e.den.size))
     es = round(math.log2(float(np.max(np.abs(den)))))
     den = np.ldexp(den, -es)
@@ -183,7 +194,7 @@ def _rescale(conds: list[Condition], w0: float) -> list[Condition]:
 
 
 def _desc(c: np.ndarray) -> list[float]:
-    return [float(v) for v in np.asarray(c, float)[::-1]]
+    return cast("list[float]", np.asarray(c, float)[::-1].tolist())
 
 
 # ------------------------------------------------------------------------------------------
@@ -250,15 +261,16 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
     n = tm.n
     nums, dens = _reduced_entries(tm)
     rhp_all: list[tuple[int, int, complex]] = []
-    D = fmpq_poly([1])
-    for i in range(n):
-        for j in range(n):
-            if nums[i][j] is not None:
-                d = dens[i][j]
-                D = D * d // D.gcd(d)
+    D = _lcm([dens[i][j] for i in range(n) for j in range(n) if nums[i][j] is not None])
     # the roots of D are those of all the entries: one exact RHP count decides C; the entries are
-    # searched only to name the offending ones
-    if exact_poles(D).n_rhp:
+    # searched only to name the offending ones. First the cheap exact test (Routh's array in
+    # integers): D/s^k0 strictly Hurwitz -- no RHP pole, and no axis pole but those at s = 0
+    dz = D.numer().coeffs()
+    k0 = 0
+    while dz[k0] == 0:
+        k0 += 1
+    hurwitz = strictly_hurwitz(dz[k0:])
+    if not hurwitz and exact_poles(D).n_rhp:
         for i in range(n):
             for j in range(n):
                 if nums[i][j] is not None:
@@ -278,7 +290,7 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
         m = min((-p.real / abs(p) for p in allp if abs(p) > 0 and -p.real > 1e-9 * abs(p)), default=1.0)
         conds.append(Condition("C", "no poles in the open right-half plane", "satisfied", float(m), None,
                                "all poles in the closed left-half plane", {"poles": allp}))
-    for pole in axis_poles(D):
+    for pole in axis_poles(fmpq_poly([0] * k0 + [1]) if hurwitz else D):
         w = pole.omega
         name = f"D[ω={w:.6g}]"
         wp = w * w0  # physical rad/s, for the detail lines
@@ -359,9 +371,11 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian", marg
                     return Condition(name, label, "violated", -1.0, math.inf,
                                      f"r{i + 1}{j + 1}·r{j + 1}{i + 1} = {float(R[i][j] * R[j][i]):.4g} < 0 "
                                      "at s = ∞", ev)
-    from hil.stability.residues import principal_minors
+    from hil.stability.residues import _scaled_int_minors, principal_minors
 
-    minors = principal_minors(R)
+    # without margins only the signs and zeros of the minors are read: those of a positive
+    # integer multiple of R (cheaper than rational arithmetic)
+    minors: dict[tuple[int, ...], Any] = principal_minors(R) if margins else _scaled_int_minors(R)
     perm_of: dict[tuple[int, ...], float] = {}
 
     def perm(idx: tuple[int, ...]) -> float:
@@ -495,9 +509,9 @@ def _eta_ratio(sub: list[list[Rational]], scale_values: Callable[[np.ndarray], n
 
 def _qpoly_float(p: fmpq_poly) -> np.ndarray:
     """Ascending float coefficients of an exact polynomial, each correctly rounded."""
-    from hil.stability.rational import _qfloat
+    from hil.stability.rational import _qpoly_floats
 
-    return np.array([_qfloat(p[k]) for k in range(p.degree() + 1)] or [0.0])
+    return np.array(_qpoly_floats(p) or [0.0])
 
 
 # -- exact formation of the frequency conditions -----------------------------------------------
@@ -551,6 +565,9 @@ class _Setup:
     Dcf: JPoly
 
 
+#: the placeholder float image of a setup built without magnitude polynomials (never read)
+_NO_M = JPoly.zero()
+
 QEntries = tuple[list[list["fmpq_poly | None"]], list[list[fmpq_poly]]]
 
 
@@ -574,17 +591,38 @@ def _setup(sub: list[list[Rational]], need_m: bool = True, q: QEntries | None = 
     zero = (fmpq_poly([]), fmpq_poly([]))
     u = [[zero if (nij := nums[i][j]) is None else _xq(nij * (D // dens[i][j])) for j in range(n)] for i in range(n)]
     if not need_m:
-        return _Setup(u, Dc, h, mu, [], JPoly.zero())
+        return _Setup(u, Dc, h, mu, [], _NO_M)
     uf = [[_jfloat(e) for e in row] for row in u]
     return _Setup(u, Dc, h, mu, uf, _jfloat(Dc))
 
 
+def _lcm(dens: list[fmpq_poly]) -> fmpq_poly:
+    """The common denominator D of the entries: the running product D·d / gcd(D, d) from D = 1
+    (FLINT's gcd is monic, so D is an lcm up to a constant factor). A denominator equal to the
+    running D (the common case: entries over one denominator) gives D·lc(D), the same polynomial
+    as D·d / gcd(D, d) = D²/(D/lc(D)), without the gcd."""
+    D = fmpq_poly([1])
+    first = True
+    for d in dens:
+        if first:
+            D, first = d * 1, False  # 1·d / gcd(1, d) = d (a copy: callers never mutate, but safe)
+        elif d == D:
+            D = D * D[D.degree()]
+        else:
+            D = D * d // D.gcd(d)
+    return D
+
+
 def _axis_factor(dens: list[fmpq_poly]) -> tuple[fmpq_poly, fmpq_poly | None, int]:
     """(common denominator D = lcm, axis factor h or None, multiplicity μ of h in gcd(E, O))."""
-    D = fmpq_poly([1])
-    for d in dens:
-        D = D * d // D.gcd(d)
+    D = _lcm(dens)
     if D.degree() < 2:
+        return D, None, 0
+    dz = D.numer().coeffs()
+    k0 = 0
+    while dz[k0] == 0:
+        k0 += 1
+    if strictly_hurwitz(dz[k0:]):  # D = s^k0·(strictly Hurwitz): no axis pole at ω > 0 (exact, cheap)
         return D, None, 0
     E, O = _xq(D)
     g = E.gcd(O)
@@ -662,10 +700,30 @@ def _exact_minor_polys(sub: list[list[Rational]], need_m: bool = True, q: QEntri
         memof[(rows, cols)] = acc
         return acc
 
+    memor: dict[tuple[tuple[int, ...], tuple[int, ...]], fmpq_poly] = {}
+
+    def detr(rows: tuple[int, ...], cols: tuple[int, ...]) -> fmpq_poly:
+        """det for entrywise_real: every entry is real (imaginary part the zero polynomial), so
+        the complex products of ``det`` reduce to real ones (the same polynomials, exactly)."""
+        if len(rows) == 1:
+            return Pm[rows[0]][cols[0]][0]
+        key = (rows, cols)
+        if key in memor:
+            return memor[key]
+        acc = fmpq_poly([])
+        for k, c in enumerate(cols):
+            a = Pm[rows[0]][c][0]
+            if a.is_zero():
+                continue
+            t = a * detr(rows[1:], cols[:k] + cols[k + 1:])
+            acc = acc + t if k % 2 == 0 else acc - t
+        memor[key] = acc
+        return acc
+
     out = {}
     for k in range(1, n + 1):
         for idx in itertools.combinations(range(n), k):
-            p, cut = _cancel(det(idx, idx)[0], st.h, k * st.mu)
+            p, cut = _cancel(detr(idx, idx) if entrywise_real else det(idx, idx)[0], st.h, k * st.mu)
             out[idx] = (p, cut, detf(idx, idx).real().m if need_m else None)
     return out
 
@@ -673,11 +731,15 @@ def _exact_minor_polys(sub: list[list[Rational]], need_m: bool = True, q: QEntri
 _PolyCond = tuple[fmpq_poly, int, "np.ndarray | None"]
 
 
-def _exact_llewellyn_polys(sub: list[list[Rational]], need_m: bool = True) -> tuple[_PolyCond, _PolyCond]:
+def _exact_llewellyn_polys(sub: list[list[Rational]], need_m: bool = True, _st: list[_Setup] | None = None
+                           ) -> tuple[_PolyCond, _PolyCond]:
     """(L1, L2) of :func:`llewellyn_polys` formed exactly over Q with the squared imaginary-axis
     factor divided out where present (L1 carries |D|⁴, L2 |D|⁸): (polynomial, h² factors cancelled,
-    magnitude polynomial or None unless ``need_m``) each."""
+    magnitude polynomial or None unless ``need_m``) each. ``_st``: a list that receives the setup
+    (the caller reads its axis factor)."""
     st = _setup(sub, need_m)
+    if _st is not None:
+        _st.append(st)
     u, Dc = st.u, st.Dc
     A1 = _jmul(u[0][0], Dc)[0]
     A2 = _jmul(u[1][1], Dc)[0]
@@ -868,12 +930,24 @@ def llewellyn_polys(entries: list[list[Rational]], i: int = 0, j: int = 1) -> tu
 
 
 def _llewellyn_eta(entries: list[list[Rational]], i: int, j: int, tol: Tolerances,
-                   margins: bool = True) -> Condition:
-    """Llewellyn's η_ij ≥ 0 for all ω as an exact condition (see :func:`llewellyn_polys`)."""
+                   margins: bool = True, diag_positive: bool = False) -> Condition:
+    """Llewellyn's η_ij ≥ 0 for all ω as an exact condition (see :func:`llewellyn_polys`).
+
+    ``diag_positive``: the caller has decided Re p_ii > 0 and Re p_jj > 0 for every ω > 0 (both
+    conditions ``satisfied``, exactly). Then, without imaginary-axis poles at ω > 0, a > 0 on x > 0,
+    and L2 ≥ 0 forces 4a(a - Re c) ≥ (Im c)² ≥ 0, so a ≥ Re c and L1 = a + (a - Re c) ≥ a > 0 on
+    x > 0: L1 is ``satisfied`` whenever L2 holds, and is not decided separately on the verdict-only
+    path (``margins=False``, no tolerance: its margin and flip test are not needed)."""
+    st: list[_Setup] = []
     (p1, c1, m1), (p2, c2, m2) = _exact_llewellyn_polys([[entries[a][b] for b in (i, j)] for a in (i, j)],
-                                                        need_m=margins or tol.rtol > 0)
-    d1, f1 = _exact_decision(p1, c1, m1, 4, tol, margins)
+                                                        need_m=margins or tol.rtol > 0, _st=st)
     d2, f2 = _exact_decision(p2, c2, m2, 8, tol, margins)
+    if (diag_positive and not margins and tol.rtol == 0 and st[0].h is None and not p1.is_zero()
+            and d2.status in ("satisfied", "touching", "equality")):
+        d1, f1 = SignDecision("satisfied", math.nan, math.nan, method="implied (L2 ≥ 0, Re p_ii > 0, Re p_jj > 0)",
+                              coefficients=_qpoly_float(p1)), False
+    else:
+        d1, f1 = _exact_decision(p1, c1, m1, 4, tol, margins)
     name = f"E{_lbl((i, j))}"
     a_, b_ = i + 1, j + 1
     label = f"Llewellyn η{a_}{b_} = 2Re p{a_}{a_} Re p{b_}{b_} - Re(p{a_}{b_}p{b_}{a_}) - |p{a_}{b_}p{b_}{a_}| ≥ 0"
@@ -898,9 +972,11 @@ def llewellyn(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool = True) -
     tm0 = tm
     tm, w0 = _normalized(tm0)
     conds = pole_conditions(tm, "minors", tol, w0, margins)
+    diag: list[Condition] = []
     for k in range(2):
-        conds += _hermitian_minors(tm.entries, [k], tol, "E", "Re p(jω) ≥ 0", margins)
-    conds.append(_llewellyn_eta(tm.entries, 0, 1, tol, margins))
+        diag += _hermitian_minors(tm.entries, [k], tol, "E", "Re p(jω) ≥ 0", margins)
+    conds += diag
+    conds.append(_llewellyn_eta(tm.entries, 0, 1, tol, margins, all(c.status == "satisfied" for c in diag)))
     return combine("llewellyn", [*_rescale(conds, w0), infinity_condition(tm0, "minors", margins)], _netinfo(tm0, w0))
 
 
@@ -1299,9 +1375,10 @@ def absolute_stability(tm: TransferMatrix, tol: Tolerances = TOL, margins: bool 
                                reason="Theorem 1 does not apply: Z is not symmetrizable")
         if len(comp) == 2:
             i, j = comp
-            conds += _hermitian_minors(tm.entries, [i], tol, "E", "Re z_ii(jω) ≥ 0", margins)
-            conds += _hermitian_minors(tm.entries, [j], tol, "E", "Re z_ii(jω) ≥ 0", margins)
-            conds.append(_llewellyn_eta(tm.entries, i, j, tol, margins))
+            diag = (_hermitian_minors(tm.entries, [i], tol, "E", "Re z_ii(jω) ≥ 0", margins)
+                    + _hermitian_minors(tm.entries, [j], tol, "E", "Re z_ii(jω) ≥ 0", margins))
+            conds += diag
+            conds.append(_llewellyn_eta(tm.entries, i, j, tol, margins, all(c.status == "satisfied" for c in diag)))
         else:
             conds += _sweep_block(tm, comp, tol)
     return combine("absolute_stability_nport", [*_rescale(conds, w0), infinity_condition(tm0, "minors", margins)], net)

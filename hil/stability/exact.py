@@ -628,22 +628,42 @@ def _descartes(c: list[Any]) -> int:
     return v
 
 
-def _pos_root_log2_bound(c: list[Any]) -> int | None:
+def _pos_root_log2_bound(c: list[Any], z: Any = 0) -> int | None:
     """An integer e with every positive root of Σ c_i x^i below 2^e (c ascending, c[-1] ≠ 0), or
     None when there is no positive root (no coefficient of sign opposite to the leading one).
     Rigorous from bit lengths: a positive root r satisfies r < 2·max (|c_i|/|c_n|)^(1/(n-i)) over
-    those c_i (Fujiwara), and |c_i|/|c_n| < 2^(bitlen c_i - bitlen c_n + 1)."""
+    those c_i (Fujiwara), and |c_i|/|c_n| < 2^(bitlen c_i - bitlen c_n + 1). ``z``: the zero the
+    coefficients are compared with (``fmpz(0)`` for FLINT integers: like with like is faster)."""
     n = len(c) - 1
     lead = c[n]
     bl_n = lead.bit_length()
+    lead_pos = lead > z
     best: int | None = None
     for i in range(n):
         a = c[i]
-        if a != 0 and (a > 0) != (lead > 0):
+        if (a < z) if lead_pos else (a > z):
             e = -(-(a.bit_length() - bl_n + 1) // (n - i))  # ceil
             if best is None or e > best:
                 best = e
     return None if best is None else best + 1
+
+
+def _variations_z(c: list[Any], z: Any) -> int:
+    """Sign variations of a list of FLINT integers (zeros skipped): :func:`_descartes` with one
+    comparison against the ``fmpz`` zero ``z`` per positive coefficient (the hot loop of
+    :func:`_vas_count`)."""
+    v = 0
+    prev = 0
+    for x in c:
+        if x > z:
+            if prev < 0:
+                v += 1
+            prev = 1
+        elif x < z:
+            if prev > 0:
+                v += 1
+            prev = -1
+    return v
 
 
 def _vas_count(f: Any, max_nodes: int = 2000) -> int | None:
@@ -655,8 +675,9 @@ def _vas_count(f: Any, max_nodes: int = 2000) -> int | None:
     None when ``max_nodes`` subdivisions do not suffice (the caller then uses root isolation).
     For a polynomial that is not squarefree a result of 0 still proves that it has no positive
     root (every leaf has no sign variation); other counts are only meaningful when squarefree."""
-    from flint import fmpz_poly
+    from flint import fmpz, fmpz_poly
 
+    z = fmpz(0)
     x_plus_1 = fmpz_poly([1, 1])
     x_minus_1 = fmpz_poly([-1, 1])
     stack = [f]
@@ -668,19 +689,19 @@ def _vas_count(f: Any, max_nodes: int = 2000) -> int | None:
             return None
         g = stack.pop()
         c = g.coeffs()
-        v = _descartes(c)
+        v = _variations_z(c, z)
         if v < 2:
             count += v
             continue
-        e = _pos_root_log2_bound(c[::-1])  # positive roots of the reverse < 2^e: of g > 2^-e
+        e = _pos_root_log2_bound(c[::-1], z)  # positive roots of the reverse < 2^e: of g > 2^-e
         if e is not None and e <= -1:
             g = g(fmpz_poly([1 << (-e), 1]))  # shift by the lower bound 2^-e ≥ 2 (< every root)
             c = g.coeffs()
-            v = _descartes(c)
+            v = _variations_z(c, z)
             if v < 2:
                 count += v
                 continue
-        if sum(c) == 0:  # a root at x = 1
+        if g(1) == 0:  # a root at x = 1
             count += 1
             g = g // x_minus_1
             c = g.coeffs()
@@ -710,6 +731,39 @@ def _sturm_count_q(f: fmpq_poly) -> int:
     return _var([_sgn(q[0]) for q in seq]) - _var([_sgn(q[q.degree()]) for q in seq])
 
 
+def _sturm_distinct_positive(f: fmpq_poly) -> int:
+    """Number of *distinct* roots in (0, ∞) of an exact polynomial with f(0) ≠ 0 and degree ≥ 1,
+    whatever their multiplicities: the Sturm sequence f, f', -rem, ... over Q (its last member
+    is gcd(f, f'), which is non-zero at 0 and at +∞, so the variation count V(0) - V(∞) is that of
+    the squarefree part). No content normalization: over Q the remainders are the (scaled)
+    subresultants, which is cheaper than removing contents for the small degrees this is used
+    for (at most 4; the coefficients then stay small)."""
+    a, b = f, f.derivative()
+    c0 = a[0]
+    s0 = 1 if c0 > 0 else -1
+    si = 1 if a[a.degree()] > 0 else -1
+    v0 = vi = 0
+    while True:
+        c0 = b[0]
+        if c0 != 0:
+            s = 1 if c0 > 0 else -1
+            if s != s0:
+                v0 += 1
+                s0 = s
+        db = b.degree()
+        s = 1 if b[db] > 0 else -1
+        if s != si:
+            vi += 1
+            si = s
+        if db <= 0:
+            break
+        r = a % b
+        if r.is_zero():
+            break
+        a, b = b, -r
+    return v0 - vi
+
+
 @dataclass
 class ExactSign:
     """Exact structure of p on x ≥ 0: ``status`` (satisfied / touching / equality / violated),
@@ -726,7 +780,7 @@ class ExactSign:
 
 def exact_sign(p: fmpq_poly) -> ExactSign:
     """Classify an exact polynomial ``p`` (``flint.fmpq_poly`` in x = ω²) on x ≥ 0 without rounding."""
-    from flint import fmpq_poly
+    from flint import fmpq_poly, fmpz, fmpz_poly
 
     if p.is_zero():
         return ExactSign("equality", 0, 0, 0)
@@ -737,14 +791,20 @@ def exact_sign(p: fmpq_poly) -> ExactSign:
     low = ci[k]
     if p.degree() == k:
         return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
-    if _descartes(ci) == 0:  # Descartes: no sign change, p has the sign of low on x > 0
+    if _variations_z(ci, fmpz(0)) == 0:  # Descartes: no sign change, p has the sign of low on x > 0
         return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
-    # the factor x^k (the boundary x = 0) removed first, so no squarefree factor contains x
-    p0 = fmpq_poly([p[i] for i in range(k, p.degree() + 1)]) if k else p
-    # the common case first: Descartes' rule on a subdivision proves that p0 has no positive root
-    # at all (whatever the multiplicities), so p has the sign of its lowest coefficient on x > 0
-    # and the squarefree decomposition is not needed
-    if p0.degree() > 4 and _vas_count(p0.numer(), max_nodes=64) == 0:  # (small degree: Sturm is cheaper)
+    # the factor x^k (the boundary x = 0) removed first, so no squarefree factor contains x; p0 is
+    # a positive multiple of p/x^k (the same roots and signs)
+    z0 = fmpz_poly(ci[k:])
+    p0 = fmpq_poly(z0)
+    # the common case first: a proof that p0 has no positive root at all (whatever the
+    # multiplicities), so p has the sign of its lowest coefficient on x > 0 and the squarefree
+    # decomposition is not needed -- small degree: the Sturm sequence of p0 itself (it counts
+    # distinct roots with or without multiplicities); else Descartes' rule on a subdivision
+    if p0.degree() <= 4:
+        if _sturm_distinct_positive(p0) == 0:
+            return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
+    elif _vas_count(z0, max_nodes=64) == 0:
         return ExactSign("satisfied" if low > 0 else "violated", k, 0, 0)
     _c, facs = p0.factor_squarefree()
     q_odd, q_even = fmpq_poly([1]), fmpq_poly([1])
@@ -798,13 +858,13 @@ def decide_exact(p: fmpq_poly, m: np.ndarray | None = None, margin: bool = True)
     (a = order of p's zero at x = 0, b = deg p), so the structural zeros of p at ω = 0 and ω = ∞
     are factored out exactly before normalizing; μ ∈ [-1, 1] because |p_i| ≤ m_i.
     """
-    from hil.stability.rational import _qfloat
+    from hil.stability.rational import _qpoly_floats
 
     es = exact_sign(p)
     if es.status == "equality":
         return SignDecision("equality", 0.0, 0.0, method="identically zero (exact)", coefficients=np.zeros(1))
     n = p.degree() + 1
-    c = np.array([_qfloat(p[i]) for i in range(n)])
+    c = np.array(_qpoly_floats(p))
     if es.status == "satisfied" and not margin:
         return SignDecision("satisfied", math.nan, math.nan, method="exact (descartes/sturm over Q)",
                             coefficients=c)
@@ -938,6 +998,41 @@ def _cauchy_index(Q: fmpq_poly, P: fmpq_poly) -> int:
     return v_neg - v_pos
 
 
+def strictly_hurwitz(c: Sequence[Any]) -> bool:
+    """True iff the real polynomial with ascending *integer* coefficients ``c`` (not all zero) has
+    every root in the open left-half plane (no root on the imaginary axis, none in the RHP); exact.
+
+    Routh's array in fraction-free form: each new row is the Routh row times the positive leading
+    entry of the row above (and divided by its positive content), so the signs of the first column
+    are Routh's. The polynomial is strictly Hurwitz iff the coefficients have one sign and the
+    first column has deg + 1 entries of that sign. A False answer only says "not strictly
+    Hurwitz" (a zero first-column entry, e.g. a root on the axis, or a root in the RHP); the
+    caller then counts exactly (:func:`exact_poles`)."""
+    a = [int(v) for v in c[::-1]]  # descending
+    if not a or a[0] == 0 or a[-1] == 0:
+        return False
+    if a[0] < 0:
+        a = [-v for v in a]
+    if any(v <= 0 for v in a):
+        return False
+    n = len(a) - 1
+    if n <= 2:
+        return True
+    r0, r1 = a[0::2], a[1::2]
+    for _ in range(n - 1):
+        p, q = r1[0], r0[0]
+        l0, l1 = len(r0), len(r1)
+        new = [p * (r0[k + 1] if k + 1 < l0 else 0) - q * (r1[k + 1] if k + 1 < l1 else 0)
+               for k in range(max(l0, l1) - 1)]
+        if not new or new[0] <= 0:
+            return False
+        g = math.gcd(*new)
+        if g > 1:
+            new = [v // g for v in new]
+        r0, r1 = r1, new
+    return True
+
+
 def _s_of_x(g: fmpq_poly) -> fmpq_poly:
     """g(-s²) as a polynomial in s."""
     from flint import fmpq_poly
@@ -974,6 +1069,8 @@ def exact_poles(d: fmpq_poly) -> ExactPoles:
     while d[k0] == 0:
         k0 += 1
     rest = d // fmpq_poly([0] * k0 + [1]) if k0 else d
+    if strictly_hurwitz(rest.numer().coeffs()):  # the cheap exact test first (Routh, integers)
+        return ExactPoles(0, k0, [])
     a: list[Any] = []
     b: list[Any] = []
     for k in range(rest.degree() + 1):

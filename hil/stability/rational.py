@@ -503,6 +503,14 @@ def _qfloat(q: fmpq) -> float:
     return int(q.p) / int(q.q)
 
 
+def _qpoly_floats(p: fmpq_poly) -> list[float]:
+    """The ascending coefficients of p, each the float nearest to it (as :func:`_qfloat`, from the
+    integer numerator over the common denominator: one call into FLINT instead of one per
+    coefficient); [] for the zero polynomial."""
+    d = int(p.denom())
+    return [int(v) / d for v in p.numer().coeffs()]
+
+
 def _to_rf(M: Sequence[Sequence[Rational]]) -> list[list[_RF]]:
     return [[_RF.of(e) for e in row] for row in M]
 

@@ -354,15 +354,48 @@ def principal_minors(K: list[list[fmpq]]) -> dict[tuple[int, ...], fmpq]:
     return {idx: det(idx, idx) for k in range(1, n + 1) for idx in itertools.combinations(range(n), k)}
 
 
+def _scaled_int_minors(K: list[list[fmpq]]) -> dict[tuple[int, ...], int]:
+    """The principal minors of L·K for L > 0 the lcm of the entries' denominators, in Python
+    integers (minor idx of L·K = L^|idx|·minor of K: the same signs and zeros, cheaper than FLINT
+    rationals for these small matrices)."""
+    n = len(K)
+    L = 1
+    for row in K:
+        for v in row:
+            q = int(v.q)
+            if q != 1:
+                L = L * q // math.gcd(L, q)
+    Ki = [[int(v.p) * (L // int(v.q)) for v in row] for row in K]
+    memo: dict[tuple[tuple[int, ...], tuple[int, ...]], int] = {}
+
+    def det(rows: tuple[int, ...], cols: tuple[int, ...]) -> int:
+        if len(rows) == 1:
+            return Ki[rows[0]][cols[0]]
+        key = (rows, cols)
+        v = memo.get(key)
+        if v is None:
+            v = 0
+            for k, c in enumerate(cols):
+                a = Ki[rows[0]][c]
+                if a:
+                    t = a * det(rows[1:], cols[:k] + cols[k + 1:])
+                    v = v + t if k % 2 == 0 else v - t
+            memo[key] = v
+        return v
+
+    return {idx: det(idx, idx) for k in range(1, n + 1) for idx in itertools.combinations(range(n), k)}
+
+
 def decide_rational_residues(K: list[list[fmpq]], residue_test: str) -> tuple[str, str] | None:
     """The exact status of a *rational* residue matrix (the pole at s = 0) without floats, for the
     verdict-only path: ("satisfied" | "equality", detail) when the condition holds, None when it
-    does not (the caller then builds the full decision with its evidence)."""
+    does not (the caller then builds the full decision with its evidence). The minors are taken
+    of the matrix scaled to integers by a positive factor (:func:`_scaled_int_minors`)."""
     n = len(K)
     if residue_test == "hermitian":
         if any(K[i][j] != K[j][i] for i in range(n) for j in range(i + 1, n)):
             return None
-        mins = principal_minors(K)
+        mins = _scaled_int_minors(K)
         if any(v < 0 for v in mins.values()):
             return None
         full = mins[tuple(range(n))]
@@ -375,7 +408,7 @@ def decide_rational_residues(K: list[list[fmpq]], residue_test: str) -> tuple[st
                 return None
     nz = [[K[i][j] != 0 for j in range(n)] for i in range(n)]
     status, detail = "satisfied", "principal minors of the residue matrix are positive"
-    for idx, v in principal_minors(K).items():
+    for idx, v in _scaled_int_minors(K).items():
         if v < 0:
             return None
         if v == 0 and any(all(nz[idx[a]][idx[p[a]]] for a in range(len(idx)))
