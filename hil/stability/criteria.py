@@ -799,6 +799,9 @@ def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict[
           "margin_kind": "frequency-domain margin: min over x >= 0 of p(x)/m_r(x) (docs/VERDICTS.md)"}
     ev.update(extra)
     margin, wf = d.margin, d.worst_omega
+    constant = wf is None and margin == margin and d.status in ("violated", "satisfied")  # ρ constant in ω
+    if constant:
+        ev["ratio_constant"] = True
     if d.status == "violated":
         status = "violated"
         detail = _band_detail(ev) if bands_w else "negative for all ω"
@@ -813,6 +816,8 @@ def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict[
         wf = touching_w[0] if touching_w else wf
     else:
         status, detail = "satisfied", "positive for all ω"
+    if constant and status == "satisfied":
+        detail += _CONSTANT_NOTE
     if flip:
         ev["flips_within_rtol"] = tol.rtol
         detail = (f"{detail}; the verdict of this condition can flip under a relative perturbation of "
@@ -826,7 +831,11 @@ def _band_detail(ev: dict[str, Any]) -> str:
     shared by the JSON and the text table): the deepest negative band, in physical rad/s once
     :func:`_rescale` has scaled ``negative_bands_rad_s``."""
     b = ev["negative_bands_rad_s"][int(np.argmin(ev["band_depths"]))]
-    return f"negative for ω in [{b[0]:.6g}, {b[1]:.6g}] rad/s"
+    return f"negative for ω in [{b[0]:.6g}, {b[1]:.6g}] rad/s" + (_CONSTANT_NOTE if ev.get("ratio_constant") else "")
+
+
+#: the detail of a condition whose normalized polynomial p/m_r is constant in ω (no worst frequency)
+_CONSTANT_NOTE = "; p/m_r is constant in ω (its minimum is attained at every frequency: no worst frequency)"
 
 
 def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: Tolerances, prefix: str,

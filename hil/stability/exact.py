@@ -172,7 +172,8 @@ class SignDecision:
     """Outcome of deciding ``p(x) ≥ 0 for all x ≥ 0``.
 
     ``margin`` is the minimum of the normalized margin ρ = p/m over x ≥ 0 (interior minima and
-    the limits x → 0, x → ∞); ``worst_x`` is where it occurs (0.0 or ``inf`` for the limits).
+    the limits x → 0, x → ∞); ``worst_x`` is where it occurs (0.0 or ``inf`` for the limits; NaN
+    when ρ is constant on [0, ∞), :func:`ratio_is_constant`, or the margin was not computed).
     ``negative_bands`` are the exact sign-change intervals (x_lo, x_hi) where p < 0, each with
     its depth (min ρ) in ``band_depths``. ``touching`` lists roots where p touches zero without
     changing sign.
@@ -189,7 +190,12 @@ class SignDecision:
     coefficients: np.ndarray = field(default_factory=lambda: np.zeros(1))
 
     @property
-    def worst_omega(self) -> float:
+    def worst_omega(self) -> float | None:
+        """ω = √x where the margin is attained [rad/s] (``inf``: the high-frequency limit); None when
+        there is no single such frequency: the margin was not computed (verdict only), or ρ is
+        constant in ω (``worst_x`` is NaN: the minimum is attained at every frequency)."""
+        if self.worst_x != self.worst_x:
+            return None
         return math.sqrt(self.worst_x) if math.isfinite(self.worst_x) else math.inf
 
 
@@ -494,6 +500,8 @@ def _margin_min(rep: _Ratio, c: np.ndarray, m: np.ndarray, bands: Sequence[tuple
     """(margin, x where it is attained): the smallest value of the normalized condition ``rep``
     over x ≥ 0 -- its global minimum, each negative band's minimum and the touching points."""
     worst_x, margin_v = _global_min(rep, c, m, extra=extra)
+    if worst_x != worst_x:  # ρ constant: the same value in every band and at every point
+        return margin_v, worst_x
     for a, b in bands:
         bx, bv = _band_min(rep, a, b, c, m)
         if bv < margin_v:
@@ -515,7 +523,25 @@ def _critical_points(cc: np.ndarray, m: np.ndarray) -> np.ndarray:
     return _positive_real_roots(d)
 
 
+def ratio_is_constant(cc: np.ndarray, m: np.ndarray) -> bool:
+    """Whether ρ = p/m is constant in x (p'm - pm' ≡ 0 up to the rounding of its float
+    coefficients, ascending ``cc`` and ``m``): then the margin's minimum is attained at every
+    frequency and no worst frequency is reported (docs/VERDICTS.md)."""
+    cc = np.asarray(cc, dtype=float)
+    m = np.asarray(m, dtype=float)
+    if cc.size == 0 or m.size == 0 or not np.any(cc) or not np.any(m):
+        return False
+    cc = cc / np.max(np.abs(cc))
+    m = m / np.max(np.abs(m))
+    d = P.polysub(P.polymul(P.polyder(cc), m), P.polymul(cc, P.polyder(m)))
+    n = max(cc.size, m.size)
+    scale = (np.sum(np.abs(P.polyder(cc))) * np.sum(np.abs(m)) + np.sum(np.abs(cc)) * np.sum(np.abs(P.polyder(m))))
+    return bool(np.max(np.abs(d), initial=0.0) <= 16.0 * n * np.finfo(float).eps * max(scale, 1.0))
+
+
 def _global_min(ratio: _Ratio, cc: np.ndarray, m: np.ndarray, extra: list[float]) -> tuple[float, float]:
+    if ratio_is_constant(cc, m):  # attained everywhere: the value, no single x
+        return math.nan, float(ratio(np.array([1.0]))[0])
     xs = list(_critical_points(cc, m)) + list(extra)
     hi = max(_cauchy_bound(cc), _cauchy_bound(m), *(xs or [1.0]))
     grid = list(_log_grid(1e-9 / max(hi, 1.0), hi * 1e3, 97))
@@ -955,10 +981,17 @@ def _exact_depths(p: fmpq_poly, d: SignDecision, m: np.ndarray, m_rep: np.ndarra
                 best = vr
         d.band_depths = depths
         cur = d.margin if d.margin == d.margin else math.inf
-        if margin and best[0] == best[0] and (best[0] < cur or not cur < 0):
+        if margin and d.worst_x != d.worst_x and cur < math.inf:  # ρ constant: exactly, at x = 1
+            v = _exact_ratio(p, m_rep, 1.0)
+            d.margin = v if v == v else d.margin
+        elif margin and best[0] == best[0] and (best[0] < cur or not cur < 0):
             d.margin, d.worst_x = best
     elif margin and d.worst_x == d.worst_x and 0 < d.worst_x < math.inf:
         v = _exact_ratio(p, m_rep, d.worst_x)
+        if v == v:
+            d.margin = v
+    elif margin and d.worst_x != d.worst_x and d.margin == d.margin:  # constant ρ: its value, exactly at x = 1
+        v = _exact_ratio(p, m_rep, 1.0)
         if v == v:
             d.margin = v
 

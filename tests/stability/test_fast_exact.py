@@ -281,3 +281,40 @@ def test_integer_scaled_residue_minors_have_the_signs_of_the_rational_ones():
             assert (m > 0) == (got[idx] > 0) and (m == 0) == (got[idx] == 0)
             zeros += m == 0
     assert zeros > 20
+
+
+def test_constant_ratio_has_no_worst_frequency() -> None:
+    """A condition whose normalized polynomial p/m_r is constant in ω has its minimum at every
+    frequency: no worst frequency, the margin is the constant (the same at any ω), the detail says
+    so; a non-constant ratio still reports where its minimum is."""
+    import warnings
+
+    from hil.models import build_network, model_params_from_scene
+    from hil.scene.spec import load_scene
+    from hil.stability.criteria import check, margin_curve
+    from hil.stability.exact import ratio_is_constant
+
+    assert ratio_is_constant(np.array([0.0, 0.0, -3.0]), np.array([0.0, 0.0, 2.0]))
+    assert ratio_is_constant(np.array([-2.0, -4.0]), np.array([1.0, 2.0]))  # p = -2 m
+    assert not ratio_is_constant(np.array([1.0, -4.0, 1.0]), np.array([1.0, 4.0, 1.0]))
+    assert not ratio_is_constant(np.array([-2.0, -4.0]), np.array([1.0, 2.0 + 1e-9]))  # off by more than rounding
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sc = load_scene("bilateral_2dof_B")
+        tm = build_network(sc.certification.model, model_params_from_scene(sc))
+        r = check(tm, "absolute_stability")
+    flat = [c for c in r.conditions if c.evidence.get("ratio_constant")]
+    assert flat, "gain set B has minors that are monomials in x"
+    for c in flat:
+        assert c.worst_frequency is None and "constant in ω" in c.detail
+        curve = margin_curve(tm, c.name) if c.name in ("E{1,2}", "E{1,4}") else None
+        if curve is not None:  # the defining property: the same value at every frequency
+            v = curve(np.logspace(-6, 4, 41))
+            assert np.ptp(v) <= 1e-12 * abs(v).max()
+    # a condition that varies with ω keeps its worst frequency: Z = (s² + 0.05 s + 1)/(s² + s + 1)
+    from hil.stability.rational import TransferMatrix
+
+    z = TransferMatrix.from_coefficients([[{"num": [1.0, 0.05, 1.0], "den": [1.0, 1.0, 1.0]}]])
+    c1 = check(z, "positive_real").conditions
+    e = [c for c in c1 if c.name.startswith("E")][0]
+    assert e.worst_frequency is not None and np.isfinite(e.worst_frequency) and not e.evidence.get("ratio_constant")
