@@ -316,5 +316,5 @@ def test_constant_ratio_has_no_worst_frequency() -> None:
 
     z = TransferMatrix.from_coefficients([[{"num": [1.0, 0.05, 1.0], "den": [1.0, 1.0, 1.0]}]])
     c1 = check(z, "positive_real").conditions
-    e = [c for c in c1 if c.name.startswith("E")][0]
+    e = next(c for c in c1 if c.name.startswith("E"))
     assert e.worst_frequency is not None and np.isfinite(e.worst_frequency) and not e.evidence.get("ratio_constant")
