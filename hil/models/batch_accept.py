@@ -425,7 +425,7 @@ def _residues_admissible(num: list[list[tuple[np.ndarray, np.ndarray]]], den: li
     out = strict.copy()
     cache: dict[tuple[tuple[float, float], ...], bool] = {}
     for r in np.nonzero(exact_in)[0]:
-        key = tuple((float(num[i][j][0][r]), float(den[i][j][0][r]) if not (num[i][j][0][r] == 0) else 0.0)
+        key = tuple((float(num[i][j][0][r]), float(den[i][j][0][r]) if num[i][j][0][r] != 0 else 0.0)
                     for i in range(n) for j in range(n))
         if key not in cache:
             cache[key] = _exact_admissible(key, n, test)

@@ -336,8 +336,12 @@ def screened_stability(model: str, criterion: str, params: Mapping[str, Any],
     if cmap is not None:
         from hil.models.batch_accept import accept
 
-        rejected, margin = screen(cmap, X, criterion)
-        accepted = accept(cmap, X, criterion) & ~rejected
+        # acceptance first (cheaper per draw than the grid), the rejection grid on the rest only
+        accepted = accept(cmap, X, criterion)
+        rejected, margin = np.zeros(N, bool), np.full(N, np.nan)
+        rest = np.nonzero(~accepted)[0]
+        if rest.size:
+            rejected[rest], margin[rest] = screen(cmap, X[rest], criterion)
     else:
         rejected, margin = np.zeros(N, bool), np.full(N, np.nan)
         accepted = np.zeros(N, bool)
