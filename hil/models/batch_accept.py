@@ -310,7 +310,19 @@ def _jw(c: Poly) -> Pair:
     return part(0), part(1)
 
 
+def _zero(p: Poly) -> bool:
+    """p is an exact zero polynomial in every draw."""
+    return not (p.v.any() or p.e.any())
+
+
 def _pmul(a: Pair, b: Pair) -> Pair:
+    za, zb = _zero(a[1]), _zero(b[1])
+    if za and zb:
+        return a[0] * b[0], a[1]
+    if za:
+        return a[0] * b[0], a[0] * b[1]
+    if zb:
+        return a[0] * b[0], a[1] * b[0]
     return a[0] * b[0] - (a[1] * b[1]).mulx(), a[0] * b[1] + a[1] * b[0]
 
 
@@ -423,13 +435,24 @@ def _residues_admissible(num: list[list[tuple[np.ndarray, np.ndarray]]], den: li
         for j in range(n):
             exact_in &= (num[i][j][1] == 0) & (den[i][j][1] == 0)
     out = strict.copy()
-    cache: dict[tuple[tuple[float, float], ...], bool] = {}
-    for r in np.nonzero(exact_in)[0]:
-        key = tuple((float(num[i][j][0][r]), float(den[i][j][0][r]) if num[i][j][0][r] != 0 else 0.0)
-                    for i in range(n) for j in range(n))
-        if key not in cache:
-            cache[key] = _exact_admissible(key, n, test)
-        out[r] = cache[key]
+    rows = np.nonzero(exact_in)[0]
+    if rows.size:
+        # one exact decision per distinct matrix (K_ij = 0 where num_ij = 0, whatever den_ij)
+        cols = []
+        for i in range(n):
+            for j in range(n):
+                nv = num[i][j][0][rows]
+                cols += [nv, np.where(nv != 0, den[i][j][0][rows], 0.0)]
+        table = np.column_stack(cols)
+        if np.all(table == table[0]):  # the usual case: the residues do not depend on the draws
+            uniq, inv = table[:1], np.zeros(rows.size, int)
+        else:
+            tv = np.ascontiguousarray(table).view(np.dtype((np.void, table.shape[1] * 8))).ravel()
+            _, first, inv = np.unique(tv, return_index=True, return_inverse=True)
+            uniq = table[first]
+        verdict = np.array([_exact_admissible(tuple((float(u[2 * c]), float(u[2 * c + 1])) for c in range(n * n)),
+                                              n, test) for u in uniq])
+        out[rows] = verdict[np.asarray(inv).reshape(-1)]
     return out
 
 
