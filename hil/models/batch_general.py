@@ -86,6 +86,9 @@ class CoefficientMap:
     kind: str
     freq: tuple[float, float]
     port_dofs: tuple[int, ...] = ()
+    #: coefficients that are copies of one drawn parameter: index of the parameter (−1: not a
+    #: copy) and the factor (a signed power of two), arrays (n, n, L) for num and den
+    copies: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def coefficients(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(num, den) coefficient arrays (N, n, n, L) for the rows of X (N, d)."""
@@ -99,7 +102,8 @@ class CoefficientMap:
         bound on their distance to the real builds' (hil.models.batch_accept's inputs).
 
         A coefficient constant over the draws (all its steps exactly 0, and equal to ``num0``
-        bit for bit in every check build) is exact: bound 0. Any other one gets
+        bit for bit in every check build) is exact: bound 0; so is one the builder copies from a
+        drawn parameter (``copies``: f·θ_k bit for bit at the centre and at every check build). Any other one gets
         ``MAP_SAFETY·(eps + (d + 8)·u)·mag`` with mag = |num0| + Σ_k |θ_k − c_k|·|dnum_k|: the
         prediction's own rounding (a sum of d + 1 terms and the subtraction θ − c) is within
         (d + 3)·u·mag, and the builder's deviation from the affine map is taken as at most
@@ -120,6 +124,13 @@ class CoefficientMap:
         # constant coefficients are the centre build's, exactly (not re-rounded)
         num = np.where(nconst, self.num0, num)
         den = np.where(dconst, self.den0, den)
+        if self.copies is not None:
+            # a coefficient the builder copies from a drawn parameter (times a power of two) is
+            # that parameter exactly: bound 0
+            for arr, err, (ck, cf) in ((num, ne, self.copies[:2]), (den, de, self.copies[2:])):
+                for idx in zip(*np.nonzero(ck >= 0), strict=True):
+                    arr[(slice(None), *idx)] = cf[idx] * X[:, ck[idx]]
+                    err[(slice(None), *idx)] = 0.0
         return num, ne, den, de
 
 
@@ -169,6 +180,7 @@ def coefficient_map(build: Callable[[Mapping[str, float]], Any], names: list[str
             dnum[k], dden[k] = (got[0] - num0) / h, (got[1] - den0) / h
         cmap = CoefficientMap(tuple(names), centre, num0, den0, dnum, dden, 0.0, tm0.kind,
                               _freq_range(tm0.entries), tuple(tm0.port_dofs))
+        copies = [_copy_candidates(c0, dc, centre) for c0, dc in ((num0, dnum), (den0, dden))]
         # check points: the first and last draws, the one farthest from the centre and, per
         # parameter, the draws with its smallest and largest value (the builder's parameter
         # constraints, intervals per parameter, then hold on every draw's box)
@@ -183,7 +195,11 @@ def coefficient_map(build: Callable[[Mapping[str, float]], Any], names: list[str
                 return None
             pn, pd = cmap.coefficients(X[i:i + 1])
             Dabs = np.abs(X[i] - centre)
-            for want, pred, c0, dc in ((got[0], pn[0], num0, dnum), (got[1], pd[0], den0, dden)):
+            for want, pred, c0, dc, cp in ((got[0], pn[0], num0, dnum, copies[0]),
+                                           (got[1], pd[0], den0, dden, copies[1])):
+                ck, cf = cp
+                bad = (ck >= 0) & (want != cf * X[i, np.maximum(ck, 0)])
+                ck[bad] = -1  # not a copy after all: the general bound applies
                 const = ~np.any(dc != 0, axis=0)
                 if np.any(const & (want != c0)):
                     logger.info("a coefficient constant at the probes changed at a check build: "
@@ -205,7 +221,22 @@ def coefficient_map(build: Callable[[Mapping[str, float]], Any], names: list[str
     except HilError as exc:
         logger.info("coefficient map not measured (%s): exact path for all draws", exc)
         return None
-    return CoefficientMap(cmap.names, centre, num0, den0, dnum, dden, eps, cmap.kind, cmap.freq, cmap.port_dofs)
+    return CoefficientMap(cmap.names, centre, num0, den0, dnum, dden, eps, cmap.kind, cmap.freq, cmap.port_dofs,
+                          (copies[0][0], copies[0][1], copies[1][0], copies[1][1]))
+
+
+def _copy_candidates(c0: np.ndarray, dc: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(parameter index or −1, factor) per coefficient: the coefficient looks like f·θ_k with f a
+    signed power of two (its only step is ≈ f along θ_k and the centre build's value is f·c_k bit
+    for bit); confirmed or dropped at the check builds (want == f·θ_k exactly)."""
+    nzk = dc != 0
+    one = nzk.sum(axis=0) == 1
+    k = np.argmax(nzk, axis=0)
+    step = np.take_along_axis(dc, k[None], axis=0)[0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(step != 0, np.sign(step) * 2.0 ** np.round(np.log2(np.abs(np.where(step != 0, step, 1.0)))), 0.0)
+    ok = one & (np.abs(step - f) <= 1e-9 * np.abs(f)) & (c0 == f * centre[k])
+    return np.where(ok, k, -1), np.where(ok, f, 0.0)
 
 
 def _eval(c: np.ndarray, S: np.ndarray, A: np.ndarray, gamma: float) -> tuple[np.ndarray, np.ndarray]:
