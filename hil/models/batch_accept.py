@@ -63,9 +63,9 @@ u_ij = n_ij · D̃ / d_ij (formed as a product, no division).
   A polynomial p(x) is certified > 0 on x > 0 after dividing out the powers of x whose
   coefficients are exact zeros (structural zeros at ω = 0 and ω = ∞): its lowest and highest
   remaining coefficients positive beyond their bounds, and either all coefficients ≥ 0 beyond
-  their bounds, or (Pólya) p(λy)·(1 + y)^m with λ a power of two (exact scaling) and m ≤ 48
-  (binomials exact in float) has all coefficients ≥ 0 and its constant one > 0 beyond their
-  bounds; Pólya's theorem says this holds for some m whenever p > 0 on [0, ∞) with p(0) > 0 and
+  their bounds, or (Pólya) p(λy)·(1 + y)^m with λ a power of two (exact scaling) and
+  m ≤ :data:`POLYA_MAX` (the binomials C(m, k) as floats with their rounding bound) has all
+  coefficients ≥ 0 and its constant one > 0 beyond their bounds; Pólya's theorem says this holds for some m whenever p > 0 on [0, ∞) with p(0) > 0 and
   a positive leading coefficient, so every draw strictly inside the region is accepted for m large
   enough, and draws near the boundary go to the exact path.
 
@@ -99,8 +99,8 @@ _U = 2.0**-53
 _ETA = 2.0**-1074
 #: inflation of every computed error bound (covers the rounding of the bound's own computation)
 INFL = 1.0 + 2.0**-40
-#: largest Pólya exponent tried (binomial coefficients C(m, k), m ≤ 48, are exact in float64)
-POLYA_MAX = 48
+#: largest Pólya exponent tried (m = d, 2d, 4d, … ≤ this; C(512, k) < 1e154, in range)
+POLYA_MAX = 512
 
 
 class Poly:
@@ -281,8 +281,9 @@ def certify_positive(p: Poly) -> np.ndarray:
         idx = np.nonzero(normal & ~sub_ok)[0]
         if idx.size == 0:
             break
+        # C(m, i) rounded to float: relative error ≤ u (exact for m ≤ 56), bound 2u·C
         binom = np.array([float(math.comb(m, i)) for i in range(m + 1)])
-        B = Poly(np.tile(binom, (idx.size, 1)), np.zeros((idx.size, m + 1)))
+        B = Poly(np.tile(binom, (idx.size, 1)), np.tile(0.0 if m <= 56 else 2.0 * _U * binom, (idx.size, 1)))
         r = Poly(sv[idx], se[idx]) * B
         good = np.all(r.v - r.e >= 0, axis=1) & _pos(r.v[:, 0], r.e[:, 0]) & np.all(np.isfinite(r.e), axis=1)
         sub_ok[idx[good]] = True
@@ -579,7 +580,9 @@ def accept(cmap: CoefficientMap, X: np.ndarray, criterion: str,
             U[i][j] = _jw(u)
             A[i][j] = _pmul(U[i][j], Dc)
     freq_ok = np.ones(M, bool)
-    if test == "hermitian":
+    if test == "hermitian" and n == 2:
+        freq_ok &= _two_port_hermitian([[den[i][j].take(idx) for j in range(n)] for i in range(n)], num_s, den_id, zero)
+    elif test == "hermitian":
         # where z_ij and z_ji are the same expression (always on the diagonal), the entry of the
         # Hermitian part is 2·Re(u_ij D̃*) exactly (its imaginary part cancels exactly)
         zp = Poly(np.zeros((M, 1)), np.zeros((M, 1)))
@@ -595,6 +598,30 @@ def accept(cmap: CoefficientMap, X: np.ndarray, criterion: str,
         freq_ok &= _theorem1_ok(cmap, A, U, Dc, zero, same, num_s)
     ok[idx] &= freq_ok
     return ok
+
+
+def _two_port_hermitian(den: list[list[Poly]], num: list[list[Poly]], den_id: np.ndarray,
+                        zero: np.ndarray) -> np.ndarray:
+    """G(jω) + G(jω)ᴴ ≻ 0 for all ω > 0 of a 2×2 G, over each entry's own denominator rather than
+    D̃ (structural zeros at ω = 0, e.g. the SDEA's E{1,2} ~ ω⁴, then stay exact zeros):
+    a_i = Re(n_ii d_ii*) = Re g_ii·|d_ii|² > 0, and with g_01 + conj(g_10) = N/Q,
+    N = n_01·conj(d_10) + conj(n_10)·d_01, Q = d_01·conj(d_10), the 2×2 minor times the positive factor
+    |d_00|²·|d_11|²·|Q|² is 4·a_0·a_1·|Q|² − |N|²·|d_00|²·|d_11|² > 0 on x > 0."""
+    J = [[_jw(den[i][j]) for j in range(2)] for i in range(2)]
+    Nj = [[_jw(num[i][j]) for j in range(2)] for i in range(2)]
+    a = [_pmul(Nj[i][i], _conj(J[i][i]))[0] for i in range(2)]
+    ok = certify_positive(a[0]) & certify_positive(a[1])
+    if not ok.any():
+        return ok
+    if zero[0, 1] and zero[1, 0]:
+        return ok
+    # (a zero entry has the exact denominator 1 and numerator 0)
+    N = _padd(_pmul(Nj[0][1], _conj(J[1][0])), _pmul(_conj(Nj[1][0]), J[0][1]))
+    Q2 = _pmul(J[0][1], _conj(J[0][1]))[0] * _pmul(J[1][0], _conj(J[1][0]))[0]
+    N2 = _pmul(N, _conj(N))[0]
+    D2 = _pmul(J[0][0], _conj(J[0][0]))[0] * _pmul(J[1][1], _conj(J[1][1]))[0]
+    det = (a[0] * a[1] * Q2).scale(4.0) - N2 * D2
+    return ok & certify_positive(det)
 
 
 def _llewellyn_ok(A: list[list[Pair]], U: list[list[Pair]], Dc: Pair, i: int, j: int) -> np.ndarray:
