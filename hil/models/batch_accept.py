@@ -12,16 +12,20 @@ affine coefficient map predicts (:class:`hil.models.batch_general.CoefficientMap
 per-coefficient bound (e = 0 for coefficients that are constant over the draws: structural zeros
 and fixed parameters stay exact). Each operation propagates the input bounds exactly as in
 interval arithmetic (first and second order terms: |ab − ãb̃| ≤ |ã|e_b + |b̃|e_a + e_a e_b) and adds
-its own rounding error: a sum or product rounded to nearest is within u·|result|/(1 − u) of the
-exact one (u = 2⁻⁵³, IEEE 754 round-to-nearest; we add 2u|result|), and a sum of n rounded
-products (convolution) is within γ_{n}·Σ|terms| ≤ 2(n + 1)u·Σ|terms| (Higham, *Accuracy and
-Stability of Numerical Algorithms*, §3.1). Underflow: addition is exact in the subnormal range,
-and each product loses at most η = 2⁻¹⁰⁷⁴; we add 8η per product whose factors are not both
-certainly zero. The bound itself is computed in floats (a few operations on non-negative numbers,
-each rounding by at most a factor 1 + u): every computed bound is multiplied by
-:data:`INFL` = 1 + 2⁻⁴⁰, which exceeds (1 + u)^k for k up to 8000 operations. A product or sum
-whose inputs are exact zeros (v = 0, e = 0) is an exact zero: structural zeros stay certified.
-Overflow or NaN anywhere makes the draw undecided (never accepted).
+its own rounding error *exactly*: every sum is computed with Knuth's TwoSum and every product with
+Dekker's TwoProduct (Veltkamp splitting), error-free transformations that return the rounding
+error t of the float result exactly (a + b = fl(a + b) + t, a·b = fl(a·b) + t; exact for finite
+results, TwoProduct when the factors are below 2^995 and the product above 2^-960 or a factor is
+0; elsewhere we use the standard bound 2u·|result| + η, u = 2⁻⁵³, η = 2⁻¹⁰⁷⁴). So a product of
+small integers, or a sum that cancels exactly, adds nothing to the bound: exact inputs give
+exact results wherever the float operations happen to be exact, and identically-zero
+conditions (Llewellyn's η ≡ 0 of the MCET) are certified as exact zeros. The bound itself is
+computed in floats (sums of non-negative numbers, each rounding by at most a factor 1 + u, and
+products that may underflow by ≤ η): every computed bound is multiplied by :data:`INFL` = 1 + 2⁻⁴⁰,
+which exceeds (1 + u)^k for k up to 8000 operations, and 8η is added per product of factors not
+both certainly zero. Quotients (residues only) use the interval quotient with the 2u bound.
+A sum or product whose inputs are exact zeros (v = 0, e = 0) is an exact zero: structural zeros
+stay certified. Overflow or NaN anywhere makes the draw undecided (never accepted).
 
 What is certified (sufficient conditions; docs/VERDICTS.md defines the exact ones)
 -------------------------------------------------------------------------------
@@ -46,12 +50,16 @@ u_ij = n_ij · D̃ / d_ij (formed as a product, no division).
   |D̃(jω)|^(2k) is the sign of the exact path's polynomial, which uses D = lcm instead: both
   factors are positive for ω > 0 because D̃ has no root on the imaginary axis besides s = 0):
 
-  * ``positive_real`` / ``passivity``: every *leading* principal minor of
+  * ``positive_real`` / ``passivity`` of a 2×2 G: Re g_ii > 0 and the 2×2 minor > 0 on x > 0,
+    formed over each entry's own denominators (:func:`_two_port_hermitian`: cancellations such as
+    the SDEA's h_12 + conj(h_21) ~ s² stay exact zeros);
+  * ``positive_real`` / ``passivity`` of a larger G: every *leading* principal minor of
     (G(jω) + G(jω)ᴴ)|D̃(jω)|² > 0 for all x > 0: the Hermitian matrix is then positive definite at
     every ω > 0 (Sylvester), so every principal minor (the exact conditions) is > 0;
   * ``llewellyn``: Re(u_11 D̃*) > 0, Re(u_22 D̃*) > 0 and L2 > 0 on x > 0 (L2 of
     :func:`hil.stability.criteria.llewellyn_polys` over D̃; with a = A1·A2 > 0, L2 > 0 implies
-    L1 = 2a − Re c > 0, so η > 0 and Re p_ii > 0);
+    L1 = 2a − Re c > 0, so η > 0 and Re p_ii > 0); L2 ≡ 0 as an exact zero is accepted too
+    (then L1 = |c| ≥ 0: η ≡ 0, the exact path's ``equality``, still ``stable``);
   * ``absolute_stability`` (Theorem 1): precondition B (diagonal blocks symmetric) and A (cycle
     products) certified structurally: z_ij and z_ji the same expression, or a cycle product with
     a structurally zero factor on both sides. The coupling graph (z_ij z_ji ≢ 0) is certified
@@ -65,9 +73,9 @@ u_ij = n_ij · D̃ / d_ij (formed as a product, no division).
   remaining coefficients positive beyond their bounds, and either all coefficients ≥ 0 beyond
   their bounds, or (Pólya) p(λy)·(1 + y)^m with λ a power of two (exact scaling) and
   m ≤ :data:`POLYA_MAX` (the binomials C(m, k) as floats with their rounding bound) has all
-  coefficients ≥ 0 and its constant one > 0 beyond their bounds; Pólya's theorem says this holds for some m whenever p > 0 on [0, ∞) with p(0) > 0 and
-  a positive leading coefficient, so every draw strictly inside the region is accepted for m large
-  enough, and draws near the boundary go to the exact path.
+  coefficients ≥ 0 and its constant one > 0 beyond their bounds; Pólya's theorem says this holds
+  for some m whenever p > 0 on [0, ∞) with p(0) > 0 and a positive leading coefficient, so
+  draws well inside the region are accepted, and draws near the boundary go to the exact path.
 
 The certificates are *sufficient*: ``weak`` stability (conditions holding with equality) and
 draws near the boundary are left to the exact path. The one assumption outside the arithmetic is
