@@ -72,7 +72,7 @@ u_ij = n_ij · D̃ / d_ij (formed as a product, no division).
   coefficients are exact zeros (structural zeros at ω = 0 and ω = ∞): its lowest and highest
   remaining coefficients positive beyond their bounds, and either all coefficients ≥ 0 beyond
   their bounds, or (Pólya) p(λy)·(1 + y)^m with λ a power of two (exact scaling) and
-  m ≤ :data:`POLYA_MAX` (the binomials C(m, k) as floats with their rounding bound) has all
+  m ≤ :data:`POLYA_MAX` (the binomials C(m, k)/2^m as floats with their rounding bound) has all
   coefficients ≥ 0 and its constant one > 0 beyond their bounds; Pólya's theorem says this holds
   for some m whenever p > 0 on [0, ∞) with p(0) > 0 and a positive leading coefficient, so
   draws well inside the region are accepted, and draws near the boundary go to the exact path.
@@ -87,6 +87,7 @@ extreme draws).
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 import math
@@ -107,7 +108,7 @@ _U = 2.0**-53
 _ETA = 2.0**-1074
 #: inflation of every computed error bound (covers the rounding of the bound's own computation)
 INFL = 1.0 + 2.0**-40
-#: largest Pólya exponent tried (m = d, 2d, 4d, … ≤ this; C(512, k) < 1e154, in range)
+#: largest Pólya exponent tried (m = d, 2d, 4d, … ≤ this)
 POLYA_MAX = 512
 
 
@@ -259,6 +260,17 @@ def hurwitz(q: Poly) -> np.ndarray:
     return ok
 
 
+@functools.lru_cache(maxsize=32)
+def _binomials(m: int) -> tuple[np.ndarray, np.ndarray]:
+    """C(m, k)/2^m, k = 0 … m, correctly rounded to float (integer true division), with a bound
+    on the rounding: 0 where exact, else u·value (normal range) + η (subnormal). Dividing by 2^m
+    (a positive constant) keeps the values in range for any m."""
+    vals = [math.comb(m, k) / (1 << m) for k in range(m + 1)]
+    v = np.array(vals)
+    exact = np.array([Fraction(x) == Fraction(math.comb(m, k), 1 << m) for k, x in enumerate(vals)])
+    return v, np.where(exact, 0.0, _U * v + _ETA)
+
+
 def certify_positive(p: Poly) -> np.ndarray:
     """(N,) bool: p(x) > 0 for every x > 0 certified (module docstring: exact-zero powers of x
     divided out, all coefficients ≥ 0, or Pólya's certificate after an exact power-of-two scaling)."""
@@ -283,15 +295,22 @@ def certify_positive(p: Poly) -> np.ndarray:
     sv, se = np.ldexp(vv, pw), np.ldexp(ee, pw)
     normal = np.all(((sv == 0) | (np.abs(sv) >= 2.0**-1000)) & ((se == 0) | (se >= 2.0**-1000))
                     & np.isfinite(sv) & np.isfinite(se), axis=1)
+    # draws whose p is certainly negative somewhere (at y = 2^-24 … 2^24, powers exact) skip
+    # Pólya's escalation: |fl(Σ c_k y^k) − Σ c_k y^k| ≤ 2(d + 2)u·Σ|c_k|y^k, plus Σ e_k y^k
+    Y = np.ldexp(1.0, np.arange(-24, 25, 2))[:, None] ** np.arange(d + 1)[None, :]  # (G, d + 1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        val = sv @ Y.T
+        err = ((2.0 * (d + 2) * _U) * (np.abs(sv) @ Y.T) + se @ Y.T) * INFL
+        negative = np.any(np.isfinite(val) & np.isfinite(err) & (val + err < 0), axis=1)
+    normal &= ~negative
     sub_ok = np.zeros(todo.size, bool)
     m = d
     while m <= POLYA_MAX:
         idx = np.nonzero(normal & ~sub_ok)[0]
         if idx.size == 0:
             break
-        # C(m, i) rounded to float: relative error ≤ u (exact for m ≤ 56), bound 2u·C
-        binom = np.array([float(math.comb(m, i)) for i in range(m + 1)])
-        B = Poly(np.tile(binom, (idx.size, 1)), np.tile(0.0 if m <= 56 else 2.0 * _U * binom, (idx.size, 1)))
+        binom, berr = _binomials(m)
+        B = Poly(np.tile(binom, (idx.size, 1)), np.tile(berr, (idx.size, 1)))
         r = Poly(sv[idx], se[idx]) * B
         good = np.all(r.v - r.e >= 0, axis=1) & _pos(r.v[:, 0], r.e[:, 0]) & np.all(np.isfinite(r.e), axis=1)
         sub_ok[idx[good]] = True
