@@ -169,7 +169,7 @@ def test_screen_rejects_an_indefinite_mass_matrix_at_infinity() -> None:
 # ------------------------------------------------------------------------------------------
 # vectorized acceptance (hil.models.batch_accept): accepted draws are the exact path's stable ones
 
-from hil.models.batch_accept import Poly, accept, certify_positive, hurwitz  # noqa: E402
+from hil.models.batch_accept import Poly, accept_reject, certainly_negative, certify_positive, hurwitz  # noqa: E402
 
 
 def _screened_vs_exact(model: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray]
@@ -263,7 +263,8 @@ def test_one_port_agrees_with_boundary_draws() -> None:
     ("mbk_impedance", {"B_01": (-2.0, 4.0), "M_01": (0.2, 0.4), "K_01": (-2500.0, 3000.0)}),
     ("bilateral_2dof", {"k_vyz": (250.0, 60.0), "b_yy": (0.5, 0.5)}),
 ])
-def test_accepted_draws_are_never_potentially_unstable(model: str, spec: dict[str, tuple[float, float]]) -> None:
+def test_accepted_draws_are_never_potentially_unstable_and_rejected_never_stable(
+        model: str, spec: dict[str, tuple[float, float]]) -> None:
     # property: across wide posteriors (both sides of the boundary), a draw the screen accepts is
     # stable under the exact criterion
     rng = np.random.default_rng(abs(hash(model)) % 2**32)
@@ -275,10 +276,11 @@ def test_accepted_draws_are_never_potentially_unstable(model: str, spec: dict[st
     m = get_model(model)
     cmap = coefficient_map(lambda th: m.network({**params, **th}), names, X)
     assert cmap is not None
-    acc = accept(cmap, X, m.criterion)
+    acc, rej = accept_reject(cmap, X, m.criterion)
     ref = _exact(model, m.criterion, params, draws)
     assert not np.any(acc & ~ref)
-    assert acc.any()
+    assert not np.any(rej & ref)  # and a draw it rejects is never stable
+    assert acc.any() and rej.any()
 
 
 def _exact_poly(c: np.ndarray) -> Poly:
@@ -311,6 +313,9 @@ def test_certify_positive_and_hurwitz_against_roots() -> None:
     # a double root at x = 1 (touching) and a shallow negative band are never certified
     assert not certify_positive(_exact_poly(np.array([1.0, -2.0, 1.0])))[0]
     assert not certify_positive(_exact_poly(np.array([0.99, -2.0, 1.0])))[0]
+    # certainly_negative: x² − 2x + 0.9 < 0 near x = 1; (x − 1)² ≥ 0 (touching) never
+    assert certainly_negative(_exact_poly(np.array([0.9, -2.0, 1.0])))[0]
+    assert not certainly_negative(_exact_poly(np.array([1.0, -2.0, 1.0])))[0]
     # s³ + s² + s + 1 has roots ±j (not strictly Hurwitz); s³ + 2s² + 2s + 1 is Hurwitz
     assert not hurwitz(_exact_poly(np.array([1.0, 1.0, 1.0, 1.0])))[0]
     assert hurwitz(_exact_poly(np.array([1.0, 2.0, 2.0, 1.0])))[0]

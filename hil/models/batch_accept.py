@@ -91,7 +91,6 @@ import functools
 import itertools
 import logging
 import math
-from collections.abc import Callable
 from fractions import Fraction
 from typing import TYPE_CHECKING
 
@@ -319,6 +318,33 @@ def certify_positive(p: Poly) -> np.ndarray:
     return ok
 
 
+def certainly_negative(p: Poly) -> np.ndarray:
+    """(N,) bool: p(x0) < 0 certified at some sample x0 > 0 (x0 = λ·2^k, k = −40 … 40 step 2,
+    λ a power of two near the geometric mean of the coefficient ratio, so x0^k is exact):
+    |fl(Σ c_k x0^k) − Σ c_k x0^k| ≤ 2(d + 2)u·Σ|c_k|x0^k, plus Σ e_k x0^k for the coefficients'
+    own bounds (inflated by INFL); a value whose upper bound is < 0 is negative."""
+    N = p.v.shape[0]
+    live = np.nonzero(np.any((p.v != 0) | (p.e > 0), axis=0))[0]
+    if live.size == 0:
+        return np.zeros(N, bool)
+    v, e = p.v[:, :live[-1] + 1], p.e[:, :live[-1] + 1]
+    d = v.shape[1] - 1
+    lo, hi = np.abs(v[:, live[0]]), np.abs(v[:, -1])
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        k0 = np.where((lo > 0) & (hi > 0) & (d > live[0]),
+                      np.round((np.log2(lo) - np.log2(hi)) / max(d - int(live[0]), 1)), 0.0)
+        k0 = np.nan_to_num(k0).astype(int)
+        out = np.zeros(N, bool)
+        for k in range(-40, 41, 2):
+            pw = np.ldexp(1.0, (k0 + k)[:, None] * np.arange(d + 1)[None, :])
+            val = np.sum(v * pw, axis=1)
+            err = (((2.0 * (d + 2) * _U) * np.sum(np.abs(v) * pw, axis=1) + np.sum(e * pw, axis=1)) * INFL
+                   + 4 * (d + 1) * _ETA)
+            exact_pw = np.all(np.isfinite(pw) & (pw > 0), axis=1)  # powers of two: exact unless out of range
+            out |= np.isfinite(val) & np.isfinite(err) & exact_pw & (val + err < 0)
+    return out
+
+
 # ------------------------------------------------------------------------------------------
 # entries over jω: pairs (A, B) meaning A(x) + jω·B(x)
 
@@ -513,18 +539,19 @@ def _structure(cmap: CoefficientMap) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return zero, same, den_id
 
 
-def accept(cmap: CoefficientMap, X: np.ndarray, criterion: str,
-           coefficients: Callable[[np.ndarray], tuple[Poly, Poly, np.ndarray]] | None = None) -> np.ndarray:
-    """(N,) bool: draws (rows of X) whose exact ``criterion`` verdict is certified ``stable``
-    (module docstring). ``coefficients(X) -> (num, den, _)``: the interval coefficients of the
-    entries (default: the map's, :meth:`CoefficientMap.intervals`)."""
+def accept_reject(cmap: CoefficientMap, X: np.ndarray, criterion: str) -> tuple[np.ndarray, np.ndarray]:
+    """(accepted, rejected), (N,) bool each: draws (rows of X) whose exact ``criterion`` verdict is
+    certified ``stable`` (module docstring), and draws where a frequency condition the exact
+    path decides is certainly negative at a sample frequency (:func:`certainly_negative`; only
+    for draws whose denominators are certified as above, so the sign is the exact condition's
+    there: the exact verdict is then not ``stable``)."""
     test = {"positive_real": "hermitian", "passivity": "hermitian", "llewellyn": "minors",
             "absolute_stability": "minors"}.get(criterion)
     X = np.atleast_2d(np.asarray(X, float))
     N = X.shape[0]
     n = cmap.num0.shape[0]
     if test is None or (criterion == "llewellyn" and n != 2):
-        return np.zeros(N, bool)
+        return np.zeros(N, bool), np.zeros(N, bool)
     nv, ne, dv, de = cmap.intervals(X)
     zero, same, den_id = _structure(cmap)
     num = [[Poly(nv[:, i, j], ne[:, i, j]).trimmed() for j in range(n)] for i in range(n)]
@@ -543,12 +570,13 @@ def accept(cmap: CoefficientMap, X: np.ndarray, criterion: str,
         exz = ~np.any((t.v != 0) | (t.e > 0), axis=0)
         a = int(np.argmin(exz)) if not exz.all() else t.L
         if a > 1:
-            return np.zeros(N, bool)
+            return np.zeros(N, bool), np.zeros(N, bool)
         shift[k] = a
         q = Poly(t.v[:, a:], t.e[:, a:])
         ok &= hurwitz(q)
+    pole_ok = ok.copy()
     if not ok.any():
-        return ok
+        return ok, np.zeros(N, bool)
     zN = (np.zeros(N), np.zeros(N))
     # residues at s = 0: K_ij = n_ij(0)/q_ij(0) for entries whose denominator has the factor s
     K_num = [[zN for _ in range(n)] for _ in range(n)]
@@ -574,17 +602,16 @@ def accept(cmap: CoefficientMap, X: np.ndarray, criterion: str,
             if not np.all(_pos(np.abs(den[i][j].v[:, -1]), den[i][j].e[:, -1])):
                 ok &= _pos(np.abs(den[i][j].v[:, -1]), den[i][j].e[:, -1])
             if dd + 1 < num[i][j].L - 1:
-                return np.zeros(N, bool)  # an excess ≥ 2 is possible
+                return np.zeros(N, bool), np.zeros(N, bool)  # an excess ≥ 2 is possible
             if dd + 1 == num[i][j].L - 1:
                 any_inf = True
                 R_num[i][j] = (num[i][j].v[:, -1], num[i][j].e[:, -1])
                 R_den[i][j] = (den[i][j].v[:, -1], den[i][j].e[:, -1])
     if any_inf:
         ok &= _residues_admissible(R_num, R_den, same, test)
-    if not ok.any():
-        return ok
-    # -- frequency conditions over D̃ = ∏ distinct denominators
-    idx = np.nonzero(ok)[0]
+    # -- frequency conditions over D̃ = ∏ distinct denominators (for rejection also where a
+    # residue condition was not certified)
+    idx = np.nonzero(pole_ok)[0]
     num_s = [[num[i][j].take(idx) for j in range(n)] for i in range(n)]
     den_s = {k: den[i][j].take(idx) for k, (i, j) in uniq.items()}
     M = idx.size
@@ -607,8 +634,9 @@ def accept(cmap: CoefficientMap, X: np.ndarray, criterion: str,
             U[i][j] = _jw(u)
             A[i][j] = _pmul(U[i][j], Dc)
     freq_ok = np.ones(M, bool)
+    neg = np.zeros(M, bool)
     if test == "hermitian" and n == 2:
-        freq_ok &= _two_port_hermitian([[den[i][j].take(idx) for j in range(n)] for i in range(n)], num_s, den_id, zero)
+        freq_ok &= _two_port_hermitian([[den[i][j].take(idx) for j in range(n)] for i in range(n)], num_s, neg)
     elif test == "hermitian":
         # where z_ij and z_ji are the same expression (always on the diagonal), the entry of the
         # Hermitian part is 2·Re(u_ij D̃*) exactly (its imaginary part cancels exactly)
@@ -616,19 +644,29 @@ def accept(cmap: CoefficientMap, X: np.ndarray, criterion: str,
         H = [[(A[i][j][0].scale(2.0), zp) if same[i, j] else _padd(A[i][j], _conj(A[j][i])) for j in range(n)]
              for i in range(n)]
         for mnr in _leading_minors(H):
-            freq_ok &= certify_positive(mnr)
-            if not freq_ok.any():
-                break
+            freq_ok &= _chk(mnr, neg)
     elif criterion == "llewellyn":
-        freq_ok &= _llewellyn_ok(A, U, Dc, 0, 1)
+        freq_ok &= _llewellyn_ok(A, U, Dc, 0, 1, neg)
     else:
-        freq_ok &= _theorem1_ok(cmap, A, U, Dc, zero, same, num_s)
+        freq_ok &= _theorem1_ok(cmap, A, U, Dc, zero, same, num_s, neg)
+    rejected = np.zeros(N, bool)
+    rejected[idx] = neg
     ok[idx] &= freq_ok
-    return ok
+    return ok & ~rejected, rejected
 
 
-def _two_port_hermitian(den: list[list[Poly]], num: list[list[Poly]], den_id: np.ndarray,
-                        zero: np.ndarray) -> np.ndarray:
+def accept(cmap: CoefficientMap, X: np.ndarray, criterion: str) -> np.ndarray:
+    """(N,) bool: the draws :func:`accept_reject` accepts."""
+    return accept_reject(cmap, X, criterion)[0]
+
+
+def _chk(p: Poly, neg: np.ndarray) -> np.ndarray:
+    """certify_positive(p), and neg |= certainly_negative(p) (in place)."""
+    neg |= certainly_negative(p)
+    return certify_positive(p)
+
+
+def _two_port_hermitian(den: list[list[Poly]], num: list[list[Poly]], neg: np.ndarray) -> np.ndarray:
     """G(jω) + G(jω)ᴴ ≻ 0 for all ω > 0 of a 2×2 G, over each entry's own denominator rather than
     D̃ (structural zeros at ω = 0, e.g. the SDEA's E{1,2} ~ ω⁴, then stay exact zeros):
     a_i = Re(n_ii d_ii*) = Re g_ii·|d_ii|² > 0, and with g_01 + conj(g_10) = N/Q,
@@ -637,36 +675,31 @@ def _two_port_hermitian(den: list[list[Poly]], num: list[list[Poly]], den_id: np
     J = [[_jw(den[i][j]) for j in range(2)] for i in range(2)]
     Nj = [[_jw(num[i][j]) for j in range(2)] for i in range(2)]
     a = [_pmul(Nj[i][i], _conj(J[i][i]))[0] for i in range(2)]
-    ok = certify_positive(a[0]) & certify_positive(a[1])
-    if not ok.any():
-        return ok
-    if zero[0, 1] and zero[1, 0]:
-        return ok
+    ok = _chk(a[0], neg) & _chk(a[1], neg)
     # (a zero entry has the exact denominator 1 and numerator 0)
     N = _padd(_pmul(Nj[0][1], _conj(J[1][0])), _pmul(_conj(Nj[1][0]), J[0][1]))
     Q2 = _pmul(J[0][1], _conj(J[0][1]))[0] * _pmul(J[1][0], _conj(J[1][0]))[0]
     N2 = _pmul(N, _conj(N))[0]
     D2 = _pmul(J[0][0], _conj(J[0][0]))[0] * _pmul(J[1][1], _conj(J[1][1]))[0]
     det = (a[0] * a[1] * Q2).scale(4.0) - N2 * D2
-    return ok & certify_positive(det)
+    return ok & _chk(det, neg)
 
 
-def _llewellyn_ok(A: list[list[Pair]], U: list[list[Pair]], Dc: Pair, i: int, j: int) -> np.ndarray:
+def _llewellyn_ok(A: list[list[Pair]], U: list[list[Pair]], Dc: Pair, i: int, j: int, neg: np.ndarray) -> np.ndarray:
     a1, a2 = A[i][i][0], A[j][j][0]
-    ok = certify_positive(a1)
-    ok &= certify_positive(a2)
-    if not ok.any():
-        return ok
+    ok = _chk(a1, neg)
+    ok &= _chk(a2, neg)
     a = a1 * a2
     c = _pmul(_pmul(_pmul(U[i][j], U[j][i]), Dc), Dc)
     L2 = (a * (a - c[0])).scale(4.0) - (c[1] * c[1]).mulx()
     # L2 ≡ 0 exactly (every coefficient 0 with bound 0: η ≡ 0, the exact path's ``equality``)
     # is admissible too: with a > 0, L2 ≥ 0 still gives L1 = 2a − Re c ≥ |c| ≥ 0
-    return ok & (certify_positive(L2) | np.all((L2.v == 0) & (L2.e == 0), axis=1))
+    # (L2 < 0 somewhere implies η < 0 there: L2 = (L1 − |c|)(L1 + |c|) with L1 + |c| ≥ L1 − |c|)
+    return ok & (_chk(L2, neg) | np.all((L2.v == 0) & (L2.e == 0), axis=1))
 
 
 def _theorem1_ok(cmap: CoefficientMap, A: list[list[Pair]], U: list[list[Pair]], Dc: Pair,
-                 zero: np.ndarray, same: np.ndarray, num_s: list[list[Poly]]) -> np.ndarray:
+                 zero: np.ndarray, same: np.ndarray, num_s: list[list[Poly]], neg: np.ndarray) -> np.ndarray:
     n = len(A)
     M = A[0][0][0].v.shape[0]
     no = np.zeros(M, bool)
@@ -710,15 +743,13 @@ def _theorem1_ok(cmap: CoefficientMap, A: list[list[Pair]], U: list[list[Pair]],
                     stack.append(w)
         comp.sort()
         if len(comp) == 1:
-            ok &= certify_positive(A[comp[0]][comp[0]][0])
+            ok &= _chk(A[comp[0]][comp[0]][0], neg)
         elif len(comp) == 2:
-            ok &= _llewellyn_ok(A, U, Dc, comp[0], comp[1])
+            ok &= _llewellyn_ok(A, U, Dc, comp[0], comp[1], neg)
         else:
             if not all(nzm[a, b] and same[a, b] for a in comp for b in comp if a < b):
                 return no
             R = [[(A[a][b][0], Poly(np.zeros((M, 1)), np.zeros((M, 1)))) for b in comp] for a in comp]
             for mnr in _leading_minors(R):
-                ok &= certify_positive(mnr)
-        if not ok.any():
-            return ok
+                ok &= _chk(mnr, neg)
     return ok

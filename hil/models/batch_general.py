@@ -35,7 +35,9 @@ per-draw stability it returns is the exact path's on every draw:
    without the exact path) when a sufficient condition of the criterion is certified for it with
    rigorous float error bounds (pole locations by a Routh table, residue matrices at 0 and ∞,
    positivity of the condition polynomials on x = ω² > 0 by their coefficients or a Pólya
-   certificate; see that module for the bounds and the proof).
+   certificate; see that module for the bounds and the proof), and *rejected* when one of those
+   condition polynomials is certainly negative at a sample frequency. The grid screen (2.) runs
+   only on the draws neither accepted nor rejected there.
 4. **Exact decision.** Every draw neither rejected nor accepted (near the boundary, or where a
    condition only holds with equality in a way the float bounds cannot certify) goes through the
    exact criterion per draw. See docs/BENCHMARKS.md ("Robust certification, general networks").
@@ -365,14 +367,16 @@ def screened_stability(model: str, criterion: str, params: Mapping[str, Any],
 
     cmap = coefficient_map(build, names, X) if 2 * len(names) + 4 < N else None
     if cmap is not None:
-        from hil.models.batch_accept import accept
+        from hil.models.batch_accept import accept_reject
 
-        # acceptance first (cheaper per draw than the grid), the rejection grid on the rest only
-        accepted = accept(cmap, X, criterion)
-        rejected, margin = np.zeros(N, bool), np.full(N, np.nan)
-        rest = np.nonzero(~accepted)[0]
+        # acceptance first (and rejection where a condition is certainly negative at a sample
+        # frequency): cheaper per draw than the grid, which runs on the rest only
+        accepted, rejected = accept_reject(cmap, X, criterion)
+        margin = np.full(N, np.nan)
+        rest = np.nonzero(~accepted & ~rejected)[0]
         if rest.size:
-            rejected[rest], margin[rest] = screen(cmap, X[rest], criterion)
+            rej_g, margin[rest] = screen(cmap, X[rest], criterion)
+            rejected[rest] = rej_g
     else:
         rejected, margin = np.zeros(N, bool), np.full(N, np.nan)
         accepted = np.zeros(N, bool)
