@@ -661,9 +661,13 @@ def accept(cmap: CoefficientMap, X: np.ndarray, criterion: str) -> np.ndarray:
 
 
 def _chk(p: Poly, neg: np.ndarray) -> np.ndarray:
-    """certify_positive(p), and neg |= certainly_negative(p) (in place)."""
-    neg |= certainly_negative(p)
-    return certify_positive(p)
+    """certify_positive(p), and neg |= certainly_negative(p) (in place) on the draws not
+    certified positive."""
+    pos = certify_positive(p)
+    rest = np.nonzero(~pos & ~neg)[0]
+    if rest.size:
+        neg[rest] |= certainly_negative(p.take(rest))
+    return pos
 
 
 def _two_port_hermitian(den: list[list[Poly]], num: list[list[Poly]], neg: np.ndarray) -> np.ndarray:
