@@ -337,3 +337,36 @@ def test_interval_bound_contains_the_exact_value() -> None:
             assert abs(Fraction(p.v[r, k]) - want) <= Fraction(p.e[r, k])
     q = _exact_poly(np.array([3.0, -2.0])) * _exact_poly(np.array([5.0, 7.0, 1.0]))
     assert np.all(q.e == 0) and q.v[0].tolist() == [15.0, 11.0, -11.0, -2.0]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_one_ports_accept_and_reject_soundly(seed: int) -> None:
+    # property over random one-ports Z = (a0 + a1 s + a2 s² + a3 s³)/(b0 + b1 s + b2 s²) (+ a pole
+    # at 0 on odd seeds): every coefficient drawn around a random centre; the screen's accepted
+    # draws are stable and its rejected ones not, against the exact criterion (hil.stability)
+    from hil.stability.criteria import check
+
+    rng = np.random.default_rng(100 + seed)
+    centre = {f"a{k}": float(v) for k, v in enumerate(rng.uniform(0.2, 3.0, 4))}
+    centre |= {f"b{k}": float(v) for k, v in enumerate(rng.uniform(0.5, 3.0, 3))}
+    centre["a3"] *= 0.1
+    pole0 = seed % 2 == 1
+
+    def build(th: Mapping[str, float]) -> TransferMatrix:
+        num = [th["a0"], th["a1"], th["a2"], th["a3"]]
+        den = [th["b0"], th["b1"], th["b2"]]
+        if pole0:
+            den = [0.0, *den]
+        return TransferMatrix([[Rational(np.array(num), np.array(den))]], "impedance", (1,))
+
+    n = 80
+    names = sorted(centre)
+    X = np.column_stack([centre[k] * (1 + 0.6 * rng.standard_normal(n)) for k in names])
+    cmap = coefficient_map(build, names, X)
+    assert cmap is not None
+    acc, rej = accept_reject(cmap, X, "positive_real")
+    ref = np.array([str(check(build(dict(zip(names, X[i].tolist(), strict=True))), "positive_real",
+                              margins=False).verdict) == "stable" for i in range(n)])
+    assert not np.any(acc & ~ref)
+    assert not np.any(rej & ref)
+    assert (acc | rej).mean() > 0.5  # the screen decides most draws
