@@ -339,7 +339,7 @@ def test_interval_bound_contains_the_exact_value() -> None:
     assert np.all(q.e == 0) and q.v[0].tolist() == [15.0, 11.0, -11.0, -2.0]
 
 
-@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("seed", range(4))
 def test_random_one_ports_accept_and_reject_soundly(seed: int) -> None:
     # property over random one-ports Z = (a0 + a1 s + a2 s² + a3 s³)/(b0 + b1 s + b2 s²) (+ a pole
     # at 0 on odd seeds): every coefficient drawn around a random centre; the screen's accepted
