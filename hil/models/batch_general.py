@@ -31,12 +31,16 @@ per-draw stability it returns is the exact path's on every draw:
    A draw with a condition below −:data:`SAFETY` × its error bound at some grid point has a real
    violation of a necessary condition, so the exact criterion cannot call it ``stable``: it is
    **rejected** without the exact path.
-3. **Exact decision.** Every other draw (all draws the screen cannot reject, stable or not) goes
-   through the exact criterion per draw. The grid never *accepts*: no root-free argument between
-   grid points or for the pole and infinity conditions is attempted here, so the speed-up equals
-   the fraction of draws the screen rejects (large for a posterior straddling the boundary, none for
-   a posterior that is all stable). See docs/BENCHMARKS.md ("Robust certification, general
-   networks").
+3. **Vectorized acceptance** (:mod:`hil.models.batch_accept`): a draw is *accepted* (stable,
+   without the exact path) when a sufficient condition of the criterion is certified for it with
+   rigorous float error bounds (pole locations by a Routh table, residue matrices at 0 and ∞,
+   positivity of the condition polynomials on x = ω² > 0 by their coefficients or a Pólya
+   certificate; see that module for the bounds and the proof), and *rejected* when one of those
+   condition polynomials is certainly negative at a sample frequency. The grid screen (2.) runs
+   only on the draws neither accepted nor rejected there.
+4. **Exact decision.** Every draw neither rejected nor accepted (near the boundary, or where a
+   condition only holds with equality in a way the float bounds cannot certify) goes through the
+   exact criterion per draw. See docs/BENCHMARKS.md ("Robust certification, general networks").
 """
 
 from __future__ import annotations
@@ -58,6 +62,9 @@ __all__ = ["GRID_POINTS", "SAFETY", "CoefficientMap", "coefficient_map", "screen
 SAFETY = 64.0
 #: grid points of the screen (log-spaced)
 GRID_POINTS = 160
+#: the builder's deviation from the affine coefficient map is taken as at most this many times the
+#: largest deviation measured at the check builds (CoefficientMap.intervals)
+MAP_SAFETY = 64.0
 #: draws evaluated at once (bounds the screen's memory: chunk × grid × n² complex values)
 _CHUNK = 512
 _U = float(np.finfo(float).eps) / 2.0
@@ -67,8 +74,9 @@ _U = float(np.finfo(float).eps) / 2.0
 class CoefficientMap:
     """θ → entry coefficients, affine: ``num = num0 + Σ_k (θ_k − c_k)·dnum_k`` (arrays (n, n, L),
     ascending powers of s; the same for ``den``), ``names`` the columns of θ, ``centre`` c, ``eps``
-    the largest relative mismatch against real builds at the check points, ``kind`` the immittance
-    type, ``freq`` the screen's grid band (rad/s)."""
+    the largest relative mismatch against real builds at the check points (relative to each
+    coefficient's term magnitude |num0| + Σ_k |θ_k − c_k|·|dnum_k|), ``kind`` the immittance
+    type, ``freq`` the screen's grid band (rad/s), ``port_dofs`` the network's port sizes."""
 
     names: tuple[str, ...]
     centre: np.ndarray
@@ -79,6 +87,10 @@ class CoefficientMap:
     eps: float
     kind: str
     freq: tuple[float, float]
+    port_dofs: tuple[int, ...] = ()
+    #: coefficients that are copies of one drawn parameter: index of the parameter (−1: not a
+    #: copy) and the factor (a signed power of two), arrays (n, n, L) for num and den
+    copies: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def coefficients(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(num, den) coefficient arrays (N, n, n, L) for the rows of X (N, d)."""
@@ -86,6 +98,42 @@ class CoefficientMap:
         num = self.num0 + np.tensordot(D, self.dnum, axes=(1, 0))
         den = self.den0 + np.tensordot(D, self.dden, axes=(1, 0))
         return num, den
+
+    def intervals(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(num, num bound, den, den bound), arrays (N, n, n, L): the predicted coefficients and a
+        bound on their distance to the real builds' (hil.models.batch_accept's inputs).
+
+        A coefficient constant over the draws (all its steps exactly 0, and equal to ``num0``
+        bit for bit in every check build) is exact: bound 0; so is one the builder copies from a
+        drawn parameter (``copies``: f·θ_k bit for bit at the centre and at every check build). Any other one gets
+        ``MAP_SAFETY·(eps + (d + 8)·u)·mag`` with mag = |num0| + Σ_k |θ_k − c_k|·|dnum_k|: the
+        prediction's own rounding (a sum of d + 1 terms and the subtraction θ − c) is within
+        (d + 3)·u·mag, and the builder's deviation from the affine map is taken as at most
+        MAP_SAFETY times the largest deviation measured at the check builds (an assumption on the
+        builder, tested at every parameter's extreme draws, not a proof)."""
+        X = np.asarray(X, float)
+        D = X - self.centre
+        num, den = self.coefficients(X)
+        d = len(self.names)
+        rel = MAP_SAFETY * (self.eps + (d + 8) * _U)
+        A = np.abs(D)
+        nmag = np.abs(self.num0) + np.tensordot(A, np.abs(self.dnum), axes=(1, 0))
+        dmag = np.abs(self.den0) + np.tensordot(A, np.abs(self.dden), axes=(1, 0))
+        nconst = ~np.any(self.dnum != 0, axis=0)
+        dconst = ~np.any(self.dden != 0, axis=0)
+        ne = np.where(nconst, 0.0, rel * nmag)
+        de = np.where(dconst, 0.0, rel * dmag)
+        # constant coefficients are the centre build's, exactly (not re-rounded)
+        num = np.where(nconst, self.num0, num)
+        den = np.where(dconst, self.den0, den)
+        if self.copies is not None:
+            # a coefficient the builder copies from a drawn parameter (times a power of two) is
+            # that parameter exactly: bound 0
+            for arr, err, (ck, cf) in ((num, ne, self.copies[:2]), (den, de, self.copies[2:])):
+                for idx in zip(*np.nonzero(ck >= 0), strict=True):
+                    arr[(slice(None), *idx)] = cf[idx] * X[:, ck[idx]]
+                    err[(slice(None), *idx)] = 0.0
+        return num, ne, den, de
 
 
 def _arrays(tm: Any, L: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -133,31 +181,64 @@ def coefficient_map(build: Callable[[Mapping[str, float]], Any], names: list[str
                 return None
             dnum[k], dden[k] = (got[0] - num0) / h, (got[1] - den0) / h
         cmap = CoefficientMap(tuple(names), centre, num0, den0, dnum, dden, 0.0, tm0.kind,
-                              _freq_range(tm0.entries))
-        # check points: the first and last draws and the one farthest from the centre
+                              _freq_range(tm0.entries), tuple(tm0.port_dofs))
+        copies = [_copy_candidates(c0, dc, centre) for c0, dc in ((num0, dnum), (den0, dden))]
+        # check points: the first and last draws, the one farthest from the centre and, per
+        # parameter, the draws with its smallest and largest value (the builder's parameter
+        # constraints, intervals per parameter, then hold on every draw's box)
         sd = X.std(axis=0)
         sd[sd == 0] = 1.0
         far = int(np.argmax((((X - centre) / sd) ** 2).sum(axis=1)))
+        checks = {0, X.shape[0] - 1, far, *np.argmin(X, axis=0).tolist(), *np.argmax(X, axis=0).tolist()}
         eps = 0.0
-        for i in sorted({0, X.shape[0] - 1, far}):
+        for i in sorted(checks):
             got = _arrays(build(dict(zip(names, X[i].tolist(), strict=True))), L)
             if got is None:
                 return None
             pn, pd = cmap.coefficients(X[i:i + 1])
-            for want, pred in ((got[0], pn[0]), (got[1], pd[0])):
+            Dabs = np.abs(X[i] - centre)
+            for want, pred, c0, dc, cp in ((got[0], pn[0], num0, dnum, copies[0]),
+                                           (got[1], pd[0], den0, dden, copies[1])):
+                ck, cf = cp
+                bad = (ck >= 0) & (want != cf * X[i, np.maximum(ck, 0)])
+                ck[bad] = -1  # not a copy after all: the general bound applies
+                const = ~np.any(dc != 0, axis=0)
+                if np.any(const & (want != c0)):
+                    logger.info("a coefficient constant at the probes changed at a check build: "
+                                "exact path for all draws")
+                    return None
                 scale = np.abs(want).max(axis=-1, keepdims=True) + np.abs(pred).max(axis=-1, keepdims=True)
                 err = np.abs(want - pred)
                 if np.any(err > check_rtol * scale):
                     logger.info("coefficient map not affine (mismatch %.3g): exact path for all draws",
                                 float((err / np.where(scale > 0, scale, 1.0)).max()))
                     return None
+                mag = np.abs(c0) + np.tensordot(Dabs, np.abs(dc), axes=(0, 0))
                 with np.errstate(invalid="ignore", divide="ignore"):
-                    rel = np.where(scale > 0, err / scale, 0.0)
+                    rel = np.where(const, 0.0, np.where(mag > 0, err / np.where(mag > 0, mag, 1.0),
+                                                        np.where(err > 0, np.inf, 0.0)))
                 eps = max(eps, float(rel.max()))
+        if not np.isfinite(eps):
+            return None
     except HilError as exc:
         logger.info("coefficient map not measured (%s): exact path for all draws", exc)
         return None
-    return CoefficientMap(cmap.names, centre, num0, den0, dnum, dden, eps, cmap.kind, cmap.freq)
+    return CoefficientMap(cmap.names, centre, num0, den0, dnum, dden, eps, cmap.kind, cmap.freq, cmap.port_dofs,
+                          (copies[0][0], copies[0][1], copies[1][0], copies[1][1]))
+
+
+def _copy_candidates(c0: np.ndarray, dc: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(parameter index or −1, factor) per coefficient: the coefficient looks like f·θ_k with f a
+    signed power of two (its only step is ≈ f along θ_k and the centre build's value is f·c_k bit
+    for bit); confirmed or dropped at the check builds (want == f·θ_k exactly)."""
+    nzk = dc != 0
+    one = nzk.sum(axis=0) == 1
+    k = np.argmax(nzk, axis=0)
+    step = np.take_along_axis(dc, k[None], axis=0)[0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(step != 0, np.sign(step) * 2.0 ** np.round(np.log2(np.abs(np.where(step != 0, step, 1.0)))), 0.0)
+    ok = one & (np.abs(step - f) <= 1e-9 * np.abs(f)) & (c0 == f * centre[k])
+    return np.where(ok, k, -1), np.where(ok, f, 0.0)
 
 
 def _eval(c: np.ndarray, S: np.ndarray, A: np.ndarray, gamma: float) -> tuple[np.ndarray, np.ndarray]:
@@ -284,18 +365,30 @@ def screened_stability(model: str, criterion: str, params: Mapping[str, Any],
         q.update(th)
         return m.network(q)
 
-    cmap = coefficient_map(build, names, X) if len(names) + 4 < N else None
+    cmap = coefficient_map(build, names, X) if 2 * len(names) + 4 < N else None
     if cmap is not None:
-        rejected, margin = screen(cmap, X, criterion)
+        from hil.models.batch_accept import accept_reject
+
+        # acceptance first (and rejection where a condition is certainly negative at a sample
+        # frequency): cheaper per draw than the grid, which runs on the rest only
+        accepted, rejected = accept_reject(cmap, X, criterion)
+        margin = np.full(N, np.nan)
+        rest = np.nonzero(~accepted & ~rejected)[0]
+        if rest.size:
+            rej_g, margin[rest] = screen(cmap, X[rest], criterion)
+            rejected[rest] = rej_g
     else:
         rejected, margin = np.zeros(N, bool), np.full(N, np.nan)
+        accepted = np.zeros(N, bool)
     method = "general exact criterion per draw"
-    if rejected.any():
+    if rejected.any() or accepted.any():
         method = (f"general exact criterion per draw, after a vectorized screen that rejected "
-                  f"{int(rejected.sum())} of {N} draws on a necessary frequency condition")
-    stable = np.zeros(N, bool)
-    for i in np.nonzero(~rejected)[0]:
+                  f"{int(rejected.sum())} (a necessary frequency condition violated) and accepted "
+                  f"{int(accepted.sum())} (a sufficient condition certified) of {N} draws")
+    stable = accepted.copy()
+    for i in np.nonzero(~rejected & ~accepted)[0]:
         q = dict(params)
         q.update({k: float(X[i, c]) for c, k in enumerate(names)})
         stable[i] = exact_one(q)
-    return {"stable": stable, "rejected": rejected, "screen_margin": margin, "method": method}
+    return {"stable": stable, "rejected": rejected, "accepted": accepted, "screen_margin": margin,
+            "method": method}
