@@ -130,6 +130,7 @@ class Simulator:
         self.Ad, self.Bd = disc.Ad, disc.Bd
         self._C, self._D = plant.system.C, plant.system.D
         self._W = np.hstack([self.Ad, self.Bd])
+        self._W_rows: list[list[float]] = self._W.tolist()  # the exact sum's rows as plain floats
         self._exact = exact_sum
         self.n, self.m = self.Bd.shape
         actuators = actuators or {}
@@ -221,19 +222,29 @@ class Simulator:
 
     def tick(self) -> None:
         """Advance exactly one control period with the current commands held (ZOH)."""
+        u = self._u
         for h in self.handles.values():
-            self._u[h._jm.effort] = h._effective_effort()
+            u[h._jm.effort] = h._effective_effort()
         if self._exact:
-            prods = (self._W * np.concatenate((self._x, self._u))).tolist()
-            x_new = np.fromiter(map(math.fsum, prods), dtype=float, count=self.n)
+            # plain floats: each product is the same IEEE double product numpy forms elementwise and
+            # math.fsum rounds their sum correctly, so this equals the array expression
+            # fsum(W[i] * concat(x, u)) bit for bit, without the array temporaries (n <= ~30)
+            z = self._x.tolist()
+            z += u.tolist()
+            fsum = math.fsum
+            new = [fsum([w * v for w, v in zip(row, z, strict=True)]) for row in self._W_rows]
+            if not all(map(math.isfinite, new)):
+                raise ModelError(f"simulation diverged at t = {self.time:.6g} s (non-finite state)")
+            x_new = np.array(new)
         else:
-            x_new = self.Ad @ self._x + self.Bd @ self._u
-        if not np.isfinite(x_new).all():
-            raise ModelError(f"simulation diverged at t = {self.time:.6g} s (non-finite state)")
+            x_new = self.Ad @ self._x + self.Bd @ u
+            if not np.isfinite(x_new).all():
+                raise ModelError(f"simulation diverged at t = {self.time:.6g} s (non-finite state)")
         self._x = x_new
-        self.last_input = self._u.copy()
+        self.last_input = u.copy()
         self.step_count += 1
-        self._fill_exogenous()
+        if self.plant.profiles:
+            self._fill_exogenous()
 
 
 @dataclass(frozen=True)
