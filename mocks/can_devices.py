@@ -373,7 +373,8 @@ class SimCanNode:
                 b.host_frame(self, msg)
 
     def _receive(self, msg: can.Message) -> None:
-        if self.injector.is_disconnected(self.tick_count):
+        inj = self.injector
+        if not inj.inactive and inj.is_disconnected(self.tick_count):
             return
         self.frames_in += 1
         try:
@@ -386,12 +387,18 @@ class SimCanNode:
         what a stale fault does to this frame: ``"repeat"`` the previous payload, or ``"suppress"``
         (no new data, so no frame)."""
         inj = self.injector
+        key = arb_id if stale_key is None else stale_key
+        if inj.inactive:  # no fault can apply: what the steps below do then, without their calls
+            if self._closed:
+                return
+            self._last_payload[key] = data
+            self._send_now(can.Message(arbitration_id=arb_id, data=data, is_extended_id=False))
+            return
         t = self.tick_count
         if inj.is_disconnected(t) or self._closed:
             return
         if inj.should_drop(t):
             return
-        key = arb_id if stale_key is None else stale_key
         if key in self._last_payload and inj.should_repeat_stale(t):
             if stale == "suppress":
                 self.frames_suppressed += 1

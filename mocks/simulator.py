@@ -25,6 +25,7 @@ import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -72,7 +73,8 @@ class Joints:
         self.reset()
 
     def reset(self) -> None:
-        """Zero the command and empty the delay line."""
+        """Zero the command and empty the delay line (``resets`` counts the calls)."""
+        self.resets = getattr(self, "resets", -1) + 1
         self._cmd = np.zeros(self.dof)
         self._queue = deque(np.zeros(self.dof) for _ in range(self.actuator.delay_ticks))
 
@@ -83,18 +85,20 @@ class Joints:
 
     def apply_effort(self, effort: ArrayLike) -> None:
         """Command the effort (N or N.m, one per DOF) held from the next tick on (ZOH)."""
-        e = np.asarray(effort, dtype=float).reshape(-1)
+        e = np.array(effort, dtype=float).reshape(-1)  # a copy: later changes of `effort` do not leak in
         if e.size != self.dof:
             raise ModelError(f"{self.name}: effort has {e.size} values, the body has {self.dof} DOF")
-        if not np.isfinite(e).all():
+        if not all(map(math.isfinite, e.tolist())):
             raise ModelError(f"{self.name}: non-finite effort {e}")
-        self._cmd = e.copy()
+        self._cmd = e
 
     def _effective_effort(self) -> np.ndarray:
         act = self.actuator
         if act.delay_ticks:
             self._queue.append(self._cmd.copy())
             e = self._queue.popleft()
+        elif act.limit is None and not act.coulomb > 0.0:
+            return self._cmd  # the caller copies it into the input vector
         else:
             e = self._cmd.copy()
         if act.limit is not None:
@@ -129,6 +133,7 @@ class Simulator:
         disc = plant.system.discretize(self.dt, "zoh")
         self.Ad, self.Bd = disc.Ad, disc.Bd
         self._C, self._D = plant.system.C, plant.system.D
+        self._rows: dict[tuple[Any, Any, Any], tuple[np.ndarray, np.ndarray]] = {}
         self._W = np.hstack([self.Ad, self.Bd])
         self._W_rows: list[list[float]] = self._W.tolist()  # the exact sum's rows as plain floats
         self._exact = exact_sum
@@ -204,7 +209,12 @@ class Simulator:
         return self.output_slice(sl)
 
     def output_slice(self, sl: slice) -> np.ndarray:
-        return self._C[sl] @ self._x + self._D[sl] @ self._u
+        """Outputs ``sl`` at the current instant: ``C[sl] x + D[sl] u`` (row views cached per slice)."""
+        key = (sl.start, sl.stop, sl.step)
+        rows = self._rows.get(key)
+        if rows is None:
+            rows = self._rows[key] = (self._C[sl], self._D[sl])
+        return rows[0] @ self._x + rows[1] @ self._u
 
     def outputs(self) -> np.ndarray:
         """All outputs at the current instant."""
