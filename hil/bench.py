@@ -46,6 +46,7 @@ import contextlib
 import dataclasses
 import itertools
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -380,8 +381,9 @@ class Bench:
         acts, groups, dofs_of = plan
         t = self.timeout if timeout is None else float(timeout)
         checked: list[tuple[Any, np.ndarray]] = []
-        expanded: dict[str, Any] = {}
-        for name, e in efforts.items():  # a group's effort is split over its members, in order
+        expanded: Mapping[str, Any] = efforts if not groups else {}
+        for name, e in (efforts.items() if groups else ()):  # a group's effort is split over its members
+            assert isinstance(expanded, dict)
             g = groups.get(name)
             if g is None:
                 expanded[name] = e
@@ -400,7 +402,7 @@ class Bench:
             dof = dofs_of[name]
             if arr.size != dof:
                 raise ValueError(f"command: {name!r} has {dof} DOF, got {arr.size} efforts")
-            if not np.all(np.isfinite(arr)):
+            if not all(map(math.isfinite, arr.tolist())):
                 raise ValueError(f"command: non-finite effort for {name!r}: {arr}")
             checked.append((acts[name], arr))
         for adapter, arr in checked:
