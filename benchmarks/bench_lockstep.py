@@ -18,8 +18,9 @@ the commands, the devices' flush, the plant step and each simulated device's tic
 ``--against REV`` compares with another revision of this repository in the same run: the tree of
 ``REV`` (``git archive``, laid out as installed: ``hil/``, ``hil/mocks``, ``hil/protocols``,
 ``hil/identify``) is imported through ``PYTHONPATH`` by child processes that alternate with children
-running this tree, ``--repeat`` times each per scene; the table shows the best of each (ticks/s of
-CPU time for the bench, wall clock for the runner) and the ratio this tree / REV.
+running this tree, ``--repeat`` times each per scene; the table shows the best of each (ticks per
+second of the child's CPU time, for the bench alone and for the runner: a loaded machine disturbs
+the wall clock far more) and the ratio this tree / REV.
 
 Run: ``python benchmarks/bench_lockstep.py [--ticks 2000] [--scenes sdea_bench,...] [--digest]
 [--phases] [--against REV [--repeat 3]]``. Not a test; prints tables.
@@ -61,13 +62,19 @@ def record_digest(out_dir: Path) -> str:
 
 
 def runner_tps(name: str, ticks: int, digest: bool) -> tuple[float, str, str]:
+    r, _, status, dig = runner_rates(name, ticks, digest)
+    return r, status, dig
+
+
+def runner_rates(name: str, ticks: int, digest: bool) -> tuple[float, float, str, str]:
+    """(runner ticks/s wall clock, runner ticks/s of this process's CPU time, status, record digest)."""
     sc = load_scene(name)
     with tempfile.TemporaryDirectory() as d:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         o = Runner(sc, d, realtime=False, max_ticks=ticks).run(select=[0])[0]
-        dt = time.perf_counter() - t0
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
         dig = record_digest(Path(d)) if digest else ""
-    return ticks / dt, o.status, dig
+    return ticks / dt, ticks / dc, o.status, dig
 
 
 def bench_tps(name: str, ticks: int) -> tuple[float, float, float]:
@@ -155,7 +162,7 @@ def against(rev: str, names: list[str], ticks: int, repeat: int) -> None:
         tree = str(revision_tree(rev, Path(d)))
         print(f"Lockstep throughput, this tree against {rev}, {ticks} ticks per scene, best of {repeat} "
               f"alternating child processes each")
-        print(f"{'scene':28s} {'bench CPU t/s':>27s} {'runner ticks/s (wall)':>27s}")
+        print(f"{'scene':28s} {'bench ticks/s (CPU)':>27s} {'runner ticks/s (CPU)':>27s}")
         print(f"{'':28s} {'before':>8s} {'after':>8s} {'ratio':>9s} {'before':>8s} {'after':>8s} {'ratio':>9s}")
         for name in names:
             runs: dict[str, list[dict[str, float]]] = {"before": [], "after": []}
@@ -179,9 +186,9 @@ def main() -> None:
     ap.add_argument("--child", default="", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:  # one scene, one line of JSON (--against)
-        r, _, _ = runner_tps(a.child, a.ticks, False)
+        _, rc, _, _ = runner_rates(a.child, a.ticks, False)
         _, c, _ = bench_tps(a.child, a.ticks)
-        print(json.dumps({"runner": r, "cpu": c}))
+        print(json.dumps({"runner": rc, "cpu": c}))
         return
     names = [s for s in a.scenes.split(",") if s] or [n for n, _ in builtin_scenes()]
     if a.against:
