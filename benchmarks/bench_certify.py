@@ -7,11 +7,13 @@
    time): the SDEA with its coupler stiffness set near the passive limit (P ≈ 0.9), draws from a
    posterior-like log-normal around Table I; the reference is 200 000 draws in the same run.
 
-Run: ``python benchmarks/bench_certify.py``. Not a test; prints tables.
+Run: ``python benchmarks/bench_certify.py [--scenes sdea_bench,...] [--no-draws]``. Not a test;
+prints tables (``--scenes``: only these scenes in table 1; ``--no-draws``: skip table 2).
 """
 
 from __future__ import annotations
 
+import argparse
 import tempfile
 import time
 
@@ -23,17 +25,17 @@ from hil.models.sdea import SDEA_TABLE1
 from hil.scene.spec import builtin_scenes, load_scene
 
 
-def stages() -> None:
-    print("Full certification by stage (seconds)")
+def stages(names: list[str] | None = None) -> None:
+    print("Full certification by stage (seconds; total: wall clock, CPU: this process's CPU time)")
     cols = ("run", "identify", "nominal", "robust", "design", "witness")
-    print(f"{'scene':28s} {'decision':9s} " + " ".join(f"{c:>9s}" for c in cols) + f" {'total':>8s}")
-    for name, _ in builtin_scenes():
+    print(f"{'scene':28s} {'decision':9s} " + " ".join(f"{c:>9s}" for c in cols) + f" {'total':>8s} {'CPU':>8s}")
+    for name in names or [n for n, _ in builtin_scenes()]:
         sc = load_scene(name)
         run = bool(sc.certification and sc.certification.identify)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         with tempfile.TemporaryDirectory() as d:
             cert = certify_scene(sc, d, run_experiments=run)
-        total = time.perf_counter() - t0
+        total, cpu = time.perf_counter() - t0, time.process_time() - c0
         timing = {}
         for m in cert.measurements:
             if m.name == "run time":
@@ -41,7 +43,7 @@ def stages() -> None:
                     k, v, _ = part.split(" ")
                     timing[k] = float(v)
         print(f"{name:28s} {cert.decision:9s} " + " ".join(
-            f"{timing[c]:9.2f}" if c in timing else f"{'-':>9s}" for c in cols) + f" {total:8.1f}")
+            f"{timing[c]:9.2f}" if c in timing else f"{'-':>9s}" for c in cols) + f" {total:8.1f} {cpu:8.1f}")
 
 
 def draws_error() -> None:
@@ -79,5 +81,10 @@ def draws_error() -> None:
 
 
 if __name__ == "__main__":
-    stages()
-    draws_error()
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--scenes", default="", help="comma-separated scene names (default: every built-in scene)")
+    ap.add_argument("--no-draws", action="store_true", help="skip the P(stable)-against-draws table")
+    a = ap.parse_args()
+    stages([s for s in a.scenes.split(",") if s] or None)
+    if not a.no_draws:
+        draws_error()

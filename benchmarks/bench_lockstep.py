@@ -11,14 +11,30 @@ machine disturbs less) and, as the baseline measured in the same run, the scene'
 ``--digest`` also prints the SHA-256 over every record channel and ``/t`` of each run (the
 bit-identity check: the same seed must give the same digest before and after an optimisation).
 
-Run: ``python benchmarks/bench_lockstep.py [--ticks 2000] [--scenes sdea_bench,...] [--digest]``.
-Not a test; prints a table.
+``--phases`` prints, per scene, the bench tick's CPU time (this thread's ``time.thread_time``, which
+the other jobs of a loaded machine disturb less than the wall clock) by phase: each device's read,
+the commands, the devices' flush, the plant step and each simulated device's tick.
+
+``--against REV`` compares with another revision of this repository in the same run: the tree of
+``REV`` (``git archive``, laid out as installed: ``hil/``, ``hil/mocks``, ``hil/protocols``,
+``hil/identify``) is imported through ``PYTHONPATH`` by child processes that alternate with children
+running this tree, ``--repeat`` times each per scene; the table shows the best of each (ticks per
+second of the child's CPU time, for the bench alone and for the runner: a loaded machine disturbs
+the wall clock far more) and the ratio this tree / REV.
+
+Run: ``python benchmarks/bench_lockstep.py [--ticks 2000] [--scenes sdea_bench,...] [--digest]
+[--phases] [--against REV [--repeat 3]]``. Not a test; prints tables.
 """
 
 from __future__ import annotations
 
 import argparse
 import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -46,13 +62,19 @@ def record_digest(out_dir: Path) -> str:
 
 
 def runner_tps(name: str, ticks: int, digest: bool) -> tuple[float, str, str]:
+    r, _, status, dig = runner_rates(name, ticks, digest)
+    return r, status, dig
+
+
+def runner_rates(name: str, ticks: int, digest: bool) -> tuple[float, float, str, str]:
+    """(runner ticks/s wall clock, runner ticks/s of this process's CPU time, status, record digest)."""
     sc = load_scene(name)
     with tempfile.TemporaryDirectory() as d:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         o = Runner(sc, d, realtime=False, max_ticks=ticks).run(select=[0])[0]
-        dt = time.perf_counter() - t0
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
         dig = record_digest(Path(d)) if digest else ""
-    return ticks / dt, o.status, dig
+    return ticks / dt, ticks / dc, o.status, dig
 
 
 def bench_tps(name: str, ticks: int) -> tuple[float, float, float]:
@@ -76,13 +98,110 @@ def bench_tps(name: str, ticks: int) -> tuple[float, float, float]:
     return ticks / b, ticks / c, ticks / p
 
 
+def phases(name: str, ticks: int) -> dict[str, float]:
+    """CPU µs per bench tick by phase (this thread's CPU time), in tick order."""
+    sc = load_scene(name)
+    clk = time.thread_time_ns
+    acc: dict[str, int] = {}
+    with Bench(sc, seed=sc.seed) as bench:
+        zero = {a: np.zeros(sc.device(a).dof) for a in bench.actuators}
+        devs = bench._devs
+        plan = bench._sim_plan()
+        for _ in range(ticks):
+            bench._cache = None
+            for d in devs:
+                t0 = clk()
+                bench._read_device(d, bench.timeout)
+                acc[f"read {d.name}"] = acc.get(f"read {d.name}", 0) + clk() - t0
+            t0 = clk()
+            bench.command(zero)
+            t1 = clk()
+            bench._ticks += 1
+            bench._flush_devices()
+            t2 = clk()
+            bench.simulator.tick()
+            t3 = clk()
+            acc["command"] = acc.get("command", 0) + t1 - t0
+            acc["flush"] = acc.get("flush", 0) + t2 - t1
+            acc["plant"] = acc.get("plant", 0) + t3 - t2
+            for twin, sim, _ in plan:
+                k = f"tick {type(sim).__name__}"
+                t0 = clk()
+                twin.tick(sim)
+                acc[k] = acc.get(k, 0) + clk() - t0
+        bench.safe_stop()
+    return {k: v / ticks / 1e3 for k, v in acc.items()}
+
+
+def revision_tree(rev: str, dest: Path) -> Path:
+    """``rev`` of this repository laid out as installed (package-dir mapping of pyproject.toml)."""
+    repo = Path(__file__).resolve().parents[1]
+    src = dest / "src"
+    src.mkdir(parents=True)
+    archive = subprocess.run(["git", "-C", str(repo), "archive", rev], check=True, capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(src)], input=archive, check=True)
+    pkg = dest / "pkg"
+    shutil.copytree(src / "hil", pkg / "hil")
+    for sub in ("identify", "protocols", "mocks"):
+        shutil.copytree(src / sub, pkg / "hil" / sub)
+    return pkg
+
+
+def child(name: str, ticks: int, pythonpath: str | None) -> dict[str, float]:
+    env = dict(os.environ)
+    env.pop("PYTHONPATH", None)
+    if pythonpath:
+        env["PYTHONPATH"] = pythonpath
+    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child", name, "--ticks", str(ticks)],
+                         check=True, capture_output=True, text=True, env=env, cwd=tempfile.gettempdir()).stdout
+    return dict(json.loads(out.strip().splitlines()[-1]))
+
+
+def against(rev: str, names: list[str], ticks: int, repeat: int) -> None:
+    with tempfile.TemporaryDirectory() as d:
+        tree = str(revision_tree(rev, Path(d)))
+        print(f"Lockstep throughput, this tree against {rev}, {ticks} ticks per scene, best of {repeat} "
+              f"alternating child processes each")
+        print(f"{'scene':28s} {'bench ticks/s (CPU)':>27s} {'runner ticks/s (CPU)':>27s}")
+        print(f"{'':28s} {'before':>8s} {'after':>8s} {'ratio':>9s} {'before':>8s} {'after':>8s} {'ratio':>9s}")
+        for name in names:
+            runs: dict[str, list[dict[str, float]]] = {"before": [], "after": []}
+            for _ in range(repeat):
+                runs["before"].append(child(name, ticks, tree))
+                runs["after"].append(child(name, ticks, None))
+            best = {k: {m: max(r[m] for r in v) for m in ("cpu", "runner")} for k, v in runs.items()}
+            b, a = best["before"], best["after"]
+            print(f"{name:28s} {b['cpu']:8.0f} {a['cpu']:8.0f} {a['cpu'] / b['cpu']:8.2f}x"
+                  f" {b['runner']:8.0f} {a['runner']:8.0f} {a['runner'] / b['runner']:8.2f}x")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--ticks", type=int, default=2000, help="lockstep ticks per scene")
     ap.add_argument("--scenes", default="", help="comma-separated scene names (default: every built-in scene)")
     ap.add_argument("--digest", action="store_true", help="print the SHA-256 of each run's record channels")
+    ap.add_argument("--phases", action="store_true", help="print the bench tick's CPU time by phase")
+    ap.add_argument("--against", default="", help="a git revision to compare with, in the same run")
+    ap.add_argument("--repeat", type=int, default=3, help="child processes per tree and scene (--against)")
+    ap.add_argument("--child", default="", help=argparse.SUPPRESS)
     a = ap.parse_args()
+    if a.child:  # one scene, one line of JSON (--against)
+        _, rc, _, _ = runner_rates(a.child, a.ticks, False)
+        _, c, _ = bench_tps(a.child, a.ticks)
+        print(json.dumps({"runner": rc, "cpu": c}))
+        return
     names = [s for s in a.scenes.split(",") if s] or [n for n, _ in builtin_scenes()]
+    if a.against:
+        against(a.against, names, a.ticks, a.repeat)
+        return
+    if a.phases:
+        for name in names:
+            ph = phases(name, a.ticks)
+            total = sum(ph.values())
+            print(f"\n{name}: bench tick CPU time by phase, {a.ticks} ticks ({total:.1f} µs per tick)")
+            for k, v in ph.items():
+                print(f"  {k:34s} {v:8.1f} µs {100 * v / total:6.1f} %")
+        return
     print(f"Lockstep throughput, {a.ticks} ticks per scene (first experiment of each scene)")
     print(f"{'scene':28s} {'runner ticks/s':>15s} {'bench ticks/s':>14s} {'bench CPU t/s':>14s} {'plant ticks/s':>14s}"
           f" {'plant/bench':>12s} status" + ("   record sha256" if a.digest else ""))

@@ -117,6 +117,17 @@ class FaultInjector:
         self._rng = {name: np.random.default_rng(s) for name, s in zip(_STREAMS, children, strict=True)}
         self.injected: Counter[str] = Counter()
 
+    _inactive: tuple[FaultPlan, bool] | None = None
+
+    @property
+    def inactive(self) -> bool:
+        """True when the plan injects nothing (``plan.is_null``): every decision below is then "no"
+        and draws nothing, so a device may skip asking (cached while ``plan`` is the same object)."""
+        plan, c = self.plan, self._inactive
+        if c is None or c[0] is not plan:
+            c = self._inactive = (plan, plan.is_null)
+        return c[1]
+
     # -- per-frame decisions --------------------------------------------------------------
     def _draw(self, kind: str, p: float) -> bool:
         if p <= 0.0:
@@ -230,6 +241,9 @@ class ByteStreamFaults:
     def bytes_to_send(self, frame: bytes, tick: int) -> bytes | None:
         """The bytes to write for ``frame`` at ``tick``, or None if nothing goes out now."""
         inj = self.injector
+        if inj.inactive and self._held is None:  # nothing to inject: the frame as it is
+            self._last = frame
+            return frame
         if inj.should_drop(tick):
             self.stats["dropped"] += 1
             return None

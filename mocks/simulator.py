@@ -25,6 +25,7 @@ import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -72,7 +73,8 @@ class Joints:
         self.reset()
 
     def reset(self) -> None:
-        """Zero the command and empty the delay line."""
+        """Zero the command and empty the delay line (``resets`` counts the calls)."""
+        self.resets = getattr(self, "resets", -1) + 1
         self._cmd = np.zeros(self.dof)
         self._queue = deque(np.zeros(self.dof) for _ in range(self.actuator.delay_ticks))
 
@@ -83,18 +85,20 @@ class Joints:
 
     def apply_effort(self, effort: ArrayLike) -> None:
         """Command the effort (N or N.m, one per DOF) held from the next tick on (ZOH)."""
-        e = np.asarray(effort, dtype=float).reshape(-1)
+        e = np.array(effort, dtype=float).reshape(-1)  # a copy: later changes of `effort` do not leak in
         if e.size != self.dof:
             raise ModelError(f"{self.name}: effort has {e.size} values, the body has {self.dof} DOF")
-        if not np.isfinite(e).all():
+        if not all(map(math.isfinite, e.tolist())):
             raise ModelError(f"{self.name}: non-finite effort {e}")
-        self._cmd = e.copy()
+        self._cmd = e
 
     def _effective_effort(self) -> np.ndarray:
         act = self.actuator
         if act.delay_ticks:
             self._queue.append(self._cmd.copy())
             e = self._queue.popleft()
+        elif act.limit is None and not act.coulomb > 0.0:
+            return self._cmd  # the caller copies it into the input vector
         else:
             e = self._cmd.copy()
         if act.limit is not None:
@@ -129,7 +133,9 @@ class Simulator:
         disc = plant.system.discretize(self.dt, "zoh")
         self.Ad, self.Bd = disc.Ad, disc.Bd
         self._C, self._D = plant.system.C, plant.system.D
+        self._rows: dict[tuple[Any, Any, Any], tuple[np.ndarray, np.ndarray]] = {}
         self._W = np.hstack([self.Ad, self.Bd])
+        self._W_rows: list[list[float]] = self._W.tolist()  # the exact sum's rows as plain floats
         self._exact = exact_sum
         self.n, self.m = self.Bd.shape
         actuators = actuators or {}
@@ -203,7 +209,12 @@ class Simulator:
         return self.output_slice(sl)
 
     def output_slice(self, sl: slice) -> np.ndarray:
-        return self._C[sl] @ self._x + self._D[sl] @ self._u
+        """Outputs ``sl`` at the current instant: ``C[sl] x + D[sl] u`` (row views cached per slice)."""
+        key = (sl.start, sl.stop, sl.step)
+        rows = self._rows.get(key)
+        if rows is None:
+            rows = self._rows[key] = (self._C[sl], self._D[sl])
+        return rows[0] @ self._x + rows[1] @ self._u
 
     def outputs(self) -> np.ndarray:
         """All outputs at the current instant."""
@@ -221,19 +232,29 @@ class Simulator:
 
     def tick(self) -> None:
         """Advance exactly one control period with the current commands held (ZOH)."""
+        u = self._u
         for h in self.handles.values():
-            self._u[h._jm.effort] = h._effective_effort()
+            u[h._jm.effort] = h._effective_effort()
         if self._exact:
-            prods = (self._W * np.concatenate((self._x, self._u))).tolist()
-            x_new = np.fromiter(map(math.fsum, prods), dtype=float, count=self.n)
+            # plain floats: each product is the same IEEE double product numpy forms elementwise and
+            # math.fsum rounds their sum correctly, so this equals the array expression
+            # fsum(W[i] * concat(x, u)) bit for bit, without the array temporaries (n <= ~30)
+            z = self._x.tolist()
+            z += u.tolist()
+            fsum = math.fsum
+            new = [fsum([w * v for w, v in zip(row, z, strict=True)]) for row in self._W_rows]
+            if not all(map(math.isfinite, new)):
+                raise ModelError(f"simulation diverged at t = {self.time:.6g} s (non-finite state)")
+            x_new = np.array(new)
         else:
-            x_new = self.Ad @ self._x + self.Bd @ self._u
-        if not np.isfinite(x_new).all():
-            raise ModelError(f"simulation diverged at t = {self.time:.6g} s (non-finite state)")
+            x_new = self.Ad @ self._x + self.Bd @ u
+            if not np.isfinite(x_new).all():
+                raise ModelError(f"simulation diverged at t = {self.time:.6g} s (non-finite state)")
         self._x = x_new
-        self.last_input = self._u.copy()
+        self.last_input = u.copy()
         self.step_count += 1
-        self._fill_exogenous()
+        if self.plant.profiles:
+            self._fill_exogenous()
 
 
 @dataclass(frozen=True)

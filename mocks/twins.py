@@ -129,6 +129,14 @@ class CanTwin(Twin):
         return f"can {iface}:{params['channel']} {self.node_word} {node}", iface != "virtual"
 
 
+def _lockstep_host_bus(ctx: TwinContext, sim: Any, params: dict[str, Any]) -> None:
+    """Lockstep on the virtual bus: the adapter gets a connection opened by the node
+    (:meth:`hil.mocks.can_devices.SimCanNode.host_bus`, python-can's virtual bus without its
+    per-frame deepcopy; same frames, same order, same transport name), closed with the node."""
+    if ctx.lockstep and ctx.can_interface == "virtual":
+        params["bus"] = sim.host_bus()
+
+
 def _bitrate(params: dict[str, Any], default: int) -> int:
     """The scene's CAN bit rate (bit/s), else the driver's factory default: in lockstep the simulated
     bus carries at most that many bits per simulated second (hil.protocols.link_budget)."""
@@ -156,6 +164,7 @@ class ODriveTwin(CanTwin):
                         **kw)
         if params.get("feedback") == "cyclic":
             sim.encoder_every = 1
+        _lockstep_host_bus(ctx, sim, params)
         return sim, params
 
     def publish(self, sim: Any) -> None:
@@ -177,6 +186,7 @@ class CubeMarsTwin(CanTwin):
         sim = SimCubeMars(ctx.point, ch, int(params.get("motor_id", 1)), ctx.can_interface,
                           model=params.get("model", "AK80-9"), faults=ctx.faults, seed=ctx.seed,
                           **(_lockstep_kw if ctx.lockstep else {}))
+        _lockstep_host_bus(ctx, sim, params)
         return sim, params
 
 

@@ -46,6 +46,7 @@ import contextlib
 import dataclasses
 import itertools
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -104,22 +105,29 @@ class _Noise:
 
 class _BodyDrive:
     """Assembles the efforts several devices apply to DOF subsets of one body into the body's
-    :class:`hil.mocks.simulator.Joints` handle (zero-order hold until changed)."""
+    :class:`hil.mocks.simulator.Joints` handle (zero-order hold until changed).
+
+    ``writes`` counts the writes (:meth:`set`, :meth:`reset`): a device that finds it unchanged
+    since its own last write, and the handle not reset since (``handle.resets``), knows the
+    handle still holds what it wrote (see :meth:`SimPoint.apply_effort`)."""
 
     def __init__(self, handle: Any) -> None:
         self.handle = handle
         self.effort = np.zeros(handle.dof)
+        self.writes = 0
         self._lock = threading.Lock()
 
     def set(self, sel: list[int], effort: np.ndarray) -> None:
         with self._lock:
             self.effort[sel] = np.asarray(effort, dtype=float).reshape(len(sel))
             self.handle.apply_effort(self.effort)
+            self.writes += 1
 
     def reset(self) -> None:
         with self._lock:
             self.effort[:] = 0.0
             self.handle.apply_effort(self.effort)
+            self.writes += 1
 
 
 class SimPoint:
@@ -134,6 +142,10 @@ class SimPoint:
         self._drive = drive
         self.sel = list(sel)
         self.dof = len(self.sel)
+        # the same elements as indexing with the list `sel`, as a view when they are contiguous
+        lo = self.sel[0] if self.sel else 0
+        self._take: list[int] | slice = slice(lo, lo + self.dof) if self.sel == list(range(lo, lo + self.dof)) \
+            else self.sel
         self._force_fn = force_fn
         self._noise = {
             "position": _Noise(position_std, _seed_for(seed, 1)),
@@ -142,6 +154,8 @@ class SimPoint:
         }
         self._cache: dict[str, tuple[int, np.ndarray]] = {}
         self._lock = threading.Lock()
+        #: (effort, drive writes, handle resets) right after this point last wrote
+        self._written: tuple[list[float], int, Any] | None = None
 
     @property
     def sample_index(self) -> int:
@@ -154,18 +168,33 @@ class SimPoint:
             if hit is not None and hit[0] == k:
                 return hit[1].copy()
             value = self._noise[key](np.asarray(raw(), dtype=float).reshape(self.dof))
-            self._cache[key] = (k, value.copy())
-            return value
+            self._cache[key] = (k, value)
+            return value.copy()
 
     def apply_effort(self, effort: np.ndarray) -> None:
-        """Effort (N or N.m) on the selected DOFs, held from the next tick on."""
-        self._drive.set(self.sel, effort)
+        """Effort (N or N.m) on the selected DOFs, held from the next tick on. Writing again what
+        this point wrote last, with nothing written to or reset on the body since, changes nothing
+        and is skipped (a CAN node re-applies its torque on every tick)."""
+        e = np.asarray(effort, dtype=float).reshape(-1)
+        vals = e.tolist()
+        drive = self._drive
+        w = self._written
+        if w is not None and w[0] == vals and w[1] == drive.writes and w[2] == getattr(drive.handle, "resets", None):
+            return
+        drive.set(self.sel, e)
+        self._written = (vals, drive.writes, getattr(drive.handle, "resets", None))
 
     def position(self) -> np.ndarray:
-        return self._read("position", lambda: self._drive.handle.position()[self.sel])
+        return self._read("position", self._raw_position)
 
     def velocity(self) -> np.ndarray:
-        return self._read("velocity", lambda: self._drive.handle.velocity()[self.sel])
+        return self._read("velocity", self._raw_velocity)
+
+    def _raw_position(self) -> np.ndarray:
+        return self._drive.handle.position()[self._take]
+
+    def _raw_velocity(self) -> np.ndarray:
+        return self._drive.handle.velocity()[self._take]
 
     def measured_force(self) -> np.ndarray:
         return self._read("force", self._force_fn)
@@ -352,8 +381,9 @@ class Bench:
         acts, groups, dofs_of = plan
         t = self.timeout if timeout is None else float(timeout)
         checked: list[tuple[Any, np.ndarray]] = []
-        expanded: dict[str, Any] = {}
-        for name, e in efforts.items():  # a group's effort is split over its members, in order
+        expanded: Mapping[str, Any] = efforts if not groups else {}
+        for name, e in (efforts.items() if groups else ()):  # a group's effort is split over its members
+            assert isinstance(expanded, dict)
             g = groups.get(name)
             if g is None:
                 expanded[name] = e
@@ -372,7 +402,7 @@ class Bench:
             dof = dofs_of[name]
             if arr.size != dof:
                 raise ValueError(f"command: {name!r} has {dof} DOF, got {arr.size} efforts")
-            if not np.all(np.isfinite(arr)):
+            if not all(map(math.isfinite, arr.tolist())):
                 raise ValueError(f"command: non-finite effort for {name!r}: {arr}")
             checked.append((acts[name], arr))
         for adapter, arr in checked:

@@ -18,6 +18,7 @@ first; Dynamixel 2.0 also sends it little-endian. Use :func:`crc_bytes_le` for t
 
 from __future__ import annotations
 
+import binascii
 from collections.abc import Callable
 
 
@@ -55,9 +56,18 @@ def _crc_reflected(data: bytes | bytearray | memoryview, table: tuple[int, ...],
     return crc
 
 
+#: bit-reversed bytes (bytes.translate table)
+_REV8 = bytes(int(f"{i:08b}"[::-1], 2) for i in range(256))
+
+
 def crc16_x25(data: bytes | bytearray | memoryview) -> int:
-    """CRC-16/X-25 (a.k.a. CRC-16/IBM-SDLC): poly 0x1021 reflected, init 0xFFFF, xorout 0xFFFF."""
-    return _crc_reflected(data, _X25_TABLE, 0xFFFF) ^ 0xFFFF
+    """CRC-16/X-25 (a.k.a. CRC-16/IBM-SDLC): poly 0x1021 reflected, init 0xFFFF, xorout 0xFFFF.
+
+    Computed in C: a reflected CRC is the bit reversal of the non-reflected one (binascii.crc_hqx,
+    CRC-CCITT poly 0x1021) over the bit-reversed bytes, with the (symmetric) init 0xFFFF; equal to
+    the table-driven :func:`_crc_reflected` with the X-25 table (tests/test_lockstep_crc.py)."""
+    c = binascii.crc_hqx(bytes(data).translate(_REV8), 0xFFFF)
+    return ((_REV8[c & 0xFF] << 8) | _REV8[c >> 8]) ^ 0xFFFF
 
 
 def crc16_modbus(data: bytes | bytearray | memoryview) -> int:
