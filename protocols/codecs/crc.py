@@ -65,7 +65,7 @@ def crc16_x25(data: bytes | bytearray | memoryview) -> int:
 
     Computed in C: a reflected CRC is the bit reversal of the non-reflected one (binascii.crc_hqx,
     CRC-CCITT poly 0x1021) over the bit-reversed bytes, with the (symmetric) init 0xFFFF; equal to
-    the table-driven :func:`_crc_reflected` with the X-25 table (tests/test_lockstep_crc.py)."""
+    the table-driven :func:`_crc_reflected` with the X-25 table (tests/bench/test_lockstep_crc.py)."""
     c = binascii.crc_hqx(bytes(data).translate(_REV8), 0xFFFF)
     return ((_REV8[c & 0xFF] << 8) | _REV8[c >> 8]) ^ 0xFFFF
 

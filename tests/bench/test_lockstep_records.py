@@ -6,13 +6,13 @@ bit for bit. The references were produced by the code *before* those optimisatio
 715c158) and are stored in ``tests/data/lockstep_reference/``:
 
 * ``sdea_bench.npz``: every experiment of ``sdea_bench`` (locked chirp, free chirp, static hold),
-  :data:`TICKS` ticks each through the full :class:`hil.runner.Runner` in lockstep: ``/t`` and every
+  :data:`TICKS` ticks each through the full :class:`hil.run.runner.Runner` in lockstep: ``/t`` and every
   ``/channels/*`` array, plus the record's ``device_counters``, ``events`` and ``status`` (JSON);
 * ``digests.json``: the SHA-256 of ``/t`` and the channels of the first experiment of the other
   built-in scenes whose devices are ODrive (CAN) and Bota (pty) only, :data:`TICKS` ticks each.
 
 Regenerate (only when a deliberate change elsewhere alters the records, and say so in the commit):
-``python tests/test_lockstep_records.py --regen``. The comparison is exact (``np.array_equal`` on
+``python tests/bench/test_lockstep_records.py --regen``. The comparison is exact (``np.array_equal`` on
 float64, NaN = NaN): any difference, even one ULP, is a change of behaviour of the mocked bench.
 Bit-identity assumes the same numpy/scipy wheels (the ZOH matrices come from LAPACK once per run).
 """
@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-DATA = Path(__file__).parent / "data" / "lockstep_reference"
+DATA = Path(__file__).resolve().parents[1] / "data" / "lockstep_reference"
 #: ticks per experiment (0.12 s at 2 kHz: covers opening, Bota frames every other tick, heartbeats)
 TICKS = 240
 #: the other built-in scenes whose simulated devices are ODrive and Bota only (this module's scope)
@@ -63,8 +63,8 @@ def _comparable(name: str, text: str) -> Any:
 def run_records(scene_name: str, select: list[int], ticks: int = TICKS) -> list[dict[str, Any]]:
     """Run experiments ``select`` of a built-in scene for ``ticks`` lockstep ticks each; return their
     records' arrays (see :func:`_read_record`), in order."""
-    from hil.runner import Runner
-    from hil.scene import load_scene
+    from hil.run.runner import Runner
+    from hil.scene.spec import load_scene
 
     sc = load_scene(scene_name)
     with tempfile.TemporaryDirectory() as d:
