@@ -51,6 +51,17 @@ samples are kept and written by ``close``), never unbounded memory or a silent l
 at most the blocks not yet written; a write error in the thread fails the writer as above and is
 raised by the next call (see :class:`RecordWriter`).
 
+Writer process (``background="process"``, the realtime runner's default): as above, but the blocks
+are preallocated in shared memory (``multiprocessing.shared_memory``) and every h5py call is made
+by a writer process (``python -c``, connected by a socket), to which the writer thread hands each
+block's index and waits for the answer. The appending process closes its own handle once the
+layout is written; the writer process opens the file for SWMR writing in one call, writes the
+blocks, the status and closes it. The loop's process then never waits for the interpreter lock
+held by h5py (a block costs milliseconds of HDF5 CPU, all of it under that lock). The guarantees
+are the same: same file contents; a write error there (full disk, file-size limit, EIO) is the
+caller's failed writer with the same one-line reason; a writer process that dies or does not
+answer is a write error that leaves the file as a kill does.
+
 Signals. While a block (and the whole of ``close()``) is written, the Python handlers of SIGINT,
 SIGTERM, SIGHUP, SIGQUIT, SIGUSR1/2 and SIGALRM are deferred (swapped for a handler that notes the
 signal; re-delivered afterwards), so a handler that raises never runs between a resize and its
@@ -677,7 +688,10 @@ class RecordWriter:
     Use as a context manager; an exception inside the ``with`` closes the record with
     ``status="error"`` and the exception's message as stop reason, then propagates.
 
-    Background writing (``background=True``, the realtime runner's mode): :meth:`append` only copies
+    ``background="process"``: the same, with the h5py calls in a writer process fed through shared
+    memory (see the module docstring); ``"thread"`` is ``True``.
+
+    Background writing (``background=True``): :meth:`append` only copies
     the sample into the current preallocated block; a full block (or one older than
     ``flush_every_s``) is handed, with the queued events/results/counters, to a writer thread that
     writes it and flushes the file -- the same blocks, positions and file contents as the

@@ -443,6 +443,7 @@ def test_realtime_runner_records_every_tick_through_the_writer_process(tmp_path:
     r.record_process = True  # the realtime default
     o = r.run()[0]
     assert o.status == "completed", o.stop_reason
+    assert o.record is not None
     rec = RunRecord.open(o.record)
     np.testing.assert_array_equal(rec.t, np.arange(1000) * (1 / 2000.0))
     assert np.all(np.isfinite(rec.channels["motor.position"])) and rec.closed and rec.status == "completed"
