@@ -67,6 +67,7 @@ __all__ = [
     "GIL_SWITCH_INTERVAL_S",
     "SPIN_NS",
     "SPIN_NS_FIFO",
+    "WRITER_PROCESS_FIFO_PRIORITY",
     "LatenessGuard",
     "Pacer",
     "Scheduling",
@@ -98,6 +99,11 @@ FIFO_PRIORITY = 80
 #: CPUs the loop does not use): below the loop and its record writer (79), above every ordinary
 #: process, so a loaded machine does not starve the "external" devices (a real device has its own CPU)
 DEVICE_FIFO_PRIORITY = 70
+#: SCHED_FIFO priority of the record's writer process (the h5py calls; its thread stays at
+#: ``FIFO_PRIORITY - 1``): below the devices' process it shares the other CPUs with, so a block
+#: write (milliseconds of HDF5 CPU) never delays a device's reply; above ordinary load, so the
+#: writer does not fall behind
+WRITER_PROCESS_FIFO_PRIORITY = 60
 
 
 # ---------------------------------------------------------------------------------------------

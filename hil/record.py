@@ -1253,15 +1253,18 @@ class RecordWriter:
                 if block is not None:
                     self._free.put(block)
 
-    def set_writer_scheduling(self, priority: int, cpus: Iterable[int] | None = None) -> str | None:
+    def set_writer_scheduling(self, priority: int, cpus: Iterable[int] | None = None,
+                              process_priority: int | None = None) -> str | None:
         """Background mode: give the writer thread SCHED_FIFO ``priority`` (Linux) and, when ``cpus``
         is given (non-empty), pin it to those CPUs. The realtime runner uses one below its loop's and
         the CPUs the loop does not run on: the writer then is not preempted by ordinary processes
         while it holds the interpreter lock the loop waits for (priority inversion), the loop still
         preempts it, and its writes run beside the loop instead of in the loop CPU's idle time.
         Returns None on success, else a one-line reason (what failed is left unchanged).
-        ``background="process"``: the same for the writer process (the h5py calls) and the thread
-        that hands it the blocks."""
+        ``background="process"``: the same for the writer process (the h5py calls), with
+        ``process_priority`` when given (it shares no interpreter lock with the loop, so it may run
+        below other realtime work on its CPUs, e.g. the simulated devices), and the thread that
+        hands it the blocks."""
         th = self._thread
         if th is None or th.native_id is None:
             return "no writer thread"
@@ -1269,19 +1272,20 @@ class RecordWriter:
             return "SCHED_FIFO not available on this platform"
         why: list[str] = []
         cpu_set = set(cpus or ())
-        targets = [("writer thread", th.native_id)]
+        targets = [("writer thread", th.native_id, int(priority))]
         if self._proc is not None and self._proc.pid is not None:
-            targets.append(("writer process", self._proc.pid))
-        for who, tid in targets:
+            targets.append(("writer process", self._proc.pid,
+                            int(priority if process_priority is None else process_priority)))
+        for who, tid, prio in targets:
             if cpu_set:
                 try:
                     os.sched_setaffinity(tid, cpu_set)
                 except OSError as exc:
                     why.append(f"{who} affinity {sorted(cpu_set)} not permitted: {exc.strerror or exc}")
             try:
-                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(int(priority)))
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(prio))
             except OSError as exc:
-                why.append(f"{who} SCHED_FIFO {priority} not permitted: {exc.strerror or exc}")
+                why.append(f"{who} SCHED_FIFO {prio} not permitted: {exc.strerror or exc}")
         return "; ".join(why) or None
 
     # -- the writer process (background="process")

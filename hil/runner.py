@@ -572,9 +572,10 @@ class Runner:
                     sched = rt.enter_context(realtime_scheduling(enabled=self.rt_scheduling))
                     stats.scheduling = sched.describe()
                     if writer.background and sched.fifo:  # below the loop's priority, off the loop's CPU
-                        from hil.realtime import FIFO_PRIORITY
+                        from hil.realtime import FIFO_PRIORITY, WRITER_PROCESS_FIFO_PRIORITY
 
-                        why = writer.set_writer_scheduling(FIFO_PRIORITY - 1, sched.other_cpus)
+                        why = writer.set_writer_scheduling(FIFO_PRIORITY - 1, sched.other_cpus,
+                                                           process_priority=WRITER_PROCESS_FIFO_PRIORITY)
                         if why:
                             logger.warning("%s: record writer thread: %s", name, why)
                     self._append_event(writer, 0.0, "realtime", f"loop scheduling: {sched.describe()}"
