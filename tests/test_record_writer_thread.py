@@ -424,11 +424,13 @@ def test_writer_scheduling_applies_to_the_writer_process_too(tmp_path: Path) -> 
     w = _writer(tmp_path / "p.h5", background="process")
     try:
         cpus = sorted(os.sched_getaffinity(0))[:1]
-        why = w.set_writer_scheduling(79, cpus)
+        why = w.set_writer_scheduling(79, cpus, process_priority=60)
         pid = w._proc.pid
-        if why is None:
-            assert os.sched_getscheduler(pid) == os.SCHED_FIFO and os.sched_getparam(pid).sched_priority == 79
-            assert sorted(os.sched_getaffinity(pid)) == cpus
+        if why is None:  # the process (h5py) at 60, the thread (shares the loop's GIL) at 79, both on `cpus`
+            assert os.sched_getscheduler(pid) == os.SCHED_FIFO and os.sched_getparam(pid).sched_priority == 60
+            assert w._thread is not None and w._thread.native_id is not None
+            assert os.sched_getparam(w._thread.native_id).sched_priority == 79
+            assert sorted(os.sched_getaffinity(pid)) == cpus == sorted(os.sched_getaffinity(w._thread.native_id))
         else:
             assert "not permitted" in why and "\n" not in why
         for k in range(150):
