@@ -18,9 +18,23 @@ For each rate (500 Hz, 1 kHz, 2 kHz), ``sdea_bench``'s locked chirp (f1 capped a
   arrived (the polled ODrive's request for the next tick is sent ahead), a read without a new sample
   is stale (counted in ``stale``); a device that stops sending is caught by the watchdog on the
   samples' age (recorded per tick as ``<device>.age``); the record is written by its writer thread
-  (:class:`hil.record.hdf5.RecordWriter` ``background=True``), so no HDF5 write or flush runs in a tick;
+  (:class:`hil.record.hdf5.RecordWriter` ``background="process"``: a writer thread hands the blocks,
+  preallocated in shared memory, to a writer process that makes every h5py call), so no HDF5 write
+  runs in a tick and the loop never waits for the GIL held by h5py; the devices' process is pinned
+  off the loop's CPU and SCHED_FIFO 70, the writer FIFO 79 off the loop's CPU, the GIL switch
+  interval 0.2 ms, the spin 100 µs, and the simulated CAN frames stay on the host (multicast TTL 0);
+* ``thread``: as ``with`` but the h5py calls in the writer thread (``Runner.record_process =
+  False``; what ``with`` did before the writer process): ~4 ms of HDF5 CPU per 0.1 s block with
+  the GIL held;
+* ``ttl1``: as ``with`` but the CAN frames also sent out of the network interface (python-can's
+  default hop limit 1; what ``with`` did before);
 * ``syncrec``: as ``with`` but the record blocks are written and flushed inside the tick that
   fills them (``Runner.record_thread = False``; what ``with`` did before the writer thread).
+
+``--phases`` adds, per row, the loop thread's mean CPU time per tick [µs] in each phase of the tick
+(``time.thread_time_ns`` around the bench's read and command, the record append, the safety checks,
+the wait for the deadline: its spin) and the wall time the loop spent blocked in them (wall - CPU:
+waiting for the GIL, or in a syscall).
 
 The late-loop safe stop is relaxed for the benchmark (``max_lateness_ms`` 10 s, overrun fraction
 1) so the whole distribution is measured; the device watchdog (50 ms) still applies: a row whose
@@ -36,6 +50,7 @@ prints tables.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import tempfile
@@ -48,7 +63,7 @@ import yaml  # type: ignore[import-untyped]  # no PyYAML stubs in the env
 
 from hil.bench.runtime import Bench, ProcessSimBench
 from hil.record.hdf5 import RunRecord
-from hil.run.realtime import holdable_rates, measure_wakeup, realtime_scheduling, run_cyclictest
+from hil.run.realtime import holdable_rates, measure_wakeup, realtime_scheduling, run_cyclictest, spin_for
 from hil.run.runner import Runner
 from hil.scene.spec import load_scene, scene_from_dict
 
@@ -60,9 +75,48 @@ CONFIGS: dict[str, dict[str, Any]] = {
     "blocking": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None,
                  "read_timeout": WATCHDOG_S},
     "with": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None},
+    "thread": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None,
+               "record_process": False},
+    "ttl1": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None, "hop_limit": 1},
     "syncrec": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None,
                 "record_thread": False},
 }
+#: the tick's phases --phases times: (label, object path, attribute)
+PHASES = ("wait", "read", "check", "append", "command")
+
+
+class _PhaseTimes:
+    """Per-phase CPU and wall time of the loop thread, accumulated by wrapping the phases' functions."""
+
+    def __init__(self) -> None:
+        self.cpu = dict.fromkeys(PHASES, 0)
+        self.wall = dict.fromkeys(PHASES, 0)
+        self.ticks = 0
+        self._undo: list[tuple[Any, str, Any]] = []
+
+    def wrap(self, owner: Any, attr: str, phase: str) -> None:
+        fn = getattr(owner, attr)
+        cpu, wall, tt, pc = self.cpu, self.wall, time.thread_time_ns, time.perf_counter_ns
+
+        def timed(*a: Any, **kw: Any) -> Any:
+            w0, c0 = pc(), tt()
+            try:
+                return fn(*a, **kw)
+            finally:
+                cpu[phase] += tt() - c0
+                wall[phase] += pc() - w0
+
+        self._undo.append((owner, attr, owner.__dict__.get(attr) if isinstance(owner, type) else None))
+        setattr(owner, attr, timed)
+
+    def restore(self) -> None:
+        for owner, attr, old in reversed(self._undo):
+            if old is None:
+                with contextlib.suppress(AttributeError):
+                    delattr(owner, attr)
+            else:
+                setattr(owner, attr, old)
+        self._undo.clear()
 #: ticks after a record flush (every 0.1 s of run time) whose overruns are attributed to it
 FLUSH_SHADOW_TICKS = 8
 
@@ -77,20 +131,48 @@ def _scene(rate: float) -> Any:
     return scene_from_dict(d, label=f"sdea_bench@{rate:g}")
 
 
-def loop_row(rate: float, seconds: float, config: str, tmp: Path) -> dict[str, Any]:
+def loop_row(rate: float, seconds: float, config: str, tmp: Path, phases: bool = False) -> dict[str, Any]:
+    import hil.bench.runtime as hb
+    import hil.run.realtime as hrt
+    import hil.run.runner as hrun
+
     c = CONFIGS[config]
     sc = _scene(rate)
     n = round(seconds * rate)
+    pt = _PhaseTimes() if phases else None
+
+    def make(v: str | None) -> Any:
+        b = c["bench"](sc, seed=sc.seed, variant=v)
+        if pt is not None:
+            pt.wrap(b, "read", "read")
+            pt.wrap(b, "command", "command")
+        return b
+
     t0 = time.perf_counter()
-    r = Runner(sc, tmp / f"{config}-{rate:g}", realtime=True, max_ticks=n,
-               bench_factory=lambda v: c["bench"](sc, seed=sc.seed, variant=v),
+    r = Runner(sc, tmp / f"{config}-{rate:g}", realtime=True, max_ticks=n, bench_factory=make,
                rt_scheduling=c["rt_scheduling"], gc_pause=c["gc_pause"], spin_ns=c["spin_ns"],
                read_timeout=c.get("read_timeout"))
     r.record_thread = c.get("record_thread", True)
-    o = r.run(select=[0])[0]
+    r.record_process = c.get("record_process", True)
+    old_hop = hb.MULTICAST_HOP_LIMIT
+    hb.MULTICAST_HOP_LIMIT = c.get("hop_limit", old_hop)
+    if pt is not None:
+        pt.wrap(hrt.Pacer, "wait", "wait")
+        pt.wrap(r, "_append", "append")
+        for m in ("check_finite", "check_feedback", "check_command", "check_energy"):
+            pt.wrap(hrun.SafetyMonitor, m, "check")
+    try:
+        o = r.run(select=[0])[0]
+    finally:
+        hb.MULTICAST_HOP_LIMIT = old_hop
+        if pt is not None:
+            pt.restore()
     wall = time.perf_counter() - t0
     row = {"config": config, "rate": rate, "ticks": o.stats.get("ticks", 0), "status": o.status,
            "reason": o.stop_reason, "sched": o.stats.get("scheduling", ""), "wall": wall}
+    ticks = int(o.stats.get("ticks", 0))
+    if pt is not None and ticks:
+        row["phases"] = {k: (pt.cpu[k] / ticks / 1e3, (pt.wall[k] - pt.cpu[k]) / ticks / 1e3) for k in PHASES}
     counters = o.results.get("device_counters", {}) if isinstance(o.results, dict) else {}
     row["stale"] = sum(int(c.get("stale", 0)) for c in counters.values())
     if o.record is not None:
@@ -110,6 +192,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=60.0, help="seconds per row")
     ap.add_argument("--rates", type=float, nargs="+", default=[500.0, 1000.0, 2000.0])
     ap.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+    ap.add_argument("--phases", action="store_true", help="per-phase CPU time of the loop thread per tick")
+    ap.add_argument("--no-wakeup", action="store_true", help="skip the machine wake-up latency table")
     args = ap.parse_args(argv)
     logging.disable(logging.WARNING)
     us = 1e6
@@ -120,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as d:
         for rate in args.rates:
             for config in args.configs:
-                r = loop_row(rate, args.seconds, config, Path(d))
+                r = loop_row(rate, args.seconds, config, Path(d), phases=args.phases)
                 if "p50" in r:
                     print(f"{config:8s} {rate:5g} {r['ticks']:7d} {us * r['p50']:9.1f} {us * r['p99']:9.1f} "
                           f"{us * r['max']:9.1f} {r['overruns']:8d} {100 * r['frac']:9.3f} {r['after_flush']:6d} "
@@ -130,8 +214,16 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"{config:8s} {rate:5g} {r['ticks']:7d}  no ticks: {r['status']} {r['reason']}", flush=True)
                 if r["status"] != "completed":
                     print(f"{'':8s} stopped: {r['reason']}", flush=True)
+                if "phases" in r:
+                    ph = r["phases"]
+                    print(f"{'':8s} CPU µs/tick: " + ", ".join(f"{k} {ph[k][0]:.0f}" for k in PHASES)
+                          + f" (sum {sum(v[0] for v in ph.values()):.0f}); blocked µs/tick: "
+                          + ", ".join(f"{k} {ph[k][1]:.0f}" for k in PHASES if k != "wait"), flush=True)
     print(f"(<flush: overruns within {FLUSH_SHADOW_TICKS} ticks after a record flush; stale: reads without a "
           "new sample)")
+    print(f"load average after the loop rows: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    if args.no_wakeup:
+        return 0
     print()
     print(f"Machine wake-up latency, {args.seconds:g} s per row (same run; hil check-realtime's measurement)")
     print(f"{'method':12s} {'sched':6s} {'rate':>5s} {'p50 µs':>9s} {'p99 µs':>9s} {'max µs':>9s} {'overruns':>8s} "
@@ -140,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
         with realtime_scheduling(enabled=rt) as sched:
             for rate in args.rates:
                 for method in ("sleep", "hybrid"):
-                    st = measure_wakeup(rate, args.seconds, method=method)
+                    st = measure_wakeup(rate, args.seconds, method=method, spin_ns=spin_for(sched))
                     held = [f"{k:g}" for k, v in holdable_rates(st).items() if v]
                     print(f"{method:12s} {'FIFO' if 'FIFO' in sched.policy else 'other':6s} {rate:5g} "
                           f"{us * st.p50:9.1f} {us * st.p99:9.1f} {us * st.max:9.1f} {st.overruns:8d} "

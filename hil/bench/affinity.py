@@ -9,7 +9,13 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["loop_cpu"]
+__all__ = ["DEVICE_FIFO_PRIORITY", "loop_cpu"]
+
+#: SCHED_FIFO priority of the simulated devices' process (:class:`hil.bench.runtime.ProcessSimBench`, on
+#: the CPUs the loop does not use): below the loop (80, :data:`hil.run.realtime.FIFO_PRIORITY`) and its
+#: record writer (79), above every ordinary process, so a loaded machine does not starve the
+#: "external" devices (a real device has its own CPU)
+DEVICE_FIFO_PRIORITY = 70
 
 
 def loop_cpu() -> int | None:

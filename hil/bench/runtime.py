@@ -962,6 +962,44 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child between 
         ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").prctl(1, int(signal.SIGTERM))
 
 
+def _child_setup(cpus: list[int] | None) -> Callable[[], None]:
+    """``preexec_fn`` of the devices' process: die with the parent, and run on ``cpus`` from its
+    first instruction (every thread it starts inherits the mask; setting it after the start would
+    miss threads already running)."""
+    import os
+
+    def setup() -> None:  # pragma: no cover - runs in the child between fork and exec
+        _die_with_parent()
+        if cpus:
+            with contextlib.suppress(Exception):
+                os.sched_setaffinity(0, set(cpus))
+
+    return setup
+
+
+def _fifo_process(pid: int, priority: int) -> str | None:
+    """SCHED_FIFO ``priority`` for every thread of process ``pid`` (threads it starts later inherit
+    it); None on success, else a one-line reason (threads already changed keep it)."""
+    import os
+
+    try:
+        tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+        for tid in tids:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(int(priority)))
+    except (AttributeError, OSError, ValueError) as exc:
+        return f"devices' process SCHED_FIFO {priority} not set: {getattr(exc, 'strerror', None) or exc}"
+    return None
+
+
+#: IP multicast hop limit (TTL) of the simulated CAN buses between the loop and the devices' process:
+#: 0 keeps every frame on this host (Linux loops a multicast datagram back to local members, then
+#: drops a TTL-0 one instead of transmitting it). With python-can's default 1 each frame is also sent
+#: out of the network interface: on a KVM guest a virtio-net transmit per frame (a VM exit: ~35 % of
+#: the send's CPU) and, when the host is slow to complete transmits, a full socket send buffer that
+#: blocks the loop's send for milliseconds; and simulated CAN traffic on the LAN.
+MULTICAST_HOP_LIMIT = 0
+
+
 class ProcessSimBench(Bench):
     """A simulated scene whose devices run in a separate process, as a real bench's devices are external.
 
@@ -974,13 +1012,22 @@ class ProcessSimBench(Bench):
     are judged on the adapters' monotonic clock, timeouts are ``watchdog_ms``. The simulated
     operator (``set_human_force``) is not reachable across the process boundary (ignored, as on a
     real bench). :meth:`close` closes the adapters, then stops the child.
+
+    Placement (a real bench's devices have their own processors): the child runs on ``cpus``
+    (default: every CPU of this process but :func:`hil.bench.affinity.loop_cpu`, set before it starts, so
+    all its threads stay off the loop's CPU, where a SCHED_FIFO loop would starve them), and, once
+    it has started, under SCHED_FIFO ``rt_priority`` (default
+    :data:`hil.bench.affinity.DEVICE_FIFO_PRIORITY`, below the loop and its record writer; None: left
+    ordinary) where permitted, so other load on those CPUs does not delay the devices' replies and
+    streams beyond the watchdog. What was refused is in :attr:`placement` (and logged at debug).
     """
 
     #: seconds to wait for the child to report its endpoints (start + imports on a loaded machine)
     START_TIMEOUT_S = 60.0
 
     def __init__(self, scene: Scene, *, seed: int | None = None, variant: str | None = None,
-                 timeout: float | None = None, cpus: list[int] | None = None) -> None:
+                 timeout: float | None = None, cpus: list[int] | None = None,
+                 rt_priority: int | None = -1) -> None:
         import json
         import os
         import secrets
@@ -992,9 +1039,11 @@ class ProcessSimBench(Bench):
 
         if scene.simulation is None:
             raise SceneError(f"{scene.path or scene.name}: no 'simulation' block: nothing to serve")
-        if cpus is None:
-            from hil.bench.affinity import loop_cpu
+        from hil.bench.affinity import DEVICE_FIFO_PRIORITY, loop_cpu
 
+        if rt_priority == -1:
+            rt_priority = DEVICE_FIFO_PRIORITY
+        if cpus is None:
             lc = loop_cpu()
             with contextlib.suppress(OSError, AttributeError):
                 cpus = sorted(set(os.sched_getaffinity(0)) - ({lc} if lc is not None else set())) or None
@@ -1012,15 +1061,13 @@ class ProcessSimBench(Bench):
         cmd += [a for ch, g in groups.items() for a in ("--can-channel", f"{ch}={g}")]
         if variant is not None:
             cmd += ["--variant", variant]
-        env = {**os.environ, "CAN_CONFIG": json.dumps({"port": port})}  # python-can: the served buses' UDP port
+        # python-can: the served buses' UDP port, and hop limit 0 (the frames never leave the host: see _open_devices)
+        env = {**os.environ, "CAN_CONFIG": json.dumps({"port": port, "hop_limit": MULTICAST_HOP_LIMIT})}
         self._err = open(Path(self._tmp.name) / "stderr.txt", "w+b")  # noqa: SIM115 - closed in _stop_child
         try:
             self._proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=self._err,
                                           env=env, start_new_session=True,  # Ctrl-C reaches the bench only
-                                          preexec_fn=_die_with_parent)
-            if cpus:
-                with contextlib.suppress(OSError, AttributeError):
-                    os.sched_setaffinity(self._proc.pid, set(cpus))  # its threads inherit it
+                                          preexec_fn=_child_setup(cpus))
             ready, _, _ = select.select([self._proc.stdout], [], [], self.START_TIMEOUT_S)
             line = self._proc.stdout.readline() if ready else b""
             if not line:
@@ -1028,6 +1075,13 @@ class ProcessSimBench(Bench):
                 why = " ".join(self._err.read().decode(errors="replace").split())[-300:] or "no output"
                 raise HilError(f"simulated devices of {scene.name!r} did not start in another process: {why}")
             report = json.loads(line)
+            # started (imports done, device threads running): now above ordinary load
+            refused = _fifo_process(self._proc.pid, rt_priority) if rt_priority is not None else None
+            #: where the devices' process runs: CPUs and scheduling (with what was refused)
+            self.placement = (f"devices' process on CPU {','.join(map(str, cpus or [])) or 'any'}, " + (
+                refused or (f"SCHED_FIFO {rt_priority}" if rt_priority is not None else "SCHED_OTHER")))
+            if refused:
+                logger.debug("%s", refused)
         except BaseException:
             self._stop_child()
             raise
@@ -1060,6 +1114,7 @@ class ProcessSimBench(Bench):
             params = dict(params)
             if resolve_twin(driver).udp_multicast:
                 params["port"] = self._can_port
+                params["hop_limit"] = MULTICAST_HOP_LIMIT
             params.setdefault("timeout", self.timeout)
             device_kind(d.cfg.driver).watchdog_params(params, self.watchdog_s, self.simulated)
             try:

@@ -51,6 +51,17 @@ samples are kept and written by ``close``), never unbounded memory or a silent l
 at most the blocks not yet written; a write error in the thread fails the writer as above and is
 raised by the next call (see :class:`RecordWriter`).
 
+Writer process (``background="process"``, the realtime runner's default): as above, but the blocks
+are preallocated in shared memory (``multiprocessing.shared_memory``) and every h5py call is made
+by a writer process (``python -c``, connected by a socket), to which the writer thread hands each
+block's index and waits for the answer. The appending process closes its own handle once the
+layout is written; the writer process opens the file for SWMR writing in one call, writes the
+blocks, the status and closes it. The loop's process then never waits for the interpreter lock
+held by h5py (a block costs milliseconds of HDF5 CPU, all of it under that lock). The guarantees
+are the same: same file contents; a write error there (full disk, file-size limit, EIO) is the
+caller's failed writer with the same one-line reason; a writer process that dies or does not
+answer is a write error that leaves the file as a kill does.
+
 Signals. While a block (and the whole of ``close()``) is written, the Python handlers of SIGINT,
 SIGTERM, SIGHUP, SIGQUIT, SIGUSR1/2 and SIGALRM are deferred (swapped for a handler that notes the
 signal; re-delivered afterwards), so a handler that raises never runs between a resize and its
@@ -99,7 +110,7 @@ import signal
 import threading
 import warnings
 import weakref
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from importlib import metadata as _metadata
 from itertools import pairwise
@@ -478,16 +489,179 @@ def _stop_writers_at_exit() -> None:
     for w in list(_LIVE_WRITERS):
         with contextlib.suppress(Exception):
             w._stop_writer()
+        with contextlib.suppress(Exception):
+            w._end_process()
 
 
 class _Block:
-    """One preallocated block of samples: ``t`` (n,) and ``cols[name]`` (n, *shape), NaN filled."""
+    """One preallocated block of samples: ``t`` (n,) and ``cols[name]`` (n, *shape), NaN filled.
+    ``buf`` (with ``index``): the block is the ``index``-th of :func:`_block_bytes` bytes in that
+    buffer (the writer process's shared memory), else its own arrays."""
 
-    __slots__ = ("cols", "t")
+    __slots__ = ("cols", "index", "t")
 
-    def __init__(self, n: int, specs: Mapping[str, ChannelSpec]) -> None:
-        self.t = np.full(n, np.nan)
-        self.cols = {k: np.full((n, *s.shape), np.nan) for k, s in specs.items()}
+    def __init__(self, n: int, specs: Mapping[str, ChannelSpec], buf: Any = None, index: int = -1,
+                 fill: bool = True) -> None:
+        self.index = index
+        if buf is None:
+            self.t = np.full(n, np.nan)
+            self.cols = {k: np.full((n, *s.shape), np.nan) for k, s in specs.items()}
+            return
+        off = index * _block_bytes(n, specs)
+        self.t = np.ndarray((n,), dtype=np.float64, buffer=buf, offset=off)
+        off += 8 * n
+        self.cols = {}
+        for k, s in specs.items():
+            self.cols[k] = np.ndarray((n, *s.shape), dtype=np.float64, buffer=buf, offset=off)
+            off += 8 * n * math.prod(s.shape)
+        if fill:  # the owner NaN-fills; the writer process only reads
+            self.t[:] = np.nan
+            for c in self.cols.values():
+                c[...] = np.nan
+
+
+def _writer_process_entry(fd: int) -> None:  # pragma: no cover - runs in the writer process
+    """``python -c`` entry of the writer process: the connection is the inherited socket ``fd``; the
+    first message carries :func:`_writer_process_main`'s arguments."""
+    from multiprocessing.connection import Connection
+
+    conn = Connection(fd)
+    args = conn.recv()
+    _writer_process_main(conn, *args)
+
+
+def _writer_process_main(conn: Any, path: str, shm_name: str, n: int, shapes: Mapping[str, tuple[int, ...]],
+                         nblocks: int) -> None:  # pragma: no cover - runs in the writer process (tested through it)
+    """The record writer process (``RecordWriter(background="process")``): opens the record for
+    SWMR writing (after its creator closed it: one writer per file), then answers the creator's
+    calls on ``conn`` one at a time -- ``("ready",)``, ``("commit", block index or None, m, t, block,
+    logs, rows, sizes, reserve)`` (a block in the shared memory ``shm_name`` or sent), ``("status",
+    bytes)``, ``("close",)`` -- with ``("ok", value)`` or ``("err", what, reason, broken)``. The end
+    of ``conn`` (its creator died) closes the file as it is (the status says "not closed"). Ignores
+    SIGINT: a Ctrl-C reaches the whole process group, and the loop's process decides the stop."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    from multiprocessing import resource_tracker, shared_memory
+
+    shm = shared_memory.SharedMemory(name=shm_name)
+    with contextlib.suppress(Exception):  # the creator owns (and unlinks) it: not this process's tracker
+        resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
+    specs = {k: ChannelSpec(tuple(v), "") for k, v in shapes.items()}
+    blocks = [_Block(n, specs, shm.buf, i, fill=False) for i in range(nblocks)]
+    f: Any = None
+    open_err: str | None = None
+    try:
+        fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+        fapl.set_libver_bounds(h5py.h5f.LIBVER_LATEST, h5py.h5f.LIBVER_LATEST)
+        f = h5py.File(h5py.h5f.open(os.fsencode(path), h5py.h5f.ACC_RDWR | h5py.h5f.ACC_SWMR_WRITE, fapl=fapl))
+    except Exception as exc:
+        open_err = _exc_reason(exc)
+    dsets: dict[str, Any] = {}
+    try:
+        while True:
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError):
+                break
+            kind = msg[0]
+            try:
+                if open_err is not None:
+                    raise _WriteFailed("opening the record in the writer process", open_err, False)
+                out: Any = None
+                if kind == "commit":
+                    _, idx, m, t, block, logs, rows, sizes, reserve = msg
+                    _reserve_in(f, reserve)
+                    if idx is not None:
+                        b = blocks[idx]
+                        t, block = b.t[:m], {k: c[:m] for k, c in b.cols.items()}
+                    out = _write_block(f, dsets, rows, sizes, t, block, logs)
+                elif kind == "status":
+                    try:
+                        f["status"][:] = msg[1]
+                        f.flush()
+                    except Exception as exc:
+                        raise _WriteFailed("writing the status", _exc_reason(exc), True) from exc
+                elif kind == "close":
+                    ff, f = f, None
+                    ff.close()
+                    conn.send(("ok", None))
+                    break
+                conn.send(("ok", out))
+            except _WriteFailed as exc:
+                conn.send(("err", exc.what, exc.reason, exc.broken))
+    finally:
+        if f is not None:
+            with contextlib.suppress(Exception):
+                f.close()
+        del blocks
+        with contextlib.suppress(Exception):
+            shm.close()
+
+
+def _block_bytes(n: int, specs: Mapping[str, ChannelSpec]) -> int:
+    """Bytes of one block of ``n`` samples in shared memory: ``t`` and every channel, float64."""
+    return 8 * n * (1 + sum(math.prod(s.shape) for s in specs.values()))
+
+
+def _exc_reason(exc: BaseException) -> str:
+    """A write failure's reason as the writer reports it (``strerror (errno N)`` for OS errors)."""
+    return (f"{exc.strerror or exc} (errno {exc.errno})" if isinstance(exc, OSError) and exc.errno
+            else _one_line(exc))
+
+
+class _WriteFailed(Exception):
+    """A block write failed: ``what`` failed because of ``reason``; ``broken``: HDF5 may have written
+    part of it (nothing more may be written)."""
+
+    def __init__(self, what: str, reason: str, broken: bool) -> None:
+        super().__init__(f"{what}: {reason}")
+        self.what, self.reason, self.broken = what, reason, broken
+
+
+def _reserve_in(f: Any, nbytes: int) -> None:
+    """``posix_fallocate`` ``nbytes`` past HDF5's end of ``f`` (see :meth:`RecordWriter._reserve`);
+    raises :class:`_WriteFailed` (not broken: nothing was written) when the disk cannot hold them."""
+    if not hasattr(os, "posix_fallocate"):  # pragma: no cover - not POSIX
+        return
+    try:
+        fid = f.id
+        os.posix_fallocate(fid.get_vfd_handle(), fid.get_filesize(), int(nbytes))
+    except OSError as exc:
+        if exc.errno in (errno.EINVAL, errno.EOPNOTSUPP):  # pragma: no cover - e.g. some network file systems
+            return
+        raise _WriteFailed(f"reserving {_mib(nbytes)} of disk", _exc_reason(exc), False) from None
+
+
+def _write_block(f: Any, dsets: dict[str, Any], rows: int, sizes: dict[str, int], t: np.ndarray | None,
+                 block: Mapping[str, np.ndarray] | None, logs: Mapping[str, list[bytes]]) -> tuple[int, dict[str, int]]:
+    """Write one block into the open file ``f`` at row ``rows`` (channels first, ``/t`` last: t's
+    length commits the samples), then every byte log at ``sizes``, then flush. Returns the new
+    ``(rows, sizes)``; raises :class:`_WriteFailed` (broken) on any HDF5 / OS failure. ``dsets``
+    caches the datasets (h5py's name lookup costs as much as the write)."""
+    sizes = dict(sizes)
+    try:
+        m = 0 if t is None else t.shape[0]
+        if t is not None and block is not None and m:
+            g = f["channels"]
+            for name, data in block.items():
+                ds = dsets.get(name)
+                if ds is None:
+                    ds = dsets[name] = g[name]
+                _write_rows(ds, rows, data)
+            if "/t" not in dsets:
+                dsets["/t"] = f["t"]
+            _write_rows(dsets["/t"], rows, t)
+            rows += m
+        for name, chunks in logs.items():
+            data = np.frombuffer(b"".join(chunks), dtype=np.uint8)
+            ds = f[name]
+            n0 = sizes[name]
+            ds.resize((n0 + data.size,))
+            ds[n0:] = data
+            sizes[name] = n0 + data.size
+        f.flush()
+    except Exception as exc:  # OSError (EFBIG, ENOSPC, EIO), RuntimeError from HDF5
+        raise _WriteFailed("write", _exc_reason(exc), True) from exc
+    return rows, sizes
 
 
 class RecordLagError(RecordWriteError):
@@ -514,7 +688,10 @@ class RecordWriter:
     Use as a context manager; an exception inside the ``with`` closes the record with
     ``status="error"`` and the exception's message as stop reason, then propagates.
 
-    Background writing (``background=True``, the realtime runner's mode): :meth:`append` only copies
+    ``background="process"``: the same, with the h5py calls in a writer process fed through shared
+    memory (see the module docstring); ``"thread"`` is ``True``.
+
+    Background writing (``background=True``): :meth:`append` only copies
     the sample into the current preallocated block; a full block (or one older than
     ``flush_every_s``) is handed, with the queued events/results/counters, to a writer thread that
     writes it and flushes the file -- the same blocks, positions and file contents as the
@@ -546,7 +723,7 @@ class RecordWriter:
         flush_every_s: float = 0.1,
         overwrite: bool = False,
         planned_samples: int | None = None,
-        background: bool = False,
+        background: bool | str = False,
         max_pending_blocks: int = 4,
         writer_timeout_s: float = 10.0,
     ) -> None:
@@ -561,8 +738,16 @@ class RecordWriter:
             raise RecordError(f"writer_timeout_s must be positive and finite, got {writer_timeout_s!r}")
         self.rate_hz = float(rate_hz)
         self.flush_every_s = float(flush_every_s)
+        if background not in (False, True, "thread", "process"):
+            raise RecordError(f"background must be False, True, 'thread' or 'process', got {background!r}")
         #: blocks are written by a writer thread (see the class docstring), not by append()
         self.background = bool(background)
+        #: ... and, ``background="process"``, the h5py calls by a writer process (no GIL shared with the loop)
+        self.process = background == "process"
+        self._proc: Any = None
+        self._conn: Any = None
+        self._shm: Any = None
+        self._call_lock = threading.Lock()
         self.max_pending_blocks = int(max_pending_blocks)
         self.writer_timeout_s = float(writer_timeout_s)
         #: samples per flush (the buffer size)
@@ -573,6 +758,8 @@ class RecordWriter:
             if not isinstance(spec, ChannelSpec):
                 raise RecordError(f"channel {name!r}: expected a ChannelSpec, got {type(spec).__name__}")
             self.specs[name] = spec
+        self._shapes = {name: tuple(spec.shape) for name, spec in self.specs.items()}
+        self._scalar_ok = {name for name, shp in self._shapes.items() if math.prod(shp) == 1}
         self.meta = dict(meta)
         meta_json = _to_json(self.meta, "meta")
         if hashlib.sha256(scene_text.encode()).hexdigest() != scene_sha256 and scene_text:
@@ -636,9 +823,12 @@ class RecordWriter:
             if isinstance(exc, OSError | RuntimeError):
                 raise RecordWriteError(f"{self.path}: cannot create record: {_one_line(exc)}") from None
             raise
+        if self.process:
+            self._start_process()
         if self.background:
-            for _ in range(self.max_pending_blocks):
-                self._free.put(_Block(n, self.specs))
+            if self._shm is None:
+                for _ in range(self.max_pending_blocks):
+                    self._free.put(_Block(n, self.specs))
             self._thread = threading.Thread(target=self._writer_main, name=f"hil-record-writer {self.path.name}",
                                             daemon=True)
             self._thread.start()
@@ -764,6 +954,29 @@ class RecordWriter:
             arr = arr.reshape(want)
         return arr
 
+    def _fast_coerce(self, values: Mapping[str, Any]) -> list[tuple[str, Any]] | None:
+        """The per-tick fast path of :meth:`append`: every value already is a numeric array of its
+        channel's exact shape, or a float for a one-value channel (what the runner's rows hold), so it
+        can be stored as is (the buffer's assignment converts exactly as ``_coerce`` would). None
+        when any value needs :meth:`_coerce` (conversion, singleton reshaping, or an error to name)."""
+        shapes = self._shapes
+        out = []
+        for name, v in values.items():
+            shp = shapes.get(name)
+            tv = type(v)
+            if shp is None:
+                return None
+            if tv is np.ndarray:
+                if v.shape != shp or v.dtype.kind not in "fiub":
+                    return None
+            elif tv is float or tv is np.float64:
+                if name not in self._scalar_ok:
+                    return None
+            else:
+                return None
+            out.append((name, v))
+        return out
+
     def append(self, t: float, values: Mapping[str, np.ndarray | float]) -> None:
         """Append one sample at run time ``t`` [s] (strictly increasing). Channels missing from ``values``
         are NaN; an undeclared channel or a wrong shape raises :class:`RecordError` naming the channel."""
@@ -771,7 +984,9 @@ class RecordWriter:
         t = float(t)
         if not (math.isfinite(t) and t > self._t_last):
             raise RecordError(f"sample time {t!r} s is not finite or not after the previous one ({self._t_last} s)")
-        coerced = [(name, self._coerce(name, v)) for name, v in values.items()]
+        coerced = self._fast_coerce(values)
+        if coerced is None:
+            coerced = [(name, self._coerce(name, v)) for name, v in values.items()]
         if self._nbuf >= self.flush_samples:  # background: a full block no writer could take yet
             self._hand_over()
         i = self._nbuf
@@ -883,19 +1098,15 @@ class RecordWriter:
         untouched and consistent, instead of in the middle of a block (HDF5 would have updated its
         superblock to point past what it could write, making even the earlier samples unreadable).
         HDF5 trims the unused reserve when it flushes or closes."""
-        if not hasattr(os, "posix_fallocate"):  # pragma: no cover - not POSIX
-            return
         try:
-            fid = self._f.id
-            os.posix_fallocate(fid.get_vfd_handle(), fid.get_filesize(), int(nbytes))
-        except OSError as exc:
-            if exc.errno in (errno.EINVAL, errno.EOPNOTSUPP):  # pragma: no cover - e.g. some network file systems
-                return
-            raise self._fail(exc, f"reserving {_mib(nbytes)} of disk") from None
+            _reserve_in(self._f, nbytes)
+        except _WriteFailed as exc:
+            raise self._fail_reason(exc.reason, exc.what) from None
 
     def _fail(self, exc: BaseException, what: str) -> RecordWriteError:
-        reason = (f"{exc.strerror or exc} (errno {exc.errno})" if isinstance(exc, OSError) and exc.errno
-                  else _one_line(exc))
+        return self._fail_reason(_exc_reason(exc), what)
+
+    def _fail_reason(self, reason: str, what: str) -> RecordWriteError:
         err = RecordWriteError(f"{self.path}: {what} failed: {reason}; the {self.samples_flushed} samples "
                                "flushed before are kept")
         self.failure = err
@@ -913,45 +1124,33 @@ class RecordWriter:
             self._queued_bytes[name] += sum(len(c) for c in chunks)
         return logs
 
-    def _commit(self, t: np.ndarray | None, block: Mapping[str, np.ndarray] | None,
+    def _commit(self, t: np.ndarray | None, block: Mapping[str, np.ndarray] | _Block | None,
                 logs: Mapping[str, list[bytes]], on_commit: Callable[[], None] | None = None) -> None:
         """Write one block (samples, then every byte log) at the positions the file is known to hold,
         flush the file, then update the writer's state (and run ``on_commit``). Signals are held for
         all of it, so a handler (which may raise) runs only after the block and the state that says
         it is written are both done: a block is never written twice nor half. Any write failure makes
         the writer failed (a failed write is never re-applied)."""
-        f = self._f
-        rows = self._rows
-        sizes = dict(self._bytes)
         m = 0 if t is None else t.shape[0]
         need = 2 * (m * self.bytes_per_sample() + sum(len(c) for cs in logs.values() for c in cs))
-        self._reserve(need + self._chunk_bytes + _RESERVE_MARGIN)
+        reserve = need + self._chunk_bytes + _RESERVE_MARGIN
+        if self._proc is None:
+            self._reserve(reserve)
         err: RecordWriteError | None = None
         with _signals_held():
             try:
-                if t is not None and block is not None and m:
-                    g = f["channels"]
-                    dsets = self._dsets  # h5py's name lookup costs as much as the write: looked up once
-                    for name, data in block.items():  # channels first, /t last: t's length commits samples
-                        ds = dsets.get(name)
-                        if ds is None:
-                            ds = dsets[name] = g[name]
-                        _write_rows(ds, rows, data)
-                    if "/t" not in dsets:
-                        dsets["/t"] = f["t"]
-                    _write_rows(dsets["/t"], rows, t)
-                    rows += m
-                for name, chunks in logs.items():
-                    data = np.frombuffer(b"".join(chunks), dtype=np.uint8)
-                    ds = f[name]
-                    n0 = sizes[name]
-                    ds.resize((n0 + data.size,))
-                    ds[n0:] = data
-                    sizes[name] = n0 + data.size
-                f.flush()
-            except Exception as exc:  # OSError (EFBIG, ENOSPC, EIO), RuntimeError from HDF5
-                self._hdf5_broken = True  # HDF5 may have written part of the block: write nothing more
-                err = self._fail(exc, "write")
+                if self._proc is not None:  # the writer process: the block by index in shared memory, or sent
+                    shm_block = block if isinstance(block, _Block) else None
+                    rows, sizes = self._call("commit", shm_block.index if shm_block is not None else None, m,
+                                             None if shm_block is not None else t,
+                                             None if shm_block is not None else block, logs, self._rows,
+                                             dict(self._bytes), reserve)
+                else:
+                    assert not isinstance(block, _Block)
+                    rows, sizes = _write_block(self._f, self._dsets, self._rows, self._bytes, t, block, logs)
+            except _WriteFailed as exc:
+                self._hdf5_broken = self._hdf5_broken or exc.broken  # HDF5 may be mid-block: write nothing more
+                err = self._fail_reason(exc.reason, exc.what)
             else:
                 self._rows = rows
                 self._bytes = sizes
@@ -1041,6 +1240,8 @@ class RecordWriter:
 
                     if block is None:
                         self._commit(None, None, logs, done)
+                    elif self._proc is not None:  # the process reads the block from shared memory
+                        self._commit(block.t[:k], block, logs, done)
                     else:
                         self._commit(block.t[:k], {name: c[:k] for name, c in block.cols.items()}, logs, done)
             except RecordWriteError:
@@ -1052,21 +1253,125 @@ class RecordWriter:
                 if block is not None:
                     self._free.put(block)
 
-    def set_writer_scheduling(self, priority: int) -> str | None:
-        """Background mode: give the writer thread SCHED_FIFO ``priority`` (Linux). The realtime
-        runner uses one below its loop's: the writer then is not preempted by ordinary processes
-        while it holds the interpreter lock the loop waits for (priority inversion), and the loop
-        still preempts it. Returns None on success, else a one-line reason (nothing changed)."""
+    def set_writer_scheduling(self, priority: int, cpus: Iterable[int] | None = None,
+                              process_priority: int | None = None) -> str | None:
+        """Background mode: give the writer thread SCHED_FIFO ``priority`` (Linux) and, when ``cpus``
+        is given (non-empty), pin it to those CPUs. The realtime runner uses one below its loop's and
+        the CPUs the loop does not run on: the writer then is not preempted by ordinary processes
+        while it holds the interpreter lock the loop waits for (priority inversion), the loop still
+        preempts it, and its writes run beside the loop instead of in the loop CPU's idle time.
+        Returns None on success, else a one-line reason (what failed is left unchanged).
+        ``background="process"``: the same for the writer process (the h5py calls), with
+        ``process_priority`` when given (it shares no interpreter lock with the loop, so it may run
+        below other realtime work on its CPUs, e.g. the simulated devices), and the thread that
+        hands it the blocks."""
         th = self._thread
         if th is None or th.native_id is None:
             return "no writer thread"
         if not hasattr(os, "sched_setscheduler"):  # pragma: no cover - not Linux
             return "SCHED_FIFO not available on this platform"
+        why: list[str] = []
+        cpu_set = set(cpus or ())
+        targets = [("writer thread", th.native_id, int(priority))]
+        if self._proc is not None and self._proc.pid is not None:
+            targets.append(("writer process", self._proc.pid,
+                            int(priority if process_priority is None else process_priority)))
+        for who, tid, prio in targets:
+            if cpu_set:
+                try:
+                    os.sched_setaffinity(tid, cpu_set)
+                except OSError as exc:
+                    why.append(f"{who} affinity {sorted(cpu_set)} not permitted: {exc.strerror or exc}")
+            try:
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(prio))
+            except OSError as exc:
+                why.append(f"{who} SCHED_FIFO {prio} not permitted: {exc.strerror or exc}")
+        return "; ".join(why) or None
+
+    # -- the writer process (background="process")
+    def _start_process(self) -> None:
+        """Hand the file to a writer process: preallocate the blocks in shared memory, close this
+        process's handle, start the process (``spawn``) and wait until it holds the file."""
+        import socket
+        import subprocess
+        import sys
+        from multiprocessing import shared_memory
+        from multiprocessing.connection import Connection
+
+        n, nb = self.flush_samples, self.max_pending_blocks + 1
         try:
-            os.sched_setscheduler(th.native_id, os.SCHED_FIFO, os.sched_param(int(priority)))
-        except OSError as exc:
-            return f"writer thread SCHED_FIFO {priority} not permitted: {exc.strerror or exc}"
-        return None
+            self._f.close()  # one writer per file: from now on only the writer process opens it
+            self._shm = shared_memory.SharedMemory(create=True, size=max(1, _block_bytes(n, self.specs) * nb))
+            blocks = [_Block(n, self.specs, self._shm.buf, i) for i in range(nb)]
+            self._cur = blocks[0]
+            self._t_buf, self._buf = self._cur.t, self._cur.cols
+            for b in blocks[1:]:
+                self._free.put(b)
+            # a fresh interpreter (never fork a process with running threads; no re-import of __main__)
+            mine, theirs = socket.socketpair()
+            try:
+                code = ("import sys; from hil.record.hdf5 import _writer_process_entry; "
+                        "_writer_process_entry(int(sys.argv[1]))")
+                self._proc = subprocess.Popen([sys.executable, "-c", code, str(theirs.fileno())],
+                                              pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
+                                              start_new_session=True)  # Ctrl-C reaches the loop's process only
+            finally:
+                theirs.close()
+            self._conn = Connection(mine.detach())
+            shapes = {k: tuple(v.shape) for k, v in self.specs.items()}
+            self._conn.send((str(self.path), self._shm.name, n, shapes, nb))
+            self._call("ready", timeout=max(self.writer_timeout_s, 60.0))  # the process imports numpy and h5py
+        except BaseException as exc:
+            self._end_process(graceful=False)
+            if isinstance(exc, _WriteFailed):
+                raise RecordWriteError(f"{self.path}: cannot create record: {exc.what}: {exc.reason}") from None
+            if isinstance(exc, Exception):
+                raise RecordWriteError(f"{self.path}: cannot start the record writer process: "
+                                       f"{_one_line(exc)}") from None
+            raise
+
+    def _call(self, kind: str, *args: Any, timeout: float | None = None) -> Any:
+        """One call to the writer process (see :func:`_writer_process_main`); its value, or
+        :class:`_WriteFailed` (a process that ended or does not answer within ``timeout``: broken,
+        the file is left as a kill leaves it)."""
+        with self._call_lock:
+            try:
+                self._conn.send((kind, *args))
+                if timeout is not None and not self._conn.poll(timeout):
+                    self._writer_stuck = True
+                    raise TimeoutError(f"no answer within {timeout:g} s")
+                reply = self._conn.recv()
+            except (EOFError, OSError, TimeoutError) as exc:
+                code = self._proc.poll() if self._proc is not None else None
+                why = f"{_one_line(exc) or type(exc).__name__}" + (f" (exit code {code})" if code is not None else "")
+                raise _WriteFailed("the record writer process", why, True) from None
+        if reply[0] == "ok":
+            return reply[1]
+        raise _WriteFailed(reply[1], reply[2], reply[3])
+
+    def _end_process(self, graceful: bool = True) -> None:
+        """Close the file in the writer process (``graceful``, bounded by ``writer_timeout_s``) and
+        let it end; release the shared memory's name. A stuck process is left to finish alone."""
+        proc, conn = self._proc, self._conn
+        if graceful and conn is not None and proc is not None and not self._writer_stuck:
+            with contextlib.suppress(_WriteFailed):
+                self._call("close", timeout=self.writer_timeout_s)
+        if conn is not None:
+            with contextlib.suppress(OSError):
+                conn.close()
+        if proc is not None and not self._writer_stuck:
+            import subprocess
+
+            try:
+                proc.wait(self.writer_timeout_s if graceful else 2.0)
+            except subprocess.TimeoutExpired:  # pragma: no cover - a process that does not end after closing
+                proc.kill()
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    proc.wait(2.0)
+        if self._shm is not None:
+            with contextlib.suppress(Exception):
+                self._shm.unlink()
+        self._conn = None
 
     def _stop_writer(self) -> bool:
         """Background mode: let the writer thread finish what is queued and exit (at most
@@ -1122,7 +1427,9 @@ class RecordWriter:
         finally:
             self.closed = True
             try:
-                if not self._writer_stuck:
+                if self._proc is not None:
+                    self._end_process()
+                elif not self._writer_stuck:
                     self._f.close()
             except Exception as exc:  # the samples flushed before are on disk; the handle is gone
                 if failure is None:
@@ -1153,8 +1460,14 @@ class RecordWriter:
         err: RecordWriteError | None = None
         with _signals_held():
             try:
-                self._f["status"][:] = buf
-                self._f.flush()
+                if self._proc is not None:
+                    self._call("status", buf, timeout=self.writer_timeout_s)
+                else:
+                    self._f["status"][:] = buf
+                    self._f.flush()
+            except _WriteFailed as exc:
+                self._hdf5_broken = True
+                err = self._fail_reason(exc.reason, exc.what)
             except Exception as exc:
                 self._hdf5_broken = True
                 err = self._fail(exc, "writing the status")

@@ -14,7 +14,11 @@ Pieces (each usable on its own; :class:`hil.run.runner.Runner` uses them in real
   100) overrunning, raises :class:`hil.errors.SafetyStop` naming the tick and the numbers.
 * :func:`realtime_scheduling` -- SCHED_FIFO (``os.sched_setscheduler``), ``mlockall`` (libc via
   ctypes) and CPU affinity for the loop, each where permitted; whatever is refused gives ONE
-  one-line warning (logged, and kept in :attr:`Scheduling.warning` for the record).
+  one-line warning (logged, and kept in :attr:`Scheduling.warning` for the record). It also
+  shortens the interpreter's GIL switch interval (``sys.setswitchinterval``, default 5 ms, to
+  :data:`GIL_SWITCH_INTERVAL_S`) for the block: another thread of the loop's process holding the
+  GIL (the record writer inside h5py) is then made to hand it back to a waiting loop within about
+  one C call, instead of after up to 5 ms.
 * :func:`gc_paused` -- ``gc.collect(); gc.freeze(); gc.disable()`` for an experiment,
   ``gc.enable(); gc.unfreeze(); gc.collect()`` after it.
 * :func:`measure_wakeup` -- the machine's wake-up latency the way cyclictest measures it:
@@ -53,14 +57,18 @@ from typing import Any
 
 import numpy as np
 
-from hil.bench.affinity import loop_cpu
+from hil.bench.affinity import DEVICE_FIFO_PRIORITY, loop_cpu
 from hil.errors import EXIT_NOT_HELD, SafetyStop
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
     "DEFAULT_MAX_OVERRUN_FRACTION",
+    "DEVICE_FIFO_PRIORITY",
+    "GIL_SWITCH_INTERVAL_S",
     "SPIN_NS",
+    "SPIN_NS_FIFO",
+    "WRITER_PROCESS_FIFO_PRIORITY",
     "LatenessGuard",
     "Pacer",
     "Scheduling",
@@ -73,12 +81,25 @@ __all__ = [
     "run_cyclictest",
 ]
 
-#: the hybrid wait spins for the last 200 µs before a deadline (sleeps wake up late by tens of µs)
+#: the hybrid wait spins for the last 200 µs before a deadline (an ordinary thread's sleep wakes up
+#: late by its 50 µs timer slack plus tens of µs)
 SPIN_NS = 200_000
+#: ... and for the last 100 µs under SCHED_FIFO (no timer slack; wake-up p99 ~50 µs measured on the
+#: 2-core KVM guest). The spin is CPU the loop takes from everything else on its CPU: at 2 kHz 200 µs
+#: is 40 % of it, and ordinary tasks starved on the loop's CPU get the kernel's fair server (50 ms per
+#: second in one piece, Linux >= 6.12), a 50 ms stall of the loop.
+SPIN_NS_FIFO = 100_000
+#: the interpreter's GIL switch interval during a realtime experiment [s] (CPython default 5 ms)
+GIL_SWITCH_INTERVAL_S = 0.0002
 #: default ``safety.max_overrun_fraction``: more than 1 % of the ticks of a 1 s window overrunning
 DEFAULT_MAX_OVERRUN_FRACTION = 0.01
 #: SCHED_FIFO priority of the loop (cyclictest's customary ``-p 80``: above the kernel's threaded IRQs at 50)
 FIFO_PRIORITY = 80
+#: SCHED_FIFO priority of the record's writer process (the h5py calls; its thread stays at
+#: ``FIFO_PRIORITY - 1``): below the devices' process it shares the other CPUs with, so a block
+#: write (milliseconds of HDF5 CPU) never delays a device's reply; above ordinary load, so the
+#: writer does not fall behind
+WRITER_PROCESS_FIFO_PRIORITY = 60
 
 
 # ---------------------------------------------------------------------------------------------
@@ -175,16 +196,26 @@ class LatenessGuard:
 @dataclasses.dataclass
 class Scheduling:
     """What the loop got. ``policy``: ``"SCHED_FIFO 80"`` or ``"SCHED_OTHER"``; ``memlock``: memory
-    locked (``mlockall``); ``cpus``: the loop's CPU affinity; ``warning``: the one-line warning
-    (None when everything was granted)."""
+    locked (``mlockall``); ``cpus``: the loop's CPU affinity; ``other_cpus``: the CPUs the process
+    may use besides the loop's (its helper threads and the devices' process go there; empty when
+    the loop was not pinned); ``switch_interval_s``: the GIL switch interval in force [s];
+    ``warning``: the one-line warning (None when everything was granted)."""
 
     policy: str = "SCHED_OTHER"
     memlock: bool = False
     cpus: tuple[int, ...] = ()
     warning: str | None = None
+    other_cpus: tuple[int, ...] = ()
+    switch_interval_s: float = dataclasses.field(default_factory=sys.getswitchinterval)
+
+    @property
+    def fifo(self) -> bool:
+        """SCHED_FIFO was granted."""
+        return self.policy.startswith("SCHED_FIFO")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"policy": self.policy, "memlock": self.memlock, "cpus": list(self.cpus), "warning": self.warning}
+        return {"policy": self.policy, "memlock": self.memlock, "cpus": list(self.cpus), "warning": self.warning,
+                "other_cpus": list(self.other_cpus), "switch_interval_s": self.switch_interval_s}
 
     def describe(self) -> str:
         cpus = ",".join(map(str, self.cpus)) or "any"
@@ -200,11 +231,19 @@ def _libc() -> Any:
     return ctypes.CDLL(name, use_errno=True) if name else None
 
 
+def spin_for(sched: Scheduling) -> int:
+    """The hybrid wait's spin window [ns] for the scheduling the loop got: :data:`SPIN_NS_FIFO`
+    under SCHED_FIFO, :data:`SPIN_NS` otherwise."""
+    return SPIN_NS_FIFO if sched.fifo else SPIN_NS
+
+
 @contextlib.contextmanager
 def realtime_scheduling(*, enabled: bool = True, priority: int = FIFO_PRIORITY,
-                        cpu: int | None = -1) -> Iterator[Scheduling]:
-    """Give the calling thread SCHED_FIFO ``priority``, lock the process's memory and pin it to
-    ``cpu`` (-1: :func:`loop_cpu`; None: no pinning) for the block; restore all three after it.
+                        cpu: int | None = -1,
+                        switch_interval_s: float | None = GIL_SWITCH_INTERVAL_S) -> Iterator[Scheduling]:
+    """Give the calling thread SCHED_FIFO ``priority``, lock the process's memory, pin it to
+    ``cpu`` (-1: :func:`loop_cpu`; None: no pinning) and set the GIL switch interval to
+    ``switch_interval_s`` (None: unchanged) for the block; restore all four after it.
 
     What is refused (no CAP_SYS_NICE / rtprio limit, RLIMIT_MEMLOCK, not Linux) is skipped with ONE
     warning line listing it and how to grant it (logged once per process; always in
@@ -244,9 +283,14 @@ def realtime_scheduling(*, enabled: bool = True, priority: int = FIFO_PRIORITY,
         if cpu is not None:
             os.sched_setaffinity(0, {cpu})
         got.cpus = tuple(sorted(os.sched_getaffinity(0)))
+        got.other_cpus = tuple(sorted(set(old_aff) - set(got.cpus))) if cpu is not None else ()
     except (AttributeError, OSError) as exc:
         old_aff = None
         missing.append(f"CPU affinity ({exc})")
+    old_switch = sys.getswitchinterval()
+    if switch_interval_s is not None:
+        sys.setswitchinterval(float(switch_interval_s))
+    got.switch_interval_s = sys.getswitchinterval()
     if missing:
         got.warning = (f"realtime loop without {', '.join(missing)}: lateness is not bounded by the scheduler "
                        "(grant CAP_SYS_NICE and CAP_IPC_LOCK, or rtprio/memlock in /etc/security/limits.conf)")
@@ -256,6 +300,7 @@ def realtime_scheduling(*, enabled: bool = True, priority: int = FIFO_PRIORITY,
     try:
         yield got
     finally:
+        sys.setswitchinterval(old_switch)
         if old_policy is not None and old_param is not None:
             with contextlib.suppress(OSError):
                 os.sched_setscheduler(0, old_policy, old_param)
@@ -345,17 +390,18 @@ def _abs_sleeper() -> Callable[[int], None] | None:
 
 def measure_wakeup(rate_hz: float, seconds: float, *, method: str = "sleep",
                    clock_ns: Callable[[], int] | None = None,
-                   sleep_until: Callable[[int], None] | None = None) -> WakeupStats:
+                   sleep_until: Callable[[int], None] | None = None, spin_ns: int = SPIN_NS) -> WakeupStats:
     """Wake up at ``t0 + k / rate_hz`` for ``seconds`` and measure how late each wake-up is.
 
     ``method="sleep"``: absolute-deadline sleeps (cyclictest's measurement: the kernel's timer and
     scheduling latency); ``"hybrid"``: :class:`Pacer`'s sleep-then-spin wait (what the loop does).
     ``clock_ns`` / ``sleep_until`` are injectable (tests); defaults: ``time.monotonic_ns`` and
-    clock_nanosleep(TIMER_ABSTIME) on the same clock."""
+    clock_nanosleep(TIMER_ABSTIME) on the same clock. ``spin_ns``: the hybrid wait's spin window
+    (the loop's: :func:`spin_for` its scheduling)."""
     n = max(1, round(rate_hz * seconds))
     late = np.empty(n, dtype=np.int64)  # preallocated: nothing allocated per wake-up but ints
     if method == "hybrid":
-        pacer = Pacer(rate_hz, clock_ns=clock_ns or time.monotonic_ns)
+        pacer = Pacer(rate_hz, clock_ns=clock_ns or time.monotonic_ns, spin_ns=spin_ns)
         pacer.start()
         for k in range(n):
             late[k] = pacer.wait(k + 1)
@@ -445,7 +491,8 @@ def check_realtime(rate_hz: float = 2000.0, seconds: float = 5.0, *, rt: bool = 
     exit 0 when ``rate_hz`` is held, :data:`EXIT_NOT_HELD` (21) when not."""
     a = types.SimpleNamespace(rate=float(rate_hz), seconds=float(seconds), no_rt=not rt, json=as_json)
     with realtime_scheduling(enabled=not a.no_rt) as sched:
-        rows = [measure_wakeup(a.rate, a.seconds, method="sleep"), measure_wakeup(a.rate, a.seconds, method="hybrid")]
+        rows = [measure_wakeup(a.rate, a.seconds, method="sleep"),
+                measure_wakeup(a.rate, a.seconds, method="hybrid", spin_ns=spin_for(sched))]
     cyc = run_cyclictest(a.rate, a.seconds)
     note = None
     if isinstance(cyc, str):
@@ -474,7 +521,8 @@ def check_realtime(rate_hz: float = 2000.0, seconds: float = 5.0, *, rt: bool = 
                     "—" if math.isnan(r.p99) else f"{1e6 * r.p99:.1f}", f"{1e6 * r.max:.1f}", str(r.overruns))
     con.print(tab)
     con.print("abs. sleep: clock_nanosleep to each absolute deadline (cyclictest's measurement); sleep+spin: the "
-              "loop's wait (sleep, then spin the last 200 µs); cyclictest: from its 1 µs histogram",
+              f"loop's wait (sleep, then spin the last {spin_for(sched) // 1000} µs); cyclictest: from its 1 µs "
+              "histogram",
               highlight=False)
     if note:
         con.print(note, highlight=False)

@@ -84,6 +84,14 @@ __all__ = ["ExperimentOutcome", "LoopStats", "Runner", "SafetyMonitor", "one_lin
 # safety
 
 
+def _all_finite(a: np.ndarray) -> bool:
+    """No NaN or inf in the float array ``a``: a NaN or an inf makes ``a . a`` non-finite, so one
+    dot product decides the usual case; only a non-finite one (or a value so large its square
+    overflows) takes the exact ``isfinite`` check."""
+    flat = a if a.ndim == 1 else a.reshape(-1)
+    return math.isfinite(float(np.dot(flat, flat))) or bool(np.isfinite(a).all())
+
+
 class SafetyMonitor:
     """Limits from the scene's ``safety`` section; :meth:`check` raises :class:`SafetyStop`.
 
@@ -145,9 +153,17 @@ class SafetyMonitor:
             if pos is None:
                 continue
             vel = sample.velocity
-            # one reduction per array (this runs for every device on every tick)
-            vmax = float(np.max(np.abs(vel))) if vel.size else 0.0
-            pmin, pmax = (float(pos.min()), float(pos.max())) if pos.size else (0.0, 0.0)
+            # this runs for every device on every tick: a one-DOF device's values are read directly
+            if vel.size == 1:
+                vmax = abs(float(vel.item()))
+            else:
+                vmax = max(float(vel.max()), -float(vel.min())) if vel.size else 0.0
+                if math.isnan(float(vel.sum())):  # max() of a NaN and a number may give the number
+                    vmax = math.nan
+            if pos.size == 1:
+                pmin = pmax = float(pos.item())
+            else:
+                pmin, pmax = (float(pos.min()), float(pos.max())) if pos.size else (0.0, 0.0)
             if not (math.isfinite(vmax) and math.isfinite(pmin) and math.isfinite(pmax)):
                 raise SafetyStop(f"fault: non-finite feedback from {name!r}")
             if vmax > self.max_velocity:
@@ -158,6 +174,10 @@ class SafetyMonitor:
 
     def check_command(self, efforts: Mapping[str, np.ndarray]) -> None:
         for name, u in efforts.items():
+            if type(u) is np.ndarray and u.size == 1:  # the per-tick case: one scalar comparison
+                x = float(u.item())
+                if math.isfinite(x) and abs(x) <= self.max_effort:
+                    continue
             if not np.all(np.isfinite(u)):
                 raise SafetyStop(f"fault: non-finite effort command for {name!r}")
             if not np.all(np.abs(u) <= self.max_effort):
@@ -172,8 +192,8 @@ class SafetyMonitor:
                 v = getattr(sample, field_, None)
                 if v is None:
                     continue
-                a = np.asarray(v, dtype=float)
-                if not np.all(np.isfinite(a)):
+                a = v if type(v) is np.ndarray and v.dtype == np.float64 else np.asarray(v, dtype=float)
+                if not _all_finite(a):
                     raise SafetyStop(f"fault: non-finite {name}.{field_} at tick {k} (t = {t:.6g} s): "
                                      f"{np.array2string(a.reshape(-1), precision=4)}")
 
@@ -341,16 +361,21 @@ class Runner:
     Realtime options: ``clock_ns`` / ``sleep`` (the loop's clock in ns and its sleep in s; defaults
     ``time.perf_counter_ns`` / ``time.sleep``; tests inject a fake clock), ``rt_scheduling``
     (False: no SCHED_FIFO / mlockall / affinity, e.g. in tests), ``gc_pause`` (False: leave the
-    garbage collector alone), ``spin_ns`` (the hybrid wait's spin window, default 200 µs; 0: sleep
-    only), ``read_timeout`` (s, passed to every tick's ``bench.read``; None: the bench's own,
-    ``watchdog_ms`` on hardware). The default bench of a simulated scene in realtime mode serves its
-    devices from another process (:class:`hil.bench.runtime.ProcessSimBench`).
+    garbage collector alone), ``spin_ns`` (the hybrid wait's spin window; None: 100 µs under
+    SCHED_FIFO, 200 µs otherwise, :func:`hil.run.realtime.spin_for`; 0: sleep only), ``read_timeout``
+    (s, passed to every tick's ``bench.read``; None: the bench's own, ``watchdog_ms`` on hardware).
+    The default bench of a simulated scene in realtime mode serves its devices from another process
+    (:class:`hil.bench.runtime.ProcessSimBench`).
     """
 
     #: realtime mode: the record is written by a writer thread (:class:`hil.record.hdf5.RecordWriter`
     #: ``background=True``), so no HDF5 write or flush runs inside a tick; False: synchronous flushes
     #: in the tick (as in lockstep mode, which always writes synchronously)
     record_thread: bool = True
+    #: ... and its h5py calls by a writer process (``background="process"``, blocks in shared
+    #: memory): the loop never waits for the GIL held by h5py (a 100-sample block costs ~4 ms of
+    #: HDF5 CPU on the 2-core KVM guest, all of it with the GIL held); False: in the writer thread
+    record_process: bool = True
 
     def __init__(self, scene: Any, out_dir: str | Path, *, bench_factory: Callable[[str | None], Any] | None = None,
                  realtime: bool | None = None, progress: Callable[[str, int, int], None] | None = None,
@@ -531,7 +556,8 @@ class Runner:
             writer = RecordWriter(path, scene_text=self.scene.source_text, scene_sha256=self.scene.sha256,
                                   meta=meta, channels=self._channels(meas0), rate_hz=self.rate_hz,
                                   overwrite=self.overwrite, planned_samples=n,
-                                  background=self.realtime and self.record_thread)
+                                  background=(("process" if self.record_process else "thread")
+                                              if self.realtime and self.record_thread else False))
         except BaseException:
             self.bench.safe_stop()
             raise
@@ -541,21 +567,22 @@ class Runner:
             with contextlib.ExitStack() as rt, safe_stop_context(stop, on_stop):
                 pacer = guard = None
                 if self.realtime:
-                    from hil.run.realtime import LatenessGuard, Pacer, gc_paused, realtime_scheduling
+                    from hil.run.realtime import LatenessGuard, Pacer, gc_paused, realtime_scheduling, spin_for
 
                     sched = rt.enter_context(realtime_scheduling(enabled=self.rt_scheduling))
                     stats.scheduling = sched.describe()
-                    if writer.background and sched.policy.startswith("SCHED_FIFO"):  # below the loop's priority
-                        from hil.run.realtime import FIFO_PRIORITY
+                    if writer.background and sched.fifo:  # below the loop's priority, off the loop's CPU
+                        from hil.run.realtime import FIFO_PRIORITY, WRITER_PROCESS_FIFO_PRIORITY
 
-                        why = writer.set_writer_scheduling(FIFO_PRIORITY - 1)
+                        why = writer.set_writer_scheduling(FIFO_PRIORITY - 1, sched.other_cpus,
+                                                           process_priority=WRITER_PROCESS_FIFO_PRIORITY)
                         if why:
                             logger.warning("%s: record writer thread: %s", name, why)
                     self._append_event(writer, 0.0, "realtime", f"loop scheduling: {sched.describe()}"
                                        + (f"; warning: {sched.warning}" if sched.warning else ""))
                     rt.enter_context(gc_paused(self.gc_pause))
                     pacer = Pacer(self.rate_hz, clock_ns=self.clock_ns, sleep=self.sleep,
-                                  **({} if self.spin_ns is None else {"spin_ns": self.spin_ns}))
+                                  spin_ns=spin_for(sched) if self.spin_ns is None else self.spin_ns)
                     guard = LatenessGuard(self.rate_hz, safety.max_lateness_s, safety.max_overrun_fraction)
                     pacer.start()
                 read_timeout = self._tick_read_timeout()
@@ -814,7 +841,10 @@ class _RecordChannels(Mapping[str, Any]):
     def __init__(self, path: Path) -> None:
         import h5py
 
-        self._f = h5py.File(path, "r")
+        try:
+            self._f = h5py.File(path, "r")
+        except OSError:  # held open by a writer process (SWMR write): read it as a SWMR reader
+            self._f = h5py.File(path, "r", swmr=True)
         g = self._f["channels"]
         self._n = min([self._f["t"].shape[0], *(g[k].shape[0] for k in g)])
 

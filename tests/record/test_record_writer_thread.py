@@ -1,4 +1,5 @@
-"""The record's background writer (``RecordWriter(background=True)``, the realtime runner's mode):
+"""The record's background writer (``RecordWriter(background=True)``; ``background="process"``,
+the realtime runner's mode, has the h5py calls made by a writer process fed through shared memory):
 the same file as synchronous writing, a write error (full disk) in the writer thread is raised at the
 next append and keeps every row flushed before it, a writer that falls behind is a bounded
 :class:`RecordLagError` (a safe stop in the runner) with nothing lost, and close joins the writer
@@ -261,8 +262,10 @@ def _runner(tmp_path: Path) -> Runner:
     d.pop("certification", None)
     sc = scene_from_dict(d, label="writer-thread-test")
     fc = _FakeClock()
-    return Runner(sc, tmp_path, realtime=True, bench_factory=lambda v: Bench(sc, seed=sc.seed, variant=v),
-                  clock_ns=fc.clock, sleep=fc.sleep, rt_scheduling=False)
+    r = Runner(sc, tmp_path, realtime=True, bench_factory=lambda v: Bench(sc, seed=sc.seed, variant=v),
+               clock_ns=fc.clock, sleep=fc.sleep, rt_scheduling=False)
+    r.record_process = False  # the failures below are injected into this process's h5py calls
+    return r
 
 
 def test_realtime_runner_full_disk_in_the_writer_is_a_safe_stop_keeping_the_flushed_rows(
@@ -338,3 +341,112 @@ def test_writer_scheduling_is_applied_to_the_writer_thread_or_explained(tmp_path
     finally:
         w.close()
     _check_exact(RunRecord.open(tmp_path / "bg.h5"), 150)
+
+
+# -- the writer process (background="process"): the same file, its failures are the caller's ----------
+
+
+def test_process_writing_gives_the_same_datasets_as_synchronous_writing(tmp_path: Path) -> None:
+    n = 1234
+    sync = _writer(tmp_path / "sync.h5")
+    _script(sync, n)
+    sync.close()
+    pw = _writer(tmp_path / "proc.h5", background="process", max_pending_blocks=64)
+    assert pw._proc is not None and pw._proc.pid != os.getpid() and pw._shm is not None
+    _script(pw, n)
+    pw.close()
+    assert pw._proc.poll() is not None  # the writer process ended with the record
+    a, b = _datasets(tmp_path / "sync.h5"), _datasets(tmp_path / "proc.h5")
+    assert sorted(a) == sorted(b) and "channels/master.position" in a and "results_npy" in a
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+    rec = RunRecord.open(tmp_path / "proc.h5")
+    _check_exact(rec, n)
+    assert rec.status == "ok" and rec.closed and rec.results["exp"]["gain"] == 2.5
+
+
+def test_a_file_size_limit_in_the_writer_process_is_raised_at_the_next_append_keeping_the_flushed_rows(
+        tmp_path: Path) -> None:
+    import resource
+
+    path = tmp_path / "fsize.h5"
+    w = _writer(path, background="process")
+    for k in range(2 * BLOCK):
+        w.append(k / RATE, _vals(k))
+    w.flush()  # blocks 1 and 2 on disk
+    size = path.stat().st_size
+    resource.prlimit(w._proc.pid, resource.RLIMIT_FSIZE, (size, size))  # the disk is "full" for the writer
+    k = 2 * BLOCK
+    with pytest.raises(RecordWriteError) as ei:  # the blocks the earlier reserve covers fit; then one fails
+        while k < 200 * BLOCK:
+            w.append(k / RATE, _vals(k))
+            k += 1
+            if k % BLOCK == 0:
+                _wait_for(lambda: w._free.qsize() == w.max_pending_blocks or w.failure is not None, "the writer")
+    flushed = w.samples_flushed
+    assert 2 * BLOCK <= flushed < k and flushed % BLOCK == 0
+    msg = str(ei.value)
+    assert "\n" not in msg and "File too large" in msg and f"the {flushed} samples flushed" in msg
+    with pytest.raises(RecordWriteError) as ei2:
+        w.close(stop_reason="record: disk full", status="safety_stop")
+    assert str(ei2.value) == msg
+    rec = RunRecord.open(path)
+    _check_exact(rec, flushed)  # every row flushed before the failure, intact
+    assert rec.closed and rec.status == "safety_stop" and rec.stop_reason == "record: disk full"
+
+
+def test_a_killed_writer_process_is_a_write_error_at_the_next_call_keeping_the_flushed_rows(
+        tmp_path: Path) -> None:
+    import signal
+
+    path = tmp_path / "killed.h5"
+    w = _writer(path, background="process")
+    for k in range(2 * BLOCK):
+        w.append(k / RATE, _vals(k))
+    w.flush()
+    os.kill(w._proc.pid, signal.SIGKILL)
+    w._proc.wait(20)
+    with pytest.raises(RecordWriteError) as ei:
+        for k in range(2 * BLOCK, 10 * BLOCK):
+            w.append(k / RATE, _vals(k))
+            if k % BLOCK == BLOCK - 1:
+                _wait_for(lambda: w.failure is not None, "the failure")
+    msg = str(ei.value)
+    assert "\n" not in msg and "record writer process" in msg and f"the {2 * BLOCK} samples flushed" in msg
+    with pytest.raises(RecordWriteError):
+        w.close()
+    rec = RunRecord.open(path)  # as a kill leaves it: every flushed row, not closed
+    _check_exact(rec, 2 * BLOCK)
+    assert not rec.closed
+
+
+def test_writer_scheduling_applies_to_the_writer_process_too(tmp_path: Path) -> None:
+    w = _writer(tmp_path / "p.h5", background="process")
+    try:
+        cpus = sorted(os.sched_getaffinity(0))[:1]
+        why = w.set_writer_scheduling(79, cpus, process_priority=60)
+        pid = w._proc.pid
+        if why is None:  # the process (h5py) at 60, the thread (shares the loop's GIL) at 79, both on `cpus`
+            assert os.sched_getscheduler(pid) == os.SCHED_FIFO and os.sched_getparam(pid).sched_priority == 60
+            assert w._thread is not None and w._thread.native_id is not None
+            assert os.sched_getparam(w._thread.native_id).sched_priority == 79
+            assert sorted(os.sched_getaffinity(pid)) == cpus == sorted(os.sched_getaffinity(w._thread.native_id))
+        else:
+            assert "not permitted" in why and "\n" not in why
+        for k in range(150):
+            w.append(k / RATE, _vals(k))
+    finally:
+        w.close()
+    _check_exact(RunRecord.open(tmp_path / "p.h5"), 150)
+
+
+def test_realtime_runner_records_every_tick_through_the_writer_process(tmp_path: Path) -> None:
+    r = _runner(tmp_path)
+    r.record_process = True  # the realtime default
+    o = r.run()[0]
+    assert o.status == "completed", o.stop_reason
+    assert o.record is not None
+    rec = RunRecord.open(o.record)
+    np.testing.assert_array_equal(rec.t, np.arange(1000) * (1 / 2000.0))
+    assert np.all(np.isfinite(rec.channels["motor.position"])) and rec.closed and rec.status == "completed"
+    assert o.results and "error" not in o.results  # finish() read the record while the writer process held it

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -42,6 +43,25 @@ def test_devices_are_served_by_another_process_and_stop_with_the_bench():
         assert s2["motor"].seq > s1["motor"].seq  # fresh samples from the served ODrive
         assert np.isfinite(s2["spring_ft"].wrench).all()
         b.advance()  # no-op: the plant runs on its own in the child
+        # placement: every thread of the child off the loop's CPU (set before exec, so none escapes)
+        from hil.run.realtime import loop_cpu
+
+        lc = loop_cpu()
+        tids = [int(t) for t in os.listdir(f"/proc/{child.pid}/task")]
+        assert len(tids) > 1  # the device threads are running
+        if lc is not None:
+            assert all(lc not in os.sched_getaffinity(t) for t in tids)
+        policies = {os.sched_getscheduler(t) for t in tids}
+        assert ("SCHED_FIFO 70" in b.placement and policies == {os.SCHED_FIFO}) or (
+            "not set" in b.placement and "\n" not in b.placement)
+        # the CAN frames stay on this host: multicast TTL 0 on this side's socket (and in the child's config)
+        import socket
+
+        sock = b._devs[0].adapter._bus._multicast._socket
+        assert sock.getsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL) == 0
+        env = Path(f"/proc/{child.pid}/environ").read_bytes().split(b"\0")
+        can_config = [json.loads(e.split(b"=", 1)[1]) for e in env if e.startswith(b"CAN_CONFIG=")]
+        assert can_config and can_config[0]["hop_limit"] == 0
     assert child.returncode is not None  # the child was stopped with the bench
 
 
