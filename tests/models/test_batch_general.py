@@ -114,19 +114,25 @@ def test_non_affine_map_is_refused() -> None:
     assert coefficient_map(build, ["a"], X) is None
 
 
-@pytest.mark.parametrize("b00", [0.0, 1e-300])
-def test_screen_never_rejects_touching(b00: float) -> None:
-    # Re z_00 = B_00 = 0 (touching: the exact verdict is stable) or a denormal-small positive value
-    rng = np.random.default_rng(0)
-    n = 30
-    draws = {"B_00": np.full(n, b00), "B_11": 6.0 * (1 + 0.1 * rng.standard_normal(n)), "B_01": np.zeros(n)}
+
+def _mbk_screen(draws: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(rejected, screen margin, fixed parameters) of the m-b-k impedance's float screen over ``draws``."""
     names = sorted(draws)
     X = np.column_stack([draws[k] for k in names])
     params = _params("mbk_impedance", draws)
     m = get_model("mbk_impedance")
     cmap = coefficient_map(lambda th: m.network({**params, **th}), names, X)
     assert cmap is not None
-    rejected, _ = screen(cmap, X, "positive_real")
+    rejected, margin = screen(cmap, X, "positive_real")
+    return rejected, margin, params
+
+@pytest.mark.parametrize("b00", [0.0, 1e-300])
+def test_screen_never_rejects_touching(b00: float) -> None:
+    # Re z_00 = B_00 = 0 (touching: the exact verdict is stable) or a denormal-small positive value
+    rng = np.random.default_rng(0)
+    n = 30
+    draws = {"B_00": np.full(n, b00), "B_11": 6.0 * (1 + 0.1 * rng.standard_normal(n)), "B_01": np.zeros(n)}
+    rejected, _, params = _mbk_screen(draws)
     assert not rejected.any()
     assert _exact("mbk_impedance", "positive_real", params, draws).all()
 
@@ -136,13 +142,7 @@ def test_screen_rejects_a_clear_violation() -> None:
     rng = np.random.default_rng(1)
     n = 30
     draws = {"B_00": np.full(n, -0.5), "B_11": 6.0 * (1 + 0.1 * rng.standard_normal(n))}
-    names = sorted(draws)
-    X = np.column_stack([draws[k] for k in names])
-    params = _params("mbk_impedance", draws)
-    m = get_model("mbk_impedance")
-    cmap = coefficient_map(lambda th: m.network({**params, **th}), names, X)
-    assert cmap is not None
-    rejected, margin = screen(cmap, X, "positive_real")
+    rejected, margin, params = _mbk_screen(draws)
     assert rejected.all()
     assert np.all(margin < 0)
     assert not _exact("mbk_impedance", "positive_real", params, draws).any()
@@ -154,13 +154,7 @@ def test_screen_rejects_an_indefinite_mass_matrix_at_infinity() -> None:
     n = 30
     m01 = np.where(np.arange(n) % 2 == 0, 0.9, 0.5) * (1 + 1e-3 * np.arange(n) / n)
     draws = {"M_01": m01, "B_00": np.full(n, 8.0) + 1e-3 * np.arange(n)}
-    names = sorted(draws)
-    X = np.column_stack([draws[k] for k in names])
-    params = _params("mbk_impedance", draws)
-    m = get_model("mbk_impedance")
-    cmap = coefficient_map(lambda th: m.network({**params, **th}), names, X)
-    assert cmap is not None
-    rejected, _ = screen(cmap, X, "positive_real")
+    rejected, _, params = _mbk_screen(draws)
     ref = _exact("mbk_impedance", "positive_real", params, draws)
     assert np.array_equal(rejected, m01 > 0.8)
     assert np.array_equal(ref, m01 < 0.8)
