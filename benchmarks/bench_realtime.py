@@ -136,6 +136,27 @@ def _scene(rate: float, seconds: float = 16.0) -> Any:
     return scene_from_dict(d, label=f"sdea_bench@{rate:g}")
 
 
+def steal_ms() -> float:
+    """Steal time of this (virtual) machine so far [ms], all CPUs: time the hypervisor ran something
+    else while a virtual CPU wanted to run (``/proc/stat``, 8th value of the ``cpu`` line); NaN where
+    unreadable. A loop (or cyclictest) cannot be on time while its CPU is stolen."""
+    try:
+        line = Path("/proc/stat").read_text().splitlines()[0].split()
+        return int(line[8]) * 1e3 / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return math.nan
+
+
+def _process_cpu_s(pid: int) -> float:
+    """User + system CPU time [s] of process ``pid`` so far, all its threads (``/proc/PID/stat``); NaN
+    where unreadable."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return math.nan
+
+
 def loop_row(rate: float, seconds: float, config: str, tmp: Path, phases: bool = False) -> dict[str, Any]:
     import hil.bench.runtime as hb
     import hil.run.realtime as hrt
@@ -146,8 +167,20 @@ def loop_row(rate: float, seconds: float, config: str, tmp: Path, phases: bool =
     n = round(seconds * rate)
     pt = _PhaseTimes() if phases else None
 
+    dev_cpu: list[float] = []
+
     def make(v: str | None) -> Any:
         b = c["bench"](sc, seed=sc.seed, variant=v)
+        proc = getattr(b, "_proc", None)
+        if proc is not None:  # the devices' process: its CPU time from the bench's start to just before it stops
+            dev_cpu.append(-_process_cpu_s(proc.pid))  # started, warmed up: its imports are not counted
+            close = b.close
+
+            def close_measured() -> None:
+                dev_cpu[-1] += _process_cpu_s(proc.pid)
+                close()
+
+            b.close = close_measured
         if pt is not None:
             pt.wrap(b, "read", "read")
             pt.wrap(b, "command", "command")
@@ -173,12 +206,16 @@ def loop_row(rate: float, seconds: float, config: str, tmp: Path, phases: bool =
         if pt is not None:
             pt.restore()
     wall = time.perf_counter() - t0
+    loop_wall = max(int(o.stats.get("ticks", 0)), 1) / rate
     row = {"config": config, "rate": rate, "ticks": o.stats.get("ticks", 0), "status": o.status,
-           "reason": o.stop_reason, "sched": o.stats.get("scheduling", ""), "wall": wall}
+           "reason": o.stop_reason, "sched": o.stats.get("scheduling", ""), "wall": wall,
+           "dev_cpu": dev_cpu[0] / loop_wall if dev_cpu and math.isfinite(dev_cpu[0]) else math.nan}
     ticks = int(o.stats.get("ticks", 0))
     if pt is not None and ticks:
         row["phases"] = {k: (pt.cpu[k] / ticks / 1e3, (pt.wall[k] - pt.cpu[k]) / ticks / 1e3) for k in PHASES}
     counters = o.results.get("device_counters", {}) if isinstance(o.results, dict) else {}
+    if pt is not None and ticks:
+        row["loop_cpu"] = sum(pt.cpu.values()) / 1e9 / loop_wall
     row["stale"] = sum(int(c.get("stale", 0)) for c in counters.values())
     if o.record is not None:
         late = RunRecord.open(o.record).channels["loop.late"][:, 0]
@@ -199,21 +236,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
     ap.add_argument("--phases", action="store_true", help="per-phase CPU time of the loop thread per tick")
     ap.add_argument("--no-wakeup", action="store_true", help="skip the machine wake-up latency table")
+    ap.add_argument("--fifo-only", action="store_true", help="wake-up table: only under SCHED_FIFO (the loop's)")
     args = ap.parse_args(argv)
     logging.disable(logging.WARNING)
     us = 1e6
     print(f"Loop lateness, sdea_bench locked chirp in realtime mode, {args.seconds:g} s per row")
     print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print(f"{'config':8s} {'rate':>5s} {'ticks':>7s} {'p50 µs':>9s} {'p99 µs':>9s} {'max µs':>9s} {'overruns':>8s} "
-          f"{'overrun %':>9s} {'<flush':>6s} {'stale':>6s} {'status':12s} scheduling")
+          f"{'overrun %':>9s} {'<flush':>6s} {'stale':>6s} {'dev CPU':>7s} {'steal':>7s} {'status':12s} scheduling")
     with tempfile.TemporaryDirectory() as d:
         for rate in args.rates:
             for config in args.configs:
+                st0 = steal_ms()
                 r = loop_row(rate, args.seconds, config, Path(d), phases=args.phases)
+                r["steal"] = steal_ms() - st0
                 if "p50" in r:
                     print(f"{config:8s} {rate:5g} {r['ticks']:7d} {us * r['p50']:9.1f} {us * r['p99']:9.1f} "
                           f"{us * r['max']:9.1f} {r['overruns']:8d} {100 * r['frac']:9.3f} {r['after_flush']:6d} "
-                          f"{r['stale']:6d} {r['status']:12s} "
+                          f"{r['stale']:6d} {100 * r['dev_cpu']:6.0f}% {r['steal']:5.0f}ms {r['status']:12s} "
                           f"{r['sched'] or 'SCHED_OTHER, no measures'}", flush=True)
                 else:
                     print(f"{config:8s} {rate:5g} {r['ticks']:7d}  no ticks: {r['status']} {r['reason']}", flush=True)
@@ -222,34 +262,41 @@ def main(argv: list[str] | None = None) -> int:
                 if "phases" in r:
                     ph = r["phases"]
                     print(f"{'':8s} CPU µs/tick: " + ", ".join(f"{k} {ph[k][0]:.0f}" for k in PHASES)
-                          + f" (sum {sum(v[0] for v in ph.values()):.0f}); blocked µs/tick: "
+                          + f" (sum {sum(v[0] for v in ph.values()):.0f}, {100 * r['loop_cpu']:.0f} % of its CPU)"
+                          + "; blocked µs/tick: "
                           + ", ".join(f"{k} {ph[k][1]:.0f}" for k in PHASES if k != "wait"), flush=True)
     print(f"(<flush: overruns within {FLUSH_SHADOW_TICKS} ticks after a record flush; stale: reads without a "
-          "new sample)")
+          "new sample; dev CPU: CPU time of the simulated devices' process, all threads, over the row's run time, "
+          "in % of one CPU: the process has every CPU but the loop's; steal: the machine's steal time during the row, "
+          "all CPUs)")
     print(f"load average after the loop rows: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     if args.no_wakeup:
         return 0
     print()
     print(f"Machine wake-up latency, {args.seconds:g} s per row (same run; hil check-realtime's measurement)")
     print(f"{'method':12s} {'sched':6s} {'rate':>5s} {'p50 µs':>9s} {'p99 µs':>9s} {'max µs':>9s} {'overruns':>8s} "
-          "holds (p99 <= 10 % period, max < period)")
-    for rt in (False, True):
+          f"{'steal':>7s} holds (p99 <= 10 % period, max < period)")
+    for rt in ((True,) if args.fifo_only else (False, True)):
         with realtime_scheduling(enabled=rt) as sched:
             for rate in args.rates:
                 for method in ("sleep", "hybrid"):
+                    st0 = steal_ms()
                     st = measure_wakeup(rate, args.seconds, method=method, spin_ns=spin_for(sched))
+                    stolen = steal_ms() - st0
                     held = [f"{k:g}" for k, v in holdable_rates(st).items() if v]
                     print(f"{method:12s} {'FIFO' if 'FIFO' in sched.policy else 'other':6s} {rate:5g} "
                           f"{us * st.p50:9.1f} {us * st.p99:9.1f} {us * st.max:9.1f} {st.overruns:8d} "
-                          f"{','.join(held) or '-'}", flush=True)
+                          f"{stolen:5.0f}ms {','.join(held) or '-'}", flush=True)
     for rate in args.rates:
+        st0 = steal_ms()
         cyc = run_cyclictest(rate, args.seconds)
+        stolen = steal_ms() - st0
         if isinstance(cyc, str):
             print(cyc)
             break
         p99 = f"{us * cyc.p99:9.1f}" if np.isfinite(cyc.p99) else f"{'>period':>9s}"
         print(f"{'cyclictest':12s} {'FIFO':6s} {rate:5g} {us * cyc.p50:9.1f} {p99} {us * cyc.max:9.1f} "
-              f"{cyc.overruns:8d}", flush=True)
+              f"{cyc.overruns:8d} {stolen:5.0f}ms", flush=True)
     print(f"load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     return 0
 
