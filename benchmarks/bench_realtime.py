@@ -64,7 +64,7 @@ import yaml  # type: ignore[import-untyped]  # no PyYAML stubs in the env
 
 from hil.bench.runtime import Bench, ProcessSimBench
 from hil.record.hdf5 import RunRecord
-from hil.run.realtime import holdable_rates, measure_wakeup, realtime_scheduling, run_cyclictest, spin_for
+from hil.run.realtime import holdable_rates, measure_wakeup, realtime_scheduling, run_cyclictest, spin_for, steal_time_s
 from hil.run.runner import Runner
 from hil.scene.spec import load_scene, scene_from_dict
 
@@ -134,17 +134,6 @@ def _scene(rate: float, seconds: float = 16.0) -> Any:
     d.pop("certification", None)
     d["safety"].update(max_lateness_ms=10_000.0, max_overrun_fraction=1.0)
     return scene_from_dict(d, label=f"sdea_bench@{rate:g}")
-
-
-def steal_ms() -> float:
-    """Steal time of this (virtual) machine so far [ms], all CPUs: time the hypervisor ran something
-    else while a virtual CPU wanted to run (``/proc/stat``, 8th value of the ``cpu`` line); NaN where
-    unreadable. A loop (or cyclictest) cannot be on time while its CPU is stolen."""
-    try:
-        line = Path("/proc/stat").read_text().splitlines()[0].split()
-        return int(line[8]) * 1e3 / os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError):
-        return math.nan
 
 
 def _process_cpu_s(pid: int) -> float:
@@ -247,9 +236,9 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as d:
         for rate in args.rates:
             for config in args.configs:
-                st0 = steal_ms()
+                st0 = 1e3 * steal_time_s()
                 r = loop_row(rate, args.seconds, config, Path(d), phases=args.phases)
-                r["steal"] = steal_ms() - st0
+                r["steal"] = 1e3 * steal_time_s() - st0
                 if "p50" in r:
                     print(f"{config:8s} {rate:5g} {r['ticks']:7d} {us * r['p50']:9.1f} {us * r['p99']:9.1f} "
                           f"{us * r['max']:9.1f} {r['overruns']:8d} {100 * r['frac']:9.3f} {r['after_flush']:6d} "
@@ -280,17 +269,17 @@ def main(argv: list[str] | None = None) -> int:
         with realtime_scheduling(enabled=rt) as sched:
             for rate in args.rates:
                 for method in ("sleep", "hybrid"):
-                    st0 = steal_ms()
+                    st0 = 1e3 * steal_time_s()
                     st = measure_wakeup(rate, args.seconds, method=method, spin_ns=spin_for(sched))
-                    stolen = steal_ms() - st0
+                    stolen = 1e3 * steal_time_s() - st0
                     held = [f"{k:g}" for k, v in holdable_rates(st).items() if v]
                     print(f"{method:12s} {'FIFO' if 'FIFO' in sched.policy else 'other':6s} {rate:5g} "
                           f"{us * st.p50:9.1f} {us * st.p99:9.1f} {us * st.max:9.1f} {st.overruns:8d} "
                           f"{stolen:5.0f}ms {','.join(held) or '-'}", flush=True)
     for rate in args.rates:
-        st0 = steal_ms()
+        st0 = 1e3 * steal_time_s()
         cyc = run_cyclictest(rate, args.seconds)
-        stolen = steal_ms() - st0
+        stolen = 1e3 * steal_time_s() - st0
         if isinstance(cyc, str):
             print(cyc)
             break

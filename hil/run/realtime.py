@@ -79,6 +79,7 @@ __all__ = [
     "measure_wakeup",
     "realtime_scheduling",
     "run_cyclictest",
+    "steal_time_s",
 ]
 
 #: the hybrid wait spins for the last 200 µs before a deadline (an ordinary thread's sleep wakes up
@@ -474,6 +475,26 @@ P99_FRACTION = 0.1
 #: ... and the worst one is shorter than one period (no overrun)
 
 
+#: where the kernel accounts each CPU's time (Linux)
+PROC_STAT = "/proc/stat"
+
+
+def steal_time_s(path: str = PROC_STAT) -> float:
+    """The machine's steal time so far [s], summed over its CPUs: time a virtual CPU of this guest
+    wanted to run while the hypervisor ran something else (the 8th value of the ``cpu`` line of
+    ``/proc/stat``, in clock ticks of ``SC_CLK_TCK``). A monotone counter: the steal time of an
+    interval is the difference of two readings. NaN where it cannot be read (not Linux). Nothing in
+    the guest runs while its CPU is stolen, so no loop (cyclictest included) is on time then."""
+    try:
+        with open(path, encoding="ascii") as f:
+            fields = f.readline().split()
+        if fields[0] != "cpu":
+            return math.nan
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, AttributeError):
+        return math.nan
+
+
 def holdable_rates(stats: WakeupStats, rates: Sequence[float] = CANDIDATE_RATES) -> dict[float, bool]:
     """Which loop rates the measured wake-up latency allows: rate R is held when p99 lateness
     <= :data:`P99_FRACTION` / R and max lateness < 1 / R. The lateness of a wake-up does not depend
@@ -490,10 +511,12 @@ def check_realtime(rate_hz: float = 2000.0, seconds: float = 5.0, *, rt: bool = 
     (:func:`holdable_rates`, judged on the hybrid wait). Prints a table (or one JSON object);
     exit 0 when ``rate_hz`` is held, :data:`EXIT_NOT_HELD` (21) when not."""
     a = types.SimpleNamespace(rate=float(rate_hz), seconds=float(seconds), no_rt=not rt, json=as_json)
+    steal0, t0 = steal_time_s(), time.monotonic()
     with realtime_scheduling(enabled=not a.no_rt) as sched:
         rows = [measure_wakeup(a.rate, a.seconds, method="sleep"),
                 measure_wakeup(a.rate, a.seconds, method="hybrid", spin_ns=spin_for(sched))]
     cyc = run_cyclictest(a.rate, a.seconds)
+    steal, elapsed = steal_time_s() - steal0, time.monotonic() - t0
     note = None
     if isinstance(cyc, str):
         note = cyc
@@ -503,6 +526,7 @@ def check_realtime(rate_hz: float = 2000.0, seconds: float = 5.0, *, rt: bool = 
     ok = holdable_rates(rows[1], [a.rate])[float(a.rate)]
     if a.json:
         print(json.dumps({"scheduling": sched.to_dict(), "rows": [r.to_dict() for r in rows], "note": note,
+                          "steal_s": steal if math.isfinite(steal) else None, "elapsed_s": elapsed,
                           "holdable": {f"{r:g}": v for r, v in held.items()}, "rate_held": ok}))
         return 0 if ok else EXIT_NOT_HELD
     from rich.console import Console  # lazy: only to print (the loop imports this module)
@@ -526,6 +550,11 @@ def check_realtime(rate_hz: float = 2000.0, seconds: float = 5.0, *, rt: bool = 
               highlight=False)
     if note:
         con.print(note, highlight=False)
+    if math.isfinite(steal):
+        con.print(f"steal time: {1e3 * steal:.0f} ms over the {elapsed:.1f} s of measurement (summed over the CPUs)"
+                  + (": a virtual machine whose host runs other work; nothing here runs while its CPU is stolen, "
+                     "so lateness up to the host's bursts cannot be removed in this machine" if steal > 0 else ""),
+                  highlight=False)
     good = [f"{r:g}" for r, v in held.items() if v]
     con.print(f"holds (p99 ≤ {P99_FRACTION:.0%} of the period, max < 1 period): "
               f"{', '.join(good) + ' Hz' if good else 'none of ' + ', '.join(f'{r:g}' for r in held) + ' Hz'}",

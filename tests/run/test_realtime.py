@@ -390,3 +390,36 @@ def test_check_realtime_prints_a_table(capsys, monkeypatch):
     assert [r["method"] for r in js["rows"]] == ["sleep", "hybrid"] and js["rows"][0]["samples"] == 20
     assert code == (0 if js["rate_held"] else 21)
     assert main(["check-realtime", "--rate", "-5"]) == 2
+
+
+def test_steal_time_is_the_8th_value_of_the_cpu_line_and_nan_when_unreadable(tmp_path):
+    """/proc/stat's ``cpu`` line: user nice system idle iowait irq softirq steal ... (clock ticks)."""
+    import os
+
+    from hil.run.realtime import steal_time_s
+
+    stat = tmp_path / "stat"
+    tck = os.sysconf("SC_CLK_TCK")
+    stat.write_text(f"cpu  1 2 3 4 5 6 7 {3 * tck} 0 0\ncpu0 1 2 3 4 5 6 7 {tck} 0 0\n")
+    assert steal_time_s(str(stat)) == pytest.approx(3.0)  # the sum over CPUs, not cpu0's
+    stat.write_text("intr 1 2 3\n")
+    assert math.isnan(steal_time_s(str(stat)))
+    assert math.isnan(steal_time_s(str(tmp_path / "missing")))
+    real = steal_time_s()
+    assert math.isnan(real) or real >= 0.0  # this machine's counter: a duration, never negative
+
+
+def test_check_realtime_reports_the_steal_time_of_its_measurement(capsys, monkeypatch):
+    """The steal printed is the difference of the counter over the measurement (4.25 s of fake steal)."""
+    from hil.cli.main import main
+
+    readings = iter([10.0, 14.25])
+    monkeypatch.setattr("hil.run.realtime.shutil.which", lambda name: None)
+    monkeypatch.setattr("hil.run.realtime.steal_time_s", lambda path="": next(readings))
+    main(["check-realtime", "--rate", "1000", "--seconds", "0.02", "--no-rt", "--json"])
+    js = json.loads(capsys.readouterr().out)
+    assert js["steal_s"] == pytest.approx(4.25) and js["elapsed_s"] > 0
+    readings = iter([10.0, 14.25])
+    main(["check-realtime", "--rate", "1000", "--seconds", "0.02", "--no-rt"])
+    out = capsys.readouterr().out
+    assert "steal time: 4250 ms" in out and "virtual machine" in out, out
