@@ -175,12 +175,106 @@ def against(rev: str, names: list[str], ticks: int, repeat: int) -> None:
                   f" {b['runner']:8.0f} {a['runner']:8.0f} {a['runner'] / b['runner']:8.2f}x")
 
 
+def transport_counts(name: str, ticks: int) -> tuple[float, float]:
+    """(CAN frames sent, pty writes) per bench tick of scene ``name`` (zero effort, ``ticks`` ticks),
+    counted on the real bench: every ``LockstepVirtualBus.send`` and every ``os.write`` of the
+    process during the ticks (no record is written: the bench alone)."""
+    from hil.mocks.can_devices import LockstepVirtualBus
+
+    sc = load_scene(name)
+    n = {"can": 0, "pty": 0}
+    send, write = LockstepVirtualBus.send, os.write
+
+    def counting_send(self: object, *a: object, **kw: object) -> object:
+        n["can"] += 1
+        return send(self, *a, **kw)  # type: ignore[arg-type]
+
+    def counting_write(fd: int, data: bytes) -> int:
+        n["pty"] += 1
+        return write(fd, data)
+
+    with Bench(sc, seed=sc.seed) as bench:
+        zero = {a: np.zeros(sc.device(a).dof) for a in bench.actuators}
+        LockstepVirtualBus.send, os.write = counting_send, counting_write  # type: ignore[method-assign, assignment]
+        try:
+            for _ in range(ticks):
+                bench.read()
+                bench.command(zero)
+                bench.advance()
+        finally:
+            LockstepVirtualBus.send, os.write = send, write  # type: ignore[method-assign]
+        bench.safe_stop()
+    return n["can"] / ticks, n["pty"] / ticks
+
+
+def primitive_costs(reps: int = 20000) -> dict[str, float]:
+    """CPU seconds (this thread) of one CAN frame (LockstepVirtualBus, one receiver: ``Message`` +
+    ``send`` + ``recv(timeout=0)``) and of one 37-byte pty frame (``os.write`` on the master, ``select``
+    + ``os.read`` on the slave), best of 5 blocks of ``reps``."""
+    import pty
+    import select
+
+    import can
+
+    from hil.mocks.can_devices import LockstepVirtualBus
+
+    clk = time.thread_time_ns
+    a, b = LockstepVirtualBus(channel="floor"), LockstepVirtualBus(channel="floor")
+    data = bytes(8)
+    best_can = best_pty = float("inf")
+    try:
+        for _ in range(5):
+            t0 = clk()
+            for i in range(reps):
+                a.send(can.Message(arbitration_id=0x0C | (i & 0x3F) << 5, data=data, is_extended_id=False))
+                b.recv(timeout=0.0)
+            best_can = min(best_can, (clk() - t0) / reps * 1e-9)
+    finally:
+        a.shutdown()
+        b.shutdown()
+    master, slave = pty.openpty()
+    frame = bytes(37)
+    try:
+        import tty
+
+        tty.setraw(slave)
+        for _ in range(5):
+            t0 = clk()
+            for _ in range(reps // 4):
+                os.write(master, frame)
+                got = 0
+                while got < len(frame):
+                    select.select([slave], [], [], 1.0)
+                    got += len(os.read(slave, 4096))
+            best_pty = min(best_pty, (clk() - t0) / (reps // 4) * 1e-9)
+    finally:
+        os.close(master)
+        os.close(slave)
+    return {"can": best_can, "pty": best_pty}
+
+
+def floor_table(names: list[str], ticks: int) -> None:
+    cost = primitive_costs()
+    print(f"Transport floor per lockstep tick (CPU of this thread; a CAN frame {1e6 * cost['can']:.1f} µs, "
+          f"a 37-byte pty frame {1e6 * cost['pty']:.1f} µs, measured in this run)")
+    print(f"{'scene':28s} {'CAN/tick':>9s} {'pty/tick':>9s} {'plant µs':>9s} {'floor µs':>9s} {'max ticks/s':>12s}"
+          f" {'bench CPU t/s':>14s}")
+    for name in names:
+        can_n, pty_n = transport_counts(name, ticks)
+        _, c, p = bench_tps(name, ticks)
+        floor = can_n * cost["can"] + pty_n * cost["pty"] + 1.0 / p
+        print(f"{name:28s} {can_n:9.2f} {pty_n:9.2f} {1e6 / p:9.1f} {1e6 * floor:9.1f} {1.0 / floor:12.0f} {c:14.0f}")
+    print("(floor: the transports' and the plant's cost alone, no adapter, device, bench or runner code; "
+          "plant µs: wall clock of Simulator.tick alone)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--ticks", type=int, default=2000, help="lockstep ticks per scene")
     ap.add_argument("--scenes", default="", help="comma-separated scene names (default: every built-in scene)")
     ap.add_argument("--digest", action="store_true", help="print the SHA-256 of each run's record channels")
     ap.add_argument("--phases", action="store_true", help="print the bench tick's CPU time by phase")
+    ap.add_argument("--floor", action="store_true", help="the transports' lower bound on a tick, per scene")
     ap.add_argument("--against", default="", help="a git revision to compare with, in the same run")
     ap.add_argument("--repeat", type=int, default=3, help="child processes per tree and scene (--against)")
     ap.add_argument("--child", default="", help=argparse.SUPPRESS)
@@ -193,6 +287,9 @@ def main() -> None:
     names = [s for s in a.scenes.split(",") if s] or [n for n, _ in builtin_scenes()]
     if a.against:
         against(a.against, names, a.ticks, a.repeat)
+        return
+    if a.floor:
+        floor_table(names, a.ticks)
         return
     if a.phases:
         for name in names:

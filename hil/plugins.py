@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from importlib.metadata import entry_points
 from typing import Any
 
 logger = logging.getLogger(__name__)
@@ -48,6 +47,7 @@ def load_group(kind: str, want: type, register: Callable[[Any], None]) -> list[s
     if kind in _loaded:
         return []
     _loaded.add(kind)
+    from importlib.metadata import entry_points  # 15-20 ms of imports: only when a group is read
     out: list[str] = []
     for ep in entry_points(group=GROUPS[kind]):
         try:

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -101,6 +100,8 @@ def _backends() -> list[Any]:
     global _ENTRY_POINTS_LOADED
     if not _ENTRY_POINTS_LOADED:
         _ENTRY_POINTS_LOADED = True
+        from importlib.metadata import entry_points  # 15-20 ms of imports: only when the plug-ins are read
+
         for ep in entry_points(group=ENTRY_POINT_GROUP):
             try:
                 register_backend(ep.load())

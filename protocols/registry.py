@@ -23,7 +23,6 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import importlib
-import importlib.metadata
 import importlib.util
 import logging
 import sys
@@ -123,6 +122,8 @@ def load_entry_points() -> list[str]:
     if _entry_points_loaded:
         return []
     _entry_points_loaded = True
+    import importlib.metadata  # 15-20 ms of imports: only when the entry points are read
+
     out: list[str] = []
     for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
         try:
