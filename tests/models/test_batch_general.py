@@ -4,6 +4,7 @@ its screen rejects only real violations, and its coefficient map is refused when
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Mapping
 from typing import Any
 
@@ -261,7 +262,9 @@ def test_accepted_draws_are_never_potentially_unstable_and_rejected_never_stable
         model: str, spec: dict[str, tuple[float, float]]) -> None:
     # property: across wide posteriors (both sides of the boundary), a draw the screen accepts is
     # stable under the exact criterion
-    rng = np.random.default_rng(abs(hash(model)) % 2**32)
+    # a seed per model that is the same in every process (str hash() is salted per interpreter:
+    # it made this draw set, and whether it held a rejected draw, change from run to run)
+    rng = np.random.default_rng(zlib.crc32(model.encode()))
     n = 40
     draws = {k: c + s * rng.standard_normal(n) for k, (c, s) in spec.items()}
     params = _params(model, draws)
