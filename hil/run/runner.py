@@ -292,6 +292,8 @@ class LoopStats:
     scheduling: str = ""
     late_n: int = 0
     late_max: float = 0.0
+    #: realtime: the machine's steal time during the loop [s] (:func:`hil.run.realtime.steal_time_s`)
+    steal_s: float | None = None
     hist: np.ndarray = field(default_factory=lambda: np.zeros(9 * _LATE_BINS_PER_DECADE + 2, dtype=np.int64))
 
     def add_late(self, late: float) -> None:
@@ -313,11 +315,14 @@ class LoopStats:
         return min(self.late_max, lo * 10 ** (0.5 / _LATE_BINS_PER_DECADE))
 
     def summary(self) -> dict[str, Any]:
-        """``ticks``, ``overruns``, ``mode``; realtime: ``scheduling`` and ``late_p50_us`` /
+        """``ticks``, ``overruns``, ``mode``; realtime: ``scheduling``, ``steal_ms`` (the machine's
+        steal time during the loop, ms, summed over its CPUs, where readable) and ``late_p50_us`` /
         ``late_p99_us`` / ``late_max_us`` (µs)."""
         out: dict[str, Any] = {"ticks": self.ticks, "overruns": self.overruns, "mode": self.mode}
         if self.scheduling:
             out["scheduling"] = self.scheduling
+        if self.steal_s is not None:
+            out["steal_ms"] = 1e3 * self.steal_s
         if not self.late_n:
             return out
         return {**out, "late_p50_us": 1e6 * self._percentile(50),
@@ -563,11 +568,19 @@ class Runner:
             raise
         held.append(writer)
         no_exc = _NoExcitation()
+        steal0 = math.nan
         try:
             with contextlib.ExitStack() as rt, safe_stop_context(stop, on_stop):
                 pacer = guard = None
                 if self.realtime:
-                    from hil.run.realtime import LatenessGuard, Pacer, gc_paused, realtime_scheduling, spin_for
+                    from hil.run.realtime import (
+                        LatenessGuard,
+                        Pacer,
+                        gc_paused,
+                        realtime_scheduling,
+                        spin_for,
+                        steal_time_s,
+                    )
 
                     sched = rt.enter_context(realtime_scheduling(enabled=self.rt_scheduling))
                     stats.scheduling = sched.describe()
@@ -584,6 +597,7 @@ class Runner:
                     pacer = Pacer(self.rate_hz, clock_ns=self.clock_ns, sleep=self.sleep,
                                   spin_ns=spin_for(sched) if self.spin_ns is None else self.spin_ns)
                     guard = LatenessGuard(self.rate_hz, safety.max_lateness_s, safety.max_overrun_fraction)
+                    steal0 = steal_time_s()
                     pacer.start()
                 read_timeout = self._tick_read_timeout()
                 row = _TickRow(self, meas0)  # the record row's keys and constant arrays, built once
@@ -637,6 +651,16 @@ class Runner:
                         writer.flush()  # a full disk here is still a safe stop of this experiment
                     except (HilError, OSError) as exc:
                         raise SafetyStop(f"record: {one_line(exc)}") from exc
+            if math.isfinite(steal0):  # realtime: what the machine's host took during the loop (evidence)
+                from hil.run.realtime import steal_time_s
+
+                stolen = steal_time_s() - steal0
+                if math.isfinite(stolen):
+                    stats.steal_s = stolen
+                    with contextlib.suppress(HilError, OSError):
+                        writer.event(now["t"], "realtime", f"steal time during the loop: {1e3 * stolen:.0f} ms "
+                                     "(summed over the CPUs: the hypervisor ran other work while this machine "
+                                     "wanted to run; lateness no setting removes)")
             counters = self._device_counters()
             if counters:
                 with contextlib.suppress(HilError, OSError):  # evidence of tolerated faults, kept in the record

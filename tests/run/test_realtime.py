@@ -423,3 +423,22 @@ def test_check_realtime_reports_the_steal_time_of_its_measurement(capsys, monkey
     main(["check-realtime", "--rate", "1000", "--seconds", "0.02", "--no-rt"])
     out = capsys.readouterr().out
     assert "steal time: 4250 ms" in out and "virtual machine" in out, out
+
+
+def test_a_realtime_run_records_the_steal_time_of_its_loop(tmp_path, monkeypatch):
+    """The steal counter read when the loop starts and when it ends (2.0 s -> 2.35 s of fake steal):
+    350 ms in the run's stats and as a ``realtime`` event; a lockstep run reads no steal."""
+    readings = iter([2.0, 2.35])
+    monkeypatch.setattr("hil.run.realtime.steal_time_s", lambda path="": next(readings))
+    o = _realtime_runner(_scene(), tmp_path / "rt", FakeClock(), max_ticks=30).run(select=[0])[0]
+    assert o.status == "completed", o.stop_reason
+    assert o.stats["steal_ms"] == pytest.approx(350.0)
+    ev = [e for e in RunRecord.open(o.record).events if e["kind"] == "realtime"]
+    assert any("steal time during the loop: 350 ms" in e["message"] for e in ev), ev
+    with pytest.raises(StopIteration):
+        next(readings)  # read exactly twice
+    monkeypatch.setattr("hil.run.realtime.steal_time_s", lambda path="": float("nan"))
+    o = _realtime_runner(_scene(), tmp_path / "nan", FakeClock(), max_ticks=30).run(select=[0])[0]
+    assert "steal_ms" not in o.stats  # unreadable (not Linux): not reported, not 0
+    lock = Runner(_scene(), tmp_path / "lock", max_ticks=20).run(select=[0])[0]
+    assert "steal_ms" not in lock.stats
