@@ -29,7 +29,9 @@ For each rate (500 Hz, 1 kHz, 2 kHz), ``sdea_bench``'s locked chirp (f1 capped a
 * ``ttl1``: as ``with`` but the CAN frames also sent out of the network interface (python-can's
   default hop limit 1; what ``with`` did before);
 * ``syncrec``: as ``with`` but the record blocks are written and flushed inside the tick that
-  fills them (``Runner.record_thread = False``; what ``with`` did before the writer thread).
+  fills them (``Runner.record_thread = False``; what ``with`` did before the writer thread);
+* ``devother``: as ``with`` but the simulated devices' process left at ordinary scheduling
+  (``ProcessSimBench(rt_priority=None)``) instead of SCHED_FIFO 70.
 
 ``--phases`` adds, per row, the loop thread's mean CPU time per tick [µs] in each phase of the tick
 (``time.thread_time_ns`` around the bench's read and command, the record append, the safety checks,
@@ -51,6 +53,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import logging
 import math
 import os
@@ -81,6 +84,8 @@ CONFIGS: dict[str, dict[str, Any]] = {
     "ttl1": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None, "hop_limit": 1},
     "syncrec": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None,
                 "record_thread": False},
+    "devother": {"bench": functools.partial(ProcessSimBench, rt_priority=None), "rt_scheduling": True,
+                 "gc_pause": True, "spin_ns": None},
 }
 #: the tick's phases --phases times: (label, object path, attribute)
 PHASES = ("wait", "read", "check", "append", "command")
