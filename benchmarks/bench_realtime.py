@@ -200,16 +200,15 @@ def loop_row(rate: float, seconds: float, config: str, tmp: Path, phases: bool =
         if pt is not None:
             pt.restore()
     wall = time.perf_counter() - t0
-    loop_wall = max(int(o.stats.get("ticks", 0)), 1) / rate
-    row = {"config": config, "rate": rate, "ticks": o.stats.get("ticks", 0), "status": o.status,
+    ticks = int(o.stats.get("ticks", 0))
+    loop_wall = max(ticks, 1) / rate
+    row = {"config": config, "rate": rate, "ticks": ticks, "status": o.status,
            "reason": o.stop_reason, "sched": o.stats.get("scheduling", ""), "wall": wall,
            "dev_cpu": dev_cpu[0] / loop_wall if dev_cpu and math.isfinite(dev_cpu[0]) else math.nan}
-    ticks = int(o.stats.get("ticks", 0))
     if pt is not None and ticks:
         row["phases"] = {k: (pt.cpu[k] / ticks / 1e3, (pt.wall[k] - pt.cpu[k]) / ticks / 1e3) for k in PHASES}
-    counters = o.results.get("device_counters", {}) if isinstance(o.results, dict) else {}
-    if pt is not None and ticks:
         row["loop_cpu"] = sum(pt.cpu.values()) / 1e9 / loop_wall
+    counters = o.results.get("device_counters", {}) if isinstance(o.results, dict) else {}
     row["stale"] = sum(int(c.get("stale", 0)) for c in counters.values())
     if o.record is not None:
         late = RunRecord.open(o.record).channels["loop.late"][:, 0]

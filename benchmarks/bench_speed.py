@@ -59,6 +59,8 @@ def verdicts(reps: int) -> None:
     goals = [50e-6, 200e-6, 200e-6, 400e-6, 2e-3]  # issue 15's targets, in the order of bench_verdicts.rows()
     for (name, make, crit, kind), goal in zip(bv.rows(), goals, strict=True):
         verdict = crit(make()).verdict
+        if crit(make(), margins=False).verdict != verdict:  # the fast path must give the same answer
+            verdict = f"{verdict} (verdict-only path DIFFERS)"
         tn = bv.median_time_fresh(make, crit, reps, margins=False)
         te = bv.median_time_fresh(make, crit, reps)
         tg = bv.median_time(partial(bv.grid, make(), kind), max(5, reps // 4))
