@@ -308,8 +308,9 @@ def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_t
                 sheet.errors.append(f"run stopped: {runner.stop_reason}")  # e.g. a signal after the last experiment
             if (runner.stop_reason or "").startswith("signal"):
                 # the person at the bench asked to stop: no identification or certificate follows
-                raise StopRequested(f"{runner.stop_reason}; the records so far are in {out / 'records'}",
-                                    runner.stop_status or "safety_stop")
+                kept = sorted((out / "records").glob("*.h5")) if (out / "records").is_dir() else []
+                where = f"the records so far are in {out / 'records'}" if kept else "no record was written"
+                raise StopRequested(f"{runner.stop_reason}; {where}", runner.stop_status or "safety_stop")
             _fault_measurements(done, sheet.measurements)
 
     from hil.certify.lateness import lateness_measurements  # realtime runs: loop lateness and sample timing rows
