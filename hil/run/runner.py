@@ -671,6 +671,8 @@ class Runner:
                 if results:
                     with contextlib.suppress(HilError):
                         writer.set_results(name, results)
+            if writer.samples == 0 and state["status"] != "completed":  # say so: an empty record is not a run
+                state["reason"] = f"{state['reason']} (before the first sample: the record holds none)"
             try:
                 writer.close(stop_reason=state["reason"], status=state["status"])
             except (HilError, OSError) as exc:  # the record could not be closed: still a safe stop
