@@ -172,6 +172,40 @@ def check_seed(value: Any, what: str = "--seed") -> int:
 # ---------------------------------------------------------------------------------------------
 
 
+class FrictionCfg(_Strict):
+    """Friction a simulated actuator adds to the body DOFs it drives (:mod:`hil.mocks.friction`):
+    ``coulomb`` F_c (N or N.m), ``static`` F_s >= F_c (breakaway level; default F_c), ``stribeck_velocity``
+    v_s (m/s or rad/s; needed when static > coulomb: sliding friction F_c + (F_s - F_c) exp(-(v/v_s)^2)),
+    ``viscous`` (N.s/m or N.m.s/rad, added to the body's B). A given block replaces the device kind's
+    default (docs/guide/friction-twins.md) as a whole."""
+
+    coulomb: Annotated[float, BeforeValidator(lambda v: _number(v, "N or N.m")), Field(ge=0)] = 0.0
+    static: Annotated[float, BeforeValidator(lambda v: _number(v, "N or N.m")), Field(ge=0)] | None = None
+    stribeck_velocity: Annotated[float, BeforeValidator(lambda v: _number(v, "m/s or rad/s")),
+                                 Field(gt=0)] | None = None
+    viscous: Annotated[float, BeforeValidator(lambda v: _number(v, "N.s/m or N.m.s/rad")), Field(ge=0)] = 0.0
+
+    @model_validator(mode="after")
+    def _levels(self) -> FrictionCfg:
+        if self.static is not None and self.static < self.coulomb:
+            raise PydanticCustomError("static", "static ({s}) must be >= coulomb ({c})",
+                                      {"s": self.static, "c": self.coulomb, "key": "static"})
+        if self.static is not None and self.static > self.coulomb and self.stribeck_velocity is None:
+            raise PydanticCustomError("stribeck_velocity", "static > coulomb needs a stribeck_velocity (m/s or "
+                                      "rad/s: how fast friction falls from static to Coulomb)",
+                                      {"key": "stribeck_velocity"})
+        return self
+
+
+class EncoderCfg(_Strict):
+    """A simulated actuator's position encoder: quantization ``step`` (m or rad; 0: none) and the
+    velocity the device reports (``estimate``: the joint velocity plus the scene's velocity noise;
+    ``difference``: (q_k - q_(k-1)) / dt of the quantized positions, one control period apart)."""
+
+    step: Annotated[float, BeforeValidator(lambda v: _number(v, "m or rad")), Field(ge=0)] = 0.0
+    velocity: Literal["estimate", "difference"] = "estimate"
+
+
 class DeviceSim(_Strict):
     """Options of a device's simulated counterpart (ignored on real hardware).
 
@@ -182,7 +216,8 @@ class DeviceSim(_Strict):
     force the body exerts on everything attached (SDEA: the spring force), ``human`` = the force
     the operator's hand exerts on the device (F_h, positive along the port velocity), ``auto`` =
     ``human`` when a human holds that body, else ``body``. ``framing`` (FT-300): Modbus/TCP or RTU
-    over TCP.
+    over TCP. ``friction``, ``encoder`` (actuators): see :class:`FrictionCfg`, :class:`EncoderCfg`;
+    absent, the device kind's defaults (``hil.mocks.twins``, docs/guide/friction-twins.md).
     """
 
     seed: Seed | None = None
@@ -190,6 +225,8 @@ class DeviceSim(_Strict):
     noise_std: Annotated[float, BeforeValidator(lambda v: _number(v, "N, N.m, m or rad")), Field(ge=0)] = 0.0
     measure: Literal["auto", "body", "human"] = "auto"
     framing: Literal["tcp", "rtu"] = "tcp"
+    friction: FrictionCfg | None = None
+    encoder: EncoderCfg | None = None
 
     @field_validator("faults")
     @classmethod
@@ -241,6 +278,9 @@ class Device(_Strict):
         if self.dofs is not None and len(self.dofs) != self.dof:
             raise PydanticCustomError("dofs", "dofs lists {n} indices but dof is {dof}",
                                       {"n": len(self.dofs), "dof": self.dof, "key": "dofs"})
+        for opt in ("friction", "encoder"):
+            if getattr(self.sim, opt) is not None and self.role != "actuator":
+                raise PydanticCustomError("sim", "sim.{opt} applies to actuators only", {"opt": opt, "key": "sim"})
         if self.axes is not None:
             if self.role != "force_sensor":
                 raise PydanticCustomError("axes", "axes applies to force sensors only", {"key": "axes"})
@@ -494,15 +534,39 @@ else:
 IDENTIFICATION_MODELS = ("sdea_locked", "sdea_free", "mbk")
 
 
+#: friction terms an identification model may add (hil.identify.api.identify_record's ``friction``)
+FRICTION_TERMS = ("coulomb", "stribeck", "offset")
+#: the parameters each friction term adds (1-DOF names; an m-DOF body has them per DOF, ``_<i>``)
+FRICTION_PARAMETERS = {"coulomb": ("F_c",), "stribeck": ("F_s", "v_s"), "offset": ("F_0",)}
+
+
+def _friction_terms(v: Any) -> Any:
+    if isinstance(v, str):  # "coulomb,offset" as on the command line
+        v = [t.strip() for t in v.split(",") if t.strip()]
+    if not isinstance(v, list):
+        raise PydanticCustomError("friction", "expected a list of friction terms from {terms}, got {got}",
+                                  {"terms": ", ".join(FRICTION_TERMS), "got": v})
+    for t in v:
+        if t not in FRICTION_TERMS:
+            raise PydanticCustomError("friction", "unknown friction term '{got}'; expected some of {terms}",
+                                      {"got": t, "terms": ", ".join(FRICTION_TERMS)})
+    if len(set(v)) != len(v):
+        raise PydanticCustomError("friction", "friction term listed twice in {v}", {"v": v})
+    return v
+
+
 class IdentifyCfg(_Strict):
     """Identify plant parameters from an experiment's record: ``experiment`` names a chirp or
     multisine of ``experiments``; ``model`` one of :data:`IDENTIFICATION_MODELS` (default: inferred
-    as ``hil identify`` does); ``map`` renames identified parameters to the network model's (e.g.
-    ``{M: M, B: B, K_f: K_f, B_f: B_f}``; empty: every identified parameter under its own name).
-    Checked at load time against both models (see :func:`_check_certification`)."""
+    as ``hil identify`` does); ``friction`` the friction terms the model adds on its actuated DOFs
+    (:data:`FRICTION_TERMS`; empty: linear model; the certificate counts only the viscous B as
+    damping, docs/CERTIFICATION.md "Friction"); ``map`` renames identified parameters to the network
+    model's (e.g. ``{M: M, B: B, K_f: K_f, B_f: B_f}``; empty: every identified parameter under its
+    own name). Checked at load time against both models (see :func:`_check_certification`)."""
 
     experiment: Name
     model: str | None = None
+    friction: Annotated[list[str], BeforeValidator(_friction_terms)] = Field(default_factory=list)
     map: dict[str, str] = Field(default_factory=dict)
 
 
@@ -945,7 +1009,8 @@ def _identification_names(sc: Scene, path: str, spec: IdentifyCfg, exp: Any) -> 
                 key = "sdea_locked"
             elif sc.force_sensors:  # decided from the record's channels: either model
                 ms, ma = mbk(1)
-                return "sdea_locked or mbk", sdea + ms, sdea + ma
+                fr = _friction_names(spec.friction, 1)
+                return "sdea_locked or mbk", sdea + ms + fr, sdea + ma + fr
             else:
                 key = "mbk"
         else:
@@ -960,10 +1025,18 @@ def _identification_names(sc: Scene, path: str, spec: IdentifyCfg, exp: Any) -> 
             raise FieldError(f"{path}.model", "sdea_locked needs the spring force: with only the motor velocity, "
                                           "B and B_f are inseparable; add a force sensor on the target's body "
                                           "or network port, or identify sdea_free from a free-output chirp")
-        names = sdea + (["m_h"] if key == "sdea_free" else [])
+        names = sdea + (["m_h"] if key == "sdea_free" else []) + _friction_names(spec.friction, 1)
         return key, names, names
     sampled, available = mbk(n)
-    return key, sampled, available
+    extra = _friction_names(spec.friction, n)
+    return key, sampled + extra, available + extra
+
+
+def _friction_names(terms: Sequence[str], n: int) -> list[str]:
+    """The parameters the friction ``terms`` add on ``n`` actuated DOFs (``F_c`` for one DOF,
+    ``F_c_0 ... F_c_(n-1)`` for several)."""
+    base = [p for t in terms for p in FRICTION_PARAMETERS[t]]
+    return base if n == 1 else [f"{p}_{i}" for p in base for i in range(n)]
 
 
 def _check_certification(sc: Scene, cert: CertificationCfg) -> None:

@@ -164,7 +164,9 @@ def test_shared_dynamixel_bus_maps_each_servo_to_its_body() -> None:
             bench.command({"leader": [0.1]})
             bench.advance()
         meas = bench.read()
-    assert meas["leader"].position[0] > 0.1
+    # 0.1 N.m for 0.2 s on 0.01 kg.m², 0.05 N.m.s/rad: 0.2 rad without friction; against the XM430
+    # twin's default friction (F_s 0.06, F_c 0.04 N.m, hil.mocks.twins) it slides about 0.06 rad
+    assert meas["leader"].position[0] > 0.04
     assert abs(meas["follower"].position[0]) < 0.01  # only position noise + quantization
 
 
