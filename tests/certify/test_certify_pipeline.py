@@ -69,7 +69,7 @@ def test_sdea_inside_passive_region_is_GO(sdea_run, tmp_path):
     # coupler condition at the nominal parameters
     lo, hi = r.critical_band_rad_s
     nominal = {k: np.array([v]) for k, v in c.nominal.parameters.items() if k in SDEA_TABLE1}
-    w = sdea_passivity_batch(nominal)["worst_omega"][0]
+    w = sdea_passivity_batch(nominal, band=True)["worst_omega"][0]
     assert 0 < lo < w < hi and hi / lo > 1.2
     pts = c.plots["critical_band"].points  # plotted, with the band's edges and the worst frequency
     assert lo < pts["worst (posterior mean)"][0] < hi
@@ -89,6 +89,57 @@ def test_sdea_above_the_passive_limit_is_NO_GO_with_a_witness(sdea_run, tmp_path
     assert w is not None and w.margin < 0
     sim = w.simulation
     assert sim["simulated"] and (sim["went_negative"] or sim["diverged"])
+
+
+@pytest.mark.timeout(600)
+def test_nominal_no_go_skips_work_that_cannot_change_it(sdea_run, tmp_path, monkeypatch):
+    """Issue 26: a nominal NO-GO is decided whatever the worst case over the credible region or β,
+    so neither is searched (the search is never called); one INFO row says so; P(stable), the design
+    guidance (how to reach a GO) and the witness are still there."""
+    import hil.certify.pipeline as pl
+
+    def no_search(*a, **k):
+        raise AssertionError("worst-case search on a nominal NO-GO")
+
+    monkeypatch.setattr(pl, "worst_case_margin", no_search)
+    monkeypatch.setattr(pl, "_reliability_stage", no_search)
+    c = certify_scene(_sdea_scene(450.0), tmp_path, outcomes=sdea_run)
+    assert c.decision == "NO-GO" and c.nominal.verdict == "potentially_unstable"
+    r = c.robust
+    assert r.worst_case_margin is None and r.worst_case_parameters is None and r.reliability is None
+    row = next(m for m in c.measurements if m.name == pl.NOT_SEARCHED_ROW)
+    assert row.value == "not searched" and row.outcome == "INFO"
+    assert 0.0 <= r.p_stable <= 1.0 and r.n_draws > 0
+    assert c.design is not None and c.design.max_value < 450.0 and c.witness is not None
+
+
+def test_certify_runs_only_the_experiments_it_uses(tmp_path, monkeypatch):
+    """Issue 26: `hil certify` runs the experiments whose records certification reads (identify
+    entries, energy injections) and says which it left out; `hil run` runs them all. The runner is
+    asked for exactly those indices (here: chirp_locked of sdea_bench, not chirp_free or
+    static_hold), and the certificate has one INFO "skipped" row per other experiment."""
+    from hil.certify.pipeline import experiments_used
+
+    scene = load_scene("sdea_bench")
+    names = [e["name"] for e in scene.experiment_configs()]
+    assert experiments_used(scene.certification, scene.experiment_configs()) == {"chirp_locked"}
+    asked: list = []
+
+    def fake_run(self, select=None):
+        asked.append(select)
+        return []  # nothing ran: the certificate is ERROR, which is not what this test checks
+
+    monkeypatch.setattr(Runner, "run", fake_run)
+    said: list[str] = []
+    c = certify_scene(scene, tmp_path, progress=said.append)
+    assert asked == [[names.index("chirp_locked")]]
+    skipped = {m.name.removeprefix("experiment "): m for m in c.measurements if m.value == "skipped"}
+    assert set(skipped) == set(names) - {"chirp_locked"} and all(m.outcome == "INFO" for m in skipped.values())
+    assert all(any(f"experiment {n} skipped" in s for s in said) for n in skipped)
+    # an energy-injection experiment is evidence: it is used without an identify entry
+    bil = load_scene("bilateral_2dof_B")
+    cfgs = bil.experiment_configs()
+    assert experiments_used(bil.certification, cfgs) == {e["name"] for e in cfgs if e["type"] == "energy_injection"}
 
 
 @pytest.mark.slow
