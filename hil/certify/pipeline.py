@@ -323,9 +323,12 @@ def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_t
                                     runner.stop_status or "safety_stop")
             _fault_measurements(done, sheet.measurements)
 
-    from hil.certify.lateness import lateness_measurements  # realtime runs: loop lateness and sample timing rows
+    if any((getattr(o, "stats", {}) or {}).get("mode") == "realtime" for o in done.values()):
+        # realtime runs only: loop lateness and sample timing rows (lockstep runs have none, and the
+        # module's record and realtime imports are not loaded for them)
+        from hil.certify.lateness import lateness_measurements
 
-    sheet.measurements += lateness_measurements(done, scene)
+        sheet.measurements += lateness_measurements(done, scene)
     return RunOutput(outcomes=done, energy=tuple(energy))
 
 

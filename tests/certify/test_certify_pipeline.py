@@ -222,3 +222,24 @@ def test_independent_samples_thin_the_chain_without_duplicates():
     assert set(steps.tolist()) == set(range(0, n_steps, 10))
     assert len(np.unique(kept[:, 0])) == kept.shape[0]
     assert "40 independent draws" in note and "⌈τ⌉ = 10" in note
+
+
+def test_certify_without_runs_or_identification_loads_neither():
+    """Issue 26: a certification that runs nothing and identifies nothing (a scene certified from
+    its stated uncertainty) does not import the record, runner or identification code, h5py or
+    emcee (checked in a fresh interpreter: this process has them all)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, tempfile\n"
+            "from hil.certify.pipeline import certify_scene\n"
+            "from hil.scene.spec import load_scene\n"
+            "with tempfile.TemporaryDirectory() as d:\n"
+            "    c = certify_scene(load_scene('bilateral_2dof_B'), d, run_experiments=False)\n"
+            "print(c.decision)\n"
+            "print(' '.join(m for m in ('h5py', 'emcee', 'hil.record.hdf5', 'hil.run.runner', 'hil.run.realtime',\n"
+            "                           'hil.identify.api', 'hil.identify.posterior') if m in sys.modules))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=True)
+    decision, loaded = [*out.stdout.splitlines(), ""][:2]
+    assert decision == "NO-GO"
+    assert loaded == "", f"loaded although unused: {loaded}"
