@@ -824,7 +824,7 @@ def _reliability_stage(model: str, criterion: str, params: Mapping[str, Any], na
     posterior centre (the nominal point), and, when plain Monte Carlo on the available draws
     cannot reach the requirement even with every draw stable, P(stable) by importance sampling
     around the design point. Returns (Reliability, FormResult, RareEvent) (None where not made)."""
-    from scipy.stats import norm
+    from scipy.special import ndtr  # Φ
 
     from hil.certify.certificate import RareEvent, Reliability
     from hil.certify.statistics import beta_required
@@ -873,7 +873,7 @@ def _reliability_stage(model: str, criterion: str, params: Mapping[str, Any], na
         verified = None if "marginal" in (vi, vo) else bool((vi == "stable") == centre_ok
                                                            and (vo == "stable") != centre_ok)
     theta_star = st.to_theta(fr.design_point_u)[0]
-    rel = Reliability(beta=float(fr.beta), phi_beta=float(norm.cdf(fr.beta)), required_beta=b_req,
+    rel = Reliability(beta=float(fr.beta), phi_beta=float(ndtr(fr.beta)), required_beta=b_req,
                       design_point={k: float(v) for k, v in zip(names, theta_star, strict=True)},
                       design_point_u=[float(v) for v in fr.design_point_u], censored=fr.censored,
                       bracket=(float(fr.bracket[0]), float(fr.bracket[1])) if math.isfinite(fr.bracket[1]) else None,
