@@ -46,7 +46,7 @@ from hil.identify.errors import ModelSpecError
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["IdentificationPlan", "nominal_rate", "plan_from_record", "scene_of_record"]
+__all__ = ["IdentificationPlan", "nominal_rate", "plan_from_record", "sample_rate", "scene_of_record"]
 
 #: experiment types that identification understands
 _EXCITATIONS = ("chirp", "multisine")
@@ -192,7 +192,7 @@ def plan_from_record(
     t = np.asarray(rec.t, float)
     fs = float(getattr(rec, "rate_hz", np.nan))
     if not np.isfinite(fs) or fs <= 0:
-        fs = 1.0 / float(np.median(np.diff(t))) if t.size > 1 else 1.0
+        fs = sample_rate(t) if t.size > 1 else 1.0
     fs = nominal_rate(fs)
     if exp_name:
         notes.append(f"experiment {exp_name!r} ({res.get('type') or cfg.get('type') or 'type unknown'})")
@@ -344,6 +344,20 @@ def nominal_rate(fs: float) -> float:
     run then gives the same zero-order-hold model, native or imported."""
     short = float(f"{fs:.6g}")
     return short if abs(short / fs - 1.0) < 1e-9 else fs
+
+
+def sample_rate(t: Any) -> float:
+    """THE sample rate [Hz] of a time column, used everywhere a rate is derived from samples (the
+    band edges, the DFT grid, the zero-order-hold model): ``1 / median(diff t)`` snapped to its short
+    decimal form (:func:`nominal_rate`). Two rates of one record (a rounded one for the band, the
+    raw one for the DFT) once dropped the lowest bin of a band computed at 1000.0 Hz from a DFT at
+    999.9999999999991 Hz. The mean step ``(t[-1] - t[0]) / (n - 1)`` is used: timestamps stored with
+    rounding jitter (the EMPS record: steps of 0.99998..1.00002 ms) have a median step off by the
+    jitter, their mean step is the clock's (gaps are a data check of their own)."""
+    tt = np.asarray(t, float)
+    if tt.size < 2 or not tt[-1] > tt[0]:
+        raise ModelSpecError("a record needs at least 2 increasing samples to have a sample rate")
+    return nominal_rate((tt.size - 1) / float(tt[-1] - tt[0]))
 
 
 def signal(signals: Mapping[str, Any], name: str) -> np.ndarray:

@@ -102,6 +102,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("record", help="run record .h5 (hil run / hil import), .csv/.mat (imported on the fly), or .npz")
     p.add_argument("--model", default=None, help="sdea_locked | sdea_free | mbk (default: inferred)")
+    p.add_argument("--friction", default=None, metavar="TERMS",
+                   help="friction of the 1-DOF mbk joint: comma-separated coulomb, stribeck, offset (viscous B is "
+                   "always in the model); identified from the position by inverse-dynamics ML")
     p.add_argument("--experiment", default=None, help="experiment name in the record (when it holds several)")
     p.add_argument("--target", default=None, help="actuator (device or group) whose effort command is the input")
     p.add_argument("--input", action="append", metavar="SIGNAL", help="input signal, repeatable (model order)")
@@ -169,6 +172,10 @@ def main(argv: Sequence[str] | None = None) -> int:
               "noise": a.noise, "max_seconds": a.max_seconds, "theta0": theta0, "sampling": a.sampling,
               "method": a.method, "posterior": a.posterior, "accept_misfit": a.accept_misfit or None}
         kw["excitation"] = a.excitation
+        if a.friction is not None:
+            from hil.identify.friction import normalize_friction
+
+            kw["friction"] = normalize_friction(a.friction) or None
         if a.resolution is not None:
             kw["resolution"] = kw["input_resolution"] = res_spec
         if isinstance(rec, Mapping):  # .npz record dict
