@@ -352,6 +352,15 @@ def identify_experiments(
         logger.info("analysis band %.3g..%.3g Hz: where the recorded input carries power", *band)
     est = est.band(*(band or (fs / nps, 0.45 * fs)))
     exc = check_excitation(est)
+    if chosen == "ml" and getattr(mdl, "output", None) == "position":
+        for d in exc:  # an encoder axis: low LINEAR coherence is no proof of "no response"
+            if d.kind == "no_excitation":
+                d.severity = "warning"
+                d.message = (f"{d.channel}: low linear coherence with the input (median "
+                             f"{d.details.get('median_coherence', float('nan')):.2f}) although the position is "
+                             "measured: a free axis integrates its force, and closed-loop control or friction make "
+                             "the response nonlinear; the fit proceeds and its adequacy tests judge it (friction: "
+                             "--friction coulomb,offset)")
     report.diagnoses += exc
     report.raise_if_failed()
     timings["frf"] = time.perf_counter() - t0
