@@ -119,7 +119,7 @@ def identify_friction_arrays(
     ``output`` (``position`` [m or rad]; a ``velocity`` is integrated to a position). Returns an
     :class:`hil.identify.api.IdentificationResult` (``method = "idim-ml"``)."""
     from hil.identify.api import IdentificationResult
-    from hil.identify.diagnostics import run_checks
+    from hil.identify.diagnostics import check_dead, check_finite, run_checks
     from hil.identify.fisher import IdentifiabilityReport
     from hil.identify.fit import LsResult
     from hil.identify.frf import estimate_frf
@@ -130,7 +130,10 @@ def identify_friction_arrays(
     tt = np.asarray(t, float)
     uu = np.asarray(u, float)
     yy = np.asarray(q, float)
-    report = run_checks(tt, {"force": uu}, {output: yy})
+    # the force gets every check; the position not the saturation one: an axis held by stiction sits
+    # flat at one count, which is friction, not a clipped sensor
+    report = run_checks(tt, {"force": uu}, {})
+    report.diagnoses += check_finite({output: yy}) + check_dead({output: yy}, role={output: "output"})
     report.raise_if_failed()
     fs = sample_rate(tt)
     if output == "velocity":
