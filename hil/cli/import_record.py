@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from hil.cli.common import UsageError
+from hil.cli.common import UsageError, parse_number
 from hil.errors import EXIT_OK
 
 
@@ -16,7 +16,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--time", help="time column / variable (s); default t or time")
     p.add_argument("--map", action="append", metavar="CHANNEL=COL[,COL...]",
                    help="channel from one column or a vector from several (repeatable)")
-    p.add_argument("--sidecar", help="YAML/JSON mapping file (default: found next to the CSV)")
+    p.add_argument("--scale", action="append", metavar="CHANNEL=FACTOR",
+                   help="multiply a channel (or t) by FACTOR, e.g. motor.effort_cmd=35.15 for a force "
+                        "recorded as a voltage (repeatable)")
+    p.add_argument("--unit", action="append", metavar="CHANNEL=UNIT",
+                   help="unit of a channel's (or t's) values in the file, e.g. t=ms, motor.position=mm: "
+                        "converted to SI, the record states the SI unit (repeatable)")
+    p.add_argument("--sidecar", help="YAML/JSON mapping file (default: found next to the file)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing record at --out")
 
 
@@ -46,17 +52,28 @@ def run(args: argparse.Namespace) -> int:
                 raise UsageError(f"--map {item}: expects CHANNEL=COLUMN[,COLUMN...]")
             mapping[ch.strip()] = parts[0] if len(parts) == 1 else parts
         # without --time the importer takes the t/time column (hil.record.importers)
+    scale = {k: parse_number("--scale", k, str(v)) for k, v in _pairs("--scale", args.scale, "FACTOR").items()}
+    units = _pairs("--unit", args.unit, "UNIT")
     suffix = src.suffix.lower()
     if suffix not in (".mat", ".csv", ".txt", ".tsv"):
         raise UsageError(f"{src}: expected a .csv or .mat file")
-    if suffix == ".mat" and args.sidecar:
-        raise UsageError("--sidecar applies to CSV files; for .mat give --map/--time or a sidecar next to the file")
     if args.sidecar and mapping is not None:
         raise UsageError("give --sidecar or --map/--time, not both")
     check_out_file(out, overwrite=args.overwrite)
-    if suffix == ".mat":
-        path = import_mat(src, out, mapping=mapping)
-    else:
-        path = import_csv(src, out, mapping=mapping, sidecar=args.sidecar)
+    importer = import_mat if suffix == ".mat" else import_csv
+    path = importer(src, out, mapping=mapping, sidecar=args.sidecar, scale=scale, units=units)
     print(str(path))
     return EXIT_OK
+
+
+def _pairs(flag: str, items: list[str] | None, what: str) -> dict[str, str]:
+    """``NAME=VALUE`` items of a repeatable flag; a name given twice is refused."""
+    out: dict[str, str] = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip() or not value.strip():
+            raise UsageError(f"{flag} expects CHANNEL={what}, got {item!r}")
+        if name.strip() in out:
+            raise UsageError(f"{flag} {name.strip()}: given twice")
+        out[name.strip()] = value.strip()
+    return out

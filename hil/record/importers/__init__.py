@@ -1,4 +1,4 @@
-"""Import runs recorded by other tools (CSV, MATLAB ``.mat``) into the run-record format of :mod:`hil.record.hdf5`.
+"""Import runs recorded by other tools (CSV, MATLAB ``.mat`` v4-v7.3) into the run-record format of :mod:`hil.record.hdf5`.
 
 Mapping (a dict, or a YAML/JSON *sidecar* file with the same content)::
 
@@ -6,11 +6,17 @@ Mapping (a dict, or a YAML/JSON *sidecar* file with the same content)::
     motor.position: pos              # scalar channel <- one column
     master.position: [q1, q2]        # vector channel (2,) <- several columns
     slave.position: {columns: [q3, q4], unit: rad, description: "...", scale: 0.001}
-    units: {motor.position: rad, master.position: rad}      # optional
+    units: {motor.position: mm, t: ms}                      # optional: the unit of the values in the file
     descriptions: {motor.position: "encoder"}               # optional
-    scale: {t: 0.001, motor.position: 0.0174533}            # optional factors to SI (e.g. ms -> s)
+    scale: {motor.effort_cmd: 35.15}                        # optional factors (e.g. N per V of a drive input)
     rate_hz: 1000                                           # optional (default 1 / median dt)
     meta: {devices: {...}}                                  # optional, merged into the record meta
+
+A channel's value in the record is the file's value x ``scale`` x the factor from its unit to SI, and the
+record states the SI unit (:mod:`hil.record.importers.units`: ``mm`` -> ``m``, ``deg`` -> ``rad``,
+``ms`` -> ``s``; an unknown unit is refused). ``hil import --scale NAME=FACTOR`` and ``--unit NAME=UNIT``
+(``scale=`` / ``units=`` of the import functions) apply on top of whichever mapping is used. A sample rate
+outside :data:`PLAUSIBLE_RATE_HZ` from the time column is warned about (time in ms read as seconds).
 
 Channels may also be nested under a ``channels:`` key. In ``.mat`` files a name is a variable, or
 ``struct.field`` inside a struct; a variable of shape (n, k) maps to a (k,) channel directly.
@@ -46,6 +52,7 @@ import yaml
 
 from hil.inputs import read_text_file
 from hil.record.hdf5 import ChannelSpec, RecordError, RecordWriter
+from hil.record.importers.units import to_si
 
 logger = logging.getLogger(__name__)
 
@@ -54,6 +61,9 @@ __all__ = ["import_csv", "import_mat"]
 _RESERVED = {"t", "units", "descriptions", "scale", "meta", "rate_hz", "channels"}
 _VECTOR_RE = re.compile(r"^(?P<name>.+)\[(?P<i>\d+)\]$")
 _MAX_GAP_EVENTS = 100
+#: sample rates [Hz] outside which an imported record's time column is probably not in seconds (bench
+#: loops run at 100 Hz to tens of kHz; a 1 kHz log with its time in ms reads as 1 Hz): a warning
+PLAUSIBLE_RATE_HZ = (20.0, 1e6)
 
 
 @dataclass
@@ -69,7 +79,22 @@ class _Mapping:
     rate_hz: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
-        return {"t": self.time, **self.channels}
+        out: dict[str, Any] = {"t": self.time, **self.channels}
+        if self.scale:
+            out["scale"] = dict(self.scale)
+        if self.units:
+            out["units"] = dict(self.units)
+        return out
+
+    def override(self, scale: Mapping[str, float] | None, units: Mapping[str, str] | None, where: str) -> None:
+        """Apply ``hil import --scale/--unit`` on top of the mapping (sidecar, default or ``--map``):
+        each name must be ``t`` or a mapped channel."""
+        for flag, given, into in (("--scale", scale, self.scale), ("--unit", units, self.units)):
+            for name, value in (given or {}).items():
+                if name != "t" and name not in self.channels:
+                    raise RecordError(f"{where}: {flag} {name}: no such channel in the mapping "
+                                      f"(channels: {', '.join(sorted(self.channels)) or 'none'}, and t)")
+                into[name] = value
 
 
 def _normalize(raw: Mapping[str, Any], where: str) -> _Mapping:
@@ -121,7 +146,7 @@ def _normalize(raw: Mapping[str, Any], where: str) -> _Mapping:
             m.scale[key] = float(val)
         except (TypeError, ValueError):
             raise RecordError(f"{where}: scale of {key!r} must be a number, got {val!r}") from None
-    unknown = set(m.units) - set(m.channels)
+    unknown = set(m.units) - set(m.channels) - {"t"}
     if unknown:
         raise RecordError(f"{where}: units given for unmapped channels {sorted(unknown)}")
     if raw.get("rate_hz") is not None:
@@ -223,16 +248,53 @@ def _check_time(t: np.ndarray, where: str, max_jitter: float) -> tuple[float, li
     return med, gaps
 
 
+def _unit(m: _Mapping, name: str, where: str, default: str = "") -> tuple[float, str]:
+    """:func:`hil.record.importers.units.to_si` of the unit the mapping gives ``name``, errors naming both."""
+    try:
+        return to_si(str(m.units.get(name, default)))
+    except RecordError as exc:
+        raise RecordError(f"{where}: {name}: {exc}") from None
+
+
+def _to_si(t: np.ndarray, data: dict[str, np.ndarray], m: _Mapping, where: str
+           ) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, str]]:
+    """Time [s] and channels in SI: source values x ``scale`` x the unit's factor to SI; the SI unit of
+    each channel (module docstring, :mod:`hil.record.importers.units`)."""
+    factor, si = _unit(m, "t", where, default="s")
+    if si != "s":
+        raise RecordError(f"{where}: t: unit {m.units['t']!r} is not a unit of time")
+    t = t * (m.scale.get("t", 1.0) * factor)
+    out: dict[str, np.ndarray] = {}
+    units: dict[str, str] = {}
+    for name, a in data.items():
+        factor, units[name] = _unit(m, name, where)
+        gain = m.scale.get(name, 1.0) * factor
+        out[name] = a * gain if gain != 1.0 else a
+    return t, out, units
+
+
+def _check_rate(rate: float, where: str) -> None:
+    """Warn when the sample rate taken from the time column is outside :data:`PLAUSIBLE_RATE_HZ` (a
+    time column in ms read as seconds makes a 1 kHz record a 1 Hz one)."""
+    lo, hi = PLAUSIBLE_RATE_HZ
+    if not lo <= rate <= hi:
+        logger.warning("%s: the time column gives a sample rate of %.6g Hz, implausible for a bench record "
+                       "(%g Hz to %g Hz): if the time is not in seconds, give its unit (hil import --unit t=ms, "
+                       "or 'units: {t: ms}' in the mapping)", where, rate, lo, hi)
+
+
 def _write(out: str | Path, t: np.ndarray, data: dict[str, np.ndarray], m: _Mapping, src: Path, fmt: str,
            meta: Mapping[str, Any] | None, max_jitter: float) -> Path:
     where = str(src)
-    t = t * m.scale.get("t", 1.0)
+    t, data, units = _to_si(t, data, m, where)
     med, gaps = _check_time(t, where, max_jitter)
     rate = m.rate_hz if m.rate_hz is not None else 1.0 / med
+    if m.rate_hz is None:
+        _check_rate(rate, where)
     if gaps:
         logger.warning("%s: %d gap(s) in time, %d sample(s) missing in all", where, len(gaps),
                        sum(g[1] for g in gaps))
-    specs = {name: ChannelSpec(tuple(a.shape[1:]), m.units.get(name, ""), m.descriptions.get(name, ""))
+    specs = {name: ChannelSpec(tuple(a.shape[1:]), units[name], m.descriptions.get(name, ""))
              for name, a in data.items()}
     digest = hashlib.sha256(src.read_bytes()).hexdigest()
     full_meta = {**m.meta, **dict(meta or {})}
@@ -293,6 +355,8 @@ def import_csv(
     meta: Mapping[str, Any] | None = None,
     delimiter: str | None = None,
     max_jitter: float = 0.1,
+    scale: Mapping[str, float] | None = None,
+    units: Mapping[str, str] | None = None,
 ) -> Path:
     """Convert a CSV run (header row, one sample per row) into a run record at ``out``; return ``out``.
 
@@ -300,7 +364,8 @@ def import_csv(
     names the time column and the columns of each channel (module docstring). ``meta`` is merged into
     the record meta. ``delimiter``: ``,`` ``;`` or tab (guessed from the header by default).
     ``max_jitter``: tolerated deviation of a time interval from a multiple of the median interval
-    (fraction of it)."""
+    (fraction of it). ``scale`` / ``units`` (channel or ``t`` -> factor / source unit) apply on top of
+    the mapping, whichever it is (``hil import --scale/--unit``)."""
     src = Path(path)
     if src.is_dir():
         raise RecordError(f"{src}: is a folder, not a CSV file")
@@ -308,6 +373,7 @@ def import_csv(
         raise RecordError(f"{src}: no such file")
     header, rows = _read_csv(src, delimiter)
     m = _resolve_mapping(src, mapping, sidecar, header)
+    m.override(scale, units, str(src))
     col = {h: i for i, h in enumerate(header)}
 
     def get(name: str, channel: str) -> np.ndarray:
@@ -319,7 +385,7 @@ def import_csv(
     data = {}
     for name, cols in m.channels.items():
         a = get(cols, name) if isinstance(cols, str) else np.column_stack([get(c, name) for c in cols])
-        data[name] = a * m.scale.get(name, 1.0)
+        data[name] = a
     return _write(out, t, data, m, src, "csv", meta, max_jitter)
 
 
@@ -375,45 +441,85 @@ def _as_columns(value: Any, n: int | None, name: str, where: str) -> np.ndarray:
     return a
 
 
-def import_mat(
-    path: str | Path,
-    out: str | Path,
-    *,
-    mapping: Mapping[str, Any] | None = None,
-    meta: Mapping[str, Any] | None = None,
-    max_jitter: float = 0.1,
-) -> Path:
-    """Convert a MATLAB ``.mat`` (v4-v7.2, read with :func:`scipy.io.loadmat`) run into a record at ``out``.
+def _read_mat(src: Path) -> tuple[dict[str, Any], str]:
+    """The variables of a ``.mat`` file (structs as nested dicts) and its format: ``mat`` (v4-v7.2,
+    :func:`scipy.io.loadmat`) or ``mat-v7.3`` (HDF5, :mod:`hil.record.importers.matlab73`)."""
+    from hil.record.importers.matlab73 import is_v73, read_v73
 
-    ``mapping``: as for :func:`import_csv`, naming variables or ``struct.field``; without one, a sidecar
-    next to the file, else the variables (or the fields of the only struct) with ``t``/``time`` as time."""
+    if is_v73(src):
+        return read_v73(src), "mat-v7.3"
     from scipy.io import loadmat  # lazy: scipy.io only for .mat files
 
-    src = Path(path)
-    if src.is_dir():
-        raise RecordError(f"{src}: is a folder, not a .mat file")
-    if not src.is_file():
-        raise RecordError(f"{src}: no such file")
     try:
         raw = loadmat(src, simplify_cells=True)
-    except NotImplementedError as exc:  # v7.3 files are HDF5
-        raise RecordError(f"{src}: MATLAB v7.3 files are not supported; save with -v7 ({exc})") from None
+    except NotImplementedError as exc:  # an HDF5 .mat without the v7.3 header text
+        raise RecordError(f"{src}: not a readable .mat file ({exc})") from None
     except PermissionError:
         raise RecordError(f"{src}: cannot read the .mat file (permission denied)") from None
     except Exception as exc:  # scipy raises ValueError, TypeError, OSError, EOFError, struct.error ... on garbage
         raise RecordError(f"{src}: not a readable .mat file ({type(exc).__name__}: "
                           f"{' '.join(str(exc).split())[:200]})") from None
-    variables = {k: v for k, v in raw.items() if not k.startswith("__")}
+    return {k: v for k, v in raw.items() if not k.startswith("__")}, "mat"
+
+
+def _numeric_vectors(top: Mapping[str, Any], n: int | None) -> list[str]:
+    """Names of the variables of ``top`` that can be channels (numeric with ``n`` rows, or any numeric
+    array with more than one element when ``n`` is None); scalars and text are left out."""
+    out = []
+    for k, v in top.items():
+        if isinstance(v, (Mapping, str)):
+            continue
+        try:
+            a = np.asarray(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            continue
+        if a.size > 1 and (n is None or n in a.shape):
+            out.append(k)
+    return out
+
+
+def import_mat(
+    path: str | Path,
+    out: str | Path,
+    *,
+    mapping: Mapping[str, Any] | None = None,
+    sidecar: str | Path | None = None,
+    meta: Mapping[str, Any] | None = None,
+    max_jitter: float = 0.1,
+    scale: Mapping[str, float] | None = None,
+    units: Mapping[str, str] | None = None,
+) -> Path:
+    """Convert a MATLAB ``.mat`` run into a record at ``out``: v4-v7.2 read with :func:`scipy.io.loadmat`,
+    v7.3 (HDF5 inside) with h5py.
+
+    ``mapping`` / ``sidecar`` / ``scale`` / ``units``: as for :func:`import_csv`, naming variables or
+    ``struct.field``; without a mapping or sidecar, a sidecar next to the file, else the variables (or
+    the fields of the only struct) with ``t``/``time`` as time (scalars such as gains are left out)."""
+    src = Path(path)
+    if src.is_dir():
+        raise RecordError(f"{src}: is a folder, not a .mat file")
+    if not src.is_file():
+        raise RecordError(f"{src}: no such file")
+    variables, fmt = _read_mat(src)
     where = str(src)
+    if mapping is not None and sidecar is not None:
+        raise RecordError(f"{src}: give mapping or sidecar, not both")
     if mapping is None:
-        side = _find_sidecar(src)
+        side = Path(sidecar) if sidecar is not None else _find_sidecar(src)
         if side is not None:
             m = _normalize(_load_sidecar(side), str(side))
         else:
             top = variables
             if len(variables) == 1 and isinstance(next(iter(variables.values())), Mapping):
                 top = next(iter(variables.values()))
-            m = _default_mapping([k for k, v in top.items() if not isinstance(v, Mapping)], where)
+            names = [k for k, v in top.items() if not isinstance(v, Mapping)]
+            m = _default_mapping(names, where)
+            n = _as_columns(top[m.time], None, m.time, where).size
+            keep = set(_numeric_vectors(top, n))
+            dropped = [k for k in m.channels if isinstance(m.channels[k], str) and m.channels[k] not in keep]
+            if dropped:
+                logger.info("%s: not channels (scalars, text or another length): %s", where, ", ".join(dropped))
+                m.channels = {k: v for k, v in m.channels.items() if k not in dropped}
             if top is not variables:
                 prefix = next(iter(variables)) + "."
                 m.time = prefix + m.time
@@ -421,6 +527,7 @@ def import_mat(
                               for k, v in m.channels.items()}
     else:
         m = _normalize(_with_default_time(mapping, _mat_names(variables), where), f"{where}: mapping")
+    m.override(scale, units, where)
     t = _as_columns(_mat_get(variables, m.time, where), None, m.time, where)
     if t.ndim != 1:
         raise RecordError(f"{where}: time variable {m.time!r} must be a vector, got shape {t.shape}")
@@ -434,5 +541,5 @@ def import_mat(
             if any(c.ndim != 1 for c in cols):
                 raise RecordError(f"{where}: channel {name!r}: each listed variable must be a vector")
             a = np.column_stack(cols)
-        data[name] = a * m.scale.get(name, 1.0)
-    return _write(out, t.copy(), data, m, src, "mat", meta, max_jitter)
+        data[name] = a
+    return _write(out, t.copy(), data, m, src, fmt, meta, max_jitter)
