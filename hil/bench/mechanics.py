@@ -81,17 +81,38 @@ def plant_mechanics(scene: Any, body_dofs: dict[str, int], label: str = ""
 
 def friction_truth(scene: Any, device: str) -> dict[str, float]:
     """The simulated friction of actuator ``device`` under the names identification gives it
-    (``F_c``, ``F_s``, ``v_s``; ``F_0`` = 0: the twins have no constant offset), for the certificate's
-    truth column; empty without a simulation or for a device without friction."""
-    if getattr(scene, "simulation", None) is None:
+    (:mod:`hil.identify.friction`: ``F_c``, ``F_s`` = the Stribeck *excess* static - coulomb, ``v_s``;
+    ``F_0`` = 0: the twins have no constant offset), for the certificate's truth column; empty without
+    a simulation or for a device without friction."""
+    cfg = _device(scene, device)
+    if cfg is None:
         return {}
+    fr = device_mechanics(cfg).friction
+    out = {"F_c": fr.F_c, "F_0": 0.0} if fr.active else {}
+    if fr.active and fr.F_s > fr.F_c:
+        out.update(F_s=fr.F_s - fr.F_c, v_s=float(fr.stribeck_velocity or 0.0))
+    return out
+
+
+def body_truth(scene: Any, device: str) -> dict[str, float]:
+    """``M`` and ``B`` (the body's B plus the actuator's viscous friction) of the 1-DOF simulated body
+    actuator ``device`` drives, as the 1-DOF ``mbk`` friction model names them; empty otherwise."""
+    cfg = _device(scene, device)
+    if cfg is None or cfg.body is None:
+        return {}
+    body = next((b for b in scene.simulation.bodies if b.name == cfg.body), None)
+    if body is None or body.dof != 1:
+        return {}
+    M = float(np.asarray(body.M, float).reshape(-1)[0])
+    B = float(np.asarray(body.B, float).reshape(-1)[0])
+    return {"M": M, "B": B + device_mechanics(cfg).viscous}
+
+
+def _device(scene: Any, device: str) -> Any:
+    if getattr(scene, "simulation", None) is None or not device:
+        return None
     try:
         cfg = scene.device(device)
     except (KeyError, ValueError, SceneError):
-        return {}
-    m = device_mechanics(cfg)
-    fr = m.friction
-    out = {"F_c": fr.F_c, "F_0": 0.0} if fr.active else {}
-    if fr.active and fr.F_s > fr.F_c:
-        out.update(F_s=fr.F_s, v_s=float(fr.stribeck_velocity or 0.0))
-    return out
+        return None
+    return cfg if cfg.role == "actuator" else None

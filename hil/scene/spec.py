@@ -536,8 +536,10 @@ IDENTIFICATION_MODELS = ("sdea_locked", "sdea_free", "mbk")
 
 #: friction terms an identification model may add (hil.identify.api.identify_record's ``friction``)
 FRICTION_TERMS = ("coulomb", "stribeck", "offset")
-#: the parameters each friction term adds (1-DOF names; an m-DOF body has them per DOF, ``_<i>``)
-FRICTION_PARAMETERS = {"coulomb": ("F_c",), "stribeck": ("F_s", "v_s"), "offset": ("F_0",)}
+#: the parameters each friction term adds (hil.identify.friction.PARAMETERS; ``stribeck`` implies ``coulomb``)
+FRICTION_PARAMETERS = {"coulomb": ("F_c",), "stribeck": ("F_c", "F_s", "v_s"), "offset": ("F_0",)}
+#: every friction parameter name: identified, shown, never fed to the network model (not a damping)
+FRICTION_NAMES = frozenset(p for ps in FRICTION_PARAMETERS.values() for p in ps)
 
 
 def _friction_terms(v: Any) -> Any:
@@ -560,13 +562,17 @@ class IdentifyCfg(_Strict):
     multisine of ``experiments``; ``model`` one of :data:`IDENTIFICATION_MODELS` (default: inferred
     as ``hil identify`` does); ``friction`` the friction terms the model adds on its actuated DOFs
     (:data:`FRICTION_TERMS`; empty: linear model; the certificate counts only the viscous B as
-    damping, docs/CERTIFICATION.md "Friction"); ``map`` renames identified parameters to the network
-    model's (e.g. ``{M: M, B: B, K_f: K_f, B_f: B_f}``; empty: every identified parameter under its
-    own name). Checked at load time against both models (see :func:`_check_certification`)."""
+    damping, docs/CERTIFICATION.md "Friction"); ``output`` the measured output of a 1-DOF ``mbk``
+    model (``position``: the encoder's, velocity derived inside identification; default: the
+    identification's, velocity for the linear model, position with friction); ``map`` renames
+    identified parameters to the network model's (e.g. ``{M: M, B: B, K_f: K_f, B_f: B_f}``; empty:
+    every identified parameter under its own name, dry friction excepted). Checked at load time
+    against both models (see :func:`_check_certification`)."""
 
     experiment: Name
     model: str | None = None
     friction: Annotated[list[str], BeforeValidator(_friction_terms)] = Field(default_factory=list)
+    output: Literal["position", "velocity"] | None = None
     map: dict[str, str] = Field(default_factory=dict)
 
 
@@ -954,7 +960,7 @@ def _network_parameters(model: str) -> tuple[list[str], Any]:
     """The parameters the network model ``model`` accepts: ``(names for messages, predicate)``.
 
     Most built-in models take exactly the keys of their defaults. ``mbk_impedance`` takes the
-    upper-triangle entries ``M_ij``, ``B_ij``, ``K_ij`` (i <= j) of any size; ``bilateral_2dof``
+    upper-triangle entries ``M_ij``, ``B_ij``, ``K_ij`` (i <= j) of any size and ``dof``; ``bilateral_2dof``
     takes ``gains`` (a Table II set or a mapping), gains ``k_{p|v}[m|s]{yy|zz|yz|zy}`` and robot
     entries ``{m|b|k}[m|s]_{yy|zz|yz}`` (shared, master or slave)."""
     from hil.models import get_model
@@ -964,6 +970,8 @@ def _network_parameters(model: str) -> tuple[list[str], Any]:
         names = sorted(m.defaults)
 
         def ok(k: str) -> bool:
+            if k == "dof":  # the body's size (hil.models.teleop.mbk_impedance): 1-DOF needs it
+                return True
             hit = _MBK_ENTRY.match(k)
             return hit is not None and int(hit.group(2)) <= int(hit.group(3))
 
@@ -1009,12 +1017,21 @@ def _identification_names(sc: Scene, path: str, spec: IdentifyCfg, exp: Any) -> 
                 key = "sdea_locked"
             elif sc.force_sensors:  # decided from the record's channels: either model
                 ms, ma = mbk(1)
-                fr = _friction_names(spec.friction, 1)
-                return "sdea_locked or mbk", sdea + ms + fr, sdea + ma + fr
+                return "sdea_locked or mbk", sdea + ms, sdea + ma
             else:
                 key = "mbk"
         else:
             key = "mbk"
+    if spec.output is not None and (key != "mbk" or n != 1):
+        raise FieldError(f"{path}.output", f"output chooses the measured output of the 1-DOF mbk model; experiment "
+                                        f"{spec.experiment!r} gives {key} on {n} DOF")
+    if spec.friction:
+        # hil.identify's friction models: the 1-DOF mbk joint M q'' = u - F_0 - B q' - F_c sgn(q') - ...
+        if key != "mbk" or n != 1:
+            raise FieldError(f"{path}.friction", f"friction is identified with the 1-DOF mbk model; experiment "
+                                              f"{spec.experiment!r} gives {key} on {n} DOF")
+        names = ["M", "B", *_friction_names(spec.friction)]
+        return key, names, names
     if key.startswith("sdea"):
         if n != 1:
             raise FieldError(f"{path}.model", f"{key} identifies a 1-DOF SDEA; experiment {spec.experiment!r} "
@@ -1025,18 +1042,16 @@ def _identification_names(sc: Scene, path: str, spec: IdentifyCfg, exp: Any) -> 
             raise FieldError(f"{path}.model", "sdea_locked needs the spring force: with only the motor velocity, "
                                           "B and B_f are inseparable; add a force sensor on the target's body "
                                           "or network port, or identify sdea_free from a free-output chirp")
-        names = sdea + (["m_h"] if key == "sdea_free" else []) + _friction_names(spec.friction, 1)
+        names = sdea + (["m_h"] if key == "sdea_free" else [])
         return key, names, names
     sampled, available = mbk(n)
-    extra = _friction_names(spec.friction, n)
-    return key, sampled + extra, available + extra
+    return key, sampled, available
 
 
-def _friction_names(terms: Sequence[str], n: int) -> list[str]:
-    """The parameters the friction ``terms`` add on ``n`` actuated DOFs (``F_c`` for one DOF,
-    ``F_c_0 ... F_c_(n-1)`` for several)."""
-    base = [p for t in terms for p in FRICTION_PARAMETERS[t]]
-    return base if n == 1 else [f"{p}_{i}" for p in base for i in range(n)]
+def _friction_names(terms: Sequence[str]) -> list[str]:
+    """The parameters the friction ``terms`` add to the 1-DOF mbk model, in a fixed order."""
+    want = {p for t in terms for p in FRICTION_PARAMETERS[t]}
+    return [p for p in ("F_c", "F_s", "v_s", "F_0") if p in want]
 
 
 def _check_certification(sc: Scene, cert: CertificationCfg) -> None:
@@ -1090,11 +1105,16 @@ def _check_certification(sc: Scene, cert: CertificationCfg) -> None:
                              f"experiment {spec.experiment!r} (experiments[{j}]) is a {exp.type}; "
                              "identification needs a chirp or a multisine")
         model, sampled, available = _identification_names(sc, path, spec, exp)
-        mapping = spec.map or {n: n for n in sampled}
+        # dry friction is shown on the certificate, never fed to the network (it is not a damping)
+        mapping = spec.map or {n: n for n in sampled if n not in FRICTION_NAMES}
         for src, dst in mapping.items():
             where = f"{path}.map.{src}" if spec.map else f"{path}.map"
             if src not in available:
                 raise FieldError(where, f"identification model {model} has no parameter {src!r}{_hint(src, available)}")
+            if src in FRICTION_NAMES:
+                raise FieldError(where, f"{src} is dry friction: it is identified and shown, but the stability "
+                                        "conditions count only the viscous B as damping (docs/CERTIFICATION.md, "
+                                        "Friction); remove it from the map")
             if not accepts(dst):
                 what = (f"maps {src!r} to {dst!r}, which" if spec.map
                         else f"is empty: every identified parameter keeps its name, but {dst!r}")

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hil.bench.mechanics import device_mechanics, friction_truth
+from hil.bench.mechanics import body_truth, device_mechanics, friction_truth
 from hil.bench.runtime import Bench
 from hil.errors import SceneError
 from hil.mocks.twins import CUBEMARS, DYNAMIXEL, ODRIVE
@@ -75,7 +75,9 @@ def test_scene_friction_and_viscous_reach_the_body() -> None:
             bench.command({"axis": [24.0]})
             bench.advance()
         assert bench.simulator.state[0] == 0.0 and bench.read()["axis"].position[0] == 0.0
-    assert friction_truth(sc, "axis") == {"F_c": 20.0, "F_0": 0.0, "F_s": 25.0, "v_s": 0.01}
+    # identification's F_s is the Stribeck excess (break-away F_c + F_s): 25 - 20
+    assert friction_truth(sc, "axis") == {"F_c": 20.0, "F_0": 0.0, "F_s": 5.0, "v_s": 0.01}
+    assert body_truth(sc, "axis") == {"M": 20.0, "B": 200.0}
 
 
 def test_encoder_quantizes_and_difference_velocity_is_the_backward_difference() -> None:
