@@ -36,7 +36,7 @@ def _kind_default(driver: str) -> Mechanics:
 def device_mechanics(cfg: Any, label: str = "", index: int | None = None) -> Mechanics:
     """The mechanics of scene device ``cfg`` (a :class:`hil.scene.spec.Device`): the kind's default
     with the scene's ``sim.friction`` / ``sim.encoder`` blocks replacing their parts. Sensors: none."""
-    if cfg.role != "actuator":
+    if cfg.role != "actuator" or getattr(cfg, "sim", None) is None:  # a sensor, or a group of drives
         return Mechanics()
     base = _kind_default(cfg.driver)
     fr, enc = cfg.sim.friction, cfg.sim.encoder
@@ -110,6 +110,8 @@ def body_truth(scene: Any, device: str) -> dict[str, float]:
 
 def _device(scene: Any, device: str) -> Any:
     if getattr(scene, "simulation", None) is None or not device:
+        return None
+    if scene.group(device) is not None:  # several drives: no single body or friction to show
         return None
     try:
         cfg = scene.device(device)

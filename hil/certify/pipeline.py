@@ -316,11 +316,13 @@ def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_t
                 if o.status == "error":
                     sheet.errors.append(f"experiment {name}: {o.stop_reason}")
                 _energy_stage(sheet, name, o, energy, sheet.measurements, sheet.plots)
-            if runner.stop_reason and all(o.status == "completed" for o in done.values()):
-                sheet.errors.append(f"run stopped: {runner.stop_reason}")  # e.g. a signal after the last experiment
-            if (runner.stop_reason or "").startswith("signal"):
+            # (nothing selected: the runner never ran and has no stop to report)
+            stop_reason = getattr(runner, "stop_reason", None) if select else None
+            if stop_reason and all(o.status == "completed" for o in done.values()):
+                sheet.errors.append(f"run stopped: {stop_reason}")  # e.g. a signal after the last experiment
+            if (stop_reason or "").startswith("signal"):
                 # the person at the bench asked to stop: no identification or certificate follows
-                raise StopRequested(f"{runner.stop_reason}; the records so far are in {out / 'records'}",
+                raise StopRequested(f"{stop_reason}; the records so far are in {out / 'records'}",
                                     runner.stop_status or "safety_stop")
             _fault_measurements(done, sheet.measurements)
 

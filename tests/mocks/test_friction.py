@@ -275,3 +275,37 @@ def test_quantize_puts_values_on_the_grid() -> None:
     q = quantize(x, 0.5)
     assert np.array_equal(q, [0.0, 0.5, -0.5, 0.0, 1.0])
     assert np.array_equal(quantize(x, 0.0), x)
+
+
+def test_agrees_with_the_identification_models_independent_simulator() -> None:
+    # hil.identify.friction.simulate is a separate implementation (closed-form runs between reversals,
+    # Stribeck excess held per period): the twin's stick-slip step must give the same trajectory
+    from hil.identify.friction import simulate as identification_simulate
+
+    rng = np.random.default_rng(5)
+    n, dt = 3000, 1e-3
+    t = np.arange(n) * dt
+    u = 80.0 * np.sin(2 * np.pi * 0.7 * t) + 30.0 * np.sin(2 * np.pi * 2.3 * t + rng.uniform(0, 6))
+    for fr_twin, extra in ((Friction(20.0), {}), (Friction(20.0, 26.0, 0.01), {"F_s": 6.0, "v_s": 0.01})):
+        r = simulate(mbk_plant(95.0, 200.0), dt, u[:, None], n, friction={"body": fr_twin})
+        X, V = identification_simulate(95.0, 200.0, 20.0, 0.0, u, dt, **extra)
+        assert np.max(np.abs(X[0] - r.x[:-1, 0])) < 1e-12 and np.max(np.abs(V[0] - r.x[:-1, 1])) < 1e-12
+
+
+def test_friction_synth_records_carry_their_truth(tmp_path) -> None:
+    # tests/friction_synth.py (the calibration datasets): the encoder grid, the difference velocity,
+    # the exact friction work (= F_c times the true path length) and a readable run record
+    from friction_synth import AxisTruth, axis_record, write_record
+
+    from hil.record.hdf5 import RunRecord
+
+    rec = axis_record(4, AxisTruth(F_c=20.0, F_0=-3.0), duration=4.0, encoder_step=1e-6)
+    assert np.allclose(rec.q / 1e-6, np.round(rec.q / 1e-6), rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(rec.v[1:], np.diff(rec.q) * 1000.0)
+    path_true = np.sum(np.abs(np.diff(np.append(rec.q_true, rec.q_true[-1]))))
+    assert rec.dissipated == pytest.approx(20.0 * path_true, rel=1e-3)  # sampled path: reversals between samples
+    assert rec.truth.as_dict(("coulomb", "offset")) == {"M": 95.0, "B": 200.0, "F_c": 20.0, "F_0": -3.0}
+    r = RunRecord.open(write_record(rec, tmp_path / "axis.h5"))
+    np.testing.assert_array_equal(r.channels["axis.position"].reshape(-1), rec.q)
+    np.testing.assert_array_equal(r.channels["axis.effort_cmd"].reshape(-1), rec.u)
+    assert r.meta["truth"]["F_0"] == -3.0
