@@ -223,14 +223,11 @@ def _permanent_abs(K: np.ndarray) -> float:
 
 
 def _rhp_poles(d: fmpq_poly) -> list[complex]:
-    """The open right-half-plane roots of an exact polynomial: the count exact
-    (:func:`hil.stability.exact.exact_poles`), the locations to double precision."""
-    ep = exact_poles(d)
-    if not ep.n_rhp:
-        return []
-    c = np.array([float(d[k]) for k in range(d.degree(), -1, -1)])
-    r = sorted(np.roots(c), key=lambda z: -z.real)
-    return [complex(z) for z in r[: ep.n_rhp]]
+    """The open right-half-plane roots of an exact polynomial, isolated exactly and located to
+    double precision (:func:`hil.stability.roots.rhp_roots`)."""
+    from hil.stability.roots import rhp_roots
+
+    return rhp_roots(d)
 
 
 def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: Tolerances = TOL,
@@ -286,8 +283,12 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
         conds.append(Condition("C", "no poles in the open right-half plane", "satisfied", math.nan, None,
                                "all poles in the closed left-half plane", {}))
     else:
-        allp = [p for row in tm.entries for e in row if not e.is_zero for p in e.poles()]
-        m = min((-p.real / abs(p) for p in allp if abs(p) > 0 and -p.real > 1e-9 * abs(p)), default=1.0)
+        from hil.stability.roots import isolate_roots
+
+        # the poles of the network are the roots of D, isolated exactly (hil.stability.roots)
+        roots = isolate_roots(D, hurwitz=hurwitz)
+        allp = [r.value for r in roots for _ in range(r.multiplicity)]
+        m = min((-r.value.real / abs(r.value) for r in roots if r.region == "lhp"), default=1.0)
         conds.append(Condition("C", "no poles in the open right-half plane", "satisfied", float(m), None,
                                "all poles in the closed left-half plane", {"poles": allp}))
     for pole in axis_poles(fmpq_poly([0] * k0 + [1]) if hurwitz else D):
