@@ -412,10 +412,9 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian", marg
         margin = max(float(np.min(lam)) / lam_scale, 0.0)
     else:
         margin = min((float(mnr) / perm(idx) for idx, mnr in minors.items() if perm(idx)), default=1.0)
-    if zero_minor is not None or any(R[i][i] == 0 for i in range(n)):
-        idx = zero_minor if zero_minor is not None else (next(i for i in range(n) if R[i][i] == 0),)
+    if zero_minor is not None:  # a minor zero by the pattern alone (perm |R| = 0) is not equality
         return Condition(name, label, "equality", 0.0, math.inf,
-                         f"simple pole at s = ∞, residue matrix singular (minor {_lbl(idx)} = 0, PSD)", ev)
+                         f"simple pole at s = ∞, residue matrix singular (minor {_lbl(zero_minor)} = 0, PSD)", ev)
     return Condition(name, label, "satisfied", float(min(margin, 1.0)) if margins else math.nan, math.inf,
                      "simple pole at s = ∞ with positive definite residue matrix", ev)
 
