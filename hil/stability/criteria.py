@@ -147,7 +147,10 @@ def _scaled_exact(e: Rational, e0: int) -> Rational:
     """e(w0·s̃) with w0 = 2^e0, divided by a power of two near den's largest coefficient: every
     coefficient is scaled exactly (``ldexp``), barring under/overflow (then the checked
     constructor). Pure Python on the (short) coefficient lists first, the same two ``ldexp`` steps
-    as the array version below, which runs only when a step overflows."""
+    as the array version below, which runs only when a step overflows. An entry given exactly
+    (:meth:`Rational.of_exact`, e.g. a converted immittance) is scaled exactly as well."""
+    if e.exact_given:
+        return _scaled_given(e, e0)
     try:
         dl = [math.ldexp(v, e0 * k) for k, v in enumerate(e.den.tolist())]
         es_ = round(math.log2(max(abs(v) for v in dl)))
@@ -164,6 +167,18 @@ def _scaled_exact(e: Rational, e0: int) -> Rational:
     if num[-1] != 0 and den[-1] != 0 and np.isfinite(num).all() and np.isfinite(den).all():
         return Rational.trusted(num, den)
     return Rational(num, den)
+
+
+def _scaled_given(e: Rational, e0: int) -> Rational:
+    """:func:`_scaled_exact` of an entry given exactly: its exact polynomials times 2^(e0·k - es)
+    (es from its rounded denominator, as there), rounded once."""
+    n, d = e.exact
+    es = round(math.log2(max(abs(float(d[k])) * 2.0 ** (e0 * k) for k in range(d.degree() + 1))))
+
+    def sc(p: fmpq_poly) -> fmpq_poly:
+        return fmpq_poly([p[k] * fmpq(2) ** (e0 * k - es) for k in range(p.degree() + 1)])
+
+    return Rational.of_exact(sc(n), sc(d))
 
 
 def _rescale(conds: list[Condition], w0: float) -> list[Condition]:
@@ -340,7 +355,8 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian", marg
     """
     n = tm.n
     name, label = "D[ω=∞]", "pole at s = ∞ at most simple with admissible residue R = lim G(s)/s"
-    exc: list[list[int | None]] = [[None if tm[i, j].is_zero else int(tm[i, j].num.size - tm[i, j].den.size)
+    exact = [[tm[i, j].exact for j in range(n)] for i in range(n)]  # the entries themselves (exact)
+    exc: list[list[int | None]] = [[None if tm[i, j].is_zero else exact[i][j][0].degree() - exact[i][j][1].degree()
                                     for j in range(n)] for i in range(n)]
     ev: dict[str, Any] = {"degree_excess": exc, "pole": math.inf}
     top = max((d for row in exc for d in row if d is not None), default=-1)
@@ -351,7 +367,7 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian", marg
     if top <= 0:
         return Condition(name, label, "satisfied", 1.0, None, "no pole at s = ∞ (all entries proper)", ev)
     R = [[fmpq(0) if exc[i][j] != 1 else
-          fmpq(*float(tm[i, j].num[-1]).as_integer_ratio()) / fmpq(*float(tm[i, j].den[-1]).as_integer_ratio())
+          exact[i][j][0][exact[i][j][0].degree()] / exact[i][j][1][exact[i][j][1].degree()]
           for j in range(n)] for i in range(n)]
     Rf = np.array([[float(v) for v in row] for row in R])
     scale = float(np.max(np.abs(Rf))) or 1.0

@@ -510,7 +510,8 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0, marg
             return ResidueDecision("violated", margin, detail, ev)
         if singular is not None:
             st, margin = "equality", 0.0
-            detail = f"residue matrix singular (PSD; principal minor {_lbl(singular)} = 0)" if n > 1 else "residue is zero"
+            detail = (f"residue matrix singular (PSD; principal minor {_lbl(singular)} = 0)" if n > 1
+                      else "residue is zero")
         else:
             st, margin = "satisfied", (lmin if lmin > 0 else 1e-300) if need_f else math.nan
             detail = "residue matrix positive definite" if n > 1 else "residue real and positive"
