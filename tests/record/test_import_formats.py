@@ -80,3 +80,70 @@ def test_list_prints_the_sources(tmp_path: Path, capsys: pytest.CaptureFixture[s
     row = next(ln for ln in out if ln.startswith("time"))
     assert "600" in row and "1000" in row and "time (default)" in row
     assert not (tmp_path / "a.h5").exists()
+
+
+# ------------------------------------------------------------------------------------------------ TDMS
+
+
+def _hold(t_slow: np.ndarray, v_slow: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Zero-order hold written out independently of the importer: for each t, the slow sample with the
+    largest time <= t (a loop over the samples)."""
+    out = np.empty(t.size)
+    j = 0
+    for i, ti in enumerate(t):
+        while j + 1 < t_slow.size and t_slow[j + 1] <= ti + 1e-12:
+            j += 1
+        out[i] = v_slow[j]
+    return out
+
+
+@pytest.mark.timeout(60)
+def test_tdms_waveforms_at_two_rates(tmp_path: Path) -> None:
+    nptdms = pytest.importorskip("nptdms", reason="the 'formats' extra is not installed")
+    from hil.identify.sensor_hold import age_distribution
+
+    t, d = _truth()
+    t_slow = np.arange(N // 4) / (RATE / 4)
+    f_slow = np.random.default_rng(3).standard_normal(t_slow.size)  # no two equal neighbours
+    start = np.datetime64("2024-05-02T10:00:00")
+    objs = [nptdms.RootObject({"operator": "lab"}), nptdms.GroupObject("Bench"),
+            nptdms.ChannelObject("Bench", "Position", d["pos"] * 1e3,
+                                 properties={"wf_increment": 1 / RATE, "wf_start_offset": 0.0, "unit_string": "mm",
+                                             "wf_start_time": start}),
+            nptdms.ChannelObject("Bench", "Torque cmd", d["tau"],
+                                 properties={"wf_increment": 1 / RATE, "wf_start_offset": 0.0, "unit_string": "N.m"}),
+            nptdms.ChannelObject("Force sensor", "Fz", f_slow,
+                                 properties={"wf_increment": 4 / RATE, "wf_start_offset": 0.0, "unit_string": "N"})]
+    with nptdms.TdmsWriter(tmp_path / "run.tdms") as w:
+        w.write_segment(objs)
+    rec = RunRecord.open(import_file(tmp_path / "run.tdms", tmp_path / "r.h5", mapping={
+        "motor.position": "Bench/Position", "motor.effort_cmd": "'Bench'/'Torque cmd'",
+        "spring_ft.wrench": "Force sensor/Fz"}))
+    np.testing.assert_allclose(rec.t, t, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(rec.channels["motor.position"], d["pos"], rtol=1e-15)
+    np.testing.assert_array_equal(rec.channels["motor.effort_cmd"], d["tau"])
+    np.testing.assert_array_equal(rec.channels["spring_ft.wrench"], _hold(t_slow, f_slow, t))
+    assert rec.units == {"motor.position": "m", "motor.effort_cmd": "N.m", "spring_ft.wrench": "N"}
+    meta = rec.meta
+    assert meta["held_channels"] == ["spring_ft.wrench"]
+    rs = meta["imported_from"]["resampling"]["spring_ft.wrench"]
+    assert rs["held"] and rs["source_rate_hz"] == pytest.approx(250.0)
+    assert "2024-05-02T10:00:00" in meta["imported_from"]["wf_start_time"]["motor.position"]
+    # the identification sees the 250 Hz sensor as held: ages 0, 1, 2, 3 ticks, a quarter each
+    np.testing.assert_allclose(age_distribution(rec.channels["spring_ft.wrench"]), [0.25] * 4, atol=1 / N)
+    assert age_distribution(rec.channels["motor.position"]) is None
+    fmt, rows = describe(tmp_path / "run.tdms")
+    assert fmt == "tdms" and [r.source for r in rows] == ["Bench/Position", "Bench/Torque cmd", "Force sensor/Fz"]
+    assert rows[0].rate_hz == pytest.approx(RATE) and rows[0].unit == "mm" and rows[2].rate_hz == pytest.approx(250.0)
+    with pytest.raises(RecordError, match=r"no channel 'Bench/Nope'"):
+        import_file(tmp_path / "run.tdms", tmp_path / "x.h5", mapping={"motor.position": "Bench/Nope"})
+
+    # a time channel instead of waveform timing (--time GROUP/CHANNEL), time in ms
+    with nptdms.TdmsWriter(tmp_path / "tc.tdms") as w:
+        w.write_segment([nptdms.ChannelObject("Log", "Time", t * 1e3), nptdms.ChannelObject("Log", "x", d["vel"])])
+    rec = RunRecord.open(import_file(tmp_path / "tc.tdms", tmp_path / "tc.h5", mapping={"t": "Log/Time",
+                                     "motor.velocity": "Log/x"}, units={"t": "ms"}))
+    np.testing.assert_allclose(rec.t, t, rtol=1e-15, atol=1e-15)
+    np.testing.assert_array_equal(rec.channels["motor.velocity"], d["vel"])
+    with pytest.raises(RecordError, match=r"no waveform timing .*--time GROUP/CHANNEL"):
+        import_file(tmp_path / "tc.tdms", tmp_path / "x.h5", mapping={"motor.velocity": "Log/x"})
