@@ -147,3 +147,122 @@ def test_tdms_waveforms_at_two_rates(tmp_path: Path) -> None:
     np.testing.assert_array_equal(rec.channels["motor.velocity"], d["vel"])
     with pytest.raises(RecordError, match=r"no waveform timing .*--time GROUP/CHANNEL"):
         import_file(tmp_path / "tc.tdms", tmp_path / "x.h5", mapping={"motor.velocity": "Log/x"})
+
+
+# ------------------------------------------------------------------------------------------- ROS bags
+
+BAG_MAP = {"motor.position": "/joint_states:position[axis]", "motor.velocity": "/joint_states:velocity[axis]",
+           "motor.effort_cmd": "/effort_cmd:data", "spring_ft.wrench": "/ft:wrench.force.z",
+           "debug.state": ["/debug:data[0]", "/debug:data[1]"]}
+
+
+def _bag_truth() -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, np.ndarray]:
+    t, d = _truth()
+    t_ft = np.arange(N // 4) / (RATE / 4)  # the force sensor at 250 Hz, the loop at 1 kHz
+    force = np.random.default_rng(11).standard_normal(t_ft.size)
+    return t, d, t_ft, force
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap", "ros1"])
+def test_ros_bag_1khz_and_250hz_onto_one_time_base(tmp_path: Path, storage: str) -> None:
+    pytest.importorskip("rosbags", reason="the 'ros' extra is not installed")
+    from rosbag_synth import write_bag
+
+    from hil.identify.sensor_hold import age_distribution
+
+    t, d, t_ft, force = _bag_truth()
+    bag = write_bag(tmp_path / "run_bag", storage, t, d["pos"], d["vel"], d["tau"], t_ft, force,
+                    flip_joint_order_at=N // 2)
+    rec = RunRecord.open(import_file(bag, tmp_path / "r.h5", mapping=BAG_MAP))
+    expected_t = (np.round(t * 1e9).astype(np.int64)).astype(float) * 1e-9  # stamps in ns, from the first
+    np.testing.assert_array_equal(rec.t, expected_t)
+    assert rec.rate_hz == pytest.approx(RATE)
+    np.testing.assert_array_equal(rec.channels["motor.position"], d["pos"])  # by joint name, order flipped mid-way
+    np.testing.assert_array_equal(rec.channels["motor.velocity"], d["vel"])
+    np.testing.assert_array_equal(rec.channels["motor.effort_cmd"], d["tau"])  # Float64: the bag's receive time
+    np.testing.assert_array_equal(rec.channels["debug.state"], np.column_stack([d["pos"], d["vel"]]))
+    np.testing.assert_array_equal(rec.channels["spring_ft.wrench"], _hold(t_ft, force, t))
+    imp = rec.meta["imported_from"]
+    assert imp["format"] == "rosbag" and rec.meta["held_channels"] == ["spring_ft.wrench"]
+    assert imp["resampling"]["spring_ft.wrench"]["source_rate_hz"] == pytest.approx(250.0)
+    assert imp["time_base"]["source"] in ("/joint_states", "/effort_cmd", "/debug")
+    assert imp["time_stamps"] == {"/joint_states": "header.stamp", "/effort_cmd": "log time", "/ft": "header.stamp",
+                                  "/debug": "log time"}
+    assert imp["t0_ns"] == 1_700_000_000 * 1_000_000_000
+    np.testing.assert_allclose(age_distribution(rec.channels["spring_ft.wrench"]), [0.25] * 4, atol=1 / N)
+
+
+@pytest.mark.timeout(120)
+def test_ros_bag_list_and_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("rosbags", reason="the 'ros' extra is not installed")
+    from rosbag_synth import write_bag
+
+    from hil.cli.main import main
+
+    t, d, t_ft, force = _bag_truth()
+    bag = write_bag(tmp_path / "run_bag", "sqlite3", t, d["pos"], d["vel"], d["tau"], t_ft, force)
+    fmt, rows = describe(bag)
+    sources = {r.source: r for r in rows}
+    assert fmt == "rosbag"
+    assert sources["/joint_states"].kind == "sensor_msgs/msg/JointState" and sources["/joint_states"].samples == N
+    assert sources["/joint_states"].rate_hz == pytest.approx(RATE) and sources["/ft"].rate_hz == pytest.approx(250.0)
+    for s in ("/joint_states:position[axis]", "/joint_states:effort[base]", "/ft:wrench.force.z", "/effort_cmd:data",
+              "/debug:data"):
+        assert s in sources, s
+    assert main(["import", str(bag), "--list"]) == 0
+    assert "/joint_states:velocity[axis]" in capsys.readouterr().out
+    cases = [({"x": "/nope:data"}, r"no topic /nope in the bag"),
+             ({"x": "/joint_states:position[elbow]"}, r"no joint 'elbow' \(names: base, axis\)"),
+             ({"x": "/ft:wrench.force.w"}, r"no field 'w' \(fields there: x, y, z\)"),
+             ({"x": "/joint_states"}, r"expected /topic:field"),
+             ({"x": "/ft:wrench.force.z", "t": "/debug"}, r"t: '/debug' is not a mapped topic")]
+    for mapping, msg in cases:
+        with pytest.raises(RecordError, match=msg):
+            import_file(bag, tmp_path / "x.h5", mapping=mapping)
+    # the slower topic as the time base: the fast ones are sampled at its stamps (not held)
+    rec = RunRecord.open(import_file(bag, tmp_path / "slow.h5", mapping={**BAG_MAP, "t": "/ft"}))
+    assert rec.rate_hz == pytest.approx(250.0)
+    np.testing.assert_array_equal(rec.channels["motor.position"], d["pos"][::4])
+    assert "held_channels" not in rec.meta
+    capsys.readouterr()
+    assert main(["import", str(bag), "--out", str(tmp_path / "c.h5")]) == 2
+    err = capsys.readouterr().err
+    assert "--map CHANNEL=SOURCE" in err and "--list" in err and "\n" not in err.strip()
+
+
+@pytest.mark.timeout(300)
+def test_identification_on_an_imported_bag_equals_the_same_data_in_csv(tmp_path: Path) -> None:
+    """A 1-400 Hz SDEA chirp at 5 kHz logged as a ROS 2 bag (JointState velocity, Float64 command,
+    WrenchStamped torque) and as a CSV of the same values: the imported records are identical, and so
+    are the identified parameters, their standard deviations and the posterior."""
+    pytest.importorskip("rosbags", reason="the 'ros' extra is not installed")
+    from rosbag_synth import write_bag
+    from sdea_synth import TRUTH, log_chirp_record
+
+    from hil.identify.api import identify_record
+
+    c = log_chirp_record(1, 1.0, 400.0, duration=2.0)
+    t = np.round(c.t * 1e9) * 1e-9  # the bag's ns stamps, from its first one
+    bag = write_bag(tmp_path / "chirp_bag", "mcap", c.t, np.zeros_like(c.v), c.v, c.u, c.t, c.f)
+    rec_bag = RunRecord.open(import_file(bag, tmp_path / "bag.h5", mapping={
+        "motor.effort_cmd": "/effort_cmd:data", "motor.velocity": "/joint_states:velocity[axis]",
+        "spring_ft.wrench": "/ft:wrench.force.z"}))
+    np.savetxt(tmp_path / "run.csv", np.column_stack([t, c.u, c.v, c.f]), delimiter=",", header="t,tau,vel,torque",
+               comments="", fmt="%.17g")
+    rec_csv = RunRecord.open(import_file(tmp_path / "run.csv", tmp_path / "csv.h5", mapping={
+        "motor.effort_cmd": "tau", "motor.velocity": "vel", "spring_ft.wrench": "torque"}))
+    np.testing.assert_array_equal(rec_bag.t, rec_csv.t)
+    for name in rec_csv.channels:
+        np.testing.assert_array_equal(rec_bag.channels[name], rec_csv.channels[name], err_msg=name)
+    # the chirp is simulated with a piecewise-linear input (sdea_synth): the continuous-time model fits it
+    a = identify_record(tmp_path / "bag.h5", max_steps=200, excitation="warn", sampling="continuous")
+    b = identify_record(tmp_path / "csv.h5", max_steps=200, excitation="warn", sampling="continuous")
+    assert a.ls.names == b.ls.names and a.method == b.method
+    np.testing.assert_array_equal(a.ls.theta, b.ls.theta)
+    np.testing.assert_array_equal(a.ls.std, b.ls.std)
+    np.testing.assert_array_equal(a.posterior.samples, b.posterior.samples)
+    # and they are estimates of the truth the chirp was simulated from (not a shared failure)
+    for name, value in zip(a.ls.names, a.ls.theta, strict=True):
+        if name in TRUTH:
+            assert value == pytest.approx(TRUTH[name], rel=0.05), name

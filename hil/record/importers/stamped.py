@@ -82,8 +82,8 @@ def get_field(msg: Any, ref: FieldRef, where: str) -> Any:
     try:
         for part in ref.path:
             parent, obj = obj, _child(obj, part)
-    except KeyError as exc:
-        have = ", ".join(n for n, _ in children(parent if parent is not None else msg)) or "none"
+    except KeyError as exc:  # obj: the message or field that lacks it
+        have = ", ".join(n for n, _ in children(obj)) or "none"
         raise RecordError(f"{where}: {ref}: no field {exc.args[0]!r} (fields there: {have})") from None
     if ref.selector is not None:
         if isinstance(ref.selector, int):
