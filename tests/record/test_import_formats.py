@@ -266,3 +266,72 @@ def test_identification_on_an_imported_bag_equals_the_same_data_in_csv(tmp_path:
     for name, value in zip(a.ls.names, a.ls.theta, strict=True):
         if name in TRUTH:
             assert value == pytest.approx(TRUTH[name], rel=0.05), name
+
+
+# ----------------------------------------------------------------------------------------------- MCAP
+
+
+@pytest.mark.timeout(120)
+def test_mcap_json_messages(tmp_path: Path) -> None:
+    """JSON-encoded MCAP (as Foxglove writes it): one topic with header stamps at 1 kHz (the stamps,
+    not the log times, are the time), one without at 500 Hz (log time), joined on one time base."""
+    pytest.importorskip("mcap", reason="the 'formats' extra is not installed")
+    import json
+
+    from mcap.writer import Writer
+
+    t, d = _truth()
+    t_slow, v_slow = t[::2], d["tau"][::2]
+    t0 = 1_650_000_000_000_000_000
+    with (tmp_path / "run.mcap").open("wb") as fh:
+        w = Writer(fh)
+        w.start()
+        s1 = w.register_schema("Joint", "jsonschema", json.dumps({"type": "object"}).encode())
+        s2 = w.register_schema("Cmd", "jsonschema", json.dumps({"type": "object"}).encode())
+        c1 = w.register_channel("/joint", "json", s1)
+        c2 = w.register_channel("/cmd", "json", s2)
+        events = sorted([(round(tt * 1e9), 0, k) for k, tt in enumerate(t)] +
+                        [(round(tt * 1e9), 1, k) for k, tt in enumerate(t_slow)])
+        for ns, which, k in events:
+            if which == 0:
+                msg = {"header": {"stamp": {"sec": (t0 + ns) // 10**9, "nsec": (t0 + ns) % 10**9}},
+                       "q": [float(d["q"][k, 0]), float(d["q"][k, 1])], "pos": float(d["pos"][k])}
+                # logged 3 ms late: the stamp, not the log time, is the sample's time
+                w.add_message(c1, log_time=t0 + ns + 3_000_000, data=json.dumps(msg).encode(), publish_time=t0 + ns)
+            else:
+                w.add_message(c2, log_time=t0 + ns, data=json.dumps({"value": float(v_slow[k])}).encode(),
+                              publish_time=t0 + ns)
+        w.finish()
+    rec = RunRecord.open(import_file(tmp_path / "run.mcap", tmp_path / "r.h5", mapping={
+        "master.position": "/joint:q", "motor.position": "/joint:pos", "motor.effort_cmd": "/cmd:value"}))
+    np.testing.assert_allclose(rec.t, t, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(rec.channels["master.position"], d["q"])
+    np.testing.assert_array_equal(rec.channels["motor.position"], d["pos"])
+    np.testing.assert_array_equal(rec.channels["motor.effort_cmd"], _hold(t_slow, v_slow, t))
+    assert rec.meta["held_channels"] == ["motor.effort_cmd"]
+    assert rec.meta["imported_from"]["time_stamps"] == {"/cmd": "log time", "/joint": "header.stamp"}
+    fmt, rows = describe(tmp_path / "run.mcap")
+    srcs = {r.source: r for r in rows}
+    assert fmt == "mcap" and srcs["/joint"].kind == "Joint" and srcs["/joint"].samples == N
+    assert srcs["/cmd"].rate_hz == pytest.approx(RATE / 2) and "/joint:q" in srcs and "/cmd:value" in srcs
+
+
+@pytest.mark.timeout(120)
+def test_mcap_ros2_cdr_file_reads_like_the_bag(tmp_path: Path) -> None:
+    """The .mcap storage file of a ROS 2 bag (CDR messages with ros2msg schemas), read alone by the
+    MCAP importer (mcap-ros2-support's decoder), gives the record the bag importer (rosbags) gives."""
+    pytest.importorskip("mcap_ros2", reason="the 'formats' extra is not installed")
+    pytest.importorskip("rosbags", reason="the 'ros' extra is not installed")
+    from rosbag_synth import write_bag
+
+    t, d, t_ft, force = _bag_truth()
+    bag = write_bag(tmp_path / "run_bag", "mcap", t, d["pos"], d["vel"], d["tau"], t_ft, force)
+    (mcap_file,) = bag.glob("*.mcap")
+    a = RunRecord.open(import_file(bag, tmp_path / "a.h5", mapping=BAG_MAP))
+    b = RunRecord.open(import_file(mcap_file, tmp_path / "b.h5", mapping=BAG_MAP))
+    assert b.meta["imported_from"]["format"] == "mcap"
+    np.testing.assert_array_equal(a.t, b.t)
+    for name in a.channels:
+        np.testing.assert_array_equal(a.channels[name], b.channels[name], err_msg=name)
+    assert b.meta["held_channels"] == ["spring_ft.wrench"]
+    assert b.meta["imported_from"]["topics"]["/ft"] == "geometry_msgs/msg/WrenchStamped"
