@@ -83,6 +83,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "the machine's wake-up latency (cyclictest's way) and the loop rates it holds"),
     "import": ("hil.cli.import_record",
                "convert a run from another tool (CSV, .mat, HDF5, TDMS, ROS bag, MCAP) into a run record"),
+    "export": ("hil.cli.export", "write a run record as MCAP (Foxglove, PlotJuggler) or CSV (spreadsheets)"),
     "identify": ("hil.cli.identify", 'identify a grey-box model (M, B, K_f, B_f, ...) from a chirp record'),
     "probe": ("hil.cli.probe",
         "list what answers on a CAN channel, serial port or Modbus address (--scene writes a scene stub)"),

@@ -61,7 +61,7 @@ class Hdf5Importer:
     """Format ``hdf5`` (module docstring)."""
 
     name = "hdf5"
-    suffixes = (".h5", ".hdf5", ".he5")
+    suffixes: tuple[str, ...] = (".h5", ".hdf5", ".he5")
     extra: str | None = None
     time_required = False  # the default time is found by dataset name, not by the generic t/time rule
 

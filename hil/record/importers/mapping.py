@@ -74,12 +74,13 @@ class ImportMapping:
     def override(self, scale: Mapping[str, float] | None, units: Mapping[str, str] | None, where: str) -> None:
         """Apply ``hil import --scale/--unit`` on top of the mapping (sidecar, default or ``--map``):
         each name must be ``t`` or a mapped channel."""
-        for flag, given, into in (("--scale", scale, self.scale), ("--unit", units, self.units)):
-            for name, value in (given or {}).items():
+        for flag, names in (("--scale", scale or {}), ("--unit", units or {})):
+            for name in names:
                 if name != "t" and name not in self.channels:
                     raise RecordError(f"{where}: {flag} {name}: no such channel in the mapping "
                                       f"(channels: {', '.join(sorted(self.channels)) or 'none'}, and t)")
-                into[name] = value  # type: ignore[index]  # (str -> float) or (str -> str), per flag
+        self.scale.update(scale or {})
+        self.units.update(units or {})
 
 
 def normalize(raw: Mapping[str, Any], where: str, *, time_required: bool = True) -> ImportMapping:

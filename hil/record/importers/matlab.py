@@ -116,7 +116,7 @@ class MatImporter:
     """Format ``mat`` (module docstring)."""
 
     name = "mat"
-    suffixes = (".mat",)
+    suffixes: tuple[str, ...] = (".mat",)
     extra: str | None = None
     time_required = True
 

@@ -76,7 +76,7 @@ class McapImporter:
     """Format ``mcap`` (module docstring)."""
 
     name = "mcap"
-    suffixes = (".mcap",)
+    suffixes: tuple[str, ...] = (".mcap",)
     extra: str | None = "formats"
     time_required = False
 

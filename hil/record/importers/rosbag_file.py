@@ -73,7 +73,7 @@ class RosbagImporter:
     """Format ``rosbag`` (module docstring)."""
 
     name = "rosbag"
-    suffixes = (".bag", ".db3")
+    suffixes: tuple[str, ...] = (".bag", ".db3")
     extra: str | None = "ros"
     time_required = False
 

@@ -60,7 +60,7 @@ class CsvImporter:
     """Format ``csv`` (module docstring). ``delimiter``: ``,`` ``;`` or tab (None: guessed)."""
 
     name = "csv"
-    suffixes = (".csv", ".txt", ".tsv")
+    suffixes: tuple[str, ...] = (".csv", ".txt", ".tsv")
     extra: str | None = None
     time_required = True
 

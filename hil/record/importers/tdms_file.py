@@ -70,7 +70,7 @@ class TdmsImporter:
     """Format ``tdms`` (module docstring)."""
 
     name = "tdms"
-    suffixes = (".tdms",)
+    suffixes: tuple[str, ...] = (".tdms",)
     extra: str | None = "formats"
     time_required = False
 
