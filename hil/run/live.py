@@ -40,7 +40,7 @@ from hil.errors import HilError
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["DEFAULT_PORT", "QUEUE_SIZE", "REALTIME_RATE_HZ", "LiveView", "MISSING"]
+__all__ = ["DEFAULT_PORT", "MISSING", "QUEUE_SIZE", "REALTIME_RATE_HZ", "LiveError", "LiveView"]
 
 #: the Foxglove WebSocket default port
 DEFAULT_PORT = 8765
@@ -100,8 +100,8 @@ class _Server:
         self.experiment = ""
         self.sent = 0
         # the run's own topics exist before any client connects (the device topics come with the first sample)
-        self._channel("/safety", "hil.Safety", dict.fromkeys(("t", "experiment", "state", "reason"), {}))
-        self._channel("/events", "foxglove.Log", dict.fromkeys(_LOG_FIELDS, {}))
+        self._channel("/safety", "hil.Safety", {k: {} for k in ("t", "experiment", "state", "reason")})
+        self._channel("/events", "foxglove.Log", {k: {} for k in _LOG_FIELDS})
 
     def _channel(self, topic: str, schema_name: str, props: Mapping[str, Any]) -> Any:
         ch = self.channels.get(topic)

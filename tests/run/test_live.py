@@ -31,8 +31,9 @@ def _scene() -> Any:
 
 
 class _Client(threading.Thread):
-    """A Foxglove WebSocket client (subprotocol foxglove.sdk.v1, which foxglove-sdk 0.30 speaks): subscribes to every advertised
-    channel and keeps each message's payload (binary opcode 1: subscription id u32, log time u64)."""
+    """A Foxglove WebSocket client (subprotocol foxglove.sdk.v1, which foxglove-sdk 0.30 speaks): subscribes
+    to every advertised channel and keeps each message's payload (binary opcode 1: subscription id u32, log
+    time u64)."""
 
     def __init__(self, port: int) -> None:
         super().__init__(daemon=True)
