@@ -113,7 +113,7 @@ class _Server:
         return ch
 
     def _log(self, topic: str, schema_name: str, msg: dict[str, Any], t: float) -> None:
-        props = {k: {} for k in msg}
+        props: dict[str, Any] = {k: {} for k in msg}
         self._channel(topic, schema_name, props).log(msg, log_time=self.t_wall0 + max(0, round(t * 1e9)))
         self.sent += 1
 
