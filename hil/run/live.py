@@ -227,6 +227,9 @@ class LiveView:
                 self._proc.join(5)
                 raise LiveError(str(value))
             self.port = int(value)
+            # the queue's feeder thread starts with the first put: here, before the loop takes SCHED_FIFO
+            # and its CPU (a thread inherits both from the thread that starts it)
+            self._q.put(("hello",))
         else:
             self._server = _Server(self.host, self.requested_port)
             self.port = self._server.port
