@@ -335,3 +335,60 @@ def test_mcap_ros2_cdr_file_reads_like_the_bag(tmp_path: Path) -> None:
         np.testing.assert_array_equal(a.channels[name], b.channels[name], err_msg=name)
     assert b.meta["held_channels"] == ["spring_ft.wrench"]
     assert b.meta["imported_from"]["topics"]["/ft"] == "geometry_msgs/msg/WrenchStamped"
+
+
+# ------------------------------------------------------------------------------------ missing extras
+
+_WITHOUT = """
+import sys
+
+BLOCKED = set(sys.argv[1].split(","))
+
+class _NotInstalled:
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in BLOCKED:
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+        return None
+
+sys.meta_path.insert(0, _NotInstalled())
+from hil.cli.main import main
+
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.timeout(180)
+@pytest.mark.parametrize(("blocked", "file", "argv", "fragments"), [
+    ("nptdms", "r.tdms", ["--map", "x=g/c"], ["npTDMS", "pip install 'hil-certify[formats]'"]),
+    ("rosbags", "r.bag", ["--map", "x=/a:b"], ["rosbags", "pip install 'hil-certify[ros]'"]),
+    ("mcap", "r.mcap", ["--map", "x=/a:b"], ["mcap", "pip install 'hil-certify[formats]'"]),
+    ("pint", "r.csv", ["--unit", "v=mm"], ["'pint'", "pip install 'hil-certify[units]'"]),
+], ids=["tdms", "rosbag", "mcap", "units"])
+def test_a_missing_extra_is_one_line_naming_it(tmp_path: Path, blocked: str, file: str, argv: list[str],
+                                               fragments: list[str]) -> None:
+    """As a base install answers (tests/test_base_install.py): the format's library not installed is exit 2
+    and one stderr line with the pip command, nothing written."""
+    import subprocess
+    import sys
+
+    (tmp_path / file).write_bytes(b"t,v\n0,1\n0.001,2\n" if file.endswith(".csv") else b"\x00" * 64)
+    proc = subprocess.run([sys.executable, "-c", _WITHOUT, blocked, "import", str(tmp_path / file), *argv],
+                          capture_output=True, text=True, timeout=120)
+    err = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(err) == 1, proc.stderr
+    for frag in fragments:
+        assert frag in err[0], (frag, err[0])
+    assert not (tmp_path / "r.h5").exists()
+
+
+@pytest.mark.timeout(120)
+def test_live_without_the_extra_is_one_line(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _WITHOUT, "foxglove", "run", "bilateral_2dof_B", "--live", "0",
+                           "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
+    err = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(err) == 1, proc.stderr
+    assert "pip install 'hil-certify[live]'" in err[0]
+    assert not (tmp_path / "o").exists()
