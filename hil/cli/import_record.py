@@ -42,6 +42,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--unit", action="append", metavar="CHANNEL=UNIT",
                    help="unit of a channel's (or t's) values in the file, e.g. t=ms, motor.position=mm: "
                         "converted to SI, the record states the SI unit (repeatable)")
+    p.add_argument("--resample", type=float, metavar="HZ",
+                   help="bags, MCAP, TDMS: put every channel onto a uniform grid at HZ (latest sample at or before "
+                        "each grid time), for time stamps that jitter; default: the fastest topic's own stamps")
     p.add_argument("--sidecar", help="YAML/JSON mapping file (default: found next to the file)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing record at --out")
 
@@ -69,8 +72,9 @@ def run(args: argparse.Namespace) -> int:
     if src.is_dir() and not (src / "metadata.yaml").is_file():
         raise UsageError(f"{src}: is a folder; give a file (or a ROS 2 bag: a folder with metadata.yaml)")
     if args.list:
-        if args.map or args.time or args.scale or args.unit or args.sidecar or args.out:
-            raise UsageError("--list only lists the file: give it without --map/--time/--scale/--unit/--sidecar/--out")
+        if args.map or args.time or args.scale or args.unit or args.sidecar or args.out or args.resample:
+            raise UsageError("--list only lists the file: give it without --map/--time/--scale/--unit/--sidecar/"
+                             "--resample/--out")
         fmt, rows = describe(src, args.fmt)
         _print_inventory(fmt, src, rows)
         return EXIT_OK
@@ -96,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
     if args.sidecar and mapping is not None:
         raise UsageError("give --sidecar or --map/--time, not both")
     check_out_file(out, overwrite=args.overwrite)
-    path = import_file(src, out, mapping=mapping, sidecar=args.sidecar, scale=scale, units=units, fmt=args.fmt)
+    path = import_file(src, out, mapping=mapping, sidecar=args.sidecar, scale=scale, units=units, fmt=args.fmt,
+                       resample_hz=args.resample)
     print(str(path))
     return EXIT_OK
 

@@ -85,13 +85,13 @@ def test_list_prints_the_sources(tmp_path: Path, capsys: pytest.CaptureFixture[s
 # ------------------------------------------------------------------------------------------------ TDMS
 
 
-def _hold(t_slow: np.ndarray, v_slow: np.ndarray, t: np.ndarray) -> np.ndarray:
+def _hold(t_slow: np.ndarray, v_slow: np.ndarray, t: np.ndarray, tol: float = 1e-12) -> np.ndarray:
     """Zero-order hold written out independently of the importer: for each t, the slow sample with the
-    largest time <= t (a loop over the samples)."""
+    largest time <= t + tol (a loop over the samples)."""
     out = np.empty(t.size)
     j = 0
     for i, ti in enumerate(t):
-        while j + 1 < t_slow.size and t_slow[j + 1] <= ti + 1e-12:
+        while j + 1 < t_slow.size and t_slow[j + 1] <= ti + tol:
             j += 1
         out[i] = v_slow[j]
     return out
@@ -392,3 +392,46 @@ def test_live_without_the_extra_is_one_line(tmp_path: Path) -> None:
     assert proc.returncode == 2 and len(err) == 1, proc.stderr
     assert "pip install 'hil-certify[live]'" in err[0]
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.timeout(120)
+def test_jittered_stamps_need_resample_onto_a_uniform_grid(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Header stamps with +-30 % jitter (a loop on a loaded machine): not a grid, refused with the fix named;
+    --resample 1000 holds every topic onto a uniform 1 kHz grid (values: the latest sample at or before
+    each grid time, written out independently)."""
+    pytest.importorskip("rosbags", reason="the 'ros' extra is not installed")
+    from rosbag_synth import write_bag
+
+    from hil.cli.main import main
+
+    t, d, t_ft, force = _bag_truth()
+    rng = np.random.default_rng(2)
+    tj = t + rng.uniform(-0.3e-3, 0.3e-3, t.size)
+    tj[0] = 0.0
+    tj = np.sort(tj)
+    bag = write_bag(tmp_path / "jit_bag", "sqlite3", tj, d["pos"], d["vel"], d["tau"], t_ft, force)
+    m = {"motor.position": "/joint_states:position[axis]", "spring_ft.wrench": "/ft:wrench.force.z"}
+    with pytest.raises(RecordError, match=r"not uniformly sampled.*hil import --resample HZ"):
+        import_file(bag, tmp_path / "x.h5", mapping=m)
+    code = main(["import", str(bag), "--map", "motor.position=/joint_states:position[axis]", "--map",
+                 "spring_ft.wrench=/ft:wrench.force.z", "--resample", "1000", "--out", str(tmp_path / "r.h5")])
+    assert code == 0, capsys.readouterr().err
+    rec = RunRecord.open(tmp_path / "r.h5")
+    stamps = np.round(tj * 1e9) * 1e-9
+    grid = np.arange(rec.t.size) / 1000.0
+    np.testing.assert_allclose(rec.t, grid, rtol=0, atol=1e-12)
+    assert rec.t[-1] <= min(stamps[-1], t_ft[-1]) + 1e-12 and rec.rate_hz == pytest.approx(1000.0)
+    ft_stamps = np.round(t_ft * 1e9) * 1e-9  # the bag's stamps [s] from its first, as the importer reads them
+    np.testing.assert_array_equal(rec.channels["motor.position"], _hold(stamps, d["pos"], rec.t, tol=0.0))
+    np.testing.assert_array_equal(rec.channels["spring_ft.wrench"], _hold(ft_stamps, force, rec.t, tol=0.0))
+    # the jittered 1 kHz stream is reused where two grid times fall between its samples: held there too
+    i = np.searchsorted(stamps, rec.t, side="right") - 1
+    rs = rec.meta["imported_from"]["resampling"]
+    assert rs["motor.position"]["repeated_fraction"] == pytest.approx(np.mean(i[1:] == i[:-1]))
+    assert 0.01 < rs["motor.position"]["repeated_fraction"] < 0.3
+    assert rs["spring_ft.wrench"]["repeated_fraction"] == pytest.approx(0.75, abs=2 / N)
+    assert rec.meta["held_channels"] == ["motor.position", "spring_ft.wrench"]
+    assert rec.meta["imported_from"]["mapping"]["resample_hz"] == 1000.0
+    with pytest.raises(RecordError, match=r"applies to time-stamped formats .* not to csv"):
+        np.savetxt(tmp_path / "a.csv", np.column_stack([t, d["pos"]]), delimiter=",", header="t,p", comments="")
+        import_file(tmp_path / "a.csv", tmp_path / "y.h5", resample_hz=1000.0)

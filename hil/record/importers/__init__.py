@@ -126,6 +126,9 @@ def resolve_mapping(src: Path, imp: Importer, mapping: Mapping[str, Any] | None,
                                   f"(hil import {src.name} --list shows the sources)")
             m = dm
     m.override(scale, units, where)
+    if m.resample_hz is not None and not getattr(imp, "resamples", False):
+        raise RecordError(f"{src}: resampling (--resample, resample_hz) applies to time-stamped formats (ROS bags, "
+                          f"MCAP, TDMS), not to {imp.name}")
     return m
 
 
@@ -141,6 +144,7 @@ def import_file(
     units: Mapping[str, str] | None = None,
     fmt: str | None = None,
     importer: Importer | None = None,
+    resample_hz: float | None = None,
 ) -> Path:
     """Convert a run recorded by another tool into a run record at ``out``; return ``out``.
 
@@ -148,11 +152,19 @@ def import_file(
     ``mapping`` / ``sidecar``: module docstring; ``scale`` / ``units`` (channel or ``t`` -> factor /
     the file's unit) apply on top of the mapping. ``meta`` is merged into the record meta.
     ``max_jitter``: tolerated deviation of a time interval from a multiple of the median interval
-    (fraction of it)."""
+    (fraction of it). ``resample_hz``: bags, MCAP, TDMS: every channel onto a uniform grid at this rate
+    (:func:`hil.record.importers.base.align`), for time stamps that jitter more than ``max_jitter``."""
     src = Path(path)
     imp = importer or importer_for(src, fmt)
     _check_input(src, imp)
     m = resolve_mapping(src, imp, mapping, sidecar, scale, units)
+    if resample_hz is not None:
+        if not (0 < resample_hz < float("inf")):
+            raise RecordError(f"{src}: --resample must be a positive number of Hz, got {resample_hz!r}")
+        if not getattr(imp, "resamples", False):
+            raise RecordError(f"{src}: resampling (--resample) applies to time-stamped formats (ROS bags, MCAP, "
+                              f"TDMS), not to {imp.name}")
+        m.resample_hz = float(resample_hz)
     sampled = imp.read(src, m)
     fmt_name = str(getattr(imp, "format_of", lambda _p: imp.name)(src))
     return write_record(out, sampled, m, src, fmt_name, meta, max_jitter)

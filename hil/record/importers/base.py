@@ -20,9 +20,11 @@ Several rates onto one time base (:func:`align`): each channel's stream has its 
 time is one stream's (the base: the fastest, or the one the mapping names as ``t``), every other channel
 takes at each base time its latest sample at or before it (zero-order hold, as a sample-and-hold sensor
 read by a faster loop), and leading base times before every channel has a sample are dropped. A
-channel whose stream is slower than the base repeats values: it is listed in the record's meta
-``held_channels`` and described in ``imported_from.resampling`` (its rate, the method), so the
-identification treats it as a held output (:mod:`hil.identify.sensor_hold`).
+channel in which a stream sample is reused for several record samples (a stream slower than the base,
+or jittering against it) is *held*: listed in the record's meta ``held_channels`` and described in
+``imported_from.resampling`` (its source, rate, the fraction of repeated samples, the method), so the
+identification treats it as a held output (:mod:`hil.identify.sensor_hold`). With ``resample_hz``
+(``hil import --resample HZ``) the time base is a uniform grid instead and every channel is held onto it.
 """
 
 from __future__ import annotations
@@ -171,8 +173,10 @@ def missing_extra(extra: str, package: str, exc: ImportError) -> RecordError:
 # ------------------------------------------------------------------------------------------- time, units
 
 
-def check_time(t: np.ndarray, where: str, max_jitter: float) -> tuple[float, list[tuple[float, int]]]:
-    """Median interval [s] and the gaps (time [s], samples missing); raises on bad time."""
+def check_time(t: np.ndarray, where: str, max_jitter: float,
+               fix: str = "resample onto a uniform grid first") -> tuple[float, list[tuple[float, int]]]:
+    """Median interval [s] and the gaps (time [s], samples missing); raises on bad time (``fix``: what the
+    message advises for off-grid time)."""
     if t.size < 2:
         raise RecordError(f"{where}: need at least 2 samples, got {t.size}")
     bad = np.flatnonzero(~np.isfinite(t))
@@ -194,7 +198,7 @@ def check_time(t: np.ndarray, where: str, max_jitter: float) -> tuple[float, lis
         raise RecordError(
             f"{where}: time is not uniformly sampled: interval {dt[i]:.6g} s at row {i + 1} is "
             f"{ratio[i]:.3f} x the median interval {med:.6g} s ({off.size} off-grid interval(s), tolerance "
-            f"{max_jitter:g}); resample onto a uniform grid first")
+            f"{max_jitter:g}); {fix}")
     gaps = [(float(t[i]), int(k[i]) - 1) for i in np.flatnonzero(k > 1)]
     return med, gaps
 
@@ -250,16 +254,20 @@ def rate_of(t: np.ndarray) -> float:
     return float(1.0 / np.median(np.diff(t))) if t.size >= 2 else float("nan")
 
 
-def align(streams: Mapping[str, Stream], base: str | None, where: str) -> Sampled:
+def align(streams: Mapping[str, Stream], base: str | None, where: str, resample_hz: float | None = None) -> Sampled:
     """Every stream onto one time base (module docstring). ``base``: the ``origin`` of the stream whose
-    times become the record's (None: the fastest). Returns the :class:`Sampled` with ``resampling``
-    filled for every channel not of the base."""
+    times become the record's (None: the fastest). ``resample_hz``: instead, a uniform grid at that rate
+    from the first time every stream has a sample to the earliest last sample, every stream held onto it
+    (for stamps that jitter too much for one stream's times to be the record's). Returns the
+    :class:`Sampled` with ``resampling`` filled for every channel not of the base."""
     if not streams:
         raise RecordError(f"{where}: no channel mapped")
     for name, s in streams.items():
         if s.t.size < 2:
             raise RecordError(f"{where}: channel {name!r} ({s.origin}): {s.t.size} sample(s), need at least 2")
     rates = {name: rate_of(s.t) for name, s in streams.items()}
+    if resample_hz is not None:
+        return _onto_grid(streams, rates, resample_hz, where)
     if base is None:
         base_name = max(streams, key=lambda n: (rates[n], streams[n].t.size))
     else:
@@ -292,14 +300,42 @@ def align(streams: Mapping[str, Stream], base: str | None, where: str) -> Sample
             data[name] = s.values[start:]
             continue
         data[name] = s.values[idx[name][start:]]
-        held = bool(rates[name] < rates[base_name] * (1 - 1e-6))
-        resampling[name] = {"source": s.origin, "source_rate_hz": rates[name], "held": held,
+        resampling[name] = {"source": s.origin, "source_rate_hz": rates[name], **_repeats(idx[name][start:]),
                             "method": "zero-order hold: the latest sample at or before each time of the base"}
     if start:
         logger.info("%s: %d leading sample(s) of %s dropped (before every channel had a value)", where, start,
                     base_origin)
     prov = {"time_base": {"source": base_origin, "rate_hz": rates[base_name], "dropped_leading": start}}
     return Sampled(t=t, data=data, resampling=resampling, provenance=prov)
+
+
+def _repeats(i: np.ndarray) -> dict[str, Any]:
+    """``held`` (some record sample repeats the one before it: the stream's sample was reused) and
+    ``repeated_fraction`` (of the record's samples) for the source indices ``i`` of a held stream."""
+    frac = float(np.mean(i[1:] == i[:-1])) if i.size > 1 else 0.0
+    return {"held": frac > 0.0, "repeated_fraction": frac}
+
+
+def _onto_grid(streams: Mapping[str, Stream], rates: Mapping[str, float], rate_hz: float, where: str) -> Sampled:
+    if not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise RecordError(f"{where}: resample rate must be a positive number of Hz, got {rate_hz!r}")
+    t0 = max(float(s.t[0]) for s in streams.values())
+    t1 = min(float(s.t[-1]) for s in streams.values())
+    n = int(np.floor((t1 - t0) * rate_hz + 1e-9)) + 1
+    if n < 2:
+        raise RecordError(f"{where}: the streams overlap for {max(t1 - t0, 0.0):.6g} s: nothing to resample")
+    grid = t0 + np.arange(n) / rate_hz
+    data: dict[str, np.ndarray] = {}
+    resampling: dict[str, dict[str, Any]] = {}
+    for name, s in streams.items():
+        if np.any(np.diff(s.t) < 0):
+            raise RecordError(f"{where}: channel {name!r} ({s.origin}): time stamps decrease")
+        i = np.searchsorted(s.t, grid, side="right") - 1
+        data[name] = s.values[i]
+        resampling[name] = {"source": s.origin, "source_rate_hz": rates[name], **_repeats(i),
+                            "method": f"zero-order hold onto a uniform {rate_hz:g} Hz grid (--resample)"}
+    prov = {"time_base": {"source": f"uniform grid {rate_hz:g} Hz", "rate_hz": float(rate_hz), "dropped_leading": 0}}
+    return Sampled(t=grid, data=data, resampling=resampling, provenance=prov)
 
 
 # ------------------------------------------------------------------------------------------------ write
@@ -324,7 +360,9 @@ def write_record(out: str | Path, s: Sampled, m: ImportMapping, src: Path, fmt: 
     """Check the time, convert to SI and write the run record at ``out`` (module docstring)."""
     where = str(src)
     t, data, units = to_si_values(s, m, where)
-    med, gaps = check_time(t, where, max_jitter)
+    fix = ("resample onto a uniform grid: hil import --resample HZ" if s.provenance.get("time_base") else
+           "resample onto a uniform grid first")
+    med, gaps = check_time(t, where, max_jitter, fix)
     rate = m.rate_hz if m.rate_hz is not None else 1.0 / med
     if m.rate_hz is None:
         check_rate(rate, where)

@@ -40,7 +40,7 @@ logger = logging.getLogger(__name__)
 __all__ = ["FieldRef", "ImportMapping", "default_mapping", "find_sidecar", "load_sidecar", "normalize",
            "parse_field"]
 
-_RESERVED = {"t", "units", "descriptions", "scale", "meta", "rate_hz", "channels"}
+_RESERVED = {"t", "units", "descriptions", "scale", "meta", "rate_hz", "resample_hz", "channels"}
 _VECTOR_RE = re.compile(r"^(?P<name>.+)\[(?P<i>\d+)\]$")
 _FIELD_RE = re.compile(r"^(?P<path>[^\[\]]+?)(?:\[(?P<sel>[^\[\]]+)\])?$")
 
@@ -57,6 +57,8 @@ class ImportMapping:
     scale: dict[str, float] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
     rate_hz: float | None = None
+    #: time-stamped formats (bags, MCAP, TDMS): put every channel onto a uniform grid at this rate [Hz]
+    resample_hz: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"t": self.time, **self.channels}
@@ -64,6 +66,8 @@ class ImportMapping:
             out["scale"] = dict(self.scale)
         if self.units:
             out["units"] = dict(self.units)
+        if self.resample_hz is not None:
+            out["resample_hz"] = self.resample_hz
         return out
 
     def sources(self, name: str) -> list[str]:
@@ -137,8 +141,15 @@ def normalize(raw: Mapping[str, Any], where: str, *, time_required: bool = True)
     unknown = set(m.units) - set(m.channels) - {"t"}
     if unknown:
         raise RecordError(f"{where}: units given for unmapped channels {sorted(unknown)}")
-    if raw.get("rate_hz") is not None:
-        m.rate_hz = float(raw["rate_hz"])
+    for key in ("rate_hz", "resample_hz"):
+        if raw.get(key) is not None:
+            try:
+                val = float(raw[key])
+            except (TypeError, ValueError):
+                raise RecordError(f"{where}: {key} must be a number, got {raw[key]!r}") from None
+            if not (val > 0 and val < float("inf")):
+                raise RecordError(f"{where}: {key} must be a positive number of Hz, got {raw[key]!r}")
+            setattr(m, key, val)
     return m
 
 

@@ -79,6 +79,7 @@ class McapImporter:
     suffixes: tuple[str, ...] = (".mcap",)
     extra: str | None = "formats"
     time_required = False
+    resamples = True  # mapping's resample_hz (hil import --resample HZ)
 
     def claims(self, path: Path) -> bool:
         return path.suffix.lower() == ".mcap" and not path.is_dir()

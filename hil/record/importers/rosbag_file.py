@@ -76,6 +76,7 @@ class RosbagImporter:
     suffixes: tuple[str, ...] = (".bag", ".db3")
     extra: str | None = "ros"
     time_required = False
+    resamples = True  # mapping's resample_hz (hil import --resample HZ)
 
     def claims(self, path: Path) -> bool:
         if path.is_dir():

@@ -213,7 +213,7 @@ def sample_streams(messages: Iterable[tuple[str, int, Any]], m: ImportMapping, w
                               f"({', '.join(sorted({r.topic for r in rs}))}); map one channel per topic")
         values = cols[0] if len(cols) == 1 else np.column_stack(cols)
         streams[name] = Stream(topic_t[rs[0].topic][0], values, origin=rs[0].topic)
-    s = align(streams, m.time or None, where)
+    s = align(streams, m.time or None, where, m.resample_hz)
     s.provenance.update(t0_ns=int(t0), time_stamps={tp: ("header.stamp" if stamped[tp] else "log time")
                                                     for tp in sorted(times)})
     return s

@@ -73,6 +73,7 @@ class TdmsImporter:
     suffixes: tuple[str, ...] = (".tdms",)
     extra: str | None = "formats"
     time_required = False
+    resamples = True  # mapping's resample_hz (hil import --resample HZ)
 
     def claims(self, path: Path) -> bool:
         return path.suffix.lower() == ".tdms" and not path.is_dir()
@@ -135,7 +136,7 @@ class TdmsImporter:
             if any(tt is None or not np.array_equal(tt, times[0]) for tt in times[1:]):
                 raise RecordError(f"{where}: channel {name!r}: its sources have different waveform timing")
             streams[name] = Stream(times[0], a, origin=m.sources(name)[0])
-        s = align(streams, None, where)
+        s = align(streams, None, where, m.resample_hz)
         s.units = units
         s.provenance.update(time_source="waveform timing (wf_start_offset + k wf_increment)")
         if start_times:
