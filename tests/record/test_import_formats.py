@@ -435,3 +435,78 @@ def test_jittered_stamps_need_resample_onto_a_uniform_grid(tmp_path: Path, capsy
     with pytest.raises(RecordError, match=r"applies to time-stamped formats .* not to csv"):
         np.savetxt(tmp_path / "a.csv", np.column_stack([t, d["pos"]]), delimiter=",", header="t,p", comments="")
         import_file(tmp_path / "a.csv", tmp_path / "y.h5", resample_hz=1000.0)
+
+
+# ------------------------------------------------------------------------------- a format from outside
+
+PLUGIN_IMPORTER = '''
+"""An outside package's importer: ".kv" files, lines "t=<s> <name>=<value> ...". """
+from pathlib import Path
+
+import numpy as np
+
+from hil.record.importers.base import Entry, Sampled
+
+
+class KvImporter:
+    name = "kv"
+    suffixes = (".kv",)
+    extra = None
+    time_required = False
+
+    def claims(self, path):
+        return path.suffix == ".kv"
+
+    def _rows(self, path):
+        return [dict(kv.split("=") for kv in ln.split()) for ln in Path(path).read_text().splitlines() if ln]
+
+    def source_names(self, path):
+        return sorted(self._rows(path)[0])
+
+    def default_mapping(self, path):
+        return None
+
+    def inventory(self, path):
+        return [Entry(k, "key", len(self._rows(path))) for k in self.source_names(path)]
+
+    def read(self, path, mapping):
+        rows = self._rows(path)
+        t = np.array([float(r["t"]) for r in rows])
+        return Sampled(t=t, data={ch: np.array([float(r[mapping.channels[ch]]) for r in rows])
+                                  for ch in mapping.channels})
+'''
+
+
+@pytest.mark.timeout(60)
+def test_an_importer_from_another_distribution(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """One module and one entry point (group hil_certify.importers) add a format; no edit of the suite."""
+    import importlib
+    import sys
+
+    from hil import plugins
+    from hil.cli.main import main
+    from hil.record.importers import base
+
+    root = tmp_path / "site"
+    info = root / "hil_kv_demo-0.1.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: hil-kv-demo\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[hil_certify.importers]\nkv = hil_kv_demo:KvImporter\n"
+                                           "broken = hil_kv_demo:NoSuchThing\n")
+    (root / "hil_kv_demo.py").write_text(PLUGIN_IMPORTER)
+    monkeypatch.setattr(base, "_REGISTRY", dict(base._REGISTRY))
+    monkeypatch.setattr(plugins, "_loaded", set())
+    monkeypatch.syspath_prepend(str(root))
+    importlib.invalidate_caches()
+    try:
+        t = np.arange(50) / 500.0
+        (tmp_path / "run.kv").write_text("".join(f"t={a!r} p={2 * a!r}\n" for a in t.tolist()))
+        assert main(["import", str(tmp_path / "run.kv"), "--map", "motor.position=p", "--unit", "motor.position=mm",
+                     "--out", str(tmp_path / "r.h5")]) == 0
+        rec = RunRecord.open(tmp_path / "r.h5")
+        np.testing.assert_array_equal(rec.t, t)
+        np.testing.assert_allclose(rec.channels["motor.position"], 2e-3 * t, rtol=1e-15)
+        assert rec.meta["imported_from"]["format"] == "kv" and rec.units == {"motor.position": "m"}
+        assert "broken" not in importers()  # logged and skipped
+    finally:
+        sys.modules.pop("hil_kv_demo", None)

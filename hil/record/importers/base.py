@@ -14,7 +14,8 @@ An importer reads one format. It is an object with
 
 Importers are registered with :func:`register` (the built-in ones on import of
 :mod:`hil.record.importers`) and from the entry-point group ``hil_certify.importers`` (an importer object
-or a class taking no arguments), read on first use.
+or a class taking no arguments; :func:`hil.plugins.load_group`), read on first use. An entry point may
+replace a built-in format of the same name.
 
 Several rates onto one time base (:func:`align`): each channel's stream has its own times; the record's
 time is one stream's (the base: the fastest, or the one the mapping names as ``t``), every other channel
@@ -44,11 +45,9 @@ from hil.record.importers.units import to_si
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["ENTRY_POINT_GROUP", "PLAUSIBLE_RATE_HZ", "Entry", "Importer", "Sampled", "Stream", "align",
+__all__ = [ "PLAUSIBLE_RATE_HZ", "Entry", "Importer", "Sampled", "Stream", "align",
            "check_time", "importer_for", "importers", "missing_extra", "register", "write_record"]
 
-#: entry-point group of importers from other packages
-ENTRY_POINT_GROUP = "hil_certify.importers"
 _MAX_GAP_EVENTS = 100
 #: sample rates [Hz] outside which an imported record's time column is probably not in seconds (bench
 #: loops run at 100 Hz to tens of kHz; a 1 kHz log with its time in ms reads as 1 Hz): a warning
@@ -113,7 +112,6 @@ class Importer(Protocol):
 
 
 _REGISTRY: dict[str, Importer] = {}
-_ENTRY_POINTS_READ = False
 
 
 def register(importer: Importer) -> Importer:
@@ -123,24 +121,12 @@ def register(importer: Importer) -> Importer:
 
 
 def _load_entry_points() -> None:
-    global _ENTRY_POINTS_READ
-    if _ENTRY_POINTS_READ:
-        return
-    _ENTRY_POINTS_READ = True
-    from importlib.metadata import entry_points  # only when a file's format is looked up
+    from hil.plugins import load_group
 
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
-        try:
-            obj = ep.load()
-            imp = obj() if isinstance(obj, type) else obj
-        except Exception as exc:  # a broken plugin must not break the built-in formats
-            logger.warning("importer entry point %s (%s) cannot be loaded: %s", ep.name, ep.value, exc)
-            continue
-        if not isinstance(imp, Importer):
-            logger.warning("importer entry point %s (%s) is not an importer (needs name, suffixes, extra, "
-                           "time_required, claims, default_mapping, source_names, inventory, read)", ep.name, ep.value)
-            continue
-        register(imp)
+    def add(obj: Any) -> None:  # an importer class passes the protocol check itself: instantiate it
+        register(obj() if isinstance(obj, type) else obj)
+
+    load_group("importers", Importer, add)  # once per process; a broken entry point is logged, skipped
 
 
 def importers() -> dict[str, Importer]:
