@@ -25,10 +25,13 @@ times are the wall clock at the experiment's start plus the run time ``t``.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
-import multiprocessing as mp
 import queue
+import socket
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Mapping
@@ -48,6 +51,8 @@ DEFAULT_PORT = 8765
 QUEUE_SIZE = 4096
 #: realtime mode: samples per second offered to the live view at most
 REALTIME_RATE_HZ = 50.0
+#: largest item the realtime process reads from its socket [bytes] (a sample is ~1 kB of JSON)
+_MAX_DATAGRAM = 1 << 20
 #: messages the server queues per client before it drops (the SDK's own bounded queue)
 BACKLOG = 16384
 MISSING = "the live view needs foxglove-sdk: pip install 'hil-certify[live]'"
@@ -160,17 +165,32 @@ class _Server:
         self.server.stop()
 
 
-def _process_main(q: Any, host: str, port: int, ready: Any) -> None:  # pragma: no cover - in the child process
+class _DatagramQueue:
+    """The child's end of the datagram socket, read like a queue (``None``: the parent closed the view)."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock = sock
+
+    def get(self) -> tuple[Any, ...] | None:
+        data = self.sock.recv(_MAX_DATAGRAM)
+        item = json.loads(data)
+        return None if item is None else tuple(item)
+
+
+def child_main(fd: int, host: str, port: int) -> None:  # pragma: no cover - runs in the live view's process
+    """The live view's process (realtime mode): serve the items arriving on the datagram socket ``fd``;
+    the port, then the number of messages sent, are printed as JSON lines on stdout for the parent."""
+    sock = socket.socket(fileno=fd)
     try:
         srv = _Server(host, port)
     except LiveError as exc:
-        ready.send(("error", str(exc)))
+        print(json.dumps({"error": str(exc)}), flush=True)
         return
-    ready.send(("port", srv.port))
+    print(json.dumps({"port": srv.port}), flush=True)
     try:
-        srv.drain(q)
+        srv.drain(_DatagramQueue(sock))
     finally:
-        ready.send(("sent", srv.sent))
+        print(json.dumps({"sent": srv.sent}), flush=True)
         srv.stop()
 
 
@@ -199,8 +219,9 @@ class LiveView:
         self._q: Any = None
         self._server: _Server | None = None
         self._thread: threading.Thread | None = None
-        self._proc: Any = None
-        self._ready: Any = None
+        self._proc: subprocess.Popen[str] | None = None
+        self._sock: socket.socket | None = None
+        self._started = False
         self._next_t = -np.inf
 
     def wait_subscribed(self, topic: str, timeout: float) -> bool:
@@ -215,40 +236,55 @@ class LiveView:
     def start(self) -> LiveView:
         """Start the server (raises :class:`LiveError` with one line when it cannot)."""
         if self.process:
-            ctx = mp.get_context("spawn")
-            self._q = ctx.Queue(maxsize=self.queue_size)
-            parent, child = ctx.Pipe()
-            self._ready = parent
-            self._proc = ctx.Process(target=_process_main, args=(self._q, self.host, self.requested_port, child),
-                                     name="hil-live", daemon=True)
-            self._proc.start()
-            kind, value = parent.recv()
-            if kind == "error":
-                self._proc.join(5)
-                raise LiveError(str(value))
-            self.port = int(value)
-            # the queue's feeder thread starts with the first put: here, before the loop takes SCHED_FIFO
-            # and its CPU (a thread inherits both from the thread that starts it)
-            self._q.put(("hello",))
+            # a datagram socket pair: the loop's end is non-blocking, each item is one datagram written by
+            # the loop's own thread (no queue feeder thread in the loop's process to hold its interpreter
+            # lock); a full socket buffer drops the item. The server runs in `python -c` (as the record
+            # writer process does: nothing of the loop's process is inherited but the socket).
+            ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+            ours.setblocking(False)
+            code = f"from hil.run.live import child_main; child_main({theirs.fileno()}, {self.host!r}, " \
+                   f"{self.requested_port})"
+            self._proc = subprocess.Popen([sys.executable, "-c", code], pass_fds=[theirs.fileno()],
+                                          stdout=subprocess.PIPE, text=True)
+            theirs.close()
+            self._sock = ours
+            line = self._proc.stdout.readline() if self._proc.stdout is not None else ""
+            try:
+                answer = json.loads(line)
+            except ValueError:
+                self._proc.wait(10)
+                raise LiveError(f"live view: its process did not start (exit code {self._proc.returncode})") \
+                    from None
+            if "error" in answer:
+                self._proc.wait(10)
+                raise LiveError(str(answer["error"]))
+            self.port = int(answer["port"])
         else:
             self._server = _Server(self.host, self.requested_port)
             self.port = self._server.port
             self._q = queue.Queue(maxsize=self.queue_size)
             self._thread = threading.Thread(target=self._server.drain, args=(self._q,), name="hil-live", daemon=True)
             self._thread.start()
+        self._started = True
         logger.info("live view on ws://%s:%d", self.host, self.port)
         return self
 
     def _put(self, item: tuple[Any, ...]) -> None:
+        if self._sock is not None:
+            try:
+                self._sock.send(json.dumps(item).encode())
+            except (BlockingIOError, OSError):  # the socket's buffer is full (or the process is gone): dropped
+                self.dropped += 1
+            return
         try:
             self._q.put_nowait(item)
-        except queue.Full:  # multiprocessing's Full is queue.Full
+        except queue.Full:
             self.dropped += 1
 
     def offer(self, t: float, values: Mapping[str, Any]) -> None:
         """One sample from the loop: copied (the loop reuses its arrays) and queued, or dropped when the
         queue is full or the sample comes sooner than ``max_rate_hz`` allows. Never blocks."""
-        if self._q is None:
+        if not self._started:
             return
         if self.max_rate_hz is not None:
             if t < self._next_t:
@@ -258,16 +294,16 @@ class LiveView:
         self._put(("sample", float(t), _device_fields(values)))
 
     def event(self, t: float, kind: str, message: str) -> None:
-        if self._q is not None:
+        if self._started:
             self._put(("event", float(t), str(kind), str(message)))
 
     def experiment(self, name: str) -> None:
         self._next_t = -np.inf
-        if self._q is not None:
+        if self._started:
             self._put(("experiment", name))
 
     def stopped(self, t: float, reason: str, status: str) -> None:
-        if self._q is not None:
+        if self._started:
             self._put(("stop", float(t), str(reason), str(status)))
 
     def tee(self, writer: Any, experiment: str) -> _Tee:
@@ -278,21 +314,28 @@ class LiveView:
     def close(self) -> dict[str, int]:
         """Stop the server after the queued items are sent; returns ``{"offered", "dropped", "sent"}``."""
         sent = 0
-        if self._q is None:
+        if not self._started:
             return {"offered": self.offered, "dropped": self.dropped, "sent": 0}
+        self._started = False
         if self._thread is not None and self._server is not None:
             self._q.put(None)
             self._thread.join(30)
             sent = self._server.sent
             self._server.stop()
-        elif self._proc is not None:
-            self._q.put(None)
-            if self._ready.poll(30):
-                kind, value = self._ready.recv()
-                sent = int(value) if kind == "sent" else 0
-            self._proc.join(30)
-            if self._proc.is_alive():
-                self._proc.terminate()
+        elif self._proc is not None and self._sock is not None:
+            self._sock.setblocking(True)
+            self._sock.settimeout(30)
+            with contextlib.suppress(OSError):
+                self._sock.send(b"null")  # the end: the process sends what is queued, reports, exits
+            out = ""
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                out, _ = self._proc.communicate(timeout=30)
+            if self._proc.poll() is None:
+                self._proc.kill()
+                self._proc.wait(10)
+            sent = next((int(json.loads(ln)["sent"]) for ln in out.splitlines() if ln.startswith('{"sent"')), 0)
+            self._sock.close()
+            self._sock = None
         self._q = None
         if self.dropped:
             logger.warning("live view: %d of %d samples dropped (the viewer or the machine was slower than the run)",
