@@ -9,7 +9,8 @@ Never on the loop's critical path:
   queue is full the sample is dropped and counted, the tick never waits;
 * a consumer (a thread in lockstep mode; in realtime mode a separate process, so the Foxglove server's
   work never takes the loop's interpreter lock) takes the samples from the queue and logs them to the
-  server;
+  server; in realtime mode the "queue" is a non-blocking datagram socket the loop's own thread writes
+  (no helper thread in the loop's process that could hold its interpreter lock);
 * in realtime mode the offers are decimated to :data:`REALTIME_RATE_HZ` (a person watching a plot needs
   no more; the queue and the pipe to the process carry that much);
 * what the tee forwards to the writer is what the loop gave it, unchanged: records are bit-identical with
