@@ -104,8 +104,9 @@ def compare_friction_models(
 def _info(fit: InverseFit, post_kind: str) -> dict[str, Any]:
     return {"estimator": "inverse-dynamics maximum likelihood (IDIM-ML, hil.identify.inverse_ml)",
             "friction": list(fit.model.terms), "idim_ls": fit.idim.to_dict(),
-            "noise_model": f"equation error AR({fit.ar.order}) (BIC); intervals: sandwich covariance",
-            "innovation_std": fit.ar.sigma, "bic": fit.bic, "aic": fit.aic, "n_innovations": fit.n,
+            "noise_model": f"equation error: intervals from the sandwich with its smoothed periodogram; "
+                           f"AR({fit.ar.order}) innovations (BIC) for the adequacy tests and the Cramer-Rao bound",
+            "innovation_std": fit.ar.sigma, "bic": fit.bic, "aic": fit.aic, "n_equation_error": fit.n,
             "posterior": post_kind, "decimation": fit.idim.decimation, "filter_hz": fit.idim.f_filter}
 
 
