@@ -56,7 +56,7 @@ def simulation_error(model: FrictionModel, theta: ArrayLike, u: ArrayLike, q: Ar
 
     qq, uu = np.asarray(q, float), np.asarray(u, float)
     _, v, _ = filtered_derivatives(qq[: min(qq.size, 2000)], fs)
-    m = _FM(model.terms, nominal=dict(zip(model.names, map(float, theta), strict=True)),
+    m = _FM(model.terms, nominal={k: float(x) for k, x in zip(model.names, np.asarray(theta, float), strict=True)},
             units=model.units_kind, output="position", zoh_fs=fs, force_scale=float(np.max(np.abs(uu)) or 1.0))
     qs = m.simulate(np.asarray(theta, float), uu, x0=float(qq[0]), v0=float(v[0]))
     r = qq - qs
@@ -168,7 +168,7 @@ def identify_friction_arrays(
     ls = LsResult(names=model.names, theta=fit.theta, z=fit.z, cov_z=fit.cov_z, cov_theta=fit.cov_theta, std=std,
                   chi2=float(np.sum(fit.e**2) / fit.ar.sigma**2), dof=int(fit.n - fit.k), success=True,
                   message="IDIM-ML", n_starts=1)
-    ev = np.linalg.eigvalsh(fit.fisher)
+    ev = np.asarray(np.linalg.eigvalsh(fit.fisher), dtype=np.float64)
     ident = IdentifiabilityReport(names=model.names, theta=fit.theta, fisher=fit.fisher, crb_cov_z=fit.cov_z,
                                   crb_std=fit.crb_std, crb_rel_std=fit.crb_std / np.maximum(np.abs(fit.theta), 1e-300),
                                   eigenvalues=ev, condition=float(ev[-1] / max(ev[0], 1e-300)),

@@ -270,19 +270,19 @@ def fit_inverse_ml(
     w, Jw = _jacobian(prob, white, z)  # equation error and its z-derivative (records stacked)
     ar = fit_ar(w, ar_max)
     # sandwich: cov of the LS estimate under the equation error's own spectrum (frequency domain)
-    n = w.size
+    nw = int(w.size)
     Sf = residual_spectrum(w)
     JF = np.fft.fft(Jw, axis=0)
-    meat = np.real(JF.conj().T @ (JF * Sf[:, None])) / n
+    meat = np.real(JF.conj().T @ (JF * Sf[:, None])) / nw
     bread = normalized_pinv(Jw.T @ Jw)
     cov_z = bread @ meat @ bread
     e, J = _jacobian(prob, ar, z)  # innovations (adequacy tests)
     ar = ArNoise(ar.a, float(np.sqrt(np.mean(e**2))))
     # Cramer-Rao bound of the band the decimation keeps (|f| < 0.8 of its Nyquist; above it data and
     # regressors are both filtered away): Whittle information sum J_k^H J_k / S_k with the smoothed spectrum
-    fk = np.abs(np.fft.fftfreq(n))
+    fk = np.abs(np.fft.fftfreq(nw))
     keep = fk < 0.8 * 0.5
-    F = np.real(JF[keep].conj().T @ (JF[keep] / np.maximum(Sf[keep], 1e-300)[:, None])) / n
+    F = np.real(JF[keep].conj().T @ (JF[keep] / np.maximum(Sf[keep], 1e-300)[:, None])) / nw
     d = np.where(model.log_mask, theta, 1.0)
     cov_theta = cov_z * np.outer(d, d)
     crb_std = np.sqrt(np.clip(np.diag(normalized_pinv(F)), 0, None)) * d
