@@ -574,12 +574,15 @@ class SimODrive(SimCanNode):
         watchdog_endpoints: dict[str, int] | None = None,
         firmware: str = "0.6",
         adc_voltage: float = 0.0,
+        firmware_version: tuple[int, int, int] | None = None,
         **kw: Any,
     ) -> None:
         if firmware not in od.FIRMWARES:
             raise ValueError(f"firmware must be one of {list(od.FIRMWARES)}, got {firmware!r}")
         self.node_id = node_id
         self.firmware = firmware
+        #: the version a 0.6 drive reports in Get_Version (a 0.5.x drive has no such message)
+        self.firmware_version = tuple(firmware_version or ((0, 6, 10) if firmware == "0.6" else (0, 5, 6)))
         self.adc_voltage = float(adc_voltage)
         self.watchdog_ticks = int(watchdog_ticks)
         self._last_torque_tick = 0
@@ -702,6 +705,9 @@ class SimODrive(SimCanNode):
                 self._reply(cmd, od.encode_f32x2(self.input_torque, self.applied_motor_torque()))
         elif cmd == od.CMD_HEARTBEAT and is_request:
             self._reply(cmd, od.encode_heartbeat(self.axis_error, self.axis_state))
+        elif cmd == od.CMD_GET_VERSION and is_request and self.firmware == "0.6":
+            fw = self.firmware_version
+            self._reply(cmd, od.encode_version(2, (4, 4, 58), (fw[0], fw[1], fw[2])))
 
     def on_tick(self) -> None:
         if self.axis_error and self.axis_state != od.AxisState.IDLE:

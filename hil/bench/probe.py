@@ -4,8 +4,9 @@
     *Passive* first: listens ``--listen`` seconds (default 0.5) and classifies what it hears:
 
     * ODrive CANSimple heartbeats (id ``node << 5 | 0x01``, 8 bytes): node id, axis state, axis
-      error (decoded with :mod:`hil.protocols.can_odrive`); then an RTR Get_Version (0x00) to each
-      such node for the firmware version (firmware 0.6; no answer: left empty);
+      error; then an RTR Get_Version (0x00) to each such node for the firmware version (firmware
+      0.6; no answer: 0.5.x), which selects the table naming the axis error bits
+      (:data:`hil.protocols.codecs.odrive.AXIS_ERRORS`);
     * CANopen boot-up / heartbeat (id ``0x700 + node``, 1 byte; CiA 301 §7.2.8.3.2): node id, NMT
       state; then, by SDO (canopen's client, no object dictionary needed), device type 0x1000,
       identity 0x1018 (vendor id, product code, revision, serial number), name 0x1008, software
@@ -205,15 +206,18 @@ def probe_can(channel: str, interface: str = "socketcan", *, bitrate: int | None
                 classify(msg)
         for n in sorted(odrive_nodes):
             err, state = odrive_nodes[n]
-            details: dict[str, Any] = {"axis_state": _odrive_state_name(state), "axis_error": f"0x{err:08X}",
-                                       "errors": od.describe_axis_error(err)}
+            details: dict[str, Any] = {"axis_state": _odrive_state_name(state), "axis_error": f"0x{err:08X}"}
             bus.send(can.Message(arbitration_id=n << 5, is_remote_frame=True, dlc=8, is_extended_id=False))
+            fw: tuple[int, int, int] | None = None
             for msg in _collect(bus, timeout):
                 if msg.arbitration_id == n << 5 and not msg.is_remote_frame and len(msg.data) == 8:
-                    v = bytes(msg.data)
-                    details["hardware"] = f"{v[1]}.{v[2]}.{v[3]}"
-                    details["firmware"] = f"{v[4]}.{v[5]}.{v[6]}" + ("-dev" if v[7] else "")
+                    _, hw, fw, dev = od.decode_version(msg.data)
+                    details["hardware"] = "{}.{}.{}".format(*hw)
+                    details["firmware"] = "{}.{}.{}".format(*fw) + ("-dev" if dev else "")
                 classify(msg)
+            line = od.firmware_line(fw)  # no Get_Version answer: 0.5.x, whose error bits differ
+            details.setdefault("firmware", "0.5.x (no Get_Version answer)")
+            details["errors"] = od.describe_axis_error(err, line)
             found.append(Found("odrive", "odrive_can", f"{where} node {n}", f"node {n}", details,
                                {"interface": interface, "channel": channel, "node_id": n}))
         for mid in sorted(cubemars):
