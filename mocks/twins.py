@@ -148,22 +148,23 @@ class ODriveTwin(CanTwin):
     node_default = 0
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
-        from hil.mocks.can_devices import SIM_WATCHDOG_ENDPOINTS, SimODrive
+        from hil.mocks.odrive_device import SIM_WATCHDOG_ENDPOINTS, SimODrive
 
         ch = _can_params(ctx, params)
-        kw: dict[str, Any] = {}
+        # configured as the scene's bench has its drive: estimates every tick with feedback "cyclic",
+        # none with "poll" (encoder_msg_rate_ms 0; a factory drive sends them every 10 ms)
+        kw: dict[str, Any] = {"encoder_every": 1 if params.get("feedback") == "cyclic" else 0}
         if ctx.lockstep:
-            # heartbeat every 10 ms (a real ODrive sends one every 100 ms by default): on the
+            # heartbeat every 10 ms, no cyclic Get_Version (a factory drive: 100 ms and 100 ms): on the
             # simulated bus every frame is copied to every node, so fewer frames = faster runs
-            kw = {"sync": True, "heartbeat_every": max(1, round(0.01 * ctx.rate_hz)),
-                  "bitrate": _bitrate(params, lb.ODRIVE_DEFAULT_BITRATE)}
+            kw.update(sync=True, heartbeat_every=max(1, round(0.01 * ctx.rate_hz)), cyclic_ms={"Get_Version": 0}
+                      if str(params.get("firmware", "0.6")) == "0.6" else {},
+                      bitrate=_bitrate(params, lb.ODRIVE_DEFAULT_BITRATE))
             params.setdefault("watchdog_endpoints", dict(SIM_WATCHDOG_ENDPOINTS))
         sim = SimODrive(ctx.point, ch, int(params.get("node_id", 0)), ctx.can_interface,
                         gear_ratio=float(params.get("gear_ratio", 1.0)), linear_scale=params.get("linear_scale"),
                         faults=ctx.faults, seed=ctx.seed, dt=ctx.dt, firmware=str(params.get("firmware", "0.6")),
                         **kw)
-        if params.get("feedback") == "cyclic":
-            sim.encoder_every = 1
         _lockstep_host_bus(ctx, sim, params)
         return sim, params
 

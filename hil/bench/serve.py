@@ -125,7 +125,8 @@ class Endpoint:
 
 
 def _make(spec: dict[str, Any]) -> tuple[Endpoint, float]:
-    from hil.mocks.can_devices import SimCubeMars, SimODrive
+    from hil.mocks.can_devices import SimCubeMars
+    from hil.mocks.odrive_device import SimODrive
     from hil.mocks.serial_devices import SimBota
 
     s = dict(spec)

@@ -219,8 +219,35 @@ def encode_u32(x: int) -> bytes:
     return struct.pack("<I", x)
 
 
+def encode_u32x2(a: int, b: int) -> bytes:
+    """Two uint32 (Get_Error: active errors, disarm reason)."""
+    return struct.pack("<II", a & 0xFFFFFFFF, b & 0xFFFFFFFF)
+
+
+def encode_i32x2(a: int, b: int) -> bytes:
+    """Two int32 (0.5.x Get_Encoder_Count: shadow count, count in CPR)."""
+    return struct.pack("<ii", a, b)
+
+
+def encode_address(node_id: int, serial_number: int) -> bytes:
+    """Address payload (firmware 0.6): node id u8, 48-bit serial number, one reserved byte."""
+    return bytes([node_id & 0xFF]) + (serial_number & 0xFFFFFFFFFFFF).to_bytes(6, "little") + b"\0"
+
+
 SDO_READ = 0
 SDO_WRITE = 1
+
+
+def encode_sdo_read(endpoint_id: int) -> bytes:
+    """RxSdo (0x04) payload reading ``endpoint_id`` (the drive answers with TxSdo 0x05)."""
+    if not 0 <= endpoint_id <= 0xFFFF:
+        raise ValueError(f"endpoint id 0..65535 required, got {endpoint_id}")
+    return pad(struct.pack("<BHB", SDO_READ, endpoint_id, 0))
+
+
+def encode_tx_sdo(endpoint_id: int, value: bytes) -> bytes:
+    """TxSdo (0x05) payload: reserved u8, endpoint id u16, reserved u8, value (up to 4 bytes)."""
+    return pad(struct.pack("<BHB", 0, endpoint_id, 0) + bytes(value)[:4])
 
 
 def encode_sdo_write(endpoint_id: int, value: bytes) -> bytes:

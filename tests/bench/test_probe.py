@@ -59,10 +59,11 @@ def test_probe_can_sends_only_to_nodes_that_announced_themselves(can_bench):
     seen = {(m.arbitration_id, m.is_remote_frame) for m in iter(lambda: spy.recv(0.05), None)}
     spy.shutdown()
     assert "cubemars" not in found  # it only answers commands, and none was sent to it
-    # devices' frames: ODrive 3 heartbeat 0x61 and Get_Version answer 0x60, CiA node 5 heartbeat 0x705
-    # and SDO answers 0x585; the probe's: RTR Get_Version to ODrive node 3 (0x60) and SDO requests to
-    # node 5 (0x605) only
-    assert seen <= {(0x61, False), (0x60, False), (0x705, False), (0x585, False), (0x60, True), (0x605, False)}, seen
+    # devices' frames: ODrive 3 (factory cyclic) heartbeat 0x61, estimates 0x69 and Get_Version 0x60,
+    # CiA node 5 heartbeat 0x705 and SDO answers 0x585; the probe's: RTR Get_Version to ODrive node 3
+    # (0x60) and SDO requests to node 5 (0x605) only
+    assert seen <= {(0x61, False), (0x69, False), (0x60, False), (0x705, False), (0x585, False), (0x60, True),
+                    (0x605, False)}, seen
     assert (0x60, True) in seen and (0x605, False) in seen
 
 
