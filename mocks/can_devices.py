@@ -1,6 +1,7 @@
 """Simulated CAN devices on a python-can bus: the common node machinery (:class:`SimCanNode`, the
-lockstep virtual bus, the bus budget) and the CubeMars AK "MIT mode" motor; the ODrive CANSimple
-axis is :mod:`hil.mocks.odrive_device` (still importable from here).
+lockstep virtual bus, the bus budget). The devices are :mod:`hil.mocks.odrive_device` (ODrive
+CANSimple axis) and :mod:`hil.mocks.cubemars_device` (CubeMars AK "MIT mode" motor), both still
+importable from here.
 
 The simulated node is a *separate* bus connection on the same channel as the adapter (normally
 ``interface="virtual"``; ``"udp_multicast"`` or a ``vcan`` socketcan channel also work across
@@ -37,22 +38,19 @@ Memory stays flat over any run length: the command logs (``commands``) keep only
 from __future__ import annotations
 
 import logging
-import math
 import queue
 import threading
 import time
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import can
-import numpy as np
 from can.interfaces import virtual as _virtual
 
 from hil.mocks.faults import FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
-from hil.protocols.codecs import cubemars as cm
 from hil.protocols.link_budget import can_frame_bits
 
 logger = logging.getLogger(__name__)
@@ -521,116 +519,10 @@ class SimCanNode:
         """Called after each tick (cyclic frames)."""
 
 
-class SimCubeMars(SimCanNode):
-    """Simulated CubeMars / T-Motor AK actuator in MIT mode (see :mod:`hil.protocols.can_cubemars`).
-
-    Commands arrive on id ``motor_id``; every command (and each special frame) is answered with a
-    state frame on id ``reply_id`` whose first byte is ``motor_id``. The impedance law
-    ``tau = kp*(p_des - q) + kd*(v_des - qd) + t_ff`` is evaluated once per command from the
-    current state (``q`` in the motor's wrapped frame) and held until the next command (the real
-    drive re-evaluates it at its own loop rate; torque-only control with kp = kd = 0 is exact).
-    Torque is clamped to the model's T range. ``temperature`` is reported in byte 6, injected
-    error codes in byte 7 (and disable torque).
-
-    As the real motor (AK manual, 5.3 MIT mode; see the adapter's docstring): control commands
-    received before "enter motor mode" (rest mode) are ignored (answered with the state, no
-    torque: enabling later does not apply a stale command); the reported position wraps modulo
-    the P span (``p_max - p_min`` = 25 rad) instead of saturating; after "set zero" the motor
-    answers nothing for ``zero_silence_s`` (default 1 s, on ``clock``: wall time by default, the
-    firmware's flash write does not follow a simulated clock).
-    """
-
-    kind = "cubemars"
-
-    def __init__(
-        self,
-        joints: SimulatedJoints,
-        channel: str,
-        motor_id: int = 1,
-        interface: str = "virtual",
-        *,
-        model: str | cm.MitLimits = "AK80-9",
-        reply_id: int = 0,
-        temperature: int = 30,
-        short_reply: bool = False,
-        zero_silence_s: float = cm.ZERO_SILENCE_S,
-        clock: Any = time.monotonic,
-        **kw: Any,
-    ) -> None:
-        self.motor_id = motor_id
-        self.limits = cm.model_limits(model)
-        self.reply_id = reply_id
-        self.temperature = temperature
-        self.short_reply = short_reply  # old firmware: 6-byte reply without temperature/error
-        self.enabled = False
-        self.zero_offset = 0.0
-        self.torque = 0.0
-        self.zero_silence_s = float(zero_silence_s)
-        self._clock = clock
-        self._silent_until = -math.inf
-        self.ignored_in_rest = 0  # control commands received before enter-motor-mode
-        self.commands: deque[tuple[int, cm.MitCommand]] = deque(maxlen=LOG_LEN)
-        super().__init__(joints, channel, interface, **kw)
-
-    def _error(self) -> int:
-        return self.injector.error_code(self.tick_count)
-
-    def _apply(self) -> None:
-        tau = self.torque if (self.enabled and not self._error()) else 0.0
-        self.joints.apply_effort(np.full(self.joints.dof, tau))
-
-    def wrapped_position(self) -> float:
-        """Output position relative to the zero, wrapped into [p_min, p_max) as the motor reports it."""
-        lim = self.limits
-        q = float(self.joints.position()[0]) - self.zero_offset
-        return (q - lim.p_min) % (lim.p_max - lim.p_min) + lim.p_min
-
-    def _send_state(self) -> None:
-        v = float(self.joints.velocity()[0])
-        tau = self.torque if (self.enabled and not self._error()) else 0.0
-        reply = cm.MitReply(self.motor_id, self.wrapped_position(), v, tau, self.temperature, self._error())
-        data = cm.pack_reply(reply, self.limits, short=self.short_reply)
-        self.send(self.reply_id, data, stale_key=0x10000 + self.motor_id)
-
-    def handle(self, msg: can.Message) -> None:
-        if msg.is_extended_id or msg.is_remote_frame or msg.arbitration_id != self.motor_id:
-            return
-        data = bytes(msg.data)
-        if len(data) != 8:
-            return
-        if self._clock() < self._silent_until:
-            return  # storing the new origin: deaf and silent
-        special = cm.SPECIAL_FRAMES_INV.get(data)
-        if special == "enter":
-            self.enabled = True
-        elif special == "exit":
-            self.enabled = False
-            self.torque = 0.0
-        elif special == "zero":
-            self.zero_offset = float(self.joints.position()[0])
-            self._silent_until = self._clock() + self.zero_silence_s
-            return
-        else:
-            c = cm.unpack_command(data, self.limits)
-            self.commands.append((self.tick_count, c))
-            self.commands_total += 1
-            if self.enabled:
-                q = self.wrapped_position()
-                v = float(self.joints.velocity()[0])
-                tau = c.kp * (c.p_des - q) + c.kd * (c.v_des - v) + c.t_ff
-                self.torque = min(max(tau, self.limits.t_min), self.limits.t_max)
-            else:
-                self.ignored_in_rest += 1
-        self._apply()
-        self._send_state()
-
-    def on_tick(self) -> None:
-        self._apply()
-
-
-#: names that moved to :mod:`hil.mocks.odrive_device` (issue 29), still importable from here
+#: names that moved to the device modules (issue 29), still importable from here
 _MOVED = {"SimODrive": "hil.mocks.odrive_device", "SIM_WATCHDOG_ENDPOINTS": "hil.mocks.odrive_device",
-          "SIM_ENDPOINTS": "hil.mocks.odrive_device", "AXIS_ERROR_WATCHDOG_TIMER_EXPIRED": "hil.mocks.odrive_device"}
+          "SIM_ENDPOINTS": "hil.mocks.odrive_device", "AXIS_ERROR_WATCHDOG_TIMER_EXPIRED": "hil.mocks.odrive_device",
+          "SimCubeMars": "hil.mocks.cubemars_device"}
 
 
 def __getattr__(name: str) -> Any:
@@ -641,4 +533,4 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["LOG_LEN", "SimCanNode", "SimCubeMars"]
+__all__ = ["LOG_LEN", "SimCanNode"]

@@ -179,7 +179,7 @@ class CubeMarsTwin(CanTwin):
     node_param, node_word = "motor_id", "motor"
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
-        from hil.mocks.can_devices import SimCubeMars
+        from hil.mocks.cubemars_device import SimCubeMars
 
         ch = _can_params(ctx, params)
         _lockstep_kw: dict[str, Any] = {"sync": True, "bitrate": _bitrate(params, lb.CUBEMARS_DEFAULT_BITRATE),

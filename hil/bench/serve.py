@@ -125,7 +125,7 @@ class Endpoint:
 
 
 def _make(spec: dict[str, Any]) -> tuple[Endpoint, float]:
-    from hil.mocks.can_devices import SimCubeMars
+    from hil.mocks.cubemars_device import SimCubeMars
     from hil.mocks.odrive_device import SimODrive
     from hil.mocks.serial_devices import SimBota
 
