@@ -189,7 +189,7 @@ class FrictionModel(GreyBoxModel):
         from position ``x0`` and velocity ``v0``: :func:`simulate` on the batch ``theta`` (..., p)."""
         th = np.asarray(theta, float)
         p = self.split(th.reshape(-1, th.shape[-1]))
-        x, v = simulate(p["M"], p["B"], p["F_c"], p["F_0"], np.asarray(u, float), 1.0 / float(self.zoh_fs),
+        x, v = simulate(p["M"], p["B"], p["F_c"], p["F_0"], np.asarray(u, float), 1.0 / float(self.zoh_fs or 1.0),
                         F_s=p["F_s"], v_s=p["v_s"], x0=x0, v0=v0)
         y = x if self.output == "position" else v
         return y.reshape(*th.shape[:-1], -1)

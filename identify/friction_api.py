@@ -56,7 +56,7 @@ def simulation_error(model: FrictionModel, theta: ArrayLike, u: ArrayLike, q: Ar
 
     qq, uu = np.asarray(q, float), np.asarray(u, float)
     _, v, _ = filtered_derivatives(qq[: min(qq.size, 2000)], fs)
-    m = _FM(model.terms, nominal=dict(zip(model.names, map(float, theta), strict=True)),
+    m = _FM(model.terms, nominal={k: float(x) for k, x in zip(model.names, np.asarray(theta, float), strict=True)},
             units=model.units_kind, output="position", zoh_fs=fs, force_scale=float(np.max(np.abs(uu)) or 1.0))
     qs = m.simulate(np.asarray(theta, float), uu, x0=float(qq[0]), v0=float(v[0]))
     r = qq - qs
@@ -104,8 +104,9 @@ def compare_friction_models(
 def _info(fit: InverseFit, post_kind: str) -> dict[str, Any]:
     return {"estimator": "inverse-dynamics maximum likelihood (IDIM-ML, hil.identify.inverse_ml)",
             "friction": list(fit.model.terms), "idim_ls": fit.idim.to_dict(),
-            "noise_model": f"equation error AR({fit.ar.order}) (BIC); intervals: sandwich covariance",
-            "innovation_std": fit.ar.sigma, "bic": fit.bic, "aic": fit.aic, "n_innovations": fit.n,
+            "noise_model": f"equation error: intervals from the sandwich with its smoothed periodogram; "
+                           f"AR({fit.ar.order}) innovations (BIC) for the adequacy tests and the Cramer-Rao bound",
+            "innovation_std": fit.ar.sigma, "bic": fit.bic, "aic": fit.aic, "n_equation_error": fit.n,
             "posterior": post_kind, "decimation": fit.idim.decimation, "filter_hz": fit.idim.f_filter}
 
 
@@ -167,7 +168,7 @@ def identify_friction_arrays(
     ls = LsResult(names=model.names, theta=fit.theta, z=fit.z, cov_z=fit.cov_z, cov_theta=fit.cov_theta, std=std,
                   chi2=float(np.sum(fit.e**2) / fit.ar.sigma**2), dof=int(fit.n - fit.k), success=True,
                   message="IDIM-ML", n_starts=1)
-    ev = np.linalg.eigvalsh(fit.fisher)
+    ev = np.asarray(np.linalg.eigvalsh(fit.fisher), dtype=np.float64)
     ident = IdentifiabilityReport(names=model.names, theta=fit.theta, fisher=fit.fisher, crb_cov_z=fit.cov_z,
                                   crb_std=fit.crb_std, crb_rel_std=fit.crb_std / np.maximum(np.abs(fit.theta), 1e-300),
                                   eigenvalues=ev, condition=float(ev[-1] / max(ev[0], 1e-300)),

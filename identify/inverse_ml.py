@@ -1,43 +1,57 @@
-"""Inverse-dynamics maximum likelihood (IDIM-ML) with an AR noise model: friction parameters with
-honest intervals from position-only records, in open or closed loop.
+"""Inverse-dynamics maximum likelihood (IDIM-ML) with honest intervals: friction parameters from
+position-only records, in open or closed loop.
 
 Model. The decimated inverse model of :mod:`hil.identify.idim` (regressors from the band-pass
-filtered derivatives of the measured position, force decimated the same way)::
+filtered derivatives of the measured position, force decimated the same way; the force aligned
+with the double central difference of a held input, ``hold=True``)::
 
-    y_d = X(v_s) beta + w,     A(q^-1) w_k = e_k  (e white, variance sigma_e^2)
+    y_d = X(v_s) beta + w
 
 ``beta`` the parameters entering linearly (``M, B, F_c, F_s, F_0``), ``v_s`` (Stribeck) inside the
-regressor, ``A`` an AR(p) polynomial (``p`` by BIC up to :data:`AR_MAX`, constant included). The
-equation error of a real axis is coloured (unmodelled dynamics, cogging, the controller's reaction
-to disturbances): ordinary least squares keeps unbiased estimates but reports standard deviations
-for white residuals. With the AR model the innovations ``e`` are white (tested) and the likelihood
-of the record is ``-(m/2) log sum e_k^2`` (``sigma_e`` integrated out, Jeffreys prior): the ML is a
-generalized least squares iterated with the AR fit (Cochrane-Orcutt; ``v_s`` by a 1-D search).
-The Cramér-Rao bound is ``F = J^T J / sigma_e^2`` with ``J = de/dz`` (z: log of positive parameters).
+regressor. The estimate is the least-squares one -- the maximum likelihood for a white Gaussian
+equation error, the benchmark's own weighting -- found by :func:`scipy.optimize.least_squares` in z
+(log of the positive parameters; ``v_s`` nonlinear).
+
+Honest intervals. The equation error of a real axis is coloured (unmodelled dynamics, cogging, the
+controller's reaction to disturbances): the white-residual formula ``s^2 (X^T X)^-1`` (what the
+benchmark publishes) is then too narrow -- on EMPS by 1.7x (M) to 6x (F_0). The covariance reported
+is the sandwich ``(J^T J)^-1 [sum_k J_k^H S_k J_k / n] (J^T J)^-1`` with the equation error's own
+spectrum ``S`` (periodogram smoothed over ``2 n^(1/3) + 1`` bins, :func:`residual_spectrum`): the
+covariance of the LS estimate whatever the colour. A generalized (noise-weighted) LS would be more
+efficient under a correct model, but on a real axis it moves the estimates by several standard
+deviations (EMPS: B +7 %, F_c -23 % with an AR(23) weighting: the weighting favours the
+high-frequency band where the rigid-body model is least true), so the LS weighting is kept and
+the colour is accounted for in the intervals. ``crb_std`` is the Cramér-Rao bound of the data in
+the band the decimation keeps (below 0.8 of its Nyquist frequency) for a Gaussian equation error of
+spectrum ``S``: the Whittle information ``sum_k J_k^H J_k / S_k`` -- the best any estimator could do
+with that noise.
 
 Why the inverse model. The EMPS axis -- and any position-controlled bench -- runs in closed loop:
 the force is computed from past positions. An output-error fit that simulates the plant from the
 recorded force and treats the output error as white noise is then biased by the feedback, which
-correlates the force with the disturbance (Ljung, *System Identification*, sec. 13.4; measured on
-EMPS: viscous B -5.3 %, F_c +6 % against the published values, see docs/guide/real-data.md). The
-inverse model is regressed on the MEASURED motion: a disturbance does not enter its regressors
-except through the encoder noise, which the 100 Hz filter removes, so it stays consistent in closed
-loop; it is the benchmark's own reference (IDIM-LS) with a noise model. The output-error simulation
-is what judges a model on held-out data (:func:`hil.identify.nonlinear_ml.simulation_error`).
+correlates the force with the disturbance (Ljung, *System Identification*, 2nd ed., sec. 13.4;
+measured on EMPS: B -5.3 %, F_c +6 % against the published values; with an AR noise model on the
+position error, a one-step prediction error, worse: B +21 %, F_c -15 %, as the predictor follows the
+encoder rather than the plant). The inverse model is regressed on the MEASURED motion: a disturbance
+enters its regressors only through the encoder noise, which the 100 Hz filter removes, so it stays
+consistent in closed loop; it is the benchmark's reference (IDIM-LS) with honest intervals. The
+output-error simulation is what judges a model on held-out data
+(:func:`hil.identify.friction_api.simulation_error`).
 
 Encoder quantization: a whole-count encoder adds a white error of variance ``q^2/12`` to the
-position; after the 100 Hz filter and two differences it adds ``M^2 var(a_err) + B^2 var(v_err)``
-to the equation error, which the innovation variance contains (reported as ``quantization_floor``:
-the part of ``sigma_e`` the encoder alone explains).
+position; through the filter and the two differences it adds to the equation error, which the
+sandwich and the innovation variance contain.
 
-Posterior: emcee on ``log L(z)`` with the AR coefficients held at their ML values, uniform prior in z
-within the bounds; Stribeck's ``v_s`` moves on a log grid of precomputed regressors (200 points,
-linear interpolation) so that a walker step costs matrix products only.
+Posterior: emcee (:func:`hil.identify.posterior.sample_posterior`) on the white-noise likelihood
+``-(m/2) log RSS`` (``sigma`` integrated out, Jeffreys prior; uniform prior in z within the bounds),
+its samples then moved to the sandwich covariance (:func:`sandwich_adjust`, the curvature adjustment
+of a misspecified likelihood). Stribeck's ``v_s`` moves on a log grid of precomputed regressors (200
+points, linear interpolation) so that a walker step costs matrix products only.
 
-Adequacy (innovations): whiteness (Ljung-Box), and a Lagrange-multiplier (score) test for the
-friction terms the model lacks (``coulomb``, ``offset``): the whitened omitted columns ``X_x``,
-projected off the fitted ones, against ``e``: ``S = e^T X_x (X_x^T X_x)^-1 X_x^T e / sigma_e^2 ~
-chi^2(k)``. A linear (viscous-only) fit of a real axis fails it by orders of magnitude.
+Adequacy (on the AR innovations ``e``): whiteness (Ljung-Box) and a Lagrange-multiplier (score)
+test for the friction terms the model lacks (``coulomb``, ``offset``): the whitened omitted columns
+``X_x``, projected off the fitted ones, against ``e``: ``S = e^T X_x (X_x^T X_x)^-1 X_x^T e /
+sigma_e^2 ~ chi^2(k)``. A linear (viscous-only) fit of a real axis fails it by orders of magnitude.
 """
 
 from __future__ import annotations
@@ -152,7 +166,7 @@ class InverseProblem:
 @dataclass
 class InverseFit:
     """IDIM-ML of one model: ``theta``, ``z``, AR noise, Fisher (z), ``cov_z``, ``cov_theta``,
-    ``crb_std`` (physical), innovations ``e``, whitened Jacobian ``J`` (de/dz), the IDIM-LS start."""
+    ``crb_std`` (physical), AR innovations ``e`` and their Jacobian ``J`` (de/dz), the IDIM-LS start."""
 
     model: FrictionModel
     problem: InverseProblem
@@ -174,21 +188,26 @@ class InverseFit:
 
     @property
     def n(self) -> int:
-        return int(self.e.size)
+        """Decimated samples of the equation error (records stacked)."""
+        return int(self.w.size)
 
     @property
     def k(self) -> int:
-        """Free parameters: the model's and the AR coefficients."""
-        return int(self.theta.size + self.ar.order)
+        """Free parameters of the model."""
+        return int(self.theta.size)
 
     @property
     def bic(self) -> float:
-        """Bayesian information criterion ``m log(sigma_e^2) + k log m`` (lower: better supported)."""
-        return float(self.n * np.log(self.ar.sigma**2) + self.k * np.log(self.n))
+        """Bayesian information criterion of the fit's own (white Gaussian) likelihood of the equation
+        error, ``n log(RSS/n) + k log n`` (lower: better supported). With a coloured equation error the
+        effective sample size is smaller than ``n``, so differences are overstated in favour of the richer
+        model: the model choice also reports the held-out simulation error."""
+        return float(self.n * np.log(np.mean(self.w**2)) + self.k * np.log(self.n))
 
     @property
     def aic(self) -> float:
-        return float(self.n * np.log(self.ar.sigma**2) + 2 * self.k)
+        """Akaike information criterion ``n log(RSS/n) + 2 k``."""
+        return float(self.n * np.log(np.mean(self.w**2)) + 2 * self.k)
 
 
 def _jacobian(prob: InverseProblem, ar: ArNoise, z: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
@@ -200,18 +219,25 @@ def _jacobian(prob: InverseProblem, ar: ArNoise, z: NDArray[np.float64]) -> tupl
     return E[0], ((E[1 : p + 1] - E[p + 1 :]) / (2 * h[:, None])).T
 
 
-def _ar_spectrum(ar: ArNoise, n: int) -> NDArray[np.float64]:
-    """Two-sided power spectrum (n,) of the AR process on the n-point DFT grid, ``sigma^2 / |A|^2``."""
-    A = np.fft.fft(np.concatenate([[1.0], -ar.a]), n)
-    return ar.sigma**2 / np.maximum(np.abs(A) ** 2, 1e-300)
+def residual_spectrum(w: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Two-sided power spectrum (n,) of a residual on its n-point DFT grid: the periodogram
+    ``|W_k|^2 / n`` smoothed by a Daniell (moving-average) window of ``2 m + 1`` bins, ``m =
+    round(n^(1/3))`` (circular): consistent for a spectrum smooth on that scale, the usual
+    bandwidth rate of a lag-window (HAC) estimate."""
+    from scipy.ndimage import uniform_filter1d
+
+    n = w.size
+    m = max(2, round(n ** (1.0 / 3.0)))
+    return np.asarray(uniform_filter1d(np.abs(np.fft.fft(w)) ** 2 / n, 2 * m + 1, mode="wrap"), float)
 
 
 def fit_inverse_ml(
     records: Sequence[tuple[ArrayLike, ArrayLike]], fs: float, friction: Sequence[str] | str = ("coulomb", "offset"),
-    *, units: str = "linear", theta0: dict[str, float] | None = None, ar_max: int = AR_MAX,
+    *, units: str = "linear", theta0: dict[str, float] | None = None, ar_max: int = AR_MAX, hold: bool = True,
 ) -> InverseFit:
     """IDIM-ML (module docstring) of the friction model ``friction`` from records ``[(q, u), ...]``:
-    position ``q`` [m or rad] and force ``u`` [N or N.m] at ``fs`` [Hz]."""
+    position ``q`` [m or rad] and force ``u`` [N or N.m] at ``fs`` [Hz]; ``hold``: the force is held
+    over each period after the position is sampled (:func:`hil.identify.idim.idim_design`)."""
     t0 = time.perf_counter()
     terms = normalize_friction(friction)
     recs = [(np.asarray(q, float), np.asarray(u, float)) for q, u in records]
@@ -226,7 +252,7 @@ def fit_inverse_ml(
     start.update(theta0 or {})
     model = FrictionModel(terms, nominal=start, units=units, output="position", zoh_fs=fs,
                           force_scale=float(max(np.max(np.abs(u)) for _, u in recs)))
-    prob = InverseProblem(model, [idim_design(q, u, fs) for q, u in recs])
+    prob = InverseProblem(model, [idim_design(q, u, fs, hold=hold) for q, u in recs])
     lo, hi = model.z_bounds()
     inner = (lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
     white = ArNoise(np.zeros(0), 1.0)
@@ -243,16 +269,20 @@ def fit_inverse_ml(
     theta = model.from_z(z)
     w, Jw = _jacobian(prob, white, z)  # equation error and its z-derivative (records stacked)
     ar = fit_ar(w, ar_max)
-    # sandwich: cov of the LS estimate when the equation error has the AR spectrum (frequency domain)
-    n = w.size
-    Sf = _ar_spectrum(ar, n)
+    # sandwich: cov of the LS estimate under the equation error's own spectrum (frequency domain)
+    nw = int(w.size)
+    Sf = residual_spectrum(w)
     JF = np.fft.fft(Jw, axis=0)
-    meat = np.real(JF.conj().T @ (JF * Sf[:, None])) / n
+    meat = np.real(JF.conj().T @ (JF * Sf[:, None])) / nw
     bread = normalized_pinv(Jw.T @ Jw)
     cov_z = bread @ meat @ bread
-    e, J = _jacobian(prob, ar, z)  # innovations, their Jacobian: the bound under the AR noise model
+    e, J = _jacobian(prob, ar, z)  # innovations (adequacy tests)
     ar = ArNoise(ar.a, float(np.sqrt(np.mean(e**2))))
-    F = J.T @ J / ar.sigma**2
+    # Cramer-Rao bound of the band the decimation keeps (|f| < 0.8 of its Nyquist; above it data and
+    # regressors are both filtered away): Whittle information sum J_k^H J_k / S_k with the smoothed spectrum
+    fk = np.abs(np.fft.fftfreq(nw))
+    keep = fk < 0.8 * 0.5
+    F = np.real(JF[keep].conj().T @ (JF[keep] / np.maximum(Sf[keep], 1e-300)[:, None])) / nw
     d = np.where(model.log_mask, theta, 1.0)
     cov_theta = cov_z * np.outer(d, d)
     crb_std = np.sqrt(np.clip(np.diag(normalized_pinv(F)), 0, None)) * d
@@ -267,7 +297,7 @@ class InverseLogPosterior:
     docstring): white-noise Gaussian likelihood of the equation error, ``-(m/2) log RSS`` (sigma
     integrated out under the Jeffreys prior), uniform prior in z within the bounds."""
 
-    noise = "equation error, white likelihood; samples sandwich-adjusted for its AR spectrum"
+    noise = "equation error, white likelihood; samples sandwich-adjusted for its spectrum"
 
     def __init__(self, fit: InverseFit) -> None:
         self.model = fit.model
@@ -347,5 +377,5 @@ def summary_row(fit: InverseFit) -> dict[str, Any]:
     return {"friction": list(fit.model.terms), "parameters": dict(zip(fit.model.names, map(float, fit.theta),
                                                                      strict=True)),
             "crb_std": dict(zip(fit.model.names, map(float, fit.crb_std), strict=True)),
-            "ar_order": fit.ar.order, "innovation_std": fit.ar.sigma, "n_innovations": fit.n, "k": fit.k,
+            "ar_order": fit.ar.order, "innovation_std": fit.ar.sigma, "n_equation_error": fit.n, "k": fit.k,
             "bic": fit.bic, "aic": fit.aic}

@@ -488,7 +488,7 @@ def stage_robust(ctx: Context, sheet: Sheet, post: PosteriorDraws, nominal: Nomi
         return RobustOutput()
     nominal_res, nominal_params, criterion = nominal.result, nominal.params, ctx.criterion
     with sheet.timed("robust", ctx.say, ctx.scene.name):
-        stable_draws, proxy_fn, method, band = _robust_eval(ctx.model, criterion, params, draws)
+        stable_draws, proxy_fn, method, band, cmap = _robust_eval(ctx.model, criterion, params, draws)
         fast = method.startswith("vectorized")
         p, lo, hi = probability_of_stability(stable_draws, policy.confidence)
         names = sorted(draws)
@@ -564,7 +564,7 @@ def stage_robust(ctx: Context, sheet: Sheet, post: PosteriorDraws, nominal: Nomi
                 "not searched", description="the nominal network is potentially unstable: NO-GO whatever the "
                                             "worst case over the credible region or β"))
         sheet.optional("plots (posterior Bode)", _bode_plot, sheet.plots, ctx.model, params, draws, seed,
-                       ctx.scene.units)
+                       ctx.scene.units, cmap)
         if fast and band is not None:
             sheet.optional("plots (critical band)", _critical_band_plot, sheet.plots, ctx.model, params, draws, band)
     return RobustOutput(stable_draws=stable_draws, section=robust, form=form_res, rare=rare)
@@ -739,12 +739,14 @@ def _nominal_section(model: str, r: Any, params: Mapping[str, Any]) -> Nominal:
 
 def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray]
                  ) -> tuple[np.ndarray, Callable[[Mapping[str, np.ndarray]], np.ndarray] | None, str,
-                            tuple[float, float] | None]:
+                            tuple[float, float] | None, Any]:
     """Stability of every draw, a cheap vectorized proxy margin that ranks parameter sets from
     least to most stable (the model's vectorized criterion, e.g. the SDEA's closed-form margin; None
     on the general path), the method,
-    and the critical band (5 % quantile of the draws' lower edges to 95 % of their upper edges, see
-    hil.models.batch) (None when the path does not provide it). Without a closed-form batch, the
+    the critical band (5 % quantile of the draws' lower edges to 95 % of their upper edges, see
+    hil.models.batch) (None when the path does not provide it), and the general path's measured
+    coefficient map (:func:`hil.models.batch_general.coefficient_map`, None when not affine or on
+    the closed-form path). Without a closed-form batch, the
     exact criterion decides every draw that hil.models.batch_general's vectorized screen does not
     reject on a clearly violated necessary condition (the same per-draw verdicts, fewer exact runs)."""
     from hil.models import get_model
@@ -764,7 +766,8 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
         lo_e, hi_e = res["band_lo"], res["band_hi"]
         ok = np.isfinite(lo_e) & np.isfinite(hi_e) & (hi_e > lo_e)
         band = (float(np.quantile(lo_e[ok], 0.05)), float(np.quantile(hi_e[ok], 0.95))) if ok.any() else None
-        return res["passive"], margin, "vectorized closed form (Theorem 5), exact fallback near the boundary", band
+        return (res["passive"], margin, "vectorized closed form (Theorem 5), exact fallback near the boundary", band,
+                None)
     from hil.models.batch_general import screened_stability
 
     def exact_one(q: Mapping[str, Any]) -> bool:
@@ -777,7 +780,7 @@ def _robust_eval(model: str, criterion: str, params: Mapping[str, Any], draws: M
     res = screened_stability(model, criterion, params, draws, exact_one)
     assert res["stable"].shape == (n,)
     logger.info("robust draws: %s", res["method"])
-    return res["stable"], None, "general exact criterion per draw", None
+    return res["stable"], None, "general exact criterion per draw", None, res.get("cmap")
 
 
 def _exact_margin_fn(model: str, criterion: str, params: Mapping[str, Any],
@@ -1145,8 +1148,11 @@ def _clean(a: np.ndarray) -> list[float | None]:
 
 
 def _bode_plot(plots: dict[str, Series], model: str, params: Mapping[str, Any], draws: Mapping[str, np.ndarray],
-               seed: int, units: str | None = None) -> None:
-    """|entry (1,1)| of the network over the posterior: median and 90 % band."""
+               seed: int, units: str | None = None, cmap: Any = None) -> None:
+    """|entry (1,1)| of the network over the posterior: median and 90 % band (60 draws). With the
+    robust stage's measured coefficient map ``cmap`` (general networks: coefficients affine in the
+    drawn parameters, checked to 1e-9 relative at exact builds), the entry's coefficients of every
+    draw come from the map instead of one exact network build per draw."""
     rng = np.random.default_rng(seed + 1)
     n = len(next(iter(draws.values())))
     pick = rng.choice(n, size=min(60, n), replace=False)
@@ -1159,6 +1165,13 @@ def _bode_plot(plots: dict[str, Series], model: str, params: Mapping[str, Any], 
     lo, hi = _freq_range(tm0.entries)
     w = np.geomspace(lo, hi, 300)
     mags = []
+    if cmap is not None and set(cmap.names) == set(draws):
+        X = np.column_stack([np.asarray(draws[k], float)[pick] for k in cmap.names])
+        num, den = cmap.coefficients(X)  # (N, n, n, L), lowest degree first
+        from numpy.polynomial.polynomial import polyval  # Horner, per draw: (N, n_w)
+
+        mags = list(np.abs(polyval(1j * w, num[:, 0, 0].T) / polyval(1j * w, den[:, 0, 0].T)))
+        pick = pick[:0]
     for i in pick:
         q = dict(params)
         q.update({k: float(v[i]) for k, v in draws.items()})

@@ -125,3 +125,37 @@ def test_sample_rate_is_one_definition() -> None:
     assert sample_rate(t) == 1000.0
     assert sample_rate(np.arange(t.size) * 1e-3) == 1000.0
     assert abs(1 / np.median(np.diff(t)) - 1000.0) > 1e-3  # the old definition was off
+
+
+def test_import_scale_gives_the_force_in_newtons(tmp_path: Path) -> None:
+    """Defect 4 (h30's hil import --scale, as the EMPS recipe uses it): the record's effort command is
+    gtau * vir in N, not vir in V."""
+    import scipy.io as sio
+
+    from hil.record.hdf5 import RunRecord
+
+    rec = _import("DATA_EMPS", tmp_path)
+    vir = sio.loadmat(DATA / "DATA_EMPS.mat")["vir"].ravel()
+    sig = RunRecord.open(rec).to_identify_dict()["signals"]
+    np.testing.assert_allclose(sig["motor.effort_cmd"], GTAU * vir, rtol=1e-12)
+
+
+@pytest.mark.slow
+def test_encoder_velocity_is_not_taken_for_a_held_sensor(tmp_path: Path) -> None:
+    """Defects 2 and 6: a velocity differentiated from the EMPS encoder (what a user without position
+    support computed) repeats values in 17 % of the samples; it is not treated as a slower sensor, so
+    the ML path is not the held-output likelihood (which cost ~0.45 s per emcee step on this record)."""
+    import scipy.io as sio
+
+    from hil.identify.api import identify_record
+
+    d = sio.loadmat(DATA / "DATA_EMPS.mat")
+    q, t = d["qm"].ravel(), np.arange(d["qm"].size) * 1e-3
+    v = np.gradient(q, 1e-3)
+    assert np.mean(v[1:] == v[:-1]) > 0.1
+    rec = {"t": t, "signals": {"f": GTAU * d["vir"].ravel(), "v": v},
+           "meta": {"model": "mbk", "model_options": {"n_dof": 1}, "inputs": ["f"], "outputs": ["v"],
+                    "sampling": "zoh", "posterior": "laplace", "excitation": "warn"}}
+    res = identify_record(rec, seed=0)
+    assert not any(dg.kind == "sample_and_hold" for dg in res.data_report.diagnoses)
+    assert "held_outputs" not in (res.ml or {})

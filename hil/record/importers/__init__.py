@@ -1,10 +1,25 @@
-"""Import runs recorded by other tools (CSV, MATLAB ``.mat`` v4-v7.3) into the run-record format of :mod:`hil.record.hdf5`.
+"""Import runs recorded by other tools into the run-record format of :mod:`hil.record.hdf5`.
+
+One importer per format (:mod:`hil.record.importers.base`: the protocol and the registry; more from the
+entry-point group ``hil_certify.importers``):
+
+==========  ===============================================  ==========================  ========
+format      files                                            module                      extra
+==========  ===============================================  ==========================  ========
+``csv``     ``.csv``, ``.txt``, ``.tsv``                     :mod:`.table`               --
+``mat``     MATLAB ``.mat`` v4-v7.2, and v7.3 (HDF5)          :mod:`.matlab`              --
+``hdf5``    HDF5 by dataset path (``.h5``, ``.hdf5``)        :mod:`.hdf5_file`           --
+``tdms``    LabVIEW TDMS (``.tdms``)                         :mod:`.tdms_file`           formats
+``rosbag``  ROS 2 bags (folder: sqlite3 or MCAP storage),    :mod:`.rosbag_file`         ros
+            ROS 1 ``.bag``
+``mcap``    MCAP files with JSON or ROS 2 schemas            :mod:`.mcap_file`           formats
+==========  ===============================================  ==========================  ========
 
 Mapping (a dict, or a YAML/JSON *sidecar* file with the same content)::
 
-    t: time                          # time column / variable [s] (after ``scale``); default t or time
-    motor.position: pos              # scalar channel <- one column
-    master.position: [q1, q2]        # vector channel (2,) <- several columns
+    t: time                          # time column / variable / dataset [s]; bags, MCAP: the time-base topic
+    motor.position: pos              # scalar channel <- one source
+    master.position: [q1, q2]        # vector channel (2,) <- several sources
     slave.position: {columns: [q3, q4], unit: rad, description: "...", scale: 0.001}
     units: {motor.position: mm, t: ms}                      # optional: the unit of the values in the file
     descriptions: {motor.position: "encoder"}               # optional
@@ -12,473 +27,112 @@ Mapping (a dict, or a YAML/JSON *sidecar* file with the same content)::
     rate_hz: 1000                                           # optional (default 1 / median dt)
     meta: {devices: {...}}                                  # optional, merged into the record meta
 
+How each format names a source (``/joint_states:position[joint1]`` for a bag): :mod:`.mapping`.
+``hil import FILE --list`` (:func:`describe`) lists what a file holds.
+
 A channel's value in the record is the file's value x ``scale`` x the factor from its unit to SI, and the
 record states the SI unit (:mod:`hil.record.importers.units`: ``mm`` -> ``m``, ``deg`` -> ``rad``,
-``ms`` -> ``s``; an unknown unit is refused). ``hil import --scale NAME=FACTOR`` and ``--unit NAME=UNIT``
-(``scale=`` / ``units=`` of the import functions) apply on top of whichever mapping is used. A sample rate
-outside :data:`PLAUSIBLE_RATE_HZ` from the time column is warned about (time in ms read as seconds).
+``ms`` -> ``s``; an unknown unit is refused). Without a unit in the mapping, a unit the file states
+(TDMS ``unit_string``, an HDF5 ``units`` attribute) is used. ``hil import --scale NAME=FACTOR`` and
+``--unit NAME=UNIT`` (``scale=`` / ``units=``) apply on top of whichever mapping is used. A sample rate
+outside :data:`~hil.record.importers.base.PLAUSIBLE_RATE_HZ` from the time is warned about (time in ms
+read as seconds).
 
-Channels may also be nested under a ``channels:`` key. In ``.mat`` files a name is a variable, or
-``struct.field`` inside a struct; a variable of shape (n, k) maps to a (k,) channel directly.
-
-Without a mapping, the CSV importer looks for a sidecar next to the file (``run.yaml``, ``run.yml``,
-``run.json``, or ``run.csv.yaml``/``.yml``/``.json``); failing that the time column is ``t`` or ``time``
-and every other column becomes a scalar channel of that name, except ``x[0]``, ``x[1]``, ... which
-form the vector channel ``x`` (the layout :meth:`RunRecord.to_identify_dict` produces). The ``.mat``
-importer does the same with the variables (or with the fields of the only struct in the file).
+Channels may also be nested under a ``channels:`` key. Without a mapping, a sidecar next to the file is
+used (``run.yaml``, ``run.yml``, ``run.json``, or ``run.csv.yaml``/``.yml``/``.json``); failing that, CSV
+and ``.mat`` files use their ``t``/``time`` column or variable and every other one as a channel of its name
+(``x[0]``, ``x[1]``, ... form the vector channel ``x``: the layout :meth:`RunRecord.to_identify_dict`
+produces). The other formats need a mapping.
 
 Time must be finite and strictly increasing, and sampled on a grid: every interval must be an integer
 multiple of the median interval within ``max_jitter`` (fraction of it). Missing samples (gaps) are
 accepted, logged and recorded as ``import.gap`` events (the identification package diagnoses gaps);
 decreasing or repeated times and off-grid (variable-step) time raise :class:`~hil.record.hdf5.RecordError`.
-Imported records have an empty scene text and scene hash and close with stop reason ``imported``.
+Sources at several rates are put onto one time base (:func:`hil.record.importers.base.align`; the
+slower ones held, and named in the record's ``held_channels``). Imported records have an empty scene
+text and scene hash and close with stop reason ``imported``.
 """
 
 from __future__ import annotations
 
-import csv
-import hashlib
-import io
-import json
 import logging
-import re
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-import yaml
-
-from hil.inputs import read_text_file
-from hil.record.hdf5 import ChannelSpec, RecordError, RecordWriter
-from hil.record.importers.units import to_si
+from hil.record.hdf5 import RecordError
+from hil.record.importers.base import (
+    PLAUSIBLE_RATE_HZ,
+    Entry,
+    Importer,
+    importer_for,
+    importers,
+    register,
+    write_record,
+)
+from hil.record.importers.mapping import ImportMapping, find_sidecar, load_sidecar, normalize, with_default_time
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["import_csv", "import_mat"]
-
-_RESERVED = {"t", "units", "descriptions", "scale", "meta", "rate_hz", "channels"}
-_VECTOR_RE = re.compile(r"^(?P<name>.+)\[(?P<i>\d+)\]$")
-_MAX_GAP_EVENTS = 100
-#: sample rates [Hz] outside which an imported record's time column is probably not in seconds (bench
-#: loops run at 100 Hz to tens of kHz; a 1 kHz log with its time in ms reads as 1 Hz): a warning
-PLAUSIBLE_RATE_HZ = (20.0, 1e6)
+__all__ = ["PLAUSIBLE_RATE_HZ", "Entry", "Importer", "describe", "import_csv", "import_file", "import_mat",
+           "importer_for", "importers", "register"]
 
 
-@dataclass
-class _Mapping:
-    """A normalized mapping: time source, channel name -> source(s), units, descriptions, scales."""
+def _register_builtin() -> None:
+    from hil.record.importers.hdf5_file import Hdf5Importer
+    from hil.record.importers.matlab import MatImporter
+    from hil.record.importers.mcap_file import McapImporter
+    from hil.record.importers.rosbag_file import RosbagImporter
+    from hil.record.importers.table import CsvImporter
+    from hil.record.importers.tdms_file import TdmsImporter
 
-    time: str
-    channels: dict[str, str | list[str]]
-    units: dict[str, str] = field(default_factory=dict)
-    descriptions: dict[str, str] = field(default_factory=dict)
-    scale: dict[str, float] = field(default_factory=dict)
-    meta: dict[str, Any] = field(default_factory=dict)
-    rate_hz: float | None = None
-
-    def as_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"t": self.time, **self.channels}
-        if self.scale:
-            out["scale"] = dict(self.scale)
-        if self.units:
-            out["units"] = dict(self.units)
-        return out
-
-    def override(self, scale: Mapping[str, float] | None, units: Mapping[str, str] | None, where: str) -> None:
-        """Apply ``hil import --scale/--unit`` on top of the mapping (sidecar, default or ``--map``):
-        each name must be ``t`` or a mapped channel."""
-        for flag, given, into in (("--scale", scale, self.scale), ("--unit", units, self.units)):
-            for name, value in (given or {}).items():
-                if name != "t" and name not in self.channels:
-                    raise RecordError(f"{where}: {flag} {name}: no such channel in the mapping "
-                                      f"(channels: {', '.join(sorted(self.channels)) or 'none'}, and t)")
-                into[name] = value
+    for imp in (CsvImporter(), MatImporter(), Hdf5Importer(), TdmsImporter(), RosbagImporter(), McapImporter()):
+        register(imp)
 
 
-def _normalize(raw: Mapping[str, Any], where: str) -> _Mapping:
-    if not isinstance(raw, Mapping):
-        raise RecordError(f"{where}: mapping must be a dict, got {type(raw).__name__}")
-    if "t" not in raw:
-        raise RecordError(f"{where}: mapping needs 't' (the time column)")
-    t = raw["t"]
-    if isinstance(t, Mapping):  # {column: time_ms, scale: 0.001}
-        t_col, t_scale = t.get("column"), t.get("scale")
-    else:
-        t_col, t_scale = t, None
-    if not isinstance(t_col, str):
-        raise RecordError(f"{where}: 't' must name one column, got {t_col!r}")
-    chans_raw = raw.get("channels")
-    if chans_raw is None:
-        chans_raw = {k: v for k, v in raw.items() if k not in _RESERVED}
-    elif not isinstance(chans_raw, Mapping):
-        raise RecordError(f"{where}: 'channels' must be a dict")
-    m = _Mapping(time=t_col, channels={})
-    for key in ("units", "descriptions", "scale", "meta"):
-        val = raw.get(key) or {}
-        if not isinstance(val, Mapping):
-            raise RecordError(f"{where}: {key!r} must be a dict")
-        getattr(m, key).update(val)
-    if t_scale is not None:
-        m.scale["t"] = t_scale
-    for name, src in chans_raw.items():
-        if not isinstance(name, str) or not name or "/" in name:
-            raise RecordError(f"{where}: bad channel name {name!r}")
-        if isinstance(src, Mapping):
-            cols = src.get("columns", src.get("column"))
-            if "unit" in src:
-                m.units[name] = str(src["unit"])
-            if "description" in src:
-                m.descriptions[name] = str(src["description"])
-            if "scale" in src:
-                m.scale[name] = src["scale"]
-            src = cols
-        if isinstance(src, str):
-            m.channels[name] = src
-        elif isinstance(src, Sequence) and src and all(isinstance(c, str) for c in src):
-            m.channels[name] = list(src)
-        else:
-            raise RecordError(f"{where}: channel {name!r}: source must be a column name or a list of names, "
-                              f"got {src!r}")
-    for key, val in m.scale.items():
-        try:
-            m.scale[key] = float(val)
-        except (TypeError, ValueError):
-            raise RecordError(f"{where}: scale of {key!r} must be a number, got {val!r}") from None
-    unknown = set(m.units) - set(m.channels) - {"t"}
-    if unknown:
-        raise RecordError(f"{where}: units given for unmapped channels {sorted(unknown)}")
-    if raw.get("rate_hz") is not None:
-        m.rate_hz = float(raw["rate_hz"])
-    return m
+_register_builtin()
 
 
-def _with_default_time(mapping: Mapping[str, Any], names: Sequence[str], where: str) -> Mapping[str, Any]:
-    """``mapping`` with ``t`` set to the ``t``/``time`` column (case-insensitive) when it names none
-    (``hil import --map ...`` without ``--time``)."""
-    if not isinstance(mapping, Mapping) or "t" in mapping:
-        return mapping
-    lower = {n.lower(): n for n in names}
-    t_col = lower.get("t") or lower.get("time")
-    if t_col is None:
-        what = "variable" if where.lower().endswith(".mat") else "column"
-        raise RecordError(f"{where}: the mapping names no time {what} and there is no 't' or 'time' {what} "
-                          f"({what}s: {', '.join(names) or 'none'}); name it with 'hil import --time NAME' "
-                          "(or 't:' in the mapping)")
-    logger.info("%s: time %s %r (default)", where, "variable" if where.lower().endswith(".mat") else "column", t_col)
-    return {"t": t_col, **mapping}
-
-
-def _load_sidecar(path: str | Path) -> dict[str, Any]:
-    p = Path(path)
-    if not p.exists():
-        raise RecordError(f"{p}: no such sidecar file")
-    text = read_text_file(p, "sidecar file", RecordError)
-    try:
-        data = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
-    except (ValueError, yaml.YAMLError) as exc:
-        raise RecordError(f"{p}: cannot parse the sidecar ({' '.join(str(exc).split())})") from None
-    if not isinstance(data, Mapping):
-        raise RecordError(f"{p}: sidecar must hold a mapping")
-    return dict(data)
-
-
-def _find_sidecar(path: Path) -> Path | None:
-    for cand in (path.with_suffix(".yaml"), path.with_suffix(".yml"), path.with_suffix(".json"),
-                 path.with_name(path.name + ".yaml"), path.with_name(path.name + ".yml"),
-                 path.with_name(path.name + ".json")):
-        if cand != path and cand.is_file():
-            return cand
-    return None
-
-
-def _default_mapping(names: Sequence[str], where: str) -> _Mapping:
-    """Time column t/time; ``x[i]`` columns grouped into vector channel ``x``; others scalar."""
-    lower = {n.lower(): n for n in names}
-    t_col = lower.get("t") or lower.get("time")
-    if t_col is None:
-        what = "variable" if where.lower().endswith(".mat") else "column"
-        raise RecordError(f"{where}: no 't' or 'time' {what} ({what}s: {', '.join(names) or 'none'}); name the time "
-                          f"{what} with 'hil import --time NAME' (channels: --map CHANNEL=NAME) or put a sidecar "
-                          "mapping file next to it")
-    groups: dict[str, dict[int, str]] = {}
-    chans: dict[str, str | list[str]] = {}
-    for n in names:
-        if n == t_col:
-            continue
-        mt = _VECTOR_RE.match(n)
-        if mt:
-            groups.setdefault(mt["name"], {})[int(mt["i"])] = n
-        else:
-            chans[n] = n
-    for base, cols in groups.items():
-        if sorted(cols) == list(range(len(cols))) and base not in chans:
-            chans[base] = [cols[i] for i in range(len(cols))]
-        else:
-            chans.update({c: c for c in cols.values()})
-    return _Mapping(time=t_col, channels=chans)
-
-
-def _check_time(t: np.ndarray, where: str, max_jitter: float) -> tuple[float, list[tuple[float, int]]]:
-    """Median interval [s] and the gaps (time [s], samples missing); raises on bad time."""
-    if t.size < 2:
-        raise RecordError(f"{where}: need at least 2 samples, got {t.size}")
-    bad = np.flatnonzero(~np.isfinite(t))
-    if bad.size:
-        raise RecordError(f"{where}: time is not finite at row {bad[0]} ({float(t[bad[0]])!r})")
-    dt = np.diff(t)
-    bad = np.flatnonzero(dt <= 0)
-    if bad.size:
-        i = int(bad[0])
-        what = "repeats" if dt[i] == 0 else "decreases"
-        raise RecordError(f"{where}: time {what} at row {i + 1}: {float(t[i])!r} s -> {float(t[i + 1])!r} s "
-                          f"({bad.size} non-increasing step(s)); sort or clean the data first")
-    med = float(np.median(dt))
-    ratio = dt / med
-    k = np.rint(ratio)
-    off = np.flatnonzero(np.abs(ratio - k) > max_jitter)
-    if off.size:
-        i = int(off[0])
-        raise RecordError(
-            f"{where}: time is not uniformly sampled: interval {dt[i]:.6g} s at row {i + 1} is "
-            f"{ratio[i]:.3f} x the median interval {med:.6g} s ({off.size} off-grid interval(s), tolerance "
-            f"{max_jitter:g}); resample onto a uniform grid first")
-    gaps = [(float(t[i]), int(k[i]) - 1) for i in np.flatnonzero(k > 1)]
-    return med, gaps
-
-
-def _unit(m: _Mapping, name: str, where: str, default: str = "") -> tuple[float, str]:
-    """:func:`hil.record.importers.units.to_si` of the unit the mapping gives ``name``, errors naming both."""
-    try:
-        return to_si(str(m.units.get(name, default)))
-    except RecordError as exc:
-        raise RecordError(f"{where}: {name}: {exc}") from None
-
-
-def _to_si(t: np.ndarray, data: dict[str, np.ndarray], m: _Mapping, where: str
-           ) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, str]]:
-    """Time [s] and channels in SI: source values x ``scale`` x the unit's factor to SI; the SI unit of
-    each channel (module docstring, :mod:`hil.record.importers.units`)."""
-    factor, si = _unit(m, "t", where, default="s")
-    if si != "s":
-        raise RecordError(f"{where}: t: unit {m.units['t']!r} is not a unit of time")
-    t = t * (m.scale.get("t", 1.0) * factor)
-    out: dict[str, np.ndarray] = {}
-    units: dict[str, str] = {}
-    for name, a in data.items():
-        factor, units[name] = _unit(m, name, where)
-        gain = m.scale.get(name, 1.0) * factor
-        out[name] = a * gain if gain != 1.0 else a
-    return t, out, units
-
-
-def _check_rate(rate: float, where: str) -> None:
-    """Warn when the sample rate taken from the time column is outside :data:`PLAUSIBLE_RATE_HZ` (a
-    time column in ms read as seconds makes a 1 kHz record a 1 Hz one)."""
-    lo, hi = PLAUSIBLE_RATE_HZ
-    if not lo <= rate <= hi:
-        logger.warning("%s: the time column gives a sample rate of %.6g Hz, implausible for a bench record "
-                       "(%g Hz to %g Hz): if the time is not in seconds, give its unit (hil import --unit t=ms, "
-                       "or 'units: {t: ms}' in the mapping)", where, rate, lo, hi)
-
-
-def _write(out: str | Path, t: np.ndarray, data: dict[str, np.ndarray], m: _Mapping, src: Path, fmt: str,
-           meta: Mapping[str, Any] | None, max_jitter: float) -> Path:
-    where = str(src)
-    t, data, units = _to_si(t, data, m, where)
-    med, gaps = _check_time(t, where, max_jitter)
-    rate = m.rate_hz if m.rate_hz is not None else 1.0 / med
-    if m.rate_hz is None:
-        _check_rate(rate, where)
-    if gaps:
-        logger.warning("%s: %d gap(s) in time, %d sample(s) missing in all", where, len(gaps),
-                       sum(g[1] for g in gaps))
-    specs = {name: ChannelSpec(tuple(a.shape[1:]), units[name], m.descriptions.get(name, ""))
-             for name, a in data.items()}
-    digest = hashlib.sha256(src.read_bytes()).hexdigest()
-    full_meta = {**m.meta, **dict(meta or {})}
-    full_meta["imported_from"] = {"format": fmt, "path": str(src.resolve()), "sha256": digest,
-                                  "mapping": m.as_dict(), "gaps": len(gaps)}
-    out = Path(out)
-    with RecordWriter(out, scene_text="", scene_sha256="", meta=full_meta, channels=specs, rate_hz=rate) as w:
-        w.append_block(t, data)
-        for tg, missing in gaps[:_MAX_GAP_EVENTS]:
-            w.event(tg, "import.gap", f"{missing} sample(s) missing after t = {tg!r} s")
-        if len(gaps) > _MAX_GAP_EVENTS:
-            w.event(float(t[-1]), "import.gap", f"{len(gaps) - _MAX_GAP_EVENTS} more gap(s) not listed")
-        w.close(stop_reason="imported", status="ok")
-    logger.info("imported %s (%s, %d samples, %d channels) -> %s", src, fmt, t.size, len(data), out)
-    return out
-
-
-# ------------------------------------------------------------------------------------------------- CSV
-
-
-def _read_csv(path: Path, delimiter: str | None) -> tuple[list[str], np.ndarray]:
-    text = read_text_file(path, "CSV file", RecordError)
-    lines = [(i + 1, ln) for i, ln in enumerate(text.splitlines()) if ln.strip() and not ln.lstrip().startswith("#")]
-    if not lines:
-        raise RecordError(f"{path}: empty CSV")
-    header_line = lines[0][1]
-    if delimiter is None:
-        counts = {d: header_line.count(d) for d in (",", ";", "\t")}
-        delimiter = max(counts, key=lambda d: counts[d]) if any(counts.values()) else ","
-    header = [h.strip() for h in next(csv.reader(io.StringIO(header_line), delimiter=delimiter))]
-    if len(set(header)) != len(header):
-        dup = sorted({h for h in header if header.count(h) > 1})
-        raise RecordError(f"{path}: duplicate column names {dup}")
-    rows = np.empty((len(lines) - 1, len(header)))
-    reader = csv.reader((ln for _, ln in lines[1:]), delimiter=delimiter)
-    for r, cells in enumerate(reader):
-        lineno = lines[r + 1][0]
-        if len(cells) != len(header):
-            raise RecordError(f"{path}:{lineno}: {len(cells)} fields, header has {len(header)}")
-        for c, cell in enumerate(cells):
-            cell = cell.strip()
-            if not cell or cell.lower() in ("nan", "na", "null"):
-                rows[r, c] = np.nan
-                continue
-            try:
-                rows[r, c] = float(cell)
-            except ValueError:
-                raise RecordError(f"{path}:{lineno}: column {header[c]!r}: {cell!r} is not a number") from None
-    return header, rows
-
-
-def import_csv(
-    path: str | Path,
-    out: str | Path,
-    *,
-    mapping: Mapping[str, Any] | None = None,
-    sidecar: str | Path | None = None,
-    meta: Mapping[str, Any] | None = None,
-    delimiter: str | None = None,
-    max_jitter: float = 0.1,
-    scale: Mapping[str, float] | None = None,
-    units: Mapping[str, str] | None = None,
-) -> Path:
-    """Convert a CSV run (header row, one sample per row) into a run record at ``out``; return ``out``.
-
-    ``mapping`` (or the ``sidecar`` YAML/JSON file with the same content, or one found next to the CSV)
-    names the time column and the columns of each channel (module docstring). ``meta`` is merged into
-    the record meta. ``delimiter``: ``,`` ``;`` or tab (guessed from the header by default).
-    ``max_jitter``: tolerated deviation of a time interval from a multiple of the median interval
-    (fraction of it). ``scale`` / ``units`` (channel or ``t`` -> factor / source unit) apply on top of
-    the mapping, whichever it is (``hil import --scale/--unit``)."""
-    src = Path(path)
-    if src.is_dir():
-        raise RecordError(f"{src}: is a folder, not a CSV file")
-    if not src.is_file():
+def _check_input(src: Path, imp: Importer) -> None:
+    if not src.exists():
         raise RecordError(f"{src}: no such file")
-    header, rows = _read_csv(src, delimiter)
-    m = _resolve_mapping(src, mapping, sidecar, header)
-    m.override(scale, units, str(src))
-    col = {h: i for i, h in enumerate(header)}
-
-    def get(name: str, channel: str) -> np.ndarray:
-        if name not in col:
-            raise RecordError(f"{src}: channel {channel!r}: no column {name!r} (columns: {', '.join(header)})")
-        return rows[:, col[name]]
-
-    t = get(m.time, "t").copy()
-    data = {}
-    for name, cols in m.channels.items():
-        a = get(cols, name) if isinstance(cols, str) else np.column_stack([get(c, name) for c in cols])
-        data[name] = a
-    return _write(out, t, data, m, src, "csv", meta, max_jitter)
+    if src.is_dir() and imp.name != "rosbag":
+        raise RecordError(f"{src}: is a folder, not a {imp.name} file")
 
 
-def _resolve_mapping(src: Path, mapping: Mapping[str, Any] | None, sidecar: str | Path | None,
-                     names: Sequence[str]) -> _Mapping:
+def resolve_mapping(src: Path, imp: Importer, mapping: Mapping[str, Any] | None, sidecar: str | Path | None,
+                    scale: Mapping[str, float] | None = None, units: Mapping[str, str] | None = None
+                    ) -> ImportMapping:
+    """The mapping of an import: ``mapping`` (``--map``), else the ``sidecar`` (or one found next to the
+    file), else the importer's default; then ``scale``/``units`` on top."""
+    where = str(src)
     if mapping is not None and sidecar is not None:
         raise RecordError(f"{src}: give mapping or sidecar, not both")
     if mapping is not None:
-        return _normalize(_with_default_time(mapping, names, str(src)), f"{src}: mapping")
-    if sidecar is None:
-        sidecar = _find_sidecar(src)
-        if sidecar is not None:
-            logger.info("%s: using sidecar %s", src, sidecar)
-    if sidecar is not None:
-        return _normalize(_load_sidecar(sidecar), str(sidecar))
-    return _default_mapping(names, str(src))
-
-
-# ------------------------------------------------------------------------------------------------- MAT
-
-
-def _mat_get(variables: Mapping[str, Any], name: str, where: str) -> Any:
-    obj: Any = variables
-    for part in name.split("."):
-        if not isinstance(obj, Mapping) or part not in obj:
-            raise RecordError(f"{where}: no variable {name!r} (variables: {', '.join(_mat_names(variables))})")
-        obj = obj[part]
-    return obj
-
-
-def _mat_names(variables: Mapping[str, Any], prefix: str = "") -> list[str]:
-    out = []
-    for k, v in variables.items():
-        if isinstance(v, Mapping):
-            out += _mat_names(v, f"{prefix}{k}.")
+        if imp.time_required:
+            what = "variable" if imp.name == "mat" else "column"
+            mapping = with_default_time(mapping, imp.source_names(src), where, what)
+        m = normalize(mapping, f"{where}: mapping", time_required=imp.time_required)
+    else:
+        side = Path(sidecar) if sidecar is not None else (find_sidecar(src) if src.is_file() else None)
+        if side is not None:
+            if sidecar is None:
+                logger.info("%s: using sidecar %s", src, side)
+            m = normalize(load_sidecar(side), str(side), time_required=imp.time_required)
         else:
-            out.append(prefix + k)
-    return out
+            dm = imp.default_mapping(src)
+            if dm is None:
+                raise RecordError(f"{src}: name the channels to import: hil import {src.name} --map CHANNEL=SOURCE "
+                                  f"(hil import {src.name} --list shows the sources)")
+            m = dm
+    m.override(scale, units, where)
+    if m.resample_hz is not None and not getattr(imp, "resamples", False):
+        raise RecordError(f"{src}: resampling (--resample, resample_hz) applies to time-stamped formats (ROS bags, "
+                          f"MCAP, TDMS), not to {imp.name}")
+    return m
 
 
-def _as_columns(value: Any, n: int | None, name: str, where: str) -> np.ndarray:
-    """A variable as (n,) or (n, k) float array (MATLAB row vectors and (k, n) matrices transposed)."""
-    try:
-        a = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise RecordError(f"{where}: variable {name!r} is not numeric") from None
-    if a.ndim == 2 and 1 in a.shape:
-        a = a.reshape(-1)
-    if a.ndim == 2 and n is not None and a.shape[0] != n and a.shape[1] == n:
-        a = a.T
-    if a.ndim not in (1, 2) or (n is not None and a.shape[0] != n):
-        raise RecordError(f"{where}: variable {name!r} has shape {a.shape}, expected ({n},) or ({n}, k)")
-    return a
-
-
-def _read_mat(src: Path) -> tuple[dict[str, Any], str]:
-    """The variables of a ``.mat`` file (structs as nested dicts) and its format: ``mat`` (v4-v7.2,
-    :func:`scipy.io.loadmat`) or ``mat-v7.3`` (HDF5, :mod:`hil.record.importers.matlab73`)."""
-    from hil.record.importers.matlab73 import is_v73, read_v73
-
-    if is_v73(src):
-        return read_v73(src), "mat-v7.3"
-    from scipy.io import loadmat  # lazy: scipy.io only for .mat files
-
-    try:
-        raw = loadmat(src, simplify_cells=True)
-    except NotImplementedError as exc:  # an HDF5 .mat without the v7.3 header text
-        raise RecordError(f"{src}: not a readable .mat file ({exc})") from None
-    except PermissionError:
-        raise RecordError(f"{src}: cannot read the .mat file (permission denied)") from None
-    except Exception as exc:  # scipy raises ValueError, TypeError, OSError, EOFError, struct.error ... on garbage
-        raise RecordError(f"{src}: not a readable .mat file ({type(exc).__name__}: "
-                          f"{' '.join(str(exc).split())[:200]})") from None
-    return {k: v for k, v in raw.items() if not k.startswith("__")}, "mat"
-
-
-def _numeric_vectors(top: Mapping[str, Any], n: int | None) -> list[str]:
-    """Names of the variables of ``top`` that can be channels (numeric with ``n`` rows, or any numeric
-    array with more than one element when ``n`` is None); scalars and text are left out."""
-    out = []
-    for k, v in top.items():
-        if isinstance(v, (Mapping, str)):
-            continue
-        try:
-            a = np.asarray(v, dtype=np.float64)
-        except (TypeError, ValueError):
-            continue
-        if a.size > 1 and (n is None or n in a.shape):
-            out.append(k)
-    return out
-
-
-def import_mat(
+def import_file(
     path: str | Path,
     out: str | Path,
     *,
@@ -488,58 +142,58 @@ def import_mat(
     max_jitter: float = 0.1,
     scale: Mapping[str, float] | None = None,
     units: Mapping[str, str] | None = None,
+    fmt: str | None = None,
+    importer: Importer | None = None,
+    resample_hz: float | None = None,
 ) -> Path:
-    """Convert a MATLAB ``.mat`` run into a record at ``out``: v4-v7.2 read with :func:`scipy.io.loadmat`,
-    v7.3 (HDF5 inside) with h5py.
+    """Convert a run recorded by another tool into a run record at ``out``; return ``out``.
 
-    ``mapping`` / ``sidecar`` / ``scale`` / ``units``: as for :func:`import_csv`, naming variables or
-    ``struct.field``; without a mapping or sidecar, a sidecar next to the file, else the variables (or
-    the fields of the only struct) with ``t``/``time`` as time (scalars such as gains are left out)."""
+    The format comes from the file (:func:`importer_for`; ``fmt`` names it, ``importer`` gives one).
+    ``mapping`` / ``sidecar``: module docstring; ``scale`` / ``units`` (channel or ``t`` -> factor /
+    the file's unit) apply on top of the mapping. ``meta`` is merged into the record meta.
+    ``max_jitter``: tolerated deviation of a time interval from a multiple of the median interval
+    (fraction of it). ``resample_hz``: bags, MCAP, TDMS: every channel onto a uniform grid at this rate
+    (:func:`hil.record.importers.base.align`), for time stamps that jitter more than ``max_jitter``."""
+    src = Path(path)
+    imp = importer or importer_for(src, fmt)
+    _check_input(src, imp)
+    m = resolve_mapping(src, imp, mapping, sidecar, scale, units)
+    if resample_hz is not None:
+        if not (0 < resample_hz < float("inf")):
+            raise RecordError(f"{src}: --resample must be a positive number of Hz, got {resample_hz!r}")
+        if not getattr(imp, "resamples", False):
+            raise RecordError(f"{src}: resampling (--resample) applies to time-stamped formats (ROS bags, MCAP, "
+                              f"TDMS), not to {imp.name}")
+        m.resample_hz = float(resample_hz)
+    sampled = imp.read(src, m)
+    fmt_name = str(getattr(imp, "format_of", lambda _p: imp.name)(src))
+    return write_record(out, sampled, m, src, fmt_name, meta, max_jitter)
+
+
+def import_csv(path: str | Path, out: str | Path, *, delimiter: str | None = None, **kw: Any) -> Path:
+    """:func:`import_file` of a CSV / TXT / TSV table (``delimiter``: ``,`` ``;`` or tab; None: guessed
+    from the header)."""
+    from hil.record.importers.table import CsvImporter
+
+    src = Path(path)
+    if src.is_dir():
+        raise RecordError(f"{src}: is a folder, not a CSV file")
+    return import_file(path, out, importer=CsvImporter(delimiter), **kw)
+
+
+def import_mat(path: str | Path, out: str | Path, **kw: Any) -> Path:
+    """:func:`import_file` of a MATLAB ``.mat`` file (v4-v7.2 with scipy, v7.3 with h5py)."""
+    from hil.record.importers.matlab import MatImporter
+
     src = Path(path)
     if src.is_dir():
         raise RecordError(f"{src}: is a folder, not a .mat file")
-    if not src.is_file():
-        raise RecordError(f"{src}: no such file")
-    variables, fmt = _read_mat(src)
-    where = str(src)
-    if mapping is not None and sidecar is not None:
-        raise RecordError(f"{src}: give mapping or sidecar, not both")
-    if mapping is None:
-        side = Path(sidecar) if sidecar is not None else _find_sidecar(src)
-        if side is not None:
-            m = _normalize(_load_sidecar(side), str(side))
-        else:
-            top = variables
-            if len(variables) == 1 and isinstance(next(iter(variables.values())), Mapping):
-                top = next(iter(variables.values()))
-            names = [k for k, v in top.items() if not isinstance(v, Mapping)]
-            m = _default_mapping(names, where)
-            n = _as_columns(top[m.time], None, m.time, where).size
-            keep = set(_numeric_vectors(top, n))
-            dropped = [k for k in m.channels if isinstance(m.channels[k], str) and m.channels[k] not in keep]
-            if dropped:
-                logger.info("%s: not channels (scalars, text or another length): %s", where, ", ".join(dropped))
-                m.channels = {k: v for k, v in m.channels.items() if k not in dropped}
-            if top is not variables:
-                prefix = next(iter(variables)) + "."
-                m.time = prefix + m.time
-                m.channels = {k: (prefix + v if isinstance(v, str) else [prefix + c for c in v])
-                              for k, v in m.channels.items()}
-    else:
-        m = _normalize(_with_default_time(mapping, _mat_names(variables), where), f"{where}: mapping")
-    m.override(scale, units, where)
-    t = _as_columns(_mat_get(variables, m.time, where), None, m.time, where)
-    if t.ndim != 1:
-        raise RecordError(f"{where}: time variable {m.time!r} must be a vector, got shape {t.shape}")
-    n = t.size
-    data = {}
-    for name, srcs in m.channels.items():
-        if isinstance(srcs, str):
-            a = _as_columns(_mat_get(variables, srcs, where), n, srcs, where)
-        else:
-            cols = [_as_columns(_mat_get(variables, s, where), n, s, where) for s in srcs]
-            if any(c.ndim != 1 for c in cols):
-                raise RecordError(f"{where}: channel {name!r}: each listed variable must be a vector")
-            a = np.column_stack(cols)
-        data[name] = a
-    return _write(out, t.copy(), data, m, src, fmt, meta, max_jitter)
+    return import_file(path, out, importer=MatImporter(), **kw)
+
+
+def describe(path: str | Path, fmt: str | None = None) -> tuple[str, list[Entry]]:
+    """The format of ``path`` and what it holds (:class:`Entry` rows): ``hil import FILE --list``."""
+    src = Path(path)
+    imp = importer_for(src, fmt)
+    _check_input(src, imp)
+    return str(getattr(imp, "format_of", lambda _p: imp.name)(src)), imp.inventory(src)
