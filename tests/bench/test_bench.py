@@ -44,7 +44,12 @@ def test_builtin_scene_bench_runs_and_closes(name: str) -> None:
         json.dumps(ids)
         assert set(ids) == {d.name for d in sc.devices}
         assert all(v["simulated"] for v in ids.values())
-        efforts = {a: np.full(sc.device(a).dof, 0.5) for a in bench.actuators}
+        # 0.5 N or N.m, or twice the actuator's breakaway friction (emps_axis: 20 N): a force below it
+        # moves nothing, exactly (hil.mocks.friction)
+        from hil.bench.mechanics import device_mechanics
+
+        efforts = {a: np.full(sc.device(a).dof, max(0.5, 2.0 * device_mechanics(sc.device(a)).friction.F_s))
+                   for a in bench.actuators}
         n = 200
         for k in range(n):
             meas = bench.read()
