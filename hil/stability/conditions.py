@@ -75,8 +75,14 @@ _RANK = {"violated": 3, "touching": 1, "equality": 1, "satisfied": 0}
 
 
 def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict[str, Any],
-                tol: Tolerances) -> Condition:
-    """Condition record from an exact decision (statuses: docs/VERDICTS.md)."""
+                tol: Tolerances, cp: CondPoly | None = None) -> Condition:
+    """Condition record from an exact decision (statuses: docs/VERDICTS.md); ``cp``: the condition
+    polynomial the margin was taken on (kept for the critical band)."""
+    from hil.stability.margins import restricted
+
+    ratio = None
+    if cp is not None and cp.m is not None and d.margin == d.margin and not cp.full.is_zero():
+        ratio = (cp.full, restricted(cp.full, np.asarray(cp.m)))
     bands_w = [(math.sqrt(a), math.sqrt(b) if math.isfinite(b) else math.inf) for a, b in d.negative_bands]
     touching_w = [math.sqrt(x) for x in d.touching]
     status: ConditionStatus
@@ -114,7 +120,7 @@ def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict[
         detail = (f"{detail}; the verdict of this condition can flip under a relative perturbation of "
                   f"{tol.rtol:.3g} of the coefficients")
         status = "marginal"
-    return Condition(name, label, status, float(margin), wf, detail, ev)
+    return Condition(name, label, status, float(margin), wf, detail, ev, ratio=ratio)
 
 
 def _band_detail(ev: dict[str, Any]) -> str:
@@ -151,7 +157,7 @@ def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: To
             name, lab = f"{prefix}{_lbl(glob)}", f"{label}, principal minor {_lbl(glob)}"
             cp = exact[idx]
             d, flip = _exact_decision(cp, 2 * k, tol, margins)
-            conds.append(_cond_exact(name, lab, d, flip, {"axis_pole_factors_cancelled": cp.cut}, tol))
+            conds.append(_cond_exact(name, lab, d, flip, {"axis_pole_factors_cancelled": cp.cut}, tol, cp))
     return conds
 
 
@@ -184,4 +190,4 @@ def _llewellyn_eta(entries: list[list[Rational]], i: int, j: int, tol: Tolerance
     return _cond_exact(name, label, worst, f1 or f2,
                        {"L1_x_desc": _desc(d1.coefficients), "L1_status": d1.status,
                         "L2_x_desc": _desc(d2.coefficients), "L2_status": d2.status,
-                        "axis_pole_factors_cancelled": max(c1, c2)}, tol)
+                        "axis_pole_factors_cancelled": max(c1, c2)}, tol, cp2 if worst is d2 else cp1)

@@ -29,9 +29,11 @@ import numpy as np
 from flint import fmpq, fmpq_poly
 from numpy.polynomial import polynomial as P
 
+from hil.stability.results import StabilityResult
+
 logger = logging.getLogger(__name__)
 
-__all__ = ["CERTIFY_RTOL", "frequency_margin"]
+__all__ = ["CERTIFY_RTOL", "CRITICAL_BAND_FRACTION", "band_of", "critical_band", "frequency_margin", "restricted"]
 
 #: the certified relative accuracy of a frequency-domain margin (see the module docstring)
 CERTIFY_RTOL = 1e-6
@@ -112,6 +114,22 @@ def _golden(p: fmpq_poly, M: np.ndarray, lo: float, hi: float, start: tuple[floa
     return best
 
 
+def restricted(p: fmpq_poly, M: np.ndarray) -> np.ndarray:
+    """m_r: the magnitude polynomial M restricted to p's exact degree range [a, b] (ascending
+    floats, zero outside), and at least |p_i| inside (float products may round below it)."""
+    from hil.stability.rational import _qpoly_floats
+
+    c = np.array(_qpoly_floats(p))
+    n = c.size
+    a = next(i for i in range(n) if p[i] != 0)
+    Mm = np.abs(np.asarray(M, float))
+    Mr = np.zeros(n)
+    Mr[a:n] = Mm[a:n] if Mm.size >= n else np.pad(Mm, (0, n - Mm.size))[a:n]
+    Mr = np.maximum(Mr, np.abs(c))
+    Mr[:a] = 0.0
+    return Mr
+
+
 def frequency_margin(p: fmpq_poly, M: np.ndarray, touching: Sequence[float] = (),
                      bands: Sequence[tuple[float, float]] = ()) -> tuple[float, float]:
     """(μ, x*) for a condition p (exact, x = ω², not identically zero) with magnitude polynomial
@@ -124,17 +142,12 @@ def frequency_margin(p: fmpq_poly, M: np.ndarray, touching: Sequence[float] = ()
     from hil.stability.rational import _qpoly_floats
 
     c = np.array(_qpoly_floats(p))
-    n = c.size
-    a = next(i for i in range(n) if p[i] != 0)
-    Mr = np.zeros(n)
-    Mm = np.abs(np.asarray(M, float))
-    Mr[a:n] = Mm[a:n] if Mm.size >= n else np.pad(Mm, (0, n - Mm.size))[a:n]
-    Mr = np.maximum(Mr, np.abs(c))  # the bound dominates |p_i| (float products may round below)
-    Mr[:a] = 0.0
+    Mr = restricted(p, M)
     if ratio_is_constant(c, Mr):
         return _exact_ratio(p, Mr, 1.0), math.nan
     if touching:
         return 0.0, float(touching[0])
+    # (the ratio this margin minimizes, for the critical band)
     mu, x = _margin_min(_Ratio(c, Mr), c, Mr, list(bands), list(touching), [], check_constant=False)
     if x != x:  # constant in floats only
         x = 1.0
@@ -159,3 +172,57 @@ def frequency_margin(p: fmpq_poly, M: np.ndarray, touching: Sequence[float] = ()
         mu, x = v, xb
     logger.warning("margin certified only after 4 refinements (μ = %r)", mu)  # pragma: no cover
     return mu, x  # pragma: no cover
+
+
+# ----------------------------------------------------------------------------------------------
+# the critical band
+
+#: the fraction f of the critical band's definition (the same 10 % as the SDEA's coupler band)
+CRITICAL_BAND_FRACTION = 0.10
+
+
+def band_of(p: fmpq_poly, Mr: np.ndarray, mu: float, fraction: float = CRITICAL_BAND_FRACTION
+            ) -> tuple[float, float]:
+    """(x_lo, x_hi): the smallest interval containing every x ≥ 0 where p(x)/m_r(x) ≤ θ, with
+    θ = μ + f·(1 - μ) (within the fraction f of the way from the minimum μ to the top of the scale,
+    1) and, for a violated condition (μ < 0), θ at least 0 (the whole violation). Decided exactly:
+    the region is where q = p - θ·m_r ≤ 0 (q exact: θ and m_r are binary rationals), its ends the
+    isolated roots of q, widened outward by 1e-12 relative; x_hi = ∞ when q ≤ 0 for large x."""
+    from hil.stability.exact import decide_exact, exact_sign
+
+    theta = mu + fraction * (1.0 - mu)
+    if mu < 0:
+        theta = max(theta, 0.0)
+    q = p - fmpq(*float(theta).as_integer_ratio()) * _q_of(Mr)
+    es = exact_sign(q)
+    if es.status == "equality":
+        return 0.0, math.inf
+    d = decide_exact(q, margin=False)
+    pts = [x for band in d.negative_bands for x in band] + list(d.touching)
+    if not pts:  # the region is a single point the isolation did not resolve: the minimizer only
+        return math.nan, math.nan
+    lo, hi = min(pts), max(pts)
+    return lo * (1.0 - 1e-12), hi * (1.0 + 1e-12) if math.isfinite(hi) else math.inf
+
+
+def critical_band(result: StabilityResult, fraction: float = CRITICAL_BAND_FRACTION) -> tuple[float, float] | None:
+    """The critical band of a stability result (rad/s; docs/VERDICTS.md): around the minimum of its
+    binding frequency condition -- among the frequency conditions that decide the verdict (the
+    violated ones when there are, else all), the one with the smallest margin -- the smallest
+    interval containing every frequency where that condition's normalized ratio p/m_r is within
+    ``fraction`` of the way from its minimum μ to 1, and, when it is violated, every frequency where
+    it is negative. It always contains the worst frequency. None without such a condition
+    (verdict-only results, a network decided by poles alone)."""
+    conds = [c for c in result.conditions if c.ratio is not None and c.margin == c.margin]
+    bad = [c for c in conds if c.status == "violated"]
+    conds = bad or conds
+    if not conds:
+        return None
+    c = min(conds, key=lambda c: c.margin)
+    p, Mr = c.ratio
+    lo, hi = band_of(p, Mr, c.margin, fraction)
+    if lo != lo:  # pragma: no cover - defensive: a degenerate region
+        x = (c.worst_frequency or 0.0) / float(result.network.get("omega_scale", 1.0))
+        lo = hi = x * x
+    w0 = float(result.network.get("omega_scale", 1.0))
+    return math.sqrt(lo) * w0, (math.sqrt(hi) * w0 if math.isfinite(hi) else math.inf)

@@ -61,6 +61,10 @@ class Condition:
     worst_frequency: float | None = None
     detail: str = ""
     evidence: dict[str, Any] = field(default_factory=dict)
+    #: a frequency condition's normalized ratio, for its critical band (hil.stability.margins):
+    #: (p exact before axis cancellation, m_r ascending floats), in the network's normalized x;
+    #: not serialized
+    ratio: Any = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {
