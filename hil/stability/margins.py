@@ -53,10 +53,15 @@ def _exact_ratio(p: fmpq_poly, M: np.ndarray, x: float) -> float:
     if not math.isfinite(x):
         b = int(nzm[-1])
         return float(Fraction(int(p[b].p), int(p[b].q)) / Fraction(float(M[b])))
-    v = p(fmpq(*float(x).as_integer_ratio()))
-    mv = float(P.polyval(x, M))
-    if not (mv > 0 and math.isfinite(mv)):
-        # overflow of M at a huge x: the ratio there is the x -> ∞ limit's neighbourhood
+    xq = fmpq(*float(x).as_integer_ratio())
+    v = p(xq)
+    if x <= 1.0:
+        mv = float(P.polyval(x, M))
+    else:  # M(x)/x^n and p(x)/x^n: no overflow at huge x (Horner in 1/x)
+        n = M.size - 1
+        mv = float(P.polyval(1.0 / x, M[::-1]))
+        v = v / xq**n
+    if not (mv > 0 and math.isfinite(mv)):  # pragma: no cover - M under/overflows even so
         return _exact_ratio(p, M, math.inf) if x > 1 else _exact_ratio(p, M, 0.0)
     return float(Fraction(int(v.p), int(v.q)) / Fraction(mv))
 
@@ -114,6 +119,11 @@ def _golden(p: fmpq_poly, M: np.ndarray, lo: float, hi: float, start: tuple[floa
     return best
 
 
+def _log2_abs(q: fmpq) -> float:
+    """log2 |q| of a non-zero exact rational (big integers through math.log2)."""
+    return math.log2(abs(int(q.p))) - math.log2(int(q.q))
+
+
 def restricted(p: fmpq_poly, M: np.ndarray) -> np.ndarray:
     """m_r: the magnitude polynomial M restricted to p's exact degree range [a, b] (ascending
     floats, zero outside), and at least |p_i| inside (float products may round below it)."""
@@ -143,6 +153,18 @@ def frequency_margin(p: fmpq_poly, M: np.ndarray, touching: Sequence[float] = ()
 
     c = np.array(_qpoly_floats(p))
     Mr = restricted(p, M)
+    nz = [i for i in range(c.size) if p[i] != 0]
+    if not (np.all(np.isfinite(Mr)) and np.all(Mr[nz] > 0) and np.all(np.isfinite(c))):
+        # coefficients beyond double range (e.g. 1e-308 next to 1): the float magnitude polynomial
+        # under- or overflowed. p is scaled exactly by a power of two to a largest coefficient of
+        # 1 (the ratio is unchanged) and its own |coefficients| stand in for m, each at least the
+        # smallest double: a bound of the same kind as for a cancelled axis factor
+        top = max(_log2_abs(p[i]) for i in nz)
+        p = p * fmpq(2) ** (-round(top))
+        c = np.array(_qpoly_floats(p))
+        Mr = np.zeros(c.size)
+        Mr[nz] = np.maximum(np.abs(c[nz]), 5e-324)
+        c[nz] = np.where(c[nz] == 0, np.copysign(5e-324, [float(p[i] > 0) - 0.5 for i in nz]), c[nz])
     if ratio_is_constant(c, Mr):
         return _exact_ratio(p, Mr, 1.0), math.nan
     if touching:

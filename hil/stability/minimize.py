@@ -91,6 +91,8 @@ def _positive_real_roots(c_asc: np.ndarray) -> np.ndarray:
         lg = np.log(np.abs(c)) + lx0 * np.arange(c.size)
     lg = np.where(np.isfinite(lg), lg, -np.inf)
     cs = np.sign(c) * np.exp(lg - np.max(lg))
+    if not (np.all(np.isfinite(cs)) and math.isfinite(lx0)):  # coefficients beyond double range
+        return np.zeros(0)
     with np.errstate(all="ignore"):
         r = np.roots(cs[::-1]) * math.exp(lx0)
     r = r[np.isfinite(r)]

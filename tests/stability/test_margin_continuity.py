@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 
+import numpy as np
 import pytest
 
 from hil.stability.criteria import check, llewellyn, positive_real
@@ -72,8 +73,6 @@ def test_the_written_form_does_not_change_the_margin():
     # and an entry written with a common factor that has right-half-plane and axis roots
     z = _z([1.0, 3.0, 2.0], [1.0, 1.0, 1.0])
     g = [1.0, -1.0, 4.0, -4.0]  # (s - 1)(s² + 4)
-    import numpy as np
-
     zg = Rational.from_desc(np.polymul([1.0, 3.0, 2.0], g).tolist(), np.polymul([1.0, 1.0, 1.0], g).tolist())
     r1, r2 = positive_real(z), positive_real(zg)
     assert (str(r1.verdict), r1.weak) == (str(r2.verdict), r2.weak)
@@ -108,3 +107,19 @@ def test_tiny_margins_are_identical_under_power_of_two_scalings(k, j):
         assert scaled.margin == base.margin
         assert scaled.worst_frequency == base.worst_frequency / a
         assert base.margin == pytest.approx(sign * e / (4 + sign * e), rel=2e-6)
+
+
+def test_coefficients_beyond_double_range_do_not_crash_the_margin():
+    """A resistance of 2.2e-308 added to the diagonal of a network whose other coefficients are of
+    order 1: the magnitude polynomials underflow in floats, and numpy's root finder raised
+    LinAlgError on the margin path. The margin falls back to the exactly scaled |p| (docs), with
+    the verdict's sign."""
+    D = np.array([0.08131520178073053, 0.26810985773932056, 1.0])  # ascending
+    U = [[[0.2820009439944593, 0.4393123702322591], [-0.21926390830503487, -0.46614447610552423]],
+         [[-0.2284846801832389], [0.9344744603624109, 1.9690782453134672]]]
+    tiny = 2.2250738585072014e-308
+    tm = TransferMatrix([[Rational(np.array(u), D) + (tiny if i == j else 0.0) for j, u in enumerate(row)]
+                         for i, row in enumerate(U)])
+    for crit in ("passivity", "llewellyn", "absolute_stability"):
+        r = check(tm, crit)
+        assert str(r.verdict) == "potentially_unstable" and -1.0 <= r.margin < 0
