@@ -12,9 +12,6 @@ from typing import Any
 from hil.cli.common import StepProgress, UsageError, out_dir
 from hil.errors import DECISION_EXIT, EXIT_USAGE
 
-#: what ``hil certify`` writes into its folder (``--overwrite`` replaces a folder holding only these)
-CERTIFICATE_FOLDER = ("certificate.json", "report.html", "report.pdf", "scene.yaml", "records")
-
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", nargs="*", help="scene file, built-in name or folder of scenes (default "
@@ -32,9 +29,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                                  "(PEM, see hil keygen; needs the 'sign' extra)")
     p.add_argument("--signer", metavar="NAME", help="who signs (recorded and signed with --sign)")
     p.add_argument("--json", action="store_true")
+    # a fleet's worker builds the folder in its own scratch space and the client writes it at this
+    # path: the certificate and reports name the folder where it will be (not for people)
+    p.add_argument("--named-as", help=argparse.SUPPRESS)
 
 
 def run(args: argparse.Namespace) -> int:
+    from hil.certify.fleet import CERTIFICATE_FOLDER  # what hil certify writes into its folder
     from hil.certify.pipeline import certify_scene
     from hil.protocols.registry import extras_message
     from hil.record.outdir import stage_out_dir
@@ -75,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         with signals_interrupt(), beat:  # SIGTERM/SIGHUP outside the bench: exit 20, the folder in order
             cert = certify_scene(scene, work, progress=say, run_experiments=not args.no_experiments)  # sealed
-            cert = _renamed(cert, work, staged.final)
+            cert = _renamed(cert, work, Path(args.named_as) if getattr(args, "named_as", None) else staged.final)
             from hil.report.render import build_reports
 
             integrity = None
@@ -162,7 +163,7 @@ def run_fleet(args: argparse.Namespace) -> int:
     try:
         with STOP.install():
             res = certify_fleet(scenes, out, executor=ex, seed=seed, extra_args=extra, progress=said,
-                                should_stop=lambda: STOP.requested)
+                                should_stop=lambda: STOP.requested, overwrite=args.overwrite)
     finally:
         ex.close()
     if args.json:
