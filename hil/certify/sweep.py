@@ -602,11 +602,10 @@ def _trim_memory(dask_worker: Any = None) -> int:  # pragma: no cover - runs on 
     gc.collect()
     with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL("libc.so.6").malloc_trim(0)
-    try:
-        import psutil
-
-        return int(psutil.Process().memory_info().rss)
-    except ImportError:
+    try:  # resident pages (Linux); -1 elsewhere
+        with open("/proc/self/statm", encoding="ascii") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
         return -1
 
 

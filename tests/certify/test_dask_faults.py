@@ -229,3 +229,28 @@ def test_fleet_on_dask_with_a_relative_out_is_written_by_the_client(tmp_path) ->
         v = subprocess.run([sys.executable, "-m", "hil", "verify", str(folder)], capture_output=True, text=True)
         assert v.returncode == 0, v.stdout + v.stderr
         assert "hil-fleet-" not in (folder / "certificate.json").read_text()  # no scratch path of the worker
+
+
+@pytest.mark.timeout(180)
+def test_long_lived_workers_forget_what_each_sweep_logged() -> None:
+    """Item 13: a worker keeps a log entry per task transition and a profile per second of work; a
+    long-lived worker serving sweep after sweep grew with them (old: 243 then 495 entries after two
+    sweeps of 28 tasks). After every map the executor releases them, so the logs do not grow with
+    the sweeps (measured RSS: benchmarks/bench_dask_memory.py)."""
+    import hil.certify.sweep as sweep
+    from hil.certify.sweep import SweepSpec, parse_grid, run_sweep
+
+    spec = SweepSpec("sdea", [parse_grid("b22=0.05:0.19:4"), parse_grid("k22=150:450:7")], criterion="passivity",
+                     chunk=1, refine=False)  # 28 tasks
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cl, \
+            distributed.Client(cl) as client:
+        worker = next(iter(cl.workers.values()))
+        sizes = []
+        for _ in range(2):
+            run_sweep(spec, DaskExecutor(client))
+            sizes.append((len(worker.state.log), len(worker.state.stimulus_log)))
+        assert all(log < 28 and stimuli < 28 for log, stimuli in sizes), sizes  # fewer than one per task
+        assert sizes[1][0] <= sizes[0][0] + 28 // 2
+        worker.profile_history.extend([(0.0, {}), (1.0, {})])
+        assert sweep._trim_memory(worker) > 0
+        assert len(worker.profile_history) == 0 and len(worker.state.log) < 28  # (its loop may log on)
