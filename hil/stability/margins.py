@@ -168,7 +168,7 @@ def restricted(p: fmpq_poly, M: np.ndarray) -> np.ndarray:
     Mm = np.abs(np.asarray(M, float))
     Mr = np.zeros(n)
     Mr[a:n] = Mm[a:n] if Mm.size >= n else np.pad(Mm, (0, n - Mm.size))[a:n]
-    Mr = np.maximum(Mr, np.abs(c))
+    Mr = np.asarray(np.maximum(Mr, np.abs(c)), dtype=float)
     Mr[:a] = 0.0
     return Mr
 
