@@ -611,7 +611,7 @@ def _trim_memory(dask_worker: Any = None) -> int:  # pragma: no cover - runs on 
 
 def _release_worker_memory(client: Any) -> None:
     """After a map: :func:`_trim_memory` on every worker (long-lived workers otherwise keep growing
-    from one sweep to the next; docs/BENCHMARKS.md "Dask worker memory"). Never raises."""
+    from one sweep to the next: docs/BENCHMARKS.md "Dask worker memory"). Never raises."""
     with contextlib.suppress(Exception):
         client.run(_trim_memory)
 
