@@ -46,6 +46,13 @@ addressed to its slave id (0, 1, 2, ...; requests for other ids are ignored, as 
   (SERVER DEVICE FAILURE); ``error_code`` of the plan is recorded in :attr:`last_error_code`.
 
 ``late`` and ``garbage`` are not used by this device (request/response over TCP).
+
+**Lockstep barrier.** The server runs in its own thread (pymodbus' asyncio server) and TCP
+delivers bytes asynchronously, so a lockstep bench counts: the adapter's requests (its ``waits``
+link, :meth:`hil.protocols.waits.LockstepWaits.link`) against the server's answers
+(:attr:`SimulatedFT300.answered`, counted after pymodbus wrote each one, :meth:`SimulatedFT300.settle`),
+and the answer bytes written (``link.device_tx``) against those the adapter has taken: no
+deadline, however long the machine takes to run the server thread.
 """
 
 from __future__ import annotations
@@ -170,6 +177,13 @@ class SimulatedFT300:
         self.streaming_requested = False
         self.written: BoundedLog = BoundedLog()  # newest (address, values)
         self.last_request = b""  # raw bytes of the last request frame received (diagnostics)
+        #: requests answered so far (a suppressed reply counts) and the bytes written for them
+        self.answered = 0
+        self.answer_bytes = 0
+        self._answered = threading.Condition()
+        #: the adapter's lockstep link (:meth:`hil.protocols.waits.LockstepWaits.link`): its
+        #: ``tx_units`` (requests sent) and ``device_tx`` (answer bytes written) make the barrier
+        self.link: Any = None
 
         simdata = [
             SimData(address=REG_WRENCH, count=6, values=0, datatype=DataType.REGISTERS),
@@ -291,6 +305,12 @@ class SimulatedFT300:
         if not sending:
             self.last_request = bytes(data)
             return data
+        out = self._reply_bytes(data)
+        # pymodbus writes `out` right after this returns, in this loop callback: count it after that
+        self._loop.call_soon(self._replied, len(out))
+        return out
+
+    def _reply_bytes(self, data: bytes) -> bytes:
         if not self._addressed:
             return b""  # a real RTU slave stays silent for other ids
         tick = self._tick
@@ -307,6 +327,31 @@ class SimulatedFT300:
             start = 1 if self.framing == "rtu" else 7
             return inj.corrupt(data, start=min(start, len(data) - 1))
         return data
+
+    def _replied(self, nbytes: int) -> None:
+        """One request answered (``nbytes`` written, 0 when the reply was suppressed)."""
+        with self._answered:
+            self.answered += 1
+            self.answer_bytes += nbytes
+            if self.link is not None:
+                self.link.device_tx += nbytes
+            self._answered.notify_all()
+
+    def settle(self, requests: int | None = None) -> None:
+        """Lockstep barrier (a bench in lockstep: :attr:`link` set): return once the server has
+        answered (or deliberately not answered) ``requests`` requests, by default every request the
+        adapter on :attr:`link` has sent. Waits as long as the server thread needs: no deadline
+        (only a server thread that died ends it, with an error)."""
+        if requests is None:
+            if self.link is None:
+                return
+            requests = int(self.link.tx_units)
+        with self._answered:
+            while self.answered < requests:
+                if not self._thread.is_alive():
+                    raise RuntimeError(f"simulated FT-300 server stopped with {requests - self.answered} "
+                                       "request(s) unanswered")
+                self._answered.wait(1.0)  # a liveness check period, not a deadline
 
     async def _action(
         self,

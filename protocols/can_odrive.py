@@ -133,6 +133,7 @@ from hil.protocols.codecs.odrive import (
     encode_u32,
     split_id,
 )
+from hil.protocols.waits import WALL, Waits
 
 logger = logging.getLogger(__name__)
 
@@ -182,6 +183,7 @@ class ODriveCAN(CanActuator):
         effort_limit: float | None = None,
         enable: bool = True,
         clock: Callable[[], float] = time.monotonic,
+        waits: Waits = WALL,
         timeout: float = 0.1,
         retries: int = 1,
         watchdog_s: float | None = None,
@@ -213,6 +215,7 @@ class ODriveCAN(CanActuator):
         self.read_torque = read_torque
         self.effort_limit = effort_limit
         self.clock = clock
+        self._waits = waits
         self.timeout = timeout
         self._enable = enable
         self.label = f"ODrive node {self.node_id}"
@@ -326,7 +329,7 @@ class ODriveCAN(CanActuator):
             self._hb_count += 1
         elif cmd == CMD_GET_ENCODER_ESTIMATES:
             self._estimate = (*decode_f32x2(msg.data), self.clock())
-            self._last_rx_wall = time.monotonic()
+            self._last_rx_wall = self._waits.monotonic()
         elif cmd == CMD_GET_TORQUES:
             self._torques = decode_f32x2(msg.data)
         return cmd
@@ -352,11 +355,11 @@ class ODriveCAN(CanActuator):
         seen = self._hb_count
         with contextlib.suppress(DeviceTimeout):
             self._send(CMD_HEARTBEAT, remote=True, timeout=timeout)
-        deadline = time.monotonic() + timeout
+        deadline = self._waits.monotonic() + timeout
         while True:
             if self._hb_count > seen and (self._fault or self.axis_state == AxisState.CLOSED_LOOP_CONTROL):
                 break
-            remaining = deadline - time.monotonic()
+            remaining = deadline - self._waits.monotonic()
             if remaining <= 0:
                 break
             msg = self._recv(remaining)
@@ -376,7 +379,7 @@ class ODriveCAN(CanActuator):
 
     def _wait_for(self, cmd: int, deadline: float) -> None:
         while True:
-            remaining = deadline - time.monotonic()
+            remaining = deadline - self._waits.monotonic()
             msg = self._recv(remaining) if remaining > 0 else self._recv(0.0)
             if msg is None:
                 raise DeviceTimeout(f"ODrive node {self.node_id}: no answer to cmd 0x{cmd:02X} in time")
@@ -427,7 +430,7 @@ class ODriveCAN(CanActuator):
         else:
             self._drain()
             if self._estimate is None:
-                wait_until = time.monotonic() + timeout
+                wait_until = self._waits.monotonic() + timeout
                 if self._last is not None:  # wait only until the newest estimate is `timeout` old
                     wait_until = min(wait_until, self._last_rx_wall + timeout)
                 with contextlib.suppress(DeviceTimeout):
@@ -471,7 +474,7 @@ class ODriveCAN(CanActuator):
     def _poll(self, timeout: float) -> None:
         """Request the estimate (and torques) with RTR frames; resend up to ``retries`` times within
         ``timeout``; DeviceTimeout if no answer."""
-        deadline = time.monotonic() + timeout
+        deadline = self._waits.monotonic() + timeout
         self._ahead = False  # a request sent ahead (non-blocking poll) is answered here, as a stale one
         self._drain()
         if self._estimate is not None:
@@ -481,7 +484,7 @@ class ODriveCAN(CanActuator):
         attempts = 1 + self.retries
         for k in range(attempts):
             self._send(CMD_GET_ENCODER_ESTIMATES, remote=True, timeout=timeout)
-            until = time.monotonic() + (deadline - time.monotonic()) / (attempts - k)
+            until = self._waits.monotonic() + (deadline - self._waits.monotonic()) / (attempts - k)
             try:
                 self._wait_for(CMD_GET_ENCODER_ESTIMATES, until)
                 break
@@ -495,7 +498,7 @@ class ODriveCAN(CanActuator):
             self._torques = None
             self._send(CMD_GET_TORQUES, remote=True, timeout=timeout)
             try:
-                self._wait_for(CMD_GET_TORQUES, max(deadline, time.monotonic()))
+                self._wait_for(CMD_GET_TORQUES, max(deadline, self._waits.monotonic()))
             except DeviceTimeout:
                 self._timeouts += 1
                 raise

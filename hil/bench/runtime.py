@@ -59,6 +59,7 @@ from hil.errors import DeviceDisconnected, DeviceTimeout, HilError, ModelError, 
 from hil.mocks.twins import Twin, TwinContext
 from hil.protocols.base import JointSample, WrenchSample
 from hil.protocols.registry import device_kind, open_device, resolve_twin, simulated_drivers
+from hil.protocols.waits import WALL, LockstepWaits, Waits
 from hil.scene.spec import (
     HumanCfg,
     ImpedanceTermination,
@@ -80,8 +81,10 @@ Measurements = dict[str, JointSample | WrenchSample]
 #: kinds registered later or through entry points).
 SIMULATED_DRIVERS = tuple(simulated_drivers())
 
-#: Wall-clock wait for a simulated device's reply, in units of ``watchdog_ms`` (see :class:`Bench`).
-LOCKSTEP_WAIT_FACTOR = 20.0
+#: A lockstep bench's per-call device timeout in units of ``watchdog_ms`` (see :class:`Bench`): 1, as
+#: at a real bench, because its waits are simulated (:class:`hil.protocols.waits.LockstepWaits`). It
+#: was 20 while lockstep waits were wall-clock waits bounded by it (issue 26).
+LOCKSTEP_WAIT_FACTOR = 1.0
 
 _BENCH_IDS = itertools.count(1)
 _BENCH_IDS_LOCK = threading.Lock()
@@ -228,14 +231,14 @@ class Bench:
     variant: plant configuration of a simulated SDEA: ``"locked"`` (output fixed), ``"free"``
         (output inertia ``m_out``) or ``None`` (as the scene says: free iff ``m_out`` is set).
         Experiments with a different ``variant`` need their own bench.
-    timeout: per-call device timeout (s) for reads and commands. Default (``None``): derived from
-        the scene's ``safety.watchdog_ms``: a real bench waits at most ``watchdog_ms`` for a device
-        (a read never blocks longer than the runner's watchdog allows); a simulated bench waits
-        :data:`LOCKSTEP_WAIT_FACTOR` x ``watchdog_ms`` of wall time, because its devices answer in
-        lockstep on the simulated clock: the wall-clock wait is only how long the host waits for a
-        reply the simulator is sure to send (threads, ptys, sockets), never a measure of freshness;
-        freshness is judged on the simulated clock (``produced_at``), so lockstep runs stay
-        deterministic under any machine load.
+    timeout: per-call device timeout (s) for reads and commands. Default (``None``): the scene's
+        ``safety.watchdog_ms`` (a read never blocks longer than the runner's watchdog allows). A real
+        bench measures it on the host's clock; a simulated bench on simulated time: its adapters
+        wait through :attr:`waits` (:class:`hil.protocols.waits.LockstepWaits`), whose barrier
+        (:meth:`settle`) serves every simulated device until it has processed what the host sent and
+        its answers are readable, however long the machine takes, so a wait ends at once with its
+        answer or, when the device sends none, after its timeout of simulated time. Nothing a
+        lockstep run does depends on the wall clock or the machine's load.
 
     Attributes: ``actuators`` / ``sensors`` (name -> adapter), ``simulated`` (bool), ``simulator``
     (the :class:`hil.mocks.simulator.Simulator` or None), ``plant``, ``dt``, ``time``.
@@ -243,6 +246,8 @@ class Bench:
 
     #: install the stop-request signal handlers while open (a SimulatedScene keeps the caller's)
     _install_stop = True
+    #: a simulated bench's adapters wait on simulated time (a SimulatedScene runs free, without adapters)
+    _simulated_time = True
 
     def __init__(self, scene: Scene, *, seed: int | None = None, variant: str | None = None,
                  timeout: float | None = None) -> None:
@@ -254,8 +259,11 @@ class Bench:
         if timeout is None:
             timeout = self.watchdog_s * (LOCKSTEP_WAIT_FACTOR if self.simulated else 1.0)
         self.timeout = float(timeout)
-        #: per-actuator bound (s) of :meth:`safe_stop`
-        self.safe_stop_timeout = max(1.0, 10.0 * self.timeout)
+        #: per-actuator bound (s, wall clock) of :meth:`safe_stop` at a real bench (None on a lockstep
+        #: bench: its adapters' waits are simulated, the stop ends when the devices have answered)
+        self.safe_stop_timeout: float | None = max(1.0, 10.0 * self.timeout)
+        #: the adapters' waits (:mod:`hil.protocols.waits`): simulated time on a lockstep bench
+        self.waits: Waits = WALL
         self.variant = variant
         self.simulator: Any = None
         self.plant: Any = None
@@ -280,6 +288,9 @@ class Bench:
         try:
             if self.simulated:
                 self._build_simulation()
+                if self._simulated_time:
+                    self.waits = LockstepWaits(self._clock, self._flush_devices)
+                    self.safe_stop_timeout = None
             self._open_devices()
             STOP.check()
         except BaseException:
@@ -465,8 +476,9 @@ class Bench:
         Runs as a :meth:`hil.bench.stopflag.StopRequest.critical` section: a signal cannot cut it short.
         Every actuator is attempted, even when an earlier one raises or hangs: each adapter's
         ``safe_stop`` (whose bus calls have short timeouts of their own, 0.05 s per frame) runs in a
-        worker thread given at most :attr:`safe_stop_timeout` s (default ``max(1 s, 10 x timeout)``)
-        before the next actuator is attempted. Returns, per actuator, ``"ok"``, ``"timeout after
+        worker thread given at most :attr:`safe_stop_timeout` s (default ``max(1 s, 10 x timeout)``;
+        on a lockstep bench no wall-clock bound: its waits are simulated) before the next actuator
+        is attempted. Returns, per actuator, ``"ok"``, ``"timeout after
         T s"`` or the one-line error (also logged).
         """
         done: dict[str, str] = {}
@@ -487,7 +499,7 @@ class Bench:
                 worker = threading.Thread(target=zero, name=f"safe-stop-{d.name}", daemon=True)
                 worker.start()
                 worker.join(limit)  # signals are handled meanwhile (they only count, see STOP)
-                done[d.name] = box[0] if box else f"timeout after {limit:g} s"
+                done[d.name] = box[0] if box else f"timeout after {limit or 0.0:g} s"
                 if done[d.name] != "ok":
                     logger.error("safe_stop of %s failed: %s", d.name, done[d.name])
             with contextlib.suppress(Exception):
@@ -717,10 +729,11 @@ class Bench:
                       channels: dict[tuple[str, str], str]) -> TwinContext:
         """Lockstep: CAN nodes on python-can's virtual bus, one private channel per scene channel
         and bench; the adapters read the simulated clock."""
+        waits = self.waits.link() if isinstance(self.waits, LockstepWaits) else None
         return TwinContext(index, d.cfg, d.point, seed, faults, self.dt, float(self.scene.rate_hz), self._clock,
                            self.timeout, True, "virtual",
                            lambda iface, ch: channels.setdefault((iface, ch), f"{ch}.bench{self._bench_id}"),
-                           self._devs, str(self.scene.path or self.scene.name))
+                           self._devs, str(self.scene.path or self.scene.name), waits)
 
     def _sim_seed_faults(self, index: int, cfg: Any) -> tuple[int, Any]:
         """Seed and :class:`hil.mocks.faults.FaultPlan` of the simulated counterpart of device
@@ -734,8 +747,9 @@ class Bench:
         return self.simulator.time if self.simulator is not None else 0.0
 
     def _flush_devices(self) -> None:
-        """Let simulated devices process what the host has sent (each twin's ``flush``; e.g. a
-        DYNAMIXEL chain waits until it consumed every byte the adapters on it wrote)."""
+        """The lockstep barrier (:attr:`waits`' ``settle``, and before each plant step): every simulated
+        device processes what the host has sent and makes its answers readable (each twin's
+        ``flush``: pty devices served in this thread, the Modbus server's answers counted)."""
         wait = max(1.0, 10 * self.timeout)
         for twin, sim, adapters in self._sim_plan():
             twin.flush(sim, adapters, wait)
@@ -797,6 +811,7 @@ class SimulatedScene(Bench):
     """
 
     _install_stop = False  # ``hil mock serve`` handles its own SIGINT/SIGTERM
+    _simulated_time = False  # free-running on the wall clock: no lockstep barrier
 
     def __init__(self, scene: Scene, *, seed: int | None = None, variant: str | None = None,
                  can_interface: str = "virtual", can_channels: Mapping[str, str] | None = None,
@@ -872,7 +887,7 @@ class SimulatedScene(Bench):
             d.point = self._point(i, d.cfg)
         for i, d in enumerate(self._devs):
             params = self._start_sim(i, d, dict(d.cfg.params), channels)
-            for host_side in ("clock", "timeout"):  # the client's own choice
+            for host_side in ("clock", "timeout", "waits"):  # the client's own choice
                 params.pop(host_side, None)
             self.endpoints.append(self._endpoint(d, params))
 
@@ -882,6 +897,7 @@ class SimulatedScene(Bench):
         multicast group each), devices answering as requests arrive."""
         ctx = super()._twin_context(index, d, seed, faults, channels)
         ctx.lockstep = False
+        ctx.waits = None
         ctx.can_interface = self.can_interface
         ctx.channel = lambda iface, ch: channels.setdefault((iface, ch), self._can_channel(ch, len(channels)))
         return ctx
