@@ -579,6 +579,7 @@ class DynamixelChain:
         if inj.is_disconnected(tick) or inj.should_drop(tick):
             self.replies_dropped += 1
             return b""
+        inj.hold_up()
         delay = servo.table[ADDR_RETURN_DELAY] * RETURN_DELAY_UNIT_S
         if delay > 0 and self.threaded:
             # Return Delay Time(9): the servo waits before its status packet. Served in lockstep the

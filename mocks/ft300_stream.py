@@ -197,6 +197,7 @@ class SimFT300Stream:
         if inj.is_disconnected(t):
             self.stats["silent"] += 1
             return
+        inj.hold_up()
         frame = encode_stream_frame(self.wrench())
         data = self._frame_faults.bytes_to_send(frame, t)
         if data is None:
@@ -315,6 +316,7 @@ class SimFT300Stream:
             if start:  # in stream mode from the echo on; emit() takes the same lock: no frame before it
                 self._set_streaming(True)
                 self._ff_run = 0
+            self.injector.hold_up()
             self._write(rtu_frame(self.slave, reply))
             if start:
                 return

@@ -128,6 +128,8 @@ class SimulatedFT300:
 
     ``framing`` is ``"tcp"`` (Modbus/TCP, MBAP header) or ``"rtu"`` (RTU frames over TCP).
     ``port=0`` picks a free port; the bound port is :attr:`port` and the adapter URL :attr:`url`.
+    ``start_timeout`` (s, wall clock): how long to wait for the server to listen; None: as long as
+    its thread lives (a lockstep bench: however long a loaded machine takes).
     Use as a context manager or call :meth:`close` (idempotent).
     """
 
@@ -145,7 +147,7 @@ class SimulatedFT300:
         firmware: tuple[int, int, int] = (1, 0, 3),
         serial: tuple[str, int] = ("SIM", 1),
         production_year: int = 2024,
-        start_timeout: float = 5.0,
+        start_timeout: float | None = 5.0,
         tcp_corrupt: str = "gateway",
     ) -> None:
         # Imported here: pymodbus is an optional dependency (extra "modbus").
@@ -210,9 +212,10 @@ class SimulatedFT300:
             target=self._run, args=(port,), name=f"sim-ft300-{framing}", daemon=True
         )
         self._thread.start()
-        if not self._ready.wait(start_timeout):
-            self.close()
-            raise TimeoutError("simulated FT-300 server did not start")
+        while not self._ready.wait(start_timeout if start_timeout is not None else 1.0):
+            if start_timeout is not None or not self._thread.is_alive():
+                self.close()
+                raise TimeoutError("simulated FT-300 server did not start")
         if self._start_error is not None:
             self.close()
             raise RuntimeError(f"simulated FT-300 server failed: {self._start_error}")
@@ -318,6 +321,7 @@ class SimulatedFT300:
         if inj.is_disconnected(tick) or inj.should_drop(tick):
             self.replies_dropped += 1
             return b""
+        inj.hold_up()
         if inj.should_corrupt(tick):
             self.corrupted_replies += 1
             if self.framing == "tcp" and self.tcp_corrupt == "gateway" and len(data) >= 8:

@@ -254,6 +254,7 @@ class SimBota:
             self.config.update(sinc_length=sinc, chop_enable=chop, fast_enable=fast, fir_disable=fir)
             if sinc > 0:
                 self.period_s = sinc / BOTA_BASE_HZ
+        self.injector.hold_up()
         self._write(f"r,0,{letter},0".encode("ascii"))
 
     # -- streaming ------------------------------------------------------------------------------
@@ -281,6 +282,7 @@ class SimBota:
         inj = self.injector
         if inj.is_disconnected(t):
             return
+        inj.hold_up()
         status = self.status | inj.error_code(t)
         if self.config.get("use_calibration") == 0:
             status |= STATUS_RAW

@@ -299,7 +299,8 @@ class FT300ModbusTwin(Twin):
         from hil.mocks.modbus_devices import SimulatedFT300
 
         sim = SimulatedFT300(_wrench_fn(ctx), framing=ctx.cfg.sim.framing, port=0, faults=ctx.faults,
-                             seed=ctx.seed, auto_update=not ctx.lockstep, slave=int(params.get("slave", 9)))
+                             seed=ctx.seed, auto_update=not ctx.lockstep, slave=int(params.get("slave", 9)),
+                             start_timeout=None if ctx.lockstep else 5.0)  # lockstep: however long it takes
         params.update(url=sim.url, clock=ctx.clock, timeout=ctx.timeout)
         if ctx.waits is not None:
             sim.link = params["waits"] = ctx.waits.link()

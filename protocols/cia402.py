@@ -223,14 +223,12 @@ class CiA402Drive(Actuator):
         self.node = canopen.RemoteNode(self.node_id, od)
         self.node.sdo.RESPONSE_TIMEOUT = self.timeout
         self.network.add_node(self.node)
-        self.network.connect()
-        self._dispatching = False
-        if waits.lockstep:  # no receive thread: what arrives is dispatched when the adapter waits
-            assert self.network.notifier is not None  # started by connect()
-            self.network.notifier.stop(1.0)
-            self._dispatching = True
-            self.node.sdo.__class__ = _WaitingSdoClient
+        self._dispatching = bool(waits.lockstep)
+        if self._dispatching:  # no receive thread (connect() would start canopen's notifier): what
+            self.node.sdo.__class__ = _WaitingSdoClient  # arrives is dispatched when the adapter waits
             self.node.sdo.adapter = self
+        else:
+            self.network.connect()
         self.node.emcy.add_callback(self._on_emcy)
         self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
         self.info = DeviceInfo(driver="cia402", transport=f"can:{interface}:{channel}" if bus is None

@@ -313,7 +313,7 @@ class RobotiqFT300(ForceSensor):
 
         try:
             with serial.Serial(ep.device, ep.baudrate, bytesize=8, parity="N", stopbits=1, timeout=0.01,
-                               write_timeout=0.5) as ser:
+                               write_timeout=None if self._waits.lockstep else 0.5) as ser:
                 stopped = stop_stream_on_line(ser, waits=self._waits)
         except (serial.SerialException, OSError) as exc:
             raise DeviceDisconnected(f"FT-300: cannot open {ep.device}: {exc}") from exc
@@ -692,7 +692,7 @@ class RobotiqFT300Stream(StreamingSensor):
         try:
             self._ser = serial.serial_for_url(
                 port_url, baudrate=baud, bytesize=8, parity="N", stopbits=1, timeout=poll_s,
-                write_timeout=max(self.timeout, 0.05),
+                write_timeout=None if waits.lockstep else max(self.timeout, 0.05),  # wall clock: not in lockstep
             )
         except (serial.SerialException, OSError, ValueError) as exc:
             self._closed = True  # nothing to release

@@ -160,7 +160,10 @@ class BotaSerial(StreamingSensor):
         self._stale_reads = 0
         self._timeouts = 0
         try:
-            self._ser = serial.serial_for_url(url, baudrate=baudrate, timeout=poll_s, write_timeout=timeout)
+            # a write that takes longer than the timeout is an error at a bench; on a lockstep bench
+            # nothing is measured on the wall clock (pyserial's write timeout is)
+            self._ser = serial.serial_for_url(url, baudrate=baudrate, timeout=poll_s,
+                                              write_timeout=None if waits.lockstep else timeout)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DeviceDisconnected(f"cannot open {url!r}: {exc}") from exc
         self.info = DeviceInfo(driver="bota_serial", transport=f"serial:{url}", vendor="Bota Systems",
