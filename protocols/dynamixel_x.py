@@ -281,6 +281,7 @@ class DynamixelX(Actuator):
         self.return_delay = None if return_delay is None else int(return_delay)
         self._waits = waits
         self._port = _make_port_handler(port, waits)
+        self._port.call_timeout_ms = 1000.0 * self.timeout  # the first ping's too (was a fixed 100 ms)
         self._ph = PacketHandler(2.0)
         try:
             ok = self._port.openPort() and self._port.setBaudRate(baudrate)

@@ -151,19 +151,39 @@ def stop_stream_on_line(ser: Any, *, listen_s: float = 0.05, stop_s: float = STR
             return False
 
 
+#: wall-clock bound (s) of pymodbus' serial receive, on a lockstep bench, once the barrier has put
+#: every byte of the answer on the host's port (its "line quiet" check ends at its first look)
+SERIAL_QUIET_S = 0.001
+
+
 def _waiting_client(base: Any, waits: Waits) -> Any:
     """A pymodbus sync client class whose receive waits through ``waits``: at a bench exactly
     pymodbus' own wait (a select on the socket for the client's timeout); on a lockstep bench the
     barrier first (the simulated server has answered every request sent), then no wall-clock wait:
-    the reply is there, or it will never come and the timeout passes in simulated time. The bytes
-    taken are reported to ``waits`` (a lockstep link's count)."""
+    the reply is there, or it will never come and the timeout passes in simulated time. Each
+    request sent (pymodbus' sync client sends one frame per ``send``) and the bytes taken are
+    reported to ``waits`` (a lockstep link's counts)."""
 
     class WaitingClient(base):  # type: ignore[misc]  # pymodbus client classes (Any to mypy)
+        def send(self, request: bytes, addr: tuple[Any, ...] | None = None) -> int:
+            n: int = base.send(self, request, addr)
+            if request:
+                waits.sent(1)
+            return n
+
         def recv(self, size: int | None) -> bytes:
             params = self.comm_params
             timeout = float(params.timeout_connect or 0.0)
 
             def poll(t: float) -> bytes | None:
+                line = getattr(self.socket, "in_waiting", None)  # a serial client (pyserial port)
+                if t <= 0.0 and line is not None:
+                    # pymodbus' serial receive first waits for the line to go quiet, on the wall
+                    # clock: with nothing there nothing is coming; with bytes there (all of them:
+                    # the barrier ran) that wait ends at its first look
+                    if not line:
+                        return None
+                    t = SERIAL_QUIET_S
                 params.timeout_connect = t
                 try:
                     got: bytes = base.recv(self, size)
@@ -410,6 +430,7 @@ class RobotiqFT300(ForceSensor):
             raise DeviceDisconnected(f"FT-300 on {self.url}: {exc}") from exc
         if sent != len(frame):
             raise DeviceDisconnected(f"FT-300 on {self.url}: request not sent ({sent} of {len(frame)} bytes)")
+        self._waits.sent(1)
         self._abuf.clear()
         self._ahead, self._ahead_at = True, self._waits.monotonic()
 
@@ -535,7 +556,6 @@ class RobotiqFT300(ForceSensor):
 
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
         if sending:
-            self._waits.sent(1)  # one request (a lockstep link counts the server's answers)
             self._rx = b""
         else:
             self._rx = bytes(data)  # pymodbus hands over the whole receive buffer so far

@@ -14,8 +14,8 @@ and readiness wait through it, never through :mod:`time` or :mod:`select` direct
   answered can be read by the host, however long the machine takes. A wait first settles; what
   it waits for is then either there (the wait ends at once) or will not come before the simulated
   clock moves (the device dropped the reply, a sensor has no new sample this tick): the wait then
-  lasts its whole timeout *in simulated time* only (``monotonic()`` moves on by it, the wall clock
-  is not consulted). ``monotonic()`` is the simulated clock plus the simulated time the host has
+  lasts its whole timeout *in simulated time* only (``monotonic()`` moves on by it, plus
+  :data:`WAIT_QUANTUM_S`; the wall clock is not consulted). ``monotonic()`` is the simulated clock plus the simulated time the host has
   spent in such waits. So a reply deadline, a watchdog or a retry delay gives the same result on an
   idle laptop and on a loaded box.
 
@@ -47,6 +47,11 @@ from typing import Any, TypeVar
 logger = logging.getLogger(__name__)
 
 T = TypeVar("T")
+
+#: simulated time (s) a lockstep wait that finds nothing lasts beyond its timeout: every such wait moves
+#: the clock, so a loop that waits (or polls with timeout 0) until a deadline always passes it, whatever
+#: the rounding of ``deadline - monotonic()`` (1 ns: far below any timeout or sample period)
+WAIT_QUANTUM_S = 1e-9
 
 #: wall-clock period (s) of a lockstep wait for bytes a simulated device has already written and the
 #: kernel has not delivered yet (TCP): how often it looks, never how long (no deadline)
@@ -164,13 +169,13 @@ class LockstepWaits(Waits):
     def sleep(self, seconds: float) -> None:
         self.settle()
         if seconds > 0:
-            self._host.waited += seconds
+            self._host.waited += seconds + WAIT_QUANTUM_S
 
     def readable(self, fileobj: Any, timeout: float) -> bool:
         self.settle()
         if select.select([fileobj], [], [], 0.0)[0]:
             return True
-        self._host.waited += max(0.0, timeout)
+        self._host.waited += max(0.0, timeout) + WAIT_QUANTUM_S
         return False
 
     def receive(self, poll: Callable[[float], T | None], timeout: float) -> T | None:
@@ -181,7 +186,7 @@ class LockstepWaits(Waits):
             # so wait for it (a polling period, not a deadline)
             got = poll(DELIVERY_POLL_S)
         if got is None:
-            self._host.waited += max(0.0, timeout)
+            self._host.waited += max(0.0, timeout) + WAIT_QUANTUM_S
         return got
 
     def sent(self, n: int = 1) -> None:
@@ -191,4 +196,4 @@ class LockstepWaits(Waits):
         self.rx_bytes += n
 
 
-__all__ = ["DELIVERY_POLL_S", "WALL", "LockstepWaits", "Waits"]
+__all__ = ["DELIVERY_POLL_S", "WAIT_QUANTUM_S", "WALL", "LockstepWaits", "Waits"]

@@ -32,7 +32,7 @@ import yaml
 from hil.scene.spec import load_scene, scene_from_dict
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_lockstep_records import _read_record, assert_same_record  # noqa: E402
+from test_lockstep_records import _read_record, assert_same_record
 
 pytestmark = pytest.mark.timeout(900)
 
@@ -191,7 +191,7 @@ def test_lockstep_waits_time_out_in_simulated_time_and_find_what_the_barrier_del
     import os
     import select
 
-    from hil.protocols.waits import LockstepWaits
+    from hil.protocols.waits import WAIT_QUANTUM_S, LockstepWaits
 
     sim_t = {"t": 1.0}
     r, w = os.pipe()
@@ -210,13 +210,15 @@ def test_lockstep_waits_time_out_in_simulated_time_and_find_what_the_barrier_del
         assert waits.readable(r, 0.5)  # delivered by the barrier: there at once, no time passes
         assert waits.monotonic() == 1.0 and os.read(r, 16) == b"reply"
         assert not waits.readable(r, 0.5)  # nothing comes: the whole timeout passes, simulated
-        assert waits.monotonic() == pytest.approx(1.5) and waits.waited == pytest.approx(0.5)
+        assert waits.monotonic() > 1.5 and waits.waited == pytest.approx(0.5, abs=2 * WAIT_QUANTUM_S)
         waits.sleep(0.25)
-        assert waits.monotonic() == pytest.approx(1.75)
+        assert waits.monotonic() == pytest.approx(1.75, abs=3 * WAIT_QUANTUM_S)
         sim_t["t"] = 2.0  # the simulation advanced: monotonic = simulated clock + time spent waiting
-        assert waits.monotonic() == pytest.approx(2.75)
-        assert waits.receive(lambda t: None, 0.1) is None and waits.waited == pytest.approx(0.85)
-        assert waits.receive(lambda t: "frame", 0.1) == "frame" and waits.waited == pytest.approx(0.85)
+        assert waits.monotonic() == pytest.approx(2.75, abs=3 * WAIT_QUANTUM_S)
+        assert waits.receive(lambda t: None, 0.1) is None
+        assert waits.waited == pytest.approx(0.85, abs=4 * WAIT_QUANTUM_S)
+        before = waits.waited
+        assert waits.receive(lambda t: "frame", 0.1) == "frame" and waits.waited == before  # no time passes
         link = waits.link()  # one device's view: same time, own counters
         link.sent(2)
         link.received(7)
@@ -246,4 +248,23 @@ def test_lockstep_receive_waits_for_bytes_the_device_wrote_before_it_times_out()
     assert got == b"0123456789" and waits.waited == 0.0
     assert calls[0] == 0.0 and len(calls) == 3
     waits.received(10)
-    assert waits.receive(lambda t: None, 1.0) is None and waits.waited == 1.0  # nothing due: timed out
+    assert waits.receive(lambda t: None, 1.0) is None and waits.waited > 1.0  # nothing due: timed out
+
+
+def test_a_deadline_loop_always_ends_in_simulated_time() -> None:
+    """Every empty wait moves simulated time by at least WAIT_QUANTUM_S: a loop that waits until
+    ``monotonic() > deadline`` (strictly, as dynamixel_sdk's packet timeout) or polls with timeout 0
+    ends, whatever the rounding of the time left."""
+    from hil.protocols.waits import LockstepWaits
+
+    waits = LockstepWaits(lambda: 1e5, lambda: None)  # a large clock: coarse float rounding
+    deadline = waits.monotonic() + 0.1
+    n = 0
+    while not waits.monotonic() > deadline:
+        waits.receive(lambda t: None, min(0.005, deadline - waits.monotonic()))
+        n += 1
+        assert n < 100
+    start = waits.monotonic()
+    for _ in range(3):
+        waits.receive(lambda t: None, 0.0)
+    assert waits.monotonic() > start
