@@ -22,8 +22,21 @@ running this tree, ``--repeat`` times each per scene; the table shows the best o
 second of the child's CPU time, for the bench alone and for the runner: a loaded machine disturbs
 the wall clock far more) and the ratio this tree / REV.
 
+``--costs`` prints, per scene, what a bench tick costs in CPU time (this thread's
+``time.thread_time``, best of ``--repeat`` blocks of ``--ticks`` ticks; a loaded machine disturbs CPU
+time far less than the wall clock) and how that splits by where the code lives (a ``cProfile`` run
+of the same ticks, its shares of self time applied to the unprofiled CPU time): the adapters under
+test and the libraries they call (``hil.protocols``, dynamixel_sdk, pymodbus, canopen, python-can),
+the transports (python-can's virtual bus and its queues, the pty and socket system calls, pyserial),
+the simulated devices (``hil.mocks`` but the plant), the bench (``hil.bench``: measurement points,
+barriers, group assembly) and the plant (``hil.mocks.simulator``). The **ceiling** is the tick rate
+if only the adapters, the transports and the plant cost anything (the work a faster lockstep cannot
+remove without changing the adapters' code path): 1 / (adapters + transports + plant). With
+``--against REV`` the same run also prints this tree against ``REV`` (bench ticks per CPU-second,
+best of ``--repeat`` child processes each).
+
 Run: ``python benchmarks/bench_lockstep.py [--ticks 2000] [--scenes sdea_bench,...] [--digest]
-[--phases] [--against REV [--repeat 3]]``. Not a test; prints tables.
+[--phases] [--floor] [--costs] [--against REV [--repeat 3]]``. Not a test; prints tables.
 """
 
 from __future__ import annotations
@@ -38,6 +51,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -78,7 +92,8 @@ def runner_rates(name: str, ticks: int, digest: bool) -> tuple[float, float, str
 
 
 def bench_tps(name: str, ticks: int) -> tuple[float, float, float]:
-    """(bench ticks/s wall clock, bench ticks/s of this process's CPU time, plant-only ticks/s)."""
+    """(bench ticks/s wall clock, bench ticks/s of this process's CPU time, plant-only ticks/s of
+    this thread's CPU time)."""
     sc = load_scene(name)
     with Bench(sc, seed=sc.seed) as bench:
         zero = {a: np.zeros(sc.device(a).dof) for a in bench.actuators}
@@ -91,10 +106,10 @@ def bench_tps(name: str, ticks: int) -> tuple[float, float, float]:
         bench.safe_stop()
     with Bench(sc, seed=sc.seed) as bench:
         sim = bench.simulator
-        t0 = time.perf_counter()
+        c0 = time.thread_time()
         for _ in range(ticks):
             sim.tick()
-        p = time.perf_counter() - t0
+        p = time.thread_time() - c0
     return ticks / b, ticks / c, ticks / p
 
 
@@ -131,6 +146,138 @@ def phases(name: str, ticks: int) -> dict[str, float]:
                 acc[k] = acc.get(k, 0) + clk() - t0
         bench.safe_stop()
     return {k: v / ticks / 1e3 for k, v in acc.items()}
+
+
+#: cost categories of a lockstep tick, in table order
+CATEGORIES = ("adapters", "transports", "devices", "bench", "plant", "threads")
+
+
+def _transport_code() -> set[tuple[str, int, str]]:
+    """cProfile keys of the lockstep CAN transport in hil.mocks (the virtual bus's send/receive)."""
+    from hil.mocks import can_devices as cd
+
+    fns = [cd.LockstepVirtualBus.send, cd.LockstepVirtualBus._recv_internal, cd.LockstepVirtualBus.__init__,
+           cd._frame_copy, cd._SyncQueue.put]
+    return {(f.__code__.co_filename, f.__code__.co_firstlineno, f.__code__.co_name) for f in fns}
+
+
+_SYSCALLS = ("select.select", "posix.read", "posix.write", "fcntl.ioctl", "'recv' of '_socket", "'send' of '_socket",
+             "'recv_into' of '_socket", "'sendall' of '_socket")
+
+
+def _category(key: tuple[str, int, str], transport: set[tuple[str, int, str]]) -> str | None:
+    """Where a profiled function's self time goes (None: neutral, charged to its callers)."""
+    path, _, func = key
+    if key in transport or "/can/interfaces/virtual" in path or path.endswith(("/queue.py", "/threading.py")) \
+            or "/site-packages/serial/" in path or (path == "~" and any(c in func for c in _SYSCALLS)):
+        return "transports"
+    if "/mocks/simulator" in path or "/mocks/physics" in path or path.endswith("/hil/lti.py") \
+            or "/mocks/terminations" in path:
+        return "plant"
+    if "/canopen/node/local" in path or "/canopen/sdo/server" in path or "/pymodbus/server" in path \
+            or "/pymodbus/simulator" in path:
+        return "devices"
+    if "/protocols/" in path or "/site-packages/can/" in path or "/dynamixel_sdk/" in path or "/canopen/" in path \
+            or "/pymodbus/" in path:
+        return "adapters"
+    if "/mocks/" in path:
+        return "devices"
+    if "/hil/bench/" in path:
+        return "bench"
+    return None  # numpy, builtins, the standard library: charged to whoever called them
+
+
+def cost_split(name: str, ticks: int, repeat: int) -> tuple[float, dict[str, float]]:
+    """(CPU s per bench tick, CPU s per tick by category): the best of ``repeat`` unprofiled blocks
+    of ``ticks`` ticks (this thread's CPU time; other threads of the process, e.g. the Modbus
+    server's, are the "threads" category), split by the shares of one profiled block."""
+    import cProfile
+    import pstats
+
+    sc = load_scene(name)
+    transport = _transport_code()
+    with Bench(sc, seed=sc.seed) as bench:
+        zero = {a: np.zeros(sc.device(a).dof) for a in bench.actuators}
+
+        def block() -> None:
+            for _ in range(ticks):
+                bench.read()
+                bench.command(zero)
+                bench.advance()
+
+        block()  # warm up (first frames, caches)
+        best, others = float("inf"), 0.0
+        for _ in range(repeat):
+            c0, p0 = time.thread_time(), time.process_time()
+            block()
+            c, pc = time.thread_time() - c0, time.process_time() - p0
+            if c < best:
+                best, others = c, max(0.0, pc - c)
+        prof = cProfile.Profile(time.thread_time)
+        prof.enable()
+        block()
+        prof.disable()
+        bench.safe_stop()
+    stats = pstats.Stats(prof).stats  # type: ignore[attr-defined]
+    memo: dict[Any, dict[str, float]] = {}
+
+    def shares(key: Any, depth: int = 0) -> dict[str, float]:
+        """Category weights of ``key``'s self time: its own category, else its callers'."""
+        if key in memo:
+            return memo[key]
+        cat = _category(key, transport)
+        if cat is not None:
+            out = {cat: 1.0}
+        else:
+            callers = stats[key][4] if key in stats else {}
+            total = sum(v[2] for v in callers.values())
+            out = {}
+            if depth < 8 and total > 0:
+                for ck, v in callers.items():
+                    for c, w in shares(ck, depth + 1).items():
+                        out[c] = out.get(c, 0.0) + w * v[2] / total
+            out = out or {"bench": 1.0}
+        memo[key] = out
+        return out
+
+    split = dict.fromkeys(CATEGORIES, 0.0)
+    for key, (_cc, _nc, tt, _ct, _callers) in stats.items():
+        for c, w in shares(key).items():
+            split[c] += tt * w
+    total = sum(split.values())
+    per_tick = {c: best / ticks * v / total for c, v in split.items() if total > 0}
+    per_tick["threads"] = others / ticks
+    return best / ticks + others / ticks, per_tick
+
+
+def cost_table(names: list[str], ticks: int, repeat: int, against_rev: str = "") -> None:
+    before: dict[str, float] = {}
+    if against_rev:
+        with tempfile.TemporaryDirectory() as d:
+            tree = str(revision_tree(against_rev, Path(d)))
+            for name in names:
+                before[name] = max(child(name, ticks, tree)["cpu"] for _ in range(repeat))
+    print(f"Lockstep bench tick, CPU µs by where the code lives ({ticks} ticks, best of {repeat}; adapters: "
+          "hil.protocols and the libraries they call; transports: virtual CAN bus, queues, pty/socket calls, "
+          "pyserial; devices: simulated devices; bench: measurement points, barriers; threads: other threads, "
+          "e.g. the Modbus server)")
+    head = f"{'scene':22s} {'ticks/CPU-s':>11s} {'µs/tick':>8s}" + "".join(f" {c:>10s}" for c in CATEGORIES)
+    head += f" {'ceiling':>8s} {'of ceil.':>8s}"
+    if before:
+        head += f" {against_rev[:8]:>9s} {'ratio':>6s}"
+    print(head)
+    for name in names:
+        total, per = cost_split(name, ticks, repeat)
+        ceiling = 1.0 / (per["adapters"] + per["transports"] + per["plant"])
+        row = f"{name:22s} {1.0 / total:11.0f} {1e6 * total:8.1f}"
+        row += "".join(f" {1e6 * per[c]:10.1f}" for c in CATEGORIES)
+        row += f" {ceiling:8.0f} {100.0 / total / ceiling:7.0f}%"
+        if before:
+            row += f" {before[name]:9.0f} {1.0 / total / before[name]:5.2f}x"
+        print(row)
+    print("(ceiling: ticks per CPU-second if only the adapters, the transports and the plant cost anything; "
+          f"{against_rev[:8] or 'REV'}: bench ticks per CPU-second of that revision, process CPU, best of "
+          f"{repeat} child processes run now)")
 
 
 def revision_tree(rev: str, dest: Path) -> Path:
@@ -255,7 +402,7 @@ def primitive_costs(reps: int = 20000) -> dict[str, float]:
 
 def floor_table(names: list[str], ticks: int) -> None:
     cost = primitive_costs()
-    print(f"Transport floor per lockstep tick (CPU of this thread; a CAN frame {1e6 * cost['can']:.1f} µs, "
+    print(f"Transport floor per lockstep tick (CPU time; a CAN frame {1e6 * cost['can']:.1f} µs, "
           f"a 37-byte pty frame {1e6 * cost['pty']:.1f} µs, measured in this run)")
     print(f"{'scene':28s} {'CAN/tick':>9s} {'pty/tick':>9s} {'plant µs':>9s} {'floor µs':>9s} {'max ticks/s':>12s}"
           f" {'bench CPU t/s':>14s}")
@@ -265,7 +412,7 @@ def floor_table(names: list[str], ticks: int) -> None:
         floor = can_n * cost["can"] + pty_n * cost["pty"] + 1.0 / p
         print(f"{name:28s} {can_n:9.2f} {pty_n:9.2f} {1e6 / p:9.1f} {1e6 * floor:9.1f} {1.0 / floor:12.0f} {c:14.0f}")
     print("(floor: the transports' and the plant's cost alone, no adapter, device, bench or runner code; "
-          "plant µs: wall clock of Simulator.tick alone)")
+          "plant µs: CPU time of Simulator.tick alone; every number CPU time of this thread)")
 
 
 def main() -> None:
@@ -275,6 +422,8 @@ def main() -> None:
     ap.add_argument("--digest", action="store_true", help="print the SHA-256 of each run's record channels")
     ap.add_argument("--phases", action="store_true", help="print the bench tick's CPU time by phase")
     ap.add_argument("--floor", action="store_true", help="the transports' lower bound on a tick, per scene")
+    ap.add_argument("--costs", action="store_true", help="CPU per tick by where the code lives, and the ceiling "
+                    "(with --against: also that revision's ticks per CPU-second)")
     ap.add_argument("--against", default="", help="a git revision to compare with, in the same run")
     ap.add_argument("--repeat", type=int, default=3, help="child processes per tree and scene (--against)")
     ap.add_argument("--child", default="", help=argparse.SUPPRESS)
@@ -285,6 +434,9 @@ def main() -> None:
         print(json.dumps({"runner": rc, "cpu": c}))
         return
     names = [s for s in a.scenes.split(",") if s] or [n for n, _ in builtin_scenes()]
+    if a.costs:
+        cost_table(names, a.ticks, a.repeat, a.against)
+        return
     if a.against:
         against(a.against, names, a.ticks, a.repeat)
         return

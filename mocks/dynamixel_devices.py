@@ -606,8 +606,9 @@ class DynamixelChain:
         pos = float(self.joints.position()[k])
         vel = float(self.joints.velocity()[k])
         current = servo.get(ADDR_GOAL_CURRENT, 2, signed=True) if self._drives(servo) else 0
-        ticks = int(np.clip(round(pos * TICKS_PER_REV / (2 * math.pi)), -(2**31), 2**31 - 1))
-        vraw = int(np.clip(round(vel * 60.0 / (2 * math.pi * VELOCITY_UNIT_RPM)), -(2**31), 2**31 - 1))
+        # the int32 range, clamped as integers (np.clip of a Python int: the same value, ~10x the cost)
+        ticks = min(max(round(pos * TICKS_PER_REV / (2 * math.pi)), -(2**31)), 2**31 - 1)
+        vraw = min(max(round(vel * 60.0 / (2 * math.pi * VELOCITY_UNIT_RPM)), -(2**31)), 2**31 - 1)
         servo.write(ADDR_PRESENT_CURRENT, to_unsigned(current, 2).to_bytes(2, "little"))
         servo.write(ADDR_PRESENT_VELOCITY, to_unsigned(vraw, 4).to_bytes(4, "little"))
         servo.write(ADDR_PRESENT_POSITION, to_unsigned(ticks, 4).to_bytes(4, "little"))

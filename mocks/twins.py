@@ -45,10 +45,10 @@ class TwinContext:
     use; ``channel(interface, scene_channel)``: the private channel standing for a scene channel;
     ``devices``: every opened device record of the bench (``.cfg``, ``.point``, ``.host``), for
     twins that serve several devices on one transport; ``label``: the scene file or name;
-    ``waits``: on a lockstep bench, the adapters' simulated time
-    (:class:`hil.protocols.waits.LockstepWaits`; a twin gives the adapter ``waits.link()`` or
-    ``waits`` itself as its ``waits`` parameter and builds its device to be served by the bench's
-    barrier, :meth:`Twin.flush`), None when served free-running."""
+    ``waits``: on a lockstep bench, this device's view of the adapters' simulated time
+    (:meth:`hil.protocols.waits.LockstepWaits.link`; a twin gives it to the adapter as its ``waits``
+    parameter and builds its device to be served by the barrier, :meth:`Twin.flush`, which the bench
+    makes this link's own barrier), None when served free-running."""
 
     index: int
     cfg: Any
@@ -302,8 +302,8 @@ class FT300ModbusTwin(Twin):
                              seed=ctx.seed, auto_update=not ctx.lockstep, slave=int(params.get("slave", 9)),
                              start_timeout=None if ctx.lockstep else 5.0)  # lockstep: however long it takes
         params.update(url=sim.url, clock=ctx.clock, timeout=ctx.timeout)
-        if ctx.waits is not None:
-            sim.link = params["waits"] = ctx.waits.link()
+        if ctx.waits is not None:  # this device's link: its requests and answers are counted
+            sim.link = params["waits"] = ctx.waits
         return sim, params
 
     def tick(self, sim: Any) -> None:

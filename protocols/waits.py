@@ -119,7 +119,8 @@ class LockstepWaits(Waits):
     machine needs, never on a deadline). :attr:`waited` (s) is the simulated time the host spent in
     waits whose object never came; ``monotonic() = clock() + waited``.
 
-    :meth:`link` gives one device's view: the same clock, barrier and ``waited``, with its own
+    :meth:`link` gives one device's view: the same clock and ``waited``, its own barrier
+    (:attr:`barrier`: serving that device is enough for a wait on it; None: the bench's) and its own
     counters :attr:`tx_units` / :attr:`rx_bytes` (:meth:`sent` / :meth:`received`) and
     :attr:`device_tx` (written by the device), which a barrier over an asynchronously delivering
     transport needs (TCP: the server has answered every request the host sent; a receive then waits,
@@ -131,6 +132,8 @@ class LockstepWaits(Waits):
     def __init__(self, clock: Callable[[], float], settle: Callable[[], None],
                  _host: _SimulatedHost | None = None) -> None:
         self._host = _host if _host is not None else _SimulatedHost(clock, settle)
+        #: this view's barrier (a device's own: see :meth:`link`); None: the bench's
+        self.barrier: Callable[[], None] | None = None
         self.tx_units = 0
         self.rx_bytes = 0
         #: bytes the device has written on this link (a device behind an asynchronously delivering
@@ -162,7 +165,7 @@ class LockstepWaits(Waits):
         h.settling = True
         try:
             h.settles += 1
-            h.settle()
+            (self.barrier or h.settle)()
         finally:
             h.settling = False
 

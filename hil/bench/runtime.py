@@ -722,6 +722,8 @@ class Bench:
         d.twin = resolve_twin(cfg.driver)
         d.sim, params = d.twin.start(ctx, params)
         d.host = d.twin.host(ctx, d.sim)
+        if ctx.waits is not None:  # a wait of this device's adapter serves this device only
+            ctx.waits.barrier = self._device_barrier(d.twin, d.host)
         logger.debug("simulated %s for device %s (seed %d)", type(d.host).__name__, cfg.name, seed)
         return params
 
@@ -734,6 +736,18 @@ class Bench:
                            self.timeout, True, "virtual",
                            lambda iface, ch: channels.setdefault((iface, ch), f"{ch}.bench{self._bench_id}"),
                            self._devs, str(self.scene.path or self.scene.name), waits)
+
+    def _device_barrier(self, twin: Twin, host: Any) -> Callable[[], None]:
+        """The lockstep barrier of one simulated device (``host``, which may serve several adapters,
+        a DYNAMIXEL chain): its twin's ``flush``. A wait of an adapter needs only its own device
+        served (devices do not talk to each other within a wait); :meth:`advance` flushes all."""
+        devs = self._devs
+        wait = max(1.0, 10 * self.timeout)
+
+        def barrier() -> None:
+            twin.flush(host, [x.adapter for x in devs if x.host is host and x.adapter is not None], wait)
+
+        return barrier
 
     def _sim_seed_faults(self, index: int, cfg: Any) -> tuple[int, Any]:
         """Seed and :class:`hil.mocks.faults.FaultPlan` of the simulated counterpart of device
