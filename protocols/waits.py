@@ -15,9 +15,9 @@ and readiness wait through it, never through :mod:`time` or :mod:`select` direct
   it waits for is then either there (the wait ends at once) or will not come before the simulated
   clock moves (the device dropped the reply, a sensor has no new sample this tick): the wait then
   lasts its whole timeout *in simulated time* only (``monotonic()`` moves on by it, plus
-  :data:`WAIT_QUANTUM_S`; the wall clock is not consulted). ``monotonic()`` is the simulated clock plus the simulated time the host has
-  spent in such waits. So a reply deadline, a watchdog or a retry delay gives the same result on an
-  idle laptop and on a loaded box.
+  :data:`WAIT_QUANTUM_S`; the wall clock is not consulted). ``monotonic()`` is the simulated clock
+  plus the simulated time the host has spent in such waits. So a reply deadline, a watchdog or a
+  retry delay gives the same result on an idle laptop and on a loaded box.
 
 An adapter's wait loop therefore reads the same at a bench and in lockstep::
 
