@@ -349,7 +349,8 @@ class Bench:
     def _read_device(self, d: _Dev, t: float) -> Any:
         """One adapter read; a timeout or lost device names the scene device. A simulated stream
         (Bota, FT-300 stream) is read behind a byte-count barrier: first every byte the simulated
-        device wrote is received, then the read decides what is new without waiting, so the
+        device wrote is received (``wait_rx``, on the adapter's simulated-time ``waits``: its bound
+        never passes on the wall clock), then the read decides what is new without waiting, so the
         outcome does not depend on how fast the kernel moves pty bytes."""
         try:
             if (self.simulated and hasattr(d.sim, "tx_bytes") and hasattr(d.adapter, "wait_rx")
