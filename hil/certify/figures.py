@@ -345,7 +345,8 @@ def headroom_plot(plots: dict[str, Series], cert_cfg: Any, params: Any, draws: A
         for x in xs:
             dd = dict(draws)
             dd[d.parameter] = np.full(n, x)
-            p, lo, _ = probability_of_stability(sdea_passivity_batch(dd, fixed=fixed)["passive"], policy.confidence)
+            p, lo, _ = probability_of_stability(sdea_passivity_batch(dd, fixed=fixed)["passive"],
+                                                policy.confidence)
             phat.append(p)
             lower.append(lo)
         return phat, lower
