@@ -252,11 +252,14 @@ def cost_split(name: str, ticks: int, repeat: int) -> tuple[float, dict[str, flo
 
 def cost_table(names: list[str], ticks: int, repeat: int, against_rev: str = "") -> None:
     before: dict[str, float] = {}
-    if against_rev:
+    after: dict[str, float] = {}
+    if against_rev:  # the same measurement for both trees: child processes, alternating, best of `repeat`
         with tempfile.TemporaryDirectory() as d:
             tree = str(revision_tree(against_rev, Path(d)))
             for name in names:
-                before[name] = max(child(name, ticks, tree)["cpu"] for _ in range(repeat))
+                for _ in range(repeat):
+                    before[name] = max(before.get(name, 0.0), child(name, ticks, tree)["cpu"])
+                    after[name] = max(after.get(name, 0.0), child(name, ticks, None)["cpu"])
     print(f"Lockstep bench tick, CPU µs by where the code lives ({ticks} ticks, best of {repeat}; adapters: "
           "hil.protocols and the libraries they call; transports: virtual CAN bus, queues, pty/socket calls, "
           "pyserial; devices: simulated devices; bench: measurement points, barriers; threads: other threads, "
@@ -264,7 +267,7 @@ def cost_table(names: list[str], ticks: int, repeat: int, against_rev: str = "")
     head = f"{'scene':22s} {'ticks/CPU-s':>11s} {'µs/tick':>8s}" + "".join(f" {c:>10s}" for c in CATEGORIES)
     head += f" {'ceiling':>8s} {'of ceil.':>8s}"
     if before:
-        head += f" {against_rev[:8]:>9s} {'ratio':>6s}"
+        head += f" {against_rev[:8]:>9s} {'this':>7s} {'ratio':>6s}"
     print(head)
     for name in names:
         total, per = cost_split(name, ticks, repeat)
@@ -273,11 +276,11 @@ def cost_table(names: list[str], ticks: int, repeat: int, against_rev: str = "")
         row += "".join(f" {1e6 * per[c]:10.1f}" for c in CATEGORIES)
         row += f" {ceiling:8.0f} {100.0 / total / ceiling:7.0f}%"
         if before:
-            row += f" {before[name]:9.0f} {1.0 / total / before[name]:5.2f}x"
+            row += f" {before[name]:9.0f} {after[name]:7.0f} {after[name] / before[name]:5.2f}x"
         print(row)
     print("(ceiling: ticks per CPU-second if only the adapters, the transports and the plant cost anything; "
-          f"{against_rev[:8] or 'REV'}: bench ticks per CPU-second of that revision, process CPU, best of "
-          f"{repeat} child processes run now)")
+          f"{against_rev[:8] or 'REV'} / this: bench ticks per CPU-second of that revision / this tree, process "
+          f"CPU, best of {repeat} alternating child processes run now)")
 
 
 def revision_tree(rev: str, dest: Path) -> Path:
@@ -400,6 +403,97 @@ def primitive_costs(reps: int = 20000) -> dict[str, float]:
     return {"can": best_can, "pty": best_pty}
 
 
+def adapter_floor(ticks: int, repeat: int) -> dict[str, float]:
+    """CPU s per tick of sdea_bench's lockstep tick with the avoidable work removed: the unchanged
+    adapters (``ODriveCAN`` polling, ``BotaSerial``) on their lockstep transports and simulated-time
+    waits, the plant (``Simulator.tick``), and *canned* devices instead of the simulated ones: the
+    ODrive's Get_Encoder_Estimates answer is a pre-built frame put in the adapter's queue in the
+    sender's thread (a ``sync`` node's delivery, nothing computed), the Bota frames are pre-encoded
+    (1004 Hz on the 2 kHz loop: one every other tick) and written to the pty master; no bench, no
+    measurement point, no runner. Returns the best of ``repeat`` blocks, and each part alone."""
+    import pty
+    import select
+    import tty
+
+    import can
+
+    from hil.bench.runtime import Bench
+    from hil.mocks.can_devices import LockstepVirtualBus
+    from hil.protocols.can_odrive import ODriveCAN
+    from hil.protocols.codecs import odrive as od
+    from hil.protocols.codecs.bota import encode_frame
+    from hil.protocols.serial_bota import BotaSerial
+    from hil.protocols.waits import LockstepWaits
+
+    clk = time.thread_time
+    sc = load_scene("sdea_bench")
+    ch = f"floor-{os.getpid()}"
+    host = LockstepVirtualBus(ch)
+    reply = can.Message(arbitration_id=od.arbitration_id(3, od.CMD_GET_ENCODER_ESTIMATES),
+                        data=od.encode_f32x2(0.25, -1.5), is_extended_id=False)
+    poll_id = reply.arbitration_id
+
+    class CannedODrive:  # the device end of the channel: answers the poll in the sender's thread
+        def put(self, msg: can.Message, block: bool = True, timeout: float | None = None) -> None:
+            if msg.arbitration_id == poll_id and msg.is_remote_frame:
+                host.queue.put_nowait(reply)
+
+    from can.interfaces import virtual
+
+    with virtual.channels_lock:
+        virtual.channels[ch].append(CannedODrive())  # type: ignore[arg-type]
+    waits = LockstepWaits(lambda: 0.0, lambda: None)
+    motor = ODriveCAN(3, ch, "virtual", bus=host, enable=False, timeout=0.05, waits=waits)
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    # every frame new (its device timestamp advances: a fresh sample), for every block of the run
+    frames = iter([encode_frame(0, [0, 0, 0, 0, 0, 0.01 * (k % 7)], round(k * 996.09375), 25.0)
+                   for k in range(repeat * ticks + 2)])
+    bota = BotaSerial(os.ttyname(slave), configure=False, period_s=51 / 51200, timeout=0.05, waits=waits)
+    zero = np.zeros(1)
+    parts = {"odrive": float("inf"), "bota": float("inf"), "plant": float("inf"), "tick": float("inf")}
+    try:
+        with Bench(sc, seed=sc.seed) as bench:
+            sim = bench.simulator
+            for _ in range(repeat):
+                c0 = clk()
+                for k in range(ticks):
+                    motor.read()
+                    motor.command_effort(zero)
+                    if k % 2 == 0:
+                        os.write(master, next(frames))
+                        select.select([slave], [], [], 0.0)  # the device's push (n_tty_poll)
+                    bota.read(timeout=0.0)
+                    sim.tick()
+                parts["tick"] = min(parts["tick"], (clk() - c0) / ticks)
+                c0 = clk()
+                for _ in range(ticks):
+                    motor.read()
+                    motor.command_effort(zero)
+                parts["odrive"] = min(parts["odrive"], (clk() - c0) / ticks)
+                c0 = clk()
+                for k in range(ticks):
+                    if k % 2 == 0:
+                        os.write(master, next(frames))
+                        select.select([slave], [], [], 0.0)
+                    bota.read(timeout=0.0)
+                parts["bota"] = min(parts["bota"], (clk() - c0) / ticks)
+                c0 = clk()
+                for _ in range(ticks):
+                    sim.tick()
+                parts["plant"] = min(parts["plant"], (clk() - c0) / ticks)
+            bench.safe_stop()
+    finally:
+        motor.close()
+        bota.close()
+        host.shutdown()
+        with virtual.channels_lock:
+            virtual.channels.pop(ch, None)
+        os.close(master)
+        os.close(slave)
+    return parts
+
+
 def floor_table(names: list[str], ticks: int) -> None:
     cost = primitive_costs()
     print(f"Transport floor per lockstep tick (CPU time; a CAN frame {1e6 * cost['can']:.1f} µs, "
@@ -413,6 +507,14 @@ def floor_table(names: list[str], ticks: int) -> None:
         print(f"{name:28s} {can_n:9.2f} {pty_n:9.2f} {1e6 / p:9.1f} {1e6 * floor:9.1f} {1.0 / floor:12.0f} {c:14.0f}")
     print("(floor: the transports' and the plant's cost alone, no adapter, device, bench or runner code; "
           "plant µs: CPU time of Simulator.tick alone; every number CPU time of this thread)")
+    if "sdea_bench" in names:
+        parts = adapter_floor(ticks, 3)
+        _, c, _ = bench_tps("sdea_bench", ticks)
+        print(f"sdea_bench with the avoidable work removed (unchanged adapters on their lockstep transports and "
+              f"waits, canned devices, the plant; no bench): {1e6 * parts['tick']:.1f} µs per tick = "
+              f"{1 / parts['tick']:.0f} ticks per CPU-second (ODrive poll + command {1e6 * parts['odrive']:.1f} µs, "
+              f"Bota read {1e6 * parts['bota']:.1f} µs, plant {1e6 * parts['plant']:.1f} µs); the bench: "
+              f"{c:.0f} ticks per CPU-second")
 
 
 def main() -> None:
