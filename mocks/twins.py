@@ -90,6 +90,11 @@ class Twin:
     def tick(self, sim: Any) -> None:
         """Once per lockstep period, after the plant stepped."""
 
+    def answers_in_sender_thread(self, sim: Any) -> bool:
+        """True when the device handles what the host sends in the host's sending call (a ``sync``
+        CAN node): a lockstep wait then has nothing to serve first (its barrier is empty)."""
+        return False
+
     def flush(self, sim: Any, adapters: Sequence[Any], timeout: float) -> None:
         """The lockstep barrier for this device: it has processed everything the host's
         ``adapters`` sent and everything it answered can be read by the host when this returns,
@@ -135,6 +140,9 @@ class CanTwin(Twin):
 
     def flush(self, sim: Any, adapters: Sequence[Any], timeout: float) -> None:
         sim.process_pending()
+
+    def answers_in_sender_thread(self, sim: Any) -> bool:
+        return bool(sim.sync)
 
     def run_free(self, sim: Any, rate_hz: float, stream_rate_hz: float) -> None:
         sim.start(rate_hz)

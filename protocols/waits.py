@@ -99,6 +99,14 @@ class Waits:
 WALL = Waits()
 
 
+def _nothing() -> None:
+    """An empty barrier (see :meth:`LockstepWaits.settle`)."""
+
+
+#: the barrier of a device with nothing to serve before a wait: set ``link.barrier = NO_BARRIER``
+NO_BARRIER = _NOTHING = _nothing
+
+
 class _SimulatedHost:
     """What every :class:`LockstepWaits` of one bench shares: the simulated clock, the barrier and
     the simulated time the host spent waiting (one host thread waits for all its devices)."""
@@ -160,6 +168,8 @@ class LockstepWaits(Waits):
 
     def settle(self) -> None:
         h = self._host
+        if self.barrier is _NOTHING:  # a device that answers in the sender's thread (a sync CAN node)
+            return
         if h.settling:  # re-entrant (a device's reply path waiting inside the barrier): already settling
             return
         h.settling = True
@@ -199,4 +209,4 @@ class LockstepWaits(Waits):
         self.rx_bytes += n
 
 
-__all__ = ["DELIVERY_POLL_S", "WAIT_QUANTUM_S", "WALL", "LockstepWaits", "Waits"]
+__all__ = ["DELIVERY_POLL_S", "NO_BARRIER", "WAIT_QUANTUM_S", "WALL", "LockstepWaits", "Waits"]

@@ -59,7 +59,7 @@ from hil.errors import DeviceDisconnected, DeviceTimeout, HilError, ModelError, 
 from hil.mocks.twins import Twin, TwinContext
 from hil.protocols.base import JointSample, WrenchSample
 from hil.protocols.registry import device_kind, open_device, resolve_twin, simulated_drivers
-from hil.protocols.waits import WALL, LockstepWaits, Waits
+from hil.protocols.waits import NO_BARRIER, WALL, LockstepWaits, Waits
 from hil.scene.spec import (
     HumanCfg,
     ImpedanceTermination,
@@ -289,7 +289,7 @@ class Bench:
             if self.simulated:
                 self._build_simulation()
                 if self._simulated_time:
-                    self.waits = LockstepWaits(self._clock, self._flush_devices)
+                    self.waits = LockstepWaits(self._sim_clock(), self._flush_devices)
                     self.safe_stop_timeout = None
             self._open_devices()
             STOP.check()
@@ -733,20 +733,29 @@ class Bench:
         """Lockstep: CAN nodes on python-can's virtual bus, one private channel per scene channel
         and bench; the adapters read the simulated clock."""
         waits = self.waits.link() if isinstance(self.waits, LockstepWaits) else None
-        return TwinContext(index, d.cfg, d.point, seed, faults, self.dt, float(self.scene.rate_hz), self._clock,
+        clock = self._sim_clock() if self.simulator is not None else self._clock
+        return TwinContext(index, d.cfg, d.point, seed, faults, self.dt, float(self.scene.rate_hz), clock,
                            self.timeout, True, "virtual",
                            lambda iface, ch: channels.setdefault((iface, ch), f"{ch}.bench{self._bench_id}"),
                            self._devs, str(self.scene.path or self.scene.name), waits)
 
     def _device_barrier(self, twin: Twin, host: Any) -> Callable[[], None]:
         """The lockstep barrier of one simulated device (``host``, which may serve several adapters,
-        a DYNAMIXEL chain): its twin's ``flush``. A wait of an adapter needs only its own device
-        served (devices do not talk to each other within a wait); :meth:`advance` flushes all."""
+        a DYNAMIXEL chain): its twin's ``flush``, or nothing when the twin says its device answers
+        in the sender's thread (:meth:`hil.mocks.twins.Twin.answers_in_sender_thread`: a ``sync``
+        CAN node). A wait of an adapter needs only its own device served (devices do not talk to
+        each other within a wait); :meth:`advance` flushes all."""
+        if twin.answers_in_sender_thread(host):
+            return NO_BARRIER
         devs = self._devs
         wait = max(1.0, 10 * self.timeout)
+        served: list[Any] = []  # the adapters on this device, once they are all open
 
         def barrier() -> None:
-            twin.flush(host, [x.adapter for x in devs if x.host is host and x.adapter is not None], wait)
+            adapters = served or [x.adapter for x in devs if x.host is host and x.adapter is not None]
+            if not served and all(x.adapter is not None for x in devs):
+                served.extend(adapters)
+            twin.flush(host, adapters, wait)
 
         return barrier
 
@@ -757,6 +766,14 @@ class Bench:
 
         seed = cfg.sim.seed if cfg.sim.seed is not None else _seed_for(self.seed, 200 + index)
         return seed, FaultPlan.from_dict(cfg.sim.faults)
+
+    def _sim_clock(self) -> Callable[[], float]:
+        """The simulated clock as a plain function: ``step_count * dt`` of the simulator, the same
+        float as :attr:`hil.mocks.simulator.Simulator.time` (read ~10 times a tick by the adapters
+        and their waits: no property, no branch)."""
+        sim = self.simulator
+        dt = sim.dt
+        return lambda: sim.step_count * dt
 
     def _clock(self) -> float:
         return self.simulator.time if self.simulator is not None else 0.0
