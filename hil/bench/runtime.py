@@ -24,7 +24,9 @@ Lockstep tick (what the runner does once per control period)::
                                    # simulated sensors publish the new state
 
 Nothing depends on the wall clock: with one seed, the measurements are bit-identical from run to
-run (noise and fault injection use seeded generators; ``math.fsum`` state updates).
+run and on any machine load (noise and fault injection use seeded generators; ``math.fsum`` state
+updates; every adapter waits on simulated time, :attr:`Bench.waits`, behind a barrier that serves
+its simulated device: :mod:`hil.protocols.waits`).
 
 Simulated force sensors report, on the wrench components ``devices[].axes``, either the force the
 body exerts on everything attached to it (``sim.measure: body``; for an SDEA motor this is the
