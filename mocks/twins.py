@@ -45,10 +45,13 @@ class TwinContext:
     use; ``channel(interface, scene_channel)``: the private channel standing for a scene channel;
     ``devices``: every opened device record of the bench (``.cfg``, ``.point``, ``.host``), for
     twins that serve several devices on one transport; ``label``: the scene file or name;
-    ``waits``: on a lockstep bench, this device's view of the adapters' simulated time
-    (:meth:`hil.protocols.waits.LockstepWaits.link`; a twin gives it to the adapter as its ``waits``
-    parameter and builds its device to be served by the barrier, :meth:`Twin.flush`, which the bench
-    makes this link's own barrier), None when served free-running."""
+    ``can_port(scene_channel)``: the UDP port of a served ``udp_multicast`` channel (each channel its
+    own group *and* port: python-can binds its socket to the port on every address, so channels
+    sharing a port would hear each other), None elsewhere; ``waits``: on a lockstep bench, this
+    device's view of the adapters' simulated time (:meth:`hil.protocols.waits.LockstepWaits.link`; a
+    twin gives it to the adapter as its ``waits`` parameter and builds its device to be served by the
+    barrier, :meth:`Twin.flush`, which the bench makes this link's own barrier), None when served
+    free-running."""
 
     index: int
     cfg: Any
@@ -64,6 +67,7 @@ class TwinContext:
     channel: Callable[[str, str], str]
     devices: Sequence[Any] = field(default_factory=list)
     label: str = ""
+    can_port: Callable[[str], int | None] = field(default=lambda scene_channel: None)
     waits: Any = None
 
 
@@ -110,14 +114,20 @@ class Twin:
         return str(params.get("url", "")), True
 
 
-def _can_params(ctx: TwinContext, params: dict[str, Any]) -> str:
-    """Point the adapter at the private channel of its scene channel; returns that channel."""
+def _can_params(ctx: TwinContext, params: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+    """Point the adapter at the private channel of its scene channel; returns that channel and the
+    bus keywords the simulated node needs on it (the channel's UDP port when it has one; the
+    adapter gets it too)."""
     scene_ch = str(params.get("channel", "hil0"))
     ch = ctx.channel(str(params.get("interface", "virtual")), scene_ch)
     params.update(interface=ctx.can_interface, channel=ch, clock=ctx.clock, timeout=ctx.timeout)
     params.pop("bus", None)
     _lockstep_waits(ctx, params)
-    return ch
+    port = ctx.can_port(scene_ch)
+    if port is None:
+        return ch, {}
+    params["port"] = int(port)
+    return ch, {"port": int(port)}
 
 
 def _lockstep_waits(ctx: TwinContext, params: dict[str, Any]) -> None:
@@ -172,22 +182,23 @@ class ODriveTwin(CanTwin):
     node_default = 0
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
-        from hil.mocks.can_devices import SIM_WATCHDOG_ENDPOINTS, SimODrive
+        from hil.mocks.odrive_device import SIM_WATCHDOG_ENDPOINTS, SimODrive
 
-        ch = _can_params(ctx, params)
-        kw: dict[str, Any] = {}
+        ch, bus_kw = _can_params(ctx, params)
+        # configured as the scene's bench has its drive: estimates every tick with feedback "cyclic",
+        # none with "poll" (encoder_msg_rate_ms 0; a factory drive sends them every 10 ms)
+        kw: dict[str, Any] = {"encoder_every": 1 if params.get("feedback") == "cyclic" else 0, **bus_kw}
         if ctx.lockstep:
-            # heartbeat every 10 ms (a real ODrive sends one every 100 ms by default): on the
+            # heartbeat every 10 ms, no cyclic Get_Version (a factory drive: 100 ms and 100 ms): on the
             # simulated bus every frame is copied to every node, so fewer frames = faster runs
-            kw = {"sync": True, "heartbeat_every": max(1, round(0.01 * ctx.rate_hz)),
-                  "bitrate": _bitrate(params, lb.ODRIVE_DEFAULT_BITRATE)}
+            kw.update(sync=True, heartbeat_every=max(1, round(0.01 * ctx.rate_hz)), cyclic_ms={"Get_Version": 0}
+                      if str(params.get("firmware", "0.6")) == "0.6" else {},
+                      bitrate=_bitrate(params, lb.ODRIVE_DEFAULT_BITRATE))
             params.setdefault("watchdog_endpoints", dict(SIM_WATCHDOG_ENDPOINTS))
         sim = SimODrive(ctx.point, ch, int(params.get("node_id", 0)), ctx.can_interface,
                         gear_ratio=float(params.get("gear_ratio", 1.0)), linear_scale=params.get("linear_scale"),
                         faults=ctx.faults, seed=ctx.seed, dt=ctx.dt, firmware=str(params.get("firmware", "0.6")),
                         **kw)
-        if params.get("feedback") == "cyclic":
-            sim.encoder_every = 1
         _lockstep_host_bus(ctx, sim, params)
         return sim, params
 
@@ -202,16 +213,16 @@ class CubeMarsTwin(CanTwin):
     node_param, node_word = "motor_id", "motor"
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
-        from hil.mocks.can_devices import SimCubeMars
+        from hil.mocks.cubemars_device import SimCubeMars
 
-        ch = _can_params(ctx, params)
+        ch, bus_kw = _can_params(ctx, params)
         _lockstep_kw: dict[str, Any] = {"sync": True, "bitrate": _bitrate(params, lb.CUBEMARS_DEFAULT_BITRATE),
                                         "tick_s": ctx.dt}
         if ctx.waits is not None:  # its silence after "set zero" passes on the host's (simulated) time
             _lockstep_kw["clock"] = ctx.waits.monotonic
         sim = SimCubeMars(ctx.point, ch, int(params.get("motor_id", 1)), ctx.can_interface,
                           model=params.get("model", "AK80-9"), faults=ctx.faults, seed=ctx.seed,
-                          **(_lockstep_kw if ctx.lockstep else {}))
+                          **(_lockstep_kw if ctx.lockstep else {}), **bus_kw)
         _lockstep_host_bus(ctx, sim, params)
         return sim, params
 
@@ -225,8 +236,9 @@ class CiA402Twin(CanTwin):
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         from hil.mocks.cia402_drive import SimCiA402
 
-        ch = _can_params(ctx, params)
+        ch, bus_kw = _can_params(ctx, params)
         kw = {k: params[k] for k in ("counts_per_rev", "rated_torque_mNm", "heartbeat_ms") if params.get(k) is not None}
+        kw.update(bus_kw)
         if ctx.lockstep:
             kw["bitrate"] = _bitrate(params, lb.CIA402_DEFAULT_BITRATE)
         sim = SimCiA402(ctx.point, ch, int(params.get("node_id", 1)), ctx.can_interface,

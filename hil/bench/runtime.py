@@ -739,7 +739,7 @@ class Bench:
         return TwinContext(index, d.cfg, d.point, seed, faults, self.dt, float(self.scene.rate_hz), clock,
                            self.timeout, True, "virtual",
                            lambda iface, ch: channels.setdefault((iface, ch), f"{ch}.bench{self._bench_id}"),
-                           self._devs, str(self.scene.path or self.scene.name), waits)
+                           self._devs, str(self.scene.path or self.scene.name), waits=waits)
 
     def _device_barrier(self, twin: Twin, host: Any) -> Callable[[], None]:
         """The lockstep barrier of one simulated device (``host``, which may serve several adapters,
@@ -821,6 +821,8 @@ class SimEndpoint:
 
 #: python-can's default UDP multicast group; served CAN channels use 239.74.163.2, .3, ...
 _UDP_MULTICAST_BASE = "239.74.163."
+#: python-can's default UDP multicast port; served CAN channels use 43113, 43114, ... (one each)
+_UDP_MULTICAST_BASE_PORT = 43113
 
 
 class SimulatedScene(Bench):
@@ -835,8 +837,11 @@ class SimulatedScene(Bench):
     * after :meth:`start`, a thread steps the plant at the scene's rate against the wall clock and
       the devices run on their own threads: CAN nodes tick at the scene rate (cyclic frames, requests
       answered as they arrive) on ``can_interface`` (``virtual``: this process only;
-      ``udp_multicast``: any process on the host, one multicast group per scene channel unless
-      ``can_channels`` maps scene channel -> channel), the Bota sensor streams at the scene rate,
+      ``udp_multicast``: any process on the host, each scene channel its own multicast group *and*
+      UDP port, 239.74.163.2 / 43113, .3 / 43114, ..., unless ``can_channels`` / ``can_ports`` map
+      scene channel -> group / port: python-can binds a channel's socket to its port on every
+      address, so two channels on one port would hear each other's frames), the Bota sensor streams
+      at the scene rate,
       the streaming FT-300 at ``stream_rate_hz`` once a client starts its stream, the Modbus FT-300
       refreshes its registers on every request, DYNAMIXEL chains answer as before.
 
@@ -849,11 +854,13 @@ class SimulatedScene(Bench):
 
     def __init__(self, scene: Scene, *, seed: int | None = None, variant: str | None = None,
                  can_interface: str = "virtual", can_channels: Mapping[str, str] | None = None,
-                 stream_rate_hz: float = 100.0) -> None:
+                 stream_rate_hz: float = 100.0, can_ports: Mapping[str, int] | None = None) -> None:
         if scene.simulation is None:
             raise SceneError(f"{scene.path or scene.name}: no 'simulation' block: nothing to simulate")
         self.can_interface = str(can_interface)
         self._can_map = {str(k): str(v) for k, v in (can_channels or {}).items()}
+        self._port_map = {str(k): int(v) for k, v in (can_ports or {}).items()}
+        self._chan_order: dict[str, int] = {}  # scene channel -> its rank (default group and port)
         self.stream_rate_hz = float(stream_rate_hz)
         self.endpoints: list[SimEndpoint] = []
         self.overruns = 0
@@ -933,15 +940,29 @@ class SimulatedScene(Bench):
         ctx.lockstep = False
         ctx.waits = None
         ctx.can_interface = self.can_interface
-        ctx.channel = lambda iface, ch: channels.setdefault((iface, ch), self._can_channel(ch, len(channels)))
+        ctx.channel = lambda iface, ch: channels.setdefault((iface, ch), self._can_channel(ch))
+        ctx.can_port = self._can_port
         return ctx
 
-    def _can_channel(self, scene_ch: str, k: int) -> str:
+    def _rank(self, scene_ch: str) -> int:
+        return self._chan_order.setdefault(scene_ch, len(self._chan_order))
+
+    def _can_channel(self, scene_ch: str) -> str:
+        k = self._rank(scene_ch)
         if scene_ch in self._can_map:
             return self._can_map[scene_ch]
         if self.can_interface == "udp_multicast":
             return f"{_UDP_MULTICAST_BASE}{2 + k}"
         return scene_ch
+
+    def _can_port(self, scene_ch: str) -> int | None:
+        """The UDP port of a served udp_multicast channel: given, else 43113 + its rank; None on
+        other interfaces."""
+        if scene_ch in self._port_map:
+            return self._port_map[scene_ch]
+        if self.can_interface != "udp_multicast":
+            return None
+        return _UDP_MULTICAST_BASE_PORT + self._rank(scene_ch)
 
     def _endpoint(self, d: _Dev, params: dict[str, Any]) -> SimEndpoint:
         assert d.twin is not None
@@ -1056,7 +1077,7 @@ class ProcessSimBench(Bench):
     What the runner uses in realtime mode for a simulated scene: a child process (multiprocessing,
     ``spawn``; pinned to the CPUs the loop does not use) runs the scene's :class:`SimulatedScene`
     (plant stepped at the scene's rate against the wall clock; CAN nodes on python-can's UDP
-    multicast bus with this bench's own multicast group and UDP port, Bota/FT-300 streams and
+    multicast bus, each scene channel with this bench's own multicast group and UDP port, Bota/FT-300 streams and
     DYNAMIXEL chains on ptys, Modbus on loopback TCP), and this process opens the real adapters on
     those endpoints exactly as on hardware: no lockstep, :meth:`advance` is a no-op, sample ages
     are judged on the adapters' monotonic clock, timeouts are ``watchdog_ms``. The simulated
@@ -1099,20 +1120,26 @@ class ProcessSimBench(Bench):
                 cpus = sorted(set(os.sched_getaffinity(0)) - ({lc} if lc is not None else set())) or None
         self._proc: Any = None
         self._tmp = tempfile.TemporaryDirectory(prefix="hil-sim-")
-        port = _free_udp_port()
         chans = sorted({str(d.params.get("channel", "hil0")) for d in scene.devices
                         if resolve_twin(d.driver).udp_multicast})
-        # a private multicast group per scene channel (239.255/16: site-local scope) on a private UDP port
+        # a private multicast group (239.255/16: site-local scope) and a private UDP port per scene
+        # channel: python-can binds to the port on every address, so a shared port would join the channels
         groups = {ch: f"239.255.{secrets.randbelow(254) + 1}.{secrets.randbelow(254) + 1}" for ch in chans}
+        ports: dict[str, int] = {}
+        for ch in chans:
+            while (port := _free_udp_port()) in ports.values():
+                pass
+            ports[ch] = port
         src = Path(self._tmp.name) / f"{scene.name}.yaml"
         src.write_text(scene.source_text, encoding="utf-8")
         cmd = [sys.executable, "-m", "hil", "mock", "serve", str(src), "--json", "--can-interface", "udp_multicast",
                "--seed", str(scene.seed if seed is None else seed)]
         cmd += [a for ch, g in groups.items() for a in ("--can-channel", f"{ch}={g}")]
+        cmd += [a for ch, p in ports.items() for a in ("--can-port", f"{ch}={p}")]
         if variant is not None:
             cmd += ["--variant", variant]
-        # python-can: the served buses' UDP port, and hop limit 0 (the frames never leave the host: see _open_devices)
-        env = {**os.environ, "CAN_CONFIG": json.dumps({"port": port, "hop_limit": MULTICAST_HOP_LIMIT})}
+        # python-can: hop limit 0 for the served buses (the frames never leave the host: see _open_devices)
+        env = {**os.environ, "CAN_CONFIG": json.dumps({"hop_limit": MULTICAST_HOP_LIMIT})}
         self._err = open(Path(self._tmp.name) / "stderr.txt", "w+b")  # noqa: SIM115 - closed in _stop_child
         try:
             self._proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=self._err,
@@ -1136,7 +1163,8 @@ class ProcessSimBench(Bench):
             self._stop_child()
             raise
         self._endpoint_params = {d["name"]: (d["driver"], d["params"]) for d in report["devices"]}
-        self._can_port = port
+        #: UDP port of each served scene CAN channel
+        self.can_ports = dict(ports)
         self._sim_scene = scene
         hardware = scene.model_copy(update={"simulation": None})  # private attrs (source text) are copied
         try:
@@ -1162,8 +1190,7 @@ class ProcessSimBench(Bench):
         for i, d in enumerate(self._devs):
             driver, params = self._endpoint_params[d.name]
             params = dict(params)
-            if resolve_twin(driver).udp_multicast:
-                params["port"] = self._can_port
+            if resolve_twin(driver).udp_multicast:  # the channel's own port is in the endpoint's params
                 params["hop_limit"] = MULTICAST_HOP_LIMIT
             params.setdefault("timeout", self.timeout)
             device_kind(d.cfg.driver).watchdog_params(params, self.watchdog_s, self.simulated)

@@ -198,7 +198,7 @@ _SKIPPED_L1: list[bool] = []
 
 @pytest.mark.parametrize("seed", range(16))
 def test_llewellyn_verdict_only_statuses_match_the_full_path(seed, monkeypatch):
-    import hil.stability.criteria as crit
+    import hil.stability.conditions as crit  # where _llewellyn_eta looks _exact_decision up
 
     rng = np.random.default_rng(seed)
     orig = crit._exact_decision
