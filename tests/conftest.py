@@ -6,7 +6,7 @@ expression mentions ``slow``: ``pytest`` runs the fast suite, ``pytest -m "slow 
 
 Timeouts (pytest-timeout) are hang guards, never a measure of speed: each test's ``timeout`` marker
 is the time it needs on an idle 2-core machine with margin, and is multiplied here by
-:data:`TIMEOUT_SCALE`, so that the suite passes on a loaded box (a CI runner: two CPU-bound processes
+``simtime.TIMEOUT_SCALE``, so that the suite passes on a loaded box (a CI runner: two CPU-bound processes
 beside the two test workers make every test about four times slower). The default for unmarked
 tests (``timeout`` in pyproject.toml) is already scaled.
 """
@@ -14,9 +14,7 @@ tests (``timeout`` in pyproject.toml) is already scaled.
 from __future__ import annotations
 
 import pytest
-
-#: how much slower than an idle machine a test may run before its timeout calls it hung
-TIMEOUT_SCALE = 4
+from simtime import TIMEOUT_SCALE
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

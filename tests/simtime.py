@@ -16,6 +16,12 @@ from typing import Any
 
 from hil.protocols.waits import LockstepWaits
 
+#: how much slower than an idle machine a test may run before its timeout calls it hung: the suite's
+#: hang guards (pytest-timeout markers and the pyproject default) are multiplied by it in
+#: tests/conftest.py, so a loaded CI box (two CPU-bound processes beside two workers: ~4x slower)
+#: passes; a guard is never a measure of speed
+TIMEOUT_SCALE = 4
+
 
 def served(*devices: Any, clock: Callable[[], float] | None = None) -> LockstepWaits:
     """Simulated-time waits whose barrier serves ``devices`` (``serve_pending()`` each, in order;

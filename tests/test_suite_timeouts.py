@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from conftest import TIMEOUT_SCALE
+from simtime import TIMEOUT_SCALE
 
 
 @pytest.mark.timeout(7)
