@@ -10,7 +10,10 @@ A device kind registered in :mod:`hil.protocols.registry` names, next to its ada
 * :meth:`Twin.publish` (first samples at t = 0), :meth:`Twin.tick` (once per lockstep period,
   after the plant stepped), :meth:`Twin.flush` (let it process what the host sent) and
   :meth:`Twin.run_free` (``hil mock serve``: own threads at the scene's rate);
-* :meth:`Twin.address` (where a served device listens, for people).
+* :meth:`Twin.address` (where a served device listens, for people);
+* :attr:`Twin.mechanics`: the friction and encoder the device adds to the body DOFs it drives,
+  unless the scene's ``devices[].sim.friction`` / ``sim.encoder`` say otherwise
+  (:class:`hil.mocks.friction.Mechanics`; the values and their sources: docs/guide/friction-twins.md).
 
 A device with a simulated twin is one module with its simulated device and one ``Twin``
 subclass, plus one registration (:func:`hil.protocols.registry.register_device`, or the
@@ -20,6 +23,7 @@ subclass, plus one registration (:func:`hil.protocols.registry.register_device`,
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -27,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from hil.errors import SceneError
+from hil.mocks.friction import Friction, Mechanics
 from hil.protocols import link_budget as lb
 
 logger = logging.getLogger(__name__)
@@ -77,6 +82,9 @@ class Twin:
 
     #: served over python-can's UDP multicast in another process with a ``port`` parameter
     udp_multicast: bool = False
+    #: friction, viscous damping, encoder step the device adds to the DOFs it drives (default: none,
+    #: a drive whose mechanics are the scene's bodies)
+    mechanics: Mechanics = Mechanics(source="a drive: the mechanics and their friction are the scene's bodies")
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         """Build the simulated device for ``ctx``; return it (None when another device's twin
@@ -180,6 +188,8 @@ def _bitrate(params: dict[str, Any], default: int) -> int:
 class ODriveTwin(CanTwin):
     udp_multicast = True
     node_default = 0
+    mechanics = Mechanics(source="a drive for any motor: no friction of its own; pos_estimate is the encoder "
+                                 "PLL's interpolated estimate (not counts), sent as float32 turns")
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         from hil.mocks.odrive_device import SIM_WATCHDOG_ENDPOINTS, SimODrive
@@ -211,6 +221,12 @@ class ODriveTwin(CanTwin):
 class CubeMarsTwin(CanTwin):
     udp_multicast = True
     node_param, node_word = "motor_id", "motor"
+    #: AK-series quasi-direct-drive actuator: Coulomb friction identified on the AK80-6 (6:1) as 0.093 and
+    #: 0.078 N.m (dfki-ric-underactuated-lab/double_pendulum, design C.0 model 3.0, cf1/cf2); 0.1 N.m for the
+    #: twin's AK80-9 (9:1). No encoder step here: the MIT reply's 16-bit position over ±12.5 rad (3.8e-4 rad)
+    #: is coarser than the motor's encoder and is quantized on the wire already.
+    mechanics = Mechanics(Friction(0.1), source="AK80-6 identification (dfki double_pendulum model 3.0: "
+                                                "cf 0.078-0.093 N.m), AK80-9: 0.1 N.m")
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         from hil.mocks.cubemars_device import SimCubeMars
@@ -232,6 +248,8 @@ class CiA402Twin(CanTwin):
     """A canopen LocalNode on a private CAN channel."""
 
     udp_multicast = True  # served to a realtime run's adapters from another process, as the ODrive
+    mechanics = Mechanics(source="a drive: no friction of its own; the position is quantized on the wire to "
+                                 "counts_per_rev increments (0x608F)")
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         from hil.mocks.cia402_drive import SimCiA402
@@ -359,6 +377,14 @@ class Concat:
 class DynamixelTwin(Twin):
     """A DYNAMIXEL chain on a pty: the scene devices with the same ``params.port`` share one
     chain (one bus), each servo id driving its device's DOFs."""
+
+    #: XM430-W350 (353.5:1 metal gears, stall 4.1 N.m at 12 V): Stribeck friction scaled from the MX-64
+    #: (stall 6.0 N.m) identification of Duclusaud et al. 2024 (Rhoban/bam params/mx64 m4: 0.062 N.m
+    #: Coulomb + 0.024 N.m Stribeck bump, v_s 1.52 rad/s) by 4.1/6.0; the 12-bit encoder (4096 pulse/rev,
+    #: ROBOTIS e-Manual), the grid the protocol's Present Position already uses
+    mechanics = Mechanics(Friction(0.04, 0.06, 1.5), encoder_step=2 * math.pi / 4096,
+                          source="MX-64 identification (Rhoban/bam m4) scaled by stall torque 4.1/6.0; "
+                                 "4096 pulse/rev encoder")
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         from hil.mocks.dynamixel_devices import DynamixelChain

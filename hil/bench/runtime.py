@@ -56,8 +56,10 @@ from typing import Any
 
 import numpy as np
 
+from hil.bench.mechanics import device_mechanics, plant_mechanics
 from hil.bench.stopflag import STOP
 from hil.errors import DeviceDisconnected, DeviceTimeout, HilError, ModelError, SceneError
+from hil.mocks.friction import quantize
 from hil.mocks.twins import Twin, TwinContext
 from hil.protocols.base import JointSample, WrenchSample
 from hil.protocols.registry import device_kind, open_device, resolve_twin, simulated_drivers
@@ -95,6 +97,16 @@ _BENCH_IDS_LOCK = threading.Lock()
 def _seed_for(seed: int, *path: int) -> int:
     """A 32-bit seed derived from the bench seed and a path of integers (stable across runs)."""
     return int(np.random.SeedSequence([seed & 0xFFFFFFFF, *path]).generate_state(1)[0])
+
+
+def _with_viscous(B: Any, dof: int, extra: np.ndarray | None) -> Any:
+    """A body's damping ``B`` (number, diagonal list or matrix) plus ``diag(extra)``; ``B`` itself
+    when nothing is added."""
+    if extra is None or not np.any(extra):
+        return B
+    Bm = np.asarray(B, dtype=float)
+    Bm = Bm * np.eye(dof) if Bm.ndim == 0 else (np.diag(Bm) if Bm.ndim == 1 else Bm)
+    return Bm + np.diag(extra)
 
 
 class _Noise:
@@ -142,8 +154,12 @@ class SimPoint:
 
     def __init__(self, sim: Any, drive: _BodyDrive, sel: list[int], force_fn: Callable[[], np.ndarray], *,
                  position_std: float = 0.0, velocity_std: float = 0.0, force_std: float = 0.0,
-                 seed: int = 0) -> None:
+                 seed: int = 0, encoder_step: float = 0.0, velocity_from: str = "estimate") -> None:
         self._sim = sim
+        #: the encoder's quantization step (m or rad; 0: none) and how velocity is reported
+        #: (``estimate``: the joint's; ``difference``: of the quantized positions over one period)
+        self.encoder_step = float(encoder_step)
+        self.velocity_from = velocity_from
         self._drive = drive
         self.sel = list(sel)
         self.dof = len(self.sel)
@@ -173,6 +189,8 @@ class SimPoint:
             if hit is not None and hit[0] == k:
                 return hit[1].copy()
             value = self._noise[key](np.asarray(raw(), dtype=float).reshape(self.dof))
+            if key == "position" and self.encoder_step > 0.0:
+                value = quantize(value, self.encoder_step)
             self._cache[key] = (k, value)
             return value.copy()
 
@@ -199,6 +217,10 @@ class SimPoint:
         return self._drive.handle.position()[self._take]
 
     def _raw_velocity(self) -> np.ndarray:
+        if self.velocity_from == "difference":  # the drive differentiates its (quantized) encoder
+            h, step = self._drive.handle, self.encoder_step
+            dq = quantize(h.position()[self._take], step) - quantize(h.previous_position()[self._take], step)
+            return dq / float(self._sim.dt)
         return self._drive.handle.velocity()[self._take]
 
     def measured_force(self) -> np.ndarray:
@@ -587,15 +609,18 @@ class Bench:
         assert sim is not None
         label = sc.path or sc.name
         ps = physics.Scene(sc.units)
+        # what the actuators add: their viscous damping (into the bodies' B) and dry friction
+        extra_b, friction = plant_mechanics(sc, sim.body_dofs(self.variant), label)
         try:
             for b in sim.bodies:
-                ps.add_body(b.name, _arr(b.M), _arr(b.B), _arr(b.K))
+                ps.add_body(b.name, _arr(b.M), _with_viscous(_arr(b.B), b.dof, extra_b.get(b.name)), _arr(b.K))
             if sim.sdea is not None:
                 s = sim.sdea
                 m_out = None if self.variant == "locked" else s.m_out
                 if self.variant == "free" and m_out is None:
                     raise SceneError(f"{label}: simulation.sdea.m_out: variant 'free' needs the output inertia")
-                ps.add_sdea(s.name, s.M, s.B, s.K_f, s.B_f, m_out, s.b_out)
+                b_motor = s.B + float(extra_b[s.name][0]) if s.name in extra_b else s.B
+                ps.add_sdea(s.name, s.M, b_motor, s.K_f, s.B_f, m_out, s.b_out)
             bodies = set(ps.bodies)
 
             def port(body: str, dofs: list[int] | None, where: str) -> Any:
@@ -632,7 +657,7 @@ class Bench:
                 self._humans[hname] = (h.port, list(h.dofs) if h.dofs is not None else list(range(body_dof)),
                                        body_dof)
             self.plant = ps.build()
-            self.simulator = Simulator(self.plant, self.dt)
+            self.simulator = Simulator(self.plant, self.dt, friction=friction or None)
         except ModelError as exc:
             raise SceneError(f"{label}: simulation: {exc}") from None
         self._drives = {name: _BodyDrive(h) for name, h in self.simulator.handles.items()}
@@ -666,8 +691,10 @@ class Bench:
             f_std = float(np.hypot(noise.force_std, cfg.sim.noise_std))
             return SimPoint(self.simulator, drive, sel, force_fn, force_std=f_std, seed=dev_seed)
         p_std = float(np.hypot(noise.position_std, cfg.sim.noise_std))
+        mech = device_mechanics(cfg, sc.path or sc.name, index)
         return SimPoint(self.simulator, drive, sel, lambda: np.zeros(len(sel)), position_std=p_std,
-                        velocity_std=noise.velocity_std, seed=dev_seed)
+                        velocity_std=noise.velocity_std, seed=dev_seed, encoder_step=mech.encoder_step,
+                        velocity_from=mech.velocity)
 
     def _human_force_fn(self, human: str, sel: list[int]) -> Callable[[], np.ndarray]:
         _, hsel, body_dof = self._humans[human]
