@@ -403,17 +403,24 @@ def primitive_costs(reps: int = 20000) -> dict[str, float]:
     return {"can": best_can, "pty": best_pty}
 
 
-def adapter_floor(ticks: int, repeat: int) -> dict[str, float]:
+def adapter_floor(ticks: int, repeat: int, memory: bool = False) -> dict[str, float]:
     """CPU s per tick of sdea_bench's lockstep tick with the avoidable work removed: the unchanged
     adapters (``ODriveCAN`` polling, ``BotaSerial``) on their lockstep transports and simulated-time
     waits, the plant (``Simulator.tick``), and *canned* devices instead of the simulated ones: the
     ODrive's Get_Encoder_Estimates answer is a pre-built frame put in the adapter's queue in the
     sender's thread (a ``sync`` node's delivery, nothing computed), the Bota frames are pre-encoded
     (1004 Hz on the 2 kHz loop: one every other tick) and written to the pty master; no bench, no
-    measurement point, no runner. Returns the best of ``repeat`` blocks, and each part alone."""
+    measurement point, no runner. Returns the best of ``repeat`` blocks, and each part alone.
+
+    ``memory``: the same adapters on the cheapest transports there are, in memory: the ODrive on a
+    ``can.BusABC`` whose frames go through a deque (python-can's ``BusABC.send``/``recv`` and
+    ``Message`` kept: the adapter's code path), the Bota on pyserial's ``loop://`` port (the frame
+    written to the port comes back to its reader: no system call). The difference to the lockstep
+    transports is the transports' cost; what is left is the adapters' own code and the plant."""
     import pty
     import select
     import tty
+    from collections import deque
 
     import can
 
@@ -428,28 +435,56 @@ def adapter_floor(ticks: int, repeat: int) -> dict[str, float]:
     clk = time.thread_time
     sc = load_scene("sdea_bench")
     ch = f"floor-{os.getpid()}"
-    host = LockstepVirtualBus(ch)
     reply = can.Message(arbitration_id=od.arbitration_id(3, od.CMD_GET_ENCODER_ESTIMATES),
                         data=od.encode_f32x2(0.25, -1.5), is_extended_id=False)
     poll_id = reply.arbitration_id
-
-    class CannedODrive:  # the device end of the channel: answers the poll in the sender's thread
-        def put(self, msg: can.Message, block: bool = True, timeout: float | None = None) -> None:
-            if msg.arbitration_id == poll_id and msg.is_remote_frame:
-                host.queue.put_nowait(reply)
-
     from can.interfaces import virtual
 
-    with virtual.channels_lock:
-        virtual.channels[ch].append(CannedODrive())  # type: ignore[arg-type]
+    class MemoryBus(can.BusABC):  # a deque: the device answers the poll in the sender's thread
+        def __init__(self) -> None:
+            self.frames: deque[can.Message] = deque()
+            self.channel_info = "memory"
+            super().__init__(channel="memory")
+
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
+            if msg.arbitration_id == poll_id and msg.is_remote_frame:
+                self.frames.append(reply)
+
+        def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+            return (self.frames.popleft() if self.frames else None), False
+
+    host: can.BusABC
+    if memory:
+        host = MemoryBus()
+    else:
+        lockstep_bus = LockstepVirtualBus(ch)
+        host = lockstep_bus
+
+        class CannedODrive:  # the device end of the channel: answers the poll in the sender's thread
+            def put(self, msg: can.Message, block: bool = True, timeout: float | None = None) -> None:
+                if msg.arbitration_id == poll_id and msg.is_remote_frame:
+                    lockstep_bus.queue.put_nowait(reply)
+
+        with virtual.channels_lock:
+            virtual.channels[ch].append(CannedODrive())  # type: ignore[arg-type]
     waits = LockstepWaits(lambda: 0.0, lambda: None)
     motor = ODriveCAN(3, ch, "virtual", bus=host, enable=False, timeout=0.05, waits=waits)
     master, slave = pty.openpty()
     tty.setraw(slave)
     # every frame new (its device timestamp advances: a fresh sample), for every block of the run
     frames = iter([encode_frame(0, [0, 0, 0, 0, 0, 0.01 * (k % 7)], round(k * 996.09375), 25.0)
-                   for k in range(repeat * ticks + 2)])
-    bota = BotaSerial(os.ttyname(slave), configure=False, period_s=51 / 51200, timeout=0.05, waits=waits)
+                   for k in range(2 * repeat * ticks + 2)])
+    bota = BotaSerial("loop://" if memory else os.ttyname(slave), configure=False, period_s=51 / 51200,
+                      timeout=0.05, waits=waits)
+    port = bota._ser
+
+    def push() -> None:  # the device's frame reaches the host's port
+        if memory:
+            port.write(next(frames))
+        else:
+            os.write(master, next(frames))
+            select.select([slave], [], [], 0.0)  # the device's push (n_tty_poll)
+
     zero = np.zeros(1)
     parts = {"odrive": float("inf"), "bota": float("inf"), "plant": float("inf"), "tick": float("inf")}
     try:
@@ -461,8 +496,7 @@ def adapter_floor(ticks: int, repeat: int) -> dict[str, float]:
                     motor.read()
                     motor.command_effort(zero)
                     if k % 2 == 0:
-                        os.write(master, next(frames))
-                        select.select([slave], [], [], 0.0)  # the device's push (n_tty_poll)
+                        push()
                     bota.read(timeout=0.0)
                     sim.tick()
                 parts["tick"] = min(parts["tick"], (clk() - c0) / ticks)
@@ -474,8 +508,7 @@ def adapter_floor(ticks: int, repeat: int) -> dict[str, float]:
                 c0 = clk()
                 for k in range(ticks):
                     if k % 2 == 0:
-                        os.write(master, next(frames))
-                        select.select([slave], [], [], 0.0)
+                        push()
                     bota.read(timeout=0.0)
                 parts["bota"] = min(parts["bota"], (clk() - c0) / ticks)
                 c0 = clk()

@@ -207,6 +207,17 @@ class SimPoint:
         drive.set(self.sel, e)
         self._written = (vals, drive.writes, getattr(drive.handle, "resets", None))
 
+    def apply_uniform(self, value: float) -> None:
+        """:meth:`apply_effort` of ``value`` on every selected DOF (``np.full(dof, value)``), with no
+        array built when it changes nothing (a CAN drive re-applies its torque on every tick)."""
+        vals = [float(value)] * self.dof
+        drive = self._drive
+        w = self._written
+        if w is not None and w[0] == vals and w[1] == drive.writes and w[2] == getattr(drive.handle, "resets", None):
+            return
+        drive.set(self.sel, np.array(vals))
+        self._written = (vals, drive.writes, getattr(drive.handle, "resets", None))
+
     def position(self) -> np.ndarray:
         return self._read("position", self._raw_position)
 
