@@ -23,17 +23,19 @@ second of the child's CPU time, for the bench alone and for the runner: a loaded
 the wall clock far more) and the ratio this tree / REV.
 
 ``--costs`` prints, per scene, what a bench tick costs in CPU time (this thread's
-``time.thread_time``, best of ``--repeat`` blocks of ``--ticks`` ticks; a loaded machine disturbs CPU
-time far less than the wall clock) and how that splits by where the code lives (a ``cProfile`` run
-of the same ticks, its shares of self time applied to the unprofiled CPU time): the adapters under
-test and the libraries they call (``hil.protocols``, dynamixel_sdk, pymodbus, canopen, python-can),
-the transports (python-can's virtual bus and its queues, the pty and socket system calls, pyserial),
-the simulated devices (``hil.mocks`` but the plant), the bench (``hil.bench``: measurement points,
-barriers, group assembly) and the plant (``hil.mocks.simulator``). The **ceiling** is the tick rate
-if only the adapters, the transports and the plant cost anything (the work a faster lockstep cannot
-remove without changing the adapters' code path): 1 / (adapters + transports + plant). With
-``--against REV`` the same run also prints this tree against ``REV`` (bench ticks per CPU-second,
-best of ``--repeat`` child processes each).
+``time.thread_time``, best of ``--repeat`` blocks of ``--ticks`` ticks) and how it splits by where
+the code lives, measured directly (:func:`account`: the entry points of each category timed on this
+thread's CPU clock, exclusive time, the timer's own cost taken off): the adapters under test and the
+libraries they call (their ``read``/``command_effort``/``wait_rx``), the transports (the virtual
+CAN buses' send/receive, the pty and socket system calls, pyserial's included), the simulated
+devices (their twins' ``tick``/``flush``, a CAN node's answer in the sender's thread), the plant
+(``Simulator.tick``) and the bench (the rest: measurement points, barriers, group assembly). The
+**ceiling** is the tick rate if only the adapters, the transports and the plant cost anything:
+1 / (adapters + transports + plant). With ``--against REV`` the same run also prints this tree
+against ``REV`` (bench ticks per CPU-second, best of ``--repeat`` alternating child processes each);
+for sdea_bench it ends with the floor with the avoidable work removed (:func:`adapter_floor`: the
+unchanged adapters, canned devices, the plant; on the lockstep transports and in memory), each part
+also timed alone.
 
 Run: ``python benchmarks/bench_lockstep.py [--ticks 2000] [--scenes sdea_bench,...] [--digest]
 [--phases] [--floor] [--costs] [--against REV [--repeat 3]]``. Not a test; prints tables.
@@ -148,109 +150,136 @@ def phases(name: str, ticks: int) -> dict[str, float]:
     return {k: v / ticks / 1e3 for k, v in acc.items()}
 
 
-#: cost categories of a lockstep tick, in table order
-CATEGORIES = ("adapters", "transports", "devices", "bench", "plant", "threads")
+#: categories of the direct accounting (:func:`account`), in table order
+ACCOUNT = ("adapters", "transports", "devices", "plant", "bench")
 
 
-def _transport_code() -> set[tuple[str, int, str]]:
-    """cProfile keys of the lockstep CAN transport in hil.mocks (the virtual bus's send/receive)."""
-    from hil.mocks import can_devices as cd
+def account(name: str, ticks: int, repeat: int) -> tuple[float, dict[str, float], float]:
+    """What a bench tick of scene ``name`` costs, measured directly: (CPU s per tick untimed, best
+    of ``repeat`` blocks of ``ticks`` ticks; CPU s per tick by category; timed calls per tick).
 
-    fns = [cd.LockstepVirtualBus.send, cd.LockstepVirtualBus._recv_internal, cd.LockstepVirtualBus.__init__,
-           cd._frame_copy, cd._SyncQueue.put]
-    return {(f.__code__.co_filename, f.__code__.co_firstlineno, f.__code__.co_name) for f in fns}
+    The entry points of each category are wrapped with a timer of this thread's CPU time that keeps
+    each call's *exclusive* time (time spent in a nested timed call goes to the nested one's
+    category): adapters, every adapter's ``read``/``command_effort``/``wait_rx`` (the code under
+    test and the libraries it calls); transports, ``os.read``/``os.write``/``select.select``/
+    ``fcntl.ioctl`` (pty and socket system calls, pyserial's included) and the virtual CAN buses'
+    ``send``/``_recv_internal``; devices, every simulated device's ``tick``/``flush`` (its twin)
+    and a CAN node's delivery of a host frame (``SimCanNode._deliver_sync``, which answers in the
+    sender's thread); plant, ``Simulator.tick``; bench, the rest of ``Bench.read/command/advance``
+    (measurement points, barriers, group assembly). Unlike a cProfile run's shares (which weigh code
+    of many small calls more), nothing is apportioned but the timer's own cost: a
+    per-thread CPU clock read is a system call (~1 µs here), so the timed block costs more than the
+    untimed one; that excess per timed call is taken off half from the category of the call and
+    half from the category it was called from (one clock read lands in each). The categories of the
+    best timed block then add up to the untimed tick of the same block count."""
+    import fcntl
+    import select as select_mod
 
+    from can.interfaces import virtual
 
-_SYSCALLS = ("select.select", "posix.read", "posix.write", "fcntl.ioctl", "'recv' of '_socket", "'send' of '_socket",
-             "'recv_into' of '_socket", "'sendall' of '_socket")
+    from hil.mocks.can_devices import LockstepVirtualBus, SimCanNode
 
+    clk = time.thread_time_ns
+    acc = dict.fromkeys(ACCOUNT, 0)
+    ends = dict.fromkeys(ACCOUNT, 0)  # clock reads landing in each category
+    stack: list[int] = []
+    cats: list[str] = []
 
-def _category(key: tuple[str, int, str], transport: set[tuple[str, int, str]]) -> str | None:
-    """Where a profiled function's self time goes (None: neutral, charged to its callers)."""
-    path, _, func = key
-    if key in transport or "/can/interfaces/virtual" in path or path.endswith(("/queue.py", "/threading.py")) \
-            or "/site-packages/serial/" in path or (path == "~" and any(c in func for c in _SYSCALLS)):
-        return "transports"
-    if "/mocks/simulator" in path or "/mocks/physics" in path or path.endswith("/hil/lti.py") \
-            or "/mocks/terminations" in path:
-        return "plant"
-    if "/canopen/node/local" in path or "/canopen/sdo/server" in path or "/pymodbus/server" in path \
-            or "/pymodbus/simulator" in path:
-        return "devices"
-    if "/protocols/" in path or "/site-packages/can/" in path or "/dynamixel_sdk/" in path or "/canopen/" in path \
-            or "/pymodbus/" in path:
-        return "adapters"
-    if "/mocks/" in path:
-        return "devices"
-    if "/hil/bench/" in path:
-        return "bench"
-    return None  # numpy, builtins, the standard library: charged to whoever called them
+    def timed(fn: Any, cat: str) -> Any:
+        def w(*a: Any, **kw: Any) -> Any:
+            t0 = clk()
+            stack.append(0)
+            cats.append(cat)
+            try:
+                return fn(*a, **kw)
+            finally:
+                el = clk() - t0
+                acc[cat] += el - stack.pop()
+                cats.pop()
+                ends[cat] += 1
+                ends[cats[-1]] += 1
+                stack[-1] += el
+        return w
 
+    patched: list[tuple[Any, str, Any]] = []
 
-def cost_split(name: str, ticks: int, repeat: int) -> tuple[float, dict[str, float]]:
-    """(CPU s per bench tick, CPU s per tick by category): the best of ``repeat`` unprofiled blocks
-    of ``ticks`` ticks (this thread's CPU time; other threads of the process, e.g. the Modbus
-    server's, are the "threads" category), split by the shares of one profiled block."""
-    import cProfile
-    import pstats
+    def patch(owner: Any, attr: str, cat: str) -> None:
+        patched.append((owner, attr, owner.__dict__.get(attr, None) if isinstance(owner, type) else None))
+        setattr(owner, attr, timed(getattr(owner, attr), cat))
 
     sc = load_scene(name)
-    transport = _transport_code()
     with Bench(sc, seed=sc.seed) as bench:
         zero = {a: np.zeros(sc.device(a).dof) for a in bench.actuators}
 
-        def block() -> None:
+        def block() -> float:
+            c0 = time.thread_time()
             for _ in range(ticks):
                 bench.read()
                 bench.command(zero)
                 bench.advance()
+            return time.thread_time() - c0
 
-        block()  # warm up (first frames, caches)
-        best, others = float("inf"), 0.0
-        for _ in range(repeat):
-            c0, p0 = time.thread_time(), time.process_time()
-            block()
-            c, pc = time.thread_time() - c0, time.process_time() - p0
-            if c < best:
-                best, others = c, max(0.0, pc - c)
-        prof = cProfile.Profile(time.thread_time)
-        prof.enable()
-        block()
-        prof.disable()
+        block()  # warm up
+        best = min(block() for _ in range(repeat))
+        modules = [(os, "read"), (os, "write"), (select_mod, "select"), (fcntl, "ioctl")]
+        originals = [(m, a, getattr(m, a)) for m, a in modules]
+        chosen: dict[str, float] = {}
+        timed_calls = 0.0
+        try:
+            for m, a in modules:
+                setattr(m, a, timed(getattr(m, a), "transports"))
+            for cls in (LockstepVirtualBus, virtual.VirtualBus):
+                for a in ("send", "_recv_internal"):
+                    if a in cls.__dict__:
+                        patch(cls, a, "transports")
+            patch(SimCanNode, "_deliver_sync", "devices")
+            for d in bench._devs:
+                for a in ("read", "command_effort", "wait_rx"):
+                    if d.adapter is not None and hasattr(d.adapter, a):
+                        patch(d.adapter, a, "adapters")
+            for twin, _, _ in bench._sim_plan():
+                for a in ("tick", "flush"):
+                    patch(twin, a, "devices")
+            patch(bench.simulator, "tick", "plant")
+            best_timed = float("inf")
+            for _ in range(repeat):
+                acc.update(dict.fromkeys(ACCOUNT, 0))
+                ends.update(dict.fromkeys(ACCOUNT, 0))
+                c0 = time.thread_time_ns()
+                for _ in range(ticks):
+                    stack.append(0)
+                    cats.append("bench")
+                    t0 = clk()
+                    bench.read()
+                    bench.command(zero)
+                    bench.advance()
+                    acc["bench"] += clk() - t0 - stack.pop()
+                    cats.pop()
+                cpu = time.thread_time_ns() - c0
+                assert not stack and not cats
+                if cpu < best_timed:
+                    best_timed = cpu
+                    n_ends = sum(ends.values())
+                    per_read = max(0.0, cpu - best * 1e9) / n_ends if n_ends else 0.0
+                    chosen = {c: max(0.0, v - ends[c] * per_read) for c, v in acc.items()}
+                    timed_calls = n_ends / 2 / ticks
+        finally:
+            for m, a, f in originals:
+                setattr(m, a, f)
+            for owner, a, f in reversed(patched):
+                if isinstance(owner, type):
+                    setattr(owner, a, f)
+                else:
+                    delattr(owner, a)
         bench.safe_stop()
-    stats = pstats.Stats(prof).stats  # type: ignore[attr-defined]
-    memo: dict[Any, dict[str, float]] = {}
-
-    def shares(key: Any, depth: int = 0) -> dict[str, float]:
-        """Category weights of ``key``'s self time: its own category, else its callers'."""
-        if key in memo:
-            return memo[key]
-        cat = _category(key, transport)
-        if cat is not None:
-            out = {cat: 1.0}
-        else:
-            callers = stats[key][4] if key in stats else {}
-            total = sum(v[2] for v in callers.values())
-            out = {}
-            if depth < 8 and total > 0:
-                for ck, v in callers.items():
-                    for c, w in shares(ck, depth + 1).items():
-                        out[c] = out.get(c, 0.0) + w * v[2] / total
-            out = out or {"bench": 1.0}
-        memo[key] = out
-        return out
-
-    split = dict.fromkeys(CATEGORIES, 0.0)
-    for key, (_cc, _nc, tt, _ct, _callers) in stats.items():
-        for c, w in shares(key).items():
-            split[c] += tt * w
-    total = sum(split.values())
-    per_tick = {c: best / ticks * v / total for c, v in split.items() if total > 0}
-    per_tick["threads"] = others / ticks
-    return best / ticks + others / ticks, per_tick
+    return best / ticks, {c: v / ticks / 1e9 for c, v in chosen.items()}, timed_calls
 
 
 def cost_table(names: list[str], ticks: int, repeat: int, against_rev: str = "") -> None:
+    """Per scene: the bench tick's CPU by category (:func:`account`), the ceiling, and with
+    ``against_rev`` that revision's and this tree's bench ticks per CPU-second (child processes,
+    alternating, best of ``repeat``); then, for sdea_bench, the floor with the avoidable work
+    removed (:func:`adapter_floor`, on the lockstep and on in-memory transports)."""
     before: dict[str, float] = {}
     after: dict[str, float] = {}
     if against_rev:  # the same measurement for both trees: child processes, alternating, best of `repeat`
@@ -260,27 +289,42 @@ def cost_table(names: list[str], ticks: int, repeat: int, against_rev: str = "")
                 for _ in range(repeat):
                     before[name] = max(before.get(name, 0.0), child(name, ticks, tree)["cpu"])
                     after[name] = max(after.get(name, 0.0), child(name, ticks, None)["cpu"])
-    print(f"Lockstep bench tick, CPU µs by where the code lives ({ticks} ticks, best of {repeat}; adapters: "
-          "hil.protocols and the libraries they call; transports: virtual CAN bus, queues, pty/socket calls, "
-          "pyserial; devices: simulated devices; bench: measurement points, barriers; threads: other threads, "
-          "e.g. the Modbus server)")
-    head = f"{'scene':22s} {'ticks/CPU-s':>11s} {'µs/tick':>8s}" + "".join(f" {c:>10s}" for c in CATEGORIES)
+    print(f"Lockstep bench tick, CPU µs by category, measured directly ({ticks} ticks, best of {repeat}; timed "
+          "entry points, exclusive CPU time, the timer's own cost taken off; adapters: the adapters' read/command "
+          "and the libraries they call; transports: virtual CAN bus send/receive, pty/socket system calls; "
+          "devices: the simulated devices; plant: Simulator.tick; bench: the rest)")
+    head = f"{'scene':26s} {'µs/tick':>8s} {'ticks/CPU-s':>11s}" + "".join(f" {c:>10s}" for c in ACCOUNT)
     head += f" {'ceiling':>8s} {'of ceil.':>8s}"
     if before:
         head += f" {against_rev[:8]:>9s} {'this':>7s} {'ratio':>6s}"
     print(head)
     for name in names:
-        total, per = cost_split(name, ticks, repeat)
+        total, per, _ = account(name, ticks, repeat)
         ceiling = 1.0 / (per["adapters"] + per["transports"] + per["plant"])
-        row = f"{name:22s} {1.0 / total:11.0f} {1e6 * total:8.1f}"
-        row += "".join(f" {1e6 * per[c]:10.1f}" for c in CATEGORIES)
+        row = f"{name:26s} {1e6 * total:8.1f} {1.0 / total:11.0f}" + "".join(f" {1e6 * per[c]:10.1f}" for c in ACCOUNT)
         row += f" {ceiling:8.0f} {100.0 / total / ceiling:7.0f}%"
         if before:
             row += f" {before[name]:9.0f} {after[name]:7.0f} {after[name] / before[name]:5.2f}x"
-        print(row)
-    print("(ceiling: ticks per CPU-second if only the adapters, the transports and the plant cost anything; "
-          f"{against_rev[:8] or 'REV'} / this: bench ticks per CPU-second of that revision / this tree, process "
-          f"CPU, best of {repeat} alternating child processes run now)")
+        print(row, flush=True)
+    print("(µs/tick: the tick untimed, best of the blocks; the categories add up to it; ceiling: ticks per CPU-second "
+          f"if only the adapters, the transports and the plant cost anything; {against_rev[:8] or 'REV'} / this: "
+          f"bench ticks per CPU-second of that revision / this tree, process CPU, best of {repeat} alternating "
+          "child processes run now)")
+    if "sdea_bench" in names:
+        floor_lines(ticks, repeat)
+
+
+def floor_lines(ticks: int, repeat: int) -> None:
+    """sdea_bench's tick with the avoidable work removed (:func:`adapter_floor`), on the lockstep
+    transports and on in-memory ones."""
+    for memory in (False, True):
+        p = adapter_floor(ticks, repeat, memory=memory)
+        where = ("in-memory transports (ODrive: a deque BusABC; Bota: pyserial loop://)" if memory
+                 else "lockstep transports (LockstepVirtualBus, pty)")
+        print(f"sdea_bench with the avoidable work removed, {where}: {1e6 * p['tick']:.1f} µs per tick = "
+              f"{1 / p['tick']:.0f} ticks per CPU-second; each part alone: ODrive poll + command "
+              f"{1e6 * p['odrive']:.1f} µs, Bota read {1e6 * p['bota']:.1f} µs, plant {1e6 * p['plant']:.1f} µs "
+              f"(sum {1e6 * (p['odrive'] + p['bota'] + p['plant']):.1f} µs)", flush=True)
 
 
 def revision_tree(rev: str, dest: Path) -> Path:
@@ -541,13 +585,7 @@ def floor_table(names: list[str], ticks: int) -> None:
     print("(floor: the transports' and the plant's cost alone, no adapter, device, bench or runner code; "
           "plant µs: CPU time of Simulator.tick alone; every number CPU time of this thread)")
     if "sdea_bench" in names:
-        parts = adapter_floor(ticks, 3)
-        _, c, _ = bench_tps("sdea_bench", ticks)
-        print(f"sdea_bench with the avoidable work removed (unchanged adapters on their lockstep transports and "
-              f"waits, canned devices, the plant; no bench): {1e6 * parts['tick']:.1f} µs per tick = "
-              f"{1 / parts['tick']:.0f} ticks per CPU-second (ODrive poll + command {1e6 * parts['odrive']:.1f} µs, "
-              f"Bota read {1e6 * parts['bota']:.1f} µs, plant {1e6 * parts['plant']:.1f} µs); the bench: "
-              f"{c:.0f} ticks per CPU-second")
+        floor_lines(ticks, 3)
 
 
 def main() -> None:
