@@ -204,6 +204,8 @@ def account(name: str, ticks: int, repeat: int) -> tuple[float, dict[str, float]
     patched: list[tuple[Any, str, Any]] = []
 
     def patch(owner: Any, attr: str, cat: str) -> None:
+        if any(o is owner and a == attr for o, a, _ in patched):  # shared (a twin of several devices)
+            return
         patched.append((owner, attr, owner.__dict__.get(attr, None) if isinstance(owner, type) else None))
         setattr(owner, attr, timed(getattr(owner, attr), cat))
 
