@@ -74,8 +74,9 @@ def test_every_device_wait_of_a_realtime_loop_on_an_in_process_bench_is_bounded_
     o = _realtime(sc, tmp_path, waits).run()[0]
     assert o.status == "completed", o.stop_reason
     w = sc.safety.watchdog_ms / 1000.0
-    # before: the bench's own lockstep bound, LOCKSTEP_WAIT_FACTOR x watchdog_ms (1 s at 50 ms)
-    assert LOCKSTEP_WAIT_FACTOR * w == pytest.approx(1.0)
+    # before: the bench's own lockstep bound, 20 x watchdog_ms (1 s at 50 ms); on simulated time
+    # (issue 26) a lockstep bench's factor is LOCKSTEP_WAIT_FACTOR, a realtime loop's bound stays watchdog_ms
+    assert LOCKSTEP_WAIT_FACTOR >= 1.0
     calls = {kind: [t for _, k, t in waits if k == kind] for kind in ("read", "command", "byte barrier")}
     ticks = round(0.3 * sc.rate_hz)
     assert len(calls["read"]) >= 2 * ticks and len(calls["command"]) >= ticks and len(calls["byte barrier"]) >= ticks
