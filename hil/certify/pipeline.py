@@ -55,6 +55,7 @@ from typing import Any, Literal
 import numpy as np
 
 from hil.bench.stopflag import StopRequested
+from hil.certify import friction as fr
 from hil.certify.certificate import (
     Certificate,
     ConditionRow,
@@ -315,11 +316,13 @@ def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_t
                 if o.status == "error":
                     sheet.errors.append(f"experiment {name}: {o.stop_reason}")
                 _energy_stage(sheet, name, o, energy, sheet.measurements, sheet.plots)
-            if runner.stop_reason and all(o.status == "completed" for o in done.values()):
-                sheet.errors.append(f"run stopped: {runner.stop_reason}")  # e.g. a signal after the last experiment
-            if (runner.stop_reason or "").startswith("signal"):
+            # (nothing selected: the runner never ran and has no stop to report)
+            stop_reason = getattr(runner, "stop_reason", None) if select else None
+            if stop_reason and all(o.status == "completed" for o in done.values()):
+                sheet.errors.append(f"run stopped: {stop_reason}")  # e.g. a signal after the last experiment
+            if (stop_reason or "").startswith("signal"):
                 # the person at the bench asked to stop: no identification or certificate follows
-                raise StopRequested(f"{runner.stop_reason}; the records so far are in {out / 'records'}",
+                raise StopRequested(f"{stop_reason}; the records so far are in {out / 'records'}",
                                     runner.stop_status or "safety_stop")
             _fault_measurements(done, sheet.measurements)
 
@@ -358,6 +361,9 @@ def stage_identify(ctx: Context, sheet: Sheet, run: RunOutput) -> PosteriorDraws
     thinning: list[str] = []  # how each identification's chain became independent draws
     idents: list[Identification] = []
     converged = True
+    caps: list[str] = []  # reasons the decision can be at most MARGINAL (misfit plant, friction-masked energy)
+    by_target: dict[str, Any] = {}  # experiment target -> identification result (dry friction of its port)
+    targets = {c["name"]: c.get("target") for c in scene.experiment_configs()}
     if cert.identify:
         with sheet.timed("identify", ctx.say, scene.name):
             for spec in cert.identify:
@@ -369,20 +375,26 @@ def stage_identify(ctx: Context, sheet: Sheet, run: RunOutput) -> PosteriorDraws
                     from hil.identify.api import identify_record, store_result
                     from hil.record.identify_source import open_source  # the record as identification reads it
 
-                    kw = {"model": spec.model} if spec.model else {}
-                    res = identify_record(open_source(o.record), seed=seed, **kw)
+                    res = identify_record(open_source(o.record), seed=seed,
+                                          **fr.identify_kwargs(spec, targets.get(spec.experiment)))
                     store_result(o.record, res)
                 except HilError as exc:
                     errors.append(f"identification from {spec.experiment}: {exc}")
                     continue
-                if getattr(res, "misfit", False):  # a misfit model never feeds a GO (issue 12)
-                    why = "; ".join(res.adequacy.reasons) if res.adequacy is not None else "flagged"
-                    errors.append(f"identification from {spec.experiment}: model misfit: {why}")
-                    continue
+                # a misfit plant model never feeds a GO (issue 12): its stability findings are evidence
+                # about a model the data reject, so the decision is at most MARGINAL (issue 25)
+                misfit = fr.misfit_reasons(res) or fr.linear_friction_screen(o.record, res, spec, scene.units)
+                sheet.add(fr.adequacy_spec(spec.experiment).measure(
+                    not misfit, description="; ".join(misfit) if misfit else fr.ADEQUACY_DESCRIPTION))
+                if misfit:
+                    caps.append(f"plant model misfit ({spec.experiment}): {'; '.join(misfit)}; a decision on a model "
+                                "the data reject is at most MARGINAL")
+                if targets.get(spec.experiment):
+                    by_target[str(targets[spec.experiment])] = res
                 converged = converged and res.converged
                 summ = res.summary()
                 units = dict(zip(res.model.names, res.model.units, strict=True))
-                truth = _truth(scene)
+                truth = {**_truth(scene), **friction_truth(scene, str(targets.get(spec.experiment) or ""))}
                 idents.append(Identification(
                     model=res.model.name, record=str(o.record), converged=res.converged,
                     reason="; ".join(res.posterior.diagnostics.reasons) if not res.converged else "",
@@ -397,7 +409,8 @@ def stage_identify(ctx: Context, sheet: Sheet, run: RunOutput) -> PosteriorDraws
                 # of an MBK model sampled as Cholesky factors)
                 available = {n: samples[:, i] for i, n in enumerate(res.names)}
                 available.update({k: np.asarray(v) for k, (v, _u) in res.model.derived(samples).items()})
-                mapping = spec.map or {n: n for n in res.names}
+                mapping = spec.map or fr.default_map(res.names)
+                sheet.measurements += fr.friction_rows(spec.experiment, res) if spec.friction else []
                 for src, dst in mapping.items():
                     if src not in available:
                         errors.append(f"identification: parameter {src!r} not in model {res.model.name} "
@@ -430,8 +443,11 @@ def stage_identify(ctx: Context, sheet: Sheet, run: RunOutput) -> PosteriorDraws
     for k, v in draws.items():
         if not np.all(np.isfinite(v)):
             errors.append(f"parameter {k}: non-finite posterior draws")
+    # energy evidence without the dry friction's dissipation (docs/CERTIFICATION.md, "Friction")
+    caps += sheet.optional("energy evidence (friction)", fr.friction_energy_evidence, scene, run.outcomes, by_target,
+                           sheet.measurements, default=[])
     return PosteriorDraws(draws=draws, identification=tuple(idents), converged=converged,
-                          n_independent=n_independent, sampling=tuple(thinning))
+                          n_independent=n_independent, sampling=tuple(thinning), caps=tuple(caps))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -501,10 +517,13 @@ def stage_robust(ctx: Context, sheet: Sheet, post: PosteriorDraws, nominal: Nomi
                     errors.append(f"worst-case margin {wc} exceeds the nominal {nominal_res.margin}")
             except HilError as exc:
                 logger.warning("worst-case search skipped: %s", exc)
-        if band is None and nominal_res is not None and nominal_res.worst_frequency not in (None, 0.0) and \
-                math.isfinite(float(nominal_res.worst_frequency)):
-            w = float(nominal_res.worst_frequency)
-            band = (w / 2.0, w * 2.0)
+        if band is None and nominal_res is not None:
+            # the nominal binding condition's critical band (hil.stability.margins.critical_band,
+            # docs/VERDICTS.md): it contains the violation and the region near the minimum
+            from hil.stability.margins import critical_band
+
+            cb = critical_band(nominal_res)
+            band = None if cb is None else (cb[0], cb[1] if math.isfinite(cb[1]) else float(np.finfo(float).max))
         sampling = "; ".join(post.sampling)
         reliability, form_res, rare = None, None, None
         if X.shape[0] > X.shape[1] + 2 and not nominal_unstable:
@@ -603,6 +622,10 @@ def stage_decide(ctx: Context, sheet: Sheet, run: RunOutput, post: PosteriorDraw
     if any(e.went_negative for e in run.energy) and dec == Decision.GO:
         dec = Decision.MARGINAL
         reasons.append("energy injection: E_s(t) went below its noise bound although the criterion passed")
+    if post.caps and dec != Decision.ERROR:  # misfit plant model, friction-masked energy evidence
+        if dec == Decision.GO:
+            dec = Decision.MARGINAL
+        reasons += list(post.caps)
     energy_failed = [k for k in sheet.failed if k.startswith("energy evidence")]
     if energy_failed and dec == Decision.GO:
         dec = Decision.MARGINAL
@@ -668,6 +691,14 @@ def _independent_samples(res: Any) -> tuple[np.ndarray, str]:
             f"thinned every ⌈τ⌉ = {max(1, math.ceil(tau))} steps (τ = {tau:.1f}, the largest integrated "
             f"autocorrelation time): {idx.size} independent draws")
     return samples[idx], note
+
+
+def friction_truth(scene: Any, device: str) -> dict[str, float]:
+    """The simulated twin's friction of ``device`` (and a 1-DOF body's M and B), identification's names."""
+    from hil.bench.mechanics import body_truth
+    from hil.bench.mechanics import friction_truth as _ft
+
+    return {**body_truth(scene, device), **_ft(scene, device)} if device else {}
 
 
 def _truth(scene: Any) -> dict[str, float]:

@@ -9,7 +9,6 @@ import math
 from typing import Any
 
 import numpy as np
-from flint import fmpq_poly
 
 from hil.stability.exact import (
     SignDecision,
@@ -17,6 +16,7 @@ from hil.stability.exact import (
     flips_within,
 )
 from hil.stability.forms import (
+    CondPoly,
     QEntries,
     _desc,
     _exact_llewellyn_polys,
@@ -25,6 +25,7 @@ from hil.stability.forms import (
     _qpoly_float,
     _Setup,
 )
+from hil.stability.margins import frequency_margin
 from hil.stability.rational import Rational
 from hil.stability.results import Condition, ConditionStatus
 from hil.stability.tolerances import Tolerances
@@ -32,18 +33,37 @@ from hil.stability.tolerances import Tolerances
 logger = logging.getLogger(__name__)
 
 
-def _exact_decision(p: fmpq_poly, cut: int, m: np.ndarray | None, K: int, tol: Tolerances,
-                    margins: bool) -> tuple[SignDecision, bool]:
-    """Exact decision of one condition polynomial and, with ``tol.rtol > 0``, whether the decision
-    can flip under relative perturbations ≤ rtol of the coefficients of u and D (K coefficient
-    factors per term of p). When axis factors were cancelled the magnitude bound is the cancelled
-    polynomial's own |coefficients| (the uncancelled m does not divide)."""
-    mm = m if cut == 0 and m is not None else None
-    need_margin = margins or tol.rtol > 0
-    d = decide_exact(p, mm, margin=need_margin)
+def _axis_x(cp: CondPoly) -> list[float]:
+    """The imaginary-axis poles' x = ω² at which the uncancelled polynomial vanishes (the positive
+    roots of the cancelled factor h, from full = p·h^(2·cut))."""
+    if cp.cut == 0:
+        return []
+    from hil.stability.exact import _positive_roots_arb
+
+    hh = cp.full // cp.p
+    g = hh.gcd(hh.derivative())
+    roots = _positive_roots_arb(hh // g if g.degree() > 0 else hh)
+    return roots or []
+
+
+def _exact_decision(cp: CondPoly, K: int, tol: Tolerances, margins: bool) -> tuple[SignDecision, bool]:
+    """Exact decision of one condition (its status from the cancelled polynomial ``cp.p``), its
+    margin (``margins``: the frequency-domain margin of hil.stability.margins on the uncancelled
+    ``cp.full`` with the envelope magnitude polynomial) and, with ``tol.rtol > 0``, whether the
+    decision can flip under relative perturbations ≤ rtol of the coefficients of u and D (K
+    coefficient factors per term of p; when axis factors were cancelled the bound is the cancelled
+    polynomial's own |coefficients|: the uncancelled m does not divide)."""
+    p, cut, m = cp.p, cp.cut, cp.m
+    d = decide_exact(p, m if cut == 0 else None, margin=False)
+    if margins and d.status != "equality" and m is not None:
+        touch = [] if d.status == "violated" else sorted(list(d.touching) + _axis_x(cp))
+        d.margin, d.worst_x = frequency_margin(cp.full, np.asarray(m), touch, d.negative_bands)
+        if d.status == "violated" and not d.margin < 0:  # pragma: no cover - certified: cannot happen
+            d.margin = -1e-300
     flip = False
     if tol.rtol > 0 and d.status != "equality":
         eps = (1.0 + tol.rtol) ** K - 1.0
+        mm = m if cut == 0 else None
         mb = np.abs(d.coefficients) if mm is None else np.maximum(
             np.pad(np.abs(mm), (0, max(0, d.coefficients.size - np.asarray(mm).size))),
             np.pad(np.abs(d.coefficients), (0, max(0, np.asarray(mm).size - d.coefficients.size))))
@@ -55,8 +75,14 @@ _RANK = {"violated": 3, "touching": 1, "equality": 1, "satisfied": 0}
 
 
 def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict[str, Any],
-                tol: Tolerances) -> Condition:
-    """Condition record from an exact decision (statuses: docs/VERDICTS.md)."""
+                tol: Tolerances, cp: CondPoly | None = None) -> Condition:
+    """Condition record from an exact decision (statuses: docs/VERDICTS.md); ``cp``: the condition
+    polynomial the margin was taken on (kept for the critical band)."""
+    from hil.stability.margins import restricted
+
+    ratio = None
+    if cp is not None and cp.m is not None and d.margin == d.margin and not cp.full.is_zero():
+        ratio = (cp.full, restricted(cp.full, np.asarray(cp.m)))
     bands_w = [(math.sqrt(a), math.sqrt(b) if math.isfinite(b) else math.inf) for a, b in d.negative_bands]
     touching_w = [math.sqrt(x) for x in d.touching]
     status: ConditionStatus
@@ -64,7 +90,8 @@ def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict[
           "polynomial_x_desc": _desc(d.coefficients), "method": d.method, "distinct_positive_roots": d.n_roots,
           "negative_bands_rad_s": bands_w, "band_depths": d.band_depths,
           "touching_rad_s": touching_w, "formed": "exact",
-          "margin_kind": "frequency-domain margin: min over x >= 0 of p(x)/m_r(x) (docs/VERDICTS.md)"}
+          "margin_kind": "frequency-domain margin: min over x >= 0 of p(x)/m_r(x), p before the imaginary-axis "
+                         "factors are cancelled (docs/VERDICTS.md)"}
     ev.update(extra)
     margin, wf = d.margin, d.worst_omega
     constant = wf is None and margin == margin and d.status in ("violated", "satisfied")  # ρ constant in ω
@@ -84,6 +111,8 @@ def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict[
         wf = touching_w[0] if touching_w else wf
     else:
         status, detail = "satisfied", "positive for all ω"
+        if margin == 0.0 and extra.get("axis_pole_factors_cancelled"):
+            detail += " (margin 0 at the imaginary-axis pole: a lossless pole is on the boundary)"
     if constant and status == "satisfied":
         detail += _CONSTANT_NOTE
     if flip:
@@ -91,7 +120,7 @@ def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict[
         detail = (f"{detail}; the verdict of this condition can flip under a relative perturbation of "
                   f"{tol.rtol:.3g} of the coefficients")
         status = "marginal"
-    return Condition(name, label, status, float(margin), wf, detail, ev)
+    return Condition(name, label, status, float(margin), wf, detail, ev, ratio=ratio)
 
 
 def _band_detail(ev: dict[str, Any]) -> str:
@@ -120,15 +149,15 @@ def _hermitian_minors(entries: list[list[Rational]], idx_all: list[int], tol: To
     else:
         sub_q, sub = None, [[entries[i][j] for j in idx_all] for i in idx_all]
     n = len(idx_all)
-    exact = _exact_minor_polys(sub, need_m=margins or tol.rtol > 0, q=sub_q, entrywise_real=q is not None)
+    exact = _exact_minor_polys(sub, margins or tol.rtol > 0, q=sub_q, entrywise_real=q is not None)
     conds = []
     for k in range(1, n + 1):
         for idx in itertools.combinations(range(n), k):
             glob = tuple(idx_all[i] for i in idx)
             name, lab = f"{prefix}{_lbl(glob)}", f"{label}, principal minor {_lbl(glob)}"
-            pq, cut, m = exact[idx]
-            d, flip = _exact_decision(pq, cut, m, 2 * k, tol, margins)
-            conds.append(_cond_exact(name, lab, d, flip, {"axis_pole_factors_cancelled": cut}, tol))
+            cp = exact[idx]
+            d, flip = _exact_decision(cp, 2 * k, tol, margins)
+            conds.append(_cond_exact(name, lab, d, flip, {"axis_pole_factors_cancelled": cp.cut}, tol, cp))
     return conds
 
 
@@ -142,15 +171,16 @@ def _llewellyn_eta(entries: list[list[Rational]], i: int, j: int, tol: Tolerance
     x > 0: L1 is ``satisfied`` whenever L2 holds, and is not decided separately on the verdict-only
     path (``margins=False``, no tolerance: its margin and flip test are not needed)."""
     st: list[_Setup] = []
-    (p1, c1, m1), (p2, c2, m2) = _exact_llewellyn_polys([[entries[a][b] for b in (i, j)] for a in (i, j)],
-                                                        need_m=margins or tol.rtol > 0, _st=st)
-    d2, f2 = _exact_decision(p2, c2, m2, 8, tol, margins)
+    cp1, cp2 = _exact_llewellyn_polys([[entries[a][b] for b in (i, j)] for a in (i, j)], margins or tol.rtol > 0,
+                                      _st=st)
+    p1, c1, c2 = cp1.p, cp1.cut, cp2.cut
+    d2, f2 = _exact_decision(cp2, 8, tol, margins)
     if (diag_positive and not margins and tol.rtol == 0 and st[0].h is None and not p1.is_zero()
             and d2.status in ("satisfied", "touching", "equality")):
         d1, f1 = SignDecision("satisfied", math.nan, math.nan, method="implied (L2 ≥ 0, Re p_ii > 0, Re p_jj > 0)",
                               coefficients=_qpoly_float(p1)), False
     else:
-        d1, f1 = _exact_decision(p1, c1, m1, 4, tol, margins)
+        d1, f1 = _exact_decision(cp1, 4, tol, margins)
     name = f"E{_lbl((i, j))}"
     a_, b_ = i + 1, j + 1
     label = f"Llewellyn η{a_}{b_} = 2Re p{a_}{a_} Re p{b_}{b_} - Re(p{a_}{b_}p{b_}{a_}) - |p{a_}{b_}p{b_}{a_}| ≥ 0"
@@ -160,4 +190,4 @@ def _llewellyn_eta(entries: list[list[Rational]], i: int, j: int, tol: Tolerance
     return _cond_exact(name, label, worst, f1 or f2,
                        {"L1_x_desc": _desc(d1.coefficients), "L1_status": d1.status,
                         "L2_x_desc": _desc(d2.coefficients), "L2_status": d2.status,
-                        "axis_pole_factors_cancelled": max(c1, c2)}, tol)
+                        "axis_pole_factors_cancelled": max(c1, c2)}, tol, cp2 if worst is d2 else cp1)

@@ -360,11 +360,12 @@ def check(tm: TransferMatrix | Rational, criterion: str = "auto", tol: Tolerance
 
 def margin_curve(g: TransferMatrix | Rational, condition: str = "E{1}") -> Callable[[np.ndarray], np.ndarray]:
     """ω ↦ p(x)/m_r(x) of one frequency condition, the quantity whose minimum is that condition's
-    frequency-domain margin (docs/VERDICTS.md), for plots: ω in physical rad/s, values in [-1, 1].
+    frequency-domain margin (docs/VERDICTS.md: p before imaginary-axis factors are cancelled, m its
+    magnitude polynomial restricted to p's degree range), for plots: ω in physical rad/s, values
+    in [-1, 1].
 
     ``condition`` is a condition name as in the results: ``E{i,j,...}`` (a principal minor of
     G + Gᴴ) or, for a 1-DOF two-port, ``L1`` / ``L2`` (Llewellyn's polynomials of E{1,2})."""
-    from hil.stability.exact import exact_sign
     from hil.stability.minimize import _Ratio
 
     tm, w0 = _normalized(_as_tm(g))
@@ -372,7 +373,7 @@ def margin_curve(g: TransferMatrix | Rational, condition: str = "E{1}") -> Calla
         if tm.n != 2:
             raise ModelError("L1/L2 are defined for 1-DOF two-ports")
         pair = _exact_llewellyn_polys([[tm[a, b] for b in (0, 1)] for a in (0, 1)])
-        p, cut, m = pair[0] if condition == "L1" else pair[1]
+        cp = pair[0] if condition == "L1" else pair[1]
     else:
         try:
             idx = tuple(int(t) - 1 for t in condition[2:-1].split(","))
@@ -381,19 +382,20 @@ def margin_curve(g: TransferMatrix | Rational, condition: str = "E{1}") -> Calla
         if not condition.startswith("E{") or any(i < 0 or i >= tm.n for i in idx):
             raise ModelError(f"unknown condition {condition!r} for a {tm.n}x{tm.n} network")
         sub = [[tm[a, b] for b in idx] for a in idx]
-        p, cut, m = _exact_minor_polys(sub)[tuple(range(len(idx)))]
+        cp = _exact_minor_polys(sub)[tuple(range(len(idx)))]
+    p = cp.full
+    if p.is_zero():
+        return lambda om: np.zeros_like(np.asarray(om, float))
     c = _qpoly_float(p)
-    mm = np.abs(c) if (cut or m is None) else np.maximum(
-        np.pad(np.abs(m), (0, max(0, c.size - m.size)))[: max(c.size, m.size)],
-        np.pad(np.abs(c), (0, max(0, m.size - c.size))))
-    a = exact_sign(p).order0 if not p.is_zero() else 0
-    m_rep = mm.copy()
-    m_rep[:a] = 0.0
-    m_rep[c.size:] = 0.0
-    ratio = _Ratio(c, m_rep)
+    m = np.asarray(cp.m, float)
+    n = c.size
+    a = next(i for i in range(n) if p[i] != 0)
+    mm = np.maximum(np.pad(m, (0, max(0, n - m.size)))[:n], np.abs(c))
+    mm[:a] = 0.0
+    ratio = _Ratio(c, mm)
 
-    def f(w: np.ndarray) -> np.ndarray:
-        x = (np.asarray(w, float) / w0) ** 2
-        return ratio(x) if not p.is_zero() else np.zeros_like(x)
+    def f(om: np.ndarray) -> np.ndarray:
+        x = (np.asarray(om, float) / w0) ** 2
+        return ratio(x)
 
     return f

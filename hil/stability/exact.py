@@ -35,7 +35,6 @@ from fractions import Fraction
 from typing import TYPE_CHECKING, Any, Literal, cast
 
 import numpy as np
-from numpy.polynomial import polynomial as P
 
 from hil.stability.jpoly import XPoly
 from hil.stability.minimize import _margin_min, _positive_real_roots, _Ratio
@@ -479,16 +478,15 @@ def decide_exact(p: fmpq_poly, m: np.ndarray | None = None, margin: bool = True)
 
 
 def _exact_ratio(p: fmpq_poly, mpoly: np.ndarray, x: float) -> float:
-    """p(x)/m(x) with p evaluated exactly at the float x (no cancellation error), m in floats."""
-    from flint import fmpq
+    """p(x)/m(x) with p evaluated exactly at the float x (no cancellation), m in floats (scaled by
+    x^-deg above x = 1: no overflow); NaN outside 0 < x < ∞ or where m vanishes."""
+    from hil.stability.margins import _exact_ratio as ratio
 
-    if not (math.isfinite(x) and x > 0):
+    m = np.asarray(mpoly, float)
+    if not (math.isfinite(x) and x > 0) or not np.any(m) or not np.all(np.isfinite(m)):
         return math.nan
-    v = p(fmpq(*float(x).as_integer_ratio()))
-    mv = float(P.polyval(x, mpoly))
-    if not (mv > 0 and math.isfinite(mv)):
-        return math.nan
-    return float(Fraction(int(v.p), int(v.q)) / Fraction(mv))
+    v = ratio(p, m, x)
+    return v if math.isfinite(v) else math.nan
 
 
 def _exact_depths(p: fmpq_poly, d: SignDecision, m: np.ndarray, m_rep: np.ndarray, margin: bool) -> None:

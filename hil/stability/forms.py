@@ -83,24 +83,27 @@ class _Setup:
     Dc: tuple[fmpq_poly, fmpq_poly]  # conj(D(jω))
     h: fmpq_poly | None  # imaginary-axis factor of D in x (None: no axis pole with ω > 0)
     mu: int  # multiplicity of h in gcd(E, O)
-    uf: list[list[JPoly]]  # float images (for the magnitude polynomials)
+    uf: list[list[JPoly]]  # float images (for the magnitude polynomials; empty without them)
     Dcf: JPoly
 
-
-#: the placeholder float image of a setup built without magnitude polynomials (never read)
-_NO_M = JPoly.zero()
 
 QEntries = tuple[list[list["fmpq_poly | None"]], list[list[fmpq_poly]]]
 
 
 def _q_entries(sub: list[list[Rational]]) -> QEntries:
-    """The exact (numerator or None for a zero entry, denominator) of float entries."""
+    """The exact reduced (numerator or None for a zero entry, denominator) of the entries: a common
+    factor written into an entry is cancelled first, so every condition (and its margin) is that
+    of the rational functions, whatever their written form (issue 31, item 3)."""
 
     n = len(sub)
-    nums: list[list[fmpq_poly | None]] = [[None if sub[i][j].is_zero else sub[i][j].exact[0]
+    nums: list[list[fmpq_poly | None]] = [[None if sub[i][j].is_zero else sub[i][j].exact_reduced[0]
                                            for j in range(n)] for i in range(n)]
-    dens = [[sub[i][j].exact[1] for j in range(n)] for i in range(n)]
+    dens = [[sub[i][j].exact_reduced[1] for j in range(n)] for i in range(n)]
     return nums, dens
+
+
+#: the placeholder float image of a setup built without magnitude polynomials (never read)
+_NO_M = JPoly.zero()
 
 
 def _setup(sub: list[list[Rational]], need_m: bool = True, q: QEntries | None = None) -> _Setup:
@@ -171,12 +174,24 @@ def _cancel(p: fmpq_poly, h: fmpq_poly | None, cap: int) -> tuple[fmpq_poly, int
     return p, cut
 
 
+@dataclass(frozen=True)
+class CondPoly:
+    """One frequency condition formed exactly: ``p`` with ``cut`` squared axis factors h²
+    divided out (its sign decides the status), ``full`` the polynomial before the division
+    (p·h^(2·cut); the margin is taken on it) and ``m`` the magnitude polynomial of ``full``
+    (ascending floats; None when not asked for)."""
+
+    p: fmpq_poly
+    cut: int
+    full: fmpq_poly
+    m: np.ndarray | None
+
+
 def _exact_minor_polys(sub: list[list[Rational]], need_m: bool = True, q: QEntries | None = None,
-                       entrywise_real: bool = False
-                       ) -> dict[tuple[int, ...], tuple[fmpq_poly, int, np.ndarray | None]]:
+                       entrywise_real: bool = False) -> dict[tuple[int, ...], CondPoly]:
     """Every principal minor of (G + Gᴴ)(jω)·|D(jω)|^(2k), formed exactly over Q, divided by the
-    squared axis factor where present. Values: (exact polynomial in x, number of h² factors
-    cancelled, float magnitude polynomial m of the uncancelled minor, None unless ``need_m``).
+    squared axis factor where present (:class:`CondPoly` by index tuple), with the magnitude
+    polynomial of the uncancelled minor when ``need_m``.
     ``q``: the entries given exactly instead of ``sub``. ``entrywise_real``: minors of the
     entrywise real part 2·Re G(jω) instead (equal to G + Gᴴ for a symmetric G; Theorem 1's Z' is
     handled up to a diagonal similarity, which keeps the minors of Re Z' but not its symmetry)."""
@@ -188,6 +203,7 @@ def _exact_minor_polys(sub: list[list[Rational]], need_m: bool = True, q: QEntri
         Pm = [[(2 * A[i][j][0], fmpq_poly([])) for j in range(n)] for i in range(n)]
     else:
         Pm = [[(A[i][j][0] + A[j][i][0], A[i][j][1] - A[j][i][1]) for j in range(n)] for i in range(n)]
+    Pf: list[list[JPoly]] = []
     if need_m:
         Af = [[st.uf[i][j] * st.Dcf for j in range(n)] for i in range(n)]
         if entrywise_real:
@@ -213,13 +229,14 @@ def _exact_minor_polys(sub: list[list[Rational]], need_m: bool = True, q: QEntri
     def detf(rows: tuple[int, ...], cols: tuple[int, ...]) -> JPoly:
         if len(rows) == 1:
             return Pf[rows[0]][cols[0]]
-        if (rows, cols) in memof:
-            return memof[(rows, cols)]
+        key = (rows, cols)
+        if key in memof:
+            return memof[key]
         acc = JPoly.zero()
         for k, c in enumerate(cols):
             t = Pf[rows[0]][c] * detf(rows[1:], cols[:k] + cols[k + 1:])
             acc = acc + t if k % 2 == 0 else acc - t
-        memof[(rows, cols)] = acc
+        memof[key] = acc
         return acc
 
     memor: dict[tuple[tuple[int, ...], tuple[int, ...]], fmpq_poly] = {}
@@ -245,20 +262,18 @@ def _exact_minor_polys(sub: list[list[Rational]], need_m: bool = True, q: QEntri
     out = {}
     for k in range(1, n + 1):
         for idx in itertools.combinations(range(n), k):
-            p, cut = _cancel(detr(idx, idx) if entrywise_real else det(idx, idx)[0], st.h, k * st.mu)
-            out[idx] = (p, cut, detf(idx, idx).real().m if need_m else None)
+            full = detr(idx, idx) if entrywise_real else det(idx, idx)[0]
+            p, cut = _cancel(full, st.h, k * st.mu)
+            out[idx] = CondPoly(p, cut, full, detf(idx, idx).real().m if need_m else None)
     return out
 
 
-_PolyCond = tuple[fmpq_poly, int, "np.ndarray | None"]
-
-
 def _exact_llewellyn_polys(sub: list[list[Rational]], need_m: bool = True, _st: list[_Setup] | None = None
-                           ) -> tuple[_PolyCond, _PolyCond]:
+                           ) -> tuple[CondPoly, CondPoly]:
     """(L1, L2) of :func:`llewellyn_polys` formed exactly over Q with the squared imaginary-axis
-    factor divided out where present (L1 carries |D|⁴, L2 |D|⁸): (polynomial, h² factors cancelled,
-    magnitude polynomial or None unless ``need_m``) each. ``_st``: a list that receives the setup
-    (the caller reads its axis factor)."""
+    factor divided out where present (L1 carries |D|⁴, L2 |D|⁸), as :class:`CondPoly` (magnitude
+    polynomials when ``need_m``). ``_st``: a list that receives the setup (the caller reads its
+    axis factor)."""
     st = _setup(sub, need_m)
     if _st is not None:
         _st.append(st)
@@ -269,21 +284,19 @@ def _exact_llewellyn_polys(sub: list[list[Rational]], need_m: bool = True, _st: 
     a = A1 * A2
     L1 = 2 * a - C[0]
     L2 = 4 * a * (a - C[0]) - _X * C[1] * C[1]
-    if not need_m:
-        p1, c1 = _cancel(L1, st.h, 2 * st.mu)
-        p2, c2 = _cancel(L2, st.h, 4 * st.mu)
-        return (p1, c1, None), (p2, c2, None)
-    uf, Dcf = st.uf, st.Dcf
-    a1f = (uf[0][0] * Dcf).real()
-    a2f = (uf[1][1] * Dcf).real()
-    cf = uf[0][1] * uf[1][0] * Dcf * Dcf
-    af = a1f * a2f
-    cr, ci = cf.real(), cf.imag_over_omega()
-    m1 = (af * 2.0 - cr).m
-    m2 = (af * (af - cr) * 4.0 - (ci * ci).mulx()).m
+    m1 = m2 = None
+    if need_m:
+        uf, Dcf = st.uf, st.Dcf
+        a1f = (uf[0][0] * Dcf).real()
+        a2f = (uf[1][1] * Dcf).real()
+        cf = uf[0][1] * uf[1][0] * Dcf * Dcf
+        af = a1f * a2f
+        cr, ci = cf.real(), cf.imag_over_omega()
+        m1 = (af * 2.0 - cr).m
+        m2 = (af * (af - cr) * 4.0 - (ci * ci).mulx()).m
     p1, c1 = _cancel(L1, st.h, 2 * st.mu)
     p2, c2 = _cancel(L2, st.h, 4 * st.mu)
-    return (p1, c1, m1), (p2, c2, m2)
+    return CondPoly(p1, c1, L1, m1), CondPoly(p2, c2, L2, m2)
 
 
 def hermitian_minor_poly(entries: list[list[Rational]], idx: tuple[int, ...]) -> XPoly:

@@ -91,6 +91,8 @@ def _positive_real_roots(c_asc: np.ndarray) -> np.ndarray:
         lg = np.log(np.abs(c)) + lx0 * np.arange(c.size)
     lg = np.where(np.isfinite(lg), lg, -np.inf)
     cs = np.sign(c) * np.exp(lg - np.max(lg))
+    if not (np.all(np.isfinite(cs)) and math.isfinite(lx0)):  # coefficients beyond double range
+        return np.zeros(0)
     with np.errstate(all="ignore"):
         r = np.roots(cs[::-1]) * math.exp(lx0)
     r = r[np.isfinite(r)]
@@ -151,10 +153,11 @@ def _band_min(ratio: _Ratio, a: float, b: float, cc: np.ndarray, m: np.ndarray) 
 
 
 def _margin_min(rep: _Ratio, c: np.ndarray, m: np.ndarray, bands: Sequence[tuple[float, float]],
-                touching: Sequence[float], extra: list[float]) -> tuple[float, float]:
+                touching: Sequence[float], extra: list[float], check_constant: bool = True) -> tuple[float, float]:
     """(margin, x where it is attained): the smallest value of the normalized condition ``rep``
-    over x ≥ 0 -- its global minimum, each negative band's minimum and the touching points."""
-    worst_x, margin_v = _global_min(rep, c, m, extra=extra)
+    over x ≥ 0 -- its global minimum, each negative band's minimum and the touching points
+    (``check_constant=False``: the caller has ruled out a constant ratio)."""
+    worst_x, margin_v = _global_min(rep, c, m, extra=extra, check_constant=check_constant)
     if worst_x != worst_x:  # ρ constant: the same value in every band and at every point
         return margin_v, worst_x
     for a, b in bands:
@@ -168,11 +171,26 @@ def _margin_min(rep: _Ratio, c: np.ndarray, m: np.ndarray, bands: Sequence[tuple
     return margin_v, worst_x
 
 
-def _critical_points(cc: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """Positive real roots of p'm - pm' (interior extrema of ρ = p/m)."""
+def _der(c: np.ndarray) -> np.ndarray:
+    """Derivative of an ascending coefficient array (cheaper than ``polyder`` on short arrays)."""
+    return c[1:] * np.arange(1, c.size) if c.size > 1 else np.zeros(1)
+
+
+def _wronskian(cc: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """p'm - pm' (ascending), with p and m scaled to unit maximum."""
     cc = cc / np.max(np.abs(cc))
     m = m / np.max(np.abs(m))
-    d = P.polysub(P.polymul(P.polyder(cc), m), P.polymul(cc, P.polyder(m)))
+    a = np.convolve(_der(cc), m)
+    b = np.convolve(cc, _der(m))
+    out = np.zeros(max(a.size, b.size))
+    out[: a.size] += a
+    out[: b.size] -= b
+    return out
+
+
+def _critical_points(cc: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Positive real roots of p'm - pm' (interior extrema of ρ = p/m)."""
+    d = _wronskian(cc, m)
     if d.size == 0 or not np.any(d):
         return np.zeros(0)
     return _positive_real_roots(d)
@@ -186,16 +204,17 @@ def ratio_is_constant(cc: np.ndarray, m: np.ndarray) -> bool:
     m = np.asarray(m, dtype=float)
     if cc.size == 0 or m.size == 0 or not np.any(cc) or not np.any(m):
         return False
+    d = _wronskian(cc, m)
     cc = cc / np.max(np.abs(cc))
     m = m / np.max(np.abs(m))
-    d = P.polysub(P.polymul(P.polyder(cc), m), P.polymul(cc, P.polyder(m)))
     n = max(cc.size, m.size)
-    scale = (np.sum(np.abs(P.polyder(cc))) * np.sum(np.abs(m)) + np.sum(np.abs(cc)) * np.sum(np.abs(P.polyder(m))))
+    scale = (np.abs(_der(cc)).sum() * np.abs(m).sum() + np.abs(cc).sum() * np.abs(_der(m)).sum())
     return bool(np.max(np.abs(d), initial=0.0) <= 16.0 * n * np.finfo(float).eps * max(scale, 1.0))
 
 
-def _global_min(ratio: _Ratio, cc: np.ndarray, m: np.ndarray, extra: list[float]) -> tuple[float, float]:
-    if ratio_is_constant(cc, m):  # attained everywhere: the value, no single x
+def _global_min(ratio: _Ratio, cc: np.ndarray, m: np.ndarray, extra: list[float],
+                check_constant: bool = True) -> tuple[float, float]:
+    if check_constant and ratio_is_constant(cc, m):  # attained everywhere: the value, no single x
         return math.nan, float(ratio(np.array([1.0]))[0])
     xs = list(_critical_points(cc, m)) + list(extra)
     hi = max(_cauchy_bound(cc), _cauchy_bound(m), *(xs or [1.0]))

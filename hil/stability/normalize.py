@@ -68,11 +68,15 @@ def _normalize(tm: TransferMatrix) -> tuple[TransferMatrix, float]:
     if not mags:
         return tm, 1.0
     w0 = float(math.sqrt(min(mags) * max(mags)))
-    if not (math.isfinite(w0) and w0 > 0) or abs(math.log10(w0)) < 0.5:
+    if not (math.isfinite(w0) and w0 > 0):
         return tm, 1.0
     # a power of two: the scaled coefficients c_k·w0^k / 2^e are then *exact* (no rounding), so
     # exact relations between the entries' coefficients (common factors, imaginary-axis poles,
-    # cancellations) survive the normalization and the exact decisions see the given network
+    # cancellations) survive the normalization and the exact decisions see the given network.
+    # Always applied (w0 = 1 included): a network and its power-of-two scalings in frequency and
+    # impedance then normalize to the same floats, and get bit-for-bit the same margins (issue 31,
+    # item 6; before, a network with w0 within half a decade of 1 was left as given while its
+    # scalings were normalized: margins differed by up to 2e-7 relative, more when tiny)
     e0 = round(math.log2(w0))
     w0 = 2.0**e0
     ent = [[e if e.is_zero else _scaled_exact(e, e0) for e in row] for row in tm.entries]

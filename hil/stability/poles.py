@@ -71,8 +71,15 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
     (eq. 57) is *not* imposed: the paper's own case study (eq. 25, residues -k_pm1, -k_pm2) violates
     it while being declared stable, and Theorem 1 (which 000 says reduces to Llewellyn) does not
     need it. ``w0``: the frequency normalization of ``tm`` (residues are reported physical).
-    ``margins=False``: C's margin (the smallest damping ratio, from float roots) and its ``poles``
-    evidence are not computed (verdict unchanged).
+    ``margins=False``: C's margin and its ``poles`` evidence are not computed (verdict unchanged).
+
+    C's margin is the smallest damping ratio -Re p/|p| over the poles off the origin (exactly
+    isolated, :mod:`hil.stability.roots`): 0 for a pole on the imaginary axis (a lossless pole is
+    on the boundary: a relative perturbation of the coefficients of u and D moves the pole off the
+    point where the numerator's real part vanishes, docs/VERDICTS.md), negative for the worst
+    right-half-plane pole, 1 without poles; poles at s = 0 are structural (a trailing zero
+    coefficient, which a relative perturbation keeps) and do not count. Its worst frequency is
+    that pole's |Im p| (rad/s).
     """
     from hil.stability.residues import (
         ResidueDecision,
@@ -116,16 +123,21 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
         # the poles of the network are the roots of D, isolated exactly (hil.stability.roots)
         roots = isolate_roots(D, hurwitz=hurwitz)
         allp = [r.value for r in roots for _ in range(r.multiplicity)]
-        m = min((-r.value.real / abs(r.value) for r in roots if r.region == "lhp"), default=1.0)
-        conds.append(Condition("C", "no poles in the open right-half plane", "satisfied", float(m), None,
-                               "all poles in the closed left-half plane", {"poles": allp}))
+        damp = [(0.0 if r.region == "axis" else -r.value.real / abs(r.value), abs(r.value.imag))
+                for r in roots if r.region in ("lhp", "axis")]
+        m, wf = min(damp, default=(1.0, None))
+        detail = "all poles in the closed left-half plane"
+        if m == 0.0:
+            detail += " (margin 0: a pole on the imaginary axis is on the boundary)"
+        conds.append(Condition("C", "no poles in the open right-half plane", "satisfied", float(m), wf, detail,
+                               {"poles": allp}))
     for pole in axis_poles(fmpq_poly([0] * k0 + [1]) if hurwitz else D):
-        w = pole.omega
-        name = f"D[ω={w:.6g}]"
-        wp = w * w0  # physical rad/s, for the detail lines
+        om = pole.omega
+        name = f"D[ω={om:.6g}]"
+        wp = om * w0  # physical rad/s, for the detail lines
         label = "imaginary-axis pole simple with admissible residues"
         if pole.multiplicity > 1:
-            conds.append(Condition(name, label, "violated", -1.0, w,
+            conds.append(Condition(name, label, "violated", -1.0, om,
                                    f"pole at s = j{wp:.6g} has multiplicity {pole.multiplicity}",
                                    {"multiplicity": pole.multiplicity}))
             continue
@@ -138,11 +150,11 @@ def pole_conditions(tm: TransferMatrix, residue_test: str = "hermitian", tol: To
         else:
             dec = decide_residues(residue_matrix(nums, dens, D, pole, w0), residue_test, tol.rtol, margins)
         ev = dec.evidence
-        ev["pole"] = complex(0, w)
+        ev["pole"] = complex(0, om)
         at = f" at s = j{wp:.6g}"
         mt = re.search(r"residue( matrix)?", dec.detail)
         detail = dec.detail[: mt.end()] + at + dec.detail[mt.end():] if mt else dec.detail + at
-        conds.append(Condition(name, label, dec.status, dec.margin, w, detail, ev))  # type: ignore[arg-type]
+        conds.append(Condition(name, label, dec.status, dec.margin, om, detail, ev))  # type: ignore[arg-type]
     return conds
 
 

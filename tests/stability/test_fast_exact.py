@@ -204,9 +204,9 @@ def test_llewellyn_verdict_only_statuses_match_the_full_path(seed, monkeypatch):
     orig = crit._exact_decision
     factors: list[int] = []
 
-    def spy(p, cut, m, K, tol, margins):  # K = 4: L1 decided separately
+    def spy(cp, K, tol, margins):  # K = 4: L1 decided separately
         factors.append(K)
-        return orig(p, cut, m, K, tol, margins)
+        return orig(cp, K, tol, margins)
 
     monkeypatch.setattr(crit, "_exact_decision", spy)
     for lossless in (False, True):
