@@ -33,9 +33,9 @@ from hil.identify.inverse_ml import (
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["CANDIDATES", "compare_friction_models", "dynamics_bandwidth", "identify_friction_arrays",
+__all__ = ["CANDIDATES", "UNSUPPORTED", "compare_friction_models", "dynamics_bandwidth", "identify_friction_arrays",
            "identify_friction_dict", "identify_friction_model", "identify_friction_record", "integrate_velocity",
-           "simulation_error"]
+           "refuse_unsupported", "simulation_error"]
 
 #: friction models tried by the model choice, simplest first
 CANDIDATES: tuple[tuple[str, ...], ...] = ((), ("coulomb",), ("coulomb", "offset"), ("coulomb", "stribeck", "offset"))
@@ -279,6 +279,26 @@ def _as_ml(fit: InverseFit) -> Any:
 
 _KW = ("seed", "posterior", "n_walkers", "max_steps", "max_seconds", "accept_misfit")
 
+#: options of the linear models that have no meaning for the friction models -> why (a one-line refusal)
+UNSUPPORTED: dict[str, str] = {
+    "method": "the friction models are fitted by inverse-dynamics ML only (drop --method)",
+    "sampling": "the friction models take the force held over each sample period (zoh) only",
+    "noise": "the friction models' noise model is the equation error's AR model (drop --noise)",
+    "theta0": "the friction models start from IDIM-LS, not from given values (drop --set)",
+    "period": "the friction models are fitted in the time domain (drop --period)",
+    "nperseg": "the friction models are fitted in the time domain (drop nperseg)",
+}
+
+
+def refuse_unsupported(options: Mapping[str, Any], terms: Sequence[str]) -> None:
+    """Raise a one-line :class:`ModelSpecError` for a linear-model option given with friction
+    (:data:`UNSUPPORTED`; ``method="auto"`` and ``sampling="zoh"`` are what the friction path does)."""
+    for k, why in UNSUPPORTED.items():
+        v = options.get(k)
+        if v is None or (k, v) in (("method", "auto"), ("sampling", "zoh")):
+            continue
+        raise ModelSpecError(f"{k}={v!r} with friction {','.join(terms)}: {why}")
+
 
 def _positions(sig: Mapping[str, Any], outputs: Mapping[str, str], keys: Sequence[str], fs: float,
                notes: list[str]) -> NDArray[np.float64]:
@@ -316,6 +336,7 @@ def identify_friction_record(src: Any, overrides: Mapping[str, Any], friction: S
     from hil.identify.sensor_hold import channel_ages
 
     ov = {k: v for k, v in dict(overrides).items() if v is not None}
+    refuse_unsupported(ov, friction)
     kw = {k: ov.pop(k) for k in _KW if k in ov}
     for k in ("sampling", "method", "noise", "resolution", "input_resolution", "excitation", "n_starts", "window",
               "theta0", "nperseg", "skip", "period"):
@@ -368,6 +389,7 @@ def identify_friction_dict(record: Mapping[str, Any], overrides: Mapping[str, An
     from hil.identify.sensor_hold import channel_ages
 
     meta = {**dict(record.get("meta") or {}), **{k: v for k, v in dict(overrides).items() if v is not None}}
+    refuse_unsupported({k: v for k, v in dict(overrides).items() if v is not None}, friction)
     try:
         t = np.asarray(record["t"], float)
         sig = record["signals"]

@@ -35,6 +35,8 @@ from scipy.optimize import brentq
 CHECKS = 8
 #: RK4 steps per period (Stribeck)
 RK4_STEPS = 16
+#: friction events in one period beyond which the motion is taken for chattering (an error)
+MAX_EVENTS = 100
 
 
 @dataclass
@@ -286,8 +288,8 @@ class FrictionPlant:
                     cand[j] = True
                     mode = self.settle(x, uk, cand, mode)
                 events += 1
-                if events > 100:
-                    raise RuntimeError(f"more than 100 friction events in period {k}")
+                if events > MAX_EVENTS:
+                    raise RuntimeError(f"more than {MAX_EVENTS} friction events in period {k}")
         return Q, V
 
 
