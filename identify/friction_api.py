@@ -35,7 +35,7 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["CANDIDATES", "UNSUPPORTED", "compare_friction_models", "dynamics_bandwidth", "identify_friction_arrays",
            "identify_friction_dict", "identify_friction_model", "identify_friction_record", "integrate_velocity",
-           "refuse_unsupported", "simulation_error"]
+           "refuse_unsupported", "simulation_error", "unhold_position"]
 
 #: friction models tried by the model choice, simplest first
 CANDIDATES: tuple[tuple[str, ...], ...] = ((), ("coulomb",), ("coulomb", "offset"), ("coulomb", "stribeck", "offset"))
@@ -300,18 +300,46 @@ def refuse_unsupported(options: Mapping[str, Any], terms: Sequence[str]) -> None
         raise ModelSpecError(f"{k}={v!r} with friction {','.join(terms)}: {why}")
 
 
+def unhold_position(q: ArrayLike, fs: float, rate: float | None) -> tuple[NDArray[np.float64], int]:
+    """A position channel a record declares held (a slower encoder stream put on the record's time base
+    by a zero-order hold, :func:`hil.identify.sensor_hold.declared_rate`) as the positions it measured:
+    its new samples (age 0, :func:`hil.identify.sensor_hold.held_ages` with the declared ``rate`` [Hz])
+    at the instants they appear, joined by a cubic spline (:class:`scipy.interpolate.CubicSpline`,
+    not-a-knot) on every record sample. Differentiating the staircase itself would read each hold
+    as a stop and each new value as a jump (velocity spikes of ``fs / rate`` times the mean, a
+    delay of half a sensor period). Returns ``(positions, number of new samples)``."""
+    from scipy.interpolate import CubicSpline
+
+    from hil.identify.sensor_hold import held_ages
+
+    qq = np.asarray(q, float)
+    new = np.flatnonzero(held_ages(qq, fs, rate if rate is not None and np.isfinite(rate) else None) == 0)
+    if new.size < 4:
+        raise DataQualityError(f"a held position with {new.size} new samples cannot be differentiated")
+    k = np.arange(qq.size, dtype=float)
+    return np.asarray(CubicSpline(new.astype(float), qq[new])(k), float), int(new.size)
+
+
 def _positions(sig: Mapping[str, Any], outputs: Mapping[str, str], keys: Sequence[str], fs: float,
-               notes: list[str]) -> NDArray[np.float64]:
+               notes: list[str], meta: Mapping[str, Any] | None = None) -> NDArray[np.float64]:
     """The positions of coordinates ``keys`` (``position``, ``position_0``, ``output_position``) from the
-    outputs mapping: a ``*position*`` signal as is; a ``*velocity*`` one: the record's position channel
-    of the same device when it has one, else the velocity integrated (:func:`integrate_velocity`)."""
+    outputs mapping: a ``*position*`` signal as is, or, when the record's ``meta`` declares it held,
+    its measured samples joined (:func:`unhold_position`); a ``*velocity*`` one: the record's position
+    channel of the same device when it has one, else the velocity integrated (:func:`integrate_velocity`)."""
     from hil.identify.records import signal
+    from hil.identify.sensor_hold import declared_rate
 
     cols = []
     for key in keys:
         vkey = key.replace("position", "velocity")
         if key in outputs:
-            cols.append(signal(sig, outputs[key]))
+            col = signal(sig, outputs[key])
+            rate = declared_rate(meta or {}, outputs[key])
+            if rate:  # declared held by the import (0.0: on the time base; None: nothing declared)
+                col, n_new = unhold_position(col, fs, rate)
+                notes.append(f"{key}: {outputs[key]} held (declared by the import, source {rate:g} Hz): its "
+                             f"{n_new} measured samples joined by a cubic spline, not differentiated as held")
+            cols.append(col)
         elif vkey in outputs:
             name = outputs[vkey]
             pos = name.replace(".velocity", ".position")
@@ -368,7 +396,7 @@ def identify_friction_record(src: Any, overrides: Mapping[str, Any], friction: S
                 notes.append(f"force {outs['force']}: {how}")
     else:
         raise ModelSpecError(f"friction models: mbk, sdea_locked, sdea_free (got --model {plan.model})")
-    Q = _positions(sig, outs, keys, fs, notes)
+    Q = _positions(sig, outs, keys, fs, notes, dict(getattr(src, "meta", {}) or {}))
     units = plan.model_options.get("units") or "linear"
     res = identify_friction_model(plan.model, friction, t, U, Q, force=force, force_ages=force_ages,
                                   windows=plan.windows, band=plan.kwargs.get("band"),
@@ -418,7 +446,7 @@ def identify_friction_dict(record: Mapping[str, Any], overrides: Mapping[str, An
             force_ages, how = channel_ages(force, meta, outs["force"], fs)
             if how:
                 notes.append(f"force {outs['force']}: {how}")
-    Q = _positions(sig, outs, keys, fs, notes)
+    Q = _positions(sig, outs, keys, fs, notes, meta)
     U = np.column_stack([signal(sig, s) for s in ins])
     kw = {k: meta[k] for k in (*_KW, "band", "units") if k in meta}
     res = identify_friction_model(model, friction, t, U, Q, force=force, force_ages=force_ages, **kw)

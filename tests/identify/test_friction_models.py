@@ -211,3 +211,35 @@ def test_sdea_locked_calibration_over_20_seeds() -> None:
     assert 0.80 <= c["cover"] <= 0.97, c
     assert np.all(c["scatter_crb"] <= 1.5), c
     assert c["misfit"] <= 1
+
+
+def test_declared_held_position_is_not_differentiated_as_continuous() -> None:
+    """Item 3: an encoder streaming at 250 Hz put on a 1 kHz time base by an import's hold, declared in
+    the record's ``held_channels`` / ``imported_from.resampling``: identification joins its measured
+    samples (unhold_position) and gets what the same axis recorded at the full 1 kHz gives (within
+    one sd, and 0.3 % of the truth); the same samples read as a continuous channel (nothing declared)
+    give a stepped, delayed velocity: M more than 4 sd high, unflagged."""
+    from hil.identify.friction import simulate
+
+    rng = np.random.default_rng(5)
+    fs, n = 1000.0, 20000
+    u = band_limited(rng, n, fs, 3.0, 25.0)[:, 0]
+    x, _ = simulate(2.0, 8.0, 3.0, 0.0, u, 1 / fs)
+    q = np.round(x[0] / 1e-6) * 1e-6
+    held = np.repeat(q[::4], 4)[:n]  # the 250 Hz stream's latest sample at each 1 kHz tick
+    f = u + rng.normal(0, 0.2, n)
+    plain = {"inputs": ["f"], "outputs": {"position": "q"}}
+    meta = {**plain, "held_channels": ["q"],
+            "imported_from": {"resampling": {"q": {"held": True, "source_rate_hz": 250.0}}}}
+
+    def fit(qq: np.ndarray, m: dict[str, Any]) -> Any:
+        return identify_record({"t": np.arange(n) / fs, "signals": {"q": qq, "f": f}, "meta": m}, seed=0,
+                               friction="coulomb", posterior="laplace")
+
+    dec, full, bad = fit(held, meta), fit(q, plain), fit(held, plain)
+    assert any("held (declared by the import, source 250 Hz)" in s for s in dec.record["mapping"]["notes"])
+    sd, sf, sb = dec.summary(), full.summary(), bad.summary()
+    for k, v in {"M": 2.0, "B": 8.0, "F_c": 3.0}.items():
+        assert abs(sd[k]["mean"] - sf[k]["mean"]) < sf[k]["std"], (k, sd[k], sf[k])
+        assert abs(sd[k]["mean"] - v) < 3e-3 * v, (k, sd[k])  # the 1 kHz record's own F_c: -0.14 %
+    assert sb["M"]["mean"] - 2.0 > 4 * sb["M"]["std"] and not bad.misfit, sb["M"]
