@@ -180,7 +180,9 @@ def test_linear_friction_screen_flags_dry_friction_only(tmp_path: Path) -> None:
     linear, with_friction = SimpleNamespace(friction=[]), SimpleNamespace(friction=["coulomb"])
     got = {}
     for fc in (20.0, 0.0):
-        path = write_record(axis_record(1, AxisTruth(F_c=fc), duration=10.0), tmp_path / f"fc{fc:g}.h5")
+        # 20 s: the IDIM-ML sandwich with the equation error's AR model (h25c) gives 10 s of this axis
+        # z = 3.85 < SCREEN_Z; 20 s: z = 6.1
+        path = write_record(axis_record(1, AxisTruth(F_c=fc), duration=20.0), tmp_path / f"fc{fc:g}.h5")
         got[fc] = fr.linear_friction_screen(path, res, linear)
         assert fr.linear_friction_screen(path, res, with_friction) == []  # a friction fit is not screened
     assert len(got[20.0]) == 1 and "dry friction in the data" in got[20.0][0]
