@@ -130,6 +130,8 @@ class FrictionModel(InverseDynamicsModel):
         fric = [k for k in nom if k.split("_")[0] == "F" and k[:3] in ("F_c", "F_0")]
         fscale = float(force_scale) if force_scale else max([abs(nom[k]) * 10 for k in fric] + [1.0])
         core: list[Parameter] = []
+        ins: tuple[str, ...]
+        outs: tuple[str, ...]
         if n == 1:
             self.coordinates, self.equations, self.joints = ("position",), (Equation("force", "input"),), (Joint(0, 0),)
             for k in ("M", "B"):

@@ -49,8 +49,9 @@ def sample_rate(t: ArrayLike) -> float:
     return _sr(t)
 
 
-def simulation_error(model: FrictionModel, theta: ArrayLike, u: ArrayLike, q: ArrayLike, fs: float) -> dict[str, float]:
-    """Open-loop simulation of the position from the force over a record, from its measured start
+def simulation_error(model: Any, theta: ArrayLike, u: ArrayLike, q: ArrayLike, fs: float) -> dict[str, float]:
+    """Open-loop simulation of the position from the force over a record (``model``: the 1-DOF
+    :class:`FrictionModel` of a fit, read for its terms and units), from its measured start
     (position, filtered-derivative velocity): ``rms`` [m or rad] of ``q - q_sim`` and ``fit_pct =
     100 (1 - |q - q_sim| / |q - mean q|)`` (100 % = perfect)."""
     from hil.identify.friction import FrictionModel as _FM
