@@ -237,6 +237,9 @@ def identify_experiments(
     """Identify ``model`` from experiments ``[{"t": t, "inputs": ..., "outputs": ...}, ...]``.
 
     ``inputs``/``outputs``: mapping model channel -> (n,) array (or (n, k) arrays in model order).
+    ``held`` (optional): output channel -> what the record declares about its hold
+    (:func:`hil.identify.sensor_hold.declared_rate`: the source rate [Hz] of a held channel, 0 for one
+    on the time base); it wins over the inference from repeated values.
     ``band`` [Hz]; ``period`` [s] of a periodic chirp sets ``nperseg = period * fs`` (recommended:
     leakage-free segments); otherwise ``nperseg`` defaults to 1/16 of the shortest record.
     ``skip`` [s] drops the start of each record (transient). ``seed`` drives LS restarts and the
@@ -334,7 +337,11 @@ def identify_experiments(
                     "reporting whole counts): its rounding floor q^2/12 is in the noise model", channel=name))
     from hil.identify.sensor_hold import compensate_frf, held_outputs  # outputs of a slower sensor
 
-    held = held_outputs(pairs, mdl.output_names)
+    # a record that declares its held channels (an import of streams at several rates) is believed
+    declared: dict[str, float] = {}
+    for e in experiments:
+        declared.update({k: float(v) for k, v in dict(e.get("held") or {}).items() if v is not None})
+    held = held_outputs(pairs, mdl.output_names, declared=declared, fs=fs)
     # the ML path models the hold in its likelihood (hil.identify.held_ml) on the exact ZOH model
     held_ml = bool(held) and chosen == "ml" and mdl.zoh_fs is not None and not mdl.has_delay
     if held:
@@ -343,10 +350,12 @@ def identify_experiments(
         how = ("the FRF is compensated for the hold" if chosen == "frf" else
                "the likelihood observes it at its new samples only (hold modelled)" if held_ml else
                "the ML path models the hold only with the zero-order-hold model without delay (sampling 'zoh')")
+        why = (f"declared held by the record's import (source {declared[name]:g} Hz)" if name in declared else
+               f"a sensor slower than the {fs:g} Hz loop")
         report.diagnoses.append(Diagnosis(
             "sample_and_hold", "info" if chosen == "frf" or held_ml else "warning",
             f"output {name} repeats its previous value in {100 * (1 - held[name][0]):.0f} % of the samples "
-            f"(a sensor slower than the {fs:g} Hz loop): " + how, channel=name))
+            f"({why}): " + how, channel=name))
     if band is None and chosen == "ml":
         band = _record_band(pairs, fs)
         logger.info("analysis band %.3g..%.3g Hz: where the recorded input carries power", *band)
@@ -387,6 +396,7 @@ def identify_experiments(
         return _identify_ml(mdl, pairs, fs, band or (fs / nps, 0.45 * fs), est, ls, ident, report, timings, t0,
                             seed=seed, posterior=posterior, n_walkers=n_walkers, max_steps=max_steps,
                             max_seconds=max_seconds, accept_misfit=accept_misfit, held=held if held_ml else None,
+                            declared=declared,
                             alt_start=lambda: _lpm_start(mdl, pairs, fs, band or (fs / nps, 0.45 * fs), th0))
     crb_std = _frf_path_crb(mdl, ls.theta, pairs, fs, est)
     adequacy = check_frf_fit(mdl, est, ls.theta)
@@ -526,10 +536,12 @@ def _identify_ml(
     accept_misfit: bool,
     alt_start: Any = None,
     held: Mapping[str, Any] | None = None,
+    declared: Mapping[str, float] | None = None,
 ) -> IdentificationResult:
     """Output-error ML from the H1-LS start, adequacy tests, then the posterior (emcee on the same
     likelihood, or its Laplace approximation). ``held``: outputs of a slower sensor (name -> age
-    distribution): the time-domain likelihood with the hold modelled (:mod:`hil.identify.held_ml`)."""
+    distribution): the time-domain likelihood with the hold modelled (:mod:`hil.identify.held_ml`);
+    ``declared``: the source rates [Hz] of the outputs the record declares held."""
     t1 = time.perf_counter()
     start = "H1"
     recs = dft_records(pairs, fs, band)
@@ -537,7 +549,7 @@ def _identify_ml(
     if held:
         from hil.identify.held_ml import check_held_fit, fit_held_ml, held_records
 
-        ml, prob = fit_held_ml(mdl, held_records(pairs, mdl.output_names, held), ls0.theta)
+        ml, prob = fit_held_ml(mdl, held_records(pairs, mdl.output_names, held, rates=declared, fs=fs), ls0.theta)
         adequacy = check_held_fit(prob, ml.theta, ml.sigma)
         alt_start = None  # the time-domain problem has its own start (the hold-compensated H1 fit)
     else:
@@ -634,9 +646,12 @@ def identify_record(record: Any, **overrides: Any) -> IdentificationResult:
     ``overrides`` (``model``, ``inputs``, ``outputs``, ``target``, ``experiment``, ``period``,
     ``skip``, ``band``, ``sampling``, ... and any keyword of :func:`identify_experiments`) win.
     ``friction``: a sequence of terms from ``{"coulomb", "stribeck", "offset"}`` (or ``"coulomb,offset"``);
-    empty or None: the linear models as before. With friction the 1-DOF ``mbk`` model with friction is
-    identified by inverse-dynamics ML from the position (:mod:`hil.identify.friction_api`); parameters
-    ``M``, ``B`` (viscous), ``F_c``, ``F_s``/``v_s``, ``F_0`` with units, ``result.method == "idim-ml"``.
+    empty or None: the linear models as before. With friction the model (``mbk`` with one or more
+    joints, ``sdea_locked``, ``sdea_free``) gets the friction on every actuated joint and is identified
+    by inverse-dynamics ML from the positions (:mod:`hil.identify.friction_api`); parameters ``M``,
+    ``B`` (viscous), ``F_c``, ``F_s``/``v_s``, ``F_0`` (one joint; ``F_c_0``, ``F_c_1``, ... per joint of a
+    multi-DOF ``mbk``, whose ``M``, ``B``, ``K`` are then named by their entries ``M_01`` ...; the SDEA's
+    ``K_f``, ``B_f``, ``M``, ``B``) with units, ``result.method == "idim-ml"``.
     Dicts: ``meta["inputs"]``/``meta["outputs"]`` map model channels to signal names (or list signal
     names in model order); ``overrides`` take precedence over ``meta``.
     """
@@ -647,21 +662,11 @@ def identify_record(record: Any, **overrides: Any) -> IdentificationResult:
         record = load_record(record)
     src = as_source(record)
     if terms:  # a plant with friction: the inverse-dynamics ML path (hil.identify.friction_api)
-        from hil.identify.friction_api import identify_friction_arrays, identify_friction_record
+        from hil.identify.friction_api import identify_friction_dict, identify_friction_record
 
         if src is not None:
             return identify_friction_record(src, overrides, terms)
-        meta = {**dict(record.get("meta") or {}), **{k: v for k, v in overrides.items() if v is not None}}
-        sig = record["signals"]
-        ins, outs = meta.get("inputs"), meta.get("outputs")
-        if not ins or not outs:
-            raise ModelSpecError("a record dict with friction needs meta inputs [force signal] and outputs "
-                                 "{'position': signal}")
-        (okey, oname), = dict(outs).items() if isinstance(outs, Mapping) else [("position", outs[0])]
-        kw = {k: meta[k] for k in ("seed", "posterior", "n_walkers", "max_steps", "max_seconds", "accept_misfit")
-              if k in meta}
-        return identify_friction_arrays(record["t"], np.asarray(sig[next(iter(ins))], float),
-                                        np.asarray(sig[oname], float), terms, output=okey.split("_")[0], **kw)
+        return identify_friction_dict(record, overrides, terms)
     if src is not None:
         return _identify_run_record(src, overrides)
     return _identify_dict(record, **overrides)
@@ -698,6 +703,10 @@ def _identify_run_record(rec: Any, overrides: Mapping[str, Any]) -> Identificati
     if missing:
         raise ModelSpecError(f"no signal for model outputs {missing}: pass --output {missing[0]}=SIGNAL")
     t = np.asarray(data["t"], float)
+    from hil.identify.sensor_hold import declared_rate  # what an import says about its held channels
+
+    declared = {c: r for c in mdl.output_names
+                if (r := declared_rate(dict(getattr(rec, "meta", {}) or {}), plan.outputs[c])) is not None}
     exps = []
     for w in plan.windows:
         m = window_mask(t, w)
@@ -705,7 +714,7 @@ def _identify_run_record(rec: Any, overrides: Mapping[str, Any]) -> Identificati
             continue
         ins = {c: signal(sig, n)[m] for c, n in zip(mdl.input_names, plan.inputs, strict=True)}
         outs = {c: signal(sig, plan.outputs[c])[m] for c in mdl.output_names}
-        exps.append({"t": t[m], "inputs": ins, "outputs": outs})
+        exps.append({"t": t[m], "inputs": ins, "outputs": outs, "held": declared})
     if not exps:
         raise DataQualityError(f"no samples in the experiment windows {plan.windows}")
     kw = dict(plan.kwargs)

@@ -38,14 +38,28 @@ parameter vectors.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.signal import lfilter
 
 from hil.identify.errors import ModelSpecError
-from hil.identify.models import GreyBoxModel, Parameter
+from hil.identify.inverse_models import (
+    FRICTION_TERMS,
+    PARAMETERS,
+    Equation,
+    InverseDynamicsModel,
+    Joint,
+    friction_names,
+    model_parameter,
+    normalize_friction,
+)
+from hil.identify.models import Parameter
+
+if TYPE_CHECKING:
+    from hil.identify.idim import Motion
 
 logger = logging.getLogger(__name__)
 
@@ -58,58 +72,31 @@ __all__ = [
     "simulate",
 ]
 
-#: selectable friction terms (the viscous term ``B`` is always in the model)
-FRICTION_TERMS = ("coulomb", "stribeck", "offset")
-
-#: name -> (linear unit, rotary unit, description)
-PARAMETERS: dict[str, tuple[str, str, str]] = {
-    "M": ("kg", "kg.m^2", "mass (inertia)"),
-    "B": ("N.s/m", "N.m.s/rad", "viscous damping"),
-    "F_c": ("N", "N.m", "Coulomb friction level"),
-    "F_s": ("N", "N.m", "Stribeck excess at rest (break-away force F_c + F_s)"),
-    "v_s": ("m/s", "rad/s", "Stribeck velocity"),
-    "F_0": ("N", "N.m", "constant force offset (inverse model u = M a + F(v) + F_0)"),
-}
-
-
-def normalize_friction(spec: str | Iterable[str] | None) -> tuple[str, ...]:
-    """The friction terms as a canonical tuple (order of :data:`FRICTION_TERMS`): ``"coulomb,offset"``,
-    ``["stribeck"]`` (-> coulomb + stribeck), ``None``/``""``/``"none"``/``()`` -> ``()`` (linear).
-    Raises :class:`ModelSpecError` naming an unknown term."""
-    if spec is None:
-        return ()
-    items = spec.split(",") if isinstance(spec, str) else list(spec)
-    terms = {str(s).strip().lower() for s in items} - {"", "none", "linear", "viscous"}
-    unknown = sorted(terms - set(FRICTION_TERMS))
-    if unknown:
-        raise ModelSpecError(f"unknown friction term(s) {unknown}; known: {', '.join(FRICTION_TERMS)} "
-                             "(the viscous term B is always included)")
-    if "stribeck" in terms:
-        terms.add("coulomb")
-    return tuple(t for t in FRICTION_TERMS if t in terms)
-
-
 def parameter_names(terms: Sequence[str]) -> tuple[str, ...]:
     """Parameter names of a 1-DOF model with friction ``terms`` (in vector order)."""
-    names = ["M", "B"]
-    if "coulomb" in terms:
-        names.append("F_c")
-    if "stribeck" in terms:
-        names += ["F_s", "v_s"]
-    if "offset" in terms:
-        names.append("F_0")
-    return tuple(names)
+    return ("M", "B", *friction_names(terms))
 
 
-class FrictionModel(GreyBoxModel):
-    """1-DOF mass with viscous + optional Coulomb/Stribeck friction and offset (module docstring).
+class FrictionModel(InverseDynamicsModel):
+    """``n_dof`` mass-damper(-spring) joints with viscous + optional Coulomb/Stribeck friction and an
+    offset on every joint (module docstring; :mod:`hil.identify.inverse_models`).
 
-    Input ``force`` (effort) [N or N.m]; output ``position`` [m or rad] (the encoder) or
-    ``velocity``. Parameters :func:`parameter_names` with units from :data:`PARAMETERS`. Nonlinear:
-    it has no frequency response (``frf`` is the viscous part's, for reporting only); it is simulated
-    in the time domain (:meth:`simulate`). ``nominal`` {name: value} sets nominal values (data
-    derived: the IDIM-LS start), bounds ``nominal / span .. nominal * span`` for the positive
-    parameters and ``+- force_scale`` for ``F_0``.
+    One DOF: parameters ``M``, ``B``, ``F_c``, ``F_s``, ``v_s``, ``F_0`` (:func:`parameter_names`), a free
+    joint as in the EMPS benchmark (no spring). ``n_dof > 1``: the symmetric ``M``, ``B``, ``K`` of the
+    linear ``mbk`` model, by their entries ``M_ij``, ``B_ij``, ``K_ij`` (``i <= j``; the names of
+    :meth:`hil.identify.models.MbkModel.derived`; diagonal ``M``, ``B`` positive, the rest of any sign)
+    and per joint ``i`` the friction ``F_c_i``, ``F_s_i``, ``v_s_i``, ``F_0_i``; equation ``i`` balances
+    the force ``force_i`` held on joint ``i``:
+
+        u_i = sum_j (M_ij q_j'' + B_ij q_j' + K_ij q_j) + F_c_i sgn(q_i') + F_0_i
+              [+ F_s_i e^{-(q_i'/v_s_i)^2} sgn(q_i')]
+
+    Input ``force`` (``force_i``) [N or N.m]; output ``position`` (``position_i``) [m or rad] (the
+    encoder) or ``velocity``. Nonlinear: no frequency response (``frf`` is the viscous part's, for
+    reporting only); one DOF is simulated in the time domain (:meth:`simulate`). ``nominal`` {name:
+    value} sets nominal values (data derived: the IDIM-LS start) and the bounds
+    (:func:`hil.identify.inverse_models.model_parameter`); ``scale`` {name: magnitude} the ranges of the
+    entries of any sign (default ``span`` times the largest diagonal entry of the same matrix).
     """
 
     name = "mbk"
@@ -118,7 +105,9 @@ class FrictionModel(GreyBoxModel):
         self,
         friction: Sequence[str] = ("coulomb",),
         *,
+        n_dof: int = 1,
         nominal: dict[str, float] | None = None,
+        scale: dict[str, float] | None = None,
         units: str = "linear",
         output: str = "position",
         span: float = 30.0,
@@ -129,34 +118,81 @@ class FrictionModel(GreyBoxModel):
             raise ModelSpecError("units must be 'linear' or 'rotary'")
         if output not in ("position", "velocity"):
             raise ModelSpecError("output must be 'position' or 'velocity'")
+        n = int(n_dof)
+        if n < 1:
+            raise ModelSpecError("n_dof must be >= 1")
+        self.n_dof = n
         self.terms = normalize_friction(friction)
         self.units_kind = units
         self.output = output
-        nom = {"M": 1.0, "B": 1.0, "F_c": 1.0, "F_s": 0.5, "v_s": 0.01, "F_0": 0.0, **(nominal or {})}
-        fscale = float(force_scale) if force_scale else max(abs(nom["F_c"]) * 10, abs(nom["F_0"]) * 10, 1.0)
         col = 0 if units == "linear" else 1
-        core = []
-        for n in parameter_names(self.terms):
-            unit, desc = PARAMETERS[n][col], PARAMETERS[n][2]
-            if n == "F_0":
-                lim = max(fscale, 2 * abs(nom[n]))
-                core.append(Parameter(n, unit, -lim, lim, float(nom[n]), False, desc))
-            elif n in ("F_c", "F_s"):
-                v = max(float(nom[n]), 1e-6 * fscale)
-                core.append(Parameter(n, unit, min(1e-6 * fscale, v / span), max(v * span, 2 * fscale), v, True, desc))
-            else:
-                v = float(nom[n])
-                if not v > 0:
-                    raise ModelSpecError(f"nominal {n} must be positive, got {v}")
-                core.append(Parameter(n, unit, v / span, v * span, v, True, desc))
-        super().__init__(core, ("force",), (output,), zoh_fs=zoh_fs)
+        nom = {"M": 1.0, "B": 1.0, "F_c": 1.0, "F_s": 0.5, "v_s": 0.01, "F_0": 0.0, **(nominal or {})}
+        fric = [k for k in nom if k.split("_")[0] == "F" and k[:3] in ("F_c", "F_0")]
+        fscale = float(force_scale) if force_scale else max([abs(nom[k]) * 10 for k in fric] + [1.0])
+        core: list[Parameter] = []
+        ins: tuple[str, ...]
+        outs: tuple[str, ...]
+        if n == 1:
+            self.coordinates, self.equations, self.joints = ("position",), (Equation("force", "input"),), (Joint(0, 0),)
+            for k in ("M", "B"):
+                core.append(model_parameter(k, "positive", PARAMETERS[k][col], PARAMETERS[k][2], nom[k], span=span,
+                                            scale=1.0))
+            ins, outs = ("force",), (output,)
+        else:
+            self.coordinates = tuple(f"position_{i}" for i in range(n))
+            self.equations = tuple(Equation(f"force_{i}", "input") for i in range(n))
+            self.joints = tuple(Joint(i, i, f"_{i}") for i in range(n))
+            self.pairs = [(i, j) for i in range(n) for j in range(i, n)]
+            for k in ("M", "B", "K"):
+                unit, desc = PARAMETERS[k][col], PARAMETERS[k][2]
+                diag = [abs(nom.get(f"{k}_{i}{i}", 1.0 if k != "K" else 0.0)) for i in range(n)]
+                for i, j in self.pairs:
+                    nm = f"{k}_{i}{j}"
+                    v = nom.get(nm, (1.0 if k != "K" else 0.0) if i == j else 0.0)
+                    if i == j and k != "K":
+                        core.append(model_parameter(nm, "positive", unit, f"{desc} {i}{j}", v, span=span, scale=1.0))
+                    else:
+                        sc = (scale or {}).get(nm, span * max([*diag, 1.0]))
+                        core.append(model_parameter(nm, "free", unit, f"{desc} {i}{j}", v, span=span, scale=sc))
+            ins = tuple(f"force_{i}" for i in range(n))
+            outs = tuple(f"{output}_{i}" for i in range(n))
+        core += self.friction_parameters(nom, span=span, force_scale=fscale)
+        super().__init__(core, ins, outs, zoh_fs=zoh_fs)
 
-    @property
-    def friction(self) -> tuple[str, ...]:
-        return self.terms
+    def structural_columns(self, m: Motion) -> list[tuple[int, int, NDArray]]:
+        """``M`` with the acceleration, ``B`` the velocity, ``K`` the position: entry ``A_ij`` (``i <= j``)
+        enters equation ``i`` with coordinate ``j`` and equation ``j`` with coordinate ``i``."""
+        if self.n_dof == 1:
+            return [(0, 0, m.a(0, "input")), (1, 0, m.v(0, "input"))]
+        idx = {nm: i for i, nm in enumerate(self.names)}
+        get = {"M": m.a, "B": m.v, "K": m.q}
+        out: list[tuple[int, int, NDArray]] = []
+        for k in ("M", "B", "K"):
+            for i, j in self.pairs:
+                out.append((idx[f"{k}_{i}{j}"], i, get[k](j, "input")))
+                if i != j:
+                    out.append((idx[f"{k}_{i}{j}"], j, get[k](i, "input")))
+        return out
+
+    def matrices(self, theta: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """(M, B, K) (..., n, n) of parameter vectors (one DOF: K = 0)."""
+        th = np.asarray(theta, float)
+        n = self.n_dof
+        out = []
+        idx = {nm: i for i, nm in enumerate(self.names)}
+        for k in ("M", "B", "K"):
+            A = np.zeros((*th.shape[:-1], n, n))
+            if n == 1:
+                if k != "K":
+                    A[..., 0, 0] = th[..., idx[k]]
+            else:
+                for i, j in self.pairs:
+                    A[..., i, j] = A[..., j, i] = th[..., idx[f"{k}_{i}{j}"]]
+            out.append(A)
+        return out[0], out[1], out[2]
 
     def split(self, theta: ArrayLike) -> dict[str, NDArray[np.float64]]:
-        """``{name: (...,) array}`` of a parameter batch (missing terms: zeros)."""
+        """``{name: (...,) array}`` of a parameter batch of a 1-DOF model (missing terms: zeros)."""
         th = np.asarray(theta, float)
         out = {n: np.zeros(th.shape[:-1]) for n in PARAMETERS}
         out["v_s"] = np.ones(th.shape[:-1])
@@ -167,26 +203,34 @@ class FrictionModel(GreyBoxModel):
     def _state_space(self, theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64],
                                                                   NDArray[np.float64]]:
         """The viscous (linear) part: state (q, v)."""
-        M, B = theta[..., 0], theta[..., 1]
-        A = np.zeros((*M.shape, 2, 2))
-        A[..., 0, 1] = 1.0
-        A[..., 1, 1] = -B / M
-        Bm = np.zeros((*M.shape, 2, 1))
-        Bm[..., 1, 0] = 1.0 / M
-        C = np.zeros((*M.shape, 1, 2))
-        C[..., 0, 0 if self.output == "position" else 1] = 1.0
-        return A, Bm, C
+        Mm, Bm_, Km = self.matrices(theta)
+        n = self.n_dof
+        Mi = np.linalg.inv(Mm)
+        A = np.zeros((*Mm.shape[:-2], 2 * n, 2 * n))
+        A[..., :n, n:] = np.eye(n)
+        A[..., n:, :n] = -Mi @ Km
+        A[..., n:, n:] = -Mi @ Bm_
+        Bin = np.zeros((*Mm.shape[:-2], 2 * n, n))
+        Bin[..., n:, :] = Mi
+        C = np.zeros((*Mm.shape[:-2], n, 2 * n))
+        off = 0 if self.output == "position" else n
+        for i in range(n):
+            C[..., i, off + i] = 1.0
+        return A, Bin, C
 
     def _core_frf(self, theta: NDArray[np.float64], s: NDArray[np.complex128]) -> NDArray[np.complex128]:
-        M, B = theta[..., 0][..., None], theta[..., 1][..., None]
-        H = 1.0 / (M * s**2 + B * s)
+        Mm, Bm_, Km = self.matrices(theta)
+        s3 = s[:, None, None]
+        H = np.linalg.inv(Mm[..., None, :, :] * s3**2 + Bm_[..., None, :, :] * s3 + Km[..., None, :, :])
         if self.output == "velocity":
-            H = H * s
-        return H[..., None, None]
+            H = H * s3
+        return np.asarray(H, complex)
 
     def simulate(self, theta: ArrayLike, u: ArrayLike, *, x0: float = 0.0, v0: float = 0.0) -> NDArray[np.float64]:
         """Model output (..., n) for input samples ``u`` (n,) held over each period ``1/zoh_fs``,
-        from position ``x0`` and velocity ``v0``: :func:`simulate` on the batch ``theta`` (..., p)."""
+        from position ``x0`` and velocity ``v0``: :func:`simulate` on the batch ``theta`` (..., p). One DOF."""
+        if self.n_dof != 1:
+            raise ModelSpecError("the friction simulator is for one joint (n_dof = 1)")
         th = np.asarray(theta, float)
         p = self.split(th.reshape(-1, th.shape[-1]))
         x, v = simulate(p["M"], p["B"], p["F_c"], p["F_0"], np.asarray(u, float), 1.0 / float(self.zoh_fs or 1.0),

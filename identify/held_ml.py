@@ -44,7 +44,7 @@ from scipy.optimize import least_squares
 from hil.identify.errors import ConvergenceError, ModelSpecError
 from hil.identify.fisher import normalized_pinv
 from hil.identify.models import GreyBoxModel
-from hil.identify.sensor_hold import ages
+from hil.identify.sensor_hold import held_ages
 from hil.identify.timedomain import MlResult, _fd_jacobian
 
 logger = logging.getLogger(__name__)
@@ -63,9 +63,11 @@ class HeldRecord:
 
 
 def held_records(pairs: Sequence[tuple[ArrayLike, ArrayLike]], output_names: Sequence[str],
-                 held: Mapping[str, Any]) -> list[HeldRecord]:
+                 held: Mapping[str, Any], *, rates: Mapping[str, float] | None = None,
+                 fs: float = 1.0) -> list[HeldRecord]:
     """:class:`HeldRecord` s of ``(u, y)`` pairs; the outputs named in ``held`` are observed where their
-    age (:func:`hil.identify.sensor_hold.ages`) is 0."""
+    age is 0 (:func:`hil.identify.sensor_hold.held_ages`, with the record's declared source ``rates``
+    [Hz] at ``fs`` [Hz] where given)."""
     out = []
     for u_raw, y_raw in pairs:
         u = np.asarray(u_raw, float)
@@ -75,7 +77,8 @@ def held_records(pairs: Sequence[tuple[ArrayLike, ArrayLike]], output_names: Seq
         obs = np.ones(y.shape, dtype=bool)
         for o, name in enumerate(output_names):
             if name in held:
-                obs[:, o] = ages(y[:, o]) == 0
+                r = (rates or {}).get(name)
+                obs[:, o] = held_ages(y[:, o], fs, r if r is not None and np.isfinite(r) else None) == 0
         out.append(HeldRecord(u, y, obs))
     return out
 

@@ -24,12 +24,36 @@ by a 1-D search of the residual sum of squares (bounded, log scale) with the res
 Closed loop: the regressors are built from the measured motion, not simulated from the force, so a
 position controller feeding back the encoder does not bias the equation error the way it biases an
 open-loop output-error fit (noise on ``q`` only enters through the heavily filtered derivatives).
+
+Consistent columns (:class:`Motion`, used by the inverse-dynamics ML of every friction model). The
+force ``u_k`` of a bench is held over ``[kT, (k+1)T)``. The double central difference of the position,
+``D2 q_k = (q_k+2 - 2 q_k + q_k-2) / (4 T^2)``, is EXACTLY the acceleration averaged with the triangle
+``Lambda`` of half-width ``2T`` (the convolution of two boxes of width ``2T``), and the same average of
+the held force is ``(u_k-2 + 3 u_k-1 + 3 u_k + u_k+1) / 8``. The equation ``M q'' + B q' + K q = u - f``
+averaged with ``Lambda`` therefore needs the other columns averaged the same way: in frequency
+``Lambda(w) = sinc^2(w T)`` (``sinc x = sin x / x``), which the central difference ``sin(wT)/T`` of the
+velocity misses by ``(wT)^2 / 6`` and the position sample by ``(wT)^2 / 3`` -- 5 % of a spring force at
+a 120 Hz resonance sampled at 2 kHz. The columns of an equation whose left side is a held force
+(``kind="input"``) are the 5-tap FIRs matching ``sinc^2`` (position: ``[1, 16, 26, 16, 1] / 60``, error
+``O((wT)^6)``) and ``w sinc^2`` (velocity: ``(q_k+1 - q_k-1) / (3T) + (q_k+2 - q_k-2) / (12 T)``, error
+``(wT)^5 / 180``), and the friction columns the triangle's average of the friction law over the motion
+(:meth:`Motion.friction`: the sign of a velocity that reverses between two samples is averaged
+exactly, not sampled; the velocity's zeros are located on the positions filtered at twice the cut-off,
+where the kink of a reversal is not smeared). An equation whose left side is sampled at the instants (a force sensor;
+``kind="measured"``, or ``"zero"`` for a body without actuator) takes point values: the position, the
+5-point first and second derivatives.
+
+Parallel filtering: the Butterworth filter of the positions attenuates the band it keeps a little
+(``1 / (1 + (f / f_filter)^8)``: 6.5e-4 at the top of the decimated band), which an unfiltered force
+does not see; the left sides and the friction columns are filtered with the same filter
+(:meth:`Motion.lowpass`), so every term of the equation is (a force sensor whose samples are held,
+:mod:`hil.identify.inverse_design`, excepted: its held samples are used as recorded).
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,7 +66,8 @@ from hil.identify.friction import normalize_friction, parameter_names
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["IdimResult", "decimate", "diffcent", "filtered_derivatives", "idim_columns", "idim_design", "idim_ls"]
+__all__ = ["IdimResult", "Motion", "decimate", "diffcent", "filtered_derivatives", "idim_columns", "idim_design",
+           "idim_ls"]
 
 #: the benchmark's dynamics bandwidth [Hz]: Butterworth at 5x, decimation to 2x of it
 F_DYN = 20.0
@@ -82,6 +107,111 @@ def filtered_derivatives(q: ArrayLike, fs: float, f_filter: float | None = None
     return qf, v, diffcent(v, dt)
 
 
+#: 5-tap stencils (centre at index 2): position averaged as sinc^2 (per sample), velocity as w sinc^2
+#: (per T), point first and second derivatives (per T and T^2), the held force's average (per sample)
+_AVG_Q = np.array([1.0, 16.0, 26.0, 16.0, 1.0]) / 60.0
+_AVG_V = np.array([-1.0, -4.0, 0.0, 4.0, 1.0]) / 12.0
+_PT_V = np.array([1.0, -8.0, 0.0, 8.0, -1.0]) / 12.0
+_PT_A = np.array([-1.0, 16.0, -30.0, 16.0, -1.0]) / 12.0
+_D2 = np.array([1.0, 0.0, -2.0, 0.0, 1.0]) / 4.0
+HELD_FORCE = np.array([1.0, 3.0, 3.0, 1.0]) / 8.0  # weights of u_k-2 .. u_k+1
+
+
+def _stencil(x: NDArray, taps: NDArray) -> NDArray:
+    """``sum_i taps[i] x[k + i - 2]`` along axis 0 (edges: the nearest sample repeated)."""
+    pad = np.pad(x, [(2, 2)] + [(0, 0)] * (x.ndim - 1), mode="edge")
+    return np.asarray(sum(t * pad[i : i + x.shape[0]] for i, t in enumerate(taps) if t != 0.0), float)
+
+
+def held_force(u: ArrayLike) -> NDArray[np.float64]:
+    """The force held over each period as the double central difference of the position sees it:
+    ``(u_k-2 + 3 u_k-1 + 3 u_k + u_k+1) / 8`` along axis 0 (edges repeated)."""
+    uu = np.asarray(u, float)
+    pad = np.pad(uu, [(2, 1)] + [(0, 0)] * (uu.ndim - 1), mode="edge")
+    return np.asarray(sum(w * pad[i : i + uu.shape[0]] for i, w in enumerate(HELD_FORCE)), float)
+
+
+class Motion:
+    """The measured coordinates of one record (positions ``Q`` (n, n_c) [m or rad] at ``fs`` [Hz]),
+    low-pass filtered forward and backward (Butterworth order 4 at ``f_filter``), and the columns of
+    the inverse model built from them (module docstring, "Consistent columns"), full length. ``kind``:
+    ``"input"`` (an equation balancing a held force: averaged columns) or ``"measured"``/``"zero"``
+    (point columns). ``crop`` drops ``n_border`` samples at both ends (filter transients)."""
+
+    def __init__(self, Q: ArrayLike, fs: float, f_filter: float, n_border: int = 50) -> None:
+        QQ = np.asarray(Q, float)
+        self.Q = QQ[:, None] if QQ.ndim == 1 else QQ
+        self.fs = float(fs)
+        self.f_filter = float(f_filter)
+        if not 0 < self.f_filter < self.fs / 2:
+            raise DataQualityError(f"IDIM filter cut-off {self.f_filter:g} Hz outside (0, {self.fs / 2:g}) Hz")
+        self._ba = signal.butter(4, self.f_filter / (self.fs / 2))
+        self.qf = self.lowpass(self.Q)
+        self.n = self.Q.shape[0]
+        self.n_border = int(n_border)
+        if self.n <= 4 * self.n_border:
+            raise DataQualityError(f"IDIM: {self.n} samples are too few (need > {4 * self.n_border})")
+        T = 1.0 / self.fs
+        self._v_pt = _stencil(self.qf, _PT_V) / T
+        # the friction law's velocity: filtered less (twice the cut-off), so that a reversal's kink is
+        # not smeared across the zero (a 100 Hz filter moves the zeros enough to bias F_c by -0.3 %)
+        self.f_velocity = min(2.0 * self.f_filter, 0.4 * self.fs)
+        ba = signal.butter(4, self.f_velocity / (self.fs / 2))
+        qv = signal.filtfilt(*ba, self.Q, axis=0, padlen=3 * (max(len(ba[0]), len(ba[1])) - 1))
+        self._v_fric = _stencil(np.asarray(qv, float), _PT_V) / T
+
+    def lowpass(self, x: ArrayLike) -> NDArray:
+        """The positions' filter (Butterworth order 4 at ``f_filter``, forward and backward) applied to
+        ``x`` along axis 0: what a left side and a friction column get so that the whole equation is
+        filtered alike (parallel filtering)."""
+        b, a = self._ba
+        return np.asarray(signal.filtfilt(b, a, np.asarray(x, float), axis=0, padlen=3 * (max(len(a), len(b)) - 1)),
+                          float)
+
+    def crop(self, x: NDArray) -> NDArray:
+        return x[self.n_border : self.n - self.n_border]
+
+    def q(self, c: int, kind: str) -> NDArray:
+        return _stencil(self.qf[:, c], _AVG_Q) if kind == "input" else self.qf[:, c].copy()
+
+    def v(self, c: int, kind: str) -> NDArray:
+        return _stencil(self.qf[:, c], _AVG_V) * self.fs if kind == "input" else self._v_pt[:, c].copy()
+
+    def a(self, c: int, kind: str) -> NDArray:
+        return _stencil(self.qf[:, c], _D2 if kind == "input" else _PT_A) * self.fs**2
+
+    def velocity(self, c: int) -> NDArray:
+        """Point velocity [m/s or rad/s] of coordinate ``c`` that the friction law reads: the positions
+        filtered at ``f_velocity = min(2 f_filter, 0.4 fs)``, 5-point derivative."""
+        return self._v_fric[:, c]
+
+    def friction(self, c: int, fn: Callable[[NDArray], NDArray], kind: str) -> NDArray:
+        """The column of a friction law ``fn(v)`` (e.g. ``sgn v``) of coordinate ``c`` as the equation
+        ``kind`` sees it: point values ``fn(v_k)``, or (``"input"``) its average with the triangle
+        ``Lambda``, ``sum over the 4 periods around k`` of ``integral Lambda(t - kT) fn(v(t)) dt``, the
+        velocity linear between samples: each period split where ``v`` changes sign (``fn`` may jump
+        there) and integrated by 4-point Gauss-Legendre on each piece (exact for a piecewise-constant
+        ``fn`` such as the sign); then low-pass filtered as the positions (:meth:`lowpass`)."""
+        v = self._v_fric[:, c]
+        if kind != "input":
+            return self.lowpass(fn(v))
+        va, vb = v[:-1], v[1:]
+        cross = (va * vb) < 0
+        theta = np.where(cross, va / np.where(cross, va - vb, 1.0), 1.0)  # the zero's place in the period
+        x, w = np.polynomial.legendre.leggauss(4)
+        x, w = (x + 1) / 2, w / 2  # on (0, 1)
+        tau = np.concatenate([theta[:, None] * x, theta[:, None] + (1 - theta)[:, None] * x], axis=1)
+        wt = np.concatenate([theta[:, None] * w, (1 - theta)[:, None] * w], axis=1)
+        f = np.asarray(fn(va[:, None] + (vb - va)[:, None] * tau), float)
+        i0 = np.sum(wt * f, axis=1)  # integral over the period of fn(v)
+        i1 = np.sum(wt * tau * f, axis=1)  # ... times the time since its start (in periods)
+        # Lambda(t - k) is (t - k + 2)/4 on the period k-2, (t - k + 2)/4 on k-1, (2 - (t - k))/4 on k and k+1:
+        i0p, i1p = np.pad(i0, 2, mode="edge"), np.pad(i1, 2, mode="edge")  # period j at index j + 2
+        k = np.arange(self.n)
+        avg = (i1p[k] + (i0p[k + 1] + i1p[k + 1]) + (2 * i0p[k + 2] - i1p[k + 2]) + (i0p[k + 3] - i1p[k + 3])) / 4.0
+        return self.lowpass(avg)
+
+
 @dataclass
 class IdimResult:
     """IDIM-LS estimate: ``theta`` (names of :func:`hil.identify.friction.parameter_names`), ``std``
@@ -97,6 +227,8 @@ class IdimResult:
     residual_std: float
     n: int
     f_filter: float
+    #: residual std per equation [force unit] (models with several equations)
+    residual_std_by_equation: dict[str, float] | None = None
 
     def as_dict(self) -> dict[str, float]:
         return dict(zip(self.names, map(float, self.theta), strict=True))
@@ -104,7 +236,9 @@ class IdimResult:
     def to_dict(self) -> dict[str, Any]:
         return {"estimate": self.as_dict(), "std": dict(zip(self.names, map(float, self.std), strict=True)),
                 "decimation": self.decimation, "relative_error_pct": self.relative_error_pct,
-                "residual_std": self.residual_std, "n_samples": self.n, "filter_hz": self.f_filter}
+                "residual_std": self.residual_std, "n_samples": self.n, "filter_hz": self.f_filter,
+                **({"residual_std_by_equation": self.residual_std_by_equation}
+                   if self.residual_std_by_equation else {})}
 
 
 def _columns(v: NDArray, a: NDArray, terms: Sequence[str], v_s: float) -> list[NDArray]:

@@ -21,6 +21,18 @@ record and is not estimated here: measure it and set it in the scene.
 
 A channel counts as held when more than :data:`HELD_FRACTION` of its samples repeat the previous
 value exactly (a measured, noisy signal does not repeat in float arithmetic) and it is not constant.
+
+Declared holds (:func:`declared_rate`). A record imported from streams at several rates (``hil import``
+of a bag, MCAP or TDMS file, :mod:`hil.record.importers`) says which of its channels are held: meta
+``held_channels`` and ``imported_from.resampling[channel]`` (``source_rate_hz``, ``repeated_fraction``);
+the channels it does not list there are on the time base. The declaration wins over the inference:
+a declared channel is held even when its repeats look like quantization (a force sensor reporting
+whole counts repeats a value also where the force changed by less than a count between two of its
+samples, which the homogeneity test of :func:`quantized_repeats` then rejects), or when the sensor is
+slower than :data:`MAX_AGE` ticks; a channel on the time base is never held. Its ages
+(:func:`held_ages`) come from its repeats, with the declared rate ``r``: a run of equal values longer
+than one sensor period plus one tick (``fs / r + 1`` samples) holds ``round(length r / fs)`` sensor
+samples, spread evenly over it -- a value that did not change is still a new sample.
 """
 
 from __future__ import annotations
@@ -35,8 +47,8 @@ from numpy.typing import ArrayLike, NDArray
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["HELD_FRACTION", "MAX_AGE", "age_distribution", "compensate_frf", "held_outputs", "hold_response",
-           "quantized_repeats"]
+__all__ = ["HELD_FRACTION", "MAX_AGE", "age_distribution", "channel_ages", "compensate_frf", "declared_rate",
+           "held_ages", "held_outputs", "hold_response", "quantized_repeats"]
 
 #: fraction of exact repeats above which a channel is treated as sampled-and-held
 HELD_FRACTION = 0.05
@@ -53,6 +65,65 @@ def ages(y: ArrayLike) -> NDArray[np.int64]:
     idx = np.where(new, np.arange(n), 0)
     last = np.maximum.accumulate(idx)
     return np.arange(n) - last
+
+
+def held_ages(y: ArrayLike, fs: float, rate: float | None = None) -> NDArray[np.int64]:
+    """Per-sample ages of a held channel (module docstring): from its repeats (:func:`ages`); with the
+    sensor's declared ``rate`` [Hz] (< ``fs``), each run of equal values longer than ``fs / rate + 1``
+    samples split into ``round(length rate / fs)`` sensor samples."""
+    yy = np.asarray(y)
+    a = ages(yy)
+    if rate is None or not rate > 0 or not rate < fs:
+        return a
+    R = float(fs) / float(rate)
+    n = yy.shape[0]
+    starts = np.flatnonzero(a == 0)
+    ends = np.append(starts[1:], n)
+    new = np.zeros(n, dtype=bool)
+    new[starts] = True
+    for s0, s1 in zip(starts, ends, strict=True):
+        g = int(s1 - s0)
+        if g > R + 1:
+            m = max(1, round(g / R))
+            new[s0 + np.round(np.arange(m) * g / m).astype(int)] = True
+    idx = np.where(new, np.arange(n), 0)
+    return np.arange(n) - np.maximum.accumulate(idx)
+
+
+def declared_rate(meta: Mapping[str, Any], signal: str) -> float | None:
+    """What a record declares about the hold of ``signal`` (``channel`` or ``channel[i]``, a leading
+    ``-`` ignored): its source rate [Hz] when the import lists the channel as held, ``0.0`` when the
+    import aligned several streams and this channel is on the time base (not held), None when the
+    record declares nothing (a native run, or a single-rate import)."""
+    imp = meta.get("imported_from") if isinstance(meta, Mapping) else None
+    res = imp.get("resampling") if isinstance(imp, Mapping) else None
+    if not isinstance(res, Mapping):
+        return None
+    ch = signal.lstrip("-").split("[")[0]
+    held = set(meta.get("held_channels") or ())
+    info = res.get(ch)
+    if ch in held or (isinstance(info, Mapping) and info.get("held")):
+        rate = float(info.get("source_rate_hz") or 0.0) if isinstance(info, Mapping) else 0.0
+        return rate if rate > 0 else float("inf")  # held, rate unknown: the repeats alone
+    return 0.0
+
+
+def channel_ages(y: ArrayLike, meta: Mapping[str, Any], signal: str, fs: float) -> tuple[NDArray[np.int64] | None, str]:
+    """``(ages, how)`` of a record's output ``signal`` (samples ``y`` at ``fs`` [Hz]): the record's
+    declaration first (:func:`declared_rate`, :func:`held_ages`), else the inference of
+    :func:`held_outputs` (repeats, not quantization); ``ages`` None when the channel is not held."""
+    rate = declared_rate(meta, signal)
+    if rate == 0.0:
+        return None, "on the time base of the import (declared not held)"
+    if rate is not None:
+        a = held_ages(y, fs, rate if np.isfinite(rate) else None)
+        return a, (f"held, declared by the import (source {rate:g} Hz): observed at its {np.mean(a == 0):.0%} "
+                   "new samples")
+    col = np.asarray(y, float)
+    if quantized_repeats(col) or age_distribution(col) is None:
+        return None, ""
+    a = ages(col)
+    return a, f"repeats its value in {np.mean(a > 0):.0%} of the samples (a sensor slower than the loop)"
 
 
 def age_distribution(y: ArrayLike) -> NDArray[np.float64] | None:
@@ -101,14 +172,23 @@ def hold_response(p: ArrayLike, w: ArrayLike, fs: float) -> NDArray[np.complex12
     return np.exp(-1j * np.outer(np.asarray(w, dtype=float), k) / fs) @ p
 
 
-def held_outputs(pairs: Sequence[tuple[NDArray[Any], NDArray[Any]]], names: Sequence[str]
-                 ) -> dict[str, NDArray[np.float64]]:
-    """Output name -> pooled age distribution over the experiments, for the held outputs."""
+def held_outputs(pairs: Sequence[tuple[NDArray[Any], NDArray[Any]]], names: Sequence[str], *,
+                 declared: Mapping[str, float] | None = None, fs: float = 1.0) -> dict[str, NDArray[np.float64]]:
+    """Output name -> pooled age distribution over the experiments, for the held outputs. ``declared``
+    (output name -> :func:`declared_rate` of its signal; outputs without a declaration absent): a
+    declared hold wins over the inference (module docstring), ages by :func:`held_ages` at ``fs`` [Hz]."""
     out: dict[str, NDArray[np.float64]] = {}
     for o, name in enumerate(names):
         counts: list[NDArray[np.float64]] = []
+        rate = (declared or {}).get(name)
+        if rate == 0.0:
+            continue
         for _u, y in pairs:
             col = np.asarray(y)[:, o] if np.ndim(y) == 2 else np.asarray(y)
+            if rate is not None:
+                a = held_ages(col, fs, rate if np.isfinite(rate) else None)
+                counts.append(np.bincount(a).astype(float))
+                continue
             p = None if quantized_repeats(col) else age_distribution(col)
             if p is None:
                 counts = []

@@ -23,7 +23,7 @@ import numpy as np
 from hil.certify.certificate import Measurement
 from hil.certify.stages import Expect, MeasurementSpec, info_spec
 from hil.errors import HilError
-from hil.scene.spec import FRICTION_NAMES
+from hil.scene.spec import FRICTION_NAMES, is_friction_name
 
 logger = logging.getLogger(__name__)
 
@@ -58,7 +58,7 @@ def identify_kwargs(spec: Any, target: str | None = None) -> dict[str, Any]:
 
 def default_map(names: Sequence[str]) -> dict[str, str]:
     """The identity map of an entry without ``map``: every identified parameter but dry friction."""
-    return {n: n for n in names if n not in FRICTION_NAMES}
+    return {n: n for n in names if not is_friction_name(n)}
 
 
 def friction_rows(experiment: str, res: Any) -> list[Measurement]:
@@ -67,20 +67,28 @@ def friction_rows(experiment: str, res: Any) -> list[Measurement]:
     summ = res.summary()
     units = dict(zip(res.model.names, res.model.units, strict=True))
     rows: list[Measurement] = []
-    for name in ("F_c", "F_s", "v_s", "F_0"):
-        if name not in summ:
-            continue
+    # one joint: F_c, ...; joint i of a multi-DOF model: F_c_i, ... (hil.identify.inverse_models)
+    joints = sorted({n.rpartition("_")[2] for n in summ if n not in FRICTION_NAMES and is_friction_name(n)},
+                    key=int) or [""]
+    for j in joints:
+        sfx = f"_{j}" if j else ""
+        for base in ("F_c", "F_s", "v_s", "F_0"):
+            name = base + sfx
+            if name not in summ:
+                continue
+            s = summ[name]
+            what = {"F_c": "Coulomb friction F_c", "F_s": "Stribeck excess F_s (break-away F_c + F_s)",
+                    "v_s": "Stribeck velocity v_s", "F_0": "constant force offset F_0"}[base] + sfx
+            note = NOT_DAMPING if base != "F_0" else ("a constant force (gravity, drive offset): no damping, "
+                                                      "not counted by the stability conditions")
+            rows.append(info_spec(f"{what} ({experiment})", units.get(name, "")).measure(
+                float(s["mean"]), description=f"posterior mean, 90% credible [{s['q05']:.6g}, {s['q95']:.6g}]; "
+                                               f"{note}"))
+    for name in [n for n in ("B", *(f"B_{i}{i}" for i in range(len(joints)) if joints != [""])) if n in summ]:
         s = summ[name]
-        what = {"F_c": "Coulomb friction F_c", "F_s": "Stribeck excess F_s (break-away F_c + F_s)",
-                "v_s": "Stribeck velocity v_s", "F_0": "constant force offset F_0"}[name]
-        note = NOT_DAMPING if name != "F_0" else ("a constant force (gravity, drive offset): no damping, "
-                                                  "not counted by the stability conditions")
-        rows.append(info_spec(f"{what} ({experiment})", units.get(name, "")).measure(
-            float(s["mean"]), description=f"posterior mean, 90% credible [{s['q05']:.6g}, {s['q95']:.6g}]; {note}"))
-    if "B" in summ:
-        s = summ["B"]
-        spec = info_spec(f"damping counted by the stability conditions ({experiment})", units.get("B", ""))
-        rows.append(spec.measure(float(s["mean"]), description=f"viscous B only, posterior mean, 90% credible "
+        label = "" if name == "B" else f" {name}"
+        spec = info_spec(f"damping counted by the stability conditions{label} ({experiment})", units.get(name, ""))
+        rows.append(spec.measure(float(s["mean"]), description=f"viscous {name} only, posterior mean, 90% credible "
                                                                 f"[{s['q05']:.6g}, {s['q95']:.6g}]; dry friction and "
                                                                 "offset are not added"))
     return rows
@@ -169,10 +177,12 @@ def port_friction(scene: Any, actuator: str, idents: Mapping[str, Any]) -> list[
     res = idents.get(actuator)
     if res is not None:
         s = res.summary()
-        if "F_c" in s:
-            return [FrictionLevels(float(s["F_c"]["q95"]), float(s["F_s"]["q95"]) if "F_s" in s else 0.0,
-                                   float(s["v_s"]["q95"]) if "v_s" in s else 1.0,
-                                   source="identified (95% quantile)")]
+        n_j = sum(1 for k in s if k.startswith("F_c_") and k[4:].isdigit())
+        sfx = [f"_{i}" for i in range(n_j)] if n_j else ([""] if "F_c" in s else [])
+        if sfx:  # per joint (F_c_i of a multi-DOF model), in the port's DOF order
+            return [FrictionLevels(float(s["F_c" + x]["q95"]), float(s["F_s" + x]["q95"]) if "F_s" + x in s else 0.0,
+                                   float(s["v_s" + x]["q95"]) if "v_s" + x in s else 1.0,
+                                   source="identified (95% quantile)") for x in sfx]
     if getattr(scene, "simulation", None) is None:
         return None
     from hil.bench.mechanics import device_mechanics

@@ -163,8 +163,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("record", help="run record .h5 (hil run / hil import), .csv/.mat (imported on the fly), or .npz")
     p.add_argument("--model", default=None, help="sdea_locked | sdea_free | mbk (default: inferred)")
     p.add_argument("--friction", default=None, metavar="TERMS",
-                   help="friction of the 1-DOF mbk joint: comma-separated coulomb, stribeck, offset (viscous B is "
-                   "always in the model); identified from the position by inverse-dynamics ML")
+                   help="friction on every actuated joint: comma-separated coulomb, stribeck, offset (viscous B is "
+                   "always in the model); mbk with 1 DOF (F_c, ...) or n DOF (F_c_0, F_c_1, ...), sdea_locked "
+                   "(needs --output force=SIGNAL) or sdea_free (the motor's); identified from the positions by "
+                   "inverse-dynamics ML")
     p.add_argument("--validate", default=None, metavar="RECORD",
                    help="second record (same signal names) for the simulation error of the model choice "
                    "(default: the last third of the record, the models fitted on the rest)")

@@ -542,6 +542,13 @@ FRICTION_PARAMETERS = {"coulomb": ("F_c",), "stribeck": ("F_c", "F_s", "v_s"), "
 FRICTION_NAMES = frozenset(p for ps in FRICTION_PARAMETERS.values() for p in ps)
 
 
+def is_friction_name(name: str) -> bool:
+    """A dry-friction parameter: one of :data:`FRICTION_NAMES`, or one with a joint index (``F_c_0``,
+    ``F_0_1``: the multi-DOF ``mbk`` model with friction, :mod:`hil.identify.inverse_models`)."""
+    base, _, idx = name.rpartition("_")
+    return name in FRICTION_NAMES or (idx.isdigit() and base in FRICTION_NAMES)
+
+
 def _friction_terms(v: Any) -> Any:
     if isinstance(v, str):  # "coulomb,offset" as on the command line
         v = [t.strip() for t in v.split(",") if t.strip()]
@@ -1016,6 +1023,9 @@ def _identification_names(sc: Scene, path: str, spec: IdentifyCfg, exp: Any) -> 
             if by_port or len(same_body) == 1:
                 key = "sdea_locked"
             elif sc.force_sensors:  # decided from the record's channels: either model
+                if spec.friction:
+                    fr = _friction_names(spec.friction)
+                    return "sdea_locked or mbk", [*sdea, *fr], [*sdea, *fr]  # M, B: in both models
                 ms, ma = mbk(1)
                 return "sdea_locked or mbk", sdea + ms, sdea + ma
             else:
@@ -1025,12 +1035,15 @@ def _identification_names(sc: Scene, path: str, spec: IdentifyCfg, exp: Any) -> 
     if spec.output is not None and (key != "mbk" or n != 1):
         raise FieldError(f"{path}.output", f"output chooses the measured output of the 1-DOF mbk model; experiment "
                                         f"{spec.experiment!r} gives {key} on {n} DOF")
-    if spec.friction:
-        # hil.identify's friction models: the 1-DOF mbk joint M q'' = u - F_0 - B q' - F_c sgn(q') - ...
-        if key != "mbk" or n != 1:
-            raise FieldError(f"{path}.friction", f"friction is identified with the 1-DOF mbk model; experiment "
-                                              f"{spec.experiment!r} gives {key} on {n} DOF")
-        names = ["M", "B", *_friction_names(spec.friction)]
+    fric = _friction_names(spec.friction)
+    if fric and key == "mbk":
+        # hil.identify's friction models (hil.identify.inverse_models): 1 DOF M, B, F_c, ...; n DOF the
+        # entries M_ij, B_ij, K_ij (i <= j) and per joint F_c_i, ...
+        if n == 1:
+            names = ["M", "B", *fric]
+        else:
+            names = [f"{m}_{i}{j}" for m in "MBK" for i in range(n) for j in range(i, n)]
+            names += [f"{p}_{i}" for i in range(n) for p in fric]
         return key, names, names
     if key.startswith("sdea"):
         if n != 1:
@@ -1042,14 +1055,14 @@ def _identification_names(sc: Scene, path: str, spec: IdentifyCfg, exp: Any) -> 
             raise FieldError(f"{path}.model", "sdea_locked needs the spring force: with only the motor velocity, "
                                           "B and B_f are inseparable; add a force sensor on the target's body "
                                           "or network port, or identify sdea_free from a free-output chirp")
-        names = sdea + (["m_h"] if key == "sdea_free" else [])
+        names = sdea + (["m_h"] if key == "sdea_free" else []) + fric  # friction on the motor
         return key, names, names
     sampled, available = mbk(n)
     return key, sampled, available
 
 
 def _friction_names(terms: Sequence[str]) -> list[str]:
-    """The parameters the friction ``terms`` add to the 1-DOF mbk model, in a fixed order."""
+    """The parameters the friction ``terms`` add to one joint, in a fixed order (``[]`` for none)."""
     want = {p for t in terms for p in FRICTION_PARAMETERS[t]}
     return [p for p in ("F_c", "F_s", "v_s", "F_0") if p in want]
 
@@ -1106,12 +1119,12 @@ def _check_certification(sc: Scene, cert: CertificationCfg) -> None:
                              "identification needs a chirp or a multisine")
         model, sampled, available = _identification_names(sc, path, spec, exp)
         # dry friction is shown on the certificate, never fed to the network (it is not a damping)
-        mapping = spec.map or {n: n for n in sampled if n not in FRICTION_NAMES}
+        mapping = spec.map or {n: n for n in sampled if not is_friction_name(n)}
         for src, dst in mapping.items():
             where = f"{path}.map.{src}" if spec.map else f"{path}.map"
             if src not in available:
                 raise FieldError(where, f"identification model {model} has no parameter {src!r}{_hint(src, available)}")
-            if src in FRICTION_NAMES:
+            if is_friction_name(src):
                 raise FieldError(where, f"{src} is dry friction: it is identified and shown, but the stability "
                                         "conditions count only the viscous B as damping (docs/CERTIFICATION.md, "
                                         "Friction); remove it from the map")

@@ -180,7 +180,9 @@ def test_linear_friction_screen_flags_dry_friction_only(tmp_path: Path) -> None:
     linear, with_friction = SimpleNamespace(friction=[]), SimpleNamespace(friction=["coulomb"])
     got = {}
     for fc in (20.0, 0.0):
-        path = write_record(axis_record(1, AxisTruth(F_c=fc), duration=10.0), tmp_path / f"fc{fc:g}.h5")
+        # 20 s: the IDIM-ML sandwich with the equation error's AR model (h25c) gives 10 s of this axis
+        # z = 3.85 < SCREEN_Z; 20 s: z = 6.1
+        path = write_record(axis_record(1, AxisTruth(F_c=fc), duration=20.0), tmp_path / f"fc{fc:g}.h5")
         got[fc] = fr.linear_friction_screen(path, res, linear)
         assert fr.linear_friction_screen(path, res, with_friction) == []  # a friction fit is not screened
     assert len(got[20.0]) == 1 and "dry friction in the data" in got[20.0][0]
@@ -203,11 +205,53 @@ def test_scene_refuses_friction_in_the_map_and_bad_terms() -> None:
         scene_from_dict(d, label="x")
     d["certification"]["identify"][0]["friction"] = "coulomb,offset"  # as on the command line
     assert scene_from_dict(d, label="x").certification.identify[0].friction == ["coulomb", "offset"]
-    # friction models are 1-DOF mbk: an SDEA entry with friction is refused at load time
+    # an SDEA entry takes friction on its motor: F_c may be identified, never mapped to the network
     s = yaml.safe_load(load_scene("sdea_bench").source_text)
     s["certification"]["identify"][0]["friction"] = ["coulomb"]
-    with pytest.raises(SceneError, match="friction is identified with the 1-DOF mbk model"):
+    assert scene_from_dict(s, label="s").certification.identify[0].friction == ["coulomb"]
+    s["certification"]["identify"][0]["map"]["F_c"] = "K_f"
+    with pytest.raises(SceneError, match=r"map.F_c: F_c is dry friction"):
         scene_from_dict(s, label="s")
+    # the output choice stays a 1-DOF mbk option, friction or not
+    s = yaml.safe_load(load_scene("sdea_bench").source_text)
+    s["certification"]["identify"][0].update(friction=["coulomb"], output="position")
+    with pytest.raises(SceneError, match=r"output chooses the measured output of the 1-DOF mbk model") as exc:
+        scene_from_dict(s, label="s")
+    assert "\n" not in str(exc.value)
+
+
+def test_scene_multi_dof_mbk_with_friction_names_per_joint() -> None:
+    """A 2-DOF mbk entry with friction: the network takes the entries M_ij, B_ij, K_ij; the joints'
+    dry friction F_c_0, F_0_1, ... is identified and shown, and refused in the map."""
+    from hil.scene.spec import is_friction_name
+
+    s = yaml.safe_load(load_scene("mbk_2dof_bench").source_text)
+    s["certification"]["identify"][0]["friction"] = ["coulomb", "offset"]
+    assert scene_from_dict(s, label="m").certification.identify[0].friction == ["coulomb", "offset"]
+    s["certification"]["identify"][0]["map"]["F_c_1"] = "B_11"
+    with pytest.raises(SceneError, match=r"map.F_c_1: F_c_1 is dry friction"):
+        scene_from_dict(s, label="m")
+    s["certification"]["identify"][0]["map"] = {"L_M_00": "M_00"}  # the linear model's Cholesky names are gone
+    with pytest.raises(SceneError, match=r"has no parameter 'L_M_00'"):
+        scene_from_dict(s, label="m")
+    assert is_friction_name("F_c_0") and is_friction_name("F_0") and is_friction_name("v_s_12")
+    assert not is_friction_name("B_01") and not is_friction_name("F_c_x") and not is_friction_name("K_f")
+
+
+def test_friction_rows_and_port_levels_per_joint() -> None:
+    """friction_rows / port_friction of a 2-DOF result: one row per joint's level, the viscous
+    diagonal counted, the 95 % quantile per joint for the energy evidence."""
+    from hil.certify.friction import port_friction
+
+    summ = {k: {"mean": v, "median": v, "q05": v - 0.1, "q95": v + 0.1, "std": 0.05}
+            for k, v in {"M_00": 2.0, "B_00": 6.0, "B_11": 5.0, "F_c_0": 3.0, "F_c_1": 2.0, "F_0_1": -0.4}.items()}
+    res = SimpleNamespace(summary=lambda: summ, model=SimpleNamespace(names=tuple(summ), units=("",) * len(summ)))
+    rows = {m.name: m for m in fr.friction_rows("ms", res)}
+    assert rows["Coulomb friction F_c_0 (ms)"].value == 3.0 and rows["Coulomb friction F_c_1 (ms)"].value == 2.0
+    assert rows["constant force offset F_0_1 (ms)"].value == -0.4
+    assert rows["damping counted by the stability conditions B_11 (ms)"].value == 5.0
+    levels = port_friction(SimpleNamespace(simulation=None), "arm", {"arm": res})
+    assert levels is not None and [lv.F_c for lv in levels] == [3.1, 2.1]
 
 
 def test_mbk_impedance_takes_dof() -> None:
