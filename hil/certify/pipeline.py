@@ -72,6 +72,7 @@ from hil.certify.certificate import (
     Witness,
     seal,
 )
+from hil.certify.provenance import bench_info
 from hil.certify.stages import (
     NOMINAL_MARGIN,
     Context,
@@ -269,7 +270,8 @@ def _certificate(ctx: Context, sheet: Sheet, verdict: Verdict, *, run: RunOutput
         robust=None if robust is None else robust.section,
         identification=(list(draws.identification) or None) if draws is not None else None,
         design=None if design is None else design.design, witness=None if witness is None else witness.witness,
-        energy=(list(run.energy) or None) if run is not None else None, multiport=multiport, plots=sheet.plots,
+        energy=(list(run.energy) or None) if run is not None else None, multiport=multiport,
+        bench=bench_info(ctx.scene, None if run is None else run.outcomes), plots=sheet.plots,
         errors=sheet.errors + sheet.optional_errors)
 
 

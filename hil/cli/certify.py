@@ -78,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
     files = build_reports(cert, out, integrity=integrity)
     if args.json:
         print(json.dumps({"decision": cert.decision, "reasons": cert.reasons, "scene": scene.name,
+                          "bench": None if cert.bench is None else cert.bench.model_dump(),
                           "files": {k: str(v) for k, v in files.items()},
                           "digest": cert.integrity.digest if cert.integrity else None,
                           "signed": bool(cert.integrity and cert.integrity.signature),
@@ -89,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
 
         con = Console(highlight=False, soft_wrap=True)  # prose and paths are never broken by the console
         colour = {"GO": "green", "MARGINAL": "yellow", "NO-GO": "red", "ERROR": "magenta"}[cert.decision]
-        con.print(f"[bold]{escape(scene.name)}[/bold]: [bold {colour}]{cert.decision}[/]")
+        con.print(f"[bold]{escape(scene.name)}[/bold]: [bold {colour}]{cert.decision}[/]"
+                  + (f" ({escape(cert.bench.label)})" if cert.bench is not None else ""))
         for r in cert.reasons:
             con.print(f"  - {escape(r)}")
         tab = Table()

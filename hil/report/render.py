@@ -187,6 +187,21 @@ def _evidence_note(st: IntegrityStatus) -> str:
     return f"All {st.n_evidence} evidence files match their recorded SHA-256."
 
 
+def bench_banner(cert: Certificate) -> tuple[str, str, str]:
+    """(banner label, sentence, kind) saying where the evidence came from (the certificate's
+    ``bench`` block); a certificate written before that block existed says so."""
+    b = cert.bench
+    if b is None:
+        return ("BENCH NOT RECORDED", "This certificate does not record whether its evidence came from a "
+                "simulated bench or from hardware (written before schema 1.2 recorded it).", "unknown")
+    return b.label, b.note, b.kind
+
+
+#: bench kind -> (banner background, text colour): a simulated bench is never mistaken for hardware
+BENCH_STYLE: dict[str, tuple[str, str]] = {"simulated": ("#fff1c2", "#6b4e00"), "hardware": ("#dbe8f6", "#0b3d91"),
+                                           "none": ("#eceff1", "#37474f"), "unknown": ("#eceff1", "#37474f")}
+
+
 def _present_sections(cert: Certificate) -> list[str]:
     out = ["errors"] if cert.errors else []
     out.append("measurements")
@@ -656,6 +671,7 @@ def _html_context(cert: Certificate, st: IntegrityStatus) -> dict[str, Any]:
         "modified": not st.valid,
         "modified_text": MODIFIED,
         "modified_reason": st.reason(),
+        "bench": dict(zip(("label", "note", "kind"), bench_banner(cert), strict=True)),
         "integrity": st,
         "digest_text": _digest_text(st),
         "signature_text": st.signature_text(),
@@ -759,7 +775,8 @@ class _PdfDoc:
         c = self.cert
         bg, fg = self.style[1:]
         st = self.integrity
-        self._t(self.ML, self.H - 0.45, f"hil-certify certificate · scene {c.scene.name}", 8, color="#555555")
+        self._t(self.ML, self.H - 0.45, f"hil-certify certificate · scene {c.scene.name} · {bench_banner(c)[0]}", 8,
+                color="#555555")
         self._t(self.W - self.MR, self.H - 0.45, f" {c.decision} " if not self.modified else " MODIFIED ", 8,
                 weight="bold", color=fg, ha="right",
                 bbox={"boxstyle": "round,pad=0.25", "facecolor": bg, "edgecolor": "none"})
@@ -1109,6 +1126,7 @@ def _pdf_summary(doc: _PdfDoc, cert: Certificate) -> None:
     doc._t(doc.W - doc.MR - 0.15, doc.y + 0.1, f"  {cert.decision}  ", 24, weight="bold", color=fg, ha="right",
            va="center", bbox={"boxstyle": "round,pad=0.35", "facecolor": bg, "edgecolor": "none"})
     doc.y -= 0.16
+    _pdf_bench_banner(doc, cert)
     if cert.scene.description:
         doc.para(cert.scene.description, 8, color="#444444")
     doc.para(f"scene sha256 {cert.scene.sha256}" + (f" · source {cert.scene.source}" if cert.scene.source else "")
@@ -1143,6 +1161,22 @@ def _pdf_summary(doc: _PdfDoc, cert: Certificate) -> None:
             doc._t(x0, y + 0.03, label, 8.5, color="#333333")
             doc._hrule(y, "#222222", 0.8, x0 + 0.8, x0 + col_w)
     doc.y = top - 1.35
+
+
+def _pdf_bench_banner(doc: _PdfDoc, cert: Certificate) -> None:
+    """Page 1: where the evidence came from, in a coloured strip (label in bold, then its sentence)."""
+    label, note, kind = bench_banner(cert)
+    bg, fg = BENCH_STYLE[kind]
+    chars = max(20, int((doc.width - 0.2) * 72 / (doc.SANS_EM * 8)))
+    lines = textwrap.wrap(_one_line(note), chars) if note else []
+    h = 0.3 + doc._lh(8) * len(lines) + 0.08
+    doc._rect(doc.ML - 0.04, doc.y - h, doc.width + 0.08, h, bg)
+    doc._t(doc.ML + 0.06, doc.y - 0.22, label, 11, weight="bold", color=fg)
+    y = doc.y - 0.22
+    for line in lines:
+        y -= doc._lh(8)
+        doc._t(doc.ML + 0.06, y, line, 8, color=fg)
+    doc.y -= h + 0.12
 
 
 def _pdf_block_flow(doc: _PdfDoc, cert: Certificate) -> None:
@@ -1431,6 +1465,8 @@ def build_reports(cert: Certificate, out_dir: str | os.PathLike[str], *,
         cert = seal(cert)
     elif cert.integrity.digest != content_digest(cert):
         raise ReportError("the certificate was changed after its digest was computed; refusing to write it")
+    if integrity is None:  # the evidence was hashed from this folder: the reports say it matches
+        integrity = check_certificate(cert, d)
     return {"json": write_json(cert, d / CERT_NAME), "html": render_html(cert, d / "report.html", integrity=integrity),
             "pdf": render_pdf(cert, d / "report.pdf", integrity=integrity)}
 
@@ -1442,16 +1478,19 @@ def rebuild_reports(path: str | Path, out: str | Path | None = None, public_key:
     or a folder holding it) into ``out`` (default: the certificate's folder). Returns the
     certificate, its integrity status and the two paths.
 
-    A certificate that does not match its digest (or has none), or whose signature fails with
-    ``public_key``, raises :class:`ReportError`; ``allow_modified`` renders it marked MODIFIED: NOT
-    A VALID CERTIFICATE on every page."""
+    A certificate that does not match its digest (or has none), whose evidence files (records,
+    scene copy, relative to the certificate's folder) no longer match their recorded SHA-256, or
+    whose signature fails with ``public_key``, raises :class:`ReportError`; ``allow_modified``
+    renders it marked MODIFIED: NOT A VALID CERTIFICATE on every page."""
     cert = load_certificate(path)
     key = None
     if public_key:
         from hil.certify.signing import load_public_key
 
         key = load_public_key(public_key)
-    st = check_certificate(cert, public_key=key)
+    # the evidence files are re-hashed too: a record swapped after certification is refused (or,
+    # with --allow-modified, marked on every page), as hil verify refuses it
+    st = check_certificate(cert, _resolve(path).parent, public_key=key)
     if key is not None and st.signature == "absent":
         st.signature, st.signature_detail = "invalid", "the certificate is not signed"
     if not st.valid and not allow_modified:

@@ -35,6 +35,7 @@ DEFINITIONS_DOC = "docs/CERTIFICATION.md"
 #: report links numbers to definitions: align the anchors here when the document's headings change.
 DEFINITIONS: dict[str, str] = {
     "decision": "decision",
+    "bench": "bench",
     "policy.required_probability": "policy",
     "policy.confidence": "policy",
     "policy.credible": "policy",
