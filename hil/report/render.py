@@ -41,6 +41,7 @@ from __future__ import annotations
 import base64
 import io
 import json
+import logging
 import math
 import os
 import textwrap
@@ -65,12 +66,16 @@ from hil.report.sections import (
     fmt,
     fmt_p,
     fmt_range,
+    fmt_signed,
     headroom,
+    margin_note,
     measurements_table,
     policy_label,
     report_sections,
     robust_status,
 )
+
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "ReportError",
@@ -366,9 +371,75 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
         notes.append("no finite data to draw")
     handles, _ = ax.get_legend_handles_labels()
     if handles:
-        loc = "best" if n * max(1, len(s.lines)) <= 4000 else "upper right"
-        ax.legend(loc=loc, fontsize=7 if width_in >= 4.5 else 6, framealpha=0.85)
+        place_legend(ax, fontsize=7 if width_in >= 4.5 else 6)
     return notes
+
+
+_LEGEND_LOCS = ("upper right", "upper left", "lower right", "lower left", "center right", "center left",
+                "upper center", "lower center")
+
+
+def _legend_cover(ax: Any, leg: Any, renderer: Any) -> tuple[int, int]:
+    """(marked points, data vertices) of ``ax`` that the legend's box covers, in display space; a
+    marked point (a Line2D drawn as markers only with at most a few vertices: a named point) counts
+    with its marker's radius, and so does a text annotation the box overlaps."""
+    import numpy as np
+
+    bb = leg.get_window_extent(renderer)
+    points = vertices = 0
+    for line in ax.get_lines():
+        xy = np.asarray(line.get_xydata(), float)
+        xy = xy[np.all(np.isfinite(xy), axis=1)]
+        if xy.size == 0:
+            continue
+        d = ax.transData.transform(xy[:: max(1, len(xy) // 400)])
+        marker_only = line.get_linestyle() in ("None", "none", "", " ") and len(xy) <= 4
+        pad = (line.get_markersize() * ax.figure.dpi / 72.0) / 2 if marker_only else 0.0
+        inside = ((d[:, 0] >= bb.x0 - pad) & (d[:, 0] <= bb.x1 + pad) & (d[:, 1] >= bb.y0 - pad)
+                  & (d[:, 1] <= bb.y1 + pad))
+        if marker_only:
+            points += int(inside.sum())
+        else:
+            vertices += int(inside.sum())
+    for t in ax.texts:  # an annotation (a value printed next to its marker) is never covered either
+        if t.get_text().strip() and bb.overlaps(t.get_window_extent(renderer)):
+            points += 1
+    return points, vertices
+
+
+def place_legend(ax: Any, fontsize: float = 7) -> Any:
+    """A legend that never covers a marked point (issue 28): of the inside locations the one
+    covering no marked point and the fewest data vertices; when every location covers a marked
+    point, the y range is extended upwards to make room for it above the data. Returns the legend."""
+    leg = ax.legend(loc="upper right", fontsize=fontsize, framealpha=0.85)
+    try:
+        renderer = ax.figure._get_renderer()
+        ax.apply_aspect()
+        scores = []
+        for loc in _LEGEND_LOCS:
+            leg.set_loc(loc)
+            scores.append((_legend_cover(ax, leg, renderer), loc))
+        (best_points, _), best = min(scores)
+        leg.set_loc(best)
+        if best_points:  # every place covers a marked point: room above the data for it
+            leg.set_loc("upper right")
+            frac = leg.get_window_extent(renderer).height / max(ax.get_window_extent(renderer).height, 1.0)
+            lo, hi = ax.get_ylim()
+            grow = min(frac + 0.06, 0.7) / max(1.0 - frac - 0.06, 0.3)
+            if ax.get_yscale() == "log" and lo > 0 and hi > 0:
+                import math
+
+                ax.set_ylim(lo, 10 ** (math.log10(hi) + grow * (math.log10(hi) - math.log10(lo))))
+            else:
+                ax.set_ylim(lo, hi + grow * (hi - lo))
+            for loc in _LEGEND_LOCS[:2]:
+                leg.set_loc(loc)
+                if _legend_cover(ax, leg, renderer)[0] == 0:
+                    break
+    except Exception as exc:  # placement is cosmetic: never lose the plot over it
+        logger.debug("legend placement fell back to 'best': %s", exc)
+        leg.set_loc("best")
+    return leg
 
 
 def _wrap_title(title: str, width_in: float) -> str:
@@ -679,6 +750,7 @@ def _html_context(cert: Certificate, st: IntegrityStatus) -> dict[str, Any]:
         "toc": [(k, SECTION_TITLES[k]) for k in _present_sections(cert)],
         "sections": report_sections(cert),
         "summary": _kv_table(summary_rows(cert, st)),
+        "margin_note": margin_note(cert),
         "measurements": measurements_table(cert),
         "outcome_counts": _outcome_counts(cert),
         "plots": _plots_png(cert) if cert.plots else {},
@@ -756,7 +828,6 @@ class _PdfDoc:
         self.y = 0.0
         self.section = ""
         self.captions: dict[int, tuple[str, str | None]] = {}  # id(figure Series) -> (caption, definition link)
-        self.figure_section: dict[int, str] = {}  # id(figure Series) -> title of the section it belongs to
         self.current_section = ""
 
     @property
@@ -983,8 +1054,6 @@ class _PdfDoc:
         this page?"""
         h = min(_plot_height(s), self.H - self.MT - self.MB - 0.6)
         cap = self.caption_height(*self.captions.get(id(s), ("", None)))
-        if self.figure_section.get(id(s), self.current_section) != self.current_section:
-            cap += self._lh(7.5)  # its "(Figure of the section …)" prefix
         return self.fig is not None and 0.72 * h + cap <= self.y - self.MB - 0.25
 
     def caption(self, text: str, link: str | None) -> None:
@@ -1016,9 +1085,6 @@ class _PdfDoc:
 
     def figure(self, s: Series, caption: str = "", link: str | None = None) -> None:
         """A plot in the flow, 6.8 in wide; its height follows its panels."""
-        home = self.figure_section.get(id(s))
-        if home and home != self.current_section:  # a figure that floated into the next section says whose it is
-            caption = f"(Figure of the section {home}.) {caption}"
         cap = self.caption_height(caption, link)
         h = min(_plot_height(s), self.H - self.MT - self.MB - 0.6 - cap)
         room = self.y - self.MB - 0.25 - cap
@@ -1083,11 +1149,9 @@ def summary_rows(cert: Certificate, st: IntegrityStatus) -> list[tuple[str, str,
             rows.append((f"current {d.parameter}", fmt(d.current) + (f" ({headroom(d)})" if headroom(d) else ""),
                          d.unit or "—", "design.current"))
     if d is not None and (d.nominal_headroom is not None or d.posterior_headroom is not None):
-        def signed(v: float | None) -> str:
-            return "—" if v is None else f"{v:+.4g}"
-
         rows.append((f"{d.parameter} headroom: nominal, posterior",
-                     f"{signed(d.nominal_headroom)}, {signed(d.posterior_headroom)}", "1", "design.posterior_headroom"))
+                     f"{fmt_signed(d.nominal_headroom)}, {fmt_signed(d.posterior_headroom)}", "1",
+                     "design.posterior_headroom"))
     w = cert.witness
     if w is not None:
         from hil.certify.units import termination_units
@@ -1116,7 +1180,7 @@ def summary_rows(cert: Certificate, st: IntegrityStatus) -> list[tuple[str, str,
 
 
 def _pdf_summary(doc: _PdfDoc, cert: Certificate) -> None:
-    """Page 1: everything a signer needs, and the signature block."""
+    """Page 1: everything a signer needs, and the signature block (one page)."""
     doc.new_page("title")
     bg, fg = doc.style[1:]
     doc.y -= 0.3
@@ -1128,55 +1192,57 @@ def _pdf_summary(doc: _PdfDoc, cert: Certificate) -> None:
     doc.y -= 0.16
     _pdf_bench_banner(doc, cert)
     if cert.scene.description:
-        doc.para(cert.scene.description, 8, color="#444444")
+        doc.para(cert.scene.description, 7.5, color="#444444")
     doc.para(f"scene sha256 {cert.scene.sha256}" + (f" · source {cert.scene.source}" if cert.scene.source else "")
-             + (f" · units {cert.scene.units} (SI)" if cert.scene.units else ""), 7, color="#666666")
-    doc.para(f"created {cert.created_utc} (UTC) · schema {cert.schema_version} · "
-             + ", ".join(f"{k} {v}" for k, v in cert.software.items()), 7, color="#666666")
+             + (f" · units {cert.scene.units} (SI)" if cert.scene.units else "")
+             + f" · created {cert.created_utc} (UTC) · schema {cert.schema_version} · "
+             + ", ".join(f"{k} {v}" for k, v in cert.software.items()), 6.5, color="#666666")
     doc.subheading("Reasons", 10)
     doc.bullets(cert.reasons or ["(no reasons recorded)"], 8.5)
     doc.subheading("Summary", 10)
     from hil.report.sections import _kv
 
     t = _kv(summary_rows(cert, doc.integrity))
-    t.size = 8.5  # page 1 holds the summary and the signature block: one page a person can sign alone
+    t.size = 8.0  # page 1 holds the summary and the signature block: one page a person can sign alone
     doc.model_table(t)
+    if note := margin_note(cert):
+        doc.y += 0.06
+        doc.para(note, 7.5, color="#333333")
     st = doc.integrity
     doc.subheading("Review and signature", 10)
     doc.kv([("digest (sha256, hil-c14n/1)", _digest_text(st)), ("electronic signature", st.signature_text())],
-           size=7)
-    doc.para(f"I have reviewed this certificate for scene {cert.scene.name} (scene sha256 {cert.scene.sha256}; "
-             f"digest {st.recorded_digest or 'none'}), its evidence on the following pages, and I accept the "
-             "decision above.", 8)
+           size=6.5)
+    doc.para(f"I have reviewed this certificate for scene {cert.scene.name} (digest above), its evidence on the "
+             "following pages, and I accept the decision above.", 8)
     # two signature columns side by side
-    doc.ensure(1.35)
+    doc.ensure(1.15)
     col_w = (doc.width - 0.3) / 2
     top = doc.y
     for k, role in enumerate(("Reviewed by", "Approved by")):
         x0 = doc.ML + k * (col_w + 0.3)
-        y = top - 0.2
+        y = top - 0.15
         doc._t(x0, y, role, 9.5, weight="bold", color="#1d2733")
         for label in ("Name", "Date", "Signature"):
-            y -= 0.36
+            y -= 0.31
             doc._t(x0, y + 0.03, label, 8.5, color="#333333")
             doc._hrule(y, "#222222", 0.8, x0 + 0.8, x0 + col_w)
-    doc.y = top - 1.35
+    doc.y = top - 1.15
 
 
 def _pdf_bench_banner(doc: _PdfDoc, cert: Certificate) -> None:
     """Page 1: where the evidence came from, in a coloured strip (label in bold, then its sentence)."""
     label, note, kind = bench_banner(cert)
     bg, fg = BENCH_STYLE[kind]
-    chars = max(20, int((doc.width - 0.2) * 72 / (doc.SANS_EM * 8)))
+    chars = max(20, int((doc.width - 0.2) * 72 / (doc.SANS_EM * 7.5)))
     lines = textwrap.wrap(_one_line(note), chars) if note else []
-    h = 0.3 + doc._lh(8) * len(lines) + 0.08
+    h = 0.27 + doc._lh(7.5) * len(lines) + 0.07
     doc._rect(doc.ML - 0.04, doc.y - h, doc.width + 0.08, h, bg)
-    doc._t(doc.ML + 0.06, doc.y - 0.22, label, 11, weight="bold", color=fg)
-    y = doc.y - 0.22
+    doc._t(doc.ML + 0.06, doc.y - 0.2, label, 10.5, weight="bold", color=fg)
+    y = doc.y - 0.2
     for line in lines:
-        y -= doc._lh(8)
-        doc._t(doc.ML + 0.06, y, line, 8, color=fg)
-    doc.y -= h + 0.12
+        y -= doc._lh(7.5)
+        doc._t(doc.ML + 0.06, y, line, 7.5, color=fg)
+    doc.y -= h + 0.1
 
 
 def _pdf_block_flow(doc: _PdfDoc, cert: Certificate) -> None:
@@ -1197,11 +1263,8 @@ def _pdf_block_flow(doc: _PdfDoc, cert: Certificate) -> None:
                   row_links=[definition_link(f"policy.{k}") for k in cert.policy])
     else:
         doc.para("(no policy recorded)", 9)
-    floating: list[Series] = []
     for sec in report_sections(cert):
-        floating = _pdf_section(doc, cert, sec, floating)
-    for f in floating:
-        doc.figure(f, *doc.captions.get(id(f), ("", None)))
+        _pdf_section(doc, cert, sec)
     st = doc.integrity
     # the integrity block is kept together: a last page never holds only its tail
     doc.ensure(0.55 + 0.75 + 0.16 * (len(cert.evidence) + 1) + 0.4)
@@ -1214,20 +1277,17 @@ def _pdf_block_flow(doc: _PdfDoc, cert: Certificate) -> None:
     doc.para(_evidence_note(st), 8, color="#444444" if st.valid else "#8e1616")
 
 
-def _pdf_section(doc: _PdfDoc, cert: Certificate, sec: Section, carried: list[Series] | None = None
-                 ) -> list[Series]:
-    """One section in the flow. A figure that does not fit on the current page floats: the
-    following tables and paragraphs come first (those of this section, then of the next one),
-    the figure as soon as it fits, and at the latest at the end of the next section, so no page is
-    left mostly empty. Returns this section's figures still floating."""
-    carried = list(carried or [])
+def _pdf_section(doc: _PdfDoc, cert: Certificate, sec: Section) -> None:
+    """One section in the flow, its figures under its own heading: a figure that does not fit on
+    the current page floats after the section's following tables and paragraphs, and is placed as
+    soon as it fits, at the latest at the section's end (on a new page if it must): a figure never
+    appears under another section's heading (issue 28)."""
     pending: list[Series] = []
 
     def place(force: bool = False) -> None:
-        for queue in (carried, pending):
-            while queue and (force or doc.fits(queue[0])):
-                f = queue.pop(0)
-                doc.figure(f, *doc.captions.get(id(f), ("", None)))
+        while pending and (force or doc.fits(pending[0])):
+            f = pending.pop(0)
+            doc.figure(f, *doc.captions.get(id(f), ("", None)))
 
     doc.heading(sec.title, 13)
     doc.current_section = sec.title
@@ -1235,19 +1295,14 @@ def _pdf_section(doc: _PdfDoc, cert: Certificate, sec: Section, carried: list[Se
         if b.kind == "figure" and b.plot in cert.plots:
             s = cert.plots[b.plot]
             doc.captions[id(s)] = (b.text, b.link)
-            doc.figure_section[id(s)] = sec.title
-            if carried or pending or not doc.fits(s):
+            if pending or not doc.fits(s):
                 pending.append(s)
             else:
                 doc.figure(s, *doc.captions[id(s)])
             continue
         _pdf_block(doc, cert, b)
         place()
-    while carried:
-        f = carried.pop(0)
-        doc.figure(f, *doc.captions.get(id(f), ("", None)))
-    place()
-    return pending
+    place(force=True)
 
 
 def _pdf_block(doc: _PdfDoc, cert: Certificate, b: Any) -> None:
@@ -1349,7 +1404,7 @@ def draw_chart(fig: Any, cert: Certificate, key: str, rect: tuple[float, float, 
     ax.set_title(f"P(not stable) against the allowance: {status}", fontsize=10)
     ax.tick_params(labelsize=8)
     ax.grid(True, axis="x", which="major", alpha=0.35)
-    ax.legend(loc="lower right", fontsize=7, framealpha=0.9)
+    place_legend(ax, fontsize=7)
     if rel is None:
         return
     bx = fig.add_axes(((x0 + 0.2) / fw, (y0 + 0.45) / fh, (w - 0.35) / fw, (beta_h - 0.75) / fh))

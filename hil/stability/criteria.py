@@ -797,6 +797,8 @@ def _cond_exact(name: str, label: str, d: SignDecision, flip: bool, extra: dict[
           "negative_bands_rad_s": bands_w, "band_depths": d.band_depths,
           "touching_rad_s": touching_w, "formed": "exact",
           "margin_kind": "frequency-domain margin: min over x >= 0 of p(x)/m_r(x) (docs/VERDICTS.md)"}
+    if d.magnitude is not None:  # m_r, so a plot draws exactly the function whose minimum is the margin
+        ev["magnitude_x_desc"] = _desc(d.magnitude)
     ev.update(extra)
     margin, wf = d.margin, d.worst_omega
     constant = wf is None and margin == margin and d.status in ("violated", "satisfied")  # ρ constant in ω

@@ -28,7 +28,7 @@ from __future__ import annotations
 import itertools
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from fractions import Fraction
 from typing import TYPE_CHECKING, Any, Literal, cast
@@ -188,6 +188,10 @@ class SignDecision:
     n_roots: int = 0
     method: str = "sturm"
     coefficients: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    #: ascending magnitude polynomial m_r the margin divides by (restricted to p's degree range;
+    #: docs/VERDICTS.md), so a plot of p(x)/m_r(x) shows exactly the function whose minimum is the
+    #: margin; None when no margin was computed
+    magnitude: np.ndarray | None = None
 
     @property
     def worst_omega(self) -> float | None:
@@ -232,6 +236,23 @@ class _Ratio:
 
     def _limit_inf(self) -> float:
         return _lead_ratio(self.p[::-1], self.m[::-1])
+
+
+def margin_function(p_desc: Sequence[float], m_desc: Sequence[float], x_scale: float = 1.0
+                    ) -> Callable[[np.ndarray], np.ndarray]:
+    """ω [rad/s] ↦ ρ = p(x)/m_r(x) at x = ω²/x_scale: the function whose minimum over x ≥ 0 is a
+    frequency condition's margin (docs/VERDICTS.md), from the condition's evidence
+    (``polynomial_x_desc``, ``magnitude_x_desc``, ``x_scale`` when the criterion rescaled the
+    frequency). Overflow-safe at both ends; ω = 0 and ω = ∞ give the limits."""
+    ratio = _Ratio(np.asarray(p_desc, float)[::-1], np.asarray(m_desc, float)[::-1])
+
+    def rho(w: np.ndarray) -> np.ndarray:
+        w = np.asarray(w, dtype=float)
+        x = w * w / x_scale
+        out = ratio(np.where(np.isfinite(x), x, 1.0))
+        return np.where(np.isfinite(x), out, ratio._limit_inf())
+
+    return rho
 
 
 def _lead_ratio(p: np.ndarray, m: np.ndarray) -> float:
@@ -911,7 +932,7 @@ def decide_exact(p: fmpq_poly, m: np.ndarray | None = None, margin: bool = True)
     status_map: dict[str, Status] = {"satisfied": "satisfied", "touching": "touching", "violated": "violated"}
     if es.status == "satisfied" and a + 1 == n:
         return SignDecision("satisfied", 1.0 if math.isfinite(c[a]) else math.nan, 0.0 if a == 0 else math.inf,
-                            method="exact (monomial)", coefficients=c)
+                            method="exact (monomial)", coefficients=c, magnitude=m_rep)
     # bands and touching points from the rigorously isolated roots of the odd / even parts
     odd = _positive_roots_arb(es.q_odd) if es.q_odd is not None else []
     even = _positive_roots_arb(es.q_even) if es.q_even is not None else []
@@ -920,6 +941,7 @@ def decide_exact(p: fmpq_poly, m: np.ndarray | None = None, margin: bool = True)
         d.status = status_map[es.status]
         d.method = "exact (sturm over Q)"
         _exact_depths(p, d, mm, m_rep, margin)
+        d.magnitude = m_rep if margin else None
         return d
     events = sorted([(x, True) for x in odd] + [(x, False) for x in even])
     cur = 1 if p[a] > 0 else -1
@@ -939,7 +961,8 @@ def decide_exact(p: fmpq_poly, m: np.ndarray | None = None, margin: bool = True)
     if margin:
         margin_v, worst_x = _margin_min(_Ratio(c, m_rep), c, m_rep, bands, touching, [x for x, _ in events])
     d = SignDecision(status_map[es.status], float(margin_v), float(worst_x), bands, [math.nan] * len(bands),
-                     touching, len(events), "exact (Arb isolation over Q)", c)
+                     touching, len(events), "exact (Arb isolation over Q)", c,
+                     magnitude=m_rep if margin else None)
     _exact_depths(p, d, mm, m_rep, margin)
     if d.status == "violated" and not d.negative_bands:  # pragma: no cover - defensive
         logger.warning("exact classification says violated but no negative band was isolated")
