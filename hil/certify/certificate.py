@@ -142,7 +142,8 @@ class ConditionRow(_M):
 
 
 class Nominal(_M):
-    """The criterion on the nominal network (posterior mean parameters + the scene's gains)."""
+    """The criterion on the nominal network: each drawn parameter at its median (the posterior median
+    of an identified one, the stated value of an uncertain one) plus the scene's gains."""
 
     network: str
     criterion: str
@@ -171,7 +172,8 @@ class Reliability(_M):
     evaluations: int = Field(default=0, description="verdicts evaluated by the search")
     verified: bool | None = Field(default=None, description="the exact criterion (check) confirms the verdicts "
                                   "at 0.95·u* and 1.05·u* (None: it calls a side marginal)")
-    coordinates: str = "posterior mean and Cholesky factor of the posterior covariance of the independent draws"
+    coordinates: str = ("the nominal point (each parameter's median) and the Cholesky factor of the posterior "
+                        "covariance of the independent draws")
     method: str = ""
 
 

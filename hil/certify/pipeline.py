@@ -12,8 +12,9 @@ recorded, never FAIL:
 1. **run** the scene's experiments on its bench (mocked or real) -- records, energy evidence;
 2. **identify** the parameters named in ``certification.identify`` from their records (emcee
    posterior); parameters listed in ``certification.uncertain`` are drawn log-normally instead;
-3. **nominal**: the network model at the posterior means (plus the scene's fixed parameters,
-   e.g. controller gains) through the criterion, with margins and evidence;
+3. **nominal**: the network model at the nominal values -- each parameter's median: the posterior
+   median of an identified one, the stated value of an uncertain one -- (plus the scene's fixed
+   parameters, e.g. controller gains) through the criterion, with margins and evidence;
 4. **robust**: the criterion on every posterior draw (vectorized for the SDEA; per draw,
    verdict-only, for other networks), P(stable) with a Clopper-Pearson interval, the worst-case
    margin over the credible ellipsoid (optimized), the critical band (where the binding condition is
@@ -413,12 +414,25 @@ def stage_identify(ctx: Context, sheet: Sheet, run: RunOutput) -> PosteriorDraws
 # 3. nominal
 
 
+def nominal_values(draws: Mapping[str, np.ndarray], uncertain: Mapping[str, Any]) -> dict[str, float]:
+    """The nominal value of each drawn parameter: its **median** (docs/CERTIFICATION.md, "nominal"):
+    the median of an identified parameter's independent posterior draws, and for a parameter of
+    ``certification.uncertain`` its stated ``value``, the exact median of its log-normal draws
+    value·exp(rel_std·z) (not a sample statistic: the scene's 2.0 stays 2.0)."""
+    out = {}
+    for k, v in draws.items():
+        u = uncertain.get(k)
+        out[k] = float(u.value) if u is not None else float(np.median(np.asarray(v, float)))
+    return out
+
+
 def stage_nominal(ctx: Context, sheet: Sheet, post: PosteriorDraws) -> NominalOutput:
-    """The network at the posterior means (plus the fixed parameters) through the criterion: its
+    """The network at the nominal values (each parameter's median, :func:`nominal_values`; plus the
+    fixed parameters) through the criterion: its
     verdict and margin as measurements, the decided condition's plot. A network that cannot be
     built is an evidence error (ERROR)."""
     nominal_params = dict(ctx.params)
-    nominal_params.update({k: float(np.mean(v)) for k, v in post.draws.items()})
+    nominal_params.update(nominal_values(post.draws, ctx.cert.uncertain))
     with sheet.timed("nominal", ctx.say, ctx.scene.name):
         try:
             tm = build_network(ctx.model, nominal_params)
@@ -518,7 +532,8 @@ def stage_robust(ctx: Context, sheet: Sheet, post: PosteriorDraws, nominal: Nomi
         sheet.optional("plots (posterior Bode)", _bode_plot, sheet.plots, ctx.model, params, draws, seed,
                        ctx.scene.units)
         if fast and band is not None:
-            sheet.optional("plots (critical band)", _critical_band_plot, sheet.plots, ctx.model, params, draws, band)
+            sheet.optional("plots (critical band)", _critical_band_plot, sheet.plots, ctx.model, params, draws, band,
+                           nominal_params)
     return RobustOutput(stable_draws=stable_draws, section=robust, form=form_res, rare=rare)
 
 
@@ -592,7 +607,9 @@ def stage_witness(ctx: Context, sheet: Sheet, nominal: NominalOutput) -> Witness
     if ctx.cert.witness and unstable and nominal.network is not None:
         with sheet.timed("witness", ctx.say, ctx.scene.name):
             witness = sheet.optional("witness", _witness, nominal.network, sheet.plots, sheet, ctx.scene)
-        if witness is None:
+        if witness is not None:
+            reasons.append(_witness_reason(witness, ctx.scene.units))
+        else:
             why = sheet.failed.get("witness")
             reasons.append(f"no destabilizing passive termination reported: the witness search failed ({why})"
                            if why is not None else
@@ -602,6 +619,30 @@ def stage_witness(ctx: Context, sheet: Sheet, nominal: NominalOutput) -> Witness
         reasons.append("no destabilizing passive termination reported: the scene disables the witness search "
                        "(certification.witness: false)")
     return WitnessOutput(witness, tuple(reasons))
+
+def _witness_reason(w: Witness, units: str | None) -> str:
+    """The witness in one plain sentence: which passive termination, what it does to the closed
+    loop, and how soon the bench's first safety limit would be crossed (numbers as the witness
+    section prints them)."""
+    from hil.certify.numbers import fmt
+    from hil.certify.units import termination_units
+
+    terms = []
+    for port, t in w.terminations.items():
+        if isinstance(t, dict) and "params" in t:
+            tu = termination_units(t["params"], w.units or units)
+            where = f"port {int(port) + 1}" if str(port).isdigit() else f"port {port}"
+            terms.append(f"a {t.get('kind', 'passive termination')} ("
+                         + ", ".join(f"{k} = {fmt(v)} {tu.get(k, '')}".rstrip() for k, v in t["params"].items())
+                         + f") at {where}")
+    text = "for example " + (" and ".join(terms) or "a passive termination") + " makes it unstable"
+    if w.growth_rate_1_s is not None and w.growth_rate_1_s > 0:
+        text += f": the response grows as e^(σt) with σ = {fmt(w.growth_rate_1_s)} 1/s"
+    if w.limit_exceeded is not None and w.time_to_limit_s is not None:
+        text += (f", and the bench's {w.limit_exceeded.replace('_', ' ')} limit would be exceeded after "
+                 f"{fmt(w.time_to_limit_s)} s")
+    return text
+
 
 # ---------------------------------------------------------------------------------------------
 # helpers
@@ -1037,10 +1078,13 @@ def _decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
     decided_plot(plots, tm, r)
 
 def _critical_band_plot(plots: dict[str, Series], model: str, params: Mapping[str, Any],
-                        draws: Mapping[str, np.ndarray], band: tuple[float, float]) -> None:
+                        draws: Mapping[str, np.ndarray], band: tuple[float, float],
+                        centre: Mapping[str, Any] | None = None) -> None:
     """The model's normalized band condition (the SDEA's coupler condition) g(ω) = t(ω²)/|t|(ω²)
-    at the posterior mean and its 5-95 % band over the draws, with the 10 % threshold of the mean
-    and the certificate's critical band (over the draws) marked; nothing for a model without one."""
+    at the nominal point ``centre`` (the nominal stage's parameters) and its 5-95 % band over the
+    draws, with the 10 % threshold of the nominal curve and the certificate's critical band (over the
+    draws) marked; nothing for a model without one."""
+    centre = dict(centre or {k: float(np.median(v)) for k, v in draws.items()})
     from hil.models import get_model
     from hil.models.batch import BAND_GRID_RAD_S, CRITICAL_BAND_FRACTION
 
@@ -1065,16 +1109,16 @@ def _critical_band_plot(plots: dict[str, Series], model: str, params: Mapping[st
     qd = {k: np.asarray(draws[k], float)[sub] if k in draws else np.full(len(range(n)[sub]), base[k])
           for k in table}
     gd = g_of(qd)
-    gm = g_of({k: np.array([float(np.mean(draws[k])) if k in draws else base[k]]) for k in table})[:, 0]
+    gm = g_of({k: np.array([float(centre[k]) if k in centre else base[k]]) for k in table})[:, 0]
     q05, q95 = np.nanquantile(gd, [0.05, 0.95], axis=1)
     gmin = float(np.nanmin(gm))
     thr = gmin + CRITICAL_BAND_FRACTION * (1.0 - gmin)
     plots["critical_band"] = Series(
         title="Critical band: the coupler condition (c-ii) within 10 % of its minimum",
         x=w.tolist(), x_label="ω [rad/s]", y_label="g(ω) = t(ω²)/|t|(ω²) [1]", log_x=True,
-        lines={"posterior mean": _clean(gm), "10 % threshold (posterior mean)": [thr] * w.size},
+        lines={"nominal (posterior median)": _clean(gm), "10 % threshold (nominal)": [thr] * w.size},
         bands={"5-95 % over the draws": (_clean(q05), _clean(q95))},
-        points={"worst (posterior mean)": (float(w[int(np.nanargmin(gm))]), gmin),
+        points={"worst (nominal)": (float(w[int(np.nanargmin(gm))]), gmin),
                 "critical band, low edge (over the draws)": (float(band[0]), thr),
                 "critical band, high edge (over the draws)": (float(band[1]), thr)},
         hline=0.0)
