@@ -181,13 +181,22 @@ def _seal(cert: Certificate, scene: Any, out: Path) -> Certificate:
     records: list[Path] = sorted((out / "records").glob("*.h5")) if (out / "records").is_dir() else []
     named = [i.record for i in cert.identification or []] + [e.record for e in cert.energy or []]
     for r in named:
-        p = Path(r)
+        p = Path(r) if Path(r).is_absolute() else out / r  # named relative to the certificate folder
         if not p.is_file():
             logger.warning("evidence: record %s named by the certificate is not a file; not hashed", r)
         elif all(p.resolve() != q.resolve() for q in records):
             records.append(p)
     evidence += [file_evidence(out, r, "record") for r in records]
     return seal(cert.model_copy(update={"evidence": evidence}))
+
+
+def _relative(folder: Path, record: str) -> str:
+    """A record path as the certificate names it: POSIX, relative to the certificate's folder (so a
+    moved folder still finds its records), whatever the working directory was."""
+    p = Path(record)
+    if not p.is_absolute():
+        p = Path.cwd() / p
+    return Path(os.path.relpath(p.resolve(), Path(folder).resolve())).as_posix()
 
 
 def _scene_info(scene: Any) -> SceneInfo:
@@ -262,6 +271,10 @@ def _certificate(ctx: Context, sheet: Sheet, verdict: Verdict, *, run: RunOutput
         f"{k} {v:.1f} s" for k, v in sheet.timings.items())))
     policy = ctx.policy
     reasons = list(verdict.reasons) + (list(witness.reasons) if witness is not None else [])
+    idents = [i.model_copy(update={"record": _relative(ctx.out, i.record)}) for i in draws.identification] \
+        if draws is not None else []
+    energy = [e.model_copy(update={"record": _relative(ctx.out, e.record)}) for e in run.energy] \
+        if run is not None else []
     return Certificate(
         created_utc=_now(), software=_versions(), scene=_scene_info(ctx.scene),
         decision=_DECISIONS[verdict.decision], reasons=reasons,
@@ -269,9 +282,9 @@ def _certificate(ctx: Context, sheet: Sheet, verdict: Verdict, *, run: RunOutput
                 "credible": policy.credible},
         measurements=sheet.measurements, nominal=None if nominal is None else nominal.section,
         robust=None if robust is None else robust.section,
-        identification=(list(draws.identification) or None) if draws is not None else None,
+        identification=(idents or None) if draws is not None else None,
         design=None if design is None else design.design, witness=None if witness is None else witness.witness,
-        energy=(list(run.energy) or None) if run is not None else None, multiport=multiport,
+        energy=(energy or None) if run is not None else None, multiport=multiport,
         bench=bench_info(ctx.scene, None if run is None else run.outcomes), plots=sheet.plots,
         errors=sheet.errors + sheet.optional_errors)
 

@@ -190,3 +190,30 @@ def test_hil_report_of_an_intact_folder_says_the_evidence_matches(cert_dir, tmp_
     capsys.readouterr()
     text = " ".join(" ".join(_pages(d / "report.pdf")).split())
     assert "All 2 evidence files match their recorded SHA-256" in text and MARK not in text
+
+
+# ---------------------------------------------------------------------------------------------
+# the folder is self-contained: records named relative to it
+
+
+def test_records_are_named_relative_to_the_certificate_folder_and_a_moved_folder_verifies(tmp_path, small_scene,
+                                                                                          capsys, monkeypatch):
+    """Certified with a relative --out from another working directory, the certificate names its
+    records relative to its own folder; the folder, moved elsewhere, verifies and reports."""
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert main(["certify", str(small_scene), "--out", "reports/today", "--json"]) == 11
+    capsys.readouterr()
+    data = json.loads((work / "reports" / "today" / "certificate.json").read_text(encoding="utf-8"))
+    named = [e["record"] for e in data["energy"]]
+    assert named == [RECORD], named
+    assert all(not Path(e["path"]).is_absolute() and ".." not in e["path"] for e in data["evidence"])
+    moved = tmp_path / "archive" / "cert"
+    moved.parent.mkdir()
+    shutil.move(str(work / "reports" / "today"), str(moved))
+    monkeypatch.chdir(tmp_path)
+    assert main(["verify", str(moved)]) == 0
+    assert main(["report", str(moved)]) == 0
+    html = (moved / "report.html").read_text(encoding="utf-8")
+    assert RECORD in html and str(work) not in html
