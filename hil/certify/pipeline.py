@@ -18,7 +18,7 @@ recorded, never FAIL:
 4. **robust**: the criterion on every posterior draw (vectorized for the SDEA; per draw,
    verdict-only, for other networks), P(stable) with a Clopper-Pearson interval, the worst-case
    margin over the credible ellipsoid (optimized), the critical band (where the binding condition is
-   within 10 % of its minimum; README "Definitions of the robust numbers"); P(stable) counts only
+   within 10 % of its minimum; docs/CERTIFICATION.md "critical band"); P(stable) counts only
    independent draws: each emcee chain is thinned by its autocorrelation time first; the worst case
    minimizes the nominal margin's own function (the exact criterion's margin), so worst ≤ nominal;
    the reliability index β (FORM) with its design point, and, when plain Monte Carlo cannot reach

@@ -15,7 +15,8 @@ from hil.errors import DECISION_EXIT, EXIT_USAGE
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", nargs="*", help="scene file, built-in name or folder of scenes (default "
-                   "sdea_bench); several: a fleet certified in parallel (see README, Fleet certification)")
+                   "sdea_bench); several: a fleet certified in parallel (docs/guide/certification.md, Fleet "
+                   "certification)")
     p.add_argument("--workers", type=int, help="fleet: parallel scenes (default: all cores)")
     p.add_argument("--scheduler", metavar="ADDR", help="fleet: run on a Dask scheduler (tcp://host:8786; "
                    "extra 'dask')")
