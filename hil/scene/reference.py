@@ -21,7 +21,6 @@ and so to a reference generated where they are installed; the committed file is 
 
 from __future__ import annotations
 
-import argparse
 import inspect
 import logging
 import sys
@@ -339,23 +338,24 @@ def reference_markdown() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m hil.scene.reference [--write FILE | --check FILE]``: print, write or check it."""
-    ap = argparse.ArgumentParser(prog="python -m hil.scene.reference", description=__doc__.split("\n")[0])
-    g = ap.add_mutually_exclusive_group()
-    g.add_argument("--write", metavar="FILE", help="write the reference to FILE")
-    g.add_argument("--check", metavar="FILE", help="exit 1 when FILE differs from the generated reference")
-    args = ap.parse_args(argv)
+    """``python -m hil.scene.reference [--write FILE | --check FILE]``: print, write or check it
+    (a maintenance script, not a ``hil`` command: two flags, read by hand)."""
+    args = list(sys.argv[1:] if argv is None else argv)
     text = reference_markdown()
-    if args.write:
-        Path(args.write).write_text(text, encoding="utf-8")
+    if not args:
+        sys.stdout.write(text)
         return 0
-    if args.check:
-        current = Path(args.check).read_text(encoding="utf-8") if Path(args.check).is_file() else ""
-        if current != text:
-            print(f"{args.check} is out of date: python -m hil.scene.reference --write {args.check}", file=sys.stderr)
-            return 1
+    if len(args) != 2 or args[0] not in ("--write", "--check"):
+        print("usage: python -m hil.scene.reference [--write FILE | --check FILE]", file=sys.stderr)
+        return 2
+    flag, target = args
+    if flag == "--write":
+        Path(target).write_text(text, encoding="utf-8")
         return 0
-    sys.stdout.write(text)
+    current = Path(target).read_text(encoding="utf-8") if Path(target).is_file() else ""
+    if current != text:
+        print(f"{target} is out of date: python -m hil.scene.reference --write {target}", file=sys.stderr)
+        return 1
     return 0
 
 
