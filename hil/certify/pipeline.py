@@ -147,19 +147,21 @@ def _check(tm: Any, criterion: str, margins: bool = True) -> Any:
 
 def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, progress: Progress | None = None,
                   run_experiments: bool = True, max_ticks: int | None = None,
-                  outcomes: Mapping[str, Any] | None = None) -> Certificate:
+                  outcomes: Mapping[str, Any] | None = None,
+                  tick_progress: Callable[[str, int, int], None] | None = None) -> Certificate:
     """Run the whole pipeline for ``scene`` (see the module docstring). Never raises for bad
     evidence: problems become an ERROR certificate with their reasons (a scene without a
     ``certification`` section too, and a stage that raised: its name and reason). ``outcomes``
     (experiment name -> ExperimentOutcome) reuses runs already made instead of running the
-    experiments again.
+    experiments again. ``tick_progress(record name, tick, ticks)`` follows each run (what ``hil
+    certify`` shows while an experiment runs).
 
     The certificate comes back sealed: ``evidence`` holds the SHA-256 of the scene text (written
     to ``out_dir/scene.yaml``) and of every record it rests on (the records written under
     ``out_dir/records`` and any reused record it names), ``integrity.digest`` the digest of its
     content (see :mod:`hil.certify.certificate`)."""
     cert = _assess(scene, out_dir, seed=seed, progress=progress, run_experiments=run_experiments,
-                   max_ticks=max_ticks, outcomes=outcomes)
+                   max_ticks=max_ticks, outcomes=outcomes, tick_progress=tick_progress)
     return _seal(cert, scene, Path(out_dir))
 
 
@@ -210,7 +212,8 @@ def _now() -> str:
 
 def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progress: Progress | None = None,
             run_experiments: bool = True, max_ticks: int | None = None,
-            outcomes: Mapping[str, Any] | None = None) -> Certificate:
+            outcomes: Mapping[str, Any] | None = None,
+            tick_progress: Callable[[str, int, int], None] | None = None) -> Certificate:
     """The pipeline proper (:func:`certify_scene` adds the evidence and the digest): the stages in
     order, each a function of the context and the stages' outputs before it."""
     if scene.certification is None:
@@ -229,7 +232,8 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
     sheet = Sheet()
     stage = "run"
     try:
-        run = stage_run(ctx, sheet, run_experiments=run_experiments, max_ticks=max_ticks, outcomes=outcomes)
+        run = stage_run(ctx, sheet, run_experiments=run_experiments, max_ticks=max_ticks, outcomes=outcomes,
+                        tick_progress=tick_progress)
         stage = "identify"
         draws = stage_identify(ctx, sheet, run)
         stage = "nominal"
@@ -294,7 +298,8 @@ def _certificate(ctx: Context, sheet: Sheet, verdict: Verdict, *, run: RunOutput
 
 
 def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_ticks: int | None = None,
-              outcomes: Mapping[str, Any] | None = None) -> RunOutput:
+              outcomes: Mapping[str, Any] | None = None,
+              tick_progress: Callable[[str, int, int], None] | None = None) -> RunOutput:
     """Run the scene's experiments (or take ``outcomes`` already made): one measurement per
     experiment, the energy evidence, fault counters and realtime loop timing."""
     scene, out = ctx.scene, ctx.out
@@ -310,7 +315,7 @@ def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_t
         from hil.run.runner import Runner
 
         with sheet.timed("run", ctx.say, scene.name):
-            runner = Runner(scene, out / "records", max_ticks=max_ticks)
+            runner = Runner(scene, out / "records", max_ticks=max_ticks, progress=tick_progress)
             names = [e["name"] for e in scene.experiment_configs()]
             for i, o in enumerate(runner.run()):
                 done[names[i]] = o

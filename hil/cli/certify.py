@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from hil.cli.common import StepProgress, UsageError, out_dir
+from hil.cli.common import StepProgress, UsageError, console, out_dir
 from hil.errors import DECISION_EXIT, EXIT_USAGE
 
 
@@ -24,12 +24,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "non-empty folder is refused unless --overwrite")
     p.add_argument("--overwrite", action="store_true", help="write into an existing --out folder, replacing "
                    "files of the same name")
-    p.add_argument("--seed", type=int)
+    p.add_argument("--seed", type=int, help="override the scene's seed (runs, posterior sampling, draws)")
     p.add_argument("--no-experiments", action="store_true", help="skip the runs (certify from the scene's priors)")
     p.add_argument("--sign", metavar="KEY", help="sign the certificate's digest with this Ed25519 private key "
                                                  "(PEM, see hil keygen; needs the 'sign' extra)")
     p.add_argument("--signer", metavar="NAME", help="who signs (recorded and signed with --sign)")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print one JSON object (decision, reasons, bench, files, "
+                   "digest, measurements) instead of the table; no progress lines")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,26 +58,33 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--signer names who signs: give the key with --sign KEY")
     out = out_dir(args.out, f"reports/{scene.name}", args.overwrite)
 
-    beat = StepProgress(f"hil certify {scene.name}", enabled=not sys.stderr.isatty())  # stage lines on a terminal
+    # stage lines, and between them a spinner (terminal) or a line every few seconds naming the stage,
+    # the experiment running and its ticks
+    beat = StepProgress(f"hil certify {scene.name}", enabled=not args.json)
 
     def say(msg: str) -> None:
-        beat.message = f"{msg.removeprefix(scene.name + ': ')} (still running)"
+        beat.update(f"{msg.removeprefix(scene.name + ': ')} (still running)")
         if not args.json:
-            print(msg, file=sys.stderr)
+            beat.say(msg)
+
+    def ticks(name: str, k: int, n: int) -> None:  # which experiment runs, and how far it got
+        beat.update(f"run {name}: {k}/{n} ticks ({100.0 * k / max(n, 1):.0f} %)")
 
     with beat:
-        cert = certify_scene(scene, out, progress=say, run_experiments=not args.no_experiments)  # sealed
-    from hil.report.render import build_reports
+        cert = certify_scene(scene, out, progress=say, run_experiments=not args.no_experiments,
+                             tick_progress=ticks)  # sealed
+        say(f"{scene.name}: reports ...")
+        from hil.report.render import build_reports
 
-    integrity = None
-    if key is not None:
-        from hil.certify.signing import sign_certificate
-        from hil.certify.verify import check_certificate
+        integrity = None
+        if key is not None:
+            from hil.certify.signing import sign_certificate
+            from hil.certify.verify import check_certificate
 
-        cert = sign_certificate(cert, key, args.signer or "")
-        integrity = check_certificate(cert, public_key=key.public(),
-                                      verified_with="the signing key's public half, when signing")
-    files = build_reports(cert, out, integrity=integrity)
+            cert = sign_certificate(cert, key, args.signer or "")
+            integrity = check_certificate(cert, public_key=key.public(),
+                                          verified_with="the signing key's public half, when signing")
+        files = build_reports(cert, out, integrity=integrity)
     if args.json:
         print(json.dumps({"decision": cert.decision, "reasons": cert.reasons, "scene": scene.name,
                           "bench": None if cert.bench is None else cert.bench.model_dump(),
@@ -85,11 +93,10 @@ def run(args: argparse.Namespace) -> int:
                           "signed": bool(cert.integrity and cert.integrity.signature),
                           "measurements": [m.model_dump() for m in cert.measurements]}, indent=2, default=str))
     else:
-        from rich.console import Console
         from rich.markup import escape
         from rich.table import Table
 
-        con = Console(highlight=False, soft_wrap=True)  # prose and paths are never broken by the console
+        con = console()  # prose and paths are never broken by the console
         colour = {"GO": "green", "MARGINAL": "yellow", "NO-GO": "red", "ERROR": "magenta"}[cert.decision]
         con.print(f"[bold]{escape(scene.name)}[/bold]: [bold {colour}]{cert.decision}[/]"
                   + (f" ({escape(cert.bench.label)})" if cert.bench is not None else ""))
@@ -150,11 +157,10 @@ def run_fleet(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(res.to_dict(), indent=2))
     else:
-        from rich.console import Console
         from rich.markup import escape
         from rich.table import Table
 
-        con = Console(highlight=False, soft_wrap=True)
+        con = console()
         colour = {"GO": "green", "MARGINAL": "yellow", "NO-GO": "red", "ERROR": "magenta"}
         tab = Table(title=f"fleet: {len(res.entries)} scene(s)")
         for col in ("scene", "decision", "bench", "time [s]"):

@@ -87,6 +87,26 @@ def cleanup_created() -> None:
     while CREATED:
         remove_if_empty(CREATED.pop())
 
+#: columns of a table printed where stdout is not a terminal (a pipe, a file, CI): wide enough
+#: that no row of the suite's tables is cut at rich's default of 80 columns
+PIPE_COLUMNS = 240
+
+
+def console(stderr: bool = False) -> Any:
+    """The rich Console of a command's tables: the terminal's width on a terminal, otherwise
+    ``COLUMNS`` when set and :data:`PIPE_COLUMNS` if not (never the default 80 of a pipe)."""
+    from rich.console import Console
+
+    stream = sys.stderr if stderr else sys.stdout
+    width = None
+    if not stream.isatty():
+        try:
+            width = int(os.environ.get("COLUMNS", "")) or PIPE_COLUMNS
+        except ValueError:
+            width = PIPE_COLUMNS
+    return Console(highlight=False, soft_wrap=True, width=width, stderr=stderr)
+
+
 def progress_interval() -> float:
     try:
         return max(0.05, float(os.environ.get("HIL_PROGRESS_SECONDS", "5")))
@@ -112,6 +132,13 @@ class StepProgress:
         self.message = message
         if self._status is not None:
             self._status.update(f"{self.label}: {message}")
+
+    def say(self, line: str) -> None:
+        """Print ``line`` on stderr, above the spinner on a terminal (never through it)."""
+        if self._status is not None:
+            self._status.console.print(line, highlight=False, markup=False)
+        else:
+            print(line, file=sys.stderr, flush=True)
 
     def _loop(self) -> None:
         while not self._stop.wait(self.interval):

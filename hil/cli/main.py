@@ -33,6 +33,7 @@ import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from hil import __version__
 from hil.cli.common import CREATED, OneLineArgumentParser, UsageError, cleanup_created, debug_parent, one_line
 from hil.errors import (  # the exit codes: one table in hil.errors (re-exported here for callers)
     DECISION_EXIT,
@@ -104,6 +105,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         epilog="Global options go before the COMMAND: hil --debug COMMAND ... Exit codes: "
                "docs/guide/troubleshooting.md.")
     p.add_argument("--debug", action="store_true", help="show tracebacks and debug logs (before the COMMAND)")
+    p.add_argument("--version", action="version", version=f"hil-certify {__version__}",
+                   help="print the version and exit")
     common = debug_parent()
     sub = p.add_subparsers(dest="cmd", metavar="COMMAND", parser_class=OneLineArgumentParser)
     for name, (module, help_text) in COMMANDS.items():
