@@ -56,6 +56,12 @@ class DeviceDisconnected(DeviceError, ConnectionError):
     """The transport was closed or lost."""
 
 
+class BenchUnavailable(DeviceError):
+    """The bench could not be opened before any experiment ran (a device absent or unreachable): no
+    record was written, so the command stops with one line, exit 2 (the scene names hardware that is
+    not there), and leaves no folder behind."""
+
+
 class SafetyStop(HilError):
     """An experiment was stopped by a safety limit, the watchdog or a signal."""
 

@@ -327,6 +327,12 @@ def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_t
                 _energy_stage(sheet, names[i], o, energy, sheet.measurements, sheet.plots)
             if runner.stop_reason and all(o.status == "completed" for o in done.values()):
                 sheet.errors.append(f"run stopped: {runner.stop_reason}")  # e.g. a signal after the last experiment
+            from hil.run.runner import bench_never_opened
+
+            if (why := bench_never_opened(list(done.values()), runner)) is not None:
+                from hil.errors import BenchUnavailable  # nothing ran: no certificate, exit 2 at the CLI
+
+                raise BenchUnavailable(f"{scene.name}: the bench could not be opened, no experiment ran: {why}")
             if (runner.stop_reason or "").startswith("signal"):
                 # the person at the bench asked to stop: no identification or certificate follows
                 raise StopRequested(f"{runner.stop_reason}; the records so far are in {out / 'records'}",

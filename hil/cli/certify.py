@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from hil.cli.common import StepProgress, UsageError, console, out_dir
+from hil.cli.common import StepProgress, UsageError, bench_opening_said_once, console, out_dir
 from hil.errors import DECISION_EXIT, EXIT_USAGE
 
 
@@ -44,6 +44,9 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--workers and --scheduler apply to a fleet (several scenes or a folder)")
     args.scene = args.scene[0] if args.scene else None
     scene = load_scene(args.scene or "sdea_bench")
+    if scene.certification is None:  # a usage error, not an ERROR certificate (nothing is written)
+        raise UsageError(f"{args.scene or 'sdea_bench'}: the scene has no 'certification' section: nothing to "
+                         "certify (hil run runs its experiments)")
     if args.seed is not None:
         scene.seed = check_seed(args.seed)
     if need := extras_message(None if args.no_experiments else scene, report=True):  # before any folder
@@ -70,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     def ticks(name: str, k: int, n: int) -> None:  # which experiment runs, and how far it got
         beat.update(f"run {name}: {k}/{n} ticks ({100.0 * k / max(n, 1):.0f} %)")
 
-    with beat:
+    with beat, bench_opening_said_once():
         cert = certify_scene(scene, out, progress=say, run_experiments=not args.no_experiments,
                              tick_progress=ticks)  # sealed
         say(f"{scene.name}: reports ...")

@@ -76,9 +76,12 @@ def out_dir(path: str | None, default_stem: str, overwrite: bool) -> Path:
     from hil.record.outdir import prepare_out_dir
 
     existed = path is not None and Path(path).exists()
+    # the ancestors this call creates (e.g. runs/ for runs/<scene>-<time>): removed with it on failure
+    parent = (Path(path) if path is not None else Path(default_stem)).absolute().parent
+    missing = [a for a in [parent, *parent.parents] if not a.exists()]
     out = prepare_out_dir(path, default_stem=default_stem, overwrite=overwrite)
     if not existed:
-        CREATED.append(out)
+        CREATED.append(missing[-1] if missing else out)
     return out
 
 def cleanup_created() -> None:
@@ -164,6 +167,31 @@ class StepProgress:
             self._thread.join()
         if self._status is not None:
             self._status.__exit__(*exc)
+
+class _BenchOpeningFilter:
+    """Drops the log lines of a bench that failed while opening (``… (while the bench was opening)``):
+    the command says it once, in its one-line error (nothing ran) or its result table."""
+
+    @staticmethod
+    def filter(record: Any) -> bool:
+        return "(while the bench was opening)" not in record.getMessage()
+
+
+@contextlib.contextmanager
+def bench_opening_said_once() -> Iterator[None]:
+    """While a command runs experiments: a device that cannot be opened is reported once, by the
+    command (:class:`_BenchOpeningFilter` on the root logger's handlers), not also as warnings."""
+    import logging
+
+    handlers = list(logging.getLogger().handlers)
+    for h in handlers:
+        h.addFilter(_BenchOpeningFilter)
+    try:
+        yield
+    finally:
+        for h in handlers:
+            h.removeFilter(_BenchOpeningFilter)
+
 
 @contextlib.contextmanager
 def numeric_guard(source: str) -> Iterator[None]:

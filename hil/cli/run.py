@@ -8,7 +8,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from hil.cli.common import StepProgress, UsageError, console, out_dir
+from hil.cli.common import StepProgress, UsageError, bench_opening_said_once, console, out_dir
 from hil.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_SAFETY_STOP, EXIT_USAGE
 
 
@@ -30,11 +30,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hil.errors import BenchUnavailable
     from hil.protocols.registry import extras_message
-    from hil.run.runner import Runner
+    from hil.run.runner import Runner, bench_never_opened
     from hil.scene.spec import check_seed, load_scene
 
     scene = load_scene(args.scene)
+    if not scene.experiments:
+        raise UsageError(f"{args.scene}: the scene has no experiments: nothing to run")
     if args.seed is not None:
         scene.seed = check_seed(args.seed)
     if need := extras_message(scene):  # a base install: say which extra, before anything is on disk
@@ -70,8 +73,10 @@ def run(args: argparse.Namespace) -> int:
 
     runner = Runner(scene, out, realtime=realtime, progress=progress_cb, overwrite=args.overwrite)
     with STOP.install():  # signals stay stop requests until the results are printed
-        with prog if prog is not None else beat:
+        with prog if prog is not None else beat, bench_opening_said_once():
             outcomes = runner.run(select)
+        if (why := bench_never_opened(outcomes, runner)) is not None:  # nothing ran, nothing recorded
+            raise BenchUnavailable(f"{args.scene}: the bench could not be opened, no experiment ran: {why}")
         code = run_exit_code(outcomes, runner)
         _print_run(args, scene, out, outcomes, runner)
     return code

@@ -223,12 +223,22 @@ def _check_time(t: np.ndarray, where: str, max_jitter: float) -> tuple[float, li
     return med, gaps
 
 
+#: sample rates [Hz] a device record plausibly has; outside them the import warns (the time column is
+#: probably not in seconds), it does not refuse
+PLAUSIBLE_RATE_HZ = (10.0, 1.0e6)
+
+
 def _write(out: str | Path, t: np.ndarray, data: dict[str, np.ndarray], m: _Mapping, src: Path, fmt: str,
            meta: Mapping[str, Any] | None, max_jitter: float) -> Path:
     where = str(src)
     t = t * m.scale.get("t", 1.0)
     med, gaps = _check_time(t, where, max_jitter)
     rate = m.rate_hz if m.rate_hz is not None else 1.0 / med
+    if not PLAUSIBLE_RATE_HZ[0] <= rate <= PLAUSIBLE_RATE_HZ[1]:
+        hint = (" (a time column in milliseconds? scale it to seconds: 'scale: {t: 0.001}' in the sidecar mapping)"
+                if rate < PLAUSIBLE_RATE_HZ[0] else " (a time column in microseconds or ticks? scale it to seconds)")
+        logger.warning("%s: the time column gives %.4g Hz, an implausible sample rate for a device record%s",
+                       where, rate, hint)
     if gaps:
         logger.warning("%s: %d gap(s) in time, %d sample(s) missing in all", where, len(gaps),
                        sum(g[1] for g in gaps))
