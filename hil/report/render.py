@@ -244,6 +244,8 @@ def _gauge(cert: Certificate) -> dict[str, Any]:
 # plots (matplotlib, imported lazily; Figure objects without pyplot, so no global state)
 
 _POINT_MARKERS = ("o", "D", "s", "^", "v", "P", "X")
+#: resolution of the HTML's figure images, cropped from the PDF's pages (6.8 in wide: 745 px)
+HTML_DPI = 110
 _PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22")
 
 
@@ -734,7 +736,17 @@ def _jinja_env() -> Any:
     return env
 
 
-def _html_context(cert: Certificate, st: IntegrityStatus) -> dict[str, Any]:
+def _html_context(cert: Certificate, st: IntegrityStatus, images: dict[str, _Plot] | None = None
+                  ) -> dict[str, Any]:
+    """The template's context. ``images``: the figures as :func:`render_pdf` drew them (one draw for
+    both documents); without them (the HTML alone) each figure is drawn here."""
+    short = cert.decision == "ERROR"  # an ERROR certificate's report is short: no figures
+    if images is not None:
+        plots = {k: v for k, v in images.items() if not k.startswith("chart:")}
+        charts = {k.removeprefix("chart:"): v for k, v in images.items() if k.startswith("chart:")}
+    else:
+        plots = _plots_png(cert) if cert.plots and not short else {}
+        charts = _charts_png(cert) if cert.robust is not None and not short else {}
     ctx: dict[str, Any] = {
         "cert": cert,
         "title": (f"{MODIFIED} — " if not st.valid else "") + f"Certificate: {cert.scene.name} — {cert.decision}",
@@ -753,8 +765,8 @@ def _html_context(cert: Certificate, st: IntegrityStatus) -> dict[str, Any]:
         "margin_note": margin_note(cert),
         "measurements": measurements_table(cert),
         "outcome_counts": _outcome_counts(cert),
-        "plots": _plots_png(cert) if cert.plots else {},
-        "charts": _charts_png(cert) if cert.robust is not None else {},
+        "plots": plots,
+        "charts": charts,
         "robust_status": None,
         "gauge": None,
         "show_truth": False,
@@ -791,12 +803,12 @@ def _outcome_counts(cert: Certificate) -> list[tuple[str, int]]:
 
 
 def render_html(cert: Certificate, out_path: str | os.PathLike[str], *,
-                integrity: IntegrityStatus | None = None) -> Path:
+                integrity: IntegrityStatus | None = None, images: dict[str, _Plot] | None = None) -> Path:
     """Write the certificate as one self-contained, printable HTML file; returns its path.
     ``integrity`` (default: the digest check of ``cert``) decides the MODIFIED marking and the
     signature status shown."""
     env = _jinja_env()
-    html = env.get_template("report.html.j2").render(**_html_context(cert, _status(cert, integrity)))
+    html = env.get_template("report.html.j2").render(**_html_context(cert, _status(cert, integrity), images))
     return _atomic_write(Path(out_path), html.encode("utf-8"))
 
 
@@ -828,6 +840,10 @@ class _PdfDoc:
         self.y = 0.0
         self.section = ""
         self.captions: dict[int, tuple[str, str | None]] = {}  # id(figure Series) -> (caption, definition link)
+        self.keys: dict[int, str] = {}  # id(figure Series) -> its plot key
+        #: key -> the figure as drawn on its PDF page, cropped to PNG for the HTML (one draw, two files);
+        #: None: not collected
+        self.images: dict[str, _Plot] | None = None
         self.current_section = ""
 
     @property
@@ -1078,10 +1094,44 @@ class _PdfDoc:
         if h <= 0:
             return
         self.ensure(h + self.caption_height(caption, link) + 0.1)
-        draw_chart(self.fig, cert, key, (self.ML, self.y - h, self.width, h))
+        rect = (self.ML, self.y - h, self.width, h)
+        before = self._artists()
+        draw_chart(self.fig, cert, key, rect)
+        self._keep_image(f"chart:{key}", caption, rect, before, [])
         self.y -= h
         self.caption(caption, link)
         self.space(0.1)
+
+    # one draw, two files: the figure drawn on the PDF page is also the HTML's image
+    def _artists(self) -> list[Any]:
+        f = self.fig
+        return [*f.axes, *f.texts, *f.artists, *f.patches, *f.lines, *f.images, *f.subfigs]
+
+    def _keep_image(self, key: str, title: str, rect: tuple[float, float, float, float], before: list[Any],
+                    notes: list[str]) -> None:
+        """Save what was just drawn in ``rect`` of the page as PNG (the page's other artists hidden
+        for the moment), so the HTML shows the very figure the PDF holds, drawn once."""
+        if self.images is None:
+            return
+        import warnings
+
+        from matplotlib.transforms import Bbox
+
+        hidden = [a for a in before if a.get_visible()]
+        for a in hidden:
+            a.set_visible(False)
+        buf = io.BytesIO()
+        try:
+            x, y, w, h = rect
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", category=UserWarning)
+                self.fig.savefig(buf, format="png", dpi=HTML_DPI, facecolor="white",
+                                 bbox_inches=Bbox.from_bounds(x - 0.05, y - 0.05, w + 0.1, h + 0.1))
+        finally:
+            for a in hidden:
+                a.set_visible(True)
+        self.images[key] = _Plot(key.removeprefix("chart:"), title, base64.b64encode(buf.getvalue()).decode("ascii"),
+                                 list(notes))
 
     def figure(self, s: Series, caption: str = "", link: str | None = None) -> None:
         """A plot in the flow, 6.8 in wide; its height follows its panels."""
@@ -1091,7 +1141,12 @@ class _PdfDoc:
         if self.fig is not None and 0.72 * h <= room < h:
             h = room - 0.02  # shrink a little rather than leave most of a page empty
         self.ensure(h + 0.25 + cap)  # the caption stays with its figure
-        notes = draw_plot(self.fig, s, (self.ML, self.y - h, self.width, h))
+        rect = (self.ML, self.y - h, self.width, h)
+        before = self._artists()
+        notes = draw_plot(self.fig, s, rect)
+        key = self.keys.get(id(s))
+        if key is not None:
+            self._keep_image(key, s.title, rect, before, notes)
         self.y -= h
         self.caption(caption, link)
         for n in notes:
@@ -1295,6 +1350,7 @@ def _pdf_section(doc: _PdfDoc, cert: Certificate, sec: Section) -> None:
         if b.kind == "figure" and b.plot in cert.plots:
             s = cert.plots[b.plot]
             doc.captions[id(s)] = (b.text, b.link)
+            doc.keys[id(s)] = b.plot
             if pending or not doc.fits(s):
                 pending.append(s)
             else:
@@ -1467,9 +1523,11 @@ def _outcome_text_colour(o: str) -> str:
 
 
 def render_pdf(cert: Certificate, out_path: str | os.PathLike[str], *,
-               integrity: IntegrityStatus | None = None) -> Path:
+               integrity: IntegrityStatus | None = None, images: dict[str, _Plot] | None = None) -> Path:
     """Write the certificate as a PDF for signing (matplotlib ``PdfPages`` only); returns its path.
-    ``integrity`` as for :func:`render_html` (a modified certificate is marked on every page)."""
+    ``integrity`` as for :func:`render_html` (a modified certificate is marked on every page).
+    ``images`` (a dict, filled here): each figure and chart as drawn on its page, cropped to PNG,
+    for :func:`render_html` (one draw serves both documents)."""
     import warnings
 
     import matplotlib
@@ -1491,6 +1549,7 @@ def render_pdf(cert: Certificate, out_path: str | os.PathLike[str], *,
         try:
             with PdfPages(tmp, metadata=meta) as pdf:
                 doc = _PdfDoc(pdf, cert, st)
+                doc.images = images
                 _pdf_summary(doc, cert)
                 _pdf_block_flow(doc, cert)
                 doc.flush()
@@ -1522,8 +1581,11 @@ def build_reports(cert: Certificate, out_dir: str | os.PathLike[str], *,
         raise ReportError("the certificate was changed after its digest was computed; refusing to write it")
     if integrity is None:  # the evidence was hashed from this folder: the reports say it matches
         integrity = check_certificate(cert, d)
-    return {"json": write_json(cert, d / CERT_NAME), "html": render_html(cert, d / "report.html", integrity=integrity),
-            "pdf": render_pdf(cert, d / "report.pdf", integrity=integrity)}
+    json_path = write_json(cert, d / CERT_NAME)
+    images: dict[str, _Plot] = {}  # each figure drawn once, on its PDF page; the HTML shows that drawing
+    pdf = render_pdf(cert, d / "report.pdf", integrity=integrity, images=images)
+    return {"json": json_path, "html": render_html(cert, d / "report.html", integrity=integrity, images=images),
+            "pdf": pdf}
 
 
 def rebuild_reports(path: str | Path, out: str | Path | None = None, public_key: str | Path | None = None,
@@ -1552,6 +1614,7 @@ def rebuild_reports(path: str | Path, out: str | Path | None = None, public_key:
         raise ReportError(f"{_resolve(path)}: {st.reason()}; refusing to render it "
                           f"(--allow-modified renders it marked '{MODIFIED}')")
     folder = Path(out) if out else _resolve(path).parent
-    paths = {"html": render_html(cert, folder / "report.html", integrity=st),
-             "pdf": render_pdf(cert, folder / "report.pdf", integrity=st)}
+    images: dict[str, _Plot] = {}
+    pdf = render_pdf(cert, folder / "report.pdf", integrity=st, images=images)
+    paths = {"html": render_html(cert, folder / "report.html", integrity=st, images=images), "pdf": pdf}
     return cert, st, paths

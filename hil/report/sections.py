@@ -459,6 +459,10 @@ def report_sections(cert: Certificate) -> list[Section]:
         s = Section("plots", "Plots")
         figures(s)
         out.append(s)
+    if cert.decision == "ERROR":  # evidence missing or broken: the report is short, tables and errors only
+        for sec in out:
+            sec.blocks = [b for b in sec.blocks if b.kind not in ("figure", "chart", "gauge")]
+        out = [sec for sec in out if sec.key != "plots"]
     return out
 
 
