@@ -31,7 +31,10 @@ For each rate (500 Hz, 1 kHz, 2 kHz), ``sdea_bench``'s locked chirp (f1 capped a
 * ``syncrec``: as ``with`` but the record blocks are written and flushed inside the tick that
   fills them (``Runner.record_thread = False``; what ``with`` did before the writer thread);
 * ``devother``: as ``with`` but the simulated devices' process left at ordinary scheduling
-  (``ProcessSimBench(rt_priority=None)``) instead of SCHED_FIFO 70.
+  (``ProcessSimBench(rt_priority=None)``) instead of SCHED_FIFO 70;
+* ``live``: as ``with`` plus ``hil run --live`` (:mod:`hil.run.live`: the Foxglove server in a separate
+  process, 50 samples/s offered from the loop through a bounded dropping queue); issue 30's goal: overruns
+  no higher than ``with``.
 
 ``--phases`` adds, per row, the loop thread's mean CPU time per tick [µs] in each phase of the tick
 (``time.thread_time_ns`` around the bench's read and command, the record append, the safety checks,
@@ -86,6 +89,8 @@ CONFIGS: dict[str, dict[str, Any]] = {
                 "record_thread": False},
     "devother": {"bench": functools.partial(ProcessSimBench, rt_priority=None), "rt_scheduling": True,
                  "gc_pause": True, "spin_ns": None},
+    # "with" plus hil run --live (hil.run.live: its server in a separate process, 50 samples/s offered)
+    "live": {"bench": ProcessSimBench, "rt_scheduling": True, "gc_pause": True, "spin_ns": None, "live": True},
 }
 #: the tick's phases --phases times: (label, object path, attribute)
 PHASES = ("wait", "read", "check", "append", "command")
@@ -180,10 +185,15 @@ def loop_row(rate: float, seconds: float, config: str, tmp: Path, phases: bool =
             pt.wrap(b, "command", "command")
         return b
 
+    live = None
+    if c.get("live"):
+        from hil.run.live import REALTIME_RATE_HZ, LiveView
+
+        live = LiveView(0, process=True, max_rate_hz=REALTIME_RATE_HZ).start()
     t0 = time.perf_counter()
     r = Runner(sc, tmp / f"{config}-{rate:g}", realtime=True, max_ticks=n, bench_factory=make,
                rt_scheduling=c["rt_scheduling"], gc_pause=c["gc_pause"], spin_ns=c["spin_ns"],
-               read_timeout=c.get("read_timeout"))
+               read_timeout=c.get("read_timeout"), live=live)
     r.record_thread = c.get("record_thread", True)
     r.record_process = c.get("record_process", True)
     old_hop = hb.MULTICAST_HOP_LIMIT
@@ -199,6 +209,8 @@ def loop_row(rate: float, seconds: float, config: str, tmp: Path, phases: bool =
         hb.MULTICAST_HOP_LIMIT = old_hop
         if pt is not None:
             pt.restore()
+        if live is not None:
+            live.close()
     wall = time.perf_counter() - t0
     ticks = int(o.stats.get("ticks", 0))
     loop_wall = max(ticks, 1) / rate

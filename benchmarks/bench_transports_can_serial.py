@@ -20,8 +20,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from hil.mocks.can_devices import SimODrive
 from hil.mocks.interfaces import FreeJoints
+from hil.mocks.odrive_device import SimODrive
 from hil.mocks.serial_devices import SimBota
 from hil.protocols.can_odrive import ODriveCAN
 from hil.protocols.serial_bota import BotaSerial
@@ -59,7 +59,9 @@ def bench(n: int) -> list[tuple[str, np.ndarray]]:
 
     # ODrive over virtual CAN
     j = FreeJoints()
-    node = SimODrive(j, "bench-can", node_id=1, sync=True, heartbeat_every=0)
+    # polled, as before the factory cyclic messages (issue 29): no heartbeat, estimates or version frames
+    node = SimODrive(j, "bench-can", node_id=1, sync=True, heartbeat_every=0, encoder_every=0,
+                     cyclic_ms={"Get_Version": 0})
     dev = ODriveCAN(1, "bench-can", "virtual", clock=lambda: 0.0)
 
     def odrive(k: int) -> None:

@@ -11,6 +11,7 @@ group                          loads                                          re
 ``hil_certify.experiments``    :class:`hil.experiments.ExperimentType`        ``register_experiment``
 ``hil_certify.controllers``    :class:`hil.controllers.ControllerType`        ``register_controller``
 ``hil_certify.models``         :class:`hil.models.BuiltinModel`               ``register_model``
+``hil_certify.importers``      :class:`hil.record.importers.Importer`         ``register`` (importers)
 =============================  =============================================  ======================
 
 Devices (``hil_certify.devices``, :mod:`hil.protocols.registry`) and criteria
@@ -36,7 +37,7 @@ __all__ = ["GROUPS", "load_group"]
 
 #: short name -> entry-point group
 GROUPS = {"experiments": "hil_certify.experiments", "controllers": "hil_certify.controllers",
-          "models": "hil_certify.models"}
+          "models": "hil_certify.models", "importers": "hil_certify.importers"}
 
 _loaded: set[str] = set()
 

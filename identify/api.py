@@ -261,7 +261,9 @@ def identify_experiments(
     t0 = time.perf_counter()
     if sampling not in ("continuous", "zoh"):
         raise ModelSpecError(f"sampling must be 'continuous' or 'zoh', got {sampling!r}")
-    fs_first = 1.0 / float(np.median(np.diff(np.asarray(experiments[0]["t"], float)))) if experiments else 1.0
+    from hil.identify.records import sample_rate  # the one sample-rate definition
+
+    fs_first = sample_rate(experiments[0]["t"]) if experiments else 1.0
     if isinstance(model, GreyBoxModel):
         mdl = model
         if sampling == "zoh" and (mdl.zoh_fs is None or abs(mdl.zoh_fs / fs_first - 1) > 1e-6):
@@ -282,7 +284,7 @@ def identify_experiments(
         diags += rep.diagnoses
         if not rep.ok:
             continue
-        fs = 1.0 / float(np.median(np.diff(t)))
+        fs = sample_rate(t)
         k0 = round(skip * fs)
         pairs.append((U[k0:], Y[k0:]))
         fs_all.append(fs)
@@ -350,6 +352,15 @@ def identify_experiments(
         logger.info("analysis band %.3g..%.3g Hz: where the recorded input carries power", *band)
     est = est.band(*(band or (fs / nps, 0.45 * fs)))
     exc = check_excitation(est)
+    if chosen == "ml" and getattr(mdl, "output", None) == "position":
+        for d in exc:  # an encoder axis: low LINEAR coherence is no proof of "no response"
+            if d.kind == "no_excitation":
+                d.severity = "warning"
+                d.message = (f"{d.channel}: low linear coherence with the input (median "
+                             f"{d.details.get('median_coherence', float('nan')):.2f}) although the position is "
+                             "measured: a free axis integrates its force, and closed-loop control or friction make "
+                             "the response nonlinear; the fit proceeds and its adequacy tests judge it (friction: "
+                             "--friction coulomb,offset)")
     report.diagnoses += exc
     report.raise_if_failed()
     timings["frf"] = time.perf_counter() - t0
@@ -622,12 +633,35 @@ def identify_record(record: Any, **overrides: Any) -> IdentificationResult:
     Run records: everything is inferred (:func:`hil.identify.records.plan_from_record`) and
     ``overrides`` (``model``, ``inputs``, ``outputs``, ``target``, ``experiment``, ``period``,
     ``skip``, ``band``, ``sampling``, ... and any keyword of :func:`identify_experiments`) win.
+    ``friction``: a sequence of terms from ``{"coulomb", "stribeck", "offset"}`` (or ``"coulomb,offset"``);
+    empty or None: the linear models as before. With friction the 1-DOF ``mbk`` model with friction is
+    identified by inverse-dynamics ML from the position (:mod:`hil.identify.friction_api`); parameters
+    ``M``, ``B`` (viscous), ``F_c``, ``F_s``/``v_s``, ``F_0`` with units, ``result.method == "idim-ml"``.
     Dicts: ``meta["inputs"]``/``meta["outputs"]`` map model channels to signal names (or list signal
     names in model order); ``overrides`` take precedence over ``meta``.
     """
+    from hil.identify.friction import normalize_friction
+
+    terms = normalize_friction(overrides.pop("friction", None))
     if isinstance(record, str | Path):
         record = load_record(record)
     src = as_source(record)
+    if terms:  # a plant with friction: the inverse-dynamics ML path (hil.identify.friction_api)
+        from hil.identify.friction_api import identify_friction_arrays, identify_friction_record
+
+        if src is not None:
+            return identify_friction_record(src, overrides, terms)
+        meta = {**dict(record.get("meta") or {}), **{k: v for k, v in overrides.items() if v is not None}}
+        sig = record["signals"]
+        ins, outs = meta.get("inputs"), meta.get("outputs")
+        if not ins or not outs:
+            raise ModelSpecError("a record dict with friction needs meta inputs [force signal] and outputs "
+                                 "{'position': signal}")
+        (okey, oname), = dict(outs).items() if isinstance(outs, Mapping) else [("position", outs[0])]
+        kw = {k: meta[k] for k in ("seed", "posterior", "n_walkers", "max_steps", "max_seconds", "accept_misfit")
+              if k in meta}
+        return identify_friction_arrays(record["t"], np.asarray(sig[next(iter(ins))], float),
+                                        np.asarray(sig[oname], float), terms, output=okey.split("_")[0], **kw)
     if src is not None:
         return _identify_run_record(src, overrides)
     return _identify_dict(record, **overrides)
@@ -702,9 +736,9 @@ def _identify_dict(record: Mapping[str, Any], **overrides: Any) -> Identificatio
         tt = np.asarray(t, float)
         if tt.size < 2:
             raise ModelSpecError("record needs at least 2 samples")
-        from hil.identify.records import nominal_rate
+        from hil.identify.records import sample_rate
 
-        opts.setdefault("zoh_fs", nominal_rate(1.0 / float(np.median(np.diff(tt)))))
+        opts.setdefault("zoh_fs", sample_rate(tt))
     mdl = make_model(model_name, channels, **opts)
 
     def pick(spec: Any, names: Sequence[str], what: str) -> dict[str, Any]:

@@ -170,6 +170,9 @@ def lattice_step(x: ArrayLike, *, min_ratio: float = 100.0) -> float | None:
     a = np.asarray(x, dtype=float).ravel()
     a = a[np.isfinite(a)]
     u = np.unique(a)
+    if u.size >= 2:  # values equal up to float rounding (a derivative of counts: 1e-18 apart) are one level
+        keep = np.concatenate([[True], np.diff(u) > 1e-9 * max(float(np.ptp(u)), 1e-300)])
+        u = u[keep]
     if u.size < 8:
         return None
     d = np.diff(u)

@@ -46,7 +46,7 @@ from hil.identify.errors import ModelSpecError
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["IdentificationPlan", "nominal_rate", "plan_from_record", "scene_of_record"]
+__all__ = ["IdentificationPlan", "nominal_rate", "plan_from_record", "sample_rate", "scene_of_record"]
 
 #: experiment types that identification understands
 _EXCITATIONS = ("chirp", "multisine")
@@ -190,10 +190,7 @@ def plan_from_record(
     exp_name, cfg, res = _experiment(rec, ov.pop("experiment", None))
     scene = scene_of_record(rec)
     t = np.asarray(rec.t, float)
-    fs = float(getattr(rec, "rate_hz", np.nan))
-    if not np.isfinite(fs) or fs <= 0:
-        fs = 1.0 / float(np.median(np.diff(t))) if t.size > 1 else 1.0
-    fs = nominal_rate(fs)
+    fs = sample_rate(t) if t.size > 1 and t[-1] > t[0] else nominal_rate(float(getattr(rec, "rate_hz", 1.0)))
     if exp_name:
         notes.append(f"experiment {exp_name!r} ({res.get('type') or cfg.get('type') or 'type unknown'})")
     closed_loop = cfg.get("controller") not in (None, "none")
@@ -258,9 +255,23 @@ def plan_from_record(
         model_options.setdefault("units", units if units in ("linear", "rotary") else "linear")
         if outputs is None:
             vel = _vector_names(signals, f"{target}.velocity") if target else []
-            if not vel:
-                raise ModelSpecError("no velocity outputs: name them with --output velocity_0=SIG ...")
-            outputs = {f"velocity_{i}": vel[d] for i, d in enumerate(dofs)}
+            pos = _vector_names(signals, f"{target}.position") if target else []
+            if vel:
+                outputs = {f"velocity_{i}": vel[d] for i, d in enumerate(dofs)}
+            elif pos:  # an encoder: the model's output is the position (mbk output="position")
+                outputs = {f"position_{i}": pos[d] for i, d in enumerate(dofs)}
+                notes.append("outputs: the target's position (no velocity channel in the record)")
+            else:
+                raise ModelSpecError("no velocity or position outputs: name them with --output velocity_0=SIG "
+                                     "or --output position_0=SIG")
+        kinds = {k.split("_")[0] for k in outputs}
+        if kinds == {"position"}:
+            model_options.setdefault("output", "position")
+            outputs = {(k if "_" in k else f"{k}_0"): v for k, v in outputs.items()}
+        elif kinds == {"velocity"}:
+            outputs = {(k if "_" in k else f"{k}_0"): v for k, v in outputs.items()}
+        else:
+            raise ModelSpecError(f"mbk outputs are all velocity_i or all position_i, got {sorted(outputs)}")
     else:
         raise ModelSpecError(f"unknown model {model!r}; known: sdea_locked, sdea_free, mbk")
 
@@ -350,6 +361,20 @@ def nominal_rate(fs: float) -> float:
     run then gives the same zero-order-hold model, native or imported."""
     short = float(f"{fs:.6g}")
     return short if abs(short / fs - 1.0) < 1e-9 else fs
+
+
+def sample_rate(t: Any) -> float:
+    """THE sample rate [Hz] of a time column, used everywhere a rate is derived from samples (the
+    band edges, the DFT grid, the zero-order-hold model): ``1 / median(diff t)`` snapped to its short
+    decimal form (:func:`nominal_rate`). Two rates of one record (a rounded one for the band, the
+    raw one for the DFT) once dropped the lowest bin of a band computed at 1000.0 Hz from a DFT at
+    999.9999999999991 Hz. The mean step ``(t[-1] - t[0]) / (n - 1)`` is used: timestamps stored with
+    rounding jitter (the EMPS record: steps of 0.99998..1.00002 ms) have a median step off by the
+    jitter, their mean step is the clock's (gaps are a data check of their own)."""
+    tt = np.asarray(t, float)
+    if tt.size < 2 or not tt[-1] > tt[0]:
+        raise ModelSpecError("a record needs at least 2 increasing samples to have a sample rate")
+    return nominal_rate((tt.size - 1) / float(tt[-1] - tt[0]))
 
 
 def signal(signals: Mapping[str, Any], name: str) -> np.ndarray:

@@ -35,7 +35,8 @@ from numpy.typing import ArrayLike, NDArray
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["HELD_FRACTION", "MAX_AGE", "age_distribution", "compensate_frf", "held_outputs", "hold_response"]
+__all__ = ["HELD_FRACTION", "MAX_AGE", "age_distribution", "compensate_frf", "held_outputs", "hold_response",
+           "quantized_repeats"]
 
 #: fraction of exact repeats above which a channel is treated as sampled-and-held
 HELD_FRACTION = 0.05
@@ -66,6 +67,33 @@ def age_distribution(y: ArrayLike) -> NDArray[np.float64] | None:
     return np.bincount(a).astype(float) / a.size
 
 
+def quantized_repeats(y: ArrayLike, *, window: int = 64, p_min: float = 1e-6) -> bool:
+    """True when the repeats of ``y`` are those of a quantized signal, not of a slower sensor: the
+    values sit on a lattice (:func:`hil.identify.frf.lattice_step`: whole counts, e.g. the difference
+    of an encoder position divided by the period) and the repeats are NOT spread evenly over time.
+    A sensor slower than the loop repeats on its own clock, independently of the signal, so the
+    fraction of repeats is the same in every window of ``window`` samples (binomial scatter); a
+    quantized derivative repeats where the signal changes by less than a count per sample (slow
+    acceleration), so that fraction varies with the motion. Homogeneity is a chi-square test over the
+    windows (rejected at ``p_min``)."""
+    from scipy import stats
+
+    from hil.identify.frf import lattice_step
+
+    a = np.asarray(y, dtype=float).ravel()
+    if a.size < 4 * window or lattice_step(a) is None:
+        return False
+    rep = np.zeros(a.size, dtype=bool)
+    rep[1:] = a[1:] == a[:-1]
+    m = a.size // window
+    counts = rep[: m * window].reshape(m, window).sum(axis=1).astype(float)
+    p = counts.sum() / (m * window)
+    if not 0 < p < 1:
+        return False
+    chi2 = float(np.sum((counts - window * p) ** 2) / (window * p * (1 - p)))
+    return bool(stats.chi2.sf(chi2, m - 1) < p_min)
+
+
 def hold_response(p: ArrayLike, w: ArrayLike, fs: float) -> NDArray[np.complex128]:
     """A(ω) = Σ_k p_k exp(-jωk/fs) at the angular frequencies ``w`` [rad/s]."""
     p = np.asarray(p, dtype=float)
@@ -81,7 +109,7 @@ def held_outputs(pairs: Sequence[tuple[NDArray[Any], NDArray[Any]]], names: Sequ
         counts: list[NDArray[np.float64]] = []
         for _u, y in pairs:
             col = np.asarray(y)[:, o] if np.ndim(y) == 2 else np.asarray(y)
-            p = age_distribution(col)
+            p = None if quantized_repeats(col) else age_distribution(col)
             if p is None:
                 counts = []
                 break

@@ -8,13 +8,31 @@ frame it sends), whose frames are fed to a :mod:`canopen` network: canopen's own
 slave, PDO maps and EMCY producer do the protocol; this module adds what a drive does:
 
 * **NMT** (CiA 301 §7.2.8): boot-up message ``0x700+id [00]`` on creation and after an NMT reset,
-  then PRE-OPERATIONAL; SDO always; PDOs only in OPERATIONAL. The heartbeat producer (0x1017,
-  factory default 100 ms, writable by SDO) is timed on the node's tick counter (``dt`` s per tick),
-  so lockstep runs stay deterministic.
-* **PDOs**: the host maps them over SDO (0x1400/0x1600 RPDO, 0x1800/0x1A00 TPDO, CiA 301 §7.4.8);
-  the drive reloads its maps from its dictionary when they change. RPDOs with transmission type
-  254/255 are applied on reception, 0..240 at the next SYNC; TPDOs with type 1..240 go out on every
-  n-th SYNC (``0x80``), sampled at the SYNC.
+  then PRE-OPERATIONAL. Services by state (CiA 301 §7.3.2.2, Table 41): PRE-OPERATIONAL: SDO,
+  SYNC, EMCY, NMT, heartbeat; OPERATIONAL: these and PDOs; STOPPED: NMT and heartbeat only (no SDO
+  answer, no SYNC, no PDO, no EMCY). Reset communication restores every communication object
+  (0x1000-0x1FFF: heartbeat time, PDO parameters, ...) to its power-on value; reset node restores
+  every object and the drive's state machine (CiA 301 §7.2.8.3.2.2). The heartbeat producer
+  (0x1017, factory default 100 ms, writable by SDO) is timed on the node's tick counter (``dt`` s
+  per tick), so lockstep runs stay deterministic.
+* **SDO**: canopen's server (expedited and segmented) plus block upload and block download
+  (:class:`hil.mocks.canopen_server.BlockSdoServer`, CRC-16 when the client asks for it).
+* **PDOs**: the host maps them over SDO (0x1400/0x1600 RPDO, 0x1800/0x1A00 TPDO, CiA 301 §7.4.8)
+  and gets the aborts a device gives for a mapping it cannot take
+  (:func:`hil.mocks.canopen_server.check_pdo_parameter_write`: 0x06040041 an object that cannot be
+  mapped such as 0x1000, 0x06040042 more than 64 bits, 0x06010000 a mapping changed while the PDO
+  is valid); the drive reloads its maps from its dictionary when they change. RPDOs with
+  transmission type 254/255 are applied on reception, 0..240 at the next SYNC; TPDOs with type
+  1..240 go out on every n-th SYNC (``0x80``), sampled at the SYNC; TPDOs with type 254/255 and an
+  event timer (sub-index 5, ms; not shorter than the inhibit time, sub-index 3, 100 us) every
+  event-timer period, on the tick counter (event-driven ones without a timer: not sent, the
+  drive defines no change-of-state events).
+* **NMT and the power stage are not coupled** (CiA 402 ties none of its states to NMT): the drive
+  enabled by SDO in PRE-OPERATIONAL applies its target torque, and dropping from OPERATIONAL to
+  PRE-OPERATIONAL leaves it enabled. What the drive does when the connection is lost is its abort
+  connection option code 0x6007 (CiA 402 §6.3.1; events used here: NMT STOPPED entered, reset
+  communication): 0 nothing, 1 fault signal (state FAULT, 0x603F = 0x8100 communication), 2
+  disable voltage, 3 quick stop (then as 0x605A); the shipped dictionary's 1.
 * **CiA 402 state machine** (IEC 61800-7-201 §5.3, the states and codes of
   :class:`canopen.profiles.p402.State402`): controlword 0x6040 Shutdown 0x06, Switch on 0x07,
   Enable operation 0x0F, Disable voltage 0x00, Quick stop 0x02, Fault reset (rising edge of bit
@@ -24,7 +42,7 @@ slave, PDO maps and EMCY producer do the protocol; this module adds what a drive
   operation returns to Operation enabled, transition 16). Torque is zero in Quick stop active.
 * **Modes** 0x6060 / 0x6061: profile torque (4) and cyclic synchronous torque (10) (0x6502 =
   0x208); any other value is refused with SDO abort 0x06090030 (value range exceeded).
-* **Physics**: in Operation enabled with mode 4 or 10 and NMT OPERATIONAL the drive applies target
+* **Physics**: in Operation enabled with mode 4 or 10 (in any NMT state) the drive applies target
   torque 0x6071 [per mille of motor rated torque 0x6076, mN.m], clamped to max torque 0x6072, as
   joint effort ``gear_ratio * 0x6071/1000 * 0x6076/1000`` N.m; torque actual 0x6077 reports the
   applied per mille. Position actual 0x6064 = round(q * gear_ratio * cpr / 2 pi) counts (int32,
@@ -44,6 +62,7 @@ import logging
 import math
 import struct
 from collections import deque
+from copy import deepcopy
 from importlib import resources
 from typing import Any
 
@@ -55,6 +74,7 @@ from canopen.profiles.p402 import State402
 from canopen.sdo import SdoAbortedError
 
 from hil.mocks.can_devices import LOG_LEN, SimCanNode
+from hil.mocks.canopen_server import BlockSdoServer, check_pdo_parameter_write
 from hil.mocks.interfaces import SimulatedJoints
 
 logger = logging.getLogger(__name__)
@@ -62,6 +82,8 @@ logger = logging.getLogger(__name__)
 #: Modes of operation the simulated drive supports (0x6060): profile torque, cyclic synchronous torque
 SUPPORTED_MODES = (4, 10)
 ABORT_VALUE_RANGE = 0x06090030  # CiA 301 SDO abort: value range of parameter exceeded
+#: EMCY / 0x603F code of a fault raised by the abort connection option code (CiA 301: communication)
+CONNECTION_FAULT = 0x8100
 
 
 def eds_path() -> str:
@@ -150,6 +172,7 @@ class SimCiA402(SimCanNode):
         super().__init__(joints, channel, interface, **kw)
         od = load_od(self.node_id)
         self.node = canopen.LocalNode(self.node_id, od)
+        self.node.sdo = BlockSdoServer(0x600 + self.node_id, 0x580 + self.node_id, self.node)
         self.node.nmt.__class__ = _TickNmt  # heartbeat on ticks (the write callback stays registered)
         self.network = _SimNetwork(self)
         self.network.add_node(self.node)
@@ -164,6 +187,9 @@ class SimCiA402(SimCanNode):
         store.setdefault(0x6076, {})[0] = struct.pack("<I", int(rated_torque_mNm))
         store.setdefault(0x1017, {})[0] = struct.pack("<H", int(heartbeat_ms))
         store.setdefault(0x605A, {})[0] = struct.pack("<h", int(quick_stop_option))
+        #: every object's value at power-on (what reset node / reset communication restore)
+        self._power_on = deepcopy(store)
+        self._event_due: dict[int, int] = {}  # TPDO COB-ID -> tick its event timer sends it next
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         for m in list((self.node.rpdo.map or {}).values()):
@@ -194,8 +220,9 @@ class SimCiA402(SimCanNode):
         return self._u(0x6071)
 
     def applied_per_mille(self) -> int:
-        """The torque the drive applies now (per mille of rated torque; 0 unless enabled)."""
-        if (self.state != "OPERATION ENABLED" or self.mode not in SUPPORTED_MODES or self.nmt_state != "OPERATIONAL"
+        """The torque the drive applies now (per mille of rated torque; 0 unless enabled). The NMT
+        state plays no part (CiA 402 does not couple the power stage to NMT)."""
+        if (self.state != "OPERATION ENABLED" or self.mode not in SUPPORTED_MODES
                 or self.injector.error_code(self.tick_count)):
             return 0
         lim = self._u(0x6072)
@@ -231,15 +258,43 @@ class SimCiA402(SimCanNode):
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if len(data) < 2 or data[1] not in (0, self.node_id):
             return
-        if data[0] in (0x81, 0x82):  # reset node / reset communication
-            if data[0] == 0x81:
-                for index in (0x6040, 0x6060, 0x6071):
-                    self.node.data_store.pop(index, None)
-                self.state = "SWITCH ON DISABLED"
+        cmd = data[0]
+        if cmd == 0x81:  # reset node: every object and the application to their power-on state
+            self._restore(0x0000, 0xFFFF)
+            self.state, self.fault_code, self._last_cw = "SWITCH ON DISABLED", 0, 0
             self._boot()
-        if self.nmt_state != "OPERATIONAL" and self.state in ("OPERATION ENABLED", "QUICK STOP ACTIVE"):
-            self.state = "SWITCH ON DISABLED"  # leaving OPERATIONAL disables the power stage
+        elif cmd == 0x82:  # reset communication: the communication objects only
+            self._restore(0x1000, 0x1FFF)
+            self._boot()
+            self._connection_lost("reset communication")
+        elif cmd == 0x02:
+            self._connection_lost("NMT stopped")
         self._apply()
+
+    def _restore(self, lo: int, hi: int) -> None:
+        """Objects lo..hi back to their power-on values (CiA 301 §7.2.8.3.2.2)."""
+        store = self.node.data_store
+        for index in [i for i in store if lo <= i <= hi]:
+            del store[index]
+        store.update({i: dict(subs) for i, subs in deepcopy(self._power_on).items() if lo <= i <= hi})
+        self._pdo_dirty = True
+        self._event_due.clear()
+
+    def _connection_lost(self, why: str) -> None:
+        """The abort connection option code 0x6007 (CiA 402 §6.3.1): 0 nothing, 1 fault signal,
+        2 disable voltage command, 3 quick stop command."""
+        option = self._u(0x6007) if 0x6007 in self.node.object_dictionary else 0
+        s = self.state
+        if option == 1 and s != "FAULT":
+            logger.warning("cia402 node %d: %s: fault (abort connection option 1)", self.node_id, why)
+            self.state, self.fault_code = "FAULT", CONNECTION_FAULT
+            if self.nmt_state != "STOPPED":
+                self.node.emcy.send(CONNECTION_FAULT, _error_register(CONNECTION_FAULT))
+                self.emcy_sent.append(CONNECTION_FAULT)
+        elif option == 2 and s != "FAULT":
+            self.state = "SWITCH ON DISABLED"
+        elif option == 3 and s == "OPERATION ENABLED":
+            self.state = "QUICK STOP ACTIVE" if self._u(0x605A) != 0 else "SWITCH ON DISABLED"
 
     # -- object dictionary hooks ----------------------------------------------------------------
     def _on_read(self, index: int, subindex: int, od: Any) -> int | None:
@@ -269,8 +324,9 @@ class SimCiA402(SimCanNode):
         elif index == 0x6071:
             self.commands.append((self.tick_count, struct.unpack("<h", bytes(data))[0]))
             self.commands_total += 1
-        elif 0x1400 <= index <= 0x1BFF:
+        elif check_pdo_parameter_write(self.node, index, subindex, bytes(data)):
             self._pdo_dirty = True
+            self._event_due.clear()
 
     def _controlword(self, cw: int) -> None:
         """CiA 402 transitions (IEC 61800-7-201 Fig. 14) for controlword ``cw``."""
@@ -344,9 +400,27 @@ class SimCiA402(SimCanNode):
                 var.set_data(self.node.get_data(var.index, var.subindex))
             pdo.transmit()
 
+    def _event_tpdos(self) -> None:
+        """TPDOs of transmission type 254/255 with an event timer: sent every event-timer period (ms,
+        at least the inhibit time, 100 us units), the first one on the tick the timer is seen."""
+        self._reload_pdos()
+        for pdo in (self.node.tpdo.map or {}).values():
+            tt, timer = pdo.trans_type, pdo.event_timer or 0
+            if not pdo.enabled or tt is None or tt < 254 or timer <= 0:
+                continue
+            period_s = max(timer / 1000.0, (pdo.inhibit_time or 0) / 10000.0)
+            due = self._event_due.setdefault(pdo.cob_id, self.tick_count)
+            if self.tick_count >= due:
+                for var in pdo:
+                    var.set_data(self.node.get_data(var.index, var.subindex))
+                pdo.transmit()
+                self._event_due[pdo.cob_id] = self.tick_count + max(1, round(period_s / self.dt))
+
     def handle(self, msg: can.Message) -> None:
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             return
+        if self.nmt_state == "STOPPED" and msg.arbitration_id != 0:
+            return  # STOPPED: NMT only (CiA 301 §7.3.2.2); no SDO answer, no SYNC, no PDO
         if 0x200 <= msg.arbitration_id < 0x580 and self._pdo_dirty and self.nmt_state == "OPERATIONAL":
             self._reload_pdos()  # a PDO for a map configured since the last frame
         self.network.notify(msg.arbitration_id, bytearray(msg.data), msg.timestamp)
@@ -358,11 +432,14 @@ class SimCiA402(SimCanNode):
             logger.warning("cia402 node %d: fault 0x%04X", self.node_id, code)
             self.state = "FAULT"
             self.fault_code = code
-            self.emcy_sent.append(code)
-            self.node.emcy.send(code, _error_register(code))
+            if self.nmt_state != "STOPPED":  # no EMCY in STOPPED (the fault is latched all the same)
+                self.emcy_sent.append(code)
+                self.node.emcy.send(code, _error_register(code))
         if self.state == "QUICK STOP ACTIVE" and self._u(0x605A) in (1, 2, 3):
             self.state = "SWITCH ON DISABLED"  # quick stop completed (torque is zero at once)
         self._apply()
+        if self.nmt_state == "OPERATIONAL":
+            self._event_tpdos()
         hb_ms = self.node.nmt._heartbeat_time_ms
         if hb_ms and self.tick_count >= self._hb_due:
             self.send(0x700 + self.node_id, bytes([self.node.nmt._state & 0x7F]))

@@ -14,8 +14,10 @@
   different LAPACK builds). Pass ``exact_sum=False`` for a faster BLAS matvec.
 
 Actuator-side nonlinearities (applied around the linear core, per handle, see
-:class:`ActuatorModel`): command transport delay in ticks, effort saturation and Coulomb friction
-(sampled at the tick start and held, like every input).
+:class:`ActuatorModel`): command transport delay in ticks and effort saturation. Dry friction
+(Coulomb, static/Stribeck) on the joints: ``friction=`` (per body, :class:`hil.mocks.friction.Friction`),
+advanced by the event-located stick-slip step of :mod:`hil.mocks.friction` on top of the same exact
+ZOH (a plant without friction takes exactly the linear path below, bit for bit).
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,6 +33,7 @@ import numpy as np
 
 from hil.errors import ModelError
 from hil.lti import ArrayLike
+from hil.mocks.friction import Friction, StickSlip
 from hil.mocks.physics import JointMap, Plant
 from hil.mocks.terminations import profile_value
 
@@ -43,15 +46,13 @@ class ActuatorModel:
 
     ``delay_ticks``: the effort applied at tick k is the one commanded at tick ``k - delay``
     (zero before). ``limit``: symmetric saturation ``|effort| <= limit`` (N or N.m).
-    ``coulomb``: Coulomb friction level (N or N.m) opposing the joint velocity sampled at the
-    tick start; when ``|v| <= stick_velocity`` it cancels up to ``coulomb`` of the (saturated)
-    command (static friction approximation on the command only).
+    ``coulomb``: Coulomb friction level (N or N.m) on every DOF of the body, the same as
+    ``Simulator(friction={body: Friction(coulomb)})`` (exact stick-slip, :mod:`hil.mocks.friction`).
     """
 
     delay_ticks: int = 0
     limit: float | None = None
     coulomb: float = 0.0
-    stick_velocity: float = 1e-6
 
     def __post_init__(self) -> None:
         if self.delay_ticks < 0 or (self.limit is not None and self.limit < 0) or self.coulomb < 0:
@@ -97,16 +98,12 @@ class Joints:
         if act.delay_ticks:
             self._queue.append(self._cmd.copy())
             e = self._queue.popleft()
-        elif act.limit is None and not act.coulomb > 0.0:
+        elif act.limit is None:
             return self._cmd  # the caller copies it into the input vector
         else:
             e = self._cmd.copy()
         if act.limit is not None:
             e = np.clip(e, -act.limit, act.limit)
-        if act.coulomb > 0.0:
-            v = self.velocity()
-            moving = np.abs(v) > act.stick_velocity
-            e = np.where(moving, e - act.coulomb * np.sign(v), e - np.clip(e, -act.coulomb, act.coulomb))
         return e
 
     def position(self) -> np.ndarray:
@@ -117,23 +114,39 @@ class Joints:
         """Current velocities (m/s or rad/s)."""
         return self._sim.output_slice(self._jm.velocity)
 
+    def previous_position(self) -> np.ndarray:
+        """Positions one control period ago (m or rad; the current ones before the first tick)."""
+        return self._sim.previous_output_slice(self._jm.position)
+
     def measured_force(self) -> np.ndarray:
         """Force the body exerts on everything attached to it (N or N.m; e.g. the SDEA spring force
         F = K_f (x_m - x_e) + B_f (v_m - v_e)); see :mod:`hil.mocks.physics`."""
         return self._sim.output_slice(self._jm.force)
 
 
+FrictionSpec = Friction | Sequence[Friction | None]
+
+
 class Simulator:
-    """Lockstep exact-ZOH simulator of a plant at control period ``dt`` (s)."""
+    """Lockstep exact-ZOH simulator of a plant at control period ``dt`` (s).
+
+    ``friction``: dry friction per body, one :class:`~hil.mocks.friction.Friction` for all its DOFs
+    or one per DOF (None: none on that DOF); with any, each tick is the stick-slip step of
+    :class:`hil.mocks.friction.StickSlip` (its counters and the energy each friction DOF dissipated:
+    ``stick_slip``). Outputs with direct feedthrough of the efforts (a hand's force on a held body,
+    through the acceleration) include the friction force at the current instant.
+    """
 
     def __init__(self, plant: Plant, dt: float, x0: ArrayLike | None = None, *,
-                 actuators: dict[str, ActuatorModel] | None = None, exact_sum: bool = True) -> None:
+                 actuators: dict[str, ActuatorModel] | None = None, exact_sum: bool = True,
+                 friction: Mapping[str, FrictionSpec] | None = None) -> None:
         self.plant = plant
         self.dt = float(dt)
         disc = plant.system.discretize(self.dt, "zoh")
         self.Ad, self.Bd = disc.Ad, disc.Bd
         self._C, self._D = plant.system.C, plant.system.D
         self._rows: dict[tuple[Any, Any, Any], tuple[np.ndarray, np.ndarray]] = {}
+        self._no_feed: set[tuple[Any, Any, Any]] = set()  # output slices without effort feedthrough
         self._W = np.hstack([self.Ad, self.Bd])
         self._W_rows: list[list[float]] = self._W.tolist()  # the exact sum's rows as plain floats
         self._exact = exact_sum
@@ -145,9 +158,18 @@ class Simulator:
         self.handles: dict[str, Joints] = {
             name: Joints(self, jm, actuators.get(name)) for name, jm in plant.joints.items()
         }
+        per_dof = _friction_per_dof(plant, friction or {}, actuators)
+        self.stick_slip: StickSlip | None = None
+        if any(f.active for f in per_dof.values()):
+            self.stick_slip = StickSlip(plant.system.A, plant.system.B, plant.n_dof, self.dt, per_dof,
+                                        exact_sum=exact_sum)
+        self._f_out: np.ndarray | None = None  # friction generalized force now (outputs' feedthrough)
+        self._f_key: tuple[int, int] | None = None  # (step, input version) it was computed for
+        self._u_version = 0
         self._extra: dict[str, np.ndarray] = {}
         self.step_count = 0
         self._x = np.zeros(self.n)
+        self._x_prev = self._x
         self._u = np.zeros(self.m)
         self.last_input = np.zeros(self.m)  # input actually applied during the last tick
         self.reset(x0)
@@ -175,6 +197,7 @@ class Simulator:
         if x.size != self.n:
             raise ModelError(f"x0 has {x.size} entries, the plant has {self.n} states")
         self._x = x.copy()
+        self._x_prev = self._x
         self.step_count = 0
         self._extra.clear()
         for h in self.handles.values():
@@ -182,6 +205,7 @@ class Simulator:
         self._u = np.zeros(self.m)
         self._fill_exogenous()
         self.last_input = self._u.copy()
+        self._u_version += 1
 
     def joints(self, body: str) -> Joints:
         """The :class:`Joints` handle of ``body``."""
@@ -200,6 +224,7 @@ class Simulator:
             raise ModelError(f"input {name!r} takes {sl.stop - sl.start} values")
         self._extra[name] = val.copy()
         self._u[sl] = val
+        self._u_version += 1
 
     def output(self, name: str) -> np.ndarray:
         """Output group ``name`` at the current instant: ``C x + D u``."""
@@ -214,11 +239,39 @@ class Simulator:
         rows = self._rows.get(key)
         if rows is None:
             rows = self._rows[key] = (self._C[sl], self._D[sl])
+        if self.stick_slip is not None and key not in self._no_feed:
+            if np.any(rows[1][:, : self.plant.n_dof]):
+                return rows[0] @ self._x + rows[1] @ self._u_with_friction()
+            self._no_feed.add(key)
         return rows[0] @ self._x + rows[1] @ self._u
+
+    def previous_output_slice(self, sl: slice) -> np.ndarray:
+        """Outputs ``sl`` one tick ago, without feedthrough (``C[sl] x_{k-1}``: positions, velocities)."""
+        return self._C[sl] @ self._x_prev
 
     def outputs(self) -> np.ndarray:
         """All outputs at the current instant."""
+        if self.stick_slip is not None:
+            return self._C @ self._x + self._D @ self._u_with_friction()
         return self._C @ self._x + self._D @ self._u
+
+    def friction_force(self) -> np.ndarray | None:
+        """The dry-friction generalized force (N or N.m per DOF) at the current state and held inputs
+        (sticking DOFs: the force holding them), or None without friction."""
+        if self.stick_slip is None:
+            return None
+        key = (self.step_count, self._u_version)
+        if self._f_key != key or self._f_out is None:
+            self._f_out = self.stick_slip.friction_force(self._x, self._u)
+            self._f_key = key
+        return self._f_out
+
+    def _u_with_friction(self) -> np.ndarray:
+        u = self._u.copy()
+        f = self.friction_force()
+        assert f is not None
+        u[: self.plant.n_dof] += f
+        return u
 
     # -- stepping --------------------------------------------------------------------------
 
@@ -235,7 +288,13 @@ class Simulator:
         u = self._u
         for h in self.handles.values():
             u[h._jm.effort] = h._effective_effort()
-        if self._exact:
+        self._x_prev = self._x
+        if self.stick_slip is not None:
+            try:
+                x_new = self.stick_slip.step(self._x, u)
+            except ModelError as exc:
+                raise ModelError(f"simulation diverged at t = {self.time:.6g} s ({exc})") from None
+        elif self._exact:
             # plain floats: each product is the same IEEE double product numpy forms elementwise and
             # math.fsum rounds their sum correctly, so this equals the array expression
             # fsum(W[i] * concat(x, u)) bit for bit, without the array temporaries (n <= ~30)
@@ -255,6 +314,31 @@ class Simulator:
         self.step_count += 1
         if self.plant.profiles:
             self._fill_exogenous()
+        self._u_version += 1
+
+
+def _friction_per_dof(plant: Plant, friction: Mapping[str, FrictionSpec],
+                      actuators: Mapping[str, ActuatorModel]) -> dict[int, Friction]:
+    """Friction per generalized DOF index from per-body specs (and ``ActuatorModel.coulomb``)."""
+    out: dict[int, Friction] = {}
+    unknown = sorted(set(friction) - set(plant.joints))
+    if unknown:
+        raise ModelError(f"friction for unknown bodies {unknown}; have {sorted(plant.joints)}")
+    for body, act in actuators.items():
+        if act.coulomb > 0.0:
+            if body in friction:
+                raise ModelError(f"{body}: friction given twice (ActuatorModel.coulomb and friction=)")
+            friction = {**friction, body: Friction(act.coulomb)}
+    for body, spec in friction.items():
+        jm = plant.joints[body]
+        dofs = range(jm.q.start, jm.q.stop)
+        per = [spec] * jm.dof if isinstance(spec, Friction) else list(spec)
+        if len(per) != jm.dof:
+            raise ModelError(f"{body}: {len(per)} friction entries for {jm.dof} DOF")
+        for j, f in zip(dofs, per, strict=True):
+            if f is not None:
+                out[j] = f
+    return out
 
 
 @dataclass(frozen=True)
@@ -281,16 +365,17 @@ EffortFn = Callable[[float, np.ndarray, np.ndarray], ArrayLike]
 
 def simulate(plant: Plant, dt: float, efforts: EffortFn | ArrayLike | None, n_steps: int,
              x0: ArrayLike | None = None, *, actuators: dict[str, ActuatorModel] | None = None,
-             exact_sum: bool = True) -> SimResult:
+             exact_sum: bool = True, friction: Mapping[str, FrictionSpec] | None = None) -> SimResult:
     """Run ``n_steps`` lockstep ticks.
 
     ``efforts``: all body efforts concatenated in body order (``plant.n_dof`` values), either an
     array of shape ``(n_steps, n_dof)`` (or ``(n_dof,)`` held constant), or a callable
     ``f(t, q, v) -> efforts`` evaluated at each tick start from the sampled generalized positions
     and velocities (a discrete controller), or ``None`` (zero). Exogenous inputs follow their
-    profiles.
+    profiles. ``friction``: see :class:`Simulator` (outputs then include the friction force's
+    feedthrough at each sample).
     """
-    sim = Simulator(plant, dt, x0, actuators=actuators, exact_sum=exact_sum)
+    sim = Simulator(plant, dt, x0, actuators=actuators, exact_sum=exact_sum, friction=friction)
     N = plant.n_dof
     arr = None
     if efforts is not None and not callable(efforts):
@@ -317,6 +402,11 @@ def simulate(plant: Plant, dt: float, efforts: EffortFn | ArrayLike | None, n_st
     if n_steps == 0:
         us[0] = sim._u
     u_y = np.vstack([us[:n_steps], us[n_steps - 1 : n_steps] if n_steps else us[:1]])
+    if sim.stick_slip is not None:  # the friction force at each sample (feedthrough of force outputs)
+        ss = sim.stick_slip
+        fs = np.array([ss.friction_force(xs[k], u_y[k]) for k in range(n_steps + 1)])
+        u_y = u_y.copy()
+        u_y[:, :N] += fs
     ys = xs @ plant.system.C.T + u_y @ plant.system.D.T
     t = np.arange(n_steps + 1) * sim.dt
     return SimResult(t, xs, us[:n_steps], ys, plant)

@@ -10,7 +10,10 @@ A device kind registered in :mod:`hil.protocols.registry` names, next to its ada
 * :meth:`Twin.publish` (first samples at t = 0), :meth:`Twin.tick` (once per lockstep period,
   after the plant stepped), :meth:`Twin.flush` (let it process what the host sent) and
   :meth:`Twin.run_free` (``hil mock serve``: own threads at the scene's rate);
-* :meth:`Twin.address` (where a served device listens, for people).
+* :meth:`Twin.address` (where a served device listens, for people);
+* :attr:`Twin.mechanics`: the friction and encoder the device adds to the body DOFs it drives,
+  unless the scene's ``devices[].sim.friction`` / ``sim.encoder`` say otherwise
+  (:class:`hil.mocks.friction.Mechanics`; the values and their sources: docs/guide/friction-twins.md).
 
 A device with a simulated twin is one module with its simulated device and one ``Twin``
 subclass, plus one registration (:func:`hil.protocols.registry.register_device`, or the
@@ -20,6 +23,7 @@ subclass, plus one registration (:func:`hil.protocols.registry.register_device`,
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -27,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from hil.errors import SceneError
+from hil.mocks.friction import Friction, Mechanics
 from hil.protocols import link_budget as lb
 
 logger = logging.getLogger(__name__)
@@ -44,7 +49,10 @@ class TwinContext:
     when served free-running; ``can_interface``: the python-can interface the simulated CAN nodes
     use; ``channel(interface, scene_channel)``: the private channel standing for a scene channel;
     ``devices``: every opened device record of the bench (``.cfg``, ``.point``, ``.host``), for
-    twins that serve several devices on one transport; ``label``: the scene file or name."""
+    twins that serve several devices on one transport; ``label``: the scene file or name;
+    ``can_port(scene_channel)``: the UDP port of a served ``udp_multicast`` channel (each channel its
+    own group *and* port: python-can binds its socket to the port on every address, so channels
+    sharing a port would hear each other), None elsewhere."""
 
     index: int
     cfg: Any
@@ -60,6 +68,7 @@ class TwinContext:
     channel: Callable[[str, str], str]
     devices: Sequence[Any] = field(default_factory=list)
     label: str = ""
+    can_port: Callable[[str], int | None] = field(default=lambda scene_channel: None)
 
 
 class Twin:
@@ -68,6 +77,9 @@ class Twin:
 
     #: served over python-can's UDP multicast in another process with a ``port`` parameter
     udp_multicast: bool = False
+    #: friction, viscous damping, encoder step the device adds to the DOFs it drives (default: none,
+    #: a drive whose mechanics are the scene's bodies)
+    mechanics: Mechanics = Mechanics(source="a drive: the mechanics and their friction are the scene's bodies")
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         """Build the simulated device for ``ctx``; return it (None when another device's twin
@@ -96,13 +108,19 @@ class Twin:
         return str(params.get("url", "")), True
 
 
-def _can_params(ctx: TwinContext, params: dict[str, Any]) -> str:
-    """Point the adapter at the private channel of its scene channel; returns that channel."""
+def _can_params(ctx: TwinContext, params: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+    """Point the adapter at the private channel of its scene channel; returns that channel and the
+    bus keywords the simulated node needs on it (the channel's UDP port when it has one; the
+    adapter gets it too)."""
     scene_ch = str(params.get("channel", "hil0"))
     ch = ctx.channel(str(params.get("interface", "virtual")), scene_ch)
     params.update(interface=ctx.can_interface, channel=ch, clock=ctx.clock, timeout=ctx.timeout)
     params.pop("bus", None)
-    return ch
+    port = ctx.can_port(scene_ch)
+    if port is None:
+        return ch, {}
+    params["port"] = int(port)
+    return ch, {"port": int(port)}
 
 
 class CanTwin(Twin):
@@ -146,24 +164,27 @@ def _bitrate(params: dict[str, Any], default: int) -> int:
 class ODriveTwin(CanTwin):
     udp_multicast = True
     node_default = 0
+    mechanics = Mechanics(source="a drive for any motor: no friction of its own; pos_estimate is the encoder "
+                                 "PLL's interpolated estimate (not counts), sent as float32 turns")
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
-        from hil.mocks.can_devices import SIM_WATCHDOG_ENDPOINTS, SimODrive
+        from hil.mocks.odrive_device import SIM_WATCHDOG_ENDPOINTS, SimODrive
 
-        ch = _can_params(ctx, params)
-        kw: dict[str, Any] = {}
+        ch, bus_kw = _can_params(ctx, params)
+        # configured as the scene's bench has its drive: estimates every tick with feedback "cyclic",
+        # none with "poll" (encoder_msg_rate_ms 0; a factory drive sends them every 10 ms)
+        kw: dict[str, Any] = {"encoder_every": 1 if params.get("feedback") == "cyclic" else 0, **bus_kw}
         if ctx.lockstep:
-            # heartbeat every 10 ms (a real ODrive sends one every 100 ms by default): on the
+            # heartbeat every 10 ms, no cyclic Get_Version (a factory drive: 100 ms and 100 ms): on the
             # simulated bus every frame is copied to every node, so fewer frames = faster runs
-            kw = {"sync": True, "heartbeat_every": max(1, round(0.01 * ctx.rate_hz)),
-                  "bitrate": _bitrate(params, lb.ODRIVE_DEFAULT_BITRATE)}
+            kw.update(sync=True, heartbeat_every=max(1, round(0.01 * ctx.rate_hz)), cyclic_ms={"Get_Version": 0}
+                      if str(params.get("firmware", "0.6")) == "0.6" else {},
+                      bitrate=_bitrate(params, lb.ODRIVE_DEFAULT_BITRATE))
             params.setdefault("watchdog_endpoints", dict(SIM_WATCHDOG_ENDPOINTS))
         sim = SimODrive(ctx.point, ch, int(params.get("node_id", 0)), ctx.can_interface,
                         gear_ratio=float(params.get("gear_ratio", 1.0)), linear_scale=params.get("linear_scale"),
                         faults=ctx.faults, seed=ctx.seed, dt=ctx.dt, firmware=str(params.get("firmware", "0.6")),
                         **kw)
-        if params.get("feedback") == "cyclic":
-            sim.encoder_every = 1
         _lockstep_host_bus(ctx, sim, params)
         return sim, params
 
@@ -176,16 +197,22 @@ class ODriveTwin(CanTwin):
 class CubeMarsTwin(CanTwin):
     udp_multicast = True
     node_param, node_word = "motor_id", "motor"
+    #: AK-series quasi-direct-drive actuator: Coulomb friction identified on the AK80-6 (6:1) as 0.093 and
+    #: 0.078 N.m (dfki-ric-underactuated-lab/double_pendulum, design C.0 model 3.0, cf1/cf2); 0.1 N.m for the
+    #: twin's AK80-9 (9:1). No encoder step here: the MIT reply's 16-bit position over ±12.5 rad (3.8e-4 rad)
+    #: is coarser than the motor's encoder and is quantized on the wire already.
+    mechanics = Mechanics(Friction(0.1), source="AK80-6 identification (dfki double_pendulum model 3.0: "
+                                                "cf 0.078-0.093 N.m), AK80-9: 0.1 N.m")
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
-        from hil.mocks.can_devices import SimCubeMars
+        from hil.mocks.cubemars_device import SimCubeMars
 
-        ch = _can_params(ctx, params)
+        ch, bus_kw = _can_params(ctx, params)
         _lockstep_kw: dict[str, Any] = {"sync": True, "bitrate": _bitrate(params, lb.CUBEMARS_DEFAULT_BITRATE),
                                         "tick_s": ctx.dt}
         sim = SimCubeMars(ctx.point, ch, int(params.get("motor_id", 1)), ctx.can_interface,
                           model=params.get("model", "AK80-9"), faults=ctx.faults, seed=ctx.seed,
-                          **(_lockstep_kw if ctx.lockstep else {}))
+                          **(_lockstep_kw if ctx.lockstep else {}), **bus_kw)
         _lockstep_host_bus(ctx, sim, params)
         return sim, params
 
@@ -195,12 +222,15 @@ class CiA402Twin(CanTwin):
     """A canopen LocalNode on a private CAN channel."""
 
     udp_multicast = True  # served to a realtime run's adapters from another process, as the ODrive
+    mechanics = Mechanics(source="a drive: no friction of its own; the position is quantized on the wire to "
+                                 "counts_per_rev increments (0x608F)")
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         from hil.mocks.cia402_drive import SimCiA402
 
-        ch = _can_params(ctx, params)
+        ch, bus_kw = _can_params(ctx, params)
         kw = {k: params[k] for k in ("counts_per_rev", "rated_torque_mNm", "heartbeat_ms") if params.get(k) is not None}
+        kw.update(bus_kw)
         if ctx.lockstep:
             kw["bitrate"] = _bitrate(params, lb.CIA402_DEFAULT_BITRATE)
         sim = SimCiA402(ctx.point, ch, int(params.get("node_id", 1)), ctx.can_interface,
@@ -301,6 +331,14 @@ class Concat:
 class DynamixelTwin(Twin):
     """A DYNAMIXEL chain on a pty: the scene devices with the same ``params.port`` share one
     chain (one bus), each servo id driving its device's DOFs."""
+
+    #: XM430-W350 (353.5:1 metal gears, stall 4.1 N.m at 12 V): Stribeck friction scaled from the MX-64
+    #: (stall 6.0 N.m) identification of Duclusaud et al. 2024 (Rhoban/bam params/mx64 m4: 0.062 N.m
+    #: Coulomb + 0.024 N.m Stribeck bump, v_s 1.52 rad/s) by 4.1/6.0; the 12-bit encoder (4096 pulse/rev,
+    #: ROBOTIS e-Manual), the grid the protocol's Present Position already uses
+    mechanics = Mechanics(Friction(0.04, 0.06, 1.5), encoder_step=2 * math.pi / 4096,
+                          source="MX-64 identification (Rhoban/bam m4) scaled by stall torque 4.1/6.0; "
+                                 "4096 pulse/rev encoder")
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         from hil.mocks.dynamixel_devices import DynamixelChain

@@ -24,13 +24,24 @@ and the ``odrive-messages`` crate, all consulted through the search tool):
                                          0.6 only; on 0.5.x 0x1C is Get_ADC_Voltage, float32 V)
   ====  =====================  ========  =========================================================
 
-  Firmware (``firmware`` parameter, from the scene): ``"0.6"`` (ODrive Pro / S1 and 0.6 on v3.6,
-  default) or ``"0.5"`` (0.5.x on ODrive v3.x, ``Firmware/communication/can/can_simple.hpp`` of
-  the 0.5 branch: ``MSG_GET_ADC_VOLTAGE = 0x1C``, no Get_Torques; Clear_Errors without payload).
-  ``read_torque`` needs 0.6: on 0.5 it is refused at open instead of decoding a voltage as torque.
+  Firmware: the two lines speak different tables (ODrive's CAN databases
+  ``odrive-cansimple-0.5.6.dbc`` and ``-0.6.10.dbc``): ``"0.6"`` (ODrive Pro / S1 and 0.6 on v3.6)
+  or ``"0.5"`` (0.5.x on ODrive v3.x, ``Firmware/communication/can/can_simple.hpp`` of the 0.5
+  branch: ``MSG_GET_ADC_VOLTAGE = 0x1C``, no Get_Torques; Clear_Errors without payload) and, above
+  all, different axis_error bits (0.5: ESTOP_REQUESTED 0x4000, WATCHDOG_TIMER_EXPIRED 0x800; 0.6:
+  0x4000 is INVERTER_OVER_TEMP, 0x800 DC_BUS_OVER_REGEN_CURRENT). By default (``firmware=None``)
+  the adapter asks the drive on open: an RTR Get_Version (cmd 0x00, firmware 0.6 answers with its
+  version, :attr:`ODriveCAN.firmware_version`); no answer within ``timeout`` means 0.5.x (id 0 is
+  the CANopen NMT command there, ignored). The line found selects the error table, the torque
+  message and the frame lengths; ``firmware="0.6"`` / ``"0.5"`` (a scene parameter) skips the
+  question. ``read_torque`` needs 0.6: on 0.5 it is refused instead of decoding a voltage as torque.
+
+  Frames carry the data length the DBC of the line defines (:data:`DLC`): Set_Input_Torque,
+  Set_Axis_State, Set_Controller_Mode and RxSdo are 8 bytes (the 4-byte float or integer, then
+  zeros), Clear_Errors 1 byte on 0.6 (identify) and none on 0.5, Estop none.
 
   Example (conformance vector): Set_Input_Torque to node 3 with 1.5 N.m is id 0x6E, data
-  ``00 00 C0 3F``.
+  ``00 00 C0 3F 00 00 00 00``.
 
 Units and scaling: the drive works in motor turns and motor N.m. This adapter reports SI joint
 units. Rotary (default): ``q [rad] = 2*pi*turns / gear_ratio``, ``tau_joint = gear_ratio *
@@ -101,7 +112,7 @@ from typing import Any, Literal
 import can
 import numpy as np
 
-from hil.errors import DeviceFault, DeviceTimeout
+from hil.errors import DeviceFault, DeviceTimeout, ProtocolError
 from hil.protocols.base import DeviceInfo, JointSample, StopStep
 from hil.protocols.can_common import CanActuator
 from hil.protocols.can_common import open_can_bus as open_can_bus  # re-export (old path)
@@ -112,12 +123,14 @@ from hil.protocols.codecs.odrive import (
     CMD_ESTOP,
     CMD_GET_ENCODER_ESTIMATES,
     CMD_GET_TORQUES,
+    CMD_GET_VERSION,
     CMD_HEARTBEAT,
     CMD_RX_SDO,
     CMD_SET_AXIS_STATE,
     CMD_SET_CONTROLLER_MODE,
     CMD_SET_INPUT_TORQUE,
     CMD_TX_SDO,
+    DLC,
     FIRMWARES,
     AxisState,
     ControlMode,
@@ -126,11 +139,14 @@ from hil.protocols.codecs.odrive import (
     arbitration_id,
     decode_f32x2,
     decode_heartbeat,
+    decode_version,
     describe_axis_error,
     encode_controller_mode,
     encode_f32,
+    encode_input_torque,
     encode_sdo_write,
     encode_u32,
+    firmware_line,
     split_id,
 )
 
@@ -155,7 +171,8 @@ class ODriveCAN(CanActuator):
     feedback: ``"poll"`` (RTR request per read) or ``"cyclic"`` (drive broadcasts estimates).
     read_torque: also poll Get_Torques (0x1C) and report ``effort`` = torque estimate (joint units);
         firmware 0.6 only.
-    firmware: ``"0.6"`` (default) or ``"0.5"``: which CANSimple table the drive speaks.
+    firmware: ``None`` (default: asked with Get_Version on open), ``"0.6"`` or ``"0.5"``: which
+        CANSimple table the drive speaks (error bits, messages, frame lengths).
     state_timeout: how long (s) open waits for a heartbeat confirming CLOSED_LOOP_CONTROL; ``None``:
         do not wait (a node stepped by hand that answers only on its next tick), :meth:`read`
         checks the state from the next heartbeat on.
@@ -186,17 +203,21 @@ class ODriveCAN(CanActuator):
         retries: int = 1,
         watchdog_s: float | None = None,
         watchdog_endpoints: dict[str, int] | None = None,
-        firmware: str = "0.6",
+        firmware: str | None = None,
         state_timeout: float | None = 0.5,
         **bus_kwargs: Any,
     ) -> None:
-        firmware = str(firmware)
-        if firmware not in FIRMWARES:
-            raise ValueError(f"firmware must be one of {', '.join(FIRMWARES)}, got {firmware!r}")
+        if firmware is not None:
+            firmware = str(firmware)
+            if firmware not in FIRMWARES:
+                raise ValueError(f"firmware must be one of {', '.join(FIRMWARES)}, got {firmware!r}")
         if read_torque and firmware == "0.5":
             raise ValueError("read_torque needs firmware 0.6: on 0.5.x cmd 0x1C is Get_ADC_Voltage, "
                              "not Get_Torques")
-        self.firmware = firmware
+        #: the CANSimple line the drive speaks ("0.6" / "0.5"): given, or found on open (Get_Version)
+        self.firmware = firmware or "0.6"
+        #: (major, minor, revision) from the drive's Get_Version answer; None: not asked or no answer
+        self.firmware_version: tuple[int, int, int] | None = None
         self.state_timeout = None if state_timeout is None else float(state_timeout)
         self._expect_closed_loop = False
         self._hb_count = 0
@@ -236,10 +257,20 @@ class ODriveCAN(CanActuator):
             transport=f"can:{interface}:{channel}" if bus is None else f"can:{bus.channel_info}",
             vendor="ODrive Robotics",
             model="CANSimple axis",
-            firmware=firmware,
+            firmware=self.firmware,
             extra={"node_id": self.node_id, "gear_ratio": self.gear_ratio, "linear_scale": self.linear_scale},
         )
         self.watchdog_armed = False
+        if firmware is None:
+            try:
+                self.detect_firmware(self.timeout)
+            except Exception:
+                self.close()
+                raise
+            if read_torque and self.firmware == "0.5":
+                self.close()
+                raise ProtocolError(f"ODrive node {self.node_id}: read_torque needs firmware 0.6 (Get_Torques); the "
+                                    f"drive did not answer Get_Version: firmware 0.5.x, whose 0x1C is Get_ADC_Voltage")
         if enable:
             try:
                 if watchdog_s is not None:
@@ -259,11 +290,36 @@ class ODriveCAN(CanActuator):
         return {"error_frames": self.error_frames, "stale": self._stale_reads, "late": self.stale_discarded,
                 "retries": self._retried, "timeouts": self._timeouts}
 
+    def detect_firmware(self, timeout: float) -> str:
+        """Ask the drive for its version (RTR Get_Version, cmd 0x00; sent again up to ``retries``
+        times within ``timeout`` s): an answer sets :attr:`firmware_version` and the line from it,
+        none means 0.5.x (the message exists from firmware 0.6 on). Sets and returns
+        :attr:`firmware` (``info.firmware`` too)."""
+        self._drain()
+        deadline = time.monotonic() + timeout
+        attempts = 1 + self.retries
+        for k in range(attempts):
+            self._send(CMD_GET_VERSION, remote=True, timeout=timeout)
+            with contextlib.suppress(DeviceTimeout):
+                self._wait_for(CMD_GET_VERSION, time.monotonic() + (deadline - time.monotonic()) / (attempts - k))
+            if self.firmware_version is not None:
+                break
+        self.firmware = firmware_line(self.firmware_version)
+        self.info.firmware = ("{}.{}.{}".format(*self.firmware_version) if self.firmware_version is not None
+                              else "0.5 (no Get_Version answer)")
+        logger.info("ODrive node %d: firmware %s: CANSimple %s table", self.node_id, self.info.firmware,
+                    self.firmware)
+        return self.firmware
+
     def arm_watchdog(self, timeout_s: float, endpoints: dict[str, int] | None, timeout: float = 0.1) -> bool:
         """Write ``axis.config.watchdog_timeout`` = ``timeout_s`` and ``enable_watchdog`` = 1 through
         RxSdo endpoint access (firmware 0.6). ``endpoints`` maps ``watchdog_timeout`` and
         ``enable_watchdog`` to the endpoint ids of the drive's firmware (its flat_endpoints.json);
-        without them nothing is sent and False is returned."""
+        without them, or on firmware 0.5.x (no RxSdo), nothing is sent and False is returned."""
+        if self.firmware == "0.5":
+            logger.warning("ODrive node %d: drive watchdog not armed: firmware 0.5.x has no RxSdo over CAN "
+                           "(set axis.config.watchdog_timeout and enable_watchdog with odrivetool)", self.node_id)
+            return False
         if not endpoints or not {"watchdog_timeout", "enable_watchdog"} <= set(endpoints):
             logger.warning("ODrive node %d: drive watchdog not armed: endpoint ids of watchdog_timeout and "
                         "enable_watchdog not given (see the firmware's flat_endpoints.json)", self.node_id)
@@ -296,6 +352,9 @@ class ODriveCAN(CanActuator):
 
     # -- low level ----------------------------------------------------------------------------
     def _send(self, cmd: int, data: bytes = b"", remote: bool = False, timeout: float | None = None) -> None:
+        """One frame to the node; a command's data padded to the length of its DBC (:data:`DLC`)."""
+        if not remote:
+            data = bytes(data).ljust(DLC[self.firmware].get(cmd, len(data)), b"\0")
         msg = can.Message(
             arbitration_id=arbitration_id(self.node_id, cmd),
             data=data,
@@ -319,7 +378,8 @@ class ODriveCAN(CanActuator):
             err, state = decode_heartbeat(msg.data)
             if err != self._fault:
                 if err:
-                    logger.warning("ODrive node %d: axis_error 0x%X (%s)", node, err, describe_axis_error(err))
+                    logger.warning("ODrive node %d: axis_error 0x%X (%s)", node, err,
+                                   describe_axis_error(err, self.firmware))
                 else:
                     logger.info("ODrive node %d: axis_error cleared", node)
             self._fault, self.axis_state = err, state
@@ -327,15 +387,17 @@ class ODriveCAN(CanActuator):
         elif cmd == CMD_GET_ENCODER_ESTIMATES:
             self._estimate = (*decode_f32x2(msg.data), self.clock())
             self._last_rx_wall = time.monotonic()
-        elif cmd == CMD_GET_TORQUES:
+        elif cmd == CMD_GET_TORQUES and self.firmware == "0.6":  # 0x1C is Get_ADC_Voltage on 0.5.x
             self._torques = decode_f32x2(msg.data)
+        elif cmd == CMD_GET_VERSION and len(msg.data) == 8:  # firmware 0.6 (id 0 is NMT on 0.5.x)
+            self.firmware_version = decode_version(msg.data)[2]
         return cmd
 
     def _raise_if_fault(self) -> None:
         if self._fault:
             raise DeviceFault(
                 f"ODrive node {self.node_id}: axis_error 0x{self._fault:X} "
-                f"({describe_axis_error(self._fault)})",
+                f"({describe_axis_error(self._fault, self.firmware)}, firmware {self.firmware} table)",
                 code=self._fault,
             )
         if (self._expect_closed_loop and self.axis_state is not None
@@ -367,7 +429,8 @@ class ODriveCAN(CanActuator):
                                 f"CLOSED_LOOP_CONTROL")
         if self._fault:
             raise DeviceFault(f"ODrive node {self.node_id}: did not enter CLOSED_LOOP_CONTROL: axis_error "
-                              f"0x{self._fault:X} ({describe_axis_error(self._fault)}); clear_errors() first",
+                              f"0x{self._fault:X} ({describe_axis_error(self._fault, self.firmware)}); "
+                              f"clear_errors() first",
                               code=self._fault)
         if self.axis_state != AxisState.CLOSED_LOOP_CONTROL:
             raise DeviceFault(f"ODrive node {self.node_id}: did not enter CLOSED_LOOP_CONTROL within {timeout:.3f} s "
@@ -396,8 +459,8 @@ class ODriveCAN(CanActuator):
         self._send(CMD_SET_CONTROLLER_MODE, data, timeout=timeout)
 
     def set_input_torque(self, motor_torque: float, timeout: float = 0.1) -> None:
-        """Raw Set_Input_Torque in motor N.m (no gear/scale conversion)."""
-        self._send(CMD_SET_INPUT_TORQUE, encode_f32(float(motor_torque)), timeout=timeout)
+        """Raw Set_Input_Torque in motor N.m (no gear/scale conversion), 8 data bytes as both DBCs define."""
+        self._send(CMD_SET_INPUT_TORQUE, encode_input_torque(float(motor_torque)), timeout=timeout)
 
     def estop(self, timeout: float = 0.1) -> None:
         """Send Estop (0x02): the drive disarms and latches ESTOP_REQUESTED."""
@@ -514,6 +577,7 @@ __all__ = [
     "CMD_ESTOP",
     "CMD_GET_ENCODER_ESTIMATES",
     "CMD_GET_TORQUES",
+    "CMD_GET_VERSION",
     "CMD_HEARTBEAT",
     "CMD_RX_SDO",
     "CMD_SET_AXIS_STATE",

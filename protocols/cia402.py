@@ -9,9 +9,10 @@ canopen's (:class:`canopen.RemoteNode`); the state names and controlword codes a
 
 Open sequence (``enable=True``):
 
-1. NMT Enter pre-operational; identity 0x1018 (vendor id, product code, revision, serial), device
-   type 0x1000 (must be profile 402), name 0x1008, software version 0x100A; encoder resolution
-   0x608F and motor rated torque 0x6076 unless given.
+1. NMT Enter pre-operational; identity 0x1018 (vendor id; product code, revision and serial number
+   when the drive has them: CiA 301 makes only sub-index 1 mandatory), device type 0x1000 (must be
+   profile 402), name 0x1008, software version 0x100A; encoder resolution 0x608F and motor rated
+   torque 0x6076 unless given.
 2. Heartbeat producer time 0x1017 := ``heartbeat_ms``; the adapter is the heartbeat *consumer*:
    no heartbeat for ``heartbeat_timeout_ms`` (default 3 x ``heartbeat_ms``) or one reporting an NMT
    state other than OPERATIONAL is a :class:`~hil.errors.DeviceFault`.
@@ -19,11 +20,29 @@ Open sequence (``enable=True``):
    0x6071 (transmission type 255: applied on reception; ``sync_rpdo=True``: type 1, applied at the
    next SYNC, the usual choice in cyclic synchronous torque); TPDO1 = statusword 0x6041 + position
    actual 0x6064 + torque actual 0x6077, TPDO2 = velocity actual 0x606C + modes display 0x6061,
-   both transmission type 1 (sent on every SYNC). Other PDOs disabled.
-4. Modes of operation 0x6060 := 4 (profile torque) or 10 (cyclic synchronous torque), checked in
-   0x6061; target torque := 0; NMT Start (OPERATIONAL).
+   both transmission type 1 (sent on every SYNC). Every other PDO the *drive* has is made invalid
+   (COB-ID bit 31, CiA 301 §7.5.2.35/36), whatever the adapter's dictionary lists: the drive is asked
+   by SDO for the communication parameters 0x1400 + k / 0x1800 + k, k = 0, 1, ... (the four of the
+   predefined connection set always, further ones while they exist), so a PDO a vendor
+   configuration left valid at power-on (a TPDO3 on every SYNC, an RPDO2 writing 0x6060) is off;
+   ``pdos_disabled`` lists them.
+4. Modes of operation 0x6060 := 4 (profile torque) or 10 (cyclic synchronous torque), then 0x6061
+   (modes of operation display) polled until it shows the mode, within ``state_timeout`` (default
+   0.5 s, canopen's ``BaseNode402.TIMEOUT_SWITCH_OP_MODE``): a drive shows the new mode on one of
+   its next cycles, not in the SDO answer; target torque := 0; NMT Start (OPERATIONAL).
 5. State machine to Operation enabled: Fault reset (0x80, if in Fault), Shutdown 0x06, Switch on
-   0x07, Enable operation 0x0F, each confirmed in the statusword (SDO) within ``timeout``.
+   0x07, Enable operation 0x0F, each confirmed in the statusword (SDO) within ``state_timeout``
+   (default 0.4 s per transition, canopen's ``BaseNode402.TIMEOUT_SWITCH_STATE_SINGLE``: a drive
+   releasing a holding brake reports Operation enabled only once the brake is open, 100-200 ms on
+   common motors). CiA 402 has no object for the brake's release time (vendors keep it in their
+   own objects), so the bound is this scene parameter; the error names the wait that ran out.
+
+Objects the adapter needs (:data:`NEEDED_OBJECTS`, with what each is for) are checked in its object
+dictionary when it opens: a missing one is one :class:`~hil.errors.ProtocolError` line naming the
+objects and their use, before anything is sent; 0x608F and 0x6076 are needed only when
+``counts_per_rev`` / ``rated_torque_mNm`` are not given (the documented fallback: give them), 0x1017
+only with heartbeat supervision (``heartbeat_ms=0``: none). An object the dictionary lists but the
+drive lacks (SDO abort 0x06020000 / 0x06090011) is the same one-line error, with the abort code.
 
 Per tick: :meth:`CiA402Drive.read` sends one SYNC and waits for TPDO1 and TPDO2 (the drive
 samples them at the SYNC); :meth:`CiA402Drive.command_effort` sends RPDO1 (controlword 0x0F,
@@ -51,11 +70,14 @@ mille of the motor rated torque 0x6076, CiA 402 §6.5.1). Commands are rounded t
 mille (resolution ``gear_ratio * rated / 1e6`` N.m) and clamped to int16. Positive effort drives
 the joint positive (the drive's polarity 0x607E is left as configured).
 
-Errors: an SDO that gets no answer in ``timeout`` is a :class:`~hil.errors.DeviceTimeout`
-(canopen ``SdoCommunicationError``), an SDO abort a :class:`~hil.errors.ProtocolError` naming the
-abort code; no TPDO answer to a SYNC within ``timeout`` is a DeviceTimeout; the statusword Fault
-bit, an EMCY (``code`` = the EMCY error code, else 0x603F) or leaving Operation enabled is a
-:class:`~hil.errors.DeviceFault`; bus errors are :class:`~hil.errors.DeviceDisconnected`.
+Errors: an SDO that gets no answer in ``timeout`` (the SDO response time, 0.1 s by default) is a
+:class:`~hil.errors.DeviceTimeout` (canopen ``SdoCommunicationError``), an SDO abort a
+:class:`~hil.errors.ProtocolError` naming the abort code; no TPDO answer to a SYNC within
+``timeout`` is a DeviceTimeout; the statusword Fault bit, an EMCY (``code`` = the EMCY error code,
+else 0x603F) or leaving Operation enabled is a :class:`~hil.errors.DeviceFault`, and so is a state
+transition not confirmed within ``state_timeout``; a modes of operation display that does not
+follow within it is a :class:`~hil.errors.ProtocolError`; bus errors are
+:class:`~hil.errors.DeviceDisconnected`.
 
 Freshness: ``produced_at`` is the adapter ``clock`` when the TPDOs answering the read's SYNC
 arrived (the drive samples at the SYNC), ``seq`` counts those answers.
@@ -72,6 +94,7 @@ with a non-zero code); heartbeats received are in ``heartbeats`` (not a fault).
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import math
 import threading
@@ -93,6 +116,37 @@ logger = logging.getLogger(__name__)
 #: modes of operation (0x6060) the adapter drives, by name
 MODES = {"profile_torque": 4, "pt": 4, "cyclic_synchronous_torque": 10, "cst": 10}
 PROFILE_402 = 0x192
+#: seconds a state transition / a mode switch may take by default: canopen's BaseNode402 bounds
+#: (TIMEOUT_SWITCH_STATE_SINGLE, TIMEOUT_SWITCH_OP_MODE)
+STATE_TIMEOUT_S = 0.4
+MODE_TIMEOUT_S = 0.5
+#: PDO communication parameter bases (CiA 301: RPDO k+1 at 0x1400 + k, TPDO k+1 at 0x1800 + k)
+RPDO_COMM, TPDO_COMM = 0x1400, 0x1800
+PDO_NOT_VALID = 0x80000000
+#: SDO aborts meaning "the drive has no such object / sub-index" (CiA 301 Table 22)
+ABORTS_ABSENT = (0x06020000, 0x06090011)
+#: objects the adapter uses: index -> (CiA name, what the adapter needs it for)
+NEEDED_OBJECTS: dict[int, tuple[str, str]] = {
+    0x1000: ("device type", "checks that the node is a CiA 402 drive"),
+    0x1017: ("producer heartbeat time", "heartbeat supervision; heartbeat_ms=0 runs without it"),
+    0x1018: ("identity", "names the drive (vendor id)"),
+    0x1400: ("RPDO1 communication parameter", "sends controlword and target torque each tick"),
+    0x1600: ("RPDO1 mapping", "sends controlword and target torque each tick"),
+    0x1800: ("TPDO1 communication parameter", "reads statusword, position and torque each tick"),
+    0x1801: ("TPDO2 communication parameter", "reads velocity and mode display each tick"),
+    0x1A00: ("TPDO1 mapping", "reads statusword, position and torque each tick"),
+    0x1A01: ("TPDO2 mapping", "reads velocity and mode display each tick"),
+    0x6040: ("controlword", "drives the state machine"),
+    0x6041: ("statusword", "confirms the state machine and faults"),
+    0x6060: ("modes of operation", "selects the torque mode"),
+    0x6061: ("modes of operation display", "confirms the torque mode"),
+    0x6064: ("position actual value", "the joint position"),
+    0x606C: ("velocity actual value", "the joint velocity"),
+    0x6071: ("target torque", "the torque command"),
+    0x6077: ("torque actual value", "the joint torque"),
+    0x608F: ("position encoder resolution", "converts encoder counts to rad; give counts_per_rev instead"),
+    0x6076: ("motor rated torque", "scales the per-mille torques to N.m; give rated_torque_mNm instead"),
+}
 EMCY_DESCRIPTIONS = {0x2310: "continuous over current", 0x3210: "DC link over voltage",
                      0x4310: "drive over temperature", 0x7305: "incremental encoder", 0x8611: "following error"}
 
@@ -156,7 +210,10 @@ class CiA402Drive(Actuator):
         in cyclic synchronous torque, False in profile torque).
     enable: run the open sequence (module docstring); on close, safe stop and NMT pre-operational.
     clock: time source of ``JointSample.t`` / ``produced_at``.
-    timeout: SDO response timeout and state-change confirmation time (s).
+    timeout: SDO response timeout (s) and the wait for the TPDOs answering a read's SYNC.
+    state_timeout: bound (s) of each state transition's confirmation and of the modes of operation
+        display following 0x6060; ``None``: 0.4 s per transition and 0.5 s for the mode (canopen's
+        BaseNode402). Raise it for a drive whose holding brake takes longer to release.
     eds: object dictionary (path or :class:`canopen.ObjectDictionary`); default: the shipped one.
     """
 
@@ -168,7 +225,8 @@ class CiA402Drive(Actuator):
                  gear_ratio: float = 1.0, counts_per_rev: int | None = None, rated_torque_mNm: int | None = None,
                  effort_limit: float | None = None, heartbeat_ms: int = 100, heartbeat_timeout_ms: float | None = None,
                  sync_rpdo: bool | None = None, enable: bool = True, clock: Callable[[], float] = time.monotonic,
-                 timeout: float = 0.1, eds: Any = None, **bus_kwargs: Any) -> None:
+                 timeout: float = 0.1, eds: Any = None, state_timeout: float | None = None,
+                 **bus_kwargs: Any) -> None:
         if not 1 <= int(node_id) <= 127:
             raise ValueError(f"CANopen node id must be 1..127, got {node_id}")
         if gear_ratio == 0 or not math.isfinite(gear_ratio):
@@ -183,6 +241,14 @@ class CiA402Drive(Actuator):
         self.sync_rpdo = (self.mode == 10) if sync_rpdo is None else bool(sync_rpdo)
         self.clock = clock
         self.timeout = float(timeout)
+        if state_timeout is not None and not (math.isfinite(state_timeout) and state_timeout > 0):
+            raise ValueError(f"state_timeout must be > 0 s, got {state_timeout!r}")
+        self.state_timeout = STATE_TIMEOUT_S if state_timeout is None else float(state_timeout)
+        self.mode_timeout = MODE_TIMEOUT_S if state_timeout is None else float(state_timeout)
+        #: PDOs of the drive made invalid on open (they are not the adapter's), e.g. ["TPDO3"]
+        self.pdos_disabled: list[str] = []
+        self._eds_name = "the shipped cia402.eds" if eds is None else (
+            str(eds).rsplit("/", 1)[-1] if isinstance(eds, str) else "the given object dictionary")
         self._enable = enable
         self.label = f"CiA 402 node {self.node_id}"
         self._timeouts = 0
@@ -207,6 +273,8 @@ class CiA402Drive(Actuator):
         self.counts_per_rev = counts_per_rev
         self.rated_torque_mNm = rated_torque_mNm
         self._errors = _ErrorFrames()
+        od = canopen.import_od(default_eds() if eds is None else eds, self.node_id)
+        self._check_dictionary(od, enable)  # before the bus is opened: nothing to release
         if bus is None:
             from hil.protocols.can_odrive import open_can_bus
 
@@ -217,7 +285,6 @@ class CiA402Drive(Actuator):
         self.network = canopen.Network(self._bus)
         self.network.NOTIFIER_CYCLE = 0.05  # receive-thread poll period: bounds how long close() waits
         self.network.listeners.append(self._errors)  # type: ignore[arg-type]  # canopen types these as its own MessageListener; a can.Listener is what python-can's Notifier calls
-        od = canopen.import_od(default_eds() if eds is None else eds, self.node_id)
         self.node = canopen.RemoteNode(self.node_id, od)
         self.node.sdo.RESPONSE_TIMEOUT = self.timeout
         self.network.add_node(self.node)
@@ -235,16 +302,44 @@ class CiA402Drive(Actuator):
             raise
 
     # -- SDO with the package's errors ----------------------------------------------------------
-    def _var(self, index: int, sub: int | None = None) -> Any:
-        v = self.node.sdo[index]
-        return v if sub is None else v[sub]
+    def _check_dictionary(self, od: Any, enable: bool) -> None:
+        """ProtocolError (one line) naming every object of :data:`NEEDED_OBJECTS` that ``od`` lacks and
+        what it is needed for (0x608F / 0x6076 only when not given, 0x1017 only with heartbeat
+        supervision; nothing is checked with ``enable=False``)."""
+        if not enable:
+            return
+        skip = {0x608F} if self.counts_per_rev is not None else set()
+        skip |= {0x6076} if self.rated_torque_mNm is not None else set()
+        skip |= {0x1017} if self.heartbeat_ms <= 0 else set()
+        missing = [i for i in NEEDED_OBJECTS if i not in skip and i not in od]
+        if missing:
+            raise ProtocolError(f"CiA 402 node {self.node_id}: {self._eds_name} has no "
+                                + "; no ".join(self._describe(i) for i in missing))
 
-    def _sdo(self, fn: Callable[[], Any], what: str) -> Any:
+    @staticmethod
+    def _describe(index: int, sub: int | None = None) -> str:
+        """``0x608F:1 (position encoder resolution: converts ...)``: an object and what it is for."""
+        name, use = NEEDED_OBJECTS.get(index, ("", ""))
+        return f"0x{index:04X}" + (f":{sub}" if sub is not None else "") + (f" ({name}: {use})" if name else "")
+
+    def _var(self, index: int, sub: int | None = None) -> Any:
+        try:
+            v = self.node.sdo[index]
+            return v if sub is None else v[sub]
+        except KeyError:
+            raise ProtocolError(f"CiA 402 node {self.node_id}: {self._eds_name} has no "
+                                f"{self._describe(index, sub)}") from None
+
+    def _sdo(self, fn: Callable[[], Any], what: str, index: int | None = None) -> Any:
         self._check_open()
         try:
             return fn()
         except canopen.SdoAbortedError as exc:
-            raise ProtocolError(f"CiA 402 node {self.node_id}: {what}: SDO abort 0x{exc.code:08X} ({exc})") from exc
+            absent = ""
+            if exc.code in ABORTS_ABSENT and index is not None:
+                absent = f": the drive has no {self._describe(index)}"
+            raise ProtocolError(f"CiA 402 node {self.node_id}: {what}: SDO abort 0x{exc.code:08X} ({exc})"
+                                f"{absent}") from exc
         except canopen.SdoCommunicationError as exc:
             self._timeouts += 1
             raise DeviceTimeout(f"CiA 402 node {self.node_id}: {what}: no SDO answer within "
@@ -254,13 +349,14 @@ class CiA402Drive(Actuator):
 
     def sdo_read(self, index: int, sub: int | None = None) -> Any:
         """Read an object by SDO (decoded with the object dictionary)."""
-        return self._sdo(lambda: self._var(index, sub).raw, f"SDO read 0x{index:04X}" + (f":{sub}" if sub else ""))
+        return self._sdo(lambda: self._var(index, sub).raw, f"SDO read 0x{index:04X}" + (f":{sub}" if sub else ""),
+                         index)
 
     def sdo_write(self, index: int, value: Any, sub: int | None = None) -> None:
         """Write an object by SDO (encoded with the object dictionary)."""
         def w() -> None:
             self._var(index, sub).raw = value
-        self._sdo(w, f"SDO write 0x{index:04X}" + (f":{sub}" if sub else ""))
+        self._sdo(w, f"SDO write 0x{index:04X}" + (f":{sub}" if sub else ""), index)
 
     def _send(self, fn: Callable[[], None], what: str) -> None:
         self._check_open()
@@ -278,8 +374,10 @@ class CiA402Drive(Actuator):
         dtype = int(self.sdo_read(0x1000))
         if dtype & 0xFFFF != PROFILE_402:
             raise ProtocolError(f"CiA 402 node {self.node_id}: device type 0x{dtype:08X} is not a CiA 402 drive")
-        ident = {k: int(self.sdo_read(0x1018, s)) for s, k in ((1, "vendor_id"), (2, "product_code"),
-                                                                (3, "revision"), (4, "serial"))}
+        ident = {"vendor_id": int(self.sdo_read(0x1018, 1))}
+        for sub, key in ((2, "product_code"), (3, "revision"), (4, "serial")):  # optional (CiA 301 §7.5.2.22)
+            with contextlib.suppress(ProtocolError):
+                ident[key] = int(self.sdo_read(0x1018, sub))
         name = firmware = ""
         with contextlib.suppress(ProtocolError):
             name = str(self.sdo_read(0x1008))
@@ -294,17 +392,19 @@ class CiA402Drive(Actuator):
             raise ProtocolError(f"CiA 402 node {self.node_id}: encoder resolution {self.counts_per_rev} "
                                 f"counts/rev and rated torque {self.rated_torque_mNm} mN.m must be > 0")
         self.info.vendor = f"0x{ident['vendor_id']:08X}"
-        self.info.model = name or f"product 0x{ident['product_code']:08X}"
-        self.info.serial = str(ident["serial"])
-        self.info.firmware = firmware or f"rev 0x{ident['revision']:08X}"
+        self.info.model = name or (f"product 0x{ident['product_code']:08X}" if "product_code" in ident else "")
+        self.info.serial = str(ident.get("serial", ""))
+        self.info.firmware = firmware or (f"rev 0x{ident['revision']:08X}" if "revision" in ident else "")
         self.info.extra.update(ident, counts_per_rev=self.counts_per_rev, rated_torque_mNm=self.rated_torque_mNm)
-        self.sdo_write(0x1017, self.heartbeat_ms)
+        if self.heartbeat_ms > 0 or 0x1017 in self.node.object_dictionary:
+            self.sdo_write(0x1017, self.heartbeat_ms)
         self._map_pdos()
         self.sdo_write(0x6060, self.mode)
-        shown = int(self.sdo_read(0x6061))
+        shown = self._poll_sdo(0x6061, lambda v: v == self.mode, self.mode_timeout)
         if shown != self.mode:
-            raise ProtocolError(f"CiA 402 node {self.node_id}: modes of operation display {shown}, "
-                                f"requested {self.mode}")
+            raise ProtocolError(f"CiA 402 node {self.node_id}: modes of operation display 0x6061 still {shown} "
+                                f"{self.mode_timeout:.3f} s after modes of operation 0x6060 := {self.mode} "
+                                f"(state_timeout)")
         self.sdo_write(0x6071, 0)
         self._send(lambda: setattr(node.nmt, "state", "OPERATIONAL"), "NMT start")
         self._last_hb = self.clock()
@@ -317,59 +417,98 @@ class CiA402Drive(Actuator):
             self._hb_state = None
 
     def _map_pdos(self) -> None:
+        """Every PDO of the drive but the adapter's made invalid (:meth:`_disable_other_pdos`), then
+        RPDO1, TPDO1 and TPDO2 mapped by SDO (canopen ``PdoMap.save``: COB-ID invalid, transmission
+        type, sub-index 0 := 0, entries, sub-index 0 := n, COB-ID valid)."""
         node = self.node
+        self.pdos_disabled = self._disable_other_pdos()
+        if self.pdos_disabled:
+            logger.info("CiA 402 node %d: PDOs left valid by the drive made invalid: %s", self.node_id,
+                        ", ".join(self.pdos_disabled))
+        r1, t1, t2 = node.rpdo[1], node.tpdo[1], node.tpdo[2]
 
         def configure() -> None:
-            node.rpdo.read()  # type: ignore[no-untyped-call]  # canopen's PdoBase.read has no annotations
-            node.tpdo.read()  # type: ignore[no-untyped-call]  # (same)
-            for maps in (node.rpdo.map, node.tpdo.map):
-                for m in (maps or {}).values():
-                    m.enabled = False
-            r1 = node.rpdo[1]
-            r1.clear()
-            r1.add_variable(0x6040)
-            r1.add_variable(0x6071)
-            r1.cob_id, r1.trans_type, r1.enabled = 0x200 + self.node_id, (1 if self.sync_rpdo else 255), True
-            for k, (cob, objs) in enumerate(((0x180, (0x6041, 0x6064, 0x6077)), (0x280, (0x606C, 0x6061))), 1):
-                t = node.tpdo[k]
-                t.clear()
+            for m, cob, trans, objs in ((r1, 0x200, 1 if self.sync_rpdo else 255, (0x6040, 0x6071)),
+                                        (t1, 0x180, 1, (0x6041, 0x6064, 0x6077)), (t2, 0x280, 1, (0x606C, 0x6061))):
+                m.read()
+                m.clear()
                 for index in objs:
-                    t.add_variable(index)
-                t.cob_id, t.trans_type, t.enabled = cob + self.node_id, 1, True
-            node.rpdo.save()  # type: ignore[no-untyped-call]  # canopen's PdoBase.save has no annotations
-            node.tpdo.save()  # type: ignore[no-untyped-call]  # (same)
+                    if index not in node.object_dictionary:  # canopen's add_variable would skip it silently
+                        raise ProtocolError(f"CiA 402 node {self.node_id}: {self._eds_name} has no "
+                                            f"{self._describe(index)}")
+                    m.add_variable(index)
+                m.cob_id, m.trans_type, m.enabled = cob + self.node_id, trans, True
+                m.save()
 
         self._sdo(configure, "PDO mapping")
-        node.tpdo[1].add_callback(lambda m: self._on_tpdo(0, m))
-        node.tpdo[2].add_callback(lambda m: self._on_tpdo(1, m))
+        t1.add_callback(lambda m: self._on_tpdo(0, m))
+        t2.add_callback(lambda m: self._on_tpdo(1, m))
+
+    def _disable_other_pdos(self) -> list[str]:
+        """Make every PDO of the drive except RPDO1, TPDO1 and TPDO2 invalid (COB-ID bit 31 set by SDO):
+        the communication parameters 0x1400 + k (RPDO k+1) and 0x1800 + k (TPDO k+1) are read for
+        k = 0..3 (the predefined connection set) and on while the drive has them (an SDO abort
+        "object does not exist" ends the search), by raw SDO, so PDOs the adapter's dictionary
+        does not list are found too. Returns the ones it made invalid (e.g. ``["TPDO3"]``)."""
+        sdo = self.node.sdo
+        off: list[str] = []
+        for base, kind, ours in ((RPDO_COMM, "RPDO", (0,)), (TPDO_COMM, "TPDO", (0, 1))):
+            for k in range(512):
+                index = base + k
+                try:
+                    raw = self._sdo(functools.partial(sdo.upload, index, 1), f"SDO read 0x{index:04X}:1")
+                except ProtocolError as exc:
+                    if isinstance(exc.__cause__, canopen.SdoAbortedError) and exc.__cause__.code in ABORTS_ABSENT:
+                        if k >= 3:
+                            break
+                        continue
+                    raise
+                cob = int.from_bytes(bytes(raw)[:4].ljust(4, b"\0"), "little")
+                if k in ours or cob & PDO_NOT_VALID:
+                    continue
+                value = (cob | PDO_NOT_VALID).to_bytes(4, "little")
+                self._sdo(functools.partial(sdo.download, index, 1, value), f"SDO write 0x{index:04X}:1 (invalidate)")
+                off.append(f"{kind}{k + 1}")
+        return off
+
+    def _poll_sdo(self, index: int, done: Callable[[int], bool], bound: float) -> int:
+        """Read ``index`` by SDO until ``done(value)`` or ``bound`` seconds have passed; the last value."""
+        deadline = time.monotonic() + bound
+        while True:
+            value = int(self.sdo_read(index))
+            if done(value) or time.monotonic() >= deadline:
+                return value
+            time.sleep(0.001)
 
     def _await_state(self, target: str, deadline: float) -> int:
-        while True:
-            sw = int(self.sdo_read(0x6041))
-            if state_of(sw) == target or time.monotonic() >= deadline:
-                return sw
-            time.sleep(0.001)
+        return self._poll_sdo(0x6041, lambda sw: state_of(sw) == target, deadline - time.monotonic())
 
     def enable_operation(self) -> None:
         """State machine to Operation enabled (fault reset if needed, Shutdown, Switch on, Enable
-        operation, each confirmed within ``timeout``); DeviceFault if a step is not reached."""
+        operation, each confirmed within ``state_timeout``); DeviceFault if a step is not reached,
+        naming the transition and the bound."""
         sw = int(self.sdo_read(0x6041))
+        bound = self.state_timeout
         if state_of(sw) in ("FAULT", "FAULT REACTION ACTIVE"):
             self.sdo_write(0x6040, 0x00)
             self.sdo_write(0x6040, 0x80)  # rising edge of bit 7: fault reset (transition 15)
-            sw = self._await_state("SWITCH ON DISABLED", time.monotonic() + self.timeout)
+            sw = self._await_state("SWITCH ON DISABLED", time.monotonic() + bound)
             if state_of(sw) != "SWITCH ON DISABLED":
                 code = int(self.sdo_read(0x603F))
-                raise DeviceFault(f"CiA 402 node {self.node_id}: fault reset refused (error code 0x{code:04X}, "
-                                  f"{describe_emcy(code)})", code=code)
+                raise DeviceFault(f"CiA 402 node {self.node_id}: fault reset refused within {bound:.3f} s "
+                                  f"(state_timeout; error code 0x{code:04X}, {describe_emcy(code)})", code=code)
             self._emcy = None
-        for cw, target in ((State402.CW_SHUTDOWN, "READY TO SWITCH ON"), (State402.CW_SWITCH_ON, "SWITCHED ON"),
-                           (State402.CW_OPERATION_ENABLED, "OPERATION ENABLED")):
+        for cw, what, target in ((State402.CW_SHUTDOWN, "Shutdown", "READY TO SWITCH ON"),
+                                 (State402.CW_SWITCH_ON, "Switch on", "SWITCHED ON"),
+                                 (State402.CW_OPERATION_ENABLED, "Enable operation", "OPERATION ENABLED")):
             self.sdo_write(0x6040, cw)
-            sw = self._await_state(target, time.monotonic() + self.timeout)
+            sw = self._await_state(target, time.monotonic() + bound)
             if state_of(sw) != target:
-                raise DeviceFault(f"CiA 402 node {self.node_id}: controlword 0x{cw:04X} did not reach {target} "
-                                  f"(statusword 0x{sw:04X}: {state_of(sw)})", code=sw)
+                brake = ("; a drive releasing a holding brake may need a longer state_timeout"
+                         if target == "OPERATION ENABLED" else "")
+                raise DeviceFault(f"CiA 402 node {self.node_id}: controlword 0x{cw:04X} ({what}) did not reach "
+                                  f"{target} within {bound:.3f} s (state_timeout; statusword 0x{sw:04X}: "
+                                  f"{state_of(sw)}){brake}", code=sw)
         logger.info("CiA 402 node %d: operation enabled, mode %d", self.node_id, self.mode)
 
     # -- callbacks (canopen's notifier thread) -------------------------------------------------

@@ -30,7 +30,8 @@ empty or remote frame. Per channel the bits per second of every device on it mus
 bit rate (``bitrate``: the largest given on the channel; default the devices' factory rate,
 ODrive 250 kbit/s, CubeMars 1 Mbit/s).
 
-* ``odrive_can`` per tick: Set_Input_Torque (4 bytes); ``feedback: poll`` adds the RTR request
+* ``odrive_can`` per tick: Set_Input_Torque (8 bytes: the float32 in the DBC's 8-byte frame);
+  ``feedback: poll`` adds the RTR request
   (55) and the 8-byte answer, ``read_torque`` another RTR + 8-byte answer; ``cyclic`` adds one
   8-byte estimate frame. Plus the 8-byte heartbeat every 100 ms (factory rate).
 * ``cubemars_mit`` per tick: one 8-byte command, one 8-byte reply.
@@ -161,7 +162,7 @@ def link_uses(devices: Iterable[Any], rate_hz: float) -> list[LinkUse]:
                          + (can_frame_bits(1) * 1000.0 / hb_ms if hb_ms > 0 else 0.0))
                 default = CIA402_DEFAULT_BITRATE
             elif drv == "odrive_can":
-                bits = can_frame_bits(4)
+                bits = can_frame_bits(8)  # Set_Input_Torque: 8 data bytes (odrive-cansimple DBCs)
                 if p.get("feedback", "poll") == "poll":
                     bits += can_frame_bits(0) + can_frame_bits(8)
                     if p.get("read_torque"):

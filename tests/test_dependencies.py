@@ -39,6 +39,7 @@ KNOWN: dict[str, str] = {
     "pytest": "pytest",
     "hypothesis": "hypothesis",
     "jsonschema": "jsonschema",
+    "cantools": "cantools",
     "pydantic_core": "pydantic-core",
 }
 

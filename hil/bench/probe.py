@@ -1,23 +1,29 @@
 """Discovery: what answers on a CAN channel, a serial port or a Modbus address (``hil probe``).
 
-``hil probe --can CHANNEL [--interface socketcan|virtual|udp_multicast ...]``
+``hil probe --can CHANNEL [--interface socketcan|virtual|udp_multicast ...] [--can-port PORT]``
     *Passive* first: listens ``--listen`` seconds (default 0.5) and classifies what it hears:
 
     * ODrive CANSimple heartbeats (id ``node << 5 | 0x01``, 8 bytes): node id, axis state, axis
-      error (decoded with :mod:`hil.protocols.can_odrive`); then an RTR Get_Version (0x00) to each
-      such node for the firmware version (firmware 0.6; no answer: left empty);
+      error; then an RTR Get_Version (0x00) to each such node for the firmware version (firmware
+      0.6; no answer: 0.5.x), which selects the table naming the axis error bits
+      (:data:`hil.protocols.codecs.odrive.AXIS_ERRORS`);
     * CANopen boot-up / heartbeat (id ``0x700 + node``, 1 byte; CiA 301 §7.2.8.3.2): node id, NMT
       state; then, by SDO (canopen's client, no object dictionary needed), device type 0x1000,
       identity 0x1018 (vendor id, product code, revision, serial number), name 0x1008, software
       version 0x100A and, for CiA 402 drives (profile 402 in 0x1000), supported modes 0x6502,
       encoder resolution 0x608F and rated torque 0x6076;
-    * CubeMars MIT replies seen on the bus (8 bytes, first byte = motor id).
+    * CubeMars MIT replies seen on the bus (8 bytes on id 0, first byte = motor id; not when an
+      ODrive node 0 is there: id 0 is its Get_Version, which firmware 0.6.10 sends every 100 ms).
 
     *Active*, only when asked (they send frames that other devices may act on):
     ``--cubemars-ids 1,2`` sends the MIT "exit motor mode" frame (motor disabled; the motor answers
     with its state) to those ids -- ids 1..31 are also ODrive node 0's command ids (id 2 would be
     its Estop); ``--sdo-scan`` sends an SDO read of 0x1000 to every node 1..127 (finds CANopen nodes
     without a heartbeat; ids 0x601..0x67F are also ODrive nodes 48..51's command ids).
+
+    On ``udp_multicast`` a channel is a multicast group *and* a UDP port (``--can-port``; python-can's
+    default 43113): a channel served by ``hil mock serve`` has its own port, and the probe hears
+    only the channel it names.
 
 ``hil probe --serial PORT [--baud 57600,1000000]``
     Listens for streams (Bota binary frames with a valid CRC; Robotiq FT-300 stream frames 0x20
@@ -167,13 +173,15 @@ def probe_can(channel: str, interface: str = "socketcan", *, bitrate: int | None
         bus = can.Bus(interface=interface, channel=channel, **kw)
     except (can.CanError, OSError, ValueError, ImportError) as exc:
         raise DeviceDisconnected(f"cannot open CAN bus {interface}:{channel}: {exc}") from exc
-    where = f"can {interface}:{channel}"
+    where = f"can {interface}:{channel}" + (f" port {bus_kwargs['port']}" if "port" in bus_kwargs else "")
+    reopen = dict(bus_kwargs)  # what open_device needs to reach the same bus (e.g. a udp_multicast port)
     found: list[Found] = []
     try:
         heard = _collect(bus, listen_s)
         canopen_nodes: dict[int, dict[str, Any]] = {}
         odrive_nodes: dict[int, tuple[int, int]] = {}
         cubemars: dict[int, Any] = {}
+        zero: list[bytes] = []  # frames on id 0: CubeMars replies, or ODrive node 0's Get_Version
         limits = cm.model_limits(cubemars_model)
 
         def classify(msg: Any) -> None:
@@ -189,11 +197,19 @@ def probe_can(channel: str, interface: str = "socketcan", *, bitrate: int | None
             elif arb & 0x1F == od.CMD_HEARTBEAT and len(data) == 8:
                 odrive_nodes[arb >> 5] = od.decode_heartbeat(data)
             elif arb == 0 and len(data) in (6, 8) and data[0] != 0:
+                zero.append(data)
+
+        def cubemars_replies(frames: list[bytes]) -> None:
+            for data in frames:
                 with contextlib.suppress(Exception):
                     cubemars[data[0]] = cm.unpack_reply(data, limits)
 
         for msg in heard:
             classify(msg)
+        if 0 not in odrive_nodes:
+            # id 0 is also ODrive node 0's Get_Version (cyclic on 0.6.10, 8 bytes): with that node on
+            # the bus, frames heard on it are not taken for CubeMars replies (the asked motors' are)
+            cubemars_replies(zero)
         # a CANopen EMCY (0x80 + node, 8 bytes) looks like an ODrive heartbeat (node 4..7, cmd 1)
         for n in list(odrive_nodes):
             if (n << 5 | 1) - 0x80 in canopen_nodes:
@@ -201,30 +217,38 @@ def probe_can(channel: str, interface: str = "socketcan", *, bitrate: int | None
         for dxl in cubemars_ids:
             bus.send(can.Message(arbitration_id=int(dxl), data=cm.SPECIAL_FRAMES["exit"], is_extended_id=False))
         if cubemars_ids:
+            zero.clear()
             for msg in _collect(bus, timeout):
                 classify(msg)
+            cubemars_replies([d for d in zero if d[0] in cubemars_ids])  # the asked motors answer with their id
         for n in sorted(odrive_nodes):
             err, state = odrive_nodes[n]
-            details: dict[str, Any] = {"axis_state": _odrive_state_name(state), "axis_error": f"0x{err:08X}",
-                                       "errors": od.describe_axis_error(err)}
+            details: dict[str, Any] = {"axis_state": _odrive_state_name(state), "axis_error": f"0x{err:08X}"}
             bus.send(can.Message(arbitration_id=n << 5, is_remote_frame=True, dlc=8, is_extended_id=False))
+            fw: tuple[int, int, int] | None = None
             for msg in _collect(bus, timeout):
                 if msg.arbitration_id == n << 5 and not msg.is_remote_frame and len(msg.data) == 8:
-                    v = bytes(msg.data)
-                    details["hardware"] = f"{v[1]}.{v[2]}.{v[3]}"
-                    details["firmware"] = f"{v[4]}.{v[5]}.{v[6]}" + ("-dev" if v[7] else "")
+                    _, hw, fw, dev = od.decode_version(msg.data)
+                    details["hardware"] = "{}.{}.{}".format(*hw)
+                    details["firmware"] = "{}.{}.{}".format(*fw) + ("-dev" if dev else "")
                 classify(msg)
+            line = od.firmware_line(fw)  # no Get_Version answer: 0.5.x, whose error bits differ
+            details.setdefault("firmware", "0.5.x (no Get_Version answer)")
+            details["errors"] = od.describe_axis_error(err, line)
             found.append(Found("odrive", "odrive_can", f"{where} node {n}", f"node {n}", details,
-                               {"interface": interface, "channel": channel, "node_id": n}))
+                               {"interface": interface, "channel": channel, "node_id": n, **reopen}))
         for mid in sorted(cubemars):
             r = cubemars[mid]
             found.append(Found("cubemars", "cubemars_mit", f"{where} motor {mid}", f"motor {mid}",
                                {"position": round(r.position, 4), "velocity": round(r.velocity, 4),
                                 "torque": round(r.torque, 4), "temperature": r.temperature, "error": r.error},
                                {"interface": interface, "channel": channel, "motor_id": mid,
-                                "model": cubemars_model}))
+                                "model": cubemars_model, **reopen}))
         if canopen_nodes or sdo_scan:
             found += _probe_canopen(bus, where, interface, channel, canopen_nodes, sdo_scan, timeout, listen_s)
+            for f in found:
+                if f.family in ("cia402", "canopen"):
+                    f.params.update(reopen)
     finally:
         bus.shutdown()
     return found
@@ -447,6 +471,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--modbus", metavar="URL", help="FT-300 Modbus address: tcp://HOST:PORT or a serial device")
     p.add_argument("--interface", default="socketcan", help="python-can interface of --can (default socketcan)")
     p.add_argument("--bitrate", type=int, default=None, help="CAN bit rate (interfaces that set it)")
+    p.add_argument("--can-port", type=int, default=None, metavar="PORT",
+                   help="--interface udp_multicast: the channel's UDP port (each served channel has its own; "
+                        "see hil mock serve)")
     p.add_argument("--listen", type=float, default=0.5, help="seconds to listen before any request (default 0.5)")
     p.add_argument("--sdo-scan", action="store_true", help="CAN: SDO read of 0x1000 to nodes 1..127 (active)")
     p.add_argument("--cubemars-ids", default="", help="CAN: comma-separated MIT motor ids to send 'exit motor mode' "
@@ -479,10 +506,14 @@ def run(args: argparse.Namespace) -> int:
     if args.scene and Path(args.scene).exists() and not args.overwrite:
         raise HilError(f"--scene {args.scene}: file exists (use --overwrite to replace it)")
     if args.can:
+        port = getattr(args, "can_port", None)
+        if port is not None and not 0 < port < 65536:
+            raise HilError(f"--can-port must be a UDP port 1..65535, got {port}")
         found = probe_can(args.can, args.interface, bitrate=args.bitrate, listen_s=args.listen,
                           sdo_scan=args.sdo_scan, cubemars_ids=_ints(args.cubemars_ids, "--cubemars-ids"),
-                          cubemars_model=args.cubemars_model, timeout=args.timeout)
-        where = f"can {args.interface}:{args.can}"
+                          cubemars_model=args.cubemars_model, timeout=args.timeout,
+                          **({"port": port} if port is not None else {}))
+        where = f"can {args.interface}:{args.can}" + (f" port {port}" if port is not None else "")
     elif args.serial:
         found = probe_serial(args.serial, baudrates=tuple(_ints(args.baud, "--baud")), listen_s=args.listen,
                              unit=args.unit, timeout=args.timeout, bota_reset_s=args.bota_reset)

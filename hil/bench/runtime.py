@@ -54,8 +54,10 @@ from typing import Any
 
 import numpy as np
 
+from hil.bench.mechanics import device_mechanics, plant_mechanics
 from hil.bench.stopflag import STOP
 from hil.errors import DeviceDisconnected, DeviceTimeout, HilError, ModelError, SceneError
+from hil.mocks.friction import quantize
 from hil.mocks.twins import Twin, TwinContext
 from hil.protocols.base import JointSample, WrenchSample
 from hil.protocols.registry import device_kind, open_device, resolve_twin, simulated_drivers
@@ -90,6 +92,16 @@ _BENCH_IDS_LOCK = threading.Lock()
 def _seed_for(seed: int, *path: int) -> int:
     """A 32-bit seed derived from the bench seed and a path of integers (stable across runs)."""
     return int(np.random.SeedSequence([seed & 0xFFFFFFFF, *path]).generate_state(1)[0])
+
+
+def _with_viscous(B: Any, dof: int, extra: np.ndarray | None) -> Any:
+    """A body's damping ``B`` (number, diagonal list or matrix) plus ``diag(extra)``; ``B`` itself
+    when nothing is added."""
+    if extra is None or not np.any(extra):
+        return B
+    Bm = np.asarray(B, dtype=float)
+    Bm = Bm * np.eye(dof) if Bm.ndim == 0 else (np.diag(Bm) if Bm.ndim == 1 else Bm)
+    return Bm + np.diag(extra)
 
 
 class _Noise:
@@ -137,8 +149,12 @@ class SimPoint:
 
     def __init__(self, sim: Any, drive: _BodyDrive, sel: list[int], force_fn: Callable[[], np.ndarray], *,
                  position_std: float = 0.0, velocity_std: float = 0.0, force_std: float = 0.0,
-                 seed: int = 0) -> None:
+                 seed: int = 0, encoder_step: float = 0.0, velocity_from: str = "estimate") -> None:
         self._sim = sim
+        #: the encoder's quantization step (m or rad; 0: none) and how velocity is reported
+        #: (``estimate``: the joint's; ``difference``: of the quantized positions over one period)
+        self.encoder_step = float(encoder_step)
+        self.velocity_from = velocity_from
         self._drive = drive
         self.sel = list(sel)
         self.dof = len(self.sel)
@@ -168,6 +184,8 @@ class SimPoint:
             if hit is not None and hit[0] == k:
                 return hit[1].copy()
             value = self._noise[key](np.asarray(raw(), dtype=float).reshape(self.dof))
+            if key == "position" and self.encoder_step > 0.0:
+                value = quantize(value, self.encoder_step)
             self._cache[key] = (k, value)
             return value.copy()
 
@@ -194,6 +212,10 @@ class SimPoint:
         return self._drive.handle.position()[self._take]
 
     def _raw_velocity(self) -> np.ndarray:
+        if self.velocity_from == "difference":  # the drive differentiates its (quantized) encoder
+            h, step = self._drive.handle, self.encoder_step
+            dq = quantize(h.position()[self._take], step) - quantize(h.previous_position()[self._take], step)
+            return dq / float(self._sim.dt)
         return self._drive.handle.velocity()[self._take]
 
     def measured_force(self) -> np.ndarray:
@@ -572,15 +594,18 @@ class Bench:
         assert sim is not None
         label = sc.path or sc.name
         ps = physics.Scene(sc.units)
+        # what the actuators add: their viscous damping (into the bodies' B) and dry friction
+        extra_b, friction = plant_mechanics(sc, sim.body_dofs(self.variant), label)
         try:
             for b in sim.bodies:
-                ps.add_body(b.name, _arr(b.M), _arr(b.B), _arr(b.K))
+                ps.add_body(b.name, _arr(b.M), _with_viscous(_arr(b.B), b.dof, extra_b.get(b.name)), _arr(b.K))
             if sim.sdea is not None:
                 s = sim.sdea
                 m_out = None if self.variant == "locked" else s.m_out
                 if self.variant == "free" and m_out is None:
                     raise SceneError(f"{label}: simulation.sdea.m_out: variant 'free' needs the output inertia")
-                ps.add_sdea(s.name, s.M, s.B, s.K_f, s.B_f, m_out, s.b_out)
+                b_motor = s.B + float(extra_b[s.name][0]) if s.name in extra_b else s.B
+                ps.add_sdea(s.name, s.M, b_motor, s.K_f, s.B_f, m_out, s.b_out)
             bodies = set(ps.bodies)
 
             def port(body: str, dofs: list[int] | None, where: str) -> Any:
@@ -617,7 +642,7 @@ class Bench:
                 self._humans[hname] = (h.port, list(h.dofs) if h.dofs is not None else list(range(body_dof)),
                                        body_dof)
             self.plant = ps.build()
-            self.simulator = Simulator(self.plant, self.dt)
+            self.simulator = Simulator(self.plant, self.dt, friction=friction or None)
         except ModelError as exc:
             raise SceneError(f"{label}: simulation: {exc}") from None
         self._drives = {name: _BodyDrive(h) for name, h in self.simulator.handles.items()}
@@ -651,8 +676,10 @@ class Bench:
             f_std = float(np.hypot(noise.force_std, cfg.sim.noise_std))
             return SimPoint(self.simulator, drive, sel, force_fn, force_std=f_std, seed=dev_seed)
         p_std = float(np.hypot(noise.position_std, cfg.sim.noise_std))
+        mech = device_mechanics(cfg, sc.path or sc.name, index)
         return SimPoint(self.simulator, drive, sel, lambda: np.zeros(len(sel)), position_std=p_std,
-                        velocity_std=noise.velocity_std, seed=dev_seed)
+                        velocity_std=noise.velocity_std, seed=dev_seed, encoder_step=mech.encoder_step,
+                        velocity_from=mech.velocity)
 
     def _human_force_fn(self, human: str, sel: list[int]) -> Callable[[], np.ndarray]:
         _, hsel, body_dof = self._humans[human]
@@ -773,6 +800,8 @@ class SimEndpoint:
 
 #: python-can's default UDP multicast group; served CAN channels use 239.74.163.2, .3, ...
 _UDP_MULTICAST_BASE = "239.74.163."
+#: python-can's default UDP multicast port; served CAN channels use 43113, 43114, ... (one each)
+_UDP_MULTICAST_BASE_PORT = 43113
 
 
 class SimulatedScene(Bench):
@@ -787,8 +816,11 @@ class SimulatedScene(Bench):
     * after :meth:`start`, a thread steps the plant at the scene's rate against the wall clock and
       the devices run on their own threads: CAN nodes tick at the scene rate (cyclic frames, requests
       answered as they arrive) on ``can_interface`` (``virtual``: this process only;
-      ``udp_multicast``: any process on the host, one multicast group per scene channel unless
-      ``can_channels`` maps scene channel -> channel), the Bota sensor streams at the scene rate,
+      ``udp_multicast``: any process on the host, each scene channel its own multicast group *and*
+      UDP port, 239.74.163.2 / 43113, .3 / 43114, ..., unless ``can_channels`` / ``can_ports`` map
+      scene channel -> group / port: python-can binds a channel's socket to its port on every
+      address, so two channels on one port would hear each other's frames), the Bota sensor streams
+      at the scene rate,
       the streaming FT-300 at ``stream_rate_hz`` once a client starts its stream, the Modbus FT-300
       refreshes its registers on every request, DYNAMIXEL chains answer as before.
 
@@ -800,11 +832,13 @@ class SimulatedScene(Bench):
 
     def __init__(self, scene: Scene, *, seed: int | None = None, variant: str | None = None,
                  can_interface: str = "virtual", can_channels: Mapping[str, str] | None = None,
-                 stream_rate_hz: float = 100.0) -> None:
+                 stream_rate_hz: float = 100.0, can_ports: Mapping[str, int] | None = None) -> None:
         if scene.simulation is None:
             raise SceneError(f"{scene.path or scene.name}: no 'simulation' block: nothing to simulate")
         self.can_interface = str(can_interface)
         self._can_map = {str(k): str(v) for k, v in (can_channels or {}).items()}
+        self._port_map = {str(k): int(v) for k, v in (can_ports or {}).items()}
+        self._chan_order: dict[str, int] = {}  # scene channel -> its rank (default group and port)
         self.stream_rate_hz = float(stream_rate_hz)
         self.endpoints: list[SimEndpoint] = []
         self.overruns = 0
@@ -883,15 +917,29 @@ class SimulatedScene(Bench):
         ctx = super()._twin_context(index, d, seed, faults, channels)
         ctx.lockstep = False
         ctx.can_interface = self.can_interface
-        ctx.channel = lambda iface, ch: channels.setdefault((iface, ch), self._can_channel(ch, len(channels)))
+        ctx.channel = lambda iface, ch: channels.setdefault((iface, ch), self._can_channel(ch))
+        ctx.can_port = self._can_port
         return ctx
 
-    def _can_channel(self, scene_ch: str, k: int) -> str:
+    def _rank(self, scene_ch: str) -> int:
+        return self._chan_order.setdefault(scene_ch, len(self._chan_order))
+
+    def _can_channel(self, scene_ch: str) -> str:
+        k = self._rank(scene_ch)
         if scene_ch in self._can_map:
             return self._can_map[scene_ch]
         if self.can_interface == "udp_multicast":
             return f"{_UDP_MULTICAST_BASE}{2 + k}"
         return scene_ch
+
+    def _can_port(self, scene_ch: str) -> int | None:
+        """The UDP port of a served udp_multicast channel: given, else 43113 + its rank; None on
+        other interfaces."""
+        if scene_ch in self._port_map:
+            return self._port_map[scene_ch]
+        if self.can_interface != "udp_multicast":
+            return None
+        return _UDP_MULTICAST_BASE_PORT + self._rank(scene_ch)
 
     def _endpoint(self, d: _Dev, params: dict[str, Any]) -> SimEndpoint:
         assert d.twin is not None
@@ -1006,7 +1054,7 @@ class ProcessSimBench(Bench):
     What the runner uses in realtime mode for a simulated scene: a child process (multiprocessing,
     ``spawn``; pinned to the CPUs the loop does not use) runs the scene's :class:`SimulatedScene`
     (plant stepped at the scene's rate against the wall clock; CAN nodes on python-can's UDP
-    multicast bus with this bench's own multicast group and UDP port, Bota/FT-300 streams and
+    multicast bus, each scene channel with this bench's own multicast group and UDP port, Bota/FT-300 streams and
     DYNAMIXEL chains on ptys, Modbus on loopback TCP), and this process opens the real adapters on
     those endpoints exactly as on hardware: no lockstep, :meth:`advance` is a no-op, sample ages
     are judged on the adapters' monotonic clock, timeouts are ``watchdog_ms``. The simulated
@@ -1049,20 +1097,26 @@ class ProcessSimBench(Bench):
                 cpus = sorted(set(os.sched_getaffinity(0)) - ({lc} if lc is not None else set())) or None
         self._proc: Any = None
         self._tmp = tempfile.TemporaryDirectory(prefix="hil-sim-")
-        port = _free_udp_port()
         chans = sorted({str(d.params.get("channel", "hil0")) for d in scene.devices
                         if resolve_twin(d.driver).udp_multicast})
-        # a private multicast group per scene channel (239.255/16: site-local scope) on a private UDP port
+        # a private multicast group (239.255/16: site-local scope) and a private UDP port per scene
+        # channel: python-can binds to the port on every address, so a shared port would join the channels
         groups = {ch: f"239.255.{secrets.randbelow(254) + 1}.{secrets.randbelow(254) + 1}" for ch in chans}
+        ports: dict[str, int] = {}
+        for ch in chans:
+            while (port := _free_udp_port()) in ports.values():
+                pass
+            ports[ch] = port
         src = Path(self._tmp.name) / f"{scene.name}.yaml"
         src.write_text(scene.source_text, encoding="utf-8")
         cmd = [sys.executable, "-m", "hil", "mock", "serve", str(src), "--json", "--can-interface", "udp_multicast",
                "--seed", str(scene.seed if seed is None else seed)]
         cmd += [a for ch, g in groups.items() for a in ("--can-channel", f"{ch}={g}")]
+        cmd += [a for ch, p in ports.items() for a in ("--can-port", f"{ch}={p}")]
         if variant is not None:
             cmd += ["--variant", variant]
-        # python-can: the served buses' UDP port, and hop limit 0 (the frames never leave the host: see _open_devices)
-        env = {**os.environ, "CAN_CONFIG": json.dumps({"port": port, "hop_limit": MULTICAST_HOP_LIMIT})}
+        # python-can: hop limit 0 for the served buses (the frames never leave the host: see _open_devices)
+        env = {**os.environ, "CAN_CONFIG": json.dumps({"hop_limit": MULTICAST_HOP_LIMIT})}
         self._err = open(Path(self._tmp.name) / "stderr.txt", "w+b")  # noqa: SIM115 - closed in _stop_child
         try:
             self._proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=self._err,
@@ -1086,7 +1140,8 @@ class ProcessSimBench(Bench):
             self._stop_child()
             raise
         self._endpoint_params = {d["name"]: (d["driver"], d["params"]) for d in report["devices"]}
-        self._can_port = port
+        #: UDP port of each served scene CAN channel
+        self.can_ports = dict(ports)
         self._sim_scene = scene
         hardware = scene.model_copy(update={"simulation": None})  # private attrs (source text) are copied
         try:
@@ -1112,8 +1167,7 @@ class ProcessSimBench(Bench):
         for i, d in enumerate(self._devs):
             driver, params = self._endpoint_params[d.name]
             params = dict(params)
-            if resolve_twin(driver).udp_multicast:
-                params["port"] = self._can_port
+            if resolve_twin(driver).udp_multicast:  # the channel's own port is in the endpoint's params
                 params["hop_limit"] = MULTICAST_HOP_LIMIT
             params.setdefault("timeout", self.timeout)
             device_kind(d.cfg.driver).watchdog_params(params, self.watchdog_s, self.simulated)

@@ -125,7 +125,8 @@ class Endpoint:
 
 
 def _make(spec: dict[str, Any]) -> tuple[Endpoint, float]:
-    from hil.mocks.can_devices import SimCubeMars, SimODrive
+    from hil.mocks.cubemars_device import SimCubeMars
+    from hil.mocks.odrive_device import SimODrive
     from hil.mocks.serial_devices import SimBota
 
     s = dict(spec)
@@ -246,7 +247,7 @@ def load_spec(text_or_path: str) -> list[dict[str, Any]]:
 
 def serve_scene(scene: Any, *, seed: int | None = None, variant: str | None = None,
                 can_interface: str = "virtual", can_channels: dict[str, str] | None = None,
-                stream_rate_hz: float = 100.0) -> Any:
+                stream_rate_hz: float = 100.0, can_ports: dict[str, int] | None = None) -> Any:
     """Build and start a scene's simulated devices (a :class:`hil.bench.runtime.SimulatedScene`; a
     :class:`hil.scene.spec.Scene`, a path or a built-in name). Stop it with ``.close()``."""
     from hil.bench.runtime import SimulatedScene
@@ -254,7 +255,7 @@ def serve_scene(scene: Any, *, seed: int | None = None, variant: str | None = No
 
     sc = scene if hasattr(scene, "devices") else load_scene(scene)
     sim = SimulatedScene(sc, seed=seed, variant=variant, can_interface=can_interface,
-                         can_channels=can_channels, stream_rate_hz=stream_rate_hz)
+                         can_channels=can_channels, stream_rate_hz=stream_rate_hz, can_ports=can_ports)
     try:
         sim.start()
     except BaseException:
@@ -281,6 +282,17 @@ def _parse_can_channels(items: list[str]) -> dict[str, str]:
         if not sep or not scene_ch or not ch:
             raise SystemExit(f"hil mock serve: --can-channel expects SCENE_CHANNEL=CHANNEL, got {item!r}")
         out[scene_ch] = ch
+    return out
+
+
+def _parse_can_ports(items: list[str]) -> dict[str, int]:
+    """``--can-port SCENE_CHANNEL=PORT`` items (ValueError, one line, on a bad one)."""
+    out = {}
+    for item in items:
+        scene_ch, sep, port = item.partition("=")
+        if not sep or not scene_ch or not port.isdigit() or not 0 < int(port) < 65536:
+            raise ValueError(f"argument --can-port: expects SCENE_CHANNEL=PORT (1..65535), got {item!r}")
+        out[scene_ch] = int(port)
     return out
 
 
@@ -321,6 +333,10 @@ def run(args: argparse.Namespace) -> int:
         scene_ch, sep, ch = item.partition("=")
         if not sep or not scene_ch or not ch:
             raise ValueError(f"argument --can-channel: expects SCENE_CHANNEL=CHANNEL, got {item!r}")
+    if getattr(args, "can_port", None):
+        if not args.scene:
+            raise ValueError("argument --can-port: only with a SCENE (served CAN channels)")
+        _parse_can_ports(args.can_port)
     if args.spec:
         try:
             load_spec(args.spec)
@@ -391,7 +407,8 @@ def _serve_scene_main(args: argparse.Namespace, stop: threading.Event) -> int:
         return EXIT_USAGE
     try:
         sim = serve_scene(scene, seed=args.seed, variant=args.variant, can_interface=args.can_interface,
-                          can_channels=_parse_can_channels(args.can_channel), stream_rate_hz=args.stream_rate)
+                          can_channels=_parse_can_channels(args.can_channel), stream_rate_hz=args.stream_rate,
+                          can_ports=_parse_can_ports(getattr(args, "can_port", [])))
     except HilError:
         raise
     except Exception as exc:  # e.g. a CAN interface python-can cannot open here

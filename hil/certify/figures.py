@@ -188,12 +188,14 @@ def _symmetrized(tmn: Any, idx: list[int]) -> list[list[Any]] | None:
 
 
 def _margin_curve(tm: Any, r: Any, c: Any) -> tuple[np.ndarray, np.ndarray, bool]:
-    """(ω [rad/s], curve, exact) of a frequency condition: when its evidence carries the condition
-    polynomial p and the magnitude polynomial m_r the margin divides by, ρ(ω) = p(ω²)/m_r(ω²)
+    """(ω [rad/s], curve, exact) of a frequency condition: when the condition carries the ratio its
+    margin minimizes (``Condition.ratio``: the exact condition polynomial p and the magnitude
+    polynomial m_r, in the criterion's normalized frequency), ρ(ω) = p(x)/m_r(x) at x = (ω/ω₀)²
     itself -- the function whose minimum over ω is the margin the table prints (``exact`` True);
     otherwise (a condition decided on a grid) the criterion's normalized function on a grid."""
     from hil.stability import criteria as C
-    from hil.stability.exact import margin_function
+    from hil.stability.minimize import _Ratio
+    from hil.stability.rational import _qpoly_floats
 
     tmn, w0 = C._normalized(tm)
     lo, hi = C._freq_range(tmn.entries)
@@ -201,10 +203,12 @@ def _margin_curve(tm: Any, r: Any, c: Any) -> tuple[np.ndarray, np.ndarray, bool
     wf = c.worst_frequency
     if wf is not None and math.isfinite(wf) and wf > 0:
         w = np.unique(np.concatenate([w, [float(wf)]]))  # the table's worst frequency is on the curve
-    ev = getattr(c, "evidence", None) or {}
-    if "polynomial_x_desc" in ev and "magnitude_x_desc" in ev:
-        rho = margin_function(ev["polynomial_x_desc"], ev["magnitude_x_desc"], float(ev.get("x_scale", 1.0)))
-        return w, np.asarray(rho(w), float), True
+    ratio = getattr(c, "ratio", None)
+    if ratio is not None:
+        p, m_r = ratio
+        rho = _Ratio(np.array(_qpoly_floats(p), float), np.asarray(m_r, float))
+        scale = float((getattr(r, "network", None) or {}).get("omega_scale", w0))
+        return w, np.asarray(rho((w / scale) ** 2), float), True
     wc, y = _condition_curve(tm, r, c)
     return wc, y, False
 
@@ -373,7 +377,8 @@ def headroom_plot(plots: dict[str, Series], cert_cfg: Any, params: Any, draws: A
         for x in xs:
             dd = dict(draws)
             dd[d.parameter] = np.full(n, x)
-            p, lo, _ = probability_of_stability(sdea_passivity_batch(dd, fixed=fixed)["passive"], policy.confidence)
+            p, lo, _ = probability_of_stability(sdea_passivity_batch(dd, fixed=fixed)["passive"],
+                                                policy.confidence)
             phat.append(p)
             lower.append(lo)
         return phat, lower

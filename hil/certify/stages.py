@@ -368,13 +368,17 @@ class RunOutput:
 class PosteriorDraws:
     """The identify stage: independent draws of every uncertain parameter (name -> (n,) array;
     empty when nothing is uncertain), the identification sections, whether every posterior
-    converged, the independent draws available before subsampling, and how the draws were made."""
+    converged, the independent draws available before subsampling, how the draws were made, and
+    what caps the decision at MARGINAL."""
 
     draws: Mapping[str, np.ndarray]
     identification: tuple[Identification, ...] = ()
     converged: bool = True
     n_independent: int | None = None
     sampling: tuple[str, ...] = ()
+    #: reasons the decision can be at most MARGINAL: a misfit plant model, energy evidence that only
+    #: dry friction kept above its bound (hil.certify.friction)
+    caps: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

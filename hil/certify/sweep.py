@@ -264,7 +264,7 @@ def _p_stable(model: str, criterion: str, params: Mapping[str, Any], draws: Mapp
         d = {k: v for k, v in draws.items() if k not in fixed}
         if not d:
             d = {next(iter(fixed)): np.full(n, next(iter(fixed.values())))}
-        res = batch(d, fixed=fixed)
+        res = batch(d, fixed=fixed)  # verdicts only (no band: it is not used here)
         return float(np.mean(res["passive"]))
     from hil.stability.criteria import check
 

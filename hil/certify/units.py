@@ -46,7 +46,7 @@ def parameter_unit(name: str, units: str | None, model: str = "") -> str:
     """The unit of a network-model parameter by its name ('' if unknown)."""
     if name in _SDEA and (model.startswith("sdea") or units == "rotary" or name in ("P_f", "I_f", "k22", "b22")):
         return _SDEA[name]
-    if name == "alpha":
+    if name in ("alpha", "dof"):  # a ratio; mbk_impedance's number of DOF (a count)
         return "1"
     m = re.fullmatch(r"([MBK])_\d+", name)  # entries of an identified M, B, K matrix (mbk models)
     if m:

@@ -7,6 +7,7 @@ The suite's own records reach the identification through their backend
 
 from __future__ import annotations
 
+import json
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -94,6 +95,65 @@ def _print_table(res: IdentificationResult) -> None:
                   f"{'ok' if t.passed else 'FAIL'}{thr}")
 
 
+def _position_and_force(rec: Any, res: Any) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """(position, force, fs) of a 1-DOF record identified with mbk (velocity integrated), else None."""
+    from hil.identify.records import sample_rate, signal
+
+    mapping = res.record.get("mapping") or {}
+    ins, outs = mapping.get("inputs") or [], mapping.get("outputs") or {}
+    if res.model.name != "mbk" or len(ins) != 1 or len(outs) != 1 or isinstance(rec, Mapping):
+        return None
+    data = rec.to_identify_dict()
+    (key, name), = outs.items()
+    t = np.asarray(data["t"], float)
+    fs = sample_rate(t)
+    y = signal(data["signals"], name)
+    q = y if key.startswith("position") else np.concatenate([[0.0], np.cumsum(y[:-1])]) / fs
+    return q, signal(data["signals"], ins[0]), fs
+
+
+def _mapping_only(rec: Any, kw: Mapping[str, Any]) -> Any:
+    """An object with the ``model``/``record`` attributes :func:`_position_and_force` reads, from the
+    record's inferred plan (the linear fit was refused before it had a result)."""
+    from types import SimpleNamespace
+
+    from hil.identify.records import plan_from_record
+
+    keep = {k: v for k, v in kw.items() if k in ("model", "inputs", "outputs", "target", "experiment") and v}
+    plan = plan_from_record(rec, rec.to_identify_dict()["signals"], keep)
+    return SimpleNamespace(model=SimpleNamespace(name=plan.model, units_kind=plan.model_options.get("units")),
+                           record={"mapping": plan.to_dict()})
+
+
+def _model_choice(rec: Any, res: Any, validate: str | None) -> dict[str, Any] | None:
+    """Fit the friction models (hil.identify.friction_api.compare_friction_models) when the linear
+    1-DOF fit is a misfit; the evidence table, or None when the record is not a 1-DOF position/velocity one."""
+    from hil.identify.friction_api import compare_friction_models
+
+    data = _position_and_force(rec, res)
+    if data is None:
+        return None
+    q, u, fs = data
+    val = None
+    if validate:
+        vrec = load_record(validate)
+        vres_like = res  # same mapping (signal names) in the validation record
+        vdata = _position_and_force(vrec, vres_like)
+        if vdata is None:
+            raise ModelSpecError(f"{validate}: no position/force signals named as in the record")
+        val = (vdata[0], vdata[1])
+    units = getattr(res.model, "units_kind", "linear")
+    return compare_friction_models(q, u, fs, validation=val, units=units if units in ("linear", "rotary") else "linear")
+
+
+def _print_choice(choice: Mapping[str, Any]) -> None:
+    print(f"model choice (simulation error on {choice['held_out']}; best: {choice['by']}):")
+    print(f"{'friction model':>38} {'BIC':>10} {'sim rms':>10} {'sim fit %':>9} {'AR':>3}  adequacy")
+    for r in choice["rows"]:
+        print(f"{r['model']:>38} {r['bic']:10.1f} {r['simulation_rms']:10.3g} {r['simulation_fit_pct']:9.2f} "
+              f"{r['ar_order']:3d}  {'misfit' if r['misfit'] else 'ok'}")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``hil identify RECORD [--model NAME] [--json] ...``. Exit codes: 0 ok; 2 usage or input error
     (file, record, model, channel); 13 no trustworthy estimate (data quality, not identifiable,
@@ -105,6 +165,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("record", help="run record .h5 (hil run / hil import), .csv/.mat (imported on the fly), or .npz")
     p.add_argument("--model", default=None, help="sdea_locked | sdea_free | mbk (default: inferred)")
+    p.add_argument("--friction", default=None, metavar="TERMS",
+                   help="friction of the 1-DOF mbk joint: comma-separated coulomb, stribeck, offset (viscous B is "
+                   "always in the model); identified from the position by inverse-dynamics ML")
+    p.add_argument("--validate", default=None, metavar="RECORD",
+                   help="second record (same signal names) for the simulation error of the model choice "
+                   "(default: the last third of the record, the models fitted on the rest)")
     p.add_argument("--experiment", default=None, help="experiment name in the record (when it holds several)")
     p.add_argument("--target", default=None, help="actuator (device or group) whose effort command is the input")
     p.add_argument("--input", action="append", metavar="SIGNAL", help="input signal, repeatable (model order)")
@@ -176,6 +242,10 @@ def main(argv: Sequence[str] | None = None) -> int:
               "noise": a.noise, "max_seconds": a.max_seconds, "theta0": theta0, "sampling": a.sampling,
               "method": a.method, "posterior": a.posterior, "accept_misfit": a.accept_misfit or None}
         kw["excitation"] = a.excitation
+        if a.friction is not None:
+            from hil.identify.friction import normalize_friction
+
+            kw["friction"] = normalize_friction(a.friction) or None
         if a.resolution is not None:
             kw["resolution"] = kw["input_resolution"] = res_spec
         if isinstance(rec, Mapping):  # .npz record dict
@@ -186,7 +256,18 @@ def main(argv: Sequence[str] | None = None) -> int:
             kw.update(experiment=a.experiment, target=a.target, inputs=a.input, outputs=outputs)
             res = identify_record(rec, **{k: v for k, v in kw.items() if v is not None})
     except (DataQualityError, NotIdentifiableError, ConvergenceError) as exc:
-        print(f"hil identify: {type(exc).__name__}: {' '.join(str(exc).split())}", file=sys.stderr)
+        hint = ""
+        if not a.friction and not isinstance(rec, Mapping) and (a.model or "mbk") == "mbk":
+            try:  # a 1-DOF axis the linear model cannot describe: show what the friction models say
+                choice = _model_choice(rec, _mapping_only(rec, kw), a.validate)
+            except (HilError, ValueError):
+                choice = None
+            if choice is not None:
+                _print_choice(choice)
+                best = choice["best"]
+                hint = (f"; the data support friction {','.join(best)}: --model mbk --friction {','.join(best)}"
+                        if best else "")
+        print(f"hil identify: {type(exc).__name__}: {' '.join(str(exc).split())}{hint}", file=sys.stderr)
         return EXIT_ERROR
     except (HilError, OSError, UnicodeDecodeError) as exc:  # ModelSpecError, RecordError, SceneError: input
         msg = " ".join(str(exc).split())
@@ -202,17 +283,33 @@ def main(argv: Sequence[str] | None = None) -> int:
             res.record["stored"] = f"{target_path}:/identification/{key}"
         except HilError as exc:
             print(f"hil identify: warning: result not stored: {exc}", file=sys.stderr)
+    choice = None
+    if res.misfit and not a.accept_misfit and not a.friction:
+        try:
+            choice = _model_choice(rec, res, a.validate)
+        except HilError as exc:
+            print(f"hil identify: warning: no friction model choice: {' '.join(str(exc).split())}", file=sys.stderr)
     if a.json:
-        print(res.to_json())
+        out = res.to_dict()
+        if choice is not None:
+            out["model_choice"] = choice
+        print(json.dumps(out, indent=2))
     else:
         _print_table(res)
+        if choice is not None:
+            _print_choice(choice)
     if not res.converged:
         reasons = "; ".join(res.posterior.diagnostics.reasons)
         print(f"hil identify: ConvergenceError: posterior not converged: {reasons}", file=sys.stderr)
         return EXIT_ERROR
     if res.misfit and not a.accept_misfit:
         why = "; ".join(res.adequacy.reasons) if res.adequacy is not None else ""
+        richer = "use a richer model"
+        if choice is not None:
+            best = choice["best"]
+            richer = (f"the data support friction {','.join(best)}: hil identify {a.record} --model mbk --friction "
+                      f"{','.join(best)}" if best else "no friction model fits better")
         print(f"hil identify: ModelMisfit: the model does not describe the data ({why}); "
-              "use a richer model, or --accept-misfit", file=sys.stderr)
+              f"{richer}, or --accept-misfit", file=sys.stderr)
         return EXIT_ERROR
     return EXIT_OK

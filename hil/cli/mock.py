@@ -36,6 +36,9 @@ def serve_arguments(ap: argparse.ArgumentParser) -> None:
                     help="scene: python-can interface of the CAN devices (virtual | udp_multicast | socketcan ...)")
     ap.add_argument("--can-channel", action="append", default=[], metavar="SCENE_CH=CH",
                     help="scene: serve scene CAN channel SCENE_CH on channel CH (repeatable)")
+    ap.add_argument("--can-port", action="append", default=[], metavar="SCENE_CH=PORT",
+                    help="scene, udp_multicast: UDP port of scene CAN channel SCENE_CH (repeatable; default "
+                         "43113, 43114, ... one per channel)")
     ap.add_argument("--stream-rate", type=number_type("positive"), default=100.0,
                     help="scene: frame rate of streaming FT-300 sensors [Hz] (the sensor's is 100)")
     ap.add_argument("--plant-rate", type=number_type("positive"), default=1000.0,

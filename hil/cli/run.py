@@ -27,6 +27,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     mode.add_argument("--lockstep", action="store_true",
                       help="as fast as possible; the plant advances one period per tick")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--live", nargs="?", type=int, const=8765, metavar="PORT",
+                   help="stream the channels, safety state and events over the Foxglove WebSocket protocol on "
+                        "ws://127.0.0.1:PORT (default 8765) while the run goes on; needs the 'live' extra")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -71,10 +74,15 @@ def run(args: argparse.Namespace) -> int:
 
     from hil.bench.stopflag import STOP
 
-    runner = Runner(scene, out, realtime=realtime, progress=progress_cb, overwrite=args.overwrite)
+    live = _start_live(args.live, scene, realtime)
+    runner = Runner(scene, out, realtime=realtime, progress=progress_cb, overwrite=args.overwrite, live=live)
     with STOP.install():  # signals stay stop requests until the results are printed
-        with prog if prog is not None else beat, bench_opening_said_once():
-            outcomes = runner.run(select)
+        try:
+            with prog if prog is not None else beat, bench_opening_said_once():
+                outcomes = runner.run(select)
+        finally:
+            if live is not None:
+                live.close()
         if (why := bench_never_opened(outcomes, runner)) is not None:  # nothing ran, nothing recorded
             raise BenchUnavailable(f"{args.scene}: the bench could not be opened, no experiment ran: {why}")
         code = run_exit_code(outcomes, runner)
@@ -100,6 +108,25 @@ def select_experiments(scene: Any, items: Sequence[str]) -> list[int]:
             raise UsageError(f"--experiment {item}: no experiment named {item!r} in scene {scene.name} "
                              f"(names: {', '.join(names) or 'none'})")
     return list(dict.fromkeys(out))
+
+
+def _start_live(port: int | None, scene: Any, realtime: bool | None) -> Any:
+    """The live view of ``hil run --live [PORT]`` (None without the flag); realtime runs host it in a
+    separate process and offer it at most :data:`hil.run.live.REALTIME_RATE_HZ` samples per second."""
+    if port is None:
+        return None
+    from hil.run.live import REALTIME_RATE_HZ, LiveError, LiveView
+
+    if not 0 <= port <= 65535:
+        raise UsageError(f"--live {port}: a TCP port is 0-65535")
+    mode = getattr(scene, "mode", None) or ("lockstep" if getattr(scene, "simulation", None) else "realtime")
+    rt = (mode == "realtime") if realtime is None else realtime
+    try:
+        live = LiveView(port, process=rt, max_rate_hz=REALTIME_RATE_HZ if rt else None).start()
+    except LiveError as exc:
+        raise UsageError(str(exc)) from None
+    print(f"live view: ws://127.0.0.1:{live.port} (Foxglove: open connection, Foxglove WebSocket)", file=sys.stderr)
+    return live
 
 
 def run_exit_code(outcomes: Sequence[Any], runner: Any) -> int:

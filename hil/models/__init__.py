@@ -28,7 +28,8 @@ __all__ = ["BUILTIN_MODELS", "BatchCriterion", "BuiltinModel", "DesignParameter"
            "model_names", "model_params_from_scene"]
 
 #: a vectorized criterion: (draws: name -> (N,) arrays, fixed: name -> value, band: bool,
-#: exact_fallback: bool) -> {"passive": (N,) bool, "margin": (N,), "band_lo", "band_hi": (N,) rad/s}
+#: exact_fallback: bool) -> {"passive": (N,) bool, "margin": (N,)} and, only with band=True,
+#: {"worst_omega", "band_lo", "band_hi": (N,) rad/s}
 #: (the signature of :func:`hil.models.batch.sdea_passivity_batch`)
 BatchCriterion = Callable[..., dict[str, np.ndarray]]
 

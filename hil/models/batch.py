@@ -81,7 +81,7 @@ def _cubic_min(p3: np.ndarray, p2: np.ndarray, p1: np.ndarray,
 
 
 def sdea_passivity_batch(draws: Mapping[str, np.ndarray] | np.ndarray, tol: float = 1e-9,
-                         fixed: Mapping[str, float] | None = None, band: bool = True,
+                         fixed: Mapping[str, float] | None = None, band: bool = False,
                          exact_fallback: bool = True) -> dict[str, np.ndarray]:
     """Two-port passivity of the SDEA for N parameter draws at once.
 
@@ -90,10 +90,12 @@ def sdea_passivity_batch(draws: Mapping[str, np.ndarray] | np.ndarray, tol: floa
     ``margin`` (the smallest normalized deciding value: t_min / scale etc.), ``exact_rechecked``
     (bool, N: decided by the exact criterion because the closed form was within ``tol``),
     ``worst_omega`` (rad/s, N: where the coupler condition (c-ii) is smallest) and the critical
-    band's edges ``band_lo``, ``band_hi`` (rad/s); ``band=False`` skips these three (verdicts only,
-    e.g. inside a search). ``exact_fallback=False`` keeps the closed form's sign for the draws
-    within ``tol`` of the boundary (still flagged in ``exact_rechecked``): for searches that
-    converge onto the boundary (FORM), whose end points the caller checks exactly.
+    band's edges ``band_lo``, ``band_hi`` (rad/s) when ``band=True``; by default (``band=False``) these
+    three are not computed (verdicts and margins only: the band costs ~15× the verdicts, and most
+    callers -- searches, P(stable) curves, sweeps -- discard it). ``exact_fallback=False`` keeps the
+    closed form's sign for the draws within ``tol`` of the boundary (still flagged in
+    ``exact_rechecked``): for searches that converge onto the boundary (FORM), whose end points the
+    caller checks exactly.
     """
     base = {**SDEA_TABLE1, **(fixed or {})}
     d = dict(draws)

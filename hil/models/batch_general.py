@@ -352,7 +352,8 @@ def screened_stability(model: str, criterion: str, params: Mapping[str, Any],
                        exact_one: Callable[[Mapping[str, Any]], bool]) -> dict[str, Any]:
     """Per-draw stability of ``model`` under ``criterion`` at ``params`` updated with each draw:
     screened rejections (module docstring) and ``exact_one(params) -> stable`` on every other
-    draw. Returns ``{"stable", "rejected", "screen_margin"}`` ((N,) arrays) and ``"method"``."""
+    draw. Returns ``{"stable", "rejected", "screen_margin"}`` ((N,) arrays), ``"method"`` and ``"cmap"``
+    (the measured :class:`CoefficientMap`, or None)."""
     from hil.models import get_model
 
     names = sorted(draws)
@@ -391,4 +392,4 @@ def screened_stability(model: str, criterion: str, params: Mapping[str, Any],
         q.update({k: float(X[i, c]) for c, k in enumerate(names)})
         stable[i] = exact_one(q)
     return {"stable": stable, "rejected": rejected, "accepted": accepted, "screen_margin": margin,
-            "method": method}
+            "method": method, "cmap": cmap}

@@ -387,8 +387,10 @@ class Runner:
                  max_ticks: int | None = None, overwrite: bool = False,
                  clock_ns: Callable[[], int] | None = None, sleep: Callable[[float], Any] | None = None,
                  rt_scheduling: bool = True, gc_pause: bool = True, spin_ns: int | None = None,
-                 read_timeout: float | None = None) -> None:
+                 read_timeout: float | None = None, live: Any = None) -> None:
         self.scene = scene
+        #: ``hil run --live``: a :class:`hil.run.live.LiveView` the records are teed to (None: off)
+        self.live = live
         #: replace an existing record of the same name (``hil run --overwrite``); refused otherwise
         self.overwrite = bool(overwrite)
         mode = getattr(scene, "mode", None) or ("lockstep" if getattr(scene, "simulation", None) else "realtime")
@@ -566,6 +568,8 @@ class Runner:
         except BaseException:
             self.bench.safe_stop()
             raise
+        if self.live is not None:  # samples and events also offered to the live view (never blocks a tick)
+            writer = self.live.tee(writer, name)
         held.append(writer)
         no_exc = _NoExcitation()
         steal0 = math.nan

@@ -172,6 +172,40 @@ def check_seed(value: Any, what: str = "--seed") -> int:
 # ---------------------------------------------------------------------------------------------
 
 
+class FrictionCfg(_Strict):
+    """Friction a simulated actuator adds to the body DOFs it drives (:mod:`hil.mocks.friction`):
+    ``coulomb`` F_c (N or N.m), ``static`` F_s >= F_c (breakaway level; default F_c), ``stribeck_velocity``
+    v_s (m/s or rad/s; needed when static > coulomb: sliding friction F_c + (F_s - F_c) exp(-(v/v_s)^2)),
+    ``viscous`` (N.s/m or N.m.s/rad, added to the body's B). A given block replaces the device kind's
+    default (docs/guide/friction-twins.md) as a whole."""
+
+    coulomb: Annotated[float, BeforeValidator(lambda v: _number(v, "N or N.m")), Field(ge=0)] = 0.0
+    static: Annotated[float, BeforeValidator(lambda v: _number(v, "N or N.m")), Field(ge=0)] | None = None
+    stribeck_velocity: Annotated[float, BeforeValidator(lambda v: _number(v, "m/s or rad/s")),
+                                 Field(gt=0)] | None = None
+    viscous: Annotated[float, BeforeValidator(lambda v: _number(v, "N.s/m or N.m.s/rad")), Field(ge=0)] = 0.0
+
+    @model_validator(mode="after")
+    def _levels(self) -> FrictionCfg:
+        if self.static is not None and self.static < self.coulomb:
+            raise PydanticCustomError("static", "static ({s}) must be >= coulomb ({c})",
+                                      {"s": self.static, "c": self.coulomb, "key": "static"})
+        if self.static is not None and self.static > self.coulomb and self.stribeck_velocity is None:
+            raise PydanticCustomError("stribeck_velocity", "static > coulomb needs a stribeck_velocity (m/s or "
+                                      "rad/s: how fast friction falls from static to Coulomb)",
+                                      {"key": "stribeck_velocity"})
+        return self
+
+
+class EncoderCfg(_Strict):
+    """A simulated actuator's position encoder: quantization ``step`` (m or rad; 0: none) and the
+    velocity the device reports (``estimate``: the joint velocity plus the scene's velocity noise;
+    ``difference``: (q_k - q_(k-1)) / dt of the quantized positions, one control period apart)."""
+
+    step: Annotated[float, BeforeValidator(lambda v: _number(v, "m or rad")), Field(ge=0)] = 0.0
+    velocity: Literal["estimate", "difference"] = "estimate"
+
+
 class DeviceSim(_Strict):
     """Options of a device's simulated counterpart (ignored on real hardware).
 
@@ -182,7 +216,8 @@ class DeviceSim(_Strict):
     force the body exerts on everything attached (SDEA: the spring force), ``human`` = the force
     the operator's hand exerts on the device (F_h, positive along the port velocity), ``auto`` =
     ``human`` when a human holds that body, else ``body``. ``framing`` (FT-300): Modbus/TCP or RTU
-    over TCP.
+    over TCP. ``friction``, ``encoder`` (actuators): see :class:`FrictionCfg`, :class:`EncoderCfg`;
+    absent, the device kind's defaults (``hil.mocks.twins``, docs/guide/friction-twins.md).
     """
 
     seed: Seed | None = None
@@ -190,6 +225,8 @@ class DeviceSim(_Strict):
     noise_std: Annotated[float, BeforeValidator(lambda v: _number(v, "N, N.m, m or rad")), Field(ge=0)] = 0.0
     measure: Literal["auto", "body", "human"] = "auto"
     framing: Literal["tcp", "rtu"] = "tcp"
+    friction: FrictionCfg | None = None
+    encoder: EncoderCfg | None = None
 
     @field_validator("faults")
     @classmethod
@@ -241,6 +278,9 @@ class Device(_Strict):
         if self.dofs is not None and len(self.dofs) != self.dof:
             raise PydanticCustomError("dofs", "dofs lists {n} indices but dof is {dof}",
                                       {"n": len(self.dofs), "dof": self.dof, "key": "dofs"})
+        for opt in ("friction", "encoder"):
+            if getattr(self.sim, opt) is not None and self.role != "actuator":
+                raise PydanticCustomError("sim", "sim.{opt} applies to actuators only", {"opt": opt, "key": "sim"})
         if self.axes is not None:
             if self.role != "force_sensor":
                 raise PydanticCustomError("axes", "axes applies to force sensors only", {"key": "axes"})
@@ -494,15 +534,45 @@ else:
 IDENTIFICATION_MODELS = ("sdea_locked", "sdea_free", "mbk")
 
 
+#: friction terms an identification model may add (hil.identify.api.identify_record's ``friction``)
+FRICTION_TERMS = ("coulomb", "stribeck", "offset")
+#: the parameters each friction term adds (hil.identify.friction.PARAMETERS; ``stribeck`` implies ``coulomb``)
+FRICTION_PARAMETERS = {"coulomb": ("F_c",), "stribeck": ("F_c", "F_s", "v_s"), "offset": ("F_0",)}
+#: every friction parameter name: identified, shown, never fed to the network model (not a damping)
+FRICTION_NAMES = frozenset(p for ps in FRICTION_PARAMETERS.values() for p in ps)
+
+
+def _friction_terms(v: Any) -> Any:
+    if isinstance(v, str):  # "coulomb,offset" as on the command line
+        v = [t.strip() for t in v.split(",") if t.strip()]
+    if not isinstance(v, list):
+        raise PydanticCustomError("friction", "expected a list of friction terms from {terms}, got {got}",
+                                  {"terms": ", ".join(FRICTION_TERMS), "got": v})
+    for t in v:
+        if t not in FRICTION_TERMS:
+            raise PydanticCustomError("friction", "unknown friction term '{got}'; expected some of {terms}",
+                                      {"got": t, "terms": ", ".join(FRICTION_TERMS)})
+    if len(set(v)) != len(v):
+        raise PydanticCustomError("friction", "friction term listed twice in {v}", {"v": v})
+    return v
+
+
 class IdentifyCfg(_Strict):
     """Identify plant parameters from an experiment's record: ``experiment`` names a chirp or
     multisine of ``experiments``; ``model`` one of :data:`IDENTIFICATION_MODELS` (default: inferred
-    as ``hil identify`` does); ``map`` renames identified parameters to the network model's (e.g.
-    ``{M: M, B: B, K_f: K_f, B_f: B_f}``; empty: every identified parameter under its own name).
-    Checked at load time against both models (see :func:`_check_certification`)."""
+    as ``hil identify`` does); ``friction`` the friction terms the model adds on its actuated DOFs
+    (:data:`FRICTION_TERMS`; empty: linear model; the certificate counts only the viscous B as
+    damping, docs/CERTIFICATION.md "Friction"); ``output`` the measured output of a 1-DOF ``mbk``
+    model (``position``: the encoder's, velocity derived inside identification; default: the
+    identification's, velocity for the linear model, position with friction); ``map`` renames
+    identified parameters to the network model's (e.g. ``{M: M, B: B, K_f: K_f, B_f: B_f}``; empty:
+    every identified parameter under its own name, dry friction excepted). Checked at load time
+    against both models (see :func:`_check_certification`)."""
 
     experiment: Name
     model: str | None = None
+    friction: Annotated[list[str], BeforeValidator(_friction_terms)] = Field(default_factory=list)
+    output: Literal["position", "velocity"] | None = None
     map: dict[str, str] = Field(default_factory=dict)
 
 
@@ -890,7 +960,7 @@ def _network_parameters(model: str) -> tuple[list[str], Any]:
     """The parameters the network model ``model`` accepts: ``(names for messages, predicate)``.
 
     Most built-in models take exactly the keys of their defaults. ``mbk_impedance`` takes the
-    upper-triangle entries ``M_ij``, ``B_ij``, ``K_ij`` (i <= j) of any size; ``bilateral_2dof``
+    upper-triangle entries ``M_ij``, ``B_ij``, ``K_ij`` (i <= j) of any size and ``dof``; ``bilateral_2dof``
     takes ``gains`` (a Table II set or a mapping), gains ``k_{p|v}[m|s]{yy|zz|yz|zy}`` and robot
     entries ``{m|b|k}[m|s]_{yy|zz|yz}`` (shared, master or slave)."""
     from hil.models import get_model
@@ -900,6 +970,8 @@ def _network_parameters(model: str) -> tuple[list[str], Any]:
         names = sorted(m.defaults)
 
         def ok(k: str) -> bool:
+            if k == "dof":  # the body's size (hil.models.teleop.mbk_impedance): 1-DOF needs it
+                return True
             hit = _MBK_ENTRY.match(k)
             return hit is not None and int(hit.group(2)) <= int(hit.group(3))
 
@@ -950,6 +1022,16 @@ def _identification_names(sc: Scene, path: str, spec: IdentifyCfg, exp: Any) -> 
                 key = "mbk"
         else:
             key = "mbk"
+    if spec.output is not None and (key != "mbk" or n != 1):
+        raise FieldError(f"{path}.output", f"output chooses the measured output of the 1-DOF mbk model; experiment "
+                                        f"{spec.experiment!r} gives {key} on {n} DOF")
+    if spec.friction:
+        # hil.identify's friction models: the 1-DOF mbk joint M q'' = u - F_0 - B q' - F_c sgn(q') - ...
+        if key != "mbk" or n != 1:
+            raise FieldError(f"{path}.friction", f"friction is identified with the 1-DOF mbk model; experiment "
+                                              f"{spec.experiment!r} gives {key} on {n} DOF")
+        names = ["M", "B", *_friction_names(spec.friction)]
+        return key, names, names
     if key.startswith("sdea"):
         if n != 1:
             raise FieldError(f"{path}.model", f"{key} identifies a 1-DOF SDEA; experiment {spec.experiment!r} "
@@ -964,6 +1046,12 @@ def _identification_names(sc: Scene, path: str, spec: IdentifyCfg, exp: Any) -> 
         return key, names, names
     sampled, available = mbk(n)
     return key, sampled, available
+
+
+def _friction_names(terms: Sequence[str]) -> list[str]:
+    """The parameters the friction ``terms`` add to the 1-DOF mbk model, in a fixed order."""
+    want = {p for t in terms for p in FRICTION_PARAMETERS[t]}
+    return [p for p in ("F_c", "F_s", "v_s", "F_0") if p in want]
 
 
 def _check_certification(sc: Scene, cert: CertificationCfg) -> None:
@@ -1017,11 +1105,16 @@ def _check_certification(sc: Scene, cert: CertificationCfg) -> None:
                              f"experiment {spec.experiment!r} (experiments[{j}]) is a {exp.type}; "
                              "identification needs a chirp or a multisine")
         model, sampled, available = _identification_names(sc, path, spec, exp)
-        mapping = spec.map or {n: n for n in sampled}
+        # dry friction is shown on the certificate, never fed to the network (it is not a damping)
+        mapping = spec.map or {n: n for n in sampled if n not in FRICTION_NAMES}
         for src, dst in mapping.items():
             where = f"{path}.map.{src}" if spec.map else f"{path}.map"
             if src not in available:
                 raise FieldError(where, f"identification model {model} has no parameter {src!r}{_hint(src, available)}")
+            if src in FRICTION_NAMES:
+                raise FieldError(where, f"{src} is dry friction: it is identified and shown, but the stability "
+                                        "conditions count only the viscous B as damping (docs/CERTIFICATION.md, "
+                                        "Friction); remove it from the map")
             if not accepts(dst):
                 what = (f"maps {src!r} to {dst!r}, which" if spec.map
                         else f"is empty: every identified parameter keeps its name, but {dst!r}")

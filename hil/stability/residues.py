@@ -386,6 +386,16 @@ def _scaled_int_minors(K: list[list[fmpq]]) -> dict[tuple[int, ...], int]:
     return {idx: det(idx, idx) for k in range(1, n + 1) for idx in itertools.combinations(range(n), k)}
 
 
+def structurally_zero(nz: Sequence[Sequence[bool]] | np.ndarray, idx: Sequence[int]) -> bool:
+    """Whether the principal minor ``idx`` vanishes by the pattern alone: every term of its
+    determinant (one per permutation) contains an entry that is zero by structure (``nz[i][j]``
+    false: entry (i, j) has no pole at this point). Such a minor is 0 whatever the residues are;
+    it never makes a condition hold "with equality" (a block-diagonal network then gets the same
+    weak flag from every criterion: issue 31, item 2)."""
+    k = len(idx)
+    return not any(all(nz[idx[a]][idx[p[a]]] for a in range(k)) for p in itertools.permutations(range(k)))
+
+
 def decide_rational_residues(K: list[list[fmpq]], residue_test: str) -> tuple[str, str] | None:
     """The exact status of a *rational* residue matrix (the pole at s = 0) without floats, for the
     verdict-only path: ("satisfied" | "equality", detail) when the condition holds, None when it
@@ -398,9 +408,11 @@ def decide_rational_residues(K: list[list[fmpq]], residue_test: str) -> tuple[st
         mins = _scaled_int_minors(K)
         if any(v < 0 for v in mins.values()):
             return None
-        full = mins[tuple(range(n))]
-        if full == 0:
-            return "equality", "residue matrix singular (PSD)" if n > 1 else "residue is zero"
+        nzh = [[K[i][j] != 0 for j in range(n)] for i in range(n)]
+        zero = next((idx for idx, v in mins.items() if v == 0 and not structurally_zero(nzh, idx)), None)
+        if zero is not None:
+            return "equality", (f"residue matrix singular (PSD; principal minor {_lbl(zero)} = 0)" if n > 1
+                                else "residue is zero")
         return "satisfied", "residue matrix positive definite" if n > 1 else "residue real and positive"
     for i in range(n):
         for j in range(i + 1, n):
@@ -411,8 +423,7 @@ def decide_rational_residues(K: list[list[fmpq]], residue_test: str) -> tuple[st
     for idx, v in _scaled_int_minors(K).items():
         if v < 0:
             return None
-        if v == 0 and any(all(nz[idx[a]][idx[p[a]]] for a in range(len(idx)))
-                          for p in itertools.permutations(range(len(idx)))):
+        if v == 0 and not structurally_zero(nz, idx):
             status, detail = "equality", f"principal minor {_lbl(idx)} of the residue matrix is zero"
     return status, detail
 
@@ -479,14 +490,15 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0, marg
                 return ResidueDecision("marginal", -max(err, 1e-300), detail + f"; within rtol {rtol:.3g}", ev)
             return ResidueDecision("violated", -max(err, 1e-300), detail, ev)
         worst: tuple[int, tuple[int, ...]] | None = None
-        singular = False
+        singular: tuple[int, ...] | None = None
+        nzh = [[not ring.is_zero(M[i][j]) for j in range(n)] for i in range(n)]
         for k in range(1, n + 1):
             for idx in itertools.combinations(range(n), k):
                 sg = real_sign(ring.det(M, idx, memo))
                 if sg < 0 and worst is None:
                     worst = (sg, idx)
-                if sg == 0 and k == n:
-                    singular = True
+                if sg == 0 and singular is None and not structurally_zero(nzh, idx):
+                    singular = idx
         if worst is not None:
             detail = (f"residue matrix is not positive semidefinite (principal minor {_lbl(worst[1])} < 0)"
                       if n > 1 else "residue is negative")
@@ -496,8 +508,10 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0, marg
             if rtol > 0 and lmin >= -dnorm:
                 return ResidueDecision("marginal", margin, detail + f"; within rtol {rtol:.3g}", ev)
             return ResidueDecision("violated", margin, detail, ev)
-        if singular:
-            st, margin, detail = "equality", 0.0, "residue matrix singular (PSD)" if n > 1 else "residue is zero"
+        if singular is not None:
+            st, margin = "equality", 0.0
+            detail = (f"residue matrix singular (PSD; principal minor {_lbl(singular)} = 0)" if n > 1
+                      else "residue is zero")
         else:
             st, margin = "satisfied", (lmin if lmin > 0 else 1e-300) if need_f else math.nan
             detail = "residue matrix positive definite" if n > 1 else "residue real and positive"
@@ -528,7 +542,7 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0, marg
     for k in range(1, n + 1):
         for idx in itertools.combinations(range(n), k):
             ii = list(idx)
-            if not any(all(nz[ii[a], ii[p[a]]] for a in range(k)) for p in itertools.permutations(range(k))):
+            if structurally_zero(nz, ii):
                 continue  # structurally zero minor (every term of the determinant vanishes)
             d = ring.det(M, idx, memo)
             sg = real_sign(d) if d[1].is_zero() else 0

@@ -18,11 +18,11 @@ hand (definitions with their tests: docs/VERDICTS.md):
 * ``not_applicable`` -- the criterion's preconditions fail (e.g. the symmetrization conditions
   A/B of Theorem 1), with the reason.
 
-Margins are dimensionless and invariant under frequency and impedance scaling: for frequency
-conditions the frequency-domain margin min p(x)/m_r(x) (docs/VERDICTS.md: the magnitude
-polynomial restricted to p's exact degree range, so structural zeros at ω = 0 and ω = ∞ are
-factored out); for poles the damping-like ratio -Re(p)/|p|; for residue matrices the smallest
-eigenvalue (or minor) over their scale.
+Margins are dimensionless distances to instability (docs/VERDICTS.md, hil.stability.margins):
+for frequency conditions min p(x)/M_r(x) (M the envelope magnitude polynomial restricted to p's
+exact degree range); for poles the damping ratio -Re(p)/|p| (0 on the imaginary axis); for
+residue matrices the smallest eigenvalue (or minor) over their envelope. The result's margin is
+the smallest over the deciding conditions, those holding with equality included (0).
 """
 
 from __future__ import annotations
@@ -61,6 +61,10 @@ class Condition:
     worst_frequency: float | None = None
     detail: str = ""
     evidence: dict[str, Any] = field(default_factory=dict)
+    #: a frequency condition's normalized ratio, for its critical band (hil.stability.margins):
+    #: (p exact before axis cancellation, m_r ascending floats), in the network's normalized x;
+    #: not serialized
+    ratio: Any = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -180,10 +184,11 @@ def combine(criterion: str, conditions: list[Condition], network: dict[str, Any]
         verdict = Verdict.MARGINAL
         failed = worst.name
     else:
-        # the overall margin of a stable network ignores conditions that hold with exact
-        # equality (reported through ``weak``): they are structural, not a distance to instability
-        strict = [c for c in conditions if c.status != "equality"] or conditions
-        worst = min(strict, key=lambda c: c.margin) if strict else None
+        # every condition counts, those holding with equality too (margin 0): a network on the
+        # boundary has margin 0, so the margin is continuous there (issue 31, item 3); NaN margins
+        # (verdict-only path) are skipped; ties go to the first condition in order
+        known = [c for c in conditions if c.margin == c.margin]
+        worst = min(known, key=lambda c: c.margin) if known else (conditions[0] if conditions else None)
         verdict = Verdict.STABLE
         failed = None
     weak = verdict == Verdict.STABLE and any(c.status == "equality" for c in conditions)

@@ -56,12 +56,16 @@ def test_probe_can_sends_only_to_nodes_that_announced_themselves(can_bench):
     ch, _ = can_bench
     spy = can.Bus(interface="virtual", channel=ch)
     found = {f.family for f in probe_can(ch, "virtual", listen_s=0.3, timeout=0.3)}
-    seen = {(m.arbitration_id, m.is_remote_frame) for m in iter(lambda: spy.recv(0.05), None)}
+    from hil.bench.probe import _collect  # for a fixed time: the served ODrive's cyclic frames never pause
+
+    seen = {(m.arbitration_id, m.is_remote_frame) for m in _collect(spy, 0.2)}
     spy.shutdown()
     assert "cubemars" not in found  # it only answers commands, and none was sent to it
-    # devices' frames: ODrive 3 heartbeat 0x61, CiA node 5 heartbeat 0x705 and SDO answers 0x585;
-    # the probe's: RTR Get_Version to ODrive node 3 (0x60) and SDO requests to node 5 (0x605) only
-    assert seen <= {(0x61, False), (0x705, False), (0x585, False), (0x60, True), (0x605, False)}, seen
+    # devices' frames: ODrive 3 (factory cyclic) heartbeat 0x61, estimates 0x69 and Get_Version 0x60,
+    # CiA node 5 heartbeat 0x705 and SDO answers 0x585; the probe's: RTR Get_Version to ODrive node 3
+    # (0x60) and SDO requests to node 5 (0x605) only
+    assert seen <= {(0x61, False), (0x69, False), (0x60, False), (0x705, False), (0x585, False), (0x60, True),
+                    (0x605, False)}, seen
     assert (0x60, True) in seen and (0x605, False) in seen
 
 

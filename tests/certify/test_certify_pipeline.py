@@ -69,7 +69,7 @@ def test_sdea_inside_passive_region_is_GO(sdea_run, tmp_path):
     # coupler condition at the nominal parameters
     lo, hi = r.critical_band_rad_s
     nominal = {k: np.array([v]) for k, v in c.nominal.parameters.items() if k in SDEA_TABLE1}
-    w = sdea_passivity_batch(nominal)["worst_omega"][0]
+    w = sdea_passivity_batch(nominal, band=True)["worst_omega"][0]
     assert 0 < lo < w < hi and hi / lo > 1.2
     pts = c.plots["critical_band"].points  # plotted, with the band's edges and the worst frequency
     assert lo < pts["worst (nominal)"][0] < hi
@@ -89,6 +89,57 @@ def test_sdea_above_the_passive_limit_is_NO_GO_with_a_witness(sdea_run, tmp_path
     assert w is not None and w.margin < 0
     sim = w.simulation
     assert sim["simulated"] and (sim["went_negative"] or sim["diverged"])
+
+
+@pytest.mark.timeout(600)
+def test_nominal_no_go_skips_work_that_cannot_change_it(sdea_run, tmp_path, monkeypatch):
+    """Issue 26: a nominal NO-GO is decided whatever the worst case over the credible region or β,
+    so neither is searched (the search is never called); one INFO row says so; P(stable), the design
+    guidance (how to reach a GO) and the witness are still there."""
+    import hil.certify.pipeline as pl
+
+    def no_search(*a, **k):
+        raise AssertionError("worst-case search on a nominal NO-GO")
+
+    monkeypatch.setattr(pl, "worst_case_margin", no_search)
+    monkeypatch.setattr(pl, "_reliability_stage", no_search)
+    c = certify_scene(_sdea_scene(450.0), tmp_path, outcomes=sdea_run)
+    assert c.decision == "NO-GO" and c.nominal.verdict == "potentially_unstable"
+    r = c.robust
+    assert r.worst_case_margin is None and r.worst_case_parameters is None and r.reliability is None
+    row = next(m for m in c.measurements if m.name == pl.NOT_SEARCHED_ROW)
+    assert row.value == "not searched" and row.outcome == "INFO"
+    assert 0.0 <= r.p_stable <= 1.0 and r.n_draws > 0
+    assert c.design is not None and c.design.max_value < 450.0 and c.witness is not None
+
+
+def test_certify_runs_only_the_experiments_it_uses(tmp_path, monkeypatch):
+    """Issue 26: `hil certify` runs the experiments whose records certification reads (identify
+    entries, energy injections) and says which it left out; `hil run` runs them all. The runner is
+    asked for exactly those indices (here: chirp_locked of sdea_bench, not chirp_free or
+    static_hold), and the certificate has one INFO "skipped" row per other experiment."""
+    from hil.certify.pipeline import experiments_used
+
+    scene = load_scene("sdea_bench")
+    names = [e["name"] for e in scene.experiment_configs()]
+    assert experiments_used(scene.certification, scene.experiment_configs()) == {"chirp_locked"}
+    asked: list = []
+
+    def fake_run(self, select=None):
+        asked.append(select)
+        return []  # nothing ran: the certificate is ERROR, which is not what this test checks
+
+    monkeypatch.setattr(Runner, "run", fake_run)
+    said: list[str] = []
+    c = certify_scene(scene, tmp_path, progress=said.append)
+    assert asked == [[names.index("chirp_locked")]]
+    skipped = {m.name.removeprefix("experiment "): m for m in c.measurements if m.value == "skipped"}
+    assert set(skipped) == set(names) - {"chirp_locked"} and all(m.outcome == "INFO" for m in skipped.values())
+    assert all(any(f"experiment {n} skipped" in s for s in said) for n in skipped)
+    # an energy-injection experiment is evidence: it is used without an identify entry
+    bil = load_scene("bilateral_2dof_B")
+    cfgs = bil.experiment_configs()
+    assert experiments_used(bil.certification, cfgs) == {e["name"] for e in cfgs if e["type"] == "energy_injection"}
 
 
 @pytest.mark.slow
@@ -171,3 +222,53 @@ def test_independent_samples_thin_the_chain_without_duplicates():
     assert set(steps.tolist()) == set(range(0, n_steps, 10))
     assert len(np.unique(kept[:, 0])) == kept.shape[0]
     assert "40 independent draws" in note and "⌈τ⌉ = 10" in note
+
+
+def test_certify_without_runs_or_identification_loads_neither():
+    """Issue 26: a certification that runs nothing and identifies nothing (a scene certified from
+    its stated uncertainty) does not import the record, runner or identification code, h5py,
+    emcee or scipy.stats (0.5 s CPU to import; the Clopper-Pearson and normal quantiles come from
+    scipy.special) -- checked in a fresh interpreter: this process has them all."""
+    import subprocess
+    import sys
+
+    code = ("import sys, tempfile\n"
+            "from hil.certify.pipeline import certify_scene\n"
+            "from hil.scene.spec import load_scene\n"
+            "with tempfile.TemporaryDirectory() as d:\n"
+            "    c = certify_scene(load_scene('bilateral_2dof_B'), d, run_experiments=False)\n"
+            "print(c.decision)\n"
+            "print(' '.join(m for m in ('h5py', 'emcee', 'scipy.stats', 'hil.record.hdf5', 'hil.run.runner',\n"
+            "                           'hil.run.realtime', 'hil.identify.api', 'hil.identify.posterior')\n"
+            "               if m in sys.modules))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=True)
+    decision, loaded = [*out.stdout.splitlines(), ""][:2]
+    assert decision == "NO-GO"
+    assert loaded == "", f"loaded although unused: {loaded}"
+
+
+def test_posterior_bode_from_the_coefficient_map_equals_exact_builds():
+    """The posterior Bode plot of a general network takes each draw's entry (1,1) from the robust
+    stage's measured coefficient map (one exact build per draw saved: ~60 builds of a 4x4 teleop
+    network); the plotted median and band equal those of exact per-draw builds (the map is checked
+    affine to 1e-9 relative at exact builds: 1e-6 dB is far above that and far below a plot's ink)."""
+    from hil.certify import pipeline as pl
+    from hil.models.batch_general import coefficient_map
+
+    sc = load_scene("bilateral_2dof_A1")
+    params = pl.model_params_from_scene(sc)
+    rng = np.random.default_rng(3)
+    draws = {k: u.value * np.exp(u.rel_std * rng.standard_normal(200)) for k, u in sc.certification.uncertain.items()}
+    names = sorted(draws)
+    X = np.column_stack([draws[k] for k in names])
+    cmap = coefficient_map(lambda th: pl.build_network(sc.certification.model, {**params, **th}), names, X)
+    assert cmap is not None
+    fast: dict = {}
+    slow: dict = {}
+    pl._bode_plot(fast, sc.certification.model, params, draws, 0, sc.units, cmap)
+    pl._bode_plot(slow, sc.certification.model, params, draws, 0, sc.units)
+    f, s = fast["bode"], slow["bode"]
+    assert f.x == s.x
+    np.testing.assert_allclose(f.lines["median"], s.lines["median"], rtol=0, atol=1e-6)
+    for a, b in zip(f.bands["90 % credible"], s.bands["90 % credible"], strict=True):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)

@@ -173,9 +173,36 @@ def _same(a: Any, b: Any, where: str = "") -> list[str]:
     return [] if a == b else [f"{where}: {a!r} != {b!r}"]
 
 
+def _intended(ref: dict[str, Any]) -> dict[str, Any]:
+    """The reference with the certificate changes made on purpose since it was written.
+
+    Issue 26: on a nominal NO-GO (nominal network potentially unstable) the worst-case search over
+    the credible region, β (FORM) and importance sampling are not run -- they cannot change the
+    decision; one INFO row says so where the worst-case row stood."""
+    from hil.certify.pipeline import NOT_SEARCHED_ROW
+
+    ref = json.loads(json.dumps(ref))
+    if ref.get("nominal") and ref["nominal"]["verdict"] == "potentially_unstable" and ref.get("robust"):
+        rob = ref["robust"]
+        rob.update(worst_case_margin=None, worst_case_parameters=None, reliability=None, rare_event=None,
+                   p_stable_method="monte_carlo")
+        rows = []
+        for m in ref["measurements"]:
+            if m["name"].startswith("worst-case margin over"):
+                rows.append({"name": NOT_SEARCHED_ROW, "value": "not searched", "unit": "", "lower": None,
+                             "upper": None, "outcome": "INFO",
+                             "description": "the nominal network is potentially unstable: NO-GO whatever the "
+                                            "worst case over the credible region or β"})
+            elif not m["name"].startswith(("reliability index β", "P(stable), importance sampling")):
+                rows.append(m)
+        ref["measurements"] = rows
+        ref["plots"].pop("design_point", None)
+    return ref
+
+
 @pytest.mark.parametrize("key", list(SCENES))
 def test_certificates_are_unchanged_by_the_stages(key, tmp_path):
-    ref = json.loads((REFERENCE / f"{key}.json").read_text())
+    ref = _intended(json.loads((REFERENCE / f"{key}.json").read_text()))
     cert = _certify(key, tmp_path)
     assert cert.decision == SCENES[key][1] == ref["decision"]
     got = _content(cert)

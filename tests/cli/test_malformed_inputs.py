@@ -155,8 +155,18 @@ CASES: list[tuple[str, dict[str, str | bytes], list[str], list[str]]] = [
     ("import-mat-garbage", {"r.mat": RANDOM}, ["import", "{d}/r.mat"], ["r.mat", "not a readable .mat"]),
     ("import-mat-empty", {"r.mat": b""}, ["import", "{d}/r.mat"], ["r.mat"]),
     ("import-mat-no-time", {"r.mat": "MAT:a,b"}, ["import", "{d}/r.mat"], ["r.mat", "--time"]),
-    ("import-mat-sidecar-flag", {"r.mat": "MAT:t,v"}, ["import", "{d}/r.mat", "--sidecar", "{d}/s.yaml"],
-     ["--sidecar"]),
+    # --sidecar is accepted for .mat (issue 25 defect 4): a missing one is named
+    ("import-mat-sidecar-missing", {"r.mat": "MAT:t,v"}, ["import", "{d}/r.mat", "--sidecar", "{d}/s.yaml"],
+     ["s.yaml", "no such sidecar"]),
+    ("import-scale-not-a-number", {"r.csv": CSV_OK}, ["import", "{d}/r.csv", "--scale", "v=abc"],
+     ["--scale", "v=abc", "number"]),
+    ("import-scale-unmapped", {"r.csv": CSV_OK}, ["import", "{d}/r.csv", "--scale", "nope=2"],
+     ["--scale nope", "no such channel"]),
+    ("import-unit-unknown", {"r.csv": CSV_OK}, ["import", "{d}/r.csv", "--unit", "v=furlongz"],
+     ["r.csv", "unknown unit 'furlongz'"]),
+    ("import-unit-offset", {"r.csv": CSV_OK}, ["import", "{d}/r.csv", "--unit", "v=degC"], ["'degC'", "offset"]),
+    ("import-unit-time-not-time", {"r.csv": CSV_OK}, ["import", "{d}/r.csv", "--unit", "t=mm"],
+     ["t: unit 'mm' is not a unit of time"]),
     # ---- hil identify: records and flags
     ("identify-missing", {}, ["identify", "{d}/missing.h5"], ["missing.h5"]),
     ("identify-h5-garbage", {"r.h5": RANDOM}, ["identify", "{d}/r.h5"], ["r.h5"]),
@@ -185,6 +195,16 @@ CASES: list[tuple[str, dict[str, str | bytes], list[str], list[str]]] = [
     ("identify-output-bad", {"r.csv": CSV_OK}, ["identify", "{d}/r.csv", "--output", "force"], ["--output"]),
     ("identify-debug-before", {}, ["--debug", "identify", "{d}/missing.h5"], ["missing.h5"]),
     # ---- hil replay / hil report
+    ("export-missing", {}, ["export", "{d}/missing.h5", "--format", "mcap"], ["missing.h5"]),
+    ("export-garbage", {"r.h5": RANDOM}, ["export", "{d}/r.h5", "--format", "csv"], ["r.h5"]),
+    ("export-bad-format", {"r.h5": RANDOM}, ["export", "{d}/r.h5", "--format", "xlsx"], ["--format", "xlsx"]),
+    ("import-list-with-map", {"r.csv": CSV_OK}, ["import", "{d}/r.csv", "--list", "--map", "x=v"], ["--list"]),
+    ("import-bag-folder-without-metadata", {"b/x.db3": "x"}, ["import", "{d}/b"], ["folder", "metadata.yaml"]),
+    ("import-tdms-garbage", {"r.tdms": RANDOM}, ["import", "{d}/r.tdms", "--map", "x=g/c"], ["r.tdms"]),
+    ("import-mcap-garbage", {"r.mcap": RANDOM}, ["import", "{d}/r.mcap", "--map", "x=/a:b"], ["r.mcap", "MCAP"]),
+    ("import-bag-garbage", {"r.bag": RANDOM}, ["import", "{d}/r.bag", "--map", "x=/a:b"], ["r.bag", "ROS bag"]),
+    ("import-hdf5-garbage", {"r.hdf5": RANDOM}, ["import", "{d}/r.hdf5", "--map", "x=/a"], ["r.hdf5", "HDF5"]),
+    ("import-mat73-garbage", {"r.mat": b"\x89HDF\r\n\x1a\n" + RANDOM}, ["import", "{d}/r.mat"], ["r.mat"]),
     ("replay-missing", {}, ["replay", "{d}/missing.h5"], ["missing.h5"]),
     ("replay-garbage", {"r.h5": RANDOM}, ["replay", "{d}/r.h5"], ["r.h5"]),
     ("replay-empty", {"r.h5": b""}, ["replay", "{d}/r.h5"], ["r.h5"]),
@@ -430,7 +450,7 @@ def test_a_csv_timed_in_milliseconds_warns(tmp_path, capsys, caplog) -> None:
                              capsys)
     assert code == 0
     msgs = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
-    assert any("1 Hz, an implausible sample rate" in m and "scale: {t: 0.001}" in m for m in msgs), msgs
+    assert any("sample rate of 1 Hz, implausible" in m and "--unit t=ms" in m for m in msgs), msgs
     caplog.clear()
     ok = tmp_path / "s.csv"
     ok.write_text("time,force,vel\n" + "\n".join(f"{k / 1000},{k},{k}" for k in range(200)))

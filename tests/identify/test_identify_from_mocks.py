@@ -210,7 +210,11 @@ def test_csv_import_gives_the_same_estimates_as_the_native_record(sdea_runs, loc
     # An imported CSV has no scene and no experiment meta: the model, force axis, period and band are given.
     code = hil_main(["identify", str(csv), "--json", "--seed", "0", "--model", "sdea_locked",
                      "--output", "velocity=motor.velocity[0]", "--output", "force=spring_ft.wrench[5]",
-                     "--period", "0.5", "--skip", "0.5", "--band", "2", "200", *SET_ARGS])
+                     "--period", "0.5", "--skip", "0.5", "--band", "2", "200", "--accept-misfit", *SET_ARGS])
+    # --accept-misfit: since one sample rate is used everywhere (issue 25 defect 1) the 2 Hz bin at the band's
+    # lower edge is analysed (1/median(dt) = 1999.9999999999998 Hz put it at 1.9999999999999998 Hz, outside);
+    # with it this seed's reduced chi^2 is 1.373 against the upper bound 1.37 (p = 1e-4), native and CSV alike.
+    # What this test checks is that the CSV gives the native record's numbers.
     assert code == 0
     got = json.loads(capsys.readouterr().out)
     assert got["sampling"] == {"zoh_fs": 2000.0}

@@ -24,12 +24,12 @@ N = 200
 
 
 def _run(bitrate: float | None, ticks: int = N) -> tuple[list[tuple[int, bytes]], SimODrive]:
-    """A factory-like ODrive sending a heartbeat and an encoder estimate every tick (2 x 135 bits
-    per 1 ms = 270 kbit/s), seen by a raw python-can listener on the same virtual channel."""
+    """An ODrive sending a heartbeat and an encoder estimate every tick (2 x 135 bits per 1 ms =
+    270 kbit/s; no cyclic Get_Version), seen by a raw python-can listener on the same virtual channel."""
     ch = f"test-can-budget-{next(_ch)}"
     host = can.Bus(interface="virtual", channel=ch)
     node = SimODrive(FreeJoints(1), ch, 3, "virtual", sync=True, dt=DT, heartbeat_every=1, encoder_every=1,
-                     bitrate=bitrate)
+                     cyclic_ms={"Get_Version": 0}, bitrate=bitrate)
     got: list[tuple[int, bytes]] = []
     try:
         for _ in range(ticks):

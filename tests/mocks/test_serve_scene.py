@@ -150,7 +150,9 @@ def test_can_devices_across_processes_over_udp_multicast():
     try:
         motor = _by_name(_report(proc))["motor"]
         assert motor["cross_process"] is True
-        assert motor["params"] == {"interface": "udp_multicast", "bitrate": 1000000, "channel": group, "node_id": 3}
+        # the channel's own UDP port (the first served channel: python-can's default 43113)
+        assert motor["params"] == {"interface": "udp_multicast", "bitrate": 1000000, "channel": group, "node_id": 3,
+                                   "port": 43113}
         with open_device(motor["driver"], **motor["params"]) as dev:
             first = dev.read(timeout=1.0)
             t_end = time.monotonic() + 0.3

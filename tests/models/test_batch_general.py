@@ -65,7 +65,7 @@ def test_bilateral_1dof_llewellyn_through_robust_eval() -> None:
              "k_vm": 0.1 * (1 + 0.2 * rng.standard_normal(n))}
     draws["b_m"][:20] = 0.0  # an undamped master (Re z11 = k_vm only)
     params = _params("bilateral_1dof", draws)
-    stable, proxy, method, band = _robust_eval("bilateral_1dof", "llewellyn", params, draws)
+    stable, proxy, method, band, _cmap = _robust_eval("bilateral_1dof", "llewellyn", params, draws)
     ref = _exact("bilateral_1dof", "llewellyn", params, draws)
     assert np.array_equal(stable, ref)
     assert 0 < ref.sum() < n
@@ -80,7 +80,7 @@ def test_bilateral_2dof_absolute_stability_equals_exact() -> None:
     draws = {"k_vyz": 250.0 * (1 + 0.2 * rng.standard_normal(n)), "m_yy": 2.0 * (1 + 0.1 * rng.standard_normal(n)),
              "b_yy": 0.5 * (1 + 0.2 * rng.standard_normal(n))}
     params = _params("bilateral_2dof", draws)
-    stable, _, _, _ = _robust_eval("bilateral_2dof", "absolute_stability", params, draws)
+    stable, _, _, _, _ = _robust_eval("bilateral_2dof", "absolute_stability", params, draws)
     ref = _exact("bilateral_2dof", "absolute_stability", params, draws)
     assert np.array_equal(stable, ref)
     assert 0 < ref.sum() < n

@@ -192,6 +192,9 @@ def test_bad_parameters():
         CiA402Drive(0, "x", "virtual")
     with pytest.raises(ValueError):
         parse_mode("velocity")
+    for bad in (0.0, -1.0, math.nan):
+        with pytest.raises(ValueError, match="state_timeout"):
+            CiA402Drive(1, "x", "virtual", state_timeout=bad, enable=False)
     assert parse_mode("cyclic_synchronous_torque") == 10 and parse_mode(4) == 4
 
 

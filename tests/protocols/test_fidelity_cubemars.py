@@ -123,3 +123,54 @@ def test_set_zero_waits_for_the_motor_silence():
     with SimCubeMars(j, ch, motor_id=3, sync=True, zero_silence_s=0.3), \
             pytest.raises(DeviceTimeout, match="silent"):
         CubeMarsMIT(3, ch, "virtual", zero_on_open=True, zero_timeout=0.05)
+
+
+def test_mit_law_is_recomputed_between_commands():
+    """Spec: the AK driver evaluates tau = kp (p_des - q) + kd (v_des - qd) + t_ff in its loop (manual
+    5.3, MIT power mode block diagram), not once per command. K = 200 N.m/rad, B = 2 N.m.s/rad,
+    J = 0.02 kg.m^2, a step to 0.05 rad commanded at 40 Hz (every 25 ticks of 1 ms), 2 s.
+
+    Second method: the exact sampled-data model of the same loop (FreeJoints integrates a constant
+    torque exactly: q += v dt + a dt^2 / 2, v += a dt) with the law evaluated every tick from the
+    decoded command (the wire's 12/16-bit quantization) matches the twin to rounding; the same
+    model with the law held for 25 ms (what the twin did before issue 29) does not settle; the
+    continuous-time closed loop (zeta = 0.5, omega = 100 rad/s) is within the tick's hold of it."""
+    J, K, B, P = 0.02, 200.0, 2.0, 0.05  # K P = 10 N.m: within the AK80-9's 18 N.m (linear loop)
+    ch = channel()
+    j = FreeJoints(1, J)
+    sent = cm.pack_command(MitCommand(P, 0.0, K, B, 0.0), LIM)
+    c = cm.unpack_command(sent, LIM)  # what the motor decodes
+    twin = []
+    with SimCubeMars(j, ch, motor_id=1, sync=True) as node, can.Bus(interface="virtual", channel=ch) as host:
+        _send(host, 1, cm.SPECIAL_FRAMES["enter"])
+        for k in range(2000):
+            if k % 25 == 0:
+                _send(host, 1, sent)
+            j.step(0.001)
+            node.tick()
+            twin.append(j.position()[0])
+        _replies(host)
+
+    def sampled(hold: int) -> np.ndarray:
+        q = v = tau = 0.0
+        out = []
+        for k in range(2000):
+            if k % hold == 0:
+                tau = min(max(c.kp * (c.p_des - q) + c.kd * (c.v_des - v) + c.t_ff, LIM.t_min), LIM.t_max)
+            a = tau / J
+            q, v = q + v * 0.001 + 0.5 * a * 1e-6, v + a * 0.001
+            out.append(q)
+        return np.array(out)
+
+    twin = np.array(twin)
+    np.testing.assert_allclose(twin, sampled(1), rtol=0, atol=1e-9)
+    # settled at the equilibrium of the decoded law (v = 0): kp (p_des - q) + kd v_des + t_ff = 0
+    assert abs(twin[-1] - (c.p_des + (c.kd * c.v_des + c.t_ff) / c.kp)) < 1e-6
+    held = sampled(25)
+    assert np.ptp(held[-500:]) > 0.5  # the once-per-command law keeps oscillating (diverging)
+    zeta, w = B / (2 * np.sqrt(K * J)), np.sqrt(K / J)
+    wd, t = w * np.sqrt(1 - zeta ** 2), np.arange(1, 2001) * 1e-3
+    q_eq = c.p_des + (c.kd * c.v_des + c.t_ff) / c.kp
+    cont = q_eq * (1 - np.exp(-zeta * w * t) * (np.cos(wd * t) + zeta * w / wd * np.sin(wd * t)))
+    # the tick's hold delays the law by dt/2 (w dt/2 = 0.05 rad of phase): a few % of the step
+    assert np.max(np.abs(twin - cont)) < 0.1 * P

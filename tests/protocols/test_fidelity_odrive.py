@@ -127,20 +127,22 @@ def test_adapter_faults_when_the_axis_falls_idle_after_the_watchdog():
 
 
 def test_firmware_05_has_no_get_torques():
-    """Spec: on 0.5.x cmd 0x1C is Get_ADC_Voltage (one float32): the adapter refuses read_torque,
-    the 0.5 simulator answers 0x1C with 4 bytes of volts; the 0.6 one with two float32 torques."""
+    """Spec: on 0.5.x cmd 0x1C is Get_ADC_Voltage (can_simple.cpp 0.5: a data frame whose byte 0 is
+    the GPIO number, answered with one float32 volts in an 8-byte frame, as odrive-cansimple-0.5.6.dbc
+    gives it): the adapter refuses read_torque; the 0.6 simulator answers an RTR 0x1C with two
+    float32 torques."""
     with pytest.raises(ValueError, match="Get_ADC_Voltage"):
         ODriveCAN(0, channel(), "virtual", read_torque=True, firmware="0.5")
-    for fw, n in (("0.5", 4), ("0.6", 8)):
+    for fw, request in (("0.5", {"data": b"\x03"}), ("0.6", {"remote": True})):
         ch = channel()
         with SimODrive(FreeJoints(), ch, node_id=0, firmware=fw, adc_voltage=1.25) as node, \
                 can.Bus(interface="virtual", channel=ch) as host:
-            _raw(host, 0, 0x1C, remote=True)
+            _raw(host, 0, 0x1C, **request)
             node.tick()
-            reply = [m for m in _frames(host) if m.arbitration_id == 0x1C]
-            assert len(reply) == 1 and len(reply[0].data) == n
+            reply = [m for m in _frames(host) if m.arbitration_id == 0x1C and not m.is_remote_frame]
+            assert len(reply) == 1 and len(reply[0].data) == 8
             if fw == "0.5":
-                assert struct.unpack("<f", reply[0].data)[0] == 1.25
+                assert struct.unpack_from("<f", reply[0].data)[0] == 1.25
     ch = channel()
     with SimODrive(FreeJoints(), ch, node_id=0, sync=True, firmware="0.5") as node, \
             ODriveCAN(0, ch, "virtual", firmware="0.5") as dev:

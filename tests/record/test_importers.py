@@ -236,3 +236,187 @@ def test_imported_chirp_band_follows_the_input_spectrum(tmp_path: Path) -> None:
     # control: the former default band (to 0.45 fs = 2250 Hz) refuses the same record
     with pytest.raises(DataQualityError, match="noise-only level"):
         identify_record(tmp_path / "run.h5", max_steps=200, band=(4.0, 2250.0))
+
+
+# ------------------------------------------------------------------ scale, units, v7.3 (issues 25, 28, 30)
+
+# the EMPS records: ../shared/data/emps next to the repository (CI's layout), or two levels up (a worktree)
+_ROOT = Path(__file__).resolve().parents[2]
+EMPS = next((p for p in (_ROOT.parent / "shared" / "data" / "emps" / "DATA_EMPS.mat",
+                         _ROOT.parent.parent / "shared" / "data" / "emps" / "DATA_EMPS.mat") if p.is_file()),
+            _ROOT.parent / "shared" / "data" / "emps" / "DATA_EMPS.mat")
+GTAU = 35.15  # N/V, the EMPS amplifier gain (SOURCE.txt)
+
+
+def _emps() -> dict[str, np.ndarray]:
+    if not EMPS.is_file():
+        pytest.skip(f"EMPS benchmark record not found at {EMPS} (the shared data folder is absent)")
+    raw = scipy.io.loadmat(EMPS)
+    return {k: np.asarray(v, float) for k, v in raw.items() if not k.startswith("__")}
+
+
+def _write_v73(path: Path, variables: dict[str, object]) -> None:
+    """A .mat file laid out as MATLAB's ``save -v7.3`` writes it (512-byte user block with the MATLAB
+    header text, one dataset per variable stored column-major, i.e. transposed, with MATLAB_class;
+    structs as groups), written with h5py independently of the reader under test."""
+    import h5py
+
+    def put(group: h5py.Group, name: str, value: object) -> None:
+        if isinstance(value, dict):
+            sub = group.create_group(name)
+            sub.attrs["MATLAB_class"] = np.bytes_("struct")
+            for k, v in value.items():
+                put(sub, k, v)
+        elif isinstance(value, str):
+            ds = group.create_dataset(name, data=np.array([[ord(c) for c in value]], dtype=np.uint16).T)
+            ds.attrs["MATLAB_class"] = np.bytes_("char")
+        else:
+            a = np.atleast_2d(np.asarray(value, float))  # MATLAB has no 1-D arrays: a vector is 1 x n
+            ds = group.create_dataset(name, data=a.T)  # column-major: an n x k array is stored (k, n)
+            ds.attrs["MATLAB_class"] = np.bytes_("double")
+
+    with h5py.File(path, "w", userblock_size=512) as f:
+        for k, v in variables.items():
+            put(f, k, v)
+    header = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Jan  1 00:00:00 2024 HDF5 schema 1.00 ."
+    with path.open("r+b") as fh:
+        fh.write(header.ljust(116) + b"\x00" * 8 + b"\x00\x02IM")  # version 0x0200, endian 'IM'
+
+
+@pytest.mark.timeout(60)
+def test_emps_documented_user_path_mat_and_csv(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 25 item 6: ``hil import DATA_EMPS.mat --time t --map motor.position=qm --map
+    motor.effort_cmd=vir --scale motor.effort_cmd=35.15`` (force = 35.15 N/V x vir), and the same for
+    a CSV of the same columns; both records hold exactly the file's values times the gain."""
+    from hil.cli.main import main
+
+    d = _emps()
+    t, qm, vir = d["t"].ravel(), d["qm"].ravel(), d["vir"].ravel()
+    out = tmp_path / "emps.h5"
+    code = main(["import", str(EMPS), "--time", "t", "--map", "motor.position=qm", "--map", "motor.effort_cmd=vir",
+                 "--scale", f"motor.effort_cmd={GTAU}", "--unit", "motor.position=m", "--unit", "motor.effort_cmd=N",
+                 "--out", str(out)])
+    assert code == 0, capsys.readouterr().err
+    rec = RunRecord.open(out)
+    np.testing.assert_array_equal(rec.t, t)
+    np.testing.assert_array_equal(rec.channels["motor.position"], qm)
+    np.testing.assert_array_equal(rec.channels["motor.effort_cmd"], vir * GTAU)
+    assert rec.units == {"motor.position": "m", "motor.effort_cmd": "N"}
+    assert rec.rate_hz == pytest.approx(1000.0, rel=1e-4)  # 1 ms sampling (a median interval of 1.00002 ms)
+    assert rec.meta["imported_from"]["mapping"]["scale"] == {"motor.effort_cmd": GTAU}
+    # the same columns as CSV (17 significant digits: exact), plus a sidecar for the .mat (defect 4)
+    cols = np.column_stack([t, qm, vir])
+    np.savetxt(tmp_path / "emps.csv", cols, delimiter=",", header="t,qm,vir", comments="", fmt="%.17g")
+    assert main(["import", str(tmp_path / "emps.csv"), "--map", "motor.position=qm", "--map", "motor.effort_cmd=vir",
+                 "--scale", f"motor.effort_cmd={GTAU}", "--out", str(tmp_path / "csv.h5")]) == 0
+    rec_csv = RunRecord.open(tmp_path / "csv.h5")
+    np.testing.assert_array_equal(rec_csv.t, rec.t)
+    for name in rec.channels:
+        np.testing.assert_array_equal(rec_csv.channels[name], rec.channels[name])
+    side = tmp_path / "emps_map.yaml"
+    side.write_text(yaml.safe_dump({"t": "t", "motor.position": "qm", "motor.effort_cmd": "vir",
+                                    "scale": {"motor.effort_cmd": GTAU}}))
+    assert main(["import", str(EMPS), "--sidecar", str(side), "--out", str(tmp_path / "side.h5")]) == 0
+    np.testing.assert_array_equal(RunRecord.open(tmp_path / "side.h5").channels["motor.effort_cmd"], vir * GTAU)
+
+
+@pytest.mark.timeout(60)
+def test_mat_v73_reads_like_v5(tmp_path: Path) -> None:
+    """A MATLAB v7.3 file (HDF5) imports to the same record as the v5 file of the same variables
+    (scipy.io.loadmat refused it with "Unknown mat file type, version 0, 0")."""
+    t, d = _data()
+    variables = {"time": t[:, None], "pos": d["motor.position"][:, None], "q": d["master.position"],
+                 "ovr": d["loop.overrun"][:, None], "gain": 35.15, "label": "bench 3"}
+    scipy.io.savemat(tmp_path / "v5.mat", variables)
+    _write_v73(tmp_path / "v73.mat", variables)
+    with pytest.raises(NotImplementedError):  # the old reader's failure: the file really is v7.3
+        scipy.io.loadmat(tmp_path / "v73.mat")
+    m = {"t": "time", "motor.position": "pos", "master.position": "q", "loop.overrun": "ovr", "units": UNITS}
+    native = _native(tmp_path / "native.h5")
+    a = RunRecord.open(import_mat(tmp_path / "v5.mat", tmp_path / "a.h5", mapping=m))
+    b = RunRecord.open(import_mat(tmp_path / "v73.mat", tmp_path / "b.h5", mapping=m))
+    _assert_same(native, a)
+    _assert_same(native, b)
+    assert b.meta["imported_from"]["format"] == "mat-v7.3"
+    # a struct, as in MATLAB's `run.time`, `run.q1`; and no mapping: the struct's numeric vectors
+    _write_v73(tmp_path / "s.mat", {"run": {"t": t, "x": d["motor.position"], "k": 2.0}})
+    rec = RunRecord.open(import_mat(tmp_path / "s.mat", tmp_path / "s.h5"))
+    assert set(rec.channels) == {"x"}  # the scalar k is not a channel
+    np.testing.assert_array_equal(rec.channels["x"], d["motor.position"])
+    np.testing.assert_array_equal(rec.t, t)
+
+
+@pytest.mark.timeout(60)
+def test_mat_v73_of_the_emps_record(tmp_path: Path) -> None:
+    """The EMPS record saved as v7.3 (as MATLAB's save -v7.3 lays it out) imports bit for bit like
+    the original v5 file."""
+    d = _emps()
+    _write_v73(tmp_path / "emps73.mat", d)
+    m = {"t": "t", "motor.position": "qm", "motor.effort_cmd": "vir"}
+    a = RunRecord.open(import_mat(EMPS, tmp_path / "a.h5", mapping=m, scale={"motor.effort_cmd": GTAU}))
+    b = RunRecord.open(import_mat(tmp_path / "emps73.mat", tmp_path / "b.h5", mapping=m,
+                                  scale={"motor.effort_cmd": GTAU}))
+    np.testing.assert_array_equal(a.t, b.t)
+    for name in a.channels:
+        np.testing.assert_array_equal(a.channels[name], b.channels[name])
+
+
+@pytest.mark.timeout(60)
+def test_units_convert_to_si_and_the_record_states_it(tmp_path: Path) -> None:
+    """``--unit`` names the file's unit: mm -> m (x 1e-3), deg -> rad (x pi/180), ms -> s; the record
+    states the SI unit. Factors checked against their definitions, not against pint."""
+    t, d = _data()
+    pos_mm = d["motor.position"] * 1e3
+    ang_deg = np.degrees(d["master.position"])
+    _write_csv(tmp_path / "u.csv", t * 1000.0, {"motor.position": pos_mm, "master.position": ang_deg,
+                                               "loop.overrun": d["loop.overrun"]})
+    rec = RunRecord.open(import_csv(tmp_path / "u.csv", tmp_path / "u.h5", mapping=MAPPING | {"units": {}},
+                                    units={"t": "ms", "motor.position": "mm", "master.position": "deg"}))
+    np.testing.assert_allclose(rec.t, t, rtol=1e-15, atol=1e-15)
+    np.testing.assert_allclose(rec.channels["motor.position"], d["motor.position"], rtol=1e-15)
+    np.testing.assert_allclose(rec.channels["master.position"], d["master.position"], rtol=1e-15)
+    assert rec.units == {"motor.position": "m", "master.position": "rad", "loop.overrun": ""}
+    assert rec.rate_hz == pytest.approx(RATE)
+    # scale and unit together: a torque logged in mN.m per count, 0.5 mN.m/count
+    cnt = np.round(d["motor.position"] * 100)
+    _write_csv(tmp_path / "c.csv", t, {"motor.position": cnt, "master.position": d["master.position"],
+                                       "loop.overrun": d["loop.overrun"]})
+    rec = RunRecord.open(import_csv(tmp_path / "c.csv", tmp_path / "c.h5", mapping={"t": "time", "motor.effort": "pos"},
+                                    scale={"motor.effort": 0.5}, units={"motor.effort": "mN.m"}))
+    np.testing.assert_allclose(rec.channels["motor.effort"], cnt * 0.5e-3, rtol=1e-15)
+    assert rec.units == {"motor.effort": "N.m"}
+
+
+@pytest.mark.timeout(60)
+def test_time_in_ms_read_as_seconds_warns(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """Issue 28 item 9: a 1 kHz log whose time column is in ms reads as a 1 Hz record: a warning says
+    so and names the fix; the same file with --unit t=ms is 1 kHz and silent."""
+    n = 200
+    t_ms = np.arange(n, dtype=float)  # 1 kHz, in ms
+    (tmp_path / "ms.csv").write_text("t,v\n" + "".join(f"{a!r},{float(np.sin(a / 10))!r}\n" for a in t_ms.tolist()))
+    with caplog.at_level("WARNING", logger="hil.record.importers"):
+        rec = RunRecord.open(import_csv(tmp_path / "ms.csv", tmp_path / "a.h5"))
+    assert rec.rate_hz == pytest.approx(1.0)
+    warned = [r.getMessage() for r in caplog.records if "implausible" in r.getMessage()]
+    assert len(warned) == 1 and "1 Hz" in warned[0] and "--unit t=ms" in warned[0]
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="hil.record.importers"):
+        rec = RunRecord.open(import_csv(tmp_path / "ms.csv", tmp_path / "b.h5", units={"t": "ms"}))
+    assert rec.rate_hz == pytest.approx(1000.0)
+    assert not [r for r in caplog.records if "implausible" in r.getMessage()]
+
+
+def test_a_unit_needing_pint_without_pint_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
+    from hil.record.importers import units
+
+    def missing() -> None:
+        raise ImportError("No module named 'pint'")
+
+    units.to_si.cache_clear()
+    monkeypatch.setattr(units, "_registry", missing)
+    try:
+        assert units.to_si("N.m") == (1.0, "N.m")  # the records' own SI spellings need no pint
+        with pytest.raises(RecordError, match=r"unit 'mm' needs the 'pint' package: pip install 'hil-certify\[units"):
+            units.to_si("mm")
+    finally:
+        units.to_si.cache_clear()

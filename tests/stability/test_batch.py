@@ -60,7 +60,7 @@ def test_critical_band_has_width_and_contains_the_worst_frequency():
     from hil.models.batch import CRITICAL_BAND_FRACTION
     from hil.models.sdea import sdea_polynomials
 
-    res = sdea_passivity_batch({"k22": np.array([300.0])})
+    res = sdea_passivity_batch({"k22": np.array([300.0])}, band=True)
     lo, hi, w = res["band_lo"][0], res["band_hi"][0], res["worst_omega"][0]
     assert 0 < lo < w < hi and hi / lo > 1.2
     t0, t1, t2, t3 = (float(c) for c in sdea_polynomials(SDEA_TABLE1)["t"])
@@ -72,3 +72,18 @@ def test_critical_band_has_width_and_contains_the_worst_frequency():
     thr = gmin + CRITICAL_BAND_FRACTION * (1 - gmin)
     inside = om[g <= thr]
     assert lo == pytest.approx(inside.min(), rel=5e-3) and hi == pytest.approx(inside.max(), rel=5e-3)
+
+
+def test_band_only_when_asked():
+    """The critical band is computed only when a caller asks for it (``band=True``): the default
+    returns the same verdicts and margins without the band's keys (issue 26: callers that discard
+    the band must not pay for it)."""
+    rng = np.random.default_rng(7)
+    draws = {k: SDEA_TABLE1[k] * np.exp(0.05 * rng.standard_normal(64)) for k in ("K_f", "B_f", "M", "B")}
+    draws["k22"] = rng.uniform(300.0, 450.0, 64)
+    plain = sdea_passivity_batch(draws)
+    banded = sdea_passivity_batch(draws, band=True)
+    assert not {"band_lo", "band_hi", "worst_omega"} & set(plain)
+    assert {"band_lo", "band_hi", "worst_omega"} <= set(banded)
+    np.testing.assert_array_equal(plain["passive"], banded["passive"])
+    np.testing.assert_array_equal(plain["margin"], banded["margin"])

@@ -220,3 +220,66 @@ def test_exact_determinant_against_numpy_and_exactly_zero_when_singular():
             assert abs(complex(d(s)) - ref) <= RTOL * max(abs(ref), 1e-300) or not _well_conditioned(_eval(Z, s))
     r = (S + 0.1) / (S + 3)
     assert _rf_det(_to_rf([[r, r * 2], [r * 3, r * 6]])).is_zero
+
+
+# ------------------------------------------------------------------------------------------------
+# issue 31, item 5: a converted network is decided exactly, not as its rounded coefficients
+
+
+def _ladder() -> TransferMatrix:
+    """A passive RLC T ladder: series 0.3 + 0.3 s, shunt 0.7 s + 1/(0.7 s), series
+    0.1 s + 1/(0.7 s); its hybrid, inverse hybrid and admittance forms have coefficients that are
+    not binary rationals, and two imaginary-axis pole pairs (lossless, on the boundary)."""
+    a = 0.3 + S * 0.3
+    b = 0.7 * S + 1 / (0.7 * S)
+    c = 0.1 * S + 1 / (0.7 * S)
+    return TransferMatrix([[a + b, b], [b, c + b]])
+
+
+def _same_over_q(a: TransferMatrix, b: TransferMatrix) -> bool:
+    from hil.stability.rational import _to_rf
+
+    return all(x.n == y.n and x.d == y.d for ra, rb in zip(_to_rf(a.entries), _to_rf(b.entries), strict=True)
+               for x, y in zip(ra, rb, strict=True))
+
+
+@pytest.mark.parametrize("kind", ["hybrid", "inverse_hybrid", "admittance"])
+def test_conversion_keeps_the_network_exact_for_the_verdict(kind):
+    from hil.stability.criteria import check
+
+    z = _ladder()
+    assert str(check(z, "passivity").verdict) == "stable"
+    conv = z.to(kind)
+    assert all(e.exact_given for row in conv.entries for e in row if not e.is_zero)
+    # independent: the exact conversion back gives z itself, entry for entry over Q(s)
+    assert _same_over_q(conv.to("impedance"), z)
+    for crit in ("passivity", "llewellyn", "absolute_stability"):
+        assert str(check(conv, crit).verdict) == "stable", (kind, crit)
+        assert str(check(conv, crit, margins=False).verdict) == "stable"
+    # the same entries rounded to their float coefficients are another network, which is not
+    # passive (margin about -1e-17: the rounding moved a lossless pole or a touching point);
+    # the old conversion returned exactly that one
+    rounded = TransferMatrix([[Rational(e.num, e.den) for e in row] for row in conv.entries], kind, conv.port_dofs)
+    assert not _same_over_q(rounded, conv)
+    assert str(check(rounded, "passivity").verdict) == "potentially_unstable"
+
+
+def test_exact_entries_survive_the_frequency_normalization():
+    """s -> s/2^12 applied exactly to the exact hybrid matrix: the criteria normalize frequency by
+    a power of two, and the normalized entries must still be the exact ones (same verdict)."""
+    from flint import fmpq, fmpq_poly
+
+    from hil.stability.criteria import _normalized, check
+
+    def scale(p: fmpq_poly, e: int) -> fmpq_poly:
+        return fmpq_poly([p[k] * fmpq(2) ** (-e * k) for k in range(p.degree() + 1)])
+
+    h = _ladder().to("hybrid")
+    ent = [[e if e.is_zero else Rational.of_exact(scale(e.exact[0], 12), scale(e.exact[1], 12)) for e in row]
+           for row in h.entries]
+    hs = TransferMatrix(ent, "hybrid", (1, 1))
+    tmn, w0 = _normalized(hs)
+    assert w0 != 1.0
+    assert all(e.exact_given for row in tmn.entries for e in row if not e.is_zero)
+    for crit in ("passivity", "llewellyn"):
+        assert str(check(hs, crit).verdict) == "stable"

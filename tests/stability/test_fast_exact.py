@@ -198,15 +198,15 @@ _SKIPPED_L1: list[bool] = []
 
 @pytest.mark.parametrize("seed", range(16))
 def test_llewellyn_verdict_only_statuses_match_the_full_path(seed, monkeypatch):
-    import hil.stability.criteria as crit
+    import hil.stability.conditions as crit  # where _llewellyn_eta looks _exact_decision up
 
     rng = np.random.default_rng(seed)
     orig = crit._exact_decision
     factors: list[int] = []
 
-    def spy(p, cut, m, K, tol, margins):  # K = 4: L1 decided separately
+    def spy(cp, K, tol, margins):  # K = 4: L1 decided separately
         factors.append(K)
-        return orig(p, cut, m, K, tol, margins)
+        return orig(cp, K, tol, margins)
 
     monkeypatch.setattr(crit, "_exact_decision", spy)
     for lossless in (False, True):
