@@ -213,3 +213,15 @@ def test_no_legend_of_a_certificate_covers_a_marked_point(made, key):
             leg = ax.get_legend()
             if leg is not None:
                 assert _legend_cover(ax, leg, fig._get_renderer())[0] == 0, (key, name)
+
+
+def test_page_one_says_the_decision_uses_the_margins_sign_never_their_size(made):
+    for key in ("go", "nogo"):
+        cert, files, _ = made[key]
+        page1 = _flat(_pages(files["pdf"])[0])
+        assert "the decision uses only their sign, which is the exact verdict, never their size" in page1
+        assert f"nominal {fmt(cert.nominal.margin)}" in page1
+        assert f"{fmt(cert.robust.worst_case_margin)}" in page1
+        assert "Nominal: each parameter at its median" in page1
+        html = files["html"].read_text(encoding="utf-8")
+        assert "never their size" in html
