@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import stats
+from scipy import special  # beta.ppf(q, a, b) = betaincinv(a, b, q), without scipy.stats
 
 from hil.identify.errors import DataQualityError
 from hil.identify.frf import FrfEstimate
@@ -373,7 +373,7 @@ def check_excitation(est: FrfEstimate, *, min_fraction: float = 0.2) -> list[Dia
     """
     q = est.H.shape[2]
     n = max(est.n_avg, q + 1.0)
-    thr = float(stats.beta.ppf(0.99, q, n - q))
+    thr = float(special.betaincinv(q, n - q, 0.99))
     out = []
     for o, name in enumerate(est.output_names):
         measured = np.any(np.isfinite(est.H[:, o, :]), axis=-1)  # bins where some input is excited

@@ -76,7 +76,7 @@ def quantized_repeats(y: ArrayLike, *, window: int = 64, p_min: float = 1e-6) ->
     quantized derivative repeats where the signal changes by less than a count per sample (slow
     acceleration), so that fraction varies with the motion. Homogeneity is a chi-square test over the
     windows (rejected at ``p_min``)."""
-    from scipy import stats
+    from scipy import special
 
     from hil.identify.frf import lattice_step
 
@@ -91,7 +91,7 @@ def quantized_repeats(y: ArrayLike, *, window: int = 64, p_min: float = 1e-6) ->
     if not 0 < p < 1:
         return False
     chi2 = float(np.sum((counts - window * p) ** 2) / (window * p * (1 - p)))
-    return bool(stats.chi2.sf(chi2, m - 1) < p_min)
+    return bool(special.chdtrc(m - 1, chi2) < p_min)
 
 
 def hold_response(p: ArrayLike, w: ArrayLike, fs: float) -> NDArray[np.complex128]:

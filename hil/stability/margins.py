@@ -94,6 +94,39 @@ def _band_search(p: fmpq_poly, M: np.ndarray, bands: Sequence[tuple[float, float
     return best
 
 
+def _rational_band_search(p: fmpq_poly, Mq: fmpq_poly, bands: Sequence[tuple[float, float]]
+                          ) -> tuple[float, float]:
+    """The smallest ratio p/M_r over each finite band, evaluated at exact rational points (both
+    polynomials exact): for bands only a few doubles wide, where the minimizer lies between
+    doubles and :func:`_band_search` (which evaluates at doubles) cannot reach it. 33 equally
+    spaced points over the band widened by one double either side, then 100 steps of ternary search
+    around the best one. Returns (value, x) as floats; (∞, NaN) without a finite band."""
+    best = (math.inf, math.nan)
+
+    def ratio(xq: fmpq) -> fmpq:
+        return p(xq) / Mq(xq)
+
+    for a, b in bands:
+        if not (math.isfinite(b) and a > 0):
+            continue
+        lo, hi = fmpq(*math.nextafter(a, 0.0).as_integer_ratio()), fmpq(*math.nextafter(b, math.inf).as_integer_ratio())
+        xs = [lo + (hi - lo) * fmpq(k, 32) for k in range(33)]
+        vals = [ratio(x) for x in xs]
+        i = min(range(33), key=lambda k: vals[k])
+        u, w = xs[max(i - 1, 0)], xs[min(i + 1, 32)]
+        for _ in range(100):
+            m1, m2 = u + (w - u) / 3, w - (w - u) / 3
+            if ratio(m1) <= ratio(m2):
+                w = m2
+            else:
+                u = m1
+        xm = (u + w) / 2
+        v = min(ratio(xm), vals[i])
+        if float(v) < best[0]:
+            best = (float(v), float(xm))
+    return best
+
+
 def _golden(p: fmpq_poly, M: np.ndarray, lo: float, hi: float, start: tuple[float, float],
             iters: int = 60) -> tuple[float, float]:
     """Golden-section minimization of the exact ratio on [lo, hi] in log x."""
@@ -135,7 +168,7 @@ def restricted(p: fmpq_poly, M: np.ndarray) -> np.ndarray:
     Mm = np.abs(np.asarray(M, float))
     Mr = np.zeros(n)
     Mr[a:n] = Mm[a:n] if Mm.size >= n else np.pad(Mm, (0, n - Mm.size))[a:n]
-    Mr = np.maximum(Mr, np.abs(c))
+    Mr = np.asarray(np.maximum(Mr, np.abs(c)), dtype=float)
     Mr[:a] = 0.0
     return Mr
 
@@ -146,7 +179,16 @@ def frequency_margin(p: fmpq_poly, M: np.ndarray, touching: Sequence[float] = ()
     M (ascending floats, |p_i| ≤ M_i): μ = min over x ≥ 0 of p/M_r (module docstring), certified
     to :data:`CERTIFY_RTOL` relative; x* the minimizer (0 or ∞ for the limits; NaN when p/M_r is
     constant in x: attained everywhere). ``touching``: zeros of p on x > 0 where it does not
-    change sign (p ≥ 0 there; then μ = 0 at the first); ``bands``: p's negative bands (x)."""
+    change sign (p ≥ 0 there; then μ = 0 at the first); ``bands``: p's negative bands (x).
+    |p| ≤ M_r, so μ ∈ [-1, 1]; M_r(x) is summed in floats, which can round it below |p(x)| by an
+    ulp (a constant ratio 1 evaluated as 1.0000000000000002): the value is clipped to [-1, 1]."""
+    mu, x = _certified_margin(p, M, touching, bands)
+    return min(max(mu, -1.0), 1.0), x
+
+
+def _certified_margin(p: fmpq_poly, M: np.ndarray, touching: Sequence[float],
+                      bands: Sequence[tuple[float, float]]) -> tuple[float, float]:
+    """:func:`frequency_margin` before the clipping to [-1, 1]."""
     from hil.stability.exact import decide_exact, exact_sign
     from hil.stability.minimize import _margin_min, _Ratio, ratio_is_constant
     from hil.stability.rational import _qpoly_floats
@@ -188,6 +230,10 @@ def frequency_margin(p: fmpq_poly, M: np.ndarray, touching: Sequence[float] = ()
             return mu, x  # p/M_r ≥ t everywhere: μ ∈ [t, mu]
         d = decide_exact(q, margin=False)
         v, xb = _band_search(p, Mr, d.negative_bands or [(0.0, math.inf)])
+        if not v < mu:
+            # the band is a few doubles wide (its minimizer lies between doubles): search it in exact
+            # rationals
+            v, xb = _rational_band_search(p, Mq, d.negative_bands)
         if not v < mu:  # pragma: no cover - the certificate's band holds a smaller value by construction
             logger.warning("margin certification did not find a smaller value (%r >= %r)", v, mu)
             return mu, x

@@ -203,7 +203,7 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian", marg
         asym = [(i, j) for i in range(n) for j in range(i + 1, n) if R[i][j] != R[j][i]]
         if asym:
             i, j = asym[0]
-            err = max(abs(float(R[a][b] - R[b][a])) for a, b in asym) / scale
+            err = min(max(abs(float(R[a][b] - R[b][a])) for a, b in asym) / scale, 1.0)  # in [-1, 1]
             return Condition(name, label, "violated", -err, math.inf,
                              f"residue matrix at s = ∞ is not symmetric (r{i + 1}{j + 1} ≠ r{j + 1}{i + 1})", ev)
     else:
@@ -213,7 +213,7 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian", marg
                     return Condition(name, label, "violated", -1.0, math.inf,
                                      f"r{i + 1}{j + 1}·r{j + 1}{i + 1} = {float(R[i][j] * R[j][i]):.4g} < 0 "
                                      "at s = ∞", ev)
-    from hil.stability.residues import _scaled_int_minors, principal_minors
+    from hil.stability.residues import _scaled_int_minors, principal_minors, structural_eigmin
 
     # without margins only the signs and zeros of the minors are read: those of a positive
     # integer multiple of R (cheaper than rational arithmetic)
@@ -250,7 +250,9 @@ def infinity_condition(tm: TransferMatrix, residue_test: str = "hermitian", marg
     if not margins:
         margin = math.nan
     elif residue_test == "hermitian":
-        margin = max(float(np.min(lam)) / lam_scale, 0.0)
+        # over the structurally active ports (an entry without a pole at ∞ is a structural 0)
+        nz = [[exc[i][j] == 1 for j in range(n)] for i in range(n)]
+        margin = max(structural_eigmin((Rf + Rf.T) / 2, nz) / lam_scale, 0.0)
     else:
         margin = min((float(mnr) / perm(idx) for idx, mnr in minors.items() if perm(idx)), default=1.0)
     if zero_minor is not None:  # a minor zero by the pattern alone (perm |R| = 0) is not equality

@@ -396,6 +396,20 @@ def structurally_zero(nz: Sequence[Sequence[bool]] | np.ndarray, idx: Sequence[i
     return not any(all(nz[idx[a]][idx[p[a]]] for a in range(k)) for p in itertools.permutations(range(k)))
 
 
+def structural_eigmin(H: np.ndarray, nz: Sequence[Sequence[bool]] | np.ndarray) -> float:
+    """λ_min of the Hermitian matrix H restricted to its structurally active ports: those i with
+    some entry (i, j) or (j, i) not zero by structure (``nz``). A port none of whose entries has a
+    pole at this point contributes an eigenvalue 0 that no perturbation of the model can move (a
+    structural zero, like the minors :func:`structurally_zero` skips), so it does not bring the
+    margin to 0: diag(1 + 1/s, 1) has the residue margin of 1 + 1/s alone. NaN when H is NaN;
+    0 when no port is active."""
+    n = H.shape[0]
+    act = [i for i in range(n) if any(nz[i][j] or nz[j][i] for j in range(n))]
+    if not act:
+        return 0.0
+    return float(np.min(np.linalg.eigvalsh(H[np.ix_(act, act)])))
+
+
 def decide_rational_residues(K: list[list[fmpq]], residue_test: str) -> tuple[str, str] | None:
     """The exact status of a *rational* residue matrix (the pole at s = 0) without floats, for the
     verdict-only path: ("satisfied" | "equality", detail) when the condition holds, None when it
@@ -444,6 +458,21 @@ def _lbl(idx: Sequence[int]) -> str:
     return "{" + ",".join(str(i + 1) for i in idx) + "}"
 
 
+def _det_leibniz(A: np.ndarray) -> complex:
+    """det A by the Leibniz sum over permutations (k ≤ 4 here): products and sums only, so a
+    power-of-two scaling of A scales it exactly (numpy's det goes through a logarithm and does
+    not: margins then differed in the last bits under power-of-two impedance scalings)."""
+    n = A.shape[0]
+    total = 0j
+    for p in itertools.permutations(range(n)):
+        inv = sum(1 for i in range(n) for j in range(i + 1, n) if p[i] > p[j])
+        term = complex(1.0)
+        for i in range(n):
+            term *= complex(A[i, p[i]])
+        total += -term if inv % 2 else term
+    return total
+
+
 def _perm_abs(A: np.ndarray) -> float:
     n = A.shape[0]
     A = np.abs(A)
@@ -477,12 +506,15 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0, marg
     if residue_test == "hermitian":
         lam = np.linalg.eigvalsh((K + K.conj().T) / 2) if need_f else np.full(n, math.nan)
         ev["eigenvalues"] = lam
-        lmin = float(np.min(lam)) / scale
+        nzh = [[not ring.is_zero(M[i][j]) for j in range(n)] for i in range(n)]
+        # λ_min over the structurally active ports (a port without a pole here is a structural 0)
+        lmin = (structural_eigmin((K + K.conj().T) / 2, nzh) if need_f else math.nan) / scale
         dnorm = float(np.linalg.norm(delta)) / scale
         nonherm = [(i, j) for i in range(n) for j in range(i, n)
                    if not ring.is_zero(ring.red(ring.add(M[i][j], ring.conj(M[j][i]), -1)))]
         if nonherm:
-            err = float(np.max(np.abs(K - K.conj().T))) / scale
+            # margins in [-1, 1]: |k_ij - conj k_ji| can reach twice the largest |k|
+            err = min(float(np.max(np.abs(K - K.conj().T))) / scale, 1.0)
             i, j = nonherm[0]
             what = "is not real" if i == j else f"is not Hermitian (k{i + 1}{j + 1} ≠ conj k{j + 1}{i + 1})"
             detail = f"residue matrix {what}" if n > 1 else "residue is not real"
@@ -491,7 +523,6 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0, marg
             return ResidueDecision("violated", -max(err, 1e-300), detail, ev)
         worst: tuple[int, tuple[int, ...]] | None = None
         singular: tuple[int, ...] | None = None
-        nzh = [[not ring.is_zero(M[i][j]) for j in range(n)] for i in range(n)]
         for k in range(1, n + 1):
             for idx in itertools.combinations(range(n), k):
                 sg = real_sign(ring.det(M, idx, memo))
@@ -502,7 +533,7 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0, marg
         if worst is not None:
             detail = (f"residue matrix is not positive semidefinite (principal minor {_lbl(worst[1])} < 0)"
                       if n > 1 else "residue is negative")
-            margin = lmin if lmin < 0 else -1e-300
+            margin = max(lmin, -1.0) if lmin < 0 else -1e-300  # λ_min can reach -n·max|k|: clipped to -1
             if not need_f:
                 margin = -1e-300
             if rtol > 0 and lmin >= -dnorm:
@@ -549,7 +580,7 @@ def decide_residues(R: ResidueMatrix, residue_test: str, rtol: float = 0.0, marg
             if not need_f and d[1].is_zero() and sg > 0:
                 continue  # holds strictly: nothing to report without margins
             sub = K[np.ix_(ii, ii)]
-            mnr = complex(np.linalg.det(sub)) if k > 1 else complex(sub[0, 0])
+            mnr = _det_leibniz(sub)  # not numpy's det (sign·exp(log|det|)): exact under 2^k scalings
             perm = _perm_abs(sub) or 1.0
             room = _perm_abs(Kd[np.ix_(ii, ii)]) - _perm_abs(sub)
             if not d[1].is_zero():

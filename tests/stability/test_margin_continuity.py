@@ -123,3 +123,31 @@ def test_coefficients_beyond_double_range_do_not_crash_the_margin():
     for crit in ("passivity", "llewellyn", "absolute_stability"):
         r = check(tm, crit)
         assert str(r.verdict) == "potentially_unstable" and -1.0 <= r.margin < 0
+
+
+def test_a_violation_narrower_than_the_double_spacing_gets_a_certified_margin(caplog):
+    """A frequency-scaled Foster one-port (degree 7, ω_scale 2^15) whose rounded coefficients
+    moved three lossless poles off the axis: E{1}'s negative band at x = 1.6375424661783298 is two
+    doubles wide, its minimizer lies between doubles, and the certification failed with a warning
+    (the margin, -6.5712e-34, was the value at the best double, not the minimum to 1e-6). Searched
+    in exact rationals, the margin agrees with the minimum over 4097 exact rational points of the
+    band to 1e-5 relative and is certified (no warning)."""
+    from flint import fmpq
+
+    from hil.stability.margins import _q_of
+
+    na = [22.662121582617566, 0.00013593003840354953, 1.5584147942916768e-07, 8.620996990816223e-13,
+          1.9664980995256612e-16, 8.191620315487508e-22, 6.544895991672207e-26, 2.120379350970489e-31]
+    da = [0.0, 0.6694328505040782, 0.0, 4.245697755646689e-09, 0.0, 4.034236878359275e-18, 0.0,
+          1.0442515942326815e-27]
+    with caplog.at_level("WARNING", logger="hil.stability.margins"):
+        r = positive_real(Rational(np.array(na), np.array(da)))
+    assert not [m for m in caplog.messages if "certif" in m]
+    e = r.condition("E{1}")
+    assert e.status == "violated" and -1e-33 < e.margin < 0
+    p, mr = e.ratio
+    mq = _q_of(mr)
+    x0 = fmpq(*((e.worst_frequency / r.network["omega_scale"]) ** 2).as_integer_ratio())
+    lo, hi = x0 * (1 - fmpq(1, 2**50)), x0 * (1 + fmpq(1, 2**50))
+    grid = min(p(x) / mq(x) for x in (lo + (hi - lo) * fmpq(k, 4096) for k in range(4097)))
+    assert e.margin == pytest.approx(float(grid), rel=1e-5)

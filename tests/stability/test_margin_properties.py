@@ -184,6 +184,8 @@ def test_sign_of_the_margin_is_the_verdict(seed, n, shift):
         r = check(tm, crit)
         if str(r.verdict) in ("stable", "potentially_unstable"):
             assert (r.margin >= 0) == (str(r.verdict) == "stable"), r.summary()
+        # every margin is dimensionless and in [-1, 1] (docs/VERDICTS.md)
+        assert all(-1.0 <= c.margin <= 1.0 for c in r.conditions if c.margin == c.margin), r.summary()
 
 
 @given(SEEDS, st.integers(1, 2), st.integers(-30, 30), st.integers(-30, 30), st.sampled_from([0.0, 1e-15, -1e-15]))
