@@ -109,8 +109,8 @@ def _type_name(tp: Any) -> str:
                 if len(args) == 2 else f"{len(args)}-tuple"
         return "list of " + (_type_name(args[0]) if args else "any")
     if origin is dict:
-        args = typing.get_args(tp)
-        return f"mapping of {_type_name(args[0])} to {_type_name(args[1])}" if args else "mapping"
+        kv = typing.get_args(tp)
+        return f"mapping of {_type_name(kv[0])} to {_type_name(kv[1])}" if kv else "mapping"
     if _is_model(tp):
         return "mapping"
     return {float: "number", int: "integer", str: "string", bool: "boolean"}.get(tp, getattr(tp, "__name__", str(tp)))
