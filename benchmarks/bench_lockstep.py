@@ -22,8 +22,23 @@ running this tree, ``--repeat`` times each per scene; the table shows the best o
 second of the child's CPU time, for the bench alone and for the runner: a loaded machine disturbs
 the wall clock far more) and the ratio this tree / REV.
 
+``--costs`` prints, per scene, what a bench tick costs in CPU time (this thread's
+``time.thread_time``, best of ``--repeat`` blocks of ``--ticks`` ticks) and how it splits by where
+the code lives, measured directly (:func:`account`: the entry points of each category timed on this
+thread's CPU clock, exclusive time, the timer's own cost taken off): the adapters under test and the
+libraries they call (their ``read``/``command_effort``/``wait_rx``), the transports (the virtual
+CAN buses' send/receive, the pty and socket system calls, pyserial's included), the simulated
+devices (their twins' ``tick``/``flush``, a CAN node's answer in the sender's thread), the plant
+(``Simulator.tick``) and the bench (the rest: measurement points, barriers, group assembly). The
+**ceiling** is the tick rate if only the adapters, the transports and the plant cost anything:
+1 / (adapters + transports + plant). With ``--against REV`` the same run also prints this tree
+against ``REV`` (bench ticks per CPU-second, best of ``--repeat`` alternating child processes each);
+for sdea_bench it ends with the floor with the avoidable work removed (:func:`adapter_floor`: the
+unchanged adapters, canned devices, the plant; on the lockstep transports and in memory), each part
+also timed alone.
+
 Run: ``python benchmarks/bench_lockstep.py [--ticks 2000] [--scenes sdea_bench,...] [--digest]
-[--phases] [--against REV [--repeat 3]]``. Not a test; prints tables.
+[--phases] [--floor] [--costs] [--against REV [--repeat 3]]``. Not a test; prints tables.
 """
 
 from __future__ import annotations
@@ -38,6 +53,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -78,7 +94,8 @@ def runner_rates(name: str, ticks: int, digest: bool) -> tuple[float, float, str
 
 
 def bench_tps(name: str, ticks: int) -> tuple[float, float, float]:
-    """(bench ticks/s wall clock, bench ticks/s of this process's CPU time, plant-only ticks/s)."""
+    """(bench ticks/s wall clock, bench ticks/s of this process's CPU time, plant-only ticks/s of
+    this thread's CPU time)."""
     sc = load_scene(name)
     with Bench(sc, seed=sc.seed) as bench:
         zero = {a: np.zeros(sc.device(a).dof) for a in bench.actuators}
@@ -91,10 +108,10 @@ def bench_tps(name: str, ticks: int) -> tuple[float, float, float]:
         bench.safe_stop()
     with Bench(sc, seed=sc.seed) as bench:
         sim = bench.simulator
-        t0 = time.perf_counter()
+        c0 = time.thread_time()
         for _ in range(ticks):
             sim.tick()
-        p = time.perf_counter() - t0
+        p = time.thread_time() - c0
     return ticks / b, ticks / c, ticks / p
 
 
@@ -131,6 +148,185 @@ def phases(name: str, ticks: int) -> dict[str, float]:
                 acc[k] = acc.get(k, 0) + clk() - t0
         bench.safe_stop()
     return {k: v / ticks / 1e3 for k, v in acc.items()}
+
+
+#: categories of the direct accounting (:func:`account`), in table order
+ACCOUNT = ("adapters", "transports", "devices", "plant", "bench")
+
+
+def account(name: str, ticks: int, repeat: int) -> tuple[float, dict[str, float], float]:
+    """What a bench tick of scene ``name`` costs, measured directly: (CPU s per tick untimed, best
+    of ``repeat`` blocks of ``ticks`` ticks; CPU s per tick by category; timed calls per tick).
+
+    The entry points of each category are wrapped with a timer of this thread's CPU time that keeps
+    each call's *exclusive* time (time spent in a nested timed call goes to the nested one's
+    category): adapters, every adapter's ``read``/``command_effort``/``wait_rx`` (the code under
+    test and the libraries it calls); transports, ``os.read``/``os.write``/``select.select``/
+    ``fcntl.ioctl`` (pty and socket system calls, pyserial's included) and the virtual CAN buses'
+    ``send``/``_recv_internal``; devices, every simulated device's ``tick``/``flush`` (its twin)
+    and a CAN node's delivery of a host frame (``SimCanNode._deliver_sync``, which answers in the
+    sender's thread); plant, ``Simulator.tick``; bench, the rest of ``Bench.read/command/advance``
+    (measurement points, barriers, group assembly). Unlike a cProfile run's shares (which weigh code
+    of many small calls more), nothing is apportioned but the timer's own cost: a
+    per-thread CPU clock read is a system call (~1 µs here), so the timed block costs more than the
+    untimed one; that excess per timed call is taken off half from the category of the call and
+    half from the category it was called from (one clock read lands in each). The categories of the
+    best timed block then add up to the untimed tick of the same block count."""
+    import fcntl
+    import select as select_mod
+
+    from can.interfaces import virtual
+
+    from hil.mocks.can_devices import LockstepVirtualBus, SimCanNode
+
+    clk = time.thread_time_ns
+    acc = dict.fromkeys(ACCOUNT, 0)
+    ends = dict.fromkeys(ACCOUNT, 0)  # clock reads landing in each category
+    stack: list[int] = []
+    cats: list[str] = []
+
+    def timed(fn: Any, cat: str) -> Any:
+        def w(*a: Any, **kw: Any) -> Any:
+            t0 = clk()
+            stack.append(0)
+            cats.append(cat)
+            try:
+                return fn(*a, **kw)
+            finally:
+                el = clk() - t0
+                acc[cat] += el - stack.pop()
+                cats.pop()
+                ends[cat] += 1
+                ends[cats[-1]] += 1
+                stack[-1] += el
+        return w
+
+    patched: list[tuple[Any, str, Any]] = []
+
+    def patch(owner: Any, attr: str, cat: str) -> None:
+        if any(o is owner and a == attr for o, a, _ in patched):  # shared (a twin of several devices)
+            return
+        patched.append((owner, attr, owner.__dict__.get(attr, None) if isinstance(owner, type) else None))
+        setattr(owner, attr, timed(getattr(owner, attr), cat))
+
+    sc = load_scene(name)
+    with Bench(sc, seed=sc.seed) as bench:
+        zero = {a: np.zeros(sc.device(a).dof) for a in bench.actuators}
+
+        def block() -> float:
+            c0 = time.thread_time()
+            for _ in range(ticks):
+                bench.read()
+                bench.command(zero)
+                bench.advance()
+            return time.thread_time() - c0
+
+        block()  # warm up
+        best = min(block() for _ in range(repeat))
+        modules = [(os, "read"), (os, "write"), (select_mod, "select"), (fcntl, "ioctl")]
+        originals = [(m, a, getattr(m, a)) for m, a in modules]
+        chosen: dict[str, float] = {}
+        timed_calls = 0.0
+        try:
+            for m, a in modules:
+                setattr(m, a, timed(getattr(m, a), "transports"))
+            for cls in (LockstepVirtualBus, virtual.VirtualBus):
+                for a in ("send", "_recv_internal"):
+                    if a in cls.__dict__:
+                        patch(cls, a, "transports")
+            patch(SimCanNode, "_deliver_sync", "devices")
+            for d in bench._devs:
+                for a in ("read", "command_effort", "wait_rx"):
+                    if d.adapter is not None and hasattr(d.adapter, a):
+                        patch(d.adapter, a, "adapters")
+            for twin, _, _ in bench._sim_plan():
+                for a in ("tick", "flush"):
+                    patch(twin, a, "devices")
+            patch(bench.simulator, "tick", "plant")
+            best_timed = float("inf")
+            for _ in range(repeat):
+                acc.update(dict.fromkeys(ACCOUNT, 0))
+                ends.update(dict.fromkeys(ACCOUNT, 0))
+                c0 = time.thread_time_ns()
+                for _ in range(ticks):
+                    stack.append(0)
+                    cats.append("bench")
+                    t0 = clk()
+                    bench.read()
+                    bench.command(zero)
+                    bench.advance()
+                    acc["bench"] += clk() - t0 - stack.pop()
+                    cats.pop()
+                cpu = time.thread_time_ns() - c0
+                assert not stack and not cats
+                if cpu < best_timed:
+                    best_timed = cpu
+                    n_ends = sum(ends.values())
+                    per_read = max(0.0, cpu - best * 1e9) / n_ends if n_ends else 0.0
+                    chosen = {c: max(0.0, v - ends[c] * per_read) for c, v in acc.items()}
+                    timed_calls = n_ends / 2 / ticks
+        finally:
+            for m, a, f in originals:
+                setattr(m, a, f)
+            for owner, a, f in reversed(patched):
+                if isinstance(owner, type):
+                    setattr(owner, a, f)
+                else:
+                    delattr(owner, a)
+        bench.safe_stop()
+    return best / ticks, {c: v / ticks / 1e9 for c, v in chosen.items()}, timed_calls
+
+
+def cost_table(names: list[str], ticks: int, repeat: int, against_rev: str = "") -> None:
+    """Per scene: the bench tick's CPU by category (:func:`account`), the ceiling, and with
+    ``against_rev`` that revision's and this tree's bench ticks per CPU-second (child processes,
+    alternating, best of ``repeat``); then, for sdea_bench, the floor with the avoidable work
+    removed (:func:`adapter_floor`, on the lockstep and on in-memory transports)."""
+    before: dict[str, float] = {}
+    after: dict[str, float] = {}
+    if against_rev:  # the same measurement for both trees: child processes, alternating, best of `repeat`
+        with tempfile.TemporaryDirectory() as d:
+            tree = str(revision_tree(against_rev, Path(d)))
+            for name in names:
+                for _ in range(repeat):
+                    before[name] = max(before.get(name, 0.0), child(name, ticks, tree)["cpu"])
+                    after[name] = max(after.get(name, 0.0), child(name, ticks, None)["cpu"])
+    print(f"Lockstep bench tick, CPU µs by category, measured directly ({ticks} ticks, best of {repeat}; timed "
+          "entry points, exclusive CPU time, the timer's own cost taken off; adapters: the adapters' read/command "
+          "and the libraries they call; transports: virtual CAN bus send/receive, pty/socket system calls; "
+          "devices: the simulated devices; plant: Simulator.tick; bench: the rest)")
+    head = f"{'scene':26s} {'µs/tick':>8s} {'ticks/CPU-s':>11s}" + "".join(f" {c:>10s}" for c in ACCOUNT)
+    head += f" {'ceiling':>8s} {'of ceil.':>8s}"
+    if before:
+        head += f" {against_rev[:8]:>9s} {'this':>7s} {'ratio':>6s}"
+    print(head)
+    for name in names:
+        total, per, _ = account(name, ticks, repeat)
+        ceiling = 1.0 / (per["adapters"] + per["transports"] + per["plant"])
+        row = f"{name:26s} {1e6 * total:8.1f} {1.0 / total:11.0f}" + "".join(f" {1e6 * per[c]:10.1f}" for c in ACCOUNT)
+        row += f" {ceiling:8.0f} {100.0 / total / ceiling:7.0f}%"
+        if before:
+            row += f" {before[name]:9.0f} {after[name]:7.0f} {after[name] / before[name]:5.2f}x"
+        print(row, flush=True)
+    print("(µs/tick: the tick untimed, best of the blocks; the categories add up to it; ceiling: ticks per CPU-second "
+          f"if only the adapters, the transports and the plant cost anything; {against_rev[:8] or 'REV'} / this: "
+          f"bench ticks per CPU-second of that revision / this tree, process CPU, best of {repeat} alternating "
+          "child processes run now)")
+    if "sdea_bench" in names:
+        floor_lines(ticks, repeat)
+
+
+def floor_lines(ticks: int, repeat: int) -> None:
+    """sdea_bench's tick with the avoidable work removed (:func:`adapter_floor`), on the lockstep
+    transports and on in-memory ones."""
+    for memory in (False, True):
+        p = adapter_floor(ticks, repeat, memory=memory)
+        where = ("in-memory transports (ODrive: a deque BusABC; Bota: pyserial loop://)" if memory
+                 else "lockstep transports (LockstepVirtualBus, pty)")
+        print(f"sdea_bench with the avoidable work removed, {where}: {1e6 * p['tick']:.1f} µs per tick = "
+              f"{1 / p['tick']:.0f} ticks per CPU-second; each part alone: ODrive poll + command "
+              f"{1e6 * p['odrive']:.1f} µs, Bota read {1e6 * p['bota']:.1f} µs, plant {1e6 * p['plant']:.1f} µs "
+              f"(sum {1e6 * (p['odrive'] + p['bota'] + p['plant']):.1f} µs)", flush=True)
 
 
 def revision_tree(rev: str, dest: Path) -> Path:
@@ -253,9 +449,133 @@ def primitive_costs(reps: int = 20000) -> dict[str, float]:
     return {"can": best_can, "pty": best_pty}
 
 
+def adapter_floor(ticks: int, repeat: int, memory: bool = False) -> dict[str, float]:
+    """CPU s per tick of sdea_bench's lockstep tick with the avoidable work removed: the unchanged
+    adapters (``ODriveCAN`` polling, ``BotaSerial``) on their lockstep transports and simulated-time
+    waits, the plant (``Simulator.tick``), and *canned* devices instead of the simulated ones: the
+    ODrive's Get_Encoder_Estimates answer is a pre-built frame put in the adapter's queue in the
+    sender's thread (a ``sync`` node's delivery, nothing computed), the Bota frames are pre-encoded
+    (1004 Hz on the 2 kHz loop: one every other tick) and written to the pty master; no bench, no
+    measurement point, no runner. Returns the best of ``repeat`` blocks, and each part alone.
+
+    ``memory``: the same adapters on the cheapest transports there are, in memory: the ODrive on a
+    ``can.BusABC`` whose frames go through a deque (python-can's ``BusABC.send``/``recv`` and
+    ``Message`` kept: the adapter's code path), the Bota on pyserial's ``loop://`` port (the frame
+    written to the port comes back to its reader: no system call). The difference to the lockstep
+    transports is the transports' cost; what is left is the adapters' own code and the plant."""
+    import pty
+    import select
+    import tty
+    from collections import deque
+
+    import can
+
+    from hil.bench.runtime import Bench
+    from hil.mocks.can_devices import LockstepVirtualBus
+    from hil.protocols.can_odrive import ODriveCAN
+    from hil.protocols.codecs import odrive as od
+    from hil.protocols.codecs.bota import encode_frame
+    from hil.protocols.serial_bota import BotaSerial
+    from hil.protocols.waits import LockstepWaits
+
+    clk = time.thread_time
+    sc = load_scene("sdea_bench")
+    ch = f"floor-{os.getpid()}"
+    reply = can.Message(arbitration_id=od.arbitration_id(3, od.CMD_GET_ENCODER_ESTIMATES),
+                        data=od.encode_f32x2(0.25, -1.5), is_extended_id=False)
+    poll_id = reply.arbitration_id
+    from can.interfaces import virtual
+
+    class MemoryBus(can.BusABC):  # a deque: the device answers the poll in the sender's thread
+        def __init__(self) -> None:
+            self.frames: deque[can.Message] = deque()
+            self.channel_info = "memory"
+            super().__init__(channel="memory")
+
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
+            if msg.arbitration_id == poll_id and msg.is_remote_frame:
+                self.frames.append(reply)
+
+        def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+            return (self.frames.popleft() if self.frames else None), False
+
+    host: can.BusABC
+    if memory:
+        host = MemoryBus()
+    else:
+        lockstep_bus = LockstepVirtualBus(ch)
+        host = lockstep_bus
+
+        class CannedODrive:  # the device end of the channel: answers the poll in the sender's thread
+            def put(self, msg: can.Message, block: bool = True, timeout: float | None = None) -> None:
+                if msg.arbitration_id == poll_id and msg.is_remote_frame:
+                    lockstep_bus.queue.put_nowait(reply)
+
+        with virtual.channels_lock:
+            virtual.channels[ch].append(CannedODrive())  # type: ignore[arg-type]
+    waits = LockstepWaits(lambda: 0.0, lambda: None)
+    motor = ODriveCAN(3, ch, "virtual", bus=host, enable=False, timeout=0.05, waits=waits)
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    # every frame new (its device timestamp advances: a fresh sample), for every block of the run
+    frames = iter([encode_frame(0, [0, 0, 0, 0, 0, 0.01 * (k % 7)], round(k * 996.09375), 25.0)
+                   for k in range(2 * repeat * ticks + 2)])
+    bota = BotaSerial("loop://" if memory else os.ttyname(slave), configure=False, period_s=51 / 51200,
+                      timeout=0.05, waits=waits)
+    port = bota._ser
+
+    def push() -> None:  # the device's frame reaches the host's port
+        if memory:
+            port.write(next(frames))
+        else:
+            os.write(master, next(frames))
+            select.select([slave], [], [], 0.0)  # the device's push (n_tty_poll)
+
+    zero = np.zeros(1)
+    parts = {"odrive": float("inf"), "bota": float("inf"), "plant": float("inf"), "tick": float("inf")}
+    try:
+        with Bench(sc, seed=sc.seed) as bench:
+            sim = bench.simulator
+            for _ in range(repeat):
+                c0 = clk()
+                for k in range(ticks):
+                    motor.read()
+                    motor.command_effort(zero)
+                    if k % 2 == 0:
+                        push()
+                    bota.read(timeout=0.0)
+                    sim.tick()
+                parts["tick"] = min(parts["tick"], (clk() - c0) / ticks)
+                c0 = clk()
+                for _ in range(ticks):
+                    motor.read()
+                    motor.command_effort(zero)
+                parts["odrive"] = min(parts["odrive"], (clk() - c0) / ticks)
+                c0 = clk()
+                for k in range(ticks):
+                    if k % 2 == 0:
+                        push()
+                    bota.read(timeout=0.0)
+                parts["bota"] = min(parts["bota"], (clk() - c0) / ticks)
+                c0 = clk()
+                for _ in range(ticks):
+                    sim.tick()
+                parts["plant"] = min(parts["plant"], (clk() - c0) / ticks)
+            bench.safe_stop()
+    finally:
+        motor.close()
+        bota.close()
+        host.shutdown()
+        with virtual.channels_lock:
+            virtual.channels.pop(ch, None)
+        os.close(master)
+        os.close(slave)
+    return parts
+
+
 def floor_table(names: list[str], ticks: int) -> None:
     cost = primitive_costs()
-    print(f"Transport floor per lockstep tick (CPU of this thread; a CAN frame {1e6 * cost['can']:.1f} µs, "
+    print(f"Transport floor per lockstep tick (CPU time; a CAN frame {1e6 * cost['can']:.1f} µs, "
           f"a 37-byte pty frame {1e6 * cost['pty']:.1f} µs, measured in this run)")
     print(f"{'scene':28s} {'CAN/tick':>9s} {'pty/tick':>9s} {'plant µs':>9s} {'floor µs':>9s} {'max ticks/s':>12s}"
           f" {'bench CPU t/s':>14s}")
@@ -265,7 +585,9 @@ def floor_table(names: list[str], ticks: int) -> None:
         floor = can_n * cost["can"] + pty_n * cost["pty"] + 1.0 / p
         print(f"{name:28s} {can_n:9.2f} {pty_n:9.2f} {1e6 / p:9.1f} {1e6 * floor:9.1f} {1.0 / floor:12.0f} {c:14.0f}")
     print("(floor: the transports' and the plant's cost alone, no adapter, device, bench or runner code; "
-          "plant µs: wall clock of Simulator.tick alone)")
+          "plant µs: CPU time of Simulator.tick alone; every number CPU time of this thread)")
+    if "sdea_bench" in names:
+        floor_lines(ticks, 3)
 
 
 def main() -> None:
@@ -275,6 +597,8 @@ def main() -> None:
     ap.add_argument("--digest", action="store_true", help="print the SHA-256 of each run's record channels")
     ap.add_argument("--phases", action="store_true", help="print the bench tick's CPU time by phase")
     ap.add_argument("--floor", action="store_true", help="the transports' lower bound on a tick, per scene")
+    ap.add_argument("--costs", action="store_true", help="CPU per tick by where the code lives, and the ceiling "
+                    "(with --against: also that revision's ticks per CPU-second)")
     ap.add_argument("--against", default="", help="a git revision to compare with, in the same run")
     ap.add_argument("--repeat", type=int, default=3, help="child processes per tree and scene (--against)")
     ap.add_argument("--child", default="", help=argparse.SUPPRESS)
@@ -285,6 +609,9 @@ def main() -> None:
         print(json.dumps({"runner": rc, "cpu": c}))
         return
     names = [s for s in a.scenes.split(",") if s] or [n for n, _ in builtin_scenes()]
+    if a.costs:
+        cost_table(names, a.ticks, a.repeat, a.against)
+        return
     if a.against:
         against(a.against, names, a.ticks, a.repeat)
         return

@@ -389,6 +389,7 @@ class SimCanNode:
         t = self.tick_count
         if inj.is_disconnected(t) or self._closed:
             return
+        inj.hold_up()
         if inj.should_drop(t):
             return
         if key in self._last_payload and inj.should_repeat_stale(t):

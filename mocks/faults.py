@@ -32,6 +32,12 @@ What each fault means (a simulated device decides per *outgoing* frame / reply u
 * **disconnect** (from tick ``disconnect_at_tick`` until ``reconnect_at_tick`` exclusive, or for
   ever): the device is silent (answers nothing, ignores commands). On transports that can signal
   it (pty, socket) the device may additionally close its end.
+* **slow device** (``delay_s``): before each frame or reply it sends, the device spends ``delay_s``
+  seconds of *wall-clock* time (a slow device, or the machine that runs it too loaded to run it on
+  time). It changes no data and draws nothing. On a lockstep bench it changes nothing either: the
+  host waits for its simulated devices by a barrier, on simulated time, so only the run gets
+  slower (:mod:`hil.protocols.waits`); served free-running (realtime runs, ``hil mock serve``) the
+  answers arrive that much later and the host's timeouts and watchdog see it.
 
 Ticks are the device's own counter of processed lockstep steps / emitted frames; each device
 documents what it counts (e.g. one ``process_pending()`` call or one ``emit()``).
@@ -40,6 +46,7 @@ documents what it counts (e.g. one ``process_pending()`` call or one ``emit()``)
 from __future__ import annotations
 
 import logging
+import time
 from collections import Counter
 from dataclasses import dataclass, field
 
@@ -74,6 +81,7 @@ class FaultPlan:
     error_until_tick: int | None = None
     disconnect_at_tick: int | None = None
     reconnect_at_tick: int | None = None
+    delay_s: float = 0.0  # wall-clock seconds spent before each frame / reply sent (slow device)
 
     def __post_init__(self) -> None:
         for name in ("drop_prob", "corrupt_prob", "late_prob", "stale_prob", "garbage_prob"):
@@ -82,6 +90,8 @@ class FaultPlan:
                 raise ValueError(f"FaultPlan.{name} must be in [0, 1], got {p!r}")
         if self.late_ticks < 1 or self.late_s < 0 or self.garbage_len < 1:
             raise ValueError("FaultPlan: late_ticks >= 1, late_s >= 0 and garbage_len >= 1 required")
+        if not self.delay_s >= 0.0:
+            raise ValueError(f"FaultPlan.delay_s must be >= 0 s, got {self.delay_s!r}")
         # accept any iterable for the tick sets (e.g. a list from a YAML scene)
         object.__setattr__(self, "drop_ticks", frozenset(self.drop_ticks))
         object.__setattr__(self, "corrupt_ticks", frozenset(self.corrupt_ticks))
@@ -201,6 +211,12 @@ class FaultInjector:
         rng = self._rng["garbage"]
         n = int(rng.integers(1, self.plan.garbage_len + 1))
         return rng.integers(0, 256, size=n, dtype=np.uint8).tobytes()
+
+    def hold_up(self) -> None:
+        """A slow device (``delay_s``): spend that long, on the wall clock, before sending."""
+        if self.plan.delay_s > 0.0:
+            self.injected["delay"] += 1
+            time.sleep(self.plan.delay_s)
 
     # -- scheduled state ------------------------------------------------------------------
     def error_code(self, tick: int) -> int:

@@ -7,11 +7,13 @@ The simulator owns the *master* side of a pseudo terminal; an adapter opens the 
 
 Behaviour (FT-300 manual, "Serial communication": Modbus RTU, slave 9, then "Data stream"):
 
-* **Modbus mode** (at power-up): a background thread answers RTU requests addressed to the slave
-  id: FC03/FC04 reads of the register map of :mod:`hil.mocks.modbus_devices` (180-185 wrench,
-  190-192 acceleration = 0, 410, 500-502 firmware, 510-513 serial number, 514 production year;
-  other addresses -> exception 2), FC06/FC16 writes of register 410 (echo; other addresses ->
-  exception 2). Requests with a bad CRC or for another id get no reply, as on an RS-485 bus.
+* **Modbus mode** (at power-up): a background thread (``threaded=False``, what a lockstep bench
+  builds: the host's barrier :meth:`SimFT300Stream.serve_pending`, in the host's thread) answers
+  RTU requests addressed to the slave id: FC03/FC04 reads of the register map of
+  :mod:`hil.mocks.modbus_devices` (180-185 wrench, 190-192 acceleration = 0, 410, 500-502
+  firmware, 510-513 serial number, 514 production year; other addresses -> exception 2), FC06/FC16
+  writes of register 410 (echo; other addresses -> exception 2). Requests with a bad CRC or for
+  another id get no reply, as on an RS-485 bus.
   Writing 0x0200 to register 410 switches to stream mode right after the echo.
 * **Stream mode**: 16-byte frames ``20 4E Fx..Mz CRC`` (:func:`encode_stream_frame`), either one
   per :meth:`emit` call (lockstep: the byte stream is a pure function of the plant state, the
@@ -53,7 +55,15 @@ from hil.mocks.modbus_devices import (
     wrench_to_registers,
 )
 from hil.mocks.periodic import PeriodicThread
-from hil.mocks.pty import LinkBudget, close_fds, host_writes, open_raw_pty, write_dropping
+from hil.mocks.pty import (
+    LinkBudget,
+    close_fds,
+    host_writes,
+    open_raw_pty,
+    pending_host_bytes,
+    push_to_host,
+    write_dropping,
+)
 from hil.protocols.codecs.crc import crc16_modbus
 from hil.protocols.codecs.robotiq import (
     DEFAULT_SLAVE_ID,
@@ -98,8 +108,12 @@ class SimFT300Stream:
         streaming: bool = False,
         tick_s: float | None = None,
         baudrate: int = 19_200,
+        threaded: bool = True,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.rate_hz = float(rate_hz)
+        self.threaded = bool(threaded)
+        self._clock = clock  # RTU inter-frame silence
         # tick_s None: each emit() is one stream frame (1/rate_hz of simulated time); given (a
         # lockstep bench's control period): each emit() advances the sensor clock by tick_s and
         # sends the frames due at rate_hz. The line carries at most baudrate/10 bytes per
@@ -135,8 +149,10 @@ class SimFT300Stream:
         self._emitter = PeriodicThread(self.emit, 1.0 / self.rate_hz, "sim-ft300-stream")
         self._closed = False
         self._master, self._slave, self.path = open_raw_pty()
-        self._rx_thread = threading.Thread(target=self._serve, name="sim-ft300-stream-rx", daemon=True)
-        self._rx_thread.start()
+        self._rx_thread: threading.Thread | None = None
+        if self.threaded:
+            self._rx_thread = threading.Thread(target=self._serve, name="sim-ft300-stream-rx", daemon=True)
+            self._rx_thread.start()
         logger.debug("simulated FT-300 (stream) on %s", self.path)
 
     # -- public -----------------------------------------------------------------------------------
@@ -181,6 +197,7 @@ class SimFT300Stream:
         if inj.is_disconnected(t):
             self.stats["silent"] += 1
             return
+        inj.hold_up()
         frame = encode_stream_frame(self.wrench())
         data = self._frame_faults.bytes_to_send(frame, t)
         if data is None:
@@ -217,7 +234,8 @@ class SimFT300Stream:
                 return
             self._closed = True
         self._stop.set()
-        self._rx_thread.join(timeout=2.0)
+        if self._rx_thread is not None:
+            self._rx_thread.join(timeout=2.0)
         close_fds(self._master, self._slave)
 
     def close(self) -> None:
@@ -239,6 +257,18 @@ class SimFT300Stream:
         for data in host_writes(self._master, self._stop):
             self._receive(data)
 
+    def serve_pending(self) -> int:
+        """Lockstep barrier of a sensor built with ``threaded=False`` (served in the host's thread):
+        process every byte the host has written so far (Modbus requests answered, a jam taken) and
+        make everything written to the line readable by the host; never waits on a clock (see
+        :func:`hil.mocks.pty.pending_host_bytes`). Returns the number of bytes processed."""
+        n = 0
+        for data in pending_host_bytes(self._master):
+            n += len(data)
+            self._receive(data)
+        push_to_host(self._slave)
+        return n
+
     def _receive(self, data: bytes) -> None:
         with self._lock:
             if self._closed:
@@ -253,7 +283,7 @@ class SimFT300Stream:
                         self._rx.clear()
                         break
                 return
-            now = time.monotonic()
+            now = self._clock()
             if self._rx and now - self._rx_t > 0.05:  # RTU: a long silence ends any partial frame
                 self._rx.clear()
             self._rx_t = now
@@ -286,6 +316,7 @@ class SimFT300Stream:
             if start:  # in stream mode from the echo on; emit() takes the same lock: no frame before it
                 self._set_streaming(True)
                 self._ff_run = 0
+            self.injector.hold_up()
             self._write(rtu_frame(self.slave, reply))
             if start:
                 return

@@ -46,6 +46,13 @@ addressed to its slave id (0, 1, 2, ...; requests for other ids are ignored, as 
   (SERVER DEVICE FAILURE); ``error_code`` of the plan is recorded in :attr:`last_error_code`.
 
 ``late`` and ``garbage`` are not used by this device (request/response over TCP).
+
+**Lockstep barrier.** The server runs in its own thread (pymodbus' asyncio server) and TCP
+delivers bytes asynchronously, so a lockstep bench counts: the adapter's requests (its ``waits``
+link, :meth:`hil.protocols.waits.LockstepWaits.link`) against the server's answers
+(:attr:`SimulatedFT300.answered`, counted after pymodbus wrote each one, :meth:`SimulatedFT300.settle`),
+and the answer bytes written (``link.device_tx``) against those the adapter has taken: no
+deadline, however long the machine takes to run the server thread.
 """
 
 from __future__ import annotations
@@ -121,6 +128,8 @@ class SimulatedFT300:
 
     ``framing`` is ``"tcp"`` (Modbus/TCP, MBAP header) or ``"rtu"`` (RTU frames over TCP).
     ``port=0`` picks a free port; the bound port is :attr:`port` and the adapter URL :attr:`url`.
+    ``start_timeout`` (s, wall clock): how long to wait for the server to listen; None: as long as
+    its thread lives (a lockstep bench: however long a loaded machine takes).
     Use as a context manager or call :meth:`close` (idempotent).
     """
 
@@ -138,7 +147,7 @@ class SimulatedFT300:
         firmware: tuple[int, int, int] = (1, 0, 3),
         serial: tuple[str, int] = ("SIM", 1),
         production_year: int = 2024,
-        start_timeout: float = 5.0,
+        start_timeout: float | None = 5.0,
         tcp_corrupt: str = "gateway",
     ) -> None:
         # Imported here: pymodbus is an optional dependency (extra "modbus").
@@ -170,6 +179,13 @@ class SimulatedFT300:
         self.streaming_requested = False
         self.written: BoundedLog = BoundedLog()  # newest (address, values)
         self.last_request = b""  # raw bytes of the last request frame received (diagnostics)
+        #: requests answered so far (a suppressed reply counts) and the bytes written for them
+        self.answered = 0
+        self.answer_bytes = 0
+        self._answered = threading.Condition()
+        #: the adapter's lockstep link (:meth:`hil.protocols.waits.LockstepWaits.link`): its
+        #: ``tx_units`` (requests sent) and ``device_tx`` (answer bytes written) make the barrier
+        self.link: Any = None
 
         simdata = [
             SimData(address=REG_WRENCH, count=6, values=0, datatype=DataType.REGISTERS),
@@ -196,9 +212,10 @@ class SimulatedFT300:
             target=self._run, args=(port,), name=f"sim-ft300-{framing}", daemon=True
         )
         self._thread.start()
-        if not self._ready.wait(start_timeout):
-            self.close()
-            raise TimeoutError("simulated FT-300 server did not start")
+        while not self._ready.wait(start_timeout if start_timeout is not None else 1.0):
+            if start_timeout is not None or not self._thread.is_alive():
+                self.close()
+                raise TimeoutError("simulated FT-300 server did not start")
         if self._start_error is not None:
             self.close()
             raise RuntimeError(f"simulated FT-300 server failed: {self._start_error}")
@@ -291,6 +308,12 @@ class SimulatedFT300:
         if not sending:
             self.last_request = bytes(data)
             return data
+        out = self._reply_bytes(data)
+        # pymodbus writes `out` right after this returns, in this loop callback: count it after that
+        self._loop.call_soon(self._replied, len(out))
+        return out
+
+    def _reply_bytes(self, data: bytes) -> bytes:
         if not self._addressed:
             return b""  # a real RTU slave stays silent for other ids
         tick = self._tick
@@ -298,6 +321,7 @@ class SimulatedFT300:
         if inj.is_disconnected(tick) or inj.should_drop(tick):
             self.replies_dropped += 1
             return b""
+        inj.hold_up()
         if inj.should_corrupt(tick):
             self.corrupted_replies += 1
             if self.framing == "tcp" and self.tcp_corrupt == "gateway" and len(data) >= 8:
@@ -307,6 +331,31 @@ class SimulatedFT300:
             start = 1 if self.framing == "rtu" else 7
             return inj.corrupt(data, start=min(start, len(data) - 1))
         return data
+
+    def _replied(self, nbytes: int) -> None:
+        """One request answered (``nbytes`` written, 0 when the reply was suppressed)."""
+        with self._answered:
+            self.answered += 1
+            self.answer_bytes += nbytes
+            if self.link is not None:
+                self.link.device_tx += nbytes
+            self._answered.notify_all()
+
+    def settle(self, requests: int | None = None) -> None:
+        """Lockstep barrier (a bench in lockstep: :attr:`link` set): return once the server has
+        answered (or deliberately not answered) ``requests`` requests, by default every request the
+        adapter on :attr:`link` has sent. Waits as long as the server thread needs: no deadline
+        (only a server thread that died ends it, with an error)."""
+        if requests is None:
+            if self.link is None:
+                return
+            requests = int(self.link.tx_units)
+        with self._answered:
+            while self.answered < requests:
+                if not self._thread.is_alive():
+                    raise RuntimeError(f"simulated FT-300 server stopped with {requests - self.answered} "
+                                       "request(s) unanswered")
+                self._answered.wait(1.0)  # a liveness check period, not a deadline
 
     async def _action(
         self,

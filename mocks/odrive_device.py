@@ -227,7 +227,11 @@ class SimODrive(SimCanNode):
 
     def _apply(self) -> None:
         effort = self._motor_torque_to_joint(self.applied_motor_torque())
-        self.joints.apply_effort(np.full(self.joints.dof, effort))
+        uniform = getattr(self.joints, "apply_uniform", None)  # a bench's SimPoint: no array per tick
+        if uniform is not None:
+            uniform(effort)
+        else:
+            self.joints.apply_effort(np.full(self.joints.dof, effort))
 
     def _disarm(self, reason: int) -> None:
         if self.axis_state != od.AxisState.IDLE:

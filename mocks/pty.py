@@ -76,6 +76,33 @@ def host_writes(fd: int, stop: threading.Event, poll_s: float = 0.05) -> Iterato
             yield data
 
 
+def pending_host_bytes(fd: int) -> Iterator[bytes]:
+    """Yield, without waiting, every chunk the host has written to the pty so far (a device served
+    in the host's thread: a lockstep bench). A poll of a pty that finds no input first runs the
+    kernel's worker that moves bytes to this end (Linux ``n_tty_poll`` -> ``tty_buffer_flush_work``),
+    so "written by the host" is "readable here" with no clock involved. Ends at the first poll
+    without input; an I/O error (no slave end open, master closed) ends it too."""
+    while True:
+        try:
+            if not select.select([fd], [], [], 0.0)[0]:
+                return
+            data = os.read(fd, 4096)
+        except (OSError, ValueError):
+            return
+        if not data:
+            return
+        yield data
+
+
+def push_to_host(slave_fd: int) -> None:
+    """Make what the device wrote on the master visible to the host's ``in_waiting`` now: pyserial's
+    ``in_waiting`` (FIONREAD) does not run the kernel's worker that moves pty bytes to the slave's
+    input queue, a poll of the slave does (see :func:`pending_host_bytes`). ``slave_fd`` is the
+    device's own descriptor of the slave end (the same terminal as the host's)."""
+    with contextlib.suppress(OSError, ValueError):
+        select.select([slave_fd], [], [], 0.0)
+
+
 class LinkBudget:
     """What a simulated serial line can still carry: ``baud / 10`` bytes per *simulated* second
     (8N1: 10 bit times per byte; :mod:`hil.protocols.link_budget`).

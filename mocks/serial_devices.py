@@ -12,6 +12,10 @@ Modes:
   configuration commands.
 * **free running**: :meth:`SimBota.start` emits at ``rate_hz`` from a thread.
 
+Configuration commands from the host are taken by a reader thread, or, built with
+``threaded=False`` (a lockstep bench), by :meth:`SimBota.serve_pending` in the host's thread (the
+bench's barrier), so an answer never depends on how fast the machine schedules a thread.
+
 Faults (:mod:`hil.mocks.faults`), decided per emitted frame: drop (nothing written, the timestamp
 still advances -> the adapter records a gap), corrupt (one byte after the header flipped -> CRC
 failure), garbage (random bytes before the frame -> resynchronisation), stale (the previous frame
@@ -40,7 +44,15 @@ import numpy as np
 from hil.mocks.faults import ByteStreamFaults, FaultInjector, FaultPlan
 from hil.mocks.interfaces import SimulatedJoints
 from hil.mocks.periodic import PeriodicThread
-from hil.mocks.pty import LinkBudget, close_fds, host_writes, open_raw_pty, write_dropping
+from hil.mocks.pty import (
+    LinkBudget,
+    close_fds,
+    host_writes,
+    open_raw_pty,
+    pending_host_bytes,
+    push_to_host,
+    write_dropping,
+)
 from hil.protocols.codecs.bota import BOTA_BASE_HZ, BOTA_BAUD_CODES, STATUS_RAW, encode_frame
 
 logger = logging.getLogger(__name__)
@@ -100,8 +112,10 @@ class SimBota:
         product_name: str = "BFT-SENS-SER-M8",
         serial_number: int = 0,
         firmware: str = "1.0.0",
+        threaded: bool = True,
     ) -> None:
         self.joints = joints
+        self.threaded = bool(threaded)
         self.product_name, self.serial_number, self.firmware = str(product_name), int(serial_number), str(firmware)
         self._default_period = float(period_s) if sinc_length is None else sinc_length / BOTA_BASE_HZ
         self.period_s = self._default_period
@@ -129,8 +143,10 @@ class SimBota:
         self._stamp_us = 0.0
         self._cmd = bytearray()
         self._stop = threading.Event()
-        self._reader = threading.Thread(target=self._serve, name="sim-bota-rx", daemon=True)
-        self._reader.start()
+        self._reader: threading.Thread | None = None
+        if self.threaded:
+            self._reader = threading.Thread(target=self._serve, name="sim-bota-rx", daemon=True)
+            self._reader.start()
         if boot_message:
             self.power_on()
 
@@ -183,6 +199,22 @@ class SimBota:
                 for b in data:
                     self._command_byte(b)
 
+    def serve_pending(self) -> int:
+        """Lockstep barrier of a sensor built with ``threaded=False`` (served in the host's thread):
+        take every configuration byte the host has written so far (answered at once) and make
+        everything written to the line readable by the host; never waits on a clock (see
+        :func:`hil.mocks.pty.pending_host_bytes`). Returns the number of bytes processed."""
+        n = 0
+        for data in pending_host_bytes(self._master):
+            n += len(data)
+            with self._lock:
+                if self._closed:
+                    return n
+                for b in data:
+                    self._command_byte(b)
+        push_to_host(self._slave)
+        return n
+
     def _command_byte(self, b: int) -> None:
         ch = chr(b)
         buf = self._cmd
@@ -222,6 +254,7 @@ class SimBota:
             self.config.update(sinc_length=sinc, chop_enable=chop, fast_enable=fast, fir_disable=fir)
             if sinc > 0:
                 self.period_s = sinc / BOTA_BASE_HZ
+        self.injector.hold_up()
         self._write(f"r,0,{letter},0".encode("ascii"))
 
     # -- streaming ------------------------------------------------------------------------------
@@ -249,6 +282,7 @@ class SimBota:
         inj = self.injector
         if inj.is_disconnected(t):
             return
+        inj.hold_up()
         status = self.status | inj.error_code(t)
         if self.config.get("use_calibration") == 0:
             status |= STATUS_RAW
@@ -283,7 +317,7 @@ class SimBota:
         """Close both pty ends (like unplugging the USB adapter)."""
         self.stop()
         self._stop.set()
-        if self._reader.is_alive() and self._reader is not threading.current_thread():
+        if self._reader is not None and self._reader.is_alive() and self._reader is not threading.current_thread():
             # before the fds are closed: a reader still polling a closed fd number would steal
             # the bytes of the next pty that reuses it
             self._reader.join(timeout=2.0)

@@ -52,7 +52,11 @@ class TwinContext:
     twins that serve several devices on one transport; ``label``: the scene file or name;
     ``can_port(scene_channel)``: the UDP port of a served ``udp_multicast`` channel (each channel its
     own group *and* port: python-can binds its socket to the port on every address, so channels
-    sharing a port would hear each other), None elsewhere."""
+    sharing a port would hear each other), None elsewhere; ``waits``: on a lockstep bench, this
+    device's view of the adapters' simulated time (:meth:`hil.protocols.waits.LockstepWaits.link`; a
+    twin gives it to the adapter as its ``waits`` parameter and builds its device to be served by the
+    barrier, :meth:`Twin.flush`, which the bench makes this link's own barrier), None when served
+    free-running."""
 
     index: int
     cfg: Any
@@ -69,6 +73,7 @@ class TwinContext:
     devices: Sequence[Any] = field(default_factory=list)
     label: str = ""
     can_port: Callable[[str], int | None] = field(default=lambda scene_channel: None)
+    waits: Any = None
 
 
 class Twin:
@@ -97,8 +102,17 @@ class Twin:
     def tick(self, sim: Any) -> None:
         """Once per lockstep period, after the plant stepped."""
 
+    def answers_in_sender_thread(self, sim: Any) -> bool:
+        """True when the device handles what the host sends in the host's sending call (a ``sync``
+        CAN node): a lockstep wait then has nothing to serve first (its barrier is empty)."""
+        return False
+
     def flush(self, sim: Any, adapters: Sequence[Any], timeout: float) -> None:
-        """Let the simulated device process what the host's ``adapters`` sent."""
+        """The lockstep barrier for this device: it has processed everything the host's
+        ``adapters`` sent and everything it answered can be read by the host when this returns,
+        however long that takes (``timeout``: only a bound for devices served by threads of their
+        own in tests). Called by the bench before each plant step and whenever an adapter waits
+        (:meth:`hil.protocols.waits.LockstepWaits.settle`)."""
 
     def run_free(self, sim: Any, rate_hz: float, stream_rate_hz: float) -> None:
         """Start the device's own threads (``hil mock serve``)."""
@@ -116,11 +130,18 @@ def _can_params(ctx: TwinContext, params: dict[str, Any]) -> tuple[str, dict[str
     ch = ctx.channel(str(params.get("interface", "virtual")), scene_ch)
     params.update(interface=ctx.can_interface, channel=ch, clock=ctx.clock, timeout=ctx.timeout)
     params.pop("bus", None)
+    _lockstep_waits(ctx, params)
     port = ctx.can_port(scene_ch)
     if port is None:
         return ch, {}
     params["port"] = int(port)
     return ch, {"port": int(port)}
+
+
+def _lockstep_waits(ctx: TwinContext, params: dict[str, Any]) -> None:
+    """On a lockstep bench the adapter waits on simulated time (``waits``)."""
+    if ctx.waits is not None:
+        params["waits"] = ctx.waits
 
 
 class CanTwin(Twin):
@@ -137,6 +158,9 @@ class CanTwin(Twin):
 
     def flush(self, sim: Any, adapters: Sequence[Any], timeout: float) -> None:
         sim.process_pending()
+
+    def answers_in_sender_thread(self, sim: Any) -> bool:
+        return bool(sim.sync)
 
     def run_free(self, sim: Any, rate_hz: float, stream_rate_hz: float) -> None:
         sim.start(rate_hz)
@@ -210,6 +234,8 @@ class CubeMarsTwin(CanTwin):
         ch, bus_kw = _can_params(ctx, params)
         _lockstep_kw: dict[str, Any] = {"sync": True, "bitrate": _bitrate(params, lb.CUBEMARS_DEFAULT_BITRATE),
                                         "tick_s": ctx.dt}
+        if ctx.waits is not None:  # its silence after "set zero" passes on the host's (simulated) time
+            _lockstep_kw["clock"] = ctx.waits.monotonic
         sim = SimCubeMars(ctx.point, ch, int(params.get("motor_id", 1)), ctx.can_interface,
                           model=params.get("model", "AK80-9"), faults=ctx.faults, seed=ctx.seed,
                           **(_lockstep_kw if ctx.lockstep else {}), **bus_kw)
@@ -240,10 +266,16 @@ class CiA402Twin(CanTwin):
 
 
 class StreamTwin(Twin):
-    """A sensor streaming frames into a pty: one frame per lockstep period (``emit``)."""
+    """A sensor streaming frames into a pty: one frame per lockstep period (``emit``); served in
+    the host's thread on a lockstep bench (``serve_pending``: the host's commands answered, the
+    frames made readable)."""
 
     def tick(self, sim: Any) -> None:
         sim.emit()
+
+    def flush(self, sim: Any, adapters: Sequence[Any], timeout: float) -> None:
+        if not sim.threaded:
+            sim.serve_pending()
 
 
 class BotaTwin(StreamTwin):
@@ -255,9 +287,11 @@ class BotaTwin(StreamTwin):
         # and its line carries baud/10 bytes per simulated second; the adapter configures it
         sinc = bota_sinc_length(params)
         sim = SimBota(ctx.point, sinc_length=sinc, tick_s=ctx.dt, faults=ctx.faults, seed=ctx.seed,
-                      axes=tuple(ctx.cfg.wrench_axes), baudrate=int(params.get("baudrate", BOTA_DEFAULT_BAUD)))
+                      axes=tuple(ctx.cfg.wrench_axes), baudrate=int(params.get("baudrate", BOTA_DEFAULT_BAUD)),
+                      threaded=not ctx.lockstep)
         params.pop("period_s", None)
         params.update(url=sim.path, sinc_length=sinc, clock=ctx.clock, timeout=ctx.timeout)
+        _lockstep_waits(ctx, params)
         return sim, params
 
     def run_free(self, sim: Any, rate_hz: float, stream_rate_hz: float) -> None:
@@ -280,9 +314,13 @@ class FT300StreamTwin(StreamTwin):
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         from hil.mocks.ft300_stream import SimFT300Stream
 
+        kw: dict[str, Any] = {"threaded": not ctx.lockstep}
+        if ctx.waits is not None:  # the RTU inter-frame silence on the host's (simulated) time
+            kw["clock"] = ctx.waits.monotonic
         sim = SimFT300Stream(_wrench_fn(ctx), faults=ctx.faults, seed=ctx.seed, slave=int(params.get("slave", 9)),
-                             tick_s=ctx.dt)  # 100 Hz frames on the simulated clock
+                             tick_s=ctx.dt, **kw)  # 100 Hz frames on the simulated clock
         params.update(url=sim.path, clock=ctx.clock, timeout=ctx.timeout)
+        _lockstep_waits(ctx, params)
         return sim, params
 
     def run_free(self, sim: Any, rate_hz: float, stream_rate_hz: float) -> None:
@@ -291,18 +329,26 @@ class FT300StreamTwin(StreamTwin):
 
 class FT300ModbusTwin(Twin):
     """A pymodbus server on a free loopback port; registers refreshed once per lockstep period
-    (free-running: on every request)."""
+    (free-running: on every request). On a lockstep bench the adapter gets its own link
+    (``waits.link()``) and the barrier waits until the server has answered every request it
+    counted (:meth:`hil.mocks.modbus_devices.SimulatedFT300.settle`)."""
 
     def start(self, ctx: TwinContext, params: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         from hil.mocks.modbus_devices import SimulatedFT300
 
         sim = SimulatedFT300(_wrench_fn(ctx), framing=ctx.cfg.sim.framing, port=0, faults=ctx.faults,
-                             seed=ctx.seed, auto_update=not ctx.lockstep, slave=int(params.get("slave", 9)))
+                             seed=ctx.seed, auto_update=not ctx.lockstep, slave=int(params.get("slave", 9)),
+                             start_timeout=None if ctx.lockstep else 5.0)  # lockstep: however long it takes
         params.update(url=sim.url, clock=ctx.clock, timeout=ctx.timeout)
+        if ctx.waits is not None:  # this device's link: its requests and answers are counted
+            sim.link = params["waits"] = ctx.waits
         return sim, params
 
     def tick(self, sim: Any) -> None:
         sim.update()
+
+    def flush(self, sim: Any, adapters: Sequence[Any], timeout: float) -> None:
+        sim.settle()
 
 
 class Concat:
@@ -365,10 +411,12 @@ class DynamixelTwin(Twin):
             # the servos run at the scene's baudrate (configured servos; a factory one is at 57 600)
             baud = int(group[0].cfg.params.get("baudrate", 57_600))
             chain = sim = DynamixelChain(joints, ids, faults=ctx.faults, seed=ctx.seed, clock=ctx.clock,
-                                         baudrate=baud, link_budget=ctx.lockstep)
+                                         baudrate=baud, link_budget=ctx.lockstep, threaded=not ctx.lockstep)
             # owned (closed, ticked) by the first device of the group; in lockstep the line carries baud/10 B/s
+            # and the chain is served in the host's thread by the bench's barrier (flush)
         me.host = chain
         params.update(port=chain.port, clock=ctx.clock, timeout=ctx.timeout)
+        _lockstep_waits(ctx, params)
         return sim, params
 
     def host(self, ctx: TwinContext, sim: Any) -> Any:
@@ -381,8 +429,11 @@ class DynamixelTwin(Twin):
         sim.check_watchdog()  # Bus Watchdog(98) on the simulated clock
 
     def flush(self, sim: Any, adapters: Sequence[Any], timeout: float) -> None:
-        """Sync writes get no reply: wait until the chain consumed every byte the adapters wrote."""
-        if adapters:
+        """Every byte the adapters wrote processed and answered (sync writes get no reply): in the
+        host's thread (lockstep), else waiting for the chain's thread."""
+        if not sim.threaded:
+            sim.serve_pending()
+        elif adapters:
             sim.sync(sum(int(a.tx_bytes) for a in adapters), timeout=timeout)
 
     def address(self, driver: str, params: dict[str, Any]) -> tuple[str, bool]:

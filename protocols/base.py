@@ -28,7 +28,6 @@ import abc
 import dataclasses
 import logging
 import math
-import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Self, TypeVar
@@ -36,6 +35,7 @@ from typing import Any, Literal, Self, TypeVar
 import numpy as np
 
 from hil.errors import DeviceDisconnected, DeviceTimeout
+from hil.protocols.waits import WALL, Waits
 
 logger = logging.getLogger(__name__)
 
@@ -310,27 +310,58 @@ class ForceSensor(Device):
         raise NotImplementedError
 
 
+def receive_bytes(port: Any, wait: float, waits: Waits = WALL) -> bytes:
+    """What the pyserial ``port`` has received; when nothing, wait up to ``wait`` s (through
+    ``waits``: the host's clock, or simulated time in lockstep) for it (0: never wait). pyserial's
+    ``in_waiting`` can miss bytes the kernel has not moved to the port's input queue yet; the wait's
+    poll moves them (Linux ``n_tty_poll``). A port without a descriptor (pyserial's ``loop://``)
+    waits its own read timeout instead."""
+    n = port.in_waiting
+    if not n:
+        if wait <= 0:
+            return b""
+        try:
+            fd = port.fileno()
+        except (AttributeError, OSError, ValueError):
+            first: bytes = port.read(1)
+            return first
+        if not waits.readable(fd, wait):
+            return b""
+        n = port.in_waiting or 1
+    data: bytes = port.read(n)
+    return data
+
+
 class StreamingSensor(ForceSensor):
     """A force sensor that streams frames over a byte transport (Bota serial, FT-300 stream mode).
 
-    Subclasses count the bytes received in ``rx_bytes`` and decode what :meth:`_pump` reads.
-    :meth:`wait_rx` is the lockstep barrier: a simulated sensor reports how many bytes it wrote,
-    and the host waits for exactly those before reading, so a test run does not depend on when
-    the kernel delivers them.
+    Subclasses count the bytes received in ``rx_bytes`` and decode what :meth:`_pump` reads; every
+    wait goes through ``_waits`` (:mod:`hil.protocols.waits`: the host's clock at a bench, simulated
+    time on a lockstep bench). :meth:`wait_rx` is the lockstep byte-count barrier: a simulated
+    sensor reports how many bytes it wrote, and the host takes exactly those before reading, so a
+    test run does not depend on when the kernel delivers them.
     """
 
     rx_bytes: int = 0
+    _waits: Waits = WALL
 
     @abc.abstractmethod
-    def _pump(self, block: bool) -> None:
-        """Read what the transport has (waiting up to its read timeout when ``block``) and decode it."""
+    def _pump(self, wait: float) -> None:
+        """Read what the transport has, waiting up to ``wait`` s for a first byte when it has none
+        (0: never wait), and decode it."""
+
+    def _receive_bytes(self, port: Any, wait: float) -> bytes:
+        """:func:`receive_bytes` through this sensor's ``_waits``."""
+        return receive_bytes(port, wait, self._waits)
 
     def wait_rx(self, total_bytes: int, timeout: float) -> bool:
         """Receive (and decode, without consuming) until ``rx_bytes >= total_bytes`` or ``timeout``
-        (s) passes; True if reached."""
-        deadline = time.monotonic() + timeout
+        (s, on ``_waits``) passes; True if reached."""
+        waits = self._waits
+        deadline = waits.monotonic() + timeout
         while self.rx_bytes < total_bytes:
-            if time.monotonic() >= deadline:
+            left = deadline - waits.monotonic()
+            if left <= 0:
                 return False
-            self._pump(block=True)
+            self._pump(left)
         return True

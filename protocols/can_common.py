@@ -12,6 +12,7 @@ import can
 
 from hil.errors import DeviceDisconnected, DeviceTimeout
 from hil.protocols.base import Actuator
+from hil.protocols.waits import WALL, Waits
 
 logger = logging.getLogger(__name__)
 
@@ -55,6 +56,8 @@ class CanActuator(Actuator):
 
     _bus: can.BusABC
     _own_bus: bool = False
+    #: how the adapter waits (:mod:`hil.protocols.waits`); drivers set it from their ``waits`` parameter
+    _waits: Waits = WALL
 
     def _open_bus(self, interface: str, channel: str, bitrate: int | None, bus: can.BusABC | None,
                   bus_kwargs: dict[str, Any]) -> None:
@@ -69,8 +72,12 @@ class CanActuator(Actuator):
         send(self._bus, msg, timeout, self._label(), what)
 
     def _recv(self, timeout: float) -> can.Message | None:
+        """One frame within ``timeout`` s, waited for through ``_waits`` (the host's clock at a
+        bench; on a lockstep bench the simulated nodes answer in the sender's thread, so after the
+        barrier a frame is there or will not come: the timeout passes in simulated time)."""
         self._check_open()
-        return recv(self._bus, timeout, self._label())
+        bus, who = self._bus, self._label()
+        return self._waits.receive(lambda t: recv(bus, t, who), timeout)
 
     def _drain(self) -> None:
         """Digest every frame already queued (no waiting)."""

@@ -85,6 +85,7 @@ from hil.protocols.codecs.cubemars import (
     uint_to_float,
     unpack_reply,
 )
+from hil.protocols.waits import WALL, Waits
 
 logger = logging.getLogger(__name__)
 
@@ -125,6 +126,7 @@ class CubeMarsMIT(CanActuator):
         enable: bool = True,
         zero_on_open: bool = False,
         clock: Callable[[], float] = time.monotonic,
+        waits: Waits = WALL,
         timeout: float = 0.1,
         unwrap: bool = True,
         zero_timeout: float = ZERO_SILENCE_S + 0.5,
@@ -138,6 +140,7 @@ class CubeMarsMIT(CanActuator):
         self.limits = model_limits(model)
         self.reply_id = reply_id
         self.clock = clock
+        self._waits = waits
         self.timeout = timeout
         self._enable = enable
         self.label = f"CubeMars {self.motor_id}"
@@ -222,7 +225,7 @@ class CubeMarsMIT(CanActuator):
 
     def _await_reply(self, deadline: float) -> MitReply:
         while self._fresh is None:
-            remaining = deadline - time.monotonic()
+            remaining = deadline - self._waits.monotonic()
             msg = self._recv(remaining if remaining > 0 else 0.0)
             if msg is None:
                 self._timeouts += 1
@@ -234,7 +237,7 @@ class CubeMarsMIT(CanActuator):
         self._drain()
         self._fresh = None
         self._send(data, timeout)
-        reply = self._await_reply(time.monotonic() + timeout)
+        reply = self._await_reply(self._waits.monotonic() + timeout)
         self._fresh = None  # consumed: read() must not return it as a new sample
         return reply
 
@@ -250,21 +253,21 @@ class CubeMarsMIT(CanActuator):
         to answer again after its ~1 s silence, re-sending "enter motor mode" every 0.1 s. Returns
         the first reply (position ~0); DeviceTimeout if the motor stays silent."""
         limit = self.zero_timeout if timeout is None else float(timeout)
-        deadline = time.monotonic() + limit
+        deadline = self._waits.monotonic() + limit
         self._drain()
         self._fresh = None
         self._wraps, self._prev_raw = 0, None
         self._send(SPECIAL_FRAMES["zero"], min(0.1, limit))
         while True:
-            until = min(deadline, time.monotonic() + 0.1)
-            while self._fresh is None and (remaining := until - time.monotonic()) > 0:
+            until = min(deadline, self._waits.monotonic() + 0.1)
+            while self._fresh is None and (remaining := until - self._waits.monotonic()) > 0:
                 msg = self._recv(remaining)
                 if msg is not None:
                     self._handle(msg)
             if self._fresh is not None:
                 reply, self._fresh = self._fresh, None
                 return reply
-            if time.monotonic() >= deadline:
+            if self._waits.monotonic() >= deadline:
                 self._timeouts += 1
                 raise DeviceTimeout(f"CubeMars {self.motor_id}: no reply within {limit:.2f} s after set zero (the "
                                     f"motor is silent ~{ZERO_SILENCE_S:.0f} s while it stores the origin)")
@@ -293,7 +296,7 @@ class CubeMarsMIT(CanActuator):
     # -- feedback -----------------------------------------------------------------------------
     def _read_sample(self, timeout: float) -> JointSample:
         """The newest reply since the previous read, else the reply to the last command sent again."""
-        deadline = time.monotonic() + timeout
+        deadline = self._waits.monotonic() + timeout
         self._drain()
         if self._fresh is None and timeout == 0.0 and self._last_sample is not None:
             # non-blocking read (realtime loop): the previous reply again; the next command's reply

@@ -149,6 +149,7 @@ from hil.protocols.codecs.odrive import (
     firmware_line,
     split_id,
 )
+from hil.protocols.waits import WALL, Waits
 
 logger = logging.getLogger(__name__)
 
@@ -199,6 +200,7 @@ class ODriveCAN(CanActuator):
         effort_limit: float | None = None,
         enable: bool = True,
         clock: Callable[[], float] = time.monotonic,
+        waits: Waits = WALL,
         timeout: float = 0.1,
         retries: int = 1,
         watchdog_s: float | None = None,
@@ -234,6 +236,7 @@ class ODriveCAN(CanActuator):
         self.read_torque = read_torque
         self.effort_limit = effort_limit
         self.clock = clock
+        self._waits = waits
         self.timeout = timeout
         self._enable = enable
         self.label = f"ODrive node {self.node_id}"
@@ -296,12 +299,13 @@ class ODriveCAN(CanActuator):
         none means 0.5.x (the message exists from firmware 0.6 on). Sets and returns
         :attr:`firmware` (``info.firmware`` too)."""
         self._drain()
-        deadline = time.monotonic() + timeout
+        now = self._waits.monotonic
+        deadline = now() + timeout
         attempts = 1 + self.retries
         for k in range(attempts):
             self._send(CMD_GET_VERSION, remote=True, timeout=timeout)
             with contextlib.suppress(DeviceTimeout):
-                self._wait_for(CMD_GET_VERSION, time.monotonic() + (deadline - time.monotonic()) / (attempts - k))
+                self._wait_for(CMD_GET_VERSION, now() + (deadline - now()) / (attempts - k))
             if self.firmware_version is not None:
                 break
         self.firmware = firmware_line(self.firmware_version)
@@ -386,7 +390,7 @@ class ODriveCAN(CanActuator):
             self._hb_count += 1
         elif cmd == CMD_GET_ENCODER_ESTIMATES:
             self._estimate = (*decode_f32x2(msg.data), self.clock())
-            self._last_rx_wall = time.monotonic()
+            self._last_rx_wall = self._waits.monotonic()
         elif cmd == CMD_GET_TORQUES and self.firmware == "0.6":  # 0x1C is Get_ADC_Voltage on 0.5.x
             self._torques = decode_f32x2(msg.data)
         elif cmd == CMD_GET_VERSION and len(msg.data) == 8:  # firmware 0.6 (id 0 is NMT on 0.5.x)
@@ -414,11 +418,11 @@ class ODriveCAN(CanActuator):
         seen = self._hb_count
         with contextlib.suppress(DeviceTimeout):
             self._send(CMD_HEARTBEAT, remote=True, timeout=timeout)
-        deadline = time.monotonic() + timeout
+        deadline = self._waits.monotonic() + timeout
         while True:
             if self._hb_count > seen and (self._fault or self.axis_state == AxisState.CLOSED_LOOP_CONTROL):
                 break
-            remaining = deadline - time.monotonic()
+            remaining = deadline - self._waits.monotonic()
             if remaining <= 0:
                 break
             msg = self._recv(remaining)
@@ -439,7 +443,7 @@ class ODriveCAN(CanActuator):
 
     def _wait_for(self, cmd: int, deadline: float) -> None:
         while True:
-            remaining = deadline - time.monotonic()
+            remaining = deadline - self._waits.monotonic()
             msg = self._recv(remaining) if remaining > 0 else self._recv(0.0)
             if msg is None:
                 raise DeviceTimeout(f"ODrive node {self.node_id}: no answer to cmd 0x{cmd:02X} in time")
@@ -490,7 +494,7 @@ class ODriveCAN(CanActuator):
         else:
             self._drain()
             if self._estimate is None:
-                wait_until = time.monotonic() + timeout
+                wait_until = self._waits.monotonic() + timeout
                 if self._last is not None:  # wait only until the newest estimate is `timeout` old
                     wait_until = min(wait_until, self._last_rx_wall + timeout)
                 with contextlib.suppress(DeviceTimeout):
@@ -534,7 +538,7 @@ class ODriveCAN(CanActuator):
     def _poll(self, timeout: float) -> None:
         """Request the estimate (and torques) with RTR frames; resend up to ``retries`` times within
         ``timeout``; DeviceTimeout if no answer."""
-        deadline = time.monotonic() + timeout
+        deadline = self._waits.monotonic() + timeout
         self._ahead = False  # a request sent ahead (non-blocking poll) is answered here, as a stale one
         self._drain()
         if self._estimate is not None:
@@ -544,7 +548,7 @@ class ODriveCAN(CanActuator):
         attempts = 1 + self.retries
         for k in range(attempts):
             self._send(CMD_GET_ENCODER_ESTIMATES, remote=True, timeout=timeout)
-            until = time.monotonic() + (deadline - time.monotonic()) / (attempts - k)
+            until = self._waits.monotonic() + (deadline - self._waits.monotonic()) / (attempts - k)
             try:
                 self._wait_for(CMD_GET_ENCODER_ESTIMATES, until)
                 break
@@ -558,7 +562,7 @@ class ODriveCAN(CanActuator):
             self._torques = None
             self._send(CMD_GET_TORQUES, remote=True, timeout=timeout)
             try:
-                self._wait_for(CMD_GET_TORQUES, max(deadline, time.monotonic()))
+                self._wait_for(CMD_GET_TORQUES, max(deadline, self._waits.monotonic()))
             except DeviceTimeout:
                 self._timeouts += 1
                 raise

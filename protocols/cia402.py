@@ -110,6 +110,7 @@ from canopen.profiles.p402 import State402
 
 from hil.errors import DeviceDisconnected, DeviceFault, DeviceTimeout, ProtocolError
 from hil.protocols.base import Actuator, DeviceInfo, JointSample
+from hil.protocols.waits import WALL, Waits
 
 logger = logging.getLogger(__name__)
 
@@ -226,7 +227,7 @@ class CiA402Drive(Actuator):
                  effort_limit: float | None = None, heartbeat_ms: int = 100, heartbeat_timeout_ms: float | None = None,
                  sync_rpdo: bool | None = None, enable: bool = True, clock: Callable[[], float] = time.monotonic,
                  timeout: float = 0.1, eds: Any = None, state_timeout: float | None = None,
-                 **bus_kwargs: Any) -> None:
+                 waits: Waits = WALL, **bus_kwargs: Any) -> None:
         if not 1 <= int(node_id) <= 127:
             raise ValueError(f"CANopen node id must be 1..127, got {node_id}")
         if gear_ratio == 0 or not math.isfinite(gear_ratio):
@@ -240,6 +241,7 @@ class CiA402Drive(Actuator):
                                     else float(heartbeat_timeout_ms)) / 1000.0
         self.sync_rpdo = (self.mode == 10) if sync_rpdo is None else bool(sync_rpdo)
         self.clock = clock
+        self._waits = waits
         self.timeout = float(timeout)
         if state_timeout is not None and not (math.isfinite(state_timeout) and state_timeout > 0):
             raise ValueError(f"state_timeout must be > 0 s, got {state_timeout!r}")
@@ -288,7 +290,12 @@ class CiA402Drive(Actuator):
         self.node = canopen.RemoteNode(self.node_id, od)
         self.node.sdo.RESPONSE_TIMEOUT = self.timeout
         self.network.add_node(self.node)
-        self.network.connect()
+        self._dispatching = bool(waits.lockstep)
+        if self._dispatching:  # no receive thread (connect() would start canopen's notifier): what
+            self.node.sdo.__class__ = _WaitingSdoClient  # arrives is dispatched when the adapter waits
+            self.node.sdo.adapter = self
+        else:
+            self.network.connect()
         self.node.emcy.add_callback(self._on_emcy)
         self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
         self.info = DeviceInfo(driver="cia402", transport=f"can:{interface}:{channel}" if bus is None
@@ -473,15 +480,38 @@ class CiA402Drive(Actuator):
 
     def _poll_sdo(self, index: int, done: Callable[[int], bool], bound: float) -> int:
         """Read ``index`` by SDO until ``done(value)`` or ``bound`` seconds have passed; the last value."""
-        deadline = time.monotonic() + bound
+        waits = self._waits
+        deadline = waits.monotonic() + bound
         while True:
             value = int(self.sdo_read(index))
-            if done(value) or time.monotonic() >= deadline:
+            if done(value) or waits.monotonic() >= deadline:
                 return value
-            time.sleep(0.001)
+            waits.sleep(0.001)
 
     def _await_state(self, target: str, deadline: float) -> int:
-        return self._poll_sdo(0x6041, lambda sw: state_of(sw) == target, deadline - time.monotonic())
+        return self._poll_sdo(0x6041, lambda sw: state_of(sw) == target, deadline - self._waits.monotonic())
+
+    def _pump(self) -> None:
+        """Lockstep (no receive thread): hand every frame the bus has queued to canopen's listeners,
+        in order, in this thread (what canopen's notifier thread does at a bench). Nothing else."""
+        if not self._dispatching:
+            return
+        listeners = self.network.listeners
+        bus = self._bus
+        while (msg := bus.recv(0.0)) is not None:
+            for listener in listeners:
+                listener(msg)  # can.Listener.__call__ = on_message_received
+
+    def _wait(self, ready: Callable[[], bool], timeout: float) -> bool:
+        """Wait up to ``timeout`` s (``waits``) until ``ready()`` (checked under ``_cond``), which the
+        frames dispatched meanwhile make true: by canopen's notifier thread at a bench, by
+        :meth:`_pump` on a lockstep bench."""
+        def poll(t: float) -> bool | None:
+            self._pump()
+            with self._cond:
+                return True if self._cond.wait_for(ready, t) else None
+
+        return self._waits.receive(poll, timeout) is not None
 
     def enable_operation(self) -> None:
         """State machine to Operation enabled (fault reset if needed, Shutdown, Switch on, Enable
@@ -492,7 +522,7 @@ class CiA402Drive(Actuator):
         if state_of(sw) in ("FAULT", "FAULT REACTION ACTIVE"):
             self.sdo_write(0x6040, 0x00)
             self.sdo_write(0x6040, 0x80)  # rising edge of bit 7: fault reset (transition 15)
-            sw = self._await_state("SWITCH ON DISABLED", time.monotonic() + bound)
+            sw = self._await_state("SWITCH ON DISABLED", self._waits.monotonic() + bound)
             if state_of(sw) != "SWITCH ON DISABLED":
                 code = int(self.sdo_read(0x603F))
                 raise DeviceFault(f"CiA 402 node {self.node_id}: fault reset refused within {bound:.3f} s "
@@ -502,7 +532,7 @@ class CiA402Drive(Actuator):
                                  (State402.CW_SWITCH_ON, "Switch on", "SWITCHED ON"),
                                  (State402.CW_OPERATION_ENABLED, "Enable operation", "OPERATION ENABLED")):
             self.sdo_write(0x6040, cw)
-            sw = self._await_state(target, time.monotonic() + bound)
+            sw = self._await_state(target, self._waits.monotonic() + bound)
             if state_of(sw) != target:
                 brake = ("; a drive releasing a holding brake may need a longer state_timeout"
                          if target == "OPERATION ENABLED" else "")
@@ -600,6 +630,7 @@ class CiA402Drive(Actuator):
         self._send(r1.transmit, "RPDO1")
 
     def _raise_if_fault(self, statusword: int | None = None) -> None:
+        self._pump()
         if self._emcy is not None:
             e = self._emcy
             raise DeviceFault(f"CiA 402 node {self.node_id}: EMCY 0x{e.code:04X} ({describe_emcy(e.code)}), "
@@ -636,14 +667,10 @@ class CiA402Drive(Actuator):
         with self._cond:
             before = list(self._rx)
         self._send(self.network.sync.transmit, "SYNC")
-        deadline = time.monotonic() + timeout
+        if not self._wait(lambda: self._rx[0] > before[0] and self._rx[1] > before[1], timeout):
+            self._timeouts += 1
+            raise DeviceTimeout(f"CiA 402 node {self.node_id}: no TPDO answer to SYNC within {timeout:.3f} s")
         with self._cond:
-            while not (self._rx[0] > before[0] and self._rx[1] > before[1]):
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    self._timeouts += 1
-                    raise DeviceTimeout(f"CiA 402 node {self.node_id}: no TPDO answer to SYNC within {timeout:.3f} s")
-                self._cond.wait(left)
             produced = max(self._rx_at)
             t1, t2 = self.node.tpdo[1], self.node.tpdo[2]
             sw = int(t1[0x6041].raw)
@@ -690,7 +717,7 @@ class CiA402Drive(Actuator):
     def quick_stop(self, timeout: float = 0.05) -> str:
         """Controlword Quick stop (0x02) by SDO; returns the state reached (statusword)."""
         self.sdo_write(0x6040, State402.CW_QUICK_STOP)
-        sw = self._await_state("QUICK STOP ACTIVE", time.monotonic() + timeout)
+        sw = self._await_state("QUICK STOP ACTIVE", self._waits.monotonic() + timeout)
         st = state_of(sw)
         if st != "QUICK STOP ACTIVE":
             sw = int(self.sdo_read(0x6041))
@@ -740,6 +767,27 @@ class CiA402Drive(Actuator):
         if self._own_bus:
             with contextlib.suppress(Exception):
                 self._bus.shutdown()
+
+
+class _WaitingSdoClient(canopen.sdo.SdoClient):
+    """canopen's SDO client on a lockstep bench (the class of the adapter's ``node.sdo``, swapped in
+    place, so canopen's wiring of that object is unchanged): the wait for a response goes through
+    the adapter's ``waits`` and dispatches what arrived in the waiting thread (there is no receive
+    thread); a response the simulated drive did not send times out in simulated time."""
+
+    adapter: CiA402Drive
+
+    def read_response(self) -> bytes:
+        adapter = self.adapter
+
+        def poll(t: float) -> bool | None:
+            adapter._pump()
+            return None if self.responses.empty() else True
+
+        if adapter._waits.receive(poll, self.RESPONSE_TIMEOUT) is None:
+            raise canopen.SdoCommunicationError("No SDO response received")
+        response: bytes = super().read_response()  # type: ignore[no-untyped-call]  # queued: returns at once
+        return response
 
 
 __all__ = ["MODES", "CiA402Drive", "default_eds", "describe_emcy", "parse_mode", "state_of"]

@@ -54,7 +54,10 @@ Hardware Error Status(70) and raises :class:`DeviceFault` with that code. Error 
 a status packet with a bad CRC raises :class:`ChecksumError`.
 
 Timeouts: the SDK's own packet timeout (based on a 16 ms USB latency timer) is replaced by the
-call's ``timeout``; its polling loop is made to sleep in ``select`` instead of spinning.
+call's ``timeout``; its polling loop is made to wait for input instead of spinning. Every deadline
+and wait goes through ``waits`` (:mod:`hil.protocols.waits`): the host's clock at a bench, simulated
+time on a lockstep bench (a status packet the simulated chain did not send times out at once,
+without wall time; one it sent is always there).
 
 Freshness: status packets carry no timestamp; ``JointSample.produced_at`` is the arrival of the
 sync read's status packets (adapter clock) and ``seq`` advances with each complete set. A missing
@@ -101,7 +104,6 @@ from __future__ import annotations
 import functools
 import logging
 import os
-import select
 import time
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar
@@ -140,6 +142,7 @@ from hil.protocols.codecs.dynamixel import (
     effort_to_current_raw,
     to_unsigned,
 )
+from hil.protocols.waits import WALL, Waits
 
 logger = logging.getLogger(__name__)
 
@@ -150,15 +153,17 @@ POLL_AHEAD_SEND_TIMEOUT_S = 0.001
 # ------------------------------------------------------------------------------------------------
 # SDK port with real timeouts
 # ------------------------------------------------------------------------------------------------
-def _make_port_handler(port_name: str) -> Any:
+def _make_port_handler(port_name: str, waits: Waits = WALL) -> Any:
     from dynamixel_sdk import PortHandler
 
     class TimedPortHandler(PortHandler):  # type: ignore[misc]  # dynamixel_sdk has no type hints (Any)
-        """``PortHandler`` whose packet timeout is the adapter's call timeout and whose read
-        waits in ``select`` (the stock one polls a non-blocking port in a busy loop)."""
+        """``PortHandler`` whose packet timeout is the adapter's call timeout, measured on the
+        adapter's ``waits`` (the host's clock at a bench, simulated time in lockstep), and whose read
+        waits for input through ``waits`` (the stock one polls a non-blocking port in a busy loop)."""
 
         def __init__(self, name: str) -> None:
             super().__init__(name)
+            self.waits = waits
             self.call_timeout_ms = 100.0
             self.tx_bytes = 0
             #: a sync read is outstanding (non-blocking read): the SDK's flush of the input before
@@ -173,11 +178,14 @@ def _make_port_handler(port_name: str) -> Any:
             self.packet_start_time = self.getCurrentTime()
             self.packet_timeout = self.call_timeout_ms
 
+        def getCurrentTime(self) -> float:
+            return 1000.0 * self.waits.monotonic()  # ms, as the SDK's own (time.time based)
+
         def readPort(self, length: int) -> bytes:
             if self.ser.in_waiting == 0 and self.packet_timeout > 0:
                 left = self.packet_timeout - self.getTimeSinceStart()
                 if left > 0:
-                    select.select([self.ser.fileno()], [], [], min(left, 5.0) / 1000.0)
+                    self.waits.readable(self.ser.fileno(), min(left, 5.0) / 1000.0)
             data: bytes = self.ser.read(length)
             return data
 
@@ -194,7 +202,8 @@ class DynamixelX(Actuator):
 
     ``port`` is the serial device (``/dev/ttyUSB0``, a U2D2, or the pty of a simulated chain).
     ``current_limit`` (raw units) further restricts commands below each servo's Current Limit(38).
-    ``zero_ticks`` (per joint) is the raw position reported as 0 rad. ``clock`` gives ``t``.
+    ``zero_ticks`` (per joint) is the raw position reported as 0 rad. ``clock`` gives ``t``;
+    ``waits`` measures every timeout (:mod:`hil.protocols.waits`).
     On open: ping every id, read Current Limit, torque off, Operating Mode = current, torque on
     (unless ``enable=False``). :meth:`close` commands zero current and turns torque off.
     """
@@ -222,6 +231,7 @@ class DynamixelX(Actuator):
         clock: Callable[[], float] = time.monotonic,
         bus_watchdog_s: float | None = None,
         watchdog_check_every: int = 100,
+        waits: Waits = WALL,
     ) -> None:
         from dynamixel_sdk import GroupSyncRead, GroupSyncWrite, PacketHandler
 
@@ -269,7 +279,9 @@ class DynamixelX(Actuator):
         if return_delay is not None and not 0 <= int(return_delay) <= 254:
             raise ValueError(f"return_delay must be 0..254 (x 2 us) or None, got {return_delay}")
         self.return_delay = None if return_delay is None else int(return_delay)
-        self._port = _make_port_handler(port)
+        self._waits = waits
+        self._port = _make_port_handler(port, waits)
+        self._port.call_timeout_ms = 1000.0 * self.timeout  # the first ping's too (was a fixed 100 ms)
         self._ph = PacketHandler(2.0)
         try:
             ok = self._port.openPort() and self._port.setBaudRate(baudrate)
@@ -324,7 +336,7 @@ class DynamixelX(Actuator):
             self._gsw.changeParam(i, [u & 0xFF, u >> 8])
         self._port.call_timeout_ms = 1000.0 * timeout
         self._check_comm(self._gsw.txPacket(), "sync write Goal Current")
-        if self._due and time.monotonic() >= self._quiet_until:  # non-blocking reads: the next sync
+        if self._due and self._waits.monotonic() >= self._quiet_until:  # non-blocking reads: the next sync
             self._request()                                          # read follows the command
 
     def _read_sample(self, timeout: float) -> JointSample:
@@ -386,7 +398,7 @@ class DynamixelX(Actuator):
         if self._ahead is None and self._due:
             self._due_reads += 1
             # a whole tick without a command to send it after: the bus is quiet, send it now
-            if self._due_reads > 1 and time.monotonic() >= self._quiet_until:
+            if self._due_reads > 1 and self._waits.monotonic() >= self._quiet_until:
                 self._request()
         if fresh is not None:
             return fresh
@@ -409,7 +421,7 @@ class DynamixelX(Actuator):
         self._port.is_using = False  # the SDK's receive half, which would release the port, is ours
         self._check_comm(result, f"sync read ({kind}) sent ahead")
         self._port.hold_input = True
-        self._ahead, self._ahead_at, self._due = kind, time.monotonic(), False
+        self._ahead, self._ahead_at, self._due = kind, self._waits.monotonic(), False
 
     def _pump(self) -> None:
         ser = self._port.ser
@@ -442,7 +454,7 @@ class DynamixelX(Actuator):
             self._drop_request(due=True)                                      # is quiet
             return None
         if len(self._got) < len(self.ids):
-            if time.monotonic() - self._ahead_at > self.timeout:  # never came: ask again
+            if self._waits.monotonic() - self._ahead_at > self.timeout:  # never came: ask again
                 self._counts["timeouts"] += 1
                 self._drop_request(due=True)
             return None
@@ -495,9 +507,10 @@ class DynamixelX(Actuator):
         answer; then forget it and flush the input."""
         if self._ahead is not None:
             wait = min(limit, 2.0 * self._reply_time_s() + 0.001)
-            deadline = time.monotonic() + wait
-            while len(self._got) < len(self.ids) and time.monotonic() < deadline:
-                select.select([self._port.ser.fileno()], [], [], max(0.0, deadline - time.monotonic()))
+            waits = self._waits
+            deadline = waits.monotonic() + wait
+            while len(self._got) < len(self.ids) and waits.monotonic() < deadline:
+                waits.readable(self._port.ser.fileno(), deadline - waits.monotonic())
                 self._pump()
         self._drop_request(due=False)
         self._port.clearPort()

@@ -72,7 +72,7 @@ from hil.errors import (
     DeviceTimeout,
     ProtocolError,
 )
-from hil.protocols.base import DeviceInfo, ForceSensor, StreamingSensor, WrenchSample
+from hil.protocols.base import DeviceInfo, ForceSensor, StreamingSensor, WrenchSample, receive_bytes
 from hil.protocols.codecs import forwarder
 from hil.protocols.codecs import robotiq as _wire
 from hil.protocols.codecs.robotiq import (
@@ -111,42 +111,92 @@ from hil.protocols.codecs.robotiq import (
     stream_start_request,
     wrench_request_pdu,
 )
+from hil.protocols.waits import WALL, Waits
 
 logger = logging.getLogger(__name__)
 
 
 def stop_stream_on_line(ser: Any, *, listen_s: float = 0.05, stop_s: float = STREAM_STOP_S,
-                        quiet_s: float = 0.05) -> bool | None:
+                        quiet_s: float = 0.05, poll_s: float = 0.01, waits: Waits = WALL) -> bool | None:
     """Stop an FT-300 stream left running on an open serial line, as Robotiq's driver does after
     boot (``rq_com_tentative_connexion`` / ``rq_com_stop_stream_after_boot``): listen for
     ``listen_s``; if bytes arrive, send the 0xFF jam (:data:`STREAM_STOP_JAM`, again every 0.1 s)
     until no byte arrives for ``quiet_s``, for at most ``stop_s``, then wait
     :data:`STREAM_TO_MODBUS_S`. Returns None if the line was quiet (no stream), True if a stream
-    was stopped, False if it was still streaming after ``stop_s``."""
-    deadline = time.monotonic() + listen_s
+    was stopped, False if it was still streaming after ``stop_s``. Times are measured on ``waits``
+    (:mod:`hil.protocols.waits`); a single wait for input lasts at most ``poll_s``."""
+    deadline = waits.monotonic() + listen_s
     heard = False
-    while time.monotonic() < deadline and not heard:
-        heard = bool(ser.read(ser.in_waiting or 1))
+    while (left := deadline - waits.monotonic()) > 0 and not heard:
+        heard = bool(receive_bytes(ser, min(left, poll_s), waits))
     if not heard:
         return None
     logger.info("FT-300: a data stream is running; jamming it with 0xFF (Robotiq's stop sequence)")
-    end = time.monotonic() + stop_s
-    next_jam = 0.0
-    quiet_since = time.monotonic()
+    end = waits.monotonic() + stop_s
+    next_jam = -np.inf
+    quiet_since = waits.monotonic()
     while True:
-        now = time.monotonic()
+        now = waits.monotonic()
         if now >= next_jam:
             ser.write(STREAM_STOP_JAM)
             ser.flush()
             next_jam = now + 0.1
-        if ser.read(ser.in_waiting or 1):
-            quiet_since = time.monotonic()
-        elif time.monotonic() - quiet_since >= quiet_s:
-            time.sleep(STREAM_TO_MODBUS_S)
+        if receive_bytes(ser, poll_s, waits):
+            quiet_since = waits.monotonic()
+        elif waits.monotonic() - quiet_since >= quiet_s:
+            waits.sleep(STREAM_TO_MODBUS_S)
             ser.reset_input_buffer()
             return True
-        if time.monotonic() >= end:
+        if waits.monotonic() >= end:
             return False
+
+
+#: wall-clock bound (s) of pymodbus' serial receive, on a lockstep bench, once the barrier has put
+#: every byte of the answer on the host's port (its "line quiet" check ends at its first look)
+SERIAL_QUIET_S = 0.001
+
+
+def _waiting_client(base: Any, waits: Waits) -> Any:
+    """A pymodbus sync client class whose receive waits through ``waits``: at a bench exactly
+    pymodbus' own wait (a select on the socket for the client's timeout); on a lockstep bench the
+    barrier first (the simulated server has answered every request sent), then no wall-clock wait:
+    the reply is there, or it will never come and the timeout passes in simulated time. Each
+    request sent (pymodbus' sync client sends one frame per ``send``) and the bytes taken are
+    reported to ``waits`` (a lockstep link's counts)."""
+
+    class WaitingClient(base):  # type: ignore[misc]  # pymodbus client classes (Any to mypy)
+        def send(self, request: bytes, addr: tuple[Any, ...] | None = None) -> int:
+            n: int = base.send(self, request, addr)
+            if request:
+                waits.sent(1)
+            return n
+
+        def recv(self, size: int | None) -> bytes:
+            params = self.comm_params
+            timeout = float(params.timeout_connect or 0.0)
+
+            def poll(t: float) -> bytes | None:
+                line = getattr(self.socket, "in_waiting", None)  # a serial client (pyserial port)
+                if t <= 0.0 and line is not None:
+                    # pymodbus' serial receive first waits for the line to go quiet, on the wall
+                    # clock: with nothing there nothing is coming; with bytes there (all of them:
+                    # the barrier ran) that wait ends at its first look
+                    if not line:
+                        return None
+                    t = SERIAL_QUIET_S
+                params.timeout_connect = t
+                try:
+                    got: bytes = base.recv(self, size)
+                finally:
+                    params.timeout_connect = timeout
+                return got or None
+
+            data = waits.receive(poll, timeout) or b""
+            waits.received(len(data))
+            return data
+
+    WaitingClient.__name__ = WaitingClient.__qualname__ = f"Waiting{base.__name__}"
+    return WaitingClient
 
 
 class RobotiqFT300(ForceSensor):
@@ -212,6 +262,7 @@ class RobotiqFT300(ForceSensor):
         max_force: float = RATED_FORCE,
         max_torque: float = RATED_TORQUE,
         stop_stream: bool = True,
+        waits: Waits = WALL,
     ) -> None:
         from pymodbus import FramerType
         from pymodbus.client import ModbusSerialClient, ModbusTcpClient
@@ -221,6 +272,7 @@ class RobotiqFT300(ForceSensor):
         self.slave = int(slave)
         self.timeout = float(timeout)
         self._clock = clock
+        self._waits = waits
         self.label = f"FT-300 on {url}"
         self._offset = np.zeros(6)
         self._rx = b""
@@ -249,13 +301,13 @@ class RobotiqFT300(ForceSensor):
         if ep.kind == "rtu" and stop_stream:
             self.stream_stopped = self._stop_stream(ep)
         if ep.kind == "rtu":
-            client = ModbusSerialClient(
+            client = _waiting_client(ModbusSerialClient, waits)(
                 ep.device, framer=FramerType.RTU, baudrate=ep.baudrate, bytesize=8, parity="N",
                 stopbits=1, timeout=self.timeout, retries=0, trace_packet=self._trace_packet,
             )
         else:
             framer = FramerType.RTU if ep.kind == "rtu-over-tcp" else FramerType.SOCKET
-            client = ModbusTcpClient(
+            client = _waiting_client(ModbusTcpClient, waits)(
                 ep.host, port=ep.port, framer=framer, timeout=self.timeout, retries=0,
                 reconnect_delay=0.0, trace_packet=self._trace_packet,
             )
@@ -281,8 +333,8 @@ class RobotiqFT300(ForceSensor):
 
         try:
             with serial.Serial(ep.device, ep.baudrate, bytesize=8, parity="N", stopbits=1, timeout=0.01,
-                               write_timeout=0.5) as ser:
-                stopped = stop_stream_on_line(ser)
+                               write_timeout=None if self._waits.lockstep else 0.5) as ser:
+                stopped = stop_stream_on_line(ser, waits=self._waits)
         except (serial.SerialException, OSError) as exc:
             raise DeviceDisconnected(f"FT-300: cannot open {ep.device}: {exc}") from exc
         if stopped is False:
@@ -301,7 +353,7 @@ class RobotiqFT300(ForceSensor):
             self._settle(timeout)
         raw = self._read_wrench(timeout)
         produced = self._clock()
-        self._quiet_since = time.monotonic()  # the reply is complete: the line's silence starts
+        self._quiet_since = self._waits.monotonic()  # the reply is complete: the line's silence starts
         self._last = WrenchSample(t=produced, seq=self._next_seq(), wrench=raw - self._offset, produced_at=produced)
         return self._last
 
@@ -358,12 +410,12 @@ class RobotiqFT300(ForceSensor):
     def _request_if_quiet(self) -> None:
         """Send the wrench request ahead unless one is outstanding or the line's t3.5 silence
         since the last reply byte seen is not over (RTU framing)."""
-        if self._ahead or time.monotonic() - self._quiet_since < self.silence_s:
+        if self._ahead or self._waits.monotonic() - self._quiet_since < self.silence_s:
             return
         late = self._pump()  # bytes of an abandoned request: not an answer to the next one
         if late:
             self._late += len(late)
-            self._quiet_since = time.monotonic()
+            self._quiet_since = self._waits.monotonic()
             return
         pdu = wrench_request_pdu()
         if self.endpoint.kind == "tcp":
@@ -378,13 +430,14 @@ class RobotiqFT300(ForceSensor):
             raise DeviceDisconnected(f"FT-300 on {self.url}: {exc}") from exc
         if sent != len(frame):
             raise DeviceDisconnected(f"FT-300 on {self.url}: request not sent ({sent} of {len(frame)} bytes)")
+        self._waits.sent(1)
         self._abuf.clear()
-        self._ahead, self._ahead_at = True, time.monotonic()
+        self._ahead, self._ahead_at = True, self._waits.monotonic()
 
     def _give_up(self) -> None:
         self._ahead = False
         self._abuf.clear()
-        self._quiet_since = time.monotonic()
+        self._quiet_since = self._waits.monotonic()
 
     def _collect(self) -> WrenchSample | None:
         """The outstanding request's reply if it is complete: validated as a blocking read's (a
@@ -395,7 +448,7 @@ class RobotiqFT300(ForceSensor):
         data = self._pump()
         if data:
             self._abuf += data
-            self._quiet_since = time.monotonic()
+            self._quiet_since = self._waits.monotonic()
         if self.endpoint.kind == "tcp":
             pdu, used = parse_mbap_reply(self._abuf, self._tid, self.slave)
             if used and pdu is None:  # another transaction's reply or a broken header
@@ -411,7 +464,7 @@ class RobotiqFT300(ForceSensor):
             self._give_up()
             return None
         if pdu is None:
-            if time.monotonic() - self._ahead_at > self.timeout:  # the reply never came
+            if self._waits.monotonic() - self._ahead_at > self.timeout:  # the reply never came
                 self._counts["timeouts"] += 1
                 self._give_up()
             return None
@@ -448,15 +501,14 @@ class RobotiqFT300(ForceSensor):
         """Before a pymodbus transaction: wait (at most ``limit`` s) for the reply to the request
         sent ahead, so that it is not taken for the transaction's answer, then drop it and keep
         the line's t3.5 silence."""
-        deadline = time.monotonic() + limit
-        while self._ahead and time.monotonic() < deadline:
+        waits = self._waits
+        deadline = waits.monotonic() + limit
+        while self._ahead and waits.monotonic() < deadline:
             self._collect_quietly()
             if self._ahead:
-                time.sleep(0.0005)
+                waits.sleep(0.0005)
         self._give_up()
-        wait = self._quiet_since + self.silence_s - time.monotonic()
-        if wait > 0:
-            time.sleep(wait)
+        waits.sleep(self._quiet_since + self.silence_s - waits.monotonic())
 
     def _collect_quietly(self) -> None:
         """One :meth:`_collect` whose sample is dropped (a Modbus exception too: the transaction
@@ -621,6 +673,7 @@ class RobotiqFT300Stream(StreamingSensor):
         poll_s: float = 0.002,
         stop_timeout: float = STREAM_STOP_S,
         quiet_s: float = 0.05,
+        waits: Waits = WALL,
     ) -> None:
         import serial  # optional dependency (extra "serial")
 
@@ -634,6 +687,8 @@ class RobotiqFT300Stream(StreamingSensor):
         self.stop_timeout = float(stop_timeout)
         self.quiet_s = float(quiet_s)
         self._clock = clock
+        self._waits = waits
+        self.poll_s = float(poll_s)
         self._serial_errors = (serial.SerialException, OSError)
         self.parser = StreamParser()
         self.label = f"FT-300 stream on {url}"
@@ -657,7 +712,7 @@ class RobotiqFT300Stream(StreamingSensor):
         try:
             self._ser = serial.serial_for_url(
                 port_url, baudrate=baud, bytesize=8, parity="N", stopbits=1, timeout=poll_s,
-                write_timeout=max(self.timeout, 0.05),
+                write_timeout=None if waits.lockstep else max(self.timeout, 0.05),  # wall clock: not in lockstep
             )
         except (serial.SerialException, OSError, ValueError) as exc:
             self._closed = True  # nothing to release
@@ -686,15 +741,17 @@ class RobotiqFT300Stream(StreamingSensor):
 
     def _read_sample(self, t: float) -> WrenchSample:
         """Newest stream sample (N, N.m); see the class doc for freshness and waiting."""
-        deadline = time.monotonic() + t
+        waits = self._waits
+        deadline = waits.monotonic() + t
         if self._last is not None:
             deadline = min(deadline, self._last_rx + t)
-        self._pump(block=False)
+        self._pump(0.0)
         while self._pending is None:
-            young = self._last is not None and self.max_age > 0 and time.monotonic() - self._last_rx <= self.max_age
-            if young or time.monotonic() >= deadline:
+            now = waits.monotonic()
+            young = self._last is not None and self.max_age > 0 and now - self._last_rx <= self.max_age
+            if young or now >= deadline:
                 return self._stale(self._last, self._clock(), f"FT-300 stream on {self.url}: no frame within {t:.3f} s")
-            self._pump(block=True)
+            self._pump(min(deadline - now, self.poll_s))
         wrench, self._pending = self._pending, None
         self._last = WrenchSample(t=self._clock(), seq=self._next_seq(), wrench=wrench - self._offset,
                                   produced_at=self._pending_at)
@@ -709,19 +766,20 @@ class RobotiqFT300Stream(StreamingSensor):
         """Send the 0xFF jam (again every 0.1 s) until no byte arrives for ``quiet_s``; True if the
         line went quiet within ``timeout`` (default ``stop_timeout``). Never raises."""
         limit = self.stop_timeout if timeout is None else float(timeout)
-        deadline = time.monotonic() + limit
+        waits = self._waits
+        deadline = waits.monotonic() + limit
         stopped = False
         try:
-            next_jam = 0.0
-            quiet_since = time.monotonic()
+            next_jam = -np.inf
+            quiet_since = waits.monotonic()
             while True:
-                now = time.monotonic()
+                now = waits.monotonic()
                 if now >= next_jam:
                     self._ser.write(STREAM_STOP_JAM)
                     self._ser.flush()
                     next_jam = now + 0.1
-                data = self._ser.read(self._ser.in_waiting or 1)
-                now = time.monotonic()
+                data = self._receive_bytes(self._ser, self.poll_s)
+                now = waits.monotonic()
                 if data:
                     quiet_since = now
                 elif now - quiet_since >= self.quiet_s:
@@ -757,11 +815,11 @@ class RobotiqFT300Stream(StreamingSensor):
     def _io_error(self, exc: BaseException) -> DeviceDisconnected:
         return DeviceDisconnected(f"FT-300 on {self.url}: port lost: {exc}")
 
-    def _recv(self, block: bool) -> bytes:
+    def _recv(self, wait: float) -> bytes:
+        """What the port has; when nothing, wait up to ``wait`` s (``waits``) for it (0: never)."""
         self._check_open()
         try:
-            n = self._ser.in_waiting
-            data = self._ser.read(n) if n else (self._ser.read(1) if block else b"")
+            data = self._receive_bytes(self._ser, wait)
         except self._serial_errors as exc:
             raise self._io_error(exc) from exc
         self.rx_bytes += len(data)
@@ -782,15 +840,15 @@ class RobotiqFT300Stream(StreamingSensor):
             self._skipped += len(frames) - 1 + (self._pending is not None)
             self._pending = frames[-1]
             self._pending_at = self._clock()
-            self._last_rx = time.monotonic()
+            self._last_rx = self._waits.monotonic()
         n = self.parser.crc_errors
         if n != self._crc_seen:
             new, self._crc_seen = n - self._crc_seen, n
             if self.on_crc_error == "raise":
                 raise ChecksumError(f"FT-300 stream on {self.url}: {new} frame(s) failed CRC-16/MODBUS")
 
-    def _pump(self, block: bool) -> None:
-        self._feed(self._recv(block))
+    def _pump(self, wait: float) -> None:
+        self._feed(self._recv(wait))
 
     def _start(self, read_info: bool, probe_s: float) -> None:
         try:
@@ -798,9 +856,10 @@ class RobotiqFT300Stream(StreamingSensor):
         except self._serial_errors as exc:
             raise self._io_error(exc) from exc
         if probe_s > 0:
-            end = time.monotonic() + probe_s
-            while time.monotonic() < end and self._pending is None:
-                self._pump(block=True)
+            waits = self._waits
+            end = waits.monotonic() + probe_s
+            while (left := end - waits.monotonic()) > 0 and self._pending is None:
+                self._pump(min(left, self.poll_s))
             if self._pending is not None:
                 self.streaming = True
                 self.info.extra["start"] = "already-streaming"
@@ -830,17 +889,18 @@ class RobotiqFT300Stream(StreamingSensor):
         """Send one RTU request; return (reply frame, bytes received after it)."""
         self._rx_buf = bytearray()
         self._send(request)
-        deadline = time.monotonic() + self.timeout
+        waits = self._waits
+        deadline = waits.monotonic() + self.timeout
         bad_crc = False
         while True:
-            self._rx_buf += self._recv(block=True)
+            self._rx_buf += self._recv(max(0.0, min(deadline - waits.monotonic(), self.poll_s)))
             frame, end, bad = _parse_rtu_reply(self._rx_buf, self.slave, fc)
             bad_crc |= bad
             if frame is not None:
                 if frame[1] & 0x80:
                     raise DeviceFault(f"FT-300 answered with Modbus exception {frame[2]}", code=frame[2])
                 return frame, bytes(self._rx_buf[end:])
-            if time.monotonic() >= deadline:
+            if waits.monotonic() >= deadline:
                 if bad_crc:
                     raise ChecksumError(f"FT-300: reply with bad CRC ({bytes(self._rx_buf).hex(' ')})")
                 raise DeviceTimeout(f"FT-300 on {self.url}: no reply within {self.timeout:.3f} s")

@@ -43,7 +43,7 @@ Error handling (documented behaviour):
   ``stats["stale"]`` (``counters()["repeated_frames"]``).
 * Freshness: ``WrenchSample.produced_at`` is the arrival (adapter clock) of the frame that
   carried a *new* device timestamp; ``seq`` advances only with one. A read that finds no new frame
-  waits for one until the newest data is ``timeout`` old (host clock), then returns the previous
+  waits for one until the newest data is ``timeout`` old (host clock, ``waits``), then returns the previous
   sample again (same ``seq`` and ``produced_at``; ``counters()["stale"]``): the runner's watchdog
   judges its age against ``watchdog_ms``. Only a read before any frame ever arrived raises
   DeviceTimeout.
@@ -79,6 +79,7 @@ from hil.protocols.codecs.bota import (
     BotaFrame,
     FrameParser,
 )
+from hil.protocols.waits import WALL, Waits
 
 logger = logging.getLogger(__name__)
 
@@ -95,11 +96,13 @@ class BotaSerial(StreamingSensor):
     fault_mask: status bits that raise DeviceFault.
     on_crc_error: ``"count"`` (default, a recorded gap) or ``"raise"`` (ChecksumError).
     clock: time source for ``WrenchSample.t``.
-    poll_s: granularity of blocking reads (never exceeds the call's timeout).
+    poll_s: longest single wait for input inside a read (never exceeds the call's timeout).
     configure: send the example's configuration sequence on open (see the module docstring).
     sinc_length, chop_enable, fast_enable, fir_disable, temp_compensation, use_calibration: the
         configuration sent (``sinc_length`` default: from ``period_s``, else 512).
     config_timeout: seconds to wait for each configuration reply.
+    waits: how deadlines and waits are measured (:mod:`hil.protocols.waits`: the host's clock,
+        simulated time on a lockstep bench).
     """
 
     axes = 6
@@ -123,6 +126,7 @@ class BotaSerial(StreamingSensor):
         temp_compensation: int = 0,
         use_calibration: int = 1,
         config_timeout: float = 1.0,
+        waits: Waits = WALL,
     ) -> None:
         if on_crc_error not in ("count", "raise"):
             raise ValueError("on_crc_error must be 'count' or 'raise'")
@@ -140,7 +144,9 @@ class BotaSerial(StreamingSensor):
         self.fault_mask = fault_mask
         self.on_crc_error = on_crc_error
         self.clock = clock
+        self._waits = waits
         self.timeout = timeout
+        self.poll_s = float(poll_s)
         self.parser = FrameParser()
         self.label = f"Bota sensor on {url}"
         self._last_ts: int | None = None
@@ -154,7 +160,10 @@ class BotaSerial(StreamingSensor):
         self._stale_reads = 0
         self._timeouts = 0
         try:
-            self._ser = serial.serial_for_url(url, baudrate=baudrate, timeout=poll_s, write_timeout=timeout)
+            # a write that takes longer than the timeout is an error at a bench; on a lockstep bench
+            # nothing is measured on the wall clock (pyserial's write timeout is)
+            self._ser = serial.serial_for_url(url, baudrate=baudrate, timeout=poll_s,
+                                              write_timeout=None if waits.lockstep else timeout)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DeviceDisconnected(f"cannot open {url!r}: {exc}") from exc
         self.info = DeviceInfo(driver="bota_serial", transport=f"serial:{url}", vendor="Bota Systems",
@@ -185,7 +194,8 @@ class BotaSerial(StreamingSensor):
             raise DeviceDisconnected(f"{self.url}: port lost: {exc}") from exc
         token = f"r,0,{cmd[0]},".encode("ascii")
         buf = bytearray()
-        deadline = time.monotonic() + timeout
+        waits = self._waits
+        deadline = waits.monotonic() + timeout
         while True:
             k = buf.find(token)
             if k >= 0 and len(buf) > k + len(token):
@@ -197,10 +207,11 @@ class BotaSerial(StreamingSensor):
                     reply = bytes(buf[k : k + len(token) + 1])
                     raise DeviceError(f"{self.url}: Bota sensor refused {cmd!r} (reply {reply!r})")
                 return
-            if time.monotonic() >= deadline:
+            left = deadline - waits.monotonic()
+            if left <= 0:
                 raise DeviceTimeout(f"{self.url}: no {token.decode()}0 reply to {cmd!r} within {timeout:.2f} s "
                                     f"(is it a Bota serial sensor at this baud rate?)")
-            buf += self._read_bytes(block=True)
+            buf += self._read_bytes(left)
 
     @property
     def stats(self) -> Counter[str]:
@@ -216,18 +227,18 @@ class BotaSerial(StreamingSensor):
                 "gaps": st["gaps"], "repeated_frames": st["stale"], "skipped": st["skipped"],
                 "stale": self._stale_reads, "timeouts": self._timeouts}
 
-    def _read_bytes(self, block: bool) -> bytes:
+    def _read_bytes(self, wait: float) -> bytes:
+        """What the port has; when nothing, wait up to ``wait`` s (``waits``) for it (0: never)."""
         self._check_open()
         try:
-            n = self._ser.in_waiting
-            data = self._ser.read(n) if n else (self._ser.read(1) if block else b"")
+            data = self._receive_bytes(self._ser, wait)
         except (serial.SerialException, OSError) as exc:
             raise DeviceDisconnected(f"{self.url}: port lost: {exc}") from exc
         self.rx_bytes += len(data)
         return data
 
-    def _pump(self, block: bool) -> None:
-        self._pending += self.parser.feed(self._read_bytes(block))
+    def _pump(self, wait: float) -> None:
+        self._pending += self.parser.feed(self._read_bytes(wait))
 
     def _accept(self, frames: list[BotaFrame]) -> BotaFrame | None:
         """Newest fresh frame among ``frames`` (updates gap / stale counters)."""
@@ -272,18 +283,18 @@ class BotaSerial(StreamingSensor):
     def _read_sample(self, timeout: float) -> WrenchSample:
         """Newest wrench (N, N.m) with a new device timestamp; see "Freshness" in the module
         docstring for what a read without one returns."""
-        now = time.monotonic()
-        deadline = now + timeout
+        waits = self._waits
+        deadline = waits.monotonic() + timeout
         if self._last is not None:  # wait only until the newest data is `timeout` old
             deadline = min(deadline, self._last_rx_wall + timeout)
-        self._pump(block=False)
+        self._pump(0.0)
         frame = self._take()
-        while frame is None and time.monotonic() < deadline:
-            self._pump(block=True)
+        while frame is None and (left := deadline - waits.monotonic()) > 0:
+            self._pump(min(left, self.poll_s))
             frame = self._take()
         if frame is None:
             return self._stale(self._last, self.clock(), f"{self.url}: no fresh frame within {timeout:.3f} s")
-        self._last_rx_wall = time.monotonic()
+        self._last_rx_wall = waits.monotonic()
         produced = self.clock()
         self.last_frame = frame
         if frame.status & self.fault_mask:
@@ -310,9 +321,10 @@ class BotaSerial(StreamingSensor):
             raise DeviceDisconnected(f"{self.url}: port lost: {exc}") from exc
         buf = bytearray()
         got: dict[str, str] = {}
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline and len(got) < 3:
-            buf += self._read_bytes(block=True)
+        waits = self._waits
+        deadline = waits.monotonic() + timeout
+        while (left := deadline - waits.monotonic()) > 0 and len(got) < 3:
+            buf += self._read_bytes(left)
             got = parse_bota_boot(bytes(buf))
         self.info.model = got.get("name", self.info.model)
         self.info.serial = got.get("serial", self.info.serial)

@@ -24,7 +24,9 @@ Lockstep tick (what the runner does once per control period)::
                                    # simulated sensors publish the new state
 
 Nothing depends on the wall clock: with one seed, the measurements are bit-identical from run to
-run (noise and fault injection use seeded generators; ``math.fsum`` state updates).
+run and on any machine load (noise and fault injection use seeded generators; ``math.fsum`` state
+updates; every adapter waits on simulated time, :attr:`Bench.waits`, behind a barrier that serves
+its simulated device: :mod:`hil.protocols.waits`).
 
 Simulated force sensors report, on the wrench components ``devices[].axes``, either the force the
 body exerts on everything attached to it (``sim.measure: body``; for an SDEA motor this is the
@@ -61,6 +63,7 @@ from hil.mocks.friction import quantize
 from hil.mocks.twins import Twin, TwinContext
 from hil.protocols.base import JointSample, WrenchSample
 from hil.protocols.registry import device_kind, open_device, resolve_twin, simulated_drivers
+from hil.protocols.waits import NO_BARRIER, WALL, LockstepWaits, Waits
 from hil.scene.spec import (
     HumanCfg,
     ImpedanceTermination,
@@ -82,8 +85,10 @@ Measurements = dict[str, JointSample | WrenchSample]
 #: kinds registered later or through entry points).
 SIMULATED_DRIVERS = tuple(simulated_drivers())
 
-#: Wall-clock wait for a simulated device's reply, in units of ``watchdog_ms`` (see :class:`Bench`).
-LOCKSTEP_WAIT_FACTOR = 20.0
+#: A lockstep bench's per-call device timeout in units of ``watchdog_ms`` (see :class:`Bench`): 1, as
+#: at a real bench, because its waits are simulated (:class:`hil.protocols.waits.LockstepWaits`). It
+#: was 20 while lockstep waits were wall-clock waits bounded by it (issue 26).
+LOCKSTEP_WAIT_FACTOR = 1.0
 
 _BENCH_IDS = itertools.count(1)
 _BENCH_IDS_LOCK = threading.Lock()
@@ -202,6 +207,17 @@ class SimPoint:
         drive.set(self.sel, e)
         self._written = (vals, drive.writes, getattr(drive.handle, "resets", None))
 
+    def apply_uniform(self, value: float) -> None:
+        """:meth:`apply_effort` of ``value`` on every selected DOF (``np.full(dof, value)``), with no
+        array built when it changes nothing (a CAN drive re-applies its torque on every tick)."""
+        vals = [float(value)] * self.dof
+        drive = self._drive
+        w = self._written
+        if w is not None and w[0] == vals and w[1] == drive.writes and w[2] == getattr(drive.handle, "resets", None):
+            return
+        drive.set(self.sel, np.array(vals))
+        self._written = (vals, drive.writes, getattr(drive.handle, "resets", None))
+
     def position(self) -> np.ndarray:
         return self._read("position", self._raw_position)
 
@@ -250,14 +266,14 @@ class Bench:
     variant: plant configuration of a simulated SDEA: ``"locked"`` (output fixed), ``"free"``
         (output inertia ``m_out``) or ``None`` (as the scene says: free iff ``m_out`` is set).
         Experiments with a different ``variant`` need their own bench.
-    timeout: per-call device timeout (s) for reads and commands. Default (``None``): derived from
-        the scene's ``safety.watchdog_ms``: a real bench waits at most ``watchdog_ms`` for a device
-        (a read never blocks longer than the runner's watchdog allows); a simulated bench waits
-        :data:`LOCKSTEP_WAIT_FACTOR` x ``watchdog_ms`` of wall time, because its devices answer in
-        lockstep on the simulated clock: the wall-clock wait is only how long the host waits for a
-        reply the simulator is sure to send (threads, ptys, sockets), never a measure of freshness;
-        freshness is judged on the simulated clock (``produced_at``), so lockstep runs stay
-        deterministic under any machine load.
+    timeout: per-call device timeout (s) for reads and commands. Default (``None``): the scene's
+        ``safety.watchdog_ms`` (a read never blocks longer than the runner's watchdog allows). A real
+        bench measures it on the host's clock; a simulated bench on simulated time: its adapters
+        wait through :attr:`waits` (:class:`hil.protocols.waits.LockstepWaits`), whose barrier
+        (:meth:`settle`) serves every simulated device until it has processed what the host sent and
+        its answers are readable, however long the machine takes, so a wait ends at once with its
+        answer or, when the device sends none, after its timeout of simulated time. Nothing a
+        lockstep run does depends on the wall clock or the machine's load.
 
     Attributes: ``actuators`` / ``sensors`` (name -> adapter), ``simulated`` (bool), ``simulator``
     (the :class:`hil.mocks.simulator.Simulator` or None), ``plant``, ``dt``, ``time``.
@@ -265,6 +281,8 @@ class Bench:
 
     #: install the stop-request signal handlers while open (a SimulatedScene keeps the caller's)
     _install_stop = True
+    #: a simulated bench's adapters wait on simulated time (a SimulatedScene runs free, without adapters)
+    _simulated_time = True
 
     def __init__(self, scene: Scene, *, seed: int | None = None, variant: str | None = None,
                  timeout: float | None = None) -> None:
@@ -276,8 +294,11 @@ class Bench:
         if timeout is None:
             timeout = self.watchdog_s * (LOCKSTEP_WAIT_FACTOR if self.simulated else 1.0)
         self.timeout = float(timeout)
-        #: per-actuator bound (s) of :meth:`safe_stop`
-        self.safe_stop_timeout = max(1.0, 10.0 * self.timeout)
+        #: per-actuator bound (s, wall clock) of :meth:`safe_stop` at a real bench (None on a lockstep
+        #: bench: its adapters' waits are simulated, the stop ends when the devices have answered)
+        self.safe_stop_timeout: float | None = max(1.0, 10.0 * self.timeout)
+        #: the adapters' waits (:mod:`hil.protocols.waits`): simulated time on a lockstep bench
+        self.waits: Waits = WALL
         self.variant = variant
         self.simulator: Any = None
         self.plant: Any = None
@@ -302,6 +323,9 @@ class Bench:
         try:
             if self.simulated:
                 self._build_simulation()
+                if self._simulated_time:
+                    self.waits = LockstepWaits(self._sim_clock(), self._flush_devices)
+                    self.safe_stop_timeout = None
             self._open_devices()
             STOP.check()
         except BaseException:
@@ -360,7 +384,8 @@ class Bench:
     def _read_device(self, d: _Dev, t: float) -> Any:
         """One adapter read; a timeout or lost device names the scene device. A simulated stream
         (Bota, FT-300 stream) is read behind a byte-count barrier: first every byte the simulated
-        device wrote is received, then the read decides what is new without waiting, so the
+        device wrote is received (``wait_rx``, on the adapter's simulated-time ``waits``: its bound
+        never passes on the wall clock), then the read decides what is new without waiting, so the
         outcome does not depend on how fast the kernel moves pty bytes."""
         try:
             if (self.simulated and hasattr(d.sim, "tx_bytes") and hasattr(d.adapter, "wait_rx")
@@ -487,8 +512,9 @@ class Bench:
         Runs as a :meth:`hil.bench.stopflag.StopRequest.critical` section: a signal cannot cut it short.
         Every actuator is attempted, even when an earlier one raises or hangs: each adapter's
         ``safe_stop`` (whose bus calls have short timeouts of their own, 0.05 s per frame) runs in a
-        worker thread given at most :attr:`safe_stop_timeout` s (default ``max(1 s, 10 x timeout)``)
-        before the next actuator is attempted. Returns, per actuator, ``"ok"``, ``"timeout after
+        worker thread given at most :attr:`safe_stop_timeout` s (default ``max(1 s, 10 x timeout)``;
+        on a lockstep bench no wall-clock bound: its waits are simulated) before the next actuator
+        is attempted. Returns, per actuator, ``"ok"``, ``"timeout after
         T s"`` or the one-line error (also logged).
         """
         done: dict[str, str] = {}
@@ -509,7 +535,7 @@ class Bench:
                 worker = threading.Thread(target=zero, name=f"safe-stop-{d.name}", daemon=True)
                 worker.start()
                 worker.join(limit)  # signals are handled meanwhile (they only count, see STOP)
-                done[d.name] = box[0] if box else f"timeout after {limit:g} s"
+                done[d.name] = box[0] if box else f"timeout after {limit or 0.0:g} s"
                 if done[d.name] != "ok":
                     logger.error("safe_stop of %s failed: %s", d.name, done[d.name])
             with contextlib.suppress(Exception):
@@ -737,6 +763,8 @@ class Bench:
         d.twin = resolve_twin(cfg.driver)
         d.sim, params = d.twin.start(ctx, params)
         d.host = d.twin.host(ctx, d.sim)
+        if ctx.waits is not None:  # a wait of this device's adapter serves this device only
+            ctx.waits.barrier = self._device_barrier(d.twin, d.host)
         logger.debug("simulated %s for device %s (seed %d)", type(d.host).__name__, cfg.name, seed)
         return params
 
@@ -744,10 +772,32 @@ class Bench:
                       channels: dict[tuple[str, str], str]) -> TwinContext:
         """Lockstep: CAN nodes on python-can's virtual bus, one private channel per scene channel
         and bench; the adapters read the simulated clock."""
-        return TwinContext(index, d.cfg, d.point, seed, faults, self.dt, float(self.scene.rate_hz), self._clock,
+        waits = self.waits.link() if isinstance(self.waits, LockstepWaits) else None
+        clock = self._sim_clock() if self.simulator is not None else self._clock
+        return TwinContext(index, d.cfg, d.point, seed, faults, self.dt, float(self.scene.rate_hz), clock,
                            self.timeout, True, "virtual",
                            lambda iface, ch: channels.setdefault((iface, ch), f"{ch}.bench{self._bench_id}"),
-                           self._devs, str(self.scene.path or self.scene.name))
+                           self._devs, str(self.scene.path or self.scene.name), waits=waits)
+
+    def _device_barrier(self, twin: Twin, host: Any) -> Callable[[], None]:
+        """The lockstep barrier of one simulated device (``host``, which may serve several adapters,
+        a DYNAMIXEL chain): its twin's ``flush``, or nothing when the twin says its device answers
+        in the sender's thread (:meth:`hil.mocks.twins.Twin.answers_in_sender_thread`: a ``sync``
+        CAN node). A wait of an adapter needs only its own device served (devices do not talk to
+        each other within a wait); :meth:`advance` flushes all."""
+        if twin.answers_in_sender_thread(host):
+            return NO_BARRIER
+        devs = self._devs
+        wait = max(1.0, 10 * self.timeout)
+        served: list[Any] = []  # the adapters on this device, once they are all open
+
+        def barrier() -> None:
+            adapters = served or [x.adapter for x in devs if x.host is host and x.adapter is not None]
+            if not served and all(x.adapter is not None for x in devs):
+                served.extend(adapters)
+            twin.flush(host, adapters, wait)
+
+        return barrier
 
     def _sim_seed_faults(self, index: int, cfg: Any) -> tuple[int, Any]:
         """Seed and :class:`hil.mocks.faults.FaultPlan` of the simulated counterpart of device
@@ -757,12 +807,21 @@ class Bench:
         seed = cfg.sim.seed if cfg.sim.seed is not None else _seed_for(self.seed, 200 + index)
         return seed, FaultPlan.from_dict(cfg.sim.faults)
 
+    def _sim_clock(self) -> Callable[[], float]:
+        """The simulated clock as a plain function: ``step_count * dt`` of the simulator, the same
+        float as :attr:`hil.mocks.simulator.Simulator.time` (read ~10 times a tick by the adapters
+        and their waits: no property, no branch)."""
+        sim = self.simulator
+        dt = sim.dt
+        return lambda: sim.step_count * dt
+
     def _clock(self) -> float:
         return self.simulator.time if self.simulator is not None else 0.0
 
     def _flush_devices(self) -> None:
-        """Let simulated devices process what the host has sent (each twin's ``flush``; e.g. a
-        DYNAMIXEL chain waits until it consumed every byte the adapters on it wrote)."""
+        """The lockstep barrier (:attr:`waits`' ``settle``, and before each plant step): every simulated
+        device processes what the host has sent and makes its answers readable (each twin's
+        ``flush``: pty devices served in this thread, the Modbus server's answers counted)."""
         wait = max(1.0, 10 * self.timeout)
         for twin, sim, adapters in self._sim_plan():
             twin.flush(sim, adapters, wait)
@@ -829,6 +888,7 @@ class SimulatedScene(Bench):
     """
 
     _install_stop = False  # ``hil mock serve`` handles its own SIGINT/SIGTERM
+    _simulated_time = False  # free-running on the wall clock: no lockstep barrier
 
     def __init__(self, scene: Scene, *, seed: int | None = None, variant: str | None = None,
                  can_interface: str = "virtual", can_channels: Mapping[str, str] | None = None,
@@ -906,7 +966,7 @@ class SimulatedScene(Bench):
             d.point = self._point(i, d.cfg)
         for i, d in enumerate(self._devs):
             params = self._start_sim(i, d, dict(d.cfg.params), channels)
-            for host_side in ("clock", "timeout"):  # the client's own choice
+            for host_side in ("clock", "timeout", "waits"):  # the client's own choice
                 params.pop(host_side, None)
             self.endpoints.append(self._endpoint(d, params))
 
@@ -916,6 +976,7 @@ class SimulatedScene(Bench):
         multicast group each), devices answering as requests arrive."""
         ctx = super()._twin_context(index, d, seed, faults, channels)
         ctx.lockstep = False
+        ctx.waits = None
         ctx.can_interface = self.can_interface
         ctx.channel = lambda iface, ch: channels.setdefault((iface, ch), self._can_channel(ch))
         ctx.can_port = self._can_port

@@ -14,9 +14,9 @@ import pytest
 from hil.certify.fleet import DECISION_ORDER, FleetEntry, FleetResult, expand_scenes, transport_groups, write_index
 
 
-def _hil(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "hil", *args], capture_output=True, text=True, timeout=timeout,
-                          check=False)
+def _hil(*args: str) -> subprocess.CompletedProcess:
+    """``hil ARGS`` in a subprocess, waited for as long as it runs (the test's timeout guards a hang)."""
+    return subprocess.run([sys.executable, "-m", "hil", *args], capture_output=True, text=True, check=False)
 
 
 def _scene(sim: bool, *endpoints: str) -> SimpleNamespace:
@@ -118,12 +118,11 @@ def test_sigint_stops_the_fleet_with_a_summary(tmp_path) -> None:
     proc = subprocess.Popen([sys.executable, "-m", "hil", "certify", "sdea_bench", "mbk_2dof_bench", "dual_master_3dof",
                              "--no-experiments", "--workers", "1", "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and not (out / "sdea_bench" / "certificate.json").exists() \
-            and not (out / "mbk_2dof_bench" / "certificate.json").exists():
+    while proc.poll() is None and not (out / "sdea_bench" / "certificate.json").exists() \
+            and not (out / "mbk_2dof_bench" / "certificate.json").exists():  # a state, no deadline
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
-    _o, err = proc.communicate(timeout=300)
+    _o, err = proc.communicate()
     assert proc.returncode == 130, err
     assert "stopped: signal: SIGINT" in err
     doc = json.loads((out / "fleet.json").read_text())

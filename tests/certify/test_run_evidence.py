@@ -87,15 +87,14 @@ def test_a_signal_during_the_runs_of_certify_ends_the_command(tmp_path, sig, cod
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200"}
     p = subprocess.Popen([sys.executable, "-m", "hil.cli.main", "certify", "sdea_bench", "--out", str(out)],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=env)
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and not list((out / "records").glob("*.h5")):
+    while not list((out / "records").glob("*.h5")):  # a state, however long a loaded box takes
         if p.poll() is not None:
             break
         time.sleep(0.05)
     assert p.poll() is None, p.communicate()
-    time.sleep(0.3)
+    time.sleep(0.3)  # where the signal lands (during the runs), not a synchronisation
     p.send_signal(sig)
-    _stdout, stderr = p.communicate(timeout=120)
+    _stdout, stderr = p.communicate()
     assert p.returncode == code, stderr
     assert f"signal: {signal.Signals(sig).name}" in stderr
     assert "Traceback" not in stderr

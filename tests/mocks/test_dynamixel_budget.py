@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from simtime import served
 
 from hil.errors import DeviceTimeout
 from hil.mocks.dynamixel_devices import DynamixelChain
@@ -30,14 +31,15 @@ class Clock:
 
 def _loop(dt: float, ticks: int, *, budget: bool, timeout: float = 1.0) -> tuple[list[np.ndarray | None], int]:
     """Positions read per tick (None: timed out) and the replies the line dropped during the loop
-    (the adapter's close afterwards, at the same simulated instant, is not counted). ``timeout``
-    (wall clock) is generous: on a loaded machine a reply that was sent must never count as lost."""
+    (the adapter's close afterwards, at the same simulated instant, is not counted). The chain is
+    served in the test's thread and the adapter waits on simulated time: a reply that was sent is
+    always there, one the line dropped times out without any wall-clock wait."""
     clock = Clock()
     plant = FreeJoints(dof=len(IDS), mass=0.01)
     out: list[np.ndarray | None] = []
     with (
-        DynamixelChain(plant, IDS, clock=clock, baudrate=BAUD, link_budget=budget) as chain,
-        DynamixelX(chain.port, ids=IDS, baudrate=BAUD, clock=clock) as dx,
+        DynamixelChain(plant, IDS, clock=clock, baudrate=BAUD, link_budget=budget, threaded=False) as chain,
+        DynamixelX(chain.port, ids=IDS, baudrate=BAUD, clock=clock, waits=served(chain, clock=clock)) as dx,
     ):
         for _ in range(ticks):
             clock.t += dt
@@ -68,7 +70,7 @@ def test_saturated_line_loses_replies():
     comes out of the start-up allowance (0.02 s + 64 bytes; the first tick's bits cannot add to a
     full allowance) and 5 760 B/s after it, less what is left unused (under one reply)."""
     dt, n = 0.01, 60
-    got, dropped = _loop(dt, n, budget=True, timeout=0.1)  # each lost reply costs the wall-clock timeout
+    got, dropped = _loop(dt, n, budget=True, timeout=0.1)
     ok = sum(a is not None for a in got)
     assert dropped == n - ok > 0
     supply = (BAUD / 10 * 0.02 + 64) + (n - 1) * dt * BAUD / 10

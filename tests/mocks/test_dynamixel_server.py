@@ -1,10 +1,16 @@
-"""Simulated DYNAMIXEL chain: Protocol 2.0 conformance vectors and the unmodified dynamixel_sdk."""
+"""Simulated DYNAMIXEL chain: Protocol 2.0 conformance vectors and the unmodified dynamixel_sdk.
+
+The SDK talks to a chain served in the test's thread: ``simtime.served_sdk_port`` is the SDK's stock
+``PortHandler`` whose read first lets the chain answer (the lockstep barrier) and whose packet
+timeout runs on simulated time (a read that finds nothing moves the clock by 1 ms), so no answer
+depends on how fast the machine runs a thread."""
 
 from __future__ import annotations
 
 import dynamixel_sdk as sdk
 import numpy as np
 import pytest
+from simtime import served_sdk_port
 
 from hil.mocks.dynamixel_devices import (
     DynamixelChain,
@@ -116,11 +122,15 @@ def test_parser_skips_junk_and_reports_crc_errors() -> None:
 
 
 # ---- the unmodified SDK against the simulated chain ----------------------------------------------
+def Chain(*args, **kw) -> DynamixelChain:
+    return DynamixelChain(*args, threaded=False, **kw)
+
+
 @pytest.fixture
 def chain_and_port():
     plant = FreeJoints(dof=2)
-    with DynamixelChain(plant, ids=[1, 2]) as chain:
-        port = sdk.PortHandler(chain.port)
+    with Chain(plant, ids=[1, 2]) as chain:
+        port = served_sdk_port(chain)
         assert port.openPort() and port.setBaudRate(57_600)  # a factory servo's rate
         try:
             yield plant, chain, port, sdk.PacketHandler(2.0)
@@ -190,14 +200,14 @@ def test_bad_crc_instruction_gets_crc_error_status(chain_and_port) -> None:
 
 # ---- faults through the SDK -------------------------------------------------------------------
 def _sdk(chain: DynamixelChain):
-    port = sdk.PortHandler(chain.port)
+    port = served_sdk_port(chain)
     assert port.openPort() and port.setBaudRate(57_600)  # the SDK opens at 1 Mbps; a factory servo is at 57 600
     return port, sdk.PacketHandler(2.0)
 
 
 def test_faults_seen_by_the_sdk() -> None:
     plan = FaultPlan(drop_ticks=[0], corrupt_ticks=[1], error_code=0x04, error_at_tick=3, error_until_tick=5)
-    with DynamixelChain(FreeJoints(1), ids=[1], faults=plan) as chain:
+    with Chain(FreeJoints(1), ids=[1], faults=plan) as chain:
         port, ph = _sdk(chain)
         try:
             assert ph.ping(port, 1)[1] == sdk.COMM_RX_TIMEOUT  # tick 0: dropped
@@ -212,7 +222,7 @@ def test_faults_seen_by_the_sdk() -> None:
 
 
 def test_garbage_before_status_is_skipped() -> None:
-    with DynamixelChain(FreeJoints(1), ids=[1], faults=FaultPlan(garbage_prob=1.0), seed=2) as chain:
+    with Chain(FreeJoints(1), ids=[1], faults=FaultPlan(garbage_prob=1.0), seed=2) as chain:
         port, ph = _sdk(chain)
         try:
             for _ in range(5):
@@ -223,7 +233,7 @@ def test_garbage_before_status_is_skipped() -> None:
 
 
 def _fault_sequence(seed: int) -> list[int]:
-    with DynamixelChain(FreeJoints(1), ids=[1], faults=FaultPlan(drop_prob=0.3, corrupt_prob=0.2), seed=seed) as c:
+    with Chain(FreeJoints(1), ids=[1], faults=FaultPlan(drop_prob=0.3, corrupt_prob=0.2), seed=seed) as c:
         port, ph = _sdk(c)
         try:
             return [ph.ping(port, 1)[1] for _ in range(12)]

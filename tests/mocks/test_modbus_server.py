@@ -1,4 +1,9 @@
-"""The simulated FT-300 is a real Modbus server: a plain pymodbus client reads it over loopback."""
+"""The simulated FT-300 is a real Modbus server: a plain pymodbus client reads it over loopback.
+
+A client that expects an answer waits up to 10 s for it (a bound a loaded machine never reaches,
+not a pace: the read returns with the answer); one that expects none waits 0.1 s (the outcome
+does not depend on the wait). The seeded drop pattern is read through the lockstep barrier
+(``tests/simtime.served_modbus``): a reply counts as dropped only when the server dropped it."""
 
 from __future__ import annotations
 
@@ -9,6 +14,7 @@ pytest.importorskip("pymodbus")
 
 from pymodbus import FramerType
 from pymodbus.client import ModbusTcpClient
+from simtime import served_modbus
 
 from hil.mocks.faults import FaultPlan
 from hil.mocks.interfaces import FreeJoints
@@ -24,7 +30,7 @@ pytestmark = pytest.mark.timeout(20)
 WRENCH = np.array([1.5, -2.25, 300.0, -0.5, 0.125, -32.0])
 
 
-def _plain_client(sim: SimulatedFT300, timeout: float = 0.5) -> ModbusTcpClient:
+def _plain_client(sim: SimulatedFT300, timeout: float = 10.0) -> ModbusTcpClient:
     framer = FramerType.RTU if sim.framing == "rtu" else FramerType.SOCKET
     client = ModbusTcpClient("127.0.0.1", port=sim.port, framer=framer, timeout=timeout, retries=0)
     assert client.connect()
@@ -151,9 +157,13 @@ def test_fault_injection_exception_and_stale() -> None:
 def _drop_pattern(seed: int) -> list[bool]:
     from pymodbus.exceptions import ModbusIOException
 
+    from hil.protocols.modbus_robotiq import _waiting_client
+
     out = []
     with SimulatedFT300(faults=FaultPlan(drop_prob=0.3), seed=seed) as sim:
-        client = _plain_client(sim, timeout=0.2)
+        client = _waiting_client(ModbusTcpClient, served_modbus(sim))(  # pymodbus' client, waits simulated
+            "127.0.0.1", port=sim.port, framer=FramerType.SOCKET, timeout=0.2, retries=0)
+        assert client.connect()
         try:
             for _ in range(8):
                 try:

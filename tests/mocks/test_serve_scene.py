@@ -1,5 +1,10 @@
 """``hil mock serve SCENE``: a scene's simulated devices served on their own, reached by plain
-clients from another process (subprocess tests) and cleaned up on exit."""
+clients from another process (subprocess tests) and cleaned up on exit.
+
+The served devices run free on the wall clock (that is what ``hil mock serve`` is for), so these
+tests wait for *states* (a report printed, a number of frames received, a reply), never for a
+duration, and assert rates on the devices' own clocks (their timestamps), never on the wall clock:
+a loaded machine only makes them slower. Their timeouts are bounds a loaded machine never reaches."""
 
 from __future__ import annotations
 
@@ -30,12 +35,12 @@ def _start(*args: str) -> subprocess.Popen:
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def _report(proc: subprocess.Popen, timeout: float = 20.0) -> dict:
-    """The JSON line the server prints once every device listens."""
-    ready, _, _ = select.select([proc.stdout], [], [], timeout)
-    if not ready:
-        proc.kill()
-        pytest.fail(f"no endpoints printed within {timeout} s: {proc.stderr.read() if proc.poll() else ''}")
+def _report(proc: subprocess.Popen) -> dict:
+    """The JSON line the server prints once every device listens (waited for as long as the server
+    lives: starting a Python process on a loaded machine takes what it takes)."""
+    while not select.select([proc.stdout], [], [], 1.0)[0]:
+        if proc.poll() is not None:
+            break
     line = proc.stdout.readline()
     if not line:
         proc.wait(5)
@@ -57,9 +62,9 @@ def _by_name(report: dict) -> dict[str, dict]:
     return {d["name"]: d for d in report["devices"]}
 
 
-@pytest.mark.timeout(40)
+@pytest.mark.timeout(300)
 def test_sdea_bench_bota_pty_from_another_process():
-    proc = _start("sdea_bench", "--duration", "3", "--json")
+    proc = _start("sdea_bench", "--duration", "600", "--json")  # stopped by SIGTERM below
     try:
         rep = _report(proc)
         devs = _by_name(rep)
@@ -78,12 +83,13 @@ def test_sdea_bench_bota_pty_from_another_process():
             port.reset_input_buffer()
             parser = FrameParser()
             frames = []
-            t_end = time.monotonic() + 0.25
-            while time.monotonic() < t_end:
+            while len(frames) < 100:
                 frames += parser.feed(port.read(port.in_waiting or 1))
-        assert len(frames) > 100  # free-running at ~1 kHz (sinc 51; loose bound for a loaded machine)
+        # free-running at the sensor's rate: on its own clock (the frames' timestamps, us) the
+        # samples are 51 / 51200 s = 996 us apart (sinc 51); a slow machine only skips some
         ts = np.array([f.timestamp for f in frames], dtype=np.int64)
-        assert np.all(np.diff(ts) > 0)
+        steps = np.diff(ts) / (51 / 51200 * 1e6)
+        assert np.all(steps > 0.5) and np.allclose(steps, np.round(steps), atol=0.01)
         w = np.array([f.wrench for f in frames])
         assert np.all(np.isfinite(w))
         assert np.all(w[:, :5] == 0.0)  # only Tz (axes: [5]) carries the spring torque
@@ -92,15 +98,16 @@ def test_sdea_bench_bota_pty_from_another_process():
 
         # 2) the printed params open the project's adapter as they are
         with open_device(ft["driver"], **ft["params"]) as dev:
-            a, b = dev.read(timeout=1.0), dev.read(timeout=1.0)
+            a, b = dev.read(timeout=30.0), dev.read(timeout=30.0)
             assert b.seq == a.seq + 1 and abs(b.wrench[5]) < 0.05
+        proc.send_signal(signal.SIGTERM)
     finally:
-        rc, err = _finish(proc, timeout=20)
+        rc, err = _finish(proc, timeout=60)
     assert rc == 0, err
     assert "stopped after" in err
 
 
-@pytest.mark.timeout(40)
+@pytest.mark.timeout(300)
 def test_dual_master_modbus_tcp_and_dynamixel_then_sigterm():
     from pymodbus.client import ModbusTcpClient
 
@@ -110,7 +117,7 @@ def test_dual_master_modbus_tcp_and_dynamixel_then_sigterm():
         ft = devs["master2_ft"]
         assert ft["driver"] == "robotiq_ft300" and ft["params"]["url"].startswith("tcp://127.0.0.1:")
         host, port = ft["params"]["url"].removeprefix("tcp://").split(":")
-        client = ModbusTcpClient(host, port=int(port), timeout=1.0, retries=0)
+        client = ModbusTcpClient(host, port=int(port), timeout=30.0, retries=0)
         try:
             assert client.connect()
             seen = []
@@ -131,41 +138,42 @@ def test_dual_master_modbus_tcp_and_dynamixel_then_sigterm():
         assert serial_regs[0] >> 8 == ord("S")
         slave = devs["slave"]
         assert slave["params"]["ids"] == [1, 2, 3]
-        with open_device(slave["driver"], **slave["params"]) as dxl:
-            s = dxl.read(timeout=1.0)
+        with open_device(slave["driver"], **slave["params"], timeout=30.0) as dxl:
+            s = dxl.read(timeout=30.0)
             assert s.position.shape == (3,) and np.all(np.abs(s.position) < 0.01)
         proc.send_signal(signal.SIGTERM)
     finally:
-        rc, err = _finish(proc, timeout=10)
+        rc, err = _finish(proc, timeout=60)
     assert rc == 0, err
     assert "stopped after" in err
 
 
-@pytest.mark.timeout(40)
+@pytest.mark.timeout(300)
 def test_can_devices_across_processes_over_udp_multicast():
     pytest.importorskip("msgpack", reason="python-can's udp_multicast bus needs msgpack")
     group = f"239.74.163.{random.randint(100, 250)}"
-    proc = _start("sdea_bench", "--duration", "3", "--json", "--can-interface", "udp_multicast",
-                  "--can-channel", f"hil0={group}")
+    proc = _start("sdea_bench", "--duration", "600", "--json", "--can-interface", "udp_multicast",
+                  "--can-channel", f"hil0={group}")  # stopped by SIGTERM below
     try:
         motor = _by_name(_report(proc))["motor"]
         assert motor["cross_process"] is True
         # the channel's own UDP port (the first served channel: python-can's default 43113)
         assert motor["params"] == {"interface": "udp_multicast", "bitrate": 1000000, "channel": group, "node_id": 3,
                                    "port": 43113}
-        with open_device(motor["driver"], **motor["params"]) as dev:
-            first = dev.read(timeout=1.0)
-            t_end = time.monotonic() + 0.3
-            while time.monotonic() < t_end:
-                dev.command_effort(np.array([0.05]), timeout=1.0)
+        with open_device(motor["driver"], **motor["params"], timeout=30.0) as dev:
+            first = dev.read(timeout=30.0)
+            moved = first
+            while not moved.position[0] > first.position[0] + 1e-5:  # until the served plant moved
+                dev.command_effort(np.array([0.05]), timeout=30.0)
                 time.sleep(0.005)
-            moved = dev.read(timeout=1.0)
+                moved = dev.read(timeout=30.0)
             dev.safe_stop()
+        proc.send_signal(signal.SIGTERM)
         # 0.05 N.m against the 362 N.m/rad spring: x -> 1.4e-4 rad (locked output: m_out is set,
         # so the free SDEA moves further); any motion proves the command reached the served plant
         assert moved.position[0] > first.position[0] + 1e-5
     finally:
-        rc, err = _finish(proc, timeout=20)
+        rc, err = _finish(proc, timeout=60)
     assert rc == 0, err
 
 
@@ -191,10 +199,10 @@ def test_streaming_ft300_served_in_process_and_nothing_left(tmp_path):
     try:
         (ep,) = [e for e in sim.endpoints if e.driver == "robotiq_ft300_stream"]
         assert ep.params == {"url": ep.address}
-        dev = open_device(ep.driver, **ep.params, timeout=0.5)
+        dev = open_device(ep.driver, **ep.params, timeout=30.0, stop_timeout=30.0)  # bounds, not a pace
         try:
             assert dev.info.extra["start"] == "handshake" and dev.info.serial == "SIM-0001"
-            samples = [dev.read(timeout=0.5) for _ in range(10)]
+            samples = [dev.read(timeout=30.0) for _ in range(10)]
             w = np.array([s.wrench for s in samples])
             assert np.all(w[:, :5] == 0.0) and np.all(np.abs(w[:, 5]) < 0.05)
             assert [s.seq for s in samples] == list(range(1, 11))
@@ -205,17 +213,15 @@ def test_streaming_ft300_served_in_process_and_nothing_left(tmp_path):
     finally:
         sim.close()
         sim.close()
-    time.sleep(0.05)
-    assert threading.active_count() == threads0
+    while threading.active_count() != threads0:  # threads that are ending (a state, not a duration)
+        time.sleep(0.01)
     assert _fds() == fds0
 
 
 @pytest.mark.timeout(30)
 def test_main_in_process_prints_json_and_cleans_up(capsys):
     threads0, fds0 = threading.active_count(), _fds()
-    t0 = time.monotonic()
-    assert hil_main(["mock", "serve", "sdea_bench", "--duration", "0.3", "--json"]) == 0
-    assert time.monotonic() - t0 < 10
+    assert hil_main(["mock", "serve", "sdea_bench", "--duration", "0.3", "--json"]) == 0  # returns
     out = capsys.readouterr()
     rep = json.loads(out.out.splitlines()[0])
     assert [d["name"] for d in rep["devices"]] == ["motor", "spring_ft"]

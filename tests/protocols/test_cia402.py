@@ -3,7 +3,9 @@
 
 Specs followed: CiA 402 / IEC 61800-7-201 state machine (controlword 0x06/0x07/0x0F/0x02/0x80,
 statusword masks), CiA 402 §6.5 torque objects (per mille of rated torque 0x6076), CiA 301 EMCY,
-heartbeat and SDO abort codes."""
+heartbeat and SDO abort codes. The adapter waits on simulated time (``tests/simtime``): no
+receive thread, what the drive sends (in the sender's thread: ``sync=True``) is dispatched when the
+adapter waits, and an answer that never comes times out without any wall-clock wait."""
 
 from __future__ import annotations
 
@@ -14,6 +16,8 @@ import numpy as np
 import pytest
 
 pytest.importorskip("canopen")
+
+from simtime import served
 
 from hil.errors import DeviceFault, DeviceTimeout, ProtocolError
 from hil.mocks.cia402_drive import SimCiA402
@@ -44,7 +48,8 @@ def rig(request):
     clock = Clock()
     sim = SimCiA402(joints, ch, 7, sync=True, dt=0.001, gear_ratio=2.0, counts_per_rev=CPR,
                     rated_torque_mNm=RATED, faults=opts.get("faults"), quick_stop_option=opts.get("qso", 2))
-    drv = CiA402Drive(7, ch, "virtual", gear_ratio=2.0, clock=clock, timeout=0.5, mode=opts.get("mode", 4))
+    drv = CiA402Drive(7, ch, "virtual", waits=served(), gear_ratio=2.0, clock=clock, timeout=0.5,
+                      mode=opts.get("mode", 4))
 
     def step(n: int = 1) -> None:
         for _ in range(n):
@@ -112,7 +117,7 @@ def test_emcy_is_a_device_fault_and_fault_reset_recovers():
     plan = FaultPlan(error_code=0x2310, error_at_tick=3, error_until_tick=6)
     clock = Clock()  # the heartbeat consumer runs on this clock: no heartbeat is missed while paused
     with SimCiA402(joints, ch, 4, sync=True, faults=plan) as sim, \
-            CiA402Drive(4, ch, "virtual", timeout=0.5, clock=clock) as drv:
+            CiA402Drive(4, ch, "virtual", waits=served(), timeout=0.5, clock=clock) as drv:
         drv.command_effort(np.array([0.3]))
         for _ in range(3):
             sim.tick()
@@ -133,10 +138,10 @@ def test_emcy_is_a_device_fault_and_fault_reset_recovers():
 def test_sdo_timeout_is_device_timeout():
     ch = f"test-cia402-{next(_chan)}"
     with pytest.raises(DeviceTimeout, match="no SDO answer"):
-        CiA402Drive(9, ch, "virtual", timeout=0.05)  # nobody on the bus
+        CiA402Drive(9, ch, "virtual", waits=served(), timeout=0.05)  # nobody on the bus
     joints = FreeJoints(1)
     with SimCiA402(joints, ch, 9, sync=True, faults=FaultPlan(disconnect_at_tick=1)) as sim, \
-            CiA402Drive(9, ch, "virtual", timeout=0.1, clock=Clock()) as drv:
+            CiA402Drive(9, ch, "virtual", waits=served(), timeout=0.1, clock=Clock()) as drv:
         sim.tick()
         with pytest.raises(DeviceTimeout):
             drv.sdo_read(0x1000)

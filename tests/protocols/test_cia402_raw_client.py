@@ -44,6 +44,9 @@ def raw():
     net.NOTIFIER_CYCLE = 0.05  # quick disconnect
     net.connect(interface="virtual", channel=ch)
     node = net.add_node(NODE, canopen.ObjectDictionary())  # raw SDO only
+    # canopen's notifier thread hands the answers over: on a loaded machine it may run late, so the
+    # SDO wait is a bound (the answer is queued by the drive before the request's send returns)
+    node.sdo.RESPONSE_TIMEOUT = 10.0
     yield spy, sim, node, net, joints
     net.disconnect()
     sim.close()

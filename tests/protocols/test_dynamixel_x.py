@@ -1,12 +1,15 @@
-"""DynamixelX adapter against the simulated servo chain over a real pty."""
+"""DynamixelX adapter against the simulated servo chain over a real pty.
+
+The chain is served in the test's thread and the adapter waits on simulated time (``tests/simtime``):
+nothing here depends on how fast the machine runs, and "no hang" is the simulated time a wait took."""
 
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
+from simtime import served
 
 from hil.errors import ChecksumError, DeviceDisconnected, DeviceFault, DeviceTimeout
 from hil.mocks.dynamixel_devices import (
@@ -28,7 +31,7 @@ from hil.protocols.dynamixel_x import (
     to_unsigned,
 )
 
-pytestmark = pytest.mark.timeout(20)
+pytestmark = pytest.mark.timeout(120)
 
 KT = MODELS["XM430-W350"].torque_constant
 
@@ -80,6 +83,11 @@ def test_decode_present_block() -> None:
 
 
 # ---- adapter against the simulated chain ------------------------------------------------------
+def Chain(*args, **kw) -> DynamixelChain:
+    """A chain served in the test's thread (the adapter's waits run it: :func:`simtime.served`)."""
+    return DynamixelChain(*args, threaded=False, **kw)
+
+
 def _tick(dx: DynamixelX, chain: DynamixelChain, plant: FreeJoints, effort, dt: float = 0.01):
     """One lockstep tick: command, wait until the chain processed it, step physics, read."""
     dx.command_effort(np.asarray(effort, dtype=float))
@@ -90,7 +98,7 @@ def _tick(dx: DynamixelX, chain: DynamixelChain, plant: FreeJoints, effort, dt: 
 
 def test_open_configures_current_mode_and_torque() -> None:
     plant = FreeJoints(dof=3)
-    with DynamixelChain(plant, ids=[3, 5, 7]) as chain, DynamixelX(chain.port, ids=[3, 5, 7]) as dx:
+    with Chain(plant, ids=[3, 5, 7]) as chain, DynamixelX(chain.port, waits=served(chain), ids=[3, 5, 7]) as dx:
         assert isinstance(dx, Actuator) and dx.dof == 3 and dx.units == "rotary"
         assert dx.info.model == "XM430-W350" and dx.info.firmware == "45"
         assert dx.current_limit.tolist() == [1193] * 3
@@ -104,8 +112,8 @@ def test_open_configures_current_mode_and_torque() -> None:
 def test_commands_arrive_with_the_right_scaling() -> None:
     plant = FreeJoints(dof=3)
     with (
-        DynamixelChain(plant, ids=[1, 2, 3]) as chain,
-        DynamixelX(chain.port, ids=[1, 2, 3], directions=[1, -1, 1], current_limit=1000) as dx,
+        Chain(plant, ids=[1, 2, 3]) as chain,
+        DynamixelX(chain.port, waits=served(chain), ids=[1, 2, 3], directions=[1, -1, 1], current_limit=1000) as dx,
     ):
         effort = np.array([0.5, 0.5, -50.0])
         dx.command_effort(effort)
@@ -118,7 +126,7 @@ def test_commands_arrive_with_the_right_scaling() -> None:
 
 def test_feedback_decodes_signed_si_values() -> None:
     plant = FreeJoints(dof=2, mass=0.01)
-    with DynamixelChain(plant, ids=[1, 2]) as chain, DynamixelX(chain.port, ids=[1, 2]) as dx:
+    with Chain(plant, ids=[1, 2]) as chain, DynamixelX(chain.port, waits=served(chain), ids=[1, 2]) as dx:
         s = _tick(dx, chain, plant, [0.2, -0.3], dt=0.05)
         q_true, v_true = plant.position(), plant.velocity()
         assert q_true[1] < 0 and v_true[1] < 0
@@ -132,8 +140,8 @@ def test_feedback_decodes_signed_si_values() -> None:
 def test_directions_and_zero_offset() -> None:
     plant = FreeJoints(dof=1, mass=0.01)
     with (
-        DynamixelChain(plant, ids=[4]) as chain,
-        DynamixelX(chain.port, ids=[4], directions=[-1], zero_ticks=[100]) as dx,
+        Chain(plant, ids=[4]) as chain,
+        DynamixelX(chain.port, waits=served(chain), ids=[4], directions=[-1], zero_ticks=[100]) as dx,
     ):
         s = _tick(dx, chain, plant, [0.1], dt=0.05)
         # a positive command drives the servo negative; position reported relative to tick 100
@@ -146,7 +154,7 @@ def _trajectory(seed: int) -> np.ndarray:
     plant = FreeJoints(dof=2, mass=0.05)
     rng = np.random.default_rng(seed)
     out = []
-    with DynamixelChain(plant, ids=[1, 2]) as chain, DynamixelX(chain.port, ids=[1, 2]) as dx:
+    with Chain(plant, ids=[1, 2]) as chain, DynamixelX(chain.port, waits=served(chain), ids=[1, 2]) as dx:
         for _ in range(20):
             s = _tick(dx, chain, plant, rng.normal(0, 0.3, 2), dt=0.002)
             out.append(np.concatenate([s.position, s.velocity, s.effort]))
@@ -167,17 +175,19 @@ def test_lockstep_run_is_deterministic() -> None:
     ],
 )
 def test_faults_during_open_surface_as_exceptions(plan: FaultPlan, exc: type[Exception]) -> None:
-    with DynamixelChain(FreeJoints(1), ids=[1], faults=plan) as chain:
-        t0 = time.monotonic()
+    with Chain(FreeJoints(1), ids=[1], faults=plan) as chain:
+        waits = served(chain)
         with pytest.raises(exc):
-            DynamixelX(chain.port, ids=[1], timeout=0.05, scan_baudrates=False)  # no second ping
-        assert time.monotonic() - t0 < 2.0
+            DynamixelX(chain.port, waits=waits, ids=[1], timeout=0.05, scan_baudrates=False)  # no second ping
+        # at most the adapter's timeout of simulated time (its first ping's too: it was a fixed
+        # 100 ms), no second ping: no hang
+        assert waits.waited <= 0.05 + 1e-6
 
 
 def _opened(plan: FaultPlan, ids=(1, 2)):
     plant = FreeJoints(dof=len(ids))
-    chain = DynamixelChain(plant, ids=list(ids), faults=plan)
-    dx = DynamixelX(chain.port, ids=list(ids), timeout=0.05)
+    chain = Chain(plant, ids=list(ids), faults=plan)
+    dx = DynamixelX(chain.port, waits=served(chain), ids=list(ids), timeout=0.05)
     return plant, chain, dx
 
 
@@ -213,10 +223,10 @@ def test_disconnected_chain_times_out_without_hanging() -> None:
     _, chain, dx = _opened(plan)
     try:
         dx.command_effort(np.array([0.1, 0.1]))  # a sync write never waits: no error
-        t0 = time.monotonic()
+        waited = dx._waits.waited
         with pytest.raises(DeviceTimeout):
             dx.read(timeout=0.03)
-        assert time.monotonic() - t0 < 0.5
+        assert dx._waits.waited - waited == pytest.approx(0.03)  # the read's timeout, then no more
     finally:
         dx.close()
         chain.close()
@@ -235,8 +245,8 @@ def test_stale_feedback_repeats_previous_values() -> None:
 
 
 def test_close_is_idempotent_and_blocks_further_use() -> None:
-    with DynamixelChain(FreeJoints(1), ids=[1]) as chain:
-        dx = DynamixelX(chain.port, ids=[1])
+    with Chain(FreeJoints(1), ids=[1]) as chain:
+        dx = DynamixelX(chain.port, waits=served(chain), ids=[1])
         dx.close()
         dx.close()
         with pytest.raises(DeviceDisconnected):
@@ -270,8 +280,8 @@ def test_bus_watchdog_armed_on_open_stops_the_servo_when_the_host_goes_silent() 
 
     clock = {"t": 0.0}
     plant = FreeJoints(dof=1)
-    with DynamixelChain(plant, ids=[1], clock=lambda: clock["t"]) as chain, \
-            DynamixelX(chain.port, ids=[1], bus_watchdog_s=0.04, watchdog_check_every=1,
+    with Chain(plant, ids=[1], clock=lambda: clock["t"]) as chain, \
+            DynamixelX(chain.port, waits=served(chain), ids=[1], bus_watchdog_s=0.04, watchdog_check_every=1,
                        clock=lambda: clock["t"]) as dx:
         assert chain.servos[1].table[ADDR_BUS_WATCHDOG] == 2
         for k in range(10):
@@ -302,8 +312,8 @@ def test_bus_watchdog_armed_on_open_stops_the_servo_when_the_host_goes_silent() 
 def test_bus_watchdog_kept_fed_by_a_running_host() -> None:
     clock = {"t": 0.0}
     plant = FreeJoints(dof=1)
-    with DynamixelChain(plant, ids=[1], clock=lambda: clock["t"]) as chain, \
-            DynamixelX(chain.port, ids=[1], bus_watchdog_s=0.02, watchdog_check_every=10,
+    with Chain(plant, ids=[1], clock=lambda: clock["t"]) as chain, \
+            DynamixelX(chain.port, waits=served(chain), ids=[1], bus_watchdog_s=0.02, watchdog_check_every=10,
                        clock=lambda: clock["t"]) as dx:
         for k in range(200):
             clock["t"] = k * 0.005
@@ -319,8 +329,8 @@ def test_effort_on_wire_is_what_the_servo_applies() -> None:
     units, clamped to the Current Limit), decoded back to N.m in the joint frame (direction)."""
     plant = FreeJoints(dof=3)
     with (
-        DynamixelChain(plant, ids=[1, 2, 3]) as chain,
-        DynamixelX(chain.port, ids=[1, 2, 3], directions=[1, -1, 1], current_limit=1000) as dx,
+        Chain(plant, ids=[1, 2, 3]) as chain,
+        DynamixelX(chain.port, waits=served(chain), ids=[1, 2, 3], directions=[1, -1, 1], current_limit=1000) as dx,
     ):
         effort = np.array([0.5003, 0.5003, -50.0])
         wire = dx.effort_on_wire(effort)
@@ -336,7 +346,7 @@ def test_effort_on_wire_is_what_the_servo_applies() -> None:
 def test_effort_on_wire_applies_the_effort_limit_like_command_effort() -> None:
     """A command beyond effort_limit is recorded as the clamped effort the servo receives."""
     plant = FreeJoints(dof=1)
-    with DynamixelChain(plant, ids=[1]) as chain, DynamixelX(chain.port, ids=[1], current_limit=1000) as dx:
+    with Chain(plant, ids=[1]) as chain, DynamixelX(chain.port, waits=served(chain), ids=[1], current_limit=1000) as dx:
         dx.effort_limit = 0.2
         wire = dx.effort_on_wire(np.array([0.9]))
         dx.command_effort(np.array([0.9]))

@@ -5,17 +5,19 @@ Spec followed: Bota Systems' ``bota_serial_example.py`` (python_interface reposi
 ``App Init``, ``C`` -> ``r,0,C,0``, ``c,TEMP,CALIB,FORMAT,BAUD`` -> ``r,0,c,0``, ``f,SINC,CHOP,FAST,
 FIR`` -> ``r,0,f,0``, ``R`` -> ``r,0,R,0``, ``time_step = 0.00001953125 * SINC_LENGTH``; frames
 ``0xAA | 34 bytes | CRC-16/X-25``. The client below is that example reimplemented with raw pyserial
-(and its own CRC), no project code on the host side.
+(and its own CRC), no project code on the host side. The sensor is served in the test's thread
+(``threaded=False``: the test lets it answer after each write; the adapter's waits do it
+themselves, ``tests/simtime``), so no answer depends on how fast the machine runs a thread.
 """
 
 from __future__ import annotations
 
 import struct
-import time
 
 import numpy as np
 import pytest
 import serial
+from simtime import served
 
 from hil.errors import DeviceTimeout
 from hil.mocks.interfaces import FreeJoints
@@ -45,24 +47,26 @@ def test_bota_example_client_configures_and_reads_the_simulated_sensor():
     is opened, so its App Init is seen)."""
     j = FreeJoints()
     j.apply_effort(np.array([3.5]))
-    with SimBota(j, period_s=0.001) as sim:
+    with SimBota(j, period_s=0.001, threaded=False) as sim:
         ser = serial.Serial()
-        ser.baudrate, ser.port, ser.timeout = 460800, sim.path, 2.0
-        ser.open()
+        ser.baudrate, ser.port, ser.timeout = 460800, sim.path, 2.0  # a bound, never reached: the
+        ser.open()                                                 # answers are written before each read
         try:
             sim.power_on()
+            sim.serve_pending()
             assert b"App Init" in ser.read_until(b"App Init")
-            time.sleep(0.1)  # the example sleeps 0.5 s here
-            ser.reset_input_buffer()
+            ser.reset_input_buffer()  # (the example sleeps 0.5 s before: the boot text is all there)
             ser.reset_output_buffer()
             for cmd, reply in ((b"C", b"r,0,C,0"), (b"c,0,1,0,4", b"r,0,c,0"), (b"f,512,0,0,1", b"r,0,f,0"),
                                (b"R", b"r,0,R,0")):
                 ser.write(cmd)
+                sim.serve_pending()  # the sensor takes the command and answers
                 assert reply in ser.read_until(reply), cmd
             assert sim.config == {"temp_compensation": 0, "use_calibration": 1, "data_format": 0, "baud_code": 4,
                                   "sinc_length": 512, "chop_enable": 0, "fast_enable": 0, "fir_disable": 1}
             for _ in range(4):
                 sim.emit()
+            sim.serve_pending()  # the frames into the host's input queue
             frames = []
             while len(frames) < 4:  # the example's processing loop
                 if ser.read(1) != b"\xaa":
@@ -83,7 +87,7 @@ def test_bota_example_client_configures_and_reads_the_simulated_sensor():
 def test_adapter_sends_the_example_configuration():
     """The adapter configures the sensor on open as the example does; its sinc length comes
     from period_s (1 ms -> round(51.2) = 51)."""
-    with SimBota(FreeJoints()) as sim, BotaSerial(sim.path, period_s=0.001) as dev:
+    with SimBota(FreeJoints(), threaded=False) as sim, BotaSerial(sim.path, period_s=0.001, waits=served(sim)) as dev:
         assert sim.commands == ["C", "c,0,1,0,4", "f,51,0,0,1", "R"]
         assert dev.sinc_length == 51 and sim.period_s == pytest.approx(51 / 51200)
         sim.emit()

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dynamixel_sdk as sdk
 import numpy as np
 import pytest
+from simtime import served, served_sdk_port
 
 from hil.errors import DeviceTimeout
 from hil.mocks.dynamixel_devices import ADDR_BAUD_RATE, ADDR_RETURN_DELAY, DynamixelChain
@@ -20,24 +21,21 @@ pytestmark = pytest.mark.timeout(30)
 
 
 def _port(chain: DynamixelChain, bps: int):
-    port = sdk.PortHandler(chain.port)
+    """The stock SDK port on the chain, served in this thread, its timeouts on simulated time."""
+    port = served_sdk_port(chain)
     assert port.openPort() and port.setBaudRate(bps)
     return port, sdk.PacketHandler(2.0)
 
 
-@pytest.fixture(autouse=True)
-def _patient_sdk(monkeypatch):
-    """The stock SDK waits 2 x 16 ms (its USB latency timer) + 2 ms for a status packet; a loaded
-    CI machine can take longer to schedule the simulator's thread: wait 2 x 100 ms instead."""
-    import dynamixel_sdk.port_handler as ph
-
-    monkeypatch.setattr(ph, "LATENCY_TIMER", 100)
+def Chain(*args, **kw) -> DynamixelChain:
+    """A chain served in the test's thread (the adapter's or the port's waits run it)."""
+    return DynamixelChain(*args, threaded=False, **kw)
 
 
 def test_factory_servo_answers_the_raw_sdk_at_57600_only():
     """Spec: factory Baud Rate(8) = 1 -> 57 600 bps, Return Delay Time(9) = 250. The SDK's own
     default of 1 Mbps gets no answer (as on a real factory servo)."""
-    with DynamixelChain(FreeJoints(1), ids=[1]) as chain:
+    with Chain(FreeJoints(1), ids=[1]) as chain:
         port, ph = _port(chain, 1_000_000)
         _, result, _ = ph.ping(port, 1)
         assert result == sdk.COMM_RX_TIMEOUT and chain.baud_mismatch >= 1
@@ -57,8 +55,8 @@ def test_factory_servo_answers_the_raw_sdk_at_57600_only():
 
 def test_adapter_finds_a_factory_servo_by_default_and_clears_its_return_delay():
     """The adapter's default is the factory 57 600 bps; it writes Return Delay Time(9) = 0."""
-    with DynamixelChain(FreeJoints(1), ids=[1]) as chain:
-        with DynamixelX(chain.port, ids=[1], enable=False) as dx:
+    with Chain(FreeJoints(1), ids=[1]) as chain:
+        with DynamixelX(chain.port, waits=served(chain), ids=[1], enable=False) as dx:
             assert dx.baudrate == 57_600
         assert chain.servos[1].table[ADDR_RETURN_DELAY] == 0
 
@@ -66,10 +64,10 @@ def test_adapter_finds_a_factory_servo_by_default_and_clears_its_return_delay():
 def test_adapter_scans_the_baud_rates_when_the_given_one_gets_no_answer():
     """A scene that says 1 Mbps against a servo still at 57 600: the scan pings every X rate and
     continues at the one that answers; without the scan, DeviceTimeout."""
-    with DynamixelChain(FreeJoints(1), ids=[1]) as chain:
+    with Chain(FreeJoints(1), ids=[1]) as chain:
         with pytest.raises(DeviceTimeout):
-            DynamixelX(chain.port, ids=[1], baudrate=1_000_000, scan_baudrates=False, timeout=0.03)
-        with DynamixelX(chain.port, ids=[1], baudrate=1_000_000, timeout=0.03) as dx:
+            DynamixelX(chain.port, waits=served(chain), ids=[1], baudrate=1_000_000, scan_baudrates=False, timeout=0.03)
+        with DynamixelX(chain.port, waits=served(chain), ids=[1], baudrate=1_000_000, timeout=0.03) as dx:
             assert dx.baudrate == 57_600 and dx.info.extra["baudrate"] == 57_600
             dx.command_effort(np.array([0.0]))
             dx.read()
@@ -77,8 +75,8 @@ def test_adapter_scans_the_baud_rates_when_the_given_one_gets_no_answer():
 
 def test_a_configured_chain_at_4_mbps_is_opened_at_its_rate():
     """Scenes describe configured servos: the bench builds the chain at the scene's baudrate."""
-    with DynamixelChain(FreeJoints(2), ids=[1, 2], baudrate=4_000_000) as chain:
+    with Chain(FreeJoints(2), ids=[1, 2], baudrate=4_000_000) as chain:
         assert all(s.table[ADDR_BAUD_RATE] == 6 for s in chain.servos.values())
-        with DynamixelX(chain.port, ids=[1, 2], baudrate=4_000_000, scan_baudrates=False) as dx:
+        with DynamixelX(chain.port, waits=served(chain), ids=[1, 2], baudrate=4_000_000, scan_baudrates=False) as dx:
             assert dx.read().position.shape == (2,)
         assert chain.baud_mismatch == 0

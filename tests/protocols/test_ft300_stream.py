@@ -1,5 +1,10 @@
 """FT-300 data-stream mode: wire-format vectors, and the stream adapter against the simulated
-streaming sensor over a real pty (and over ``socket://`` through a TCP relay)."""
+streaming sensor over a real pty (and over ``socket://`` through a TCP relay).
+
+Except where a test is about the sensor's own free-running threads (or a relay thread), the sensor
+is served in the test's thread and the adapter waits on simulated time (``tests/simtime``): what a
+test sees never depends on how fast the machine runs, and "promptly" is the simulated time a wait
+took."""
 
 from __future__ import annotations
 
@@ -13,6 +18,7 @@ import time
 
 import numpy as np
 import pytest
+from simtime import served
 
 from hil.errors import ChecksumError, DeviceDisconnected, DeviceFault, DeviceTimeout
 from hil.mocks.faults import FaultPlan
@@ -29,7 +35,7 @@ from hil.protocols.modbus_robotiq import (
 )
 from hil.protocols.registry import open_device
 
-pytestmark = pytest.mark.timeout(30)
+pytestmark = pytest.mark.timeout(120)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -123,8 +129,8 @@ class Box:
 @pytest.fixture
 def rig():
     box = Box()
-    sim = SimFT300Stream(box, seed=3)
-    dev = RobotiqFT300Stream(sim.path, timeout=0.5)
+    sim = SimFT300Stream(box, threaded=False, seed=3)
+    dev = RobotiqFT300Stream(sim.path, waits=served(sim), timeout=0.5)
     yield box, sim, dev
     dev.close()
     sim.close()
@@ -154,9 +160,7 @@ def test_newest_frame_wins_and_seq_counts(rig):
     for k in range(1, 4):
         box.w = np.full(6, float(k))
         sim.emit()
-    deadline = time.monotonic() + 1.0  # a pty hands bytes to the slave side asynchronously
-    while dev._ser.in_waiting < 3 * STREAM_FRAME_LEN and time.monotonic() < deadline:
-        time.sleep(0.001)
+    assert dev.wait_rx(sim.tx_bytes, 1.0)  # the barrier: all three frames are there (simulated time)
     s = dev.read()
     assert s.wrench[0] == 3.0 and s.seq == 1
     assert dev.stats["frames"] == 3 and dev.stats["skipped_frames"] == 2
@@ -177,8 +181,8 @@ def test_resync_after_garbage(rig):
 
 def test_garbage_fault_every_frame():
     box = Box()
-    with SimFT300Stream(box, faults=FaultPlan(garbage_prob=1.0, garbage_len=20), seed=1) as sim:
-        dev = RobotiqFT300Stream(sim.path, timeout=0.5)
+    with SimFT300Stream(box, threaded=False, faults=FaultPlan(garbage_prob=1.0, garbage_len=20), seed=1) as sim:
+        dev = RobotiqFT300Stream(sim.path, waits=served(sim), timeout=0.5)
         try:
             for k in range(1, 21):
                 box.w = np.array([k, -k, 2 * k, 0.01 * k, -0.01 * k, 0.001 * k], dtype=float)
@@ -200,8 +204,8 @@ def _lockstep_read(dev: RobotiqFT300Stream, sim: SimFT300Stream):
 
 def test_crc_failures_are_counted_gaps():
     box = Box()
-    with SimFT300Stream(box, faults=FaultPlan(corrupt_ticks=frozenset({2, 4})), seed=2) as sim:
-        dev = RobotiqFT300Stream(sim.path, timeout=0.5)
+    with SimFT300Stream(box, threaded=False, faults=FaultPlan(corrupt_ticks=frozenset({2, 4})), seed=2) as sim:
+        dev = RobotiqFT300Stream(sim.path, waits=served(sim), timeout=0.5)
         try:
             got = []
             for k in range(1, 6):
@@ -217,8 +221,8 @@ def test_crc_failures_are_counted_gaps():
 
 def test_crc_failure_raises_when_asked():
     box = Box()
-    with SimFT300Stream(box, faults=FaultPlan(corrupt_ticks=frozenset({1})), seed=2) as sim:
-        dev = RobotiqFT300Stream(sim.path, timeout=0.5, on_crc_error="raise")
+    with SimFT300Stream(box, threaded=False, faults=FaultPlan(corrupt_ticks=frozenset({1})), seed=2) as sim:
+        dev = RobotiqFT300Stream(sim.path, waits=served(sim), timeout=0.5, on_crc_error="raise")
         try:
             sim.emit()
             with pytest.raises(ChecksumError):
@@ -231,23 +235,23 @@ def test_crc_failure_raises_when_asked():
 
 def test_dropped_frame_and_silence_time_out_promptly(rig):
     _box, sim, dev = rig
-    t0 = time.monotonic()
+    w0 = dev._waits.waited
     with pytest.raises(DeviceTimeout):
         dev.read(timeout=0.05)
-    assert time.monotonic() - t0 < 0.3
+    assert dev._waits.waited - w0 == pytest.approx(0.05, abs=1e-6)  # its timeout of simulated time
     sim.emit()
     first = dev.read()
-    t0 = time.monotonic()
+    w0 = dev._waits.waited
     again = dev.read(timeout=0.02)  # no new frame: the previous data, not fresh
-    assert time.monotonic() - t0 < 0.3
+    assert dev._waits.waited - w0 == pytest.approx(0.02, abs=1e-6)
     assert again.seq == first.seq and again.produced_at == first.produced_at
     assert dev.counters() == {"crc_errors": 0, "resync_bytes": 0, "skipped": 0, "stale": 1, "timeouts": 1}
 
 
 def test_max_age_returns_previous_sample():
     box = Box()
-    with SimFT300Stream(box) as sim:
-        dev = RobotiqFT300Stream(sim.path, max_age=5.0)
+    with SimFT300Stream(box, threaded=False) as sim:
+        dev = RobotiqFT300Stream(sim.path, waits=served(sim), max_age=5.0)
         try:
             sim.emit()
             a = dev.read()
@@ -269,13 +273,13 @@ def test_tare_offsets_later_readings(rig):
 
 def test_close_stops_stream_and_is_idempotent():
     box = Box()
-    with SimFT300Stream(box, rate_hz=200.0) as sim:
-        sim.start()
-        dev = RobotiqFT300Stream(sim.path, timeout=0.5)
+    with SimFT300Stream(box, rate_hz=200.0) as sim:  # free running (its own threads, wall clock):
+        sim.start()                                    # the waits below are bounds, never a pace
+        dev = RobotiqFT300Stream(sim.path, timeout=10.0, stop_timeout=10.0)
         assert dev.read().seq == 1  # free-running frames arrive
         dev.close()
         assert dev.stream_stopped is True
-        assert sim.wait_streaming(False, 1.0) and sim.stats["jams"] == 1
+        assert sim.wait_streaming(False, 10.0) and sim.stats["jams"] == 1
         n = sim.tick_count
         time.sleep(0.05)
         assert sim.tick_count == n  # silent after the jam
@@ -283,7 +287,7 @@ def test_close_stops_stream_and_is_idempotent():
         with pytest.raises(DeviceDisconnected):
             dev.read()
         # back in Modbus mode: a new adapter starts the stream again
-        dev2 = RobotiqFT300Stream(sim.path, timeout=0.5, read_info=False)
+        dev2 = RobotiqFT300Stream(sim.path, timeout=10.0, read_info=False, stop_timeout=10.0)
         assert dev2.info.extra["start"] == "handshake" and dev2.read().seq == 1
         dev2.close()
         assert len(sim.written) == 2
@@ -292,24 +296,24 @@ def test_close_stops_stream_and_is_idempotent():
 def test_already_streaming_sensor_is_used_as_is():
     box = Box()
     box.w = np.array([0, 0, 9.81, 0, 0, 0])
-    with SimFT300Stream(box, rate_hz=200.0, streaming=True) as sim:
+    with SimFT300Stream(box, rate_hz=200.0, streaming=True) as sim:  # free running: bounds, not a pace
         sim.start()
-        dev = RobotiqFT300Stream(sim.path, timeout=0.5)
+        dev = RobotiqFT300Stream(sim.path, timeout=10.0, probe_s=10.0, stop_timeout=10.0)
         try:
             assert dev.info.extra["start"] == "already-streaming" and sim.written == []
             assert dev.read().wrench[2] == pytest.approx(9.81)
         finally:
             dev.close()
-        assert sim.wait_streaming(False, 1.0)
+        assert sim.wait_streaming(False, 10.0)
 
 
 def test_silent_port_times_out_on_open():
     master, slave = os.openpty()
     try:
-        t0 = time.monotonic()
+        waits = served()  # nobody on the line: simulated time, nothing to serve
         with pytest.raises(DeviceTimeout):
-            RobotiqFT300Stream(os.ttyname(slave), timeout=0.1, read_info=False, stop_timeout=0.1)
-        assert time.monotonic() - t0 < 1.0
+            RobotiqFT300Stream(os.ttyname(slave), timeout=0.1, read_info=False, stop_timeout=0.1, waits=waits)
+        assert waits.waited < 1.0  # the probe, the request's timeout and the jam: no hang
     finally:
         os.close(master)
         os.close(slave)
@@ -321,7 +325,7 @@ def test_exception_reply_raises_device_fault():
     def responder() -> None:
         buf = b""
         while len(buf) < 11:
-            if select.select([master], [], [], 1.0)[0]:
+            if select.select([master], [], [], 30.0)[0]:  # a bound, not a pace
                 buf += os.read(master, 64)
             else:
                 return
@@ -331,18 +335,18 @@ def test_exception_reply_raises_device_fault():
     th.start()
     try:
         with pytest.raises(DeviceFault) as ei:
-            RobotiqFT300Stream(os.ttyname(slave), timeout=0.5, read_info=False, probe_s=0.0, stop_timeout=0.1)
+            RobotiqFT300Stream(os.ttyname(slave), timeout=30.0, read_info=False, probe_s=0.0, stop_timeout=0.1)
         assert ei.value.code == 4
     finally:
-        th.join(2.0)
+        th.join(30.0)
         os.close(master)
         os.close(slave)
 
 
 def test_unplugged_port_is_device_disconnected():
     box = Box()
-    sim = SimFT300Stream(box)
-    dev = RobotiqFT300Stream(sim.path, timeout=0.2)
+    sim = SimFT300Stream(box, threaded=False)
+    dev = RobotiqFT300Stream(sim.path, waits=served(sim), timeout=0.2)
     try:
         sim.hangup()
         with pytest.raises(DeviceDisconnected):
@@ -356,8 +360,8 @@ def test_determinism_with_faults():
     def run() -> tuple[list, dict]:
         box = Box()
         plan = FaultPlan(drop_prob=0.2, corrupt_prob=0.2, garbage_prob=0.3, stale_prob=0.1)
-        with SimFT300Stream(box, faults=plan, seed=11) as sim:
-            dev = RobotiqFT300Stream(sim.path, timeout=0.5, read_info=False)
+        with SimFT300Stream(box, threaded=False, faults=plan, seed=11) as sim:
+            dev = RobotiqFT300Stream(sim.path, waits=served(sim), timeout=0.5, read_info=False)
             out = []
             try:
                 for k in range(40):
@@ -379,8 +383,9 @@ def test_determinism_with_faults():
 def test_registry_and_rtu_url():
     box = Box()
     box.w = np.array([-1.0, 2.0, -3.0, 0.4, -0.5, 0.6])
-    with SimFT300Stream(box) as sim:
-        dev = open_device("robotiq_ft300_stream", url=f"rtu://{sim.path}?baudrate=19200", timeout=0.5)
+    with SimFT300Stream(box, threaded=False) as sim:
+        dev = open_device("robotiq_ft300_stream", url=f"rtu://{sim.path}?baudrate=19200", timeout=0.5,
+                          waits=served(sim))
         try:
             assert isinstance(dev, RobotiqFT300Stream)
             sim.emit()
@@ -395,8 +400,8 @@ def test_polled_adapter_over_serial_rtu_on_the_same_device():
     """Registers 180-185 over a real serial line (pty), through pymodbus's serial client."""
     box = Box()
     box.w = np.array([12.34, -5.67, -300.0, 1.234, -0.567, -32.0])
-    with SimFT300Stream(box) as sim:
-        dev = RobotiqFT300(f"rtu://{sim.path}", timeout=0.5)
+    with SimFT300Stream(box, threaded=False) as sim:
+        dev = RobotiqFT300(f"rtu://{sim.path}", timeout=0.5, waits=served(sim))
         try:
             np.testing.assert_allclose(dev.read().wrench, box.w, atol=1e-12)
             assert dev.info.serial == "SIM-0001"
@@ -432,14 +437,14 @@ def test_socket_url_through_tcp_relay():
 
         th = threading.Thread(target=relay, daemon=True)
         th.start()
-        dev = RobotiqFT300Stream(f"socket://127.0.0.1:{port}", timeout=1.0)
+        dev = RobotiqFT300Stream(f"socket://127.0.0.1:{port}", timeout=10.0, stop_timeout=10.0)  # bounds
         try:
-            assert sim.wait_streaming(True, 1.0)
+            assert sim.wait_streaming(True, 10.0)
             sim.emit()
             np.testing.assert_allclose(dev.read().wrench, box.w)
         finally:
             dev.close()
-            assert sim.wait_streaming(False, 1.0)
+            assert sim.wait_streaming(False, 10.0)
             stop.set()
             th.join(2.0)
             srv.close()

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import struct
-import time
 
 import numpy as np
 import pytest
 
 pytest.importorskip("pymodbus")
+
+from simtime import served_modbus
 
 from hil.errors import (
     ChecksumError,
@@ -34,7 +35,7 @@ from hil.protocols.modbus_robotiq import (
     registers_to_wrench,
 )
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = pytest.mark.timeout(120)
 
 # Manual scaling: Fx,Fy,Fz = register / 100 N; Mx,My,Mz = register / 1000 N.m (signed 16 bit).
 SCALING = [
@@ -142,7 +143,7 @@ def test_adapter_reads_scaled_signed_wrench(framing: str) -> None:
     plant = FreeJoints(dof=6)
     with (
         SimulatedFT300(plant, framing=framing) as sim,
-        RobotiqFT300(sim.url, timeout=0.5) as ft,
+        RobotiqFT300(sim.url, waits=served_modbus(sim), timeout=0.5) as ft,
     ):
         assert isinstance(ft, ForceSensor) and ft.axes == 6
         assert ft.info.firmware == "FTS-1.0.3" and ft.info.serial == "SIM-0001"
@@ -161,7 +162,7 @@ def test_adapter_tare(framing: str) -> None:
     plant.apply_effort(np.array([1.0, 2.0, -3.0]))
     with (
         SimulatedFT300(plant, framing=framing) as sim,
-        RobotiqFT300(sim.url, read_info=False) as ft,
+        RobotiqFT300(sim.url, waits=served_modbus(sim), read_info=False) as ft,
     ):
         ft.tare()
         plant.apply_effort(np.array([1.5, 2.0, -3.0]))
@@ -171,7 +172,7 @@ def test_adapter_tare(framing: str) -> None:
 def test_adapter_start_stream_writes_register_410(framing: str) -> None:
     with (
         SimulatedFT300(framing=framing) as sim,
-        RobotiqFT300(sim.url, read_info=False) as ft,
+        RobotiqFT300(sim.url, waits=served_modbus(sim), read_info=False) as ft,
     ):
         ft.start_stream()
         assert sim.written == [(410, [0x0200])]
@@ -180,12 +181,11 @@ def test_adapter_start_stream_writes_register_410(framing: str) -> None:
 def test_dropped_reply_raises_timeout_quickly(framing: str) -> None:
     with (
         SimulatedFT300(framing=framing, faults=FaultPlan(drop_ticks=[0])) as sim,
-        RobotiqFT300(sim.url, read_info=False, timeout=0.1) as ft,
+        RobotiqFT300(sim.url, waits=served_modbus(sim), read_info=False, timeout=0.1) as ft,
     ):
-        t0 = time.monotonic()
         with pytest.raises(DeviceTimeout):
             ft.read()
-        assert time.monotonic() - t0 < 1.0
+        assert ft._waits.waited == pytest.approx(0.1, abs=1e-6)  # one timeout of simulated time: quickly
         ft.read()  # the next request is answered again
         assert sim.replies_dropped == 1
 
@@ -193,7 +193,7 @@ def test_dropped_reply_raises_timeout_quickly(framing: str) -> None:
 def test_corrupted_rtu_reply_raises_checksum_error() -> None:
     with (
         SimulatedFT300(framing="rtu", faults=FaultPlan(corrupt_ticks=[0])) as sim,
-        RobotiqFT300(sim.url, read_info=False, timeout=0.1, retries=0) as ft,
+        RobotiqFT300(sim.url, waits=served_modbus(sim), read_info=False, timeout=0.1, retries=0) as ft,
     ):
         with pytest.raises(ChecksumError):
             ft.read()
@@ -206,7 +206,7 @@ def test_corrupted_rtu_reply_is_asked_again_and_counted() -> None:
     plant.apply_effort(np.array([12.5]))
     with (
         SimulatedFT300(plant, framing="rtu", faults=FaultPlan(corrupt_ticks=[0])) as sim,
-        RobotiqFT300(sim.url, read_info=False, timeout=0.1) as ft,
+        RobotiqFT300(sim.url, waits=served_modbus(sim), read_info=False, timeout=0.1) as ft,
     ):
         s = ft.read()
         assert s.wrench[0] == pytest.approx(12.5) and s.seq == 1
@@ -219,7 +219,7 @@ def test_tcp_gateway_exception_is_a_missed_reply_not_data() -> None:
     plant.apply_effort(np.array([7.0]))
     with (
         SimulatedFT300(plant, framing="tcp", faults=FaultPlan(corrupt_ticks=[1, 2])) as sim,
-        RobotiqFT300(sim.url, read_info=False, timeout=0.1) as ft,
+        RobotiqFT300(sim.url, waits=served_modbus(sim), read_info=False, timeout=0.1) as ft,
     ):
         ft.read()
         with pytest.raises(GatewayError):
@@ -251,7 +251,7 @@ def test_tcp_payload_damage_never_returned_as_data_unless_undetectable() -> None
         with (
             SimulatedFT300(lambda: truth, framing="tcp", faults=FaultPlan(corrupt_ticks=[1]), seed=seed,
                            tcp_corrupt="payload") as sim,
-            RobotiqFT300(sim.url, read_info=False, timeout=0.2, retries=0) as ft,
+            RobotiqFT300(sim.url, waits=served_modbus(sim), read_info=False, timeout=0.2, retries=0) as ft,
         ):
             ft.read()
             if i in (7, 8):
@@ -273,7 +273,7 @@ def test_device_error_raises_device_fault(framing: str) -> None:
     plan = FaultPlan(error_code=5, error_at_tick=1, error_until_tick=2)
     with (
         SimulatedFT300(framing=framing, faults=plan) as sim,
-        RobotiqFT300(sim.url, read_info=False) as ft,
+        RobotiqFT300(sim.url, waits=served_modbus(sim), read_info=False) as ft,
     ):
         ft.read()
         with pytest.raises(DeviceFault) as exc:
@@ -285,7 +285,7 @@ def test_device_error_raises_device_fault(framing: str) -> None:
 def test_disconnected_device_times_out() -> None:
     with (
         SimulatedFT300(faults=FaultPlan(disconnect_at_tick=1)) as sim,
-        RobotiqFT300(sim.url, read_info=False, timeout=0.1) as ft,
+        RobotiqFT300(sim.url, waits=served_modbus(sim), read_info=False, timeout=0.1) as ft,
     ):
         ft.read()
         for _ in range(2):
@@ -297,7 +297,7 @@ def test_stale_fault_repeats_previous_value() -> None:
     plant = FreeJoints(dof=1)
     with (
         SimulatedFT300(plant, faults=FaultPlan(stale_prob=0.5), seed=1) as sim,
-        RobotiqFT300(sim.url, read_info=False) as ft,
+        RobotiqFT300(sim.url, waits=served_modbus(sim), read_info=False) as ft,
     ):
         values = []
         for k in range(10):

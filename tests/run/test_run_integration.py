@@ -162,8 +162,7 @@ def test_sigkill_mid_run_leaves_readable_record(tmp_path):
     p = subprocess.Popen([sys.executable, "-m", "hil.cli.main", "run", "mcet_trilateral", "--out", str(out), "--json"],
                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     rec_path = out / "00_energy_injection.h5"
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:  # wait until a few flushes have happened
+    while p.poll() is None:  # wait until a few flushes have happened (a state, no deadline)
         time.sleep(0.5)
         if rec_path.exists():
             try:
@@ -172,7 +171,7 @@ def test_sigkill_mid_run_leaves_readable_record(tmp_path):
             except Exception:  # the file may be mid-creation
                 continue
     os.kill(p.pid, signal.SIGKILL)
-    p.wait(timeout=30)
+    p.wait()
     rec = RunRecord.open(rec_path)
     assert rec.stop_reason is None and rec.status is None  # it never closed
     assert rec.t.size >= 1000 and np.all(np.diff(rec.t) > 0)
