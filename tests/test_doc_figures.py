@@ -22,7 +22,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 IMG = ROOT / "docs" / "img"
 RECORD = json.loads((IMG / "figures.json").read_text(encoding="utf-8"))
-NUMBER = re.compile(r"[−-]?\d+(?:\.\d+)?(?:e[+−-]?\d+)?")
+NUMBER = re.compile(r"[+−-]?\d+(?:\.\d+)?(?:e[+−-]?\d+)?")
 
 
 def _make_figures():
