@@ -233,12 +233,12 @@ class SimulatedFT300:
         return f"{scheme}://{self.host}:{self.port}"
 
     def update(self) -> None:
-        """Snapshot the wrench source into registers 180-185 (explicit lockstep update)."""
+        """Snapshot the wrench source for registers 180-185 (explicit lockstep update). The registers
+        take it when the next request reads them, unless a stale fault keeps the previous values
+        (writing them here at once would undo that fault: issue 27)."""
         values = wrench_to_registers(self._source())
         with self._lock:
             self._pending_wrench = values
-            if self._registers is not None:
-                self._write_wrench(values)
 
     def close(self) -> None:
         """Stop the server and its thread. Idempotent."""

@@ -52,7 +52,14 @@ previous read, else re-sends the last command to get one; no reply within ``time
 DeviceTimeout. A non-blocking read (``timeout`` 0, the realtime loop) that finds no new reply
 returns the previous sample again (stale: same ``seq`` and ``produced_at``; the runner's watchdog
 judges its age) instead of re-sending. Counters (:meth:`CubeMarsMIT.counters`): ``error_frames`` (CAN error frames: a
-destroyed reply), ``decode_errors``, ``skipped`` (replies superseded before a read), ``timeouts``.
+destroyed reply), ``decode_errors``, ``skipped`` (replies superseded before a read), ``timeouts``,
+and, since every frame but "exit motor mode" is answered exactly once (issue 27): ``dropped``
+(blocking reads that found the reply to the command sent since the previous read missing; the
+command is sent again), ``late`` (replies arriving when no frame is waiting for one: a reply
+given up for and re-sent, arriving after all; not used, older than the re-sent one's),
+``frozen`` (replies byte for byte equal to the previous one although another command was sent in
+between: the reply's torque field follows the commanded torque, so such a motor answers without
+refreshing its state; a motor at rest under a constant command is not counted).
 """
 
 from __future__ import annotations
@@ -153,6 +160,13 @@ class CubeMarsMIT(CanActuator):
         self._last_sample: JointSample | None = None  # the newest sample read (non-blocking reads repeat it)
         self._skipped = 0
         self._timeouts = 0
+        # issue 27: replies are matched to the frames sent (each is answered once)
+        self._outstanding = 0  # frames sent whose reply has not arrived
+        self._dropped = 0  # reads that found the command sent since the previous read unanswered
+        self._late = 0  # replies that came when none was outstanding (after their re-send)
+        self._frozen = 0  # replies byte for byte equal to the previous one after another command
+        self._prev_reply: bytes | None = None
+        self._cmd_changed = False  # another command was sent since the previous reply
         # no acceptance filter: error frames must reach us; reply filtering is done in _handle
         self._open_bus(interface, channel, bitrate, bus, bus_kwargs)
         name = model if isinstance(model, str) else "custom"
@@ -175,6 +189,8 @@ class CubeMarsMIT(CanActuator):
     # -- low level ----------------------------------------------------------------------------
     def _send(self, data: bytes, timeout: float) -> None:
         self._send_frame(can.Message(arbitration_id=self.motor_id, data=data, is_extended_id=False), timeout)
+        if data != SPECIAL_FRAMES["exit"]:  # every frame but "exit motor mode" is answered
+            self._outstanding += 1
 
     def _handle(self, msg: can.Message) -> bool:
         if msg.is_error_frame:
@@ -189,6 +205,14 @@ class CubeMarsMIT(CanActuator):
         data = bytes(msg.data)
         if len(data) not in (6, 8) or data[0] != self.motor_id:
             return False
+        if self._outstanding <= 0:  # more replies than frames sent: one came after its re-send
+            self._late += 1
+            return False
+        self._outstanding -= 1
+        if self._cmd_changed and data == self._prev_reply:  # a new command, the same bytes: frozen
+            self._frozen += 1
+        self._prev_reply = data
+        self._cmd_changed = False
         try:
             reply = unpack_reply(data, self.limits)
         except ProtocolError:
@@ -215,10 +239,14 @@ class CubeMarsMIT(CanActuator):
         return raw + self._wraps * span
 
     def counters(self) -> dict[str, int]:
-        """error_frames, decode_errors, skipped, timeouts, and ``stale`` (non-blocking reads without a
-        new reply; listed once there is one) (see the module docstring)."""
+        """error_frames, decode_errors, skipped, timeouts, and, each listed once there is one,
+        dropped, late, frozen and ``stale`` (non-blocking reads without a new reply) (see the
+        module docstring)."""
         out = {"error_frames": self.error_frames, "decode_errors": self.decode_errors, "skipped": self._skipped,
                "timeouts": self._timeouts}
+        for k, v in (("dropped", self._dropped), ("late", self._late), ("frozen", self._frozen)):
+            if v:  # listed once there is one (records of fault-free runs keep their counters)
+                out[k] = v
         if self._stale_reads:
             out["stale"] = self._stale_reads
         return out
@@ -236,6 +264,7 @@ class CubeMarsMIT(CanActuator):
     def _transact(self, data: bytes, timeout: float) -> MitReply:
         self._drain()
         self._fresh = None
+        self._outstanding = 0  # a new exchange: anything still unanswered is given up
         self._send(data, timeout)
         reply = self._await_reply(self._waits.monotonic() + timeout)
         self._fresh = None  # consumed: read() must not return it as a new sample
@@ -266,6 +295,7 @@ class CubeMarsMIT(CanActuator):
                     self._handle(msg)
             if self._fresh is not None:
                 reply, self._fresh = self._fresh, None
+                self._outstanding = 0  # the frames sent into the silence are never answered
                 return reply
             if self._waits.monotonic() >= deadline:
                 self._timeouts += 1
@@ -279,6 +309,8 @@ class CubeMarsMIT(CanActuator):
         """Impedance command: tau = kp*(p_des - q) + kd*(v_des - qd) + t_ff (all clamped to range)."""
         data = pack_command(MitCommand(p_des, v_des, kp, kd, t_ff), self.limits)
         self._send(data, timeout)
+        if data != self._last_cmd:
+            self._cmd_changed = True
         self._last_cmd = data
 
     def effort_on_wire(self, effort: np.ndarray) -> np.ndarray:
@@ -304,6 +336,9 @@ class CubeMarsMIT(CanActuator):
             self._last_sample = self._stale(self._last_sample, self.clock(), "")
             return self._last_sample
         if self._fresh is None:
+            if self._outstanding > 0:  # the reply to the command sent since the last read is missing
+                self._dropped += 1
+                self._outstanding = 0  # given up: if it comes after all, it is late
             self._send(self._last_cmd, timeout)
             self._await_reply(deadline)
             self._drain()

@@ -96,7 +96,13 @@ the torque is on and no instruction packet arrives for that long, the servo stop
 98 reads -1; goal values are then refused. The adapter reads 98 of every servo every
 ``watchdog_check_every`` reads (default 100: one extra 1-byte sync read) and in
 :meth:`bus_watchdog_expired`, and raises :class:`DeviceFault` (``code = 0x200``) naming the servos
-whose watchdog expired. Counters: ``crc_errors``, ``timeouts``, ``bus_watchdog_errors``.
+whose watchdog expired. Counters: ``crc_errors``, ``timeouts``, ``bus_watchdog_errors``,
+``resync_bytes`` (bytes before a status packet's header, skipped: line noise; on blocking reads
+the bytes the SDK read are parsed again with :class:`~hil.protocols.codecs.dynamixel.StatusParser`
+to count what it skipped), ``frozen`` (sets of present blocks byte for byte equal to the
+previous set although another Goal Current was sent in between: Present Current follows Goal
+Current in current control, so those servos answer without refreshing their values; servos at
+rest under a constant command are not counted; issue 27).
 """
 
 from __future__ import annotations
@@ -169,6 +175,8 @@ def _make_port_handler(port_name: str, waits: Waits = WALL) -> Any:
             #: a sync read is outstanding (non-blocking read): the SDK's flush of the input before
             #: every packet it sends would throw its status packets away
             self.hold_input = False
+            #: every byte read while not None (the adapter counts what the SDK skipped: garbage)
+            self.capture: bytearray | None = None
 
         def clearPort(self) -> None:
             if not self.hold_input:
@@ -187,6 +195,8 @@ def _make_port_handler(port_name: str, waits: Waits = WALL) -> Any:
                 if left > 0:
                     self.waits.readable(self.ser.fileno(), min(left, 5.0) / 1000.0)
             data: bytes = self.ser.read(length)
+            if self.capture is not None:
+                self.capture += data
             return data
 
         def writePort(self, packet: Any) -> int:
@@ -255,6 +265,9 @@ class DynamixelX(Actuator):
         self.bus_watchdog_units = bus_watchdog_units(bus_watchdog_s) if bus_watchdog_s is not None else 0
         self.watchdog_check_every = max(1, int(watchdog_check_every))
         self._counts = {"crc_errors": 0, "timeouts": 0, "bus_watchdog_errors": 0}
+        self._prev_blocks: list[bytes] | None = None
+        self._prev_raw: np.ndarray | None = None  # the Goal Currents sent last
+        self._cmd_changed = False  # another Goal Current was sent since the last present blocks
         self._reads = 0
         self._requests = 0  # sync reads sent ahead (non-blocking reads)
         self._enabled = False
@@ -331,6 +344,9 @@ class DynamixelX(Actuator):
     def _send_effort(self, effort: np.ndarray, timeout: float) -> None:
         """Sync-write Goal Current for every joint (no reply on the bus, so it never waits)."""
         raw = self.current_command(effort)
+        if self._prev_raw is not None and not np.array_equal(raw, self._prev_raw):
+            self._cmd_changed = True
+        self._prev_raw = raw
         for i, r in zip(self.ids, raw, strict=True):
             u = to_unsigned(int(r), 2)
             self._gsw.changeParam(i, [u & 0xFF, u >> 8])
@@ -359,12 +375,21 @@ class DynamixelX(Actuator):
         self._check_comm(self._gsr.txPacket(), "sync read")
         blocks: list[bytes] = []
         errors: list[int] = []
-        for i in self.ids:
-            data, result, error = self._ph.readRx(self._port, i, PRESENT_BLOCK_LEN)
-            if result != COMM_SUCCESS:
-                self._check_comm(result, f"sync read status of id {i}")
-            blocks.append(bytes(data))
-            errors.append(int(error))
+        self._port.capture = bytearray()
+        try:
+            for i in self.ids:
+                data, result, error = self._ph.readRx(self._port, i, PRESENT_BLOCK_LEN)
+                if result != COMM_SUCCESS:
+                    self._check_comm(result, f"sync read status of id {i}")
+                blocks.append(bytes(data))
+                errors.append(int(error))
+        finally:  # what the SDK read, parsed again: the bytes it skipped before a header (garbage)
+            got, self._port.capture = bytes(self._port.capture), None
+            parser = StatusParser()
+            parser.feed(got)
+            if parser.skipped_bytes:
+                self._counts["resync_bytes"] = self._counts.get("resync_bytes", 0) + parser.skipped_bytes
+        self._count_repeated(blocks)
         for i, err in zip(self.ids, errors, strict=True):
             self._raise_for_error(i, err, timeout)
         cur, vel, pos = (np.array(v, dtype=float) for v in zip(*map(decode_present_block, blocks), strict=True))
@@ -471,6 +496,7 @@ class DynamixelX(Actuator):
                 raise DeviceFault(f"DYNAMIXEL ids {expired}: Bus Watchdog expired (servo stopped by itself)",
                                   code=FAULT_BUS_WATCHDOG)
             return None
+        self._count_repeated([bytes(p) for _e, p in got])
         cur, vel, pos = (np.array(v, dtype=float)
                          for v in zip(*(decode_present_block(p) for _e, p in got), strict=True))
         produced = self._clock()
@@ -485,6 +511,16 @@ class DynamixelX(Actuator):
             produced_at=produced,
         )
         return self._last
+
+    def _count_repeated(self, blocks: list[bytes]) -> None:
+        """Count a set of present blocks byte for byte equal to the previous set although a different
+        Goal Current was sent in between (``frozen``: Present Current follows Goal Current in current
+        control, so servos that still answer but no longer move their values are frozen; servos at
+        rest under a constant command are not counted)."""
+        if self._cmd_changed and blocks == self._prev_blocks:
+            self._counts["frozen"] = self._counts.get("frozen", 0) + 1
+        self._prev_blocks = blocks
+        self._cmd_changed = False
 
     def _drop_request(self, due: bool) -> None:
         self._ahead = None
@@ -516,10 +552,15 @@ class DynamixelX(Actuator):
         self._port.clearPort()
 
     def counters(self) -> dict[str, int]:
-        """crc_errors, timeouts, bus_watchdog_errors; once a non-blocking read ran also ``stale``
+        """crc_errors, timeouts, bus_watchdog_errors; listed once non-zero resync_bytes (bytes skipped
+        before a status packet's header: garbage on the line) and frozen (present blocks equal to the
+        previous set after another Goal Current);
+        once a non-blocking read ran also ``stale``
         (reads that returned the previous sample) and ``late`` (status packets of an abandoned
         sync read); see the module docstring."""
         out = dict(self._counts)
+        if self._status.skipped_bytes:  # the non-blocking reads' own parser
+            out["resync_bytes"] = out.get("resync_bytes", 0) + self._status.skipped_bytes
         if self._requests:
             out["stale"] = self._stale_reads
             out.setdefault("late", 0)

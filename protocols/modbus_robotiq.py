@@ -215,13 +215,22 @@ class RobotiqFT300(ForceSensor):
     then :class:`ProtocolError` (or ChecksumError) is raised. A damaged low byte that keeps the
     value in range cannot be detected on Modbus/TCP.
 
-    Freshness: ``produced_at`` is the arrival of the reply (adapter clock); the sensor's registers
-    carry no timestamp or counter, so a sensor that stopped refreshing them cannot be told from a
-    constant force. Counters (:meth:`counters`): ``crc_errors``, ``invalid_replies`` (bad function
+    Freshness: ``produced_at`` is the arrival of the reply (adapter clock). The registers carry no
+    timestamp or counter. Frozen readings (``frozen_is_stale``, default on; issue 27): a reply whose
+    six values are exactly those of the previous fresh reply is not new data -- the previous
+    sample is returned again (same ``seq`` and ``produced_at``: stale) and counted in
+    ``repeated`` -- so a sensor that stopped refreshing its registers ages, and the runner's
+    watchdog stops the run once it is ``watchdog_ms`` old ("a frozen sensor value for longer than
+    the watchdog is a stale device"). A live strain-gauge sensor's readings move by several register
+    counts from one sample to the next (the FT 300-S's signal noise is about 0.1 N on the forces,
+    ten counts of 0.01 N), and its registers are refreshed at 100 Hz, so equal values over a whole
+    watchdog period do not happen on a working sensor; a simulated one needs sensor noise of at
+    least one count (``simulation.sensor_noise.force_std``) for the same reason. Counters
+    (:meth:`counters`): ``crc_errors``, ``invalid_replies`` (bad function
     code / byte count / exception code / undecodable), ``out_of_range``, ``gateway_errors``
     (exceptions 10/11 from a Modbus/TCP gateway: the sensor's serial reply was missing or failed its
     CRC; retried like a bad reply, :class:`GatewayError` in the end), ``exceptions`` (other Modbus
-    exception replies: DeviceFault), ``retries``, ``timeouts``.
+    exception replies: DeviceFault), ``retries``, ``timeouts``, ``repeated`` (frozen readings).
 
     ``clock`` gives the sample time ``t`` (host monotonic clock by default; the lockstep runner
     passes the simulated clock).
@@ -262,6 +271,7 @@ class RobotiqFT300(ForceSensor):
         max_force: float = RATED_FORCE,
         max_torque: float = RATED_TORQUE,
         stop_stream: bool = True,
+        frozen_is_stale: bool = True,
         waits: Waits = WALL,
     ) -> None:
         from pymodbus import FramerType
@@ -281,6 +291,8 @@ class RobotiqFT300(ForceSensor):
         self.max_torque = float(max_torque)
         self._counts = {"crc_errors": 0, "invalid_replies": 0, "out_of_range": 0, "gateway_errors": 0,
                         "exceptions": 0, "retries": 0, "timeouts": 0}
+        self.frozen_is_stale = bool(frozen_is_stale)
+        self._last_raw = np.full(6, np.nan)
         # non-blocking reads (timeout 0): the request sent ahead and its reply so far
         self._ahead = False
         self._ahead_at = 0.0  # host monotonic time the request went out
@@ -352,15 +364,26 @@ class RobotiqFT300(ForceSensor):
         if self._ahead:
             self._settle(timeout)
         raw = self._read_wrench(timeout)
-        produced = self._clock()
         self._quiet_since = self._waits.monotonic()  # the reply is complete: the line's silence starts
+        return self._sample(raw)
+
+    def _sample(self, raw: np.ndarray) -> WrenchSample:
+        """A sample from the six values of a valid reply: fresh, or -- ``frozen_is_stale`` and the
+        values exactly those of the previous fresh reply -- the previous sample again (stale, counted
+        in ``repeated``): see the class doc, "Frozen readings"."""
+        produced = self._clock()
+        if self.frozen_is_stale and self._last is not None and np.array_equal(raw, self._last_raw):
+            self._counts["repeated"] = self._counts.get("repeated", 0) + 1  # listed once there is one
+            return self._stale(self._last, produced, f"{self.label}: readings frozen")
+        self._last_raw = raw
         self._last = WrenchSample(t=produced, seq=self._next_seq(), wrench=raw - self._offset, produced_at=produced)
         return self._last
 
     def counters(self) -> dict[str, int]:
-        """crc_errors, invalid_replies, out_of_range, gateway_errors, exceptions, retries, timeouts;
-        once a non-blocking read ran also ``stale`` (reads that returned the previous sample) and
-        ``late`` (reply bytes of an abandoned request, discarded)."""
+        """crc_errors, invalid_replies, out_of_range, gateway_errors, exceptions, retries, timeouts,
+        repeated (frozen readings, class doc; listed once there is one); once a non-blocking read
+        ran also ``stale`` (reads that returned the previous sample) and ``late`` (reply bytes of an
+        abandoned request, discarded)."""
         out = dict(self._counts)
         if self._nb_reads:
             out["stale"], out["late"] = self._stale_reads, self._late
@@ -493,9 +516,7 @@ class RobotiqFT300(ForceSensor):
             except ProtocolError:
                 self._counts["out_of_range"] += 1
                 return None
-        produced = self._clock()
-        self._last = WrenchSample(t=produced, seq=self._next_seq(), wrench=w - self._offset, produced_at=produced)
-        return self._last
+        return self._sample(w)
 
     def _settle(self, limit: float) -> None:
         """Before a pymodbus transaction: wait (at most ``limit`` s) for the reply to the request
@@ -646,10 +667,13 @@ class RobotiqFT300Stream(StreamingSensor):
     :class:`DeviceTimeout`. Garbage is skipped (the parser resynchronises on the 0x20 0x4E header);
     frames failing their CRC are dropped and counted in ``stats["crc_errors"]`` and
     ``stats["gaps"]`` (each is a missing sample), or raise :class:`ChecksumError` with
-    ``on_crc_error="raise"``. A dropped frame shows only as a longer wait, a repeated (stale) one
-    cannot be told from a constant force. :meth:`wait_rx` is the lockstep byte-count barrier (see
+    ``on_crc_error="raise"``. A dropped frame shows only as a longer wait. A frame whose six values
+    are exactly those of the newest frame accepted is no new data (``frozen_is_stale``, default on;
+    issue 27: the sensor's readings always move by a few counts, see :class:`RobotiqFT300`,
+    "Frozen readings"): it is counted in ``repeated`` and ignored, so a frozen sensor's samples age
+    and the runner's watchdog stops the run. :meth:`wait_rx` is the lockstep byte-count barrier (see
     :mod:`hil.mocks.ft300_stream`). Counters (:meth:`counters`): ``crc_errors``, ``resync_bytes``,
-    ``skipped`` (frames superseded before a read), ``stale``, ``timeouts``.
+    ``skipped`` (frames superseded before a read), ``stale``, ``timeouts``, ``repeated``.
 
     :meth:`close` (idempotent, never raises) stops the stream with the 0xFF jam, waiting up to
     ``stop_timeout`` for the line to go quiet (``stream_stopped`` tells whether it did), then
@@ -673,6 +697,7 @@ class RobotiqFT300Stream(StreamingSensor):
         poll_s: float = 0.002,
         stop_timeout: float = STREAM_STOP_S,
         quiet_s: float = 0.05,
+        frozen_is_stale: bool = True,
         waits: Waits = WALL,
     ) -> None:
         import serial  # optional dependency (extra "serial")
@@ -702,6 +727,9 @@ class RobotiqFT300Stream(StreamingSensor):
         self._timeouts = 0
         self._crc_seen = 0
         self._skipped = 0
+        self.frozen_is_stale = bool(frozen_is_stale)
+        self._ref: np.ndarray | None = None  # the newest values accepted as new data
+        self._repeated = 0
         self.streaming = False
         self.stream_stopped: bool | None = None
         port_url, baud = self._port_url(url, baudrate)
@@ -734,10 +762,14 @@ class RobotiqFT300Stream(StreamingSensor):
                 "skipped_bytes": p.skipped_bytes, "skipped_frames": self._skipped}
 
     def counters(self) -> dict[str, int]:
-        """crc_errors, resync_bytes, skipped, stale, timeouts (see the class doc)."""
+        """crc_errors, resync_bytes, skipped, stale, timeouts, repeated (listed once there is one)
+        (see the class doc)."""
         p = self.parser
-        return {"crc_errors": p.crc_errors, "resync_bytes": p.skipped_bytes, "skipped": self._skipped,
-                "stale": self._stale_reads, "timeouts": self._timeouts}
+        out = {"crc_errors": p.crc_errors, "resync_bytes": p.skipped_bytes, "skipped": self._skipped,
+               "stale": self._stale_reads, "timeouts": self._timeouts}
+        if self._repeated:  # listed once there is one
+            out["repeated"] = self._repeated
+        return out
 
     def _read_sample(self, t: float) -> WrenchSample:
         """Newest stream sample (N, N.m); see the class doc for freshness and waiting."""
@@ -836,6 +868,15 @@ class RobotiqFT300Stream(StreamingSensor):
         if not data:
             return
         frames = self.parser.feed(data)
+        if frames and self.frozen_is_stale:  # a frame repeating the newest values is no new data
+            fresh = []
+            for w in frames:
+                if self._ref is not None and np.array_equal(w, self._ref):
+                    self._repeated += 1
+                    continue
+                fresh.append(w)
+                self._ref = w
+            frames = fresh
         if frames:
             self._skipped += len(frames) - 1 + (self._pending is not None)
             self._pending = frames[-1]

@@ -40,7 +40,11 @@ Error handling (documented behaviour):
   given, or learned from the first two frames); counted in ``stats["gaps"]`` (events) and
   ``stats["missed_samples"]``.
 * Stale data (a frame repeating the previous timestamp) is not new data: counted in
-  ``stats["stale"]`` (``counters()["repeated_frames"]``).
+  ``stats["stale"]`` (``counters()["repeated_frames"]``). A frame *older* than the newest one
+  (its 32-bit microsecond timestamp behind it, modulo the wrap: delivered late) is not new data
+  either: counted in ``stats["late"]``, never read as a gap of 2^32 us.
+* Status bit 0 (app_took_too_long, not a fault by default): counted per frame in
+  ``stats["app_took_too_long"]``.
 * Freshness: ``WrenchSample.produced_at`` is the arrival (adapter clock) of the frame that
   carried a *new* device timestamp; ``seq`` advances only with one. A read that finds no new frame
   waits for one until the newest data is ``timeout`` old (host clock, ``waits``), then returns the previous
@@ -74,6 +78,7 @@ from hil.protocols.codecs import forwarder
 from hil.protocols.codecs.bota import (
     BOTA_BASE_HZ,
     BOTA_BAUD_CODES,
+    STATUS_APP_TOOK_TOO_LONG,
     STATUS_INVALID,
     STATUS_OVERRANGE,
     BotaFrame,
@@ -221,11 +226,14 @@ class BotaSerial(StreamingSensor):
     def counters(self) -> dict[str, int]:
         """crc_errors, resync_bytes, dropped (samples missing from timestamp gaps), gaps,
         repeated_frames (same timestamp again), skipped (superseded before a read), stale (reads
-        without new data), timeouts."""
+        without new data), timeouts; listed once non-zero: late (frames older than the newest one:
+        out of order, not used), app_took_too_long (frames with status bit 0: the sensor's own loop
+        overran)."""
         st = self.parser.stats
         return {"crc_errors": st["crc_errors"], "resync_bytes": st["resync_bytes"], "dropped": st["missed_samples"],
                 "gaps": st["gaps"], "repeated_frames": st["stale"], "skipped": st["skipped"],
-                "stale": self._stale_reads, "timeouts": self._timeouts}
+                "stale": self._stale_reads, "timeouts": self._timeouts,
+                **{k: st[k] for k in ("late", "app_took_too_long") if st[k]}}  # listed once there is one
 
     def _read_bytes(self, wait: float) -> bytes:
         """What the port has; when nothing, wait up to ``wait`` s (``waits``) for it (0: never)."""
@@ -245,10 +253,15 @@ class BotaSerial(StreamingSensor):
         newest = None
         st = self.parser.stats
         for f in frames:
+            if f.status & STATUS_APP_TOOK_TOO_LONG:  # the sensor's own loop overran (not a fault bit)
+                st["app_took_too_long"] += 1
             if self._last_ts is not None:
                 dt = (f.timestamp - self._last_ts) & 0xFFFFFFFF
                 if dt == 0:
                     st["stale"] += 1
+                    continue
+                if dt >= 1 << 31:  # older than the newest frame (delivered late): not new data
+                    st["late"] += 1
                     continue
                 if self._learned_period and self.period_s is not None and dt * 1e-6 < self.period_s:
                     self.period_s = dt * 1e-6  # learned period: keep the smallest step seen

@@ -372,16 +372,19 @@ class Bench:
         if self.simulated and self._cache is not None and self._cache[0] == self._ticks:
             return dict(self._cache[1])
         t = self.timeout if timeout is None else float(timeout)
+        # the pty byte barrier of a simulated stream: generous on the bench's own (lockstep) timeout,
+        # never longer than a timeout the caller gives (a realtime loop: watchdog_ms, issue 27)
+        barrier = max(t, 1.0) if timeout is None else t
         out: Measurements = {}
         for d in self._devs:
-            out[d.name] = self._read_device(d, t)
+            out[d.name] = self._read_device(d, t, barrier)
         for g in self.scene.groups:
             out[g.name] = _group_sample([out[m] for m in g.devices])
         if self.simulated:
             self._cache = (self._ticks, dict(out))
         return out
 
-    def _read_device(self, d: _Dev, t: float) -> Any:
+    def _read_device(self, d: _Dev, t: float, barrier: float = 1.0) -> Any:
         """One adapter read; a timeout or lost device names the scene device. A simulated stream
         (Bota, FT-300 stream) is read behind a byte-count barrier: first every byte the simulated
         device wrote is received (``wait_rx``, on the adapter's simulated-time ``waits``: its bound
@@ -389,7 +392,7 @@ class Bench:
         outcome does not depend on how fast the kernel moves pty bytes."""
         try:
             if (self.simulated and hasattr(d.sim, "tx_bytes") and hasattr(d.adapter, "wait_rx")
-                    and d.adapter.wait_rx(d.sim.tx_bytes, max(t, 1.0))):
+                    and d.adapter.wait_rx(d.sim.tx_bytes, barrier)):
                 t = 0.0
             return d.adapter.read(timeout=t)
         except (DeviceTimeout, DeviceDisconnected) as exc:

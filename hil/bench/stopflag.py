@@ -35,7 +35,7 @@ from hil.errors import SafetyStop
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["STOP", "StopRequest", "StopRequested"]
+__all__ = ["STOP", "SignalInterrupt", "StopRequest", "StopRequested", "signals_interrupt"]
 
 #: Signals received before any safe stop that end the process anyway (a bench stuck before its
 #: next safe point; the safe stop itself is bounded and never cut short).
@@ -184,3 +184,39 @@ class StopRequest:
 
 #: The process-wide stop request.
 STOP = StopRequest()
+
+
+class SignalInterrupt(KeyboardInterrupt):
+    """SIGTERM or SIGHUP received where no device is open (the computing stages of ``hil certify``),
+    raised the way Python raises ``KeyboardInterrupt`` for SIGINT, so whatever already handles a
+    Ctrl-C cleanly handles it too. ``signame`` is the signal's name; the command turns it into a
+    :class:`StopRequested` (exit 20) once it has put its output in order."""
+
+    def __init__(self, signame: str) -> None:
+        super().__init__(f"signal: {signame}")
+        self.signame = signame
+
+
+@contextlib.contextmanager
+def signals_interrupt() -> Iterator[None]:
+    """For the block: SIGTERM and SIGHUP raise :class:`SignalInterrupt` (SIGINT keeps Python's
+    ``KeyboardInterrupt``). A bench opened inside installs :data:`STOP` over these handlers and
+    restores them when it closes, so at the bench a signal is still only a flag handled at a safe
+    point. Main thread only (elsewhere a no-op)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def raise_it(signum: int, frame: Any) -> None:
+        raise SignalInterrupt(signal.Signals(signum).name)
+
+    old = {}
+    for name in ("SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None:
+            old[sig] = signal.signal(sig, raise_it)
+    try:
+        yield
+    finally:
+        for sig, prev in old.items():
+            signal.signal(sig, prev if prev is not None else signal.SIG_DFL)

@@ -6,6 +6,12 @@ certificate, same exit code); the fleet adds the scheduling, one summary table, 
 linking every report, and an exit code that is the worst decision (ERROR > NO-GO > MARGINAL > GO;
 a scene whose run fails without a certificate counts as ERROR).
 
+Where the files go: the worker (a local process or a remote Dask worker) runs ``hil certify`` in a
+scratch folder of its own, naming the client's folder in the certificate and reports, and sends the
+finished folder back as a tar archive; the client writes it at ``OUT/<name>`` as a unit (built in a
+sibling, renamed into place; :func:`hil.record.outdir.stage_out_dir`). A relative ``--out`` is the
+client's, and nothing stays on a worker's disk.
+
 Scheduling: scenes with a simulated bench (``simulation:`` present) run in parallel on the
 executor (:data:`hil.certify.sweep.EXECUTORS`: a local process pool by default, Dask with a scheduler
 address). Scenes on real devices never share a transport: those naming the same CAN channel,
@@ -16,10 +22,14 @@ parallel with the rest.
 from __future__ import annotations
 
 import html
+import io
 import json
 import logging
+import shutil
 import subprocess
 import sys
+import tarfile
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -30,8 +40,11 @@ from hil.errors import DECISION_EXIT, HilError
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["DECISION_ORDER", "FleetEntry", "FleetResult", "certify_fleet", "expand_scenes", "transport_groups"]
+__all__ = ["CERTIFICATE_FOLDER", "DECISION_ORDER", "FleetEntry", "FleetResult", "certify_fleet", "expand_scenes",
+           "transport_groups"]
 
+#: what ``hil certify`` writes into its folder (``--overwrite`` replaces a folder holding only these)
+CERTIFICATE_FOLDER = ("certificate.json", "report.html", "report.pdf", "scene.yaml", "records")
 #: worst last; the fleet's decision is the maximum
 DECISION_ORDER = ("GO", "MARGINAL", "NO-GO", "ERROR")
 _EXIT = DECISION_EXIT  # the one exit-code table (hil.errors)
@@ -142,40 +155,95 @@ def _default_sigint() -> None:
 
 
 def _certify_group(items: list[tuple[str, str, int | None, list[str]]]) -> list[dict[str, Any]]:
-    """Run ``hil certify`` for each (scene, out, seed, extra args) one after another (a worker task)."""
+    """Run ``hil certify`` for each (scene, out, seed, extra args) one after another (a worker task):
+    in a scratch folder of this worker, the certificate naming ``out`` (the client's absolute
+    folder); the folder comes back as tar bytes (``"folder"``, None when nothing was written) and
+    the scratch folder is removed."""
     results = []
     for scene, out, seed, extra in items:
-        cmd = [sys.executable, "-m", "hil", "certify", scene, "--out", out, "--json", *extra]
-        if seed is not None:
-            cmd += ["--seed", str(seed)]
-        t0 = time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True, check=False, preexec_fn=_default_sigint)
-        results.append({"scene": scene, "out": out, "code": proc.returncode, "stdout": proc.stdout,
-                        "stderr": proc.stderr, "seconds": time.perf_counter() - t0})
+        scratch = Path(tempfile.mkdtemp(prefix="hil-fleet-"))
+        try:
+            work = scratch / Path(out).name
+            cmd = [sys.executable, "-m", "hil", "certify", scene, "--out", str(work), "--named-as", out, "--json",
+                   *extra]
+            if seed is not None:
+                cmd += ["--seed", str(seed)]
+            t0 = time.perf_counter()
+            proc = subprocess.run(cmd, capture_output=True, text=True, check=False, preexec_fn=_default_sigint)
+            results.append({"scene": scene, "out": out, "work": str(work), "code": proc.returncode,
+                            "stdout": proc.stdout, "stderr": proc.stderr, "seconds": time.perf_counter() - t0,
+                            "folder": _pack(work)})
+        finally:
+            shutil.rmtree(scratch, ignore_errors=True)
     return results
 
 
-def _entry(r: dict[str, Any], name: str, simulated: bool) -> FleetEntry:
+def _pack(folder: Path) -> bytes | None:
+    """``folder``'s regular files and subfolders as an uncompressed tar (names relative to it; links
+    and special files left out), or None when it does not exist."""
+    if not folder.is_dir():
+        return None
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w") as tar:
+        for p in sorted(folder.rglob("*")):
+            if p.is_symlink() or not (p.is_file() or p.is_dir()):
+                continue
+            tar.add(p, arcname=p.relative_to(folder).as_posix(), recursive=False)
+    return buf.getvalue()
+
+
+def _unpack(data: bytes, final: Path, overwrite: bool) -> None:
+    """Write a folder sent by :func:`_pack` at ``final`` as a unit (staged sibling, renamed into
+    place); only regular files and folders inside it are extracted (tarfile's ``data`` filter)."""
+    from hil.record.outdir import stage_out_dir
+
+    staged = stage_out_dir(final, default_stem=final.name, overwrite=overwrite, owned=CERTIFICATE_FOLDER)
+    try:
+        with tarfile.open(fileobj=io.BytesIO(data), mode="r:") as tar:
+            tar.extractall(staged.path, filter="data")
+        staged.commit()
+    except BaseException:
+        staged.abandon()
+        raise
+
+
+def _entry(r: dict[str, Any], name: str, simulated: bool, overwrite: bool = False) -> FleetEntry:
+    """The client's entry for a worker's result: the folder written at ``r["out"]`` (paths the worker
+    reported under its scratch folder named there)."""
     try:
         doc = json.loads(r["stdout"]) if r["stdout"].strip() else None
     except json.JSONDecodeError:
         doc = None
-    if isinstance(doc, dict) and doc.get("decision") in DECISION_ORDER:
-        return FleetEntry(r["scene"], name, doc["decision"], list(doc.get("reasons", [])), r["code"], r["out"],
-                          r["seconds"], {k: str(v) for k, v in (doc.get("files") or {}).items()}, simulated)
     last = (r["stderr"].strip().splitlines() or [f"exit {r['code']} without a certificate"])[-1]
+    if r.get("folder") is not None:
+        try:
+            _unpack(r["folder"], Path(r["out"]), overwrite)
+        except (HilError, OSError, tarfile.TarError) as exc:
+            return FleetEntry(r["scene"], name, "ERROR", [f"{r['out']}: cannot write the certificate folder: {exc}"],
+                              r["code"], r["out"], r["seconds"], {}, simulated)
+    if isinstance(doc, dict) and doc.get("decision") in DECISION_ORDER:
+        work = Path(r.get("work") or r["out"])
+        files = {}
+        for k, v in (doc.get("files") or {}).items():
+            p = Path(str(v))
+            files[k] = str(Path(r["out"]) / p.relative_to(work)) if p.is_relative_to(work) else str(p)
+        return FleetEntry(r["scene"], name, doc["decision"], list(doc.get("reasons", [])), r["code"], r["out"],
+                          r["seconds"], files, simulated)
     return FleetEntry(r["scene"], name, "ERROR", [last], r["code"], r["out"], r["seconds"], {}, simulated)
 
 
 def certify_fleet(scenes: Sequence[str], out_root: str | Path, *, executor: Any = None, seed: int | None = None,
                   extra_args: Sequence[str] = (),
                   progress: Callable[[int, int, FleetEntry], None] | None = None,
-                  should_stop: Callable[[], bool] | None = None) -> FleetResult:
+                  should_stop: Callable[[], bool] | None = None, overwrite: bool = False) -> FleetResult:
     """Certify every scene (names or files) into ``out_root/<scene name>``; see the module docstring.
     ``executor`` is a :class:`hil.certify.sweep.Executor` (default a local process pool). When
     ``should_stop()`` turns true no further scene is started (those running finish or stop on their
-    own signal handling); the scenes not run are ERROR entries saying so, and the index is written."""
-    from hil.certify.sweep import ProcessExecutor
+    own signal handling); the scenes not run are ERROR entries saying so, and the index is written.
+    When the executor is lost (:class:`hil.certify.sweep.ExecutorLost`: no worker left, scheduler
+    gone) the scenes not finished are ERROR entries naming it; the finished ones are written.
+    ``overwrite``: a scene's existing certificate folder is replaced as a whole."""
+    from hil.certify.sweep import ExecutorLost, ProcessExecutor
     from hil.scene.spec import load_scene
 
     args = expand_scenes(scenes)
@@ -184,25 +252,29 @@ def certify_fleet(scenes: Sequence[str], out_root: str | Path, *, executor: Any 
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise FleetError(f"two scenes share the name {dup[0]!r}: their report folders would collide")
-    root = Path(out_root)
+    root = Path(out_root).absolute()  # the client's folder: a worker's working directory is not it
     groups = transport_groups(loaded)
     tasks = [([(args[i], str(root / names[i]), seed, list(extra_args)) for i in g],) for g in groups]
     ex = executor or ProcessExecutor()
     entries: dict[int, FleetEntry] = {}
+    not_run = "not run: the fleet was stopped"
     try:
         for gi, results in ex.map_unordered(_certify_group, tasks):
             for i, r in zip(groups[gi], results, strict=True):
-                entries[i] = _entry(r, names[i], loaded[i].simulation is not None)
+                entries[i] = _entry(r, names[i], loaded[i].simulation is not None, overwrite)
                 if progress is not None:
                     progress(len(entries), len(args), entries[i])
             if should_stop is not None and should_stop():
                 break  # closing the generator cancels the scenes not started yet
+    except ExecutorLost as exc:
+        not_run = f"not run: {exc}"
+        logger.error("%s: %d of %d scenes not certified", exc, len(args) - len(entries), len(args))
     finally:
         if executor is None:
             ex.close()
     for i in range(len(args)):
         if i not in entries:
-            entries[i] = FleetEntry(args[i], names[i], "ERROR", ["not run: the fleet was stopped"], -1,
+            entries[i] = FleetEntry(args[i], names[i], "ERROR", [not_run], -1,
                                     str(root / names[i]), 0.0, {}, loaded[i].simulation is not None)
     res = FleetResult([entries[i] for i in range(len(args))], root)
     write_index(res)

@@ -349,8 +349,9 @@ def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_t
                 raise BenchUnavailable(f"{scene.name}: the bench could not be opened, no experiment ran: {why}")
             if (stop_reason or "").startswith("signal"):
                 # the person at the bench asked to stop: no identification or certificate follows
-                raise StopRequested(f"{stop_reason}; the records so far are in {out / 'records'}",
-                                    runner.stop_status or "safety_stop")
+                kept = sorted((out / "records").glob("*.h5")) if (out / "records").is_dir() else []
+                where = f"the records so far are in {out / 'records'}" if kept else "no record was written"
+                raise StopRequested(f"{stop_reason}; {where}", runner.stop_status or "safety_stop")
             _fault_measurements(done, sheet.measurements)
 
     if any((getattr(o, "stats", {}) or {}).get("mode") == "realtime" for o in done.values()):

@@ -31,6 +31,7 @@ process pool, the default — and ``dask``, the distributed scheduler, extra ``d
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
@@ -421,11 +422,30 @@ class ProcessExecutor(Executor):
             self._pool = None
 
 
+class ExecutorLost(SweepError):
+    """The executor's workers or its scheduler are gone: the tasks not finished cannot run. The
+    finished ones were handed to the caller (and cached), so a rerun resumes (one-line message)."""
+
+
 class DaskExecutor(Executor):
     """Dask distributed: ``scheduler`` is an address (``tcp://host:8786``) or a ``distributed.Client``
-    (tests pass one on an in-process LocalCluster). Extra ``dask``."""
+    (tests pass one on an in-process LocalCluster). Extra ``dask``.
+
+    Lost workers and a lost scheduler end the map in a bounded time with :class:`ExecutorLost`
+    (issue 27): while tasks are pending the scheduler is asked every ``poll_s`` s how many workers
+    it has; none for ``no_worker_timeout_s`` s (a warning is logged when they go) ends it, and so
+    does a scheduler the client cannot reach for ``scheduler_timeout_s`` s or that cancels the
+    tasks (killed, restarted). A task's own
+    exception is raised as it is. The long-lived workers' memory is released after each map (see
+    :func:`_release_worker_memory`)."""
 
     name = "dask"
+    #: seconds between checks of the cluster while tasks are pending
+    poll_s = 1.0
+    #: how long pending tasks wait for a worker when the scheduler has none (s)
+    no_worker_timeout_s = 60.0
+    #: how long pending tasks wait for a scheduler that stopped answering (s)
+    scheduler_timeout_s = 10.0
 
     def __init__(self, scheduler: Any = None, workers: int | None = None) -> None:
         try:
@@ -442,48 +462,158 @@ class DaskExecutor(Executor):
                 raise SweepError(f"--scheduler {scheduler}: cannot connect: {exc}") from None
             self._own = True
         else:
-            cluster = distributed.LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                                               processes=True, dashboard_address=None)
+            import dask
+
+            with dask.config.set({"distributed.worker.profile.enabled": False}):  # its history grows per second
+                cluster = distributed.LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
+                                                   processes=True, dashboard_address=None)
             self.client = distributed.Client(cluster)
             self._own = True
+        self._gone = False  # the scheduler was lost: nothing more is asked of it
+        given = scheduler if isinstance(scheduler, str) else None
+        self.address = str(getattr(getattr(self.client, "scheduler", None), "address", None) or given
+                           or "the local cluster")
+
+    def _lost(self, why: str) -> ExecutorLost:
+        return ExecutorLost(f"the Dask scheduler at {self.address} {why}")
+
+    def _workers(self) -> int:
+        """Workers the scheduler has now (asks it); :class:`ExecutorLost` when it does not answer."""
+        try:
+            return len(self.client.nthreads())
+        except Exception as exc:  # CommClosedError, OSError, TimeoutError, a closed client
+            self._gone = True
+            raise self._lost(f"does not answer ({type(exc).__name__}: {' '.join(str(exc).split()) or 'closed'})"
+                             ) from None
 
     def map_unordered(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> Iterator[tuple[int, Any]]:
         """At most two tasks per worker thread in flight (a stopped consumer starts little new)."""
-        from distributed import as_completed as dask_completed
+        from distributed import wait as dask_wait
 
         limit = max(1, 2 * sum(self.client.nthreads().values()))
         todo = iter(enumerate(tasks))
         index: dict[Any, int] = {}  # future key -> task index
         live: dict[Any, Any] = {}  # future key -> future not yet consumed
-        seq = dask_completed()
-        for i, t in todo:
-            f = self.client.submit(fn, *t, pure=False)
-            index[f.key] = i
-            live[f.key] = f
-            seq.add(f)
-            if len(index) >= limit:
-                break
+
+        def submit() -> bool:
+            for i, t in todo:
+                f = self.client.submit(fn, *t, pure=False)
+                index[f.key] = i
+                live[f.key] = f
+                return True
+            return False
+
+        while len(live) < limit and submit():
+            pass
+        no_workers_since: float | None = None
+        unreachable_since: float | None = None
         try:
-            for f in seq:
-                live.pop(f.key, None)
-                yield index[f.key], f.result()
-                for i, t in todo:
-                    g = self.client.submit(fn, *t, pure=False)
-                    index[g.key] = i
-                    live[g.key] = g
-                    seq.add(g)
-                    break
+            while live:
+                try:
+                    done, _ = dask_wait(list(live.values()), timeout=self.poll_s, return_when="FIRST_COMPLETED")
+                except TimeoutError:
+                    done = set()
+                except Exception as exc:  # the connection to the scheduler failed: the tasks were cancelled
+                    self._gone = True
+                    what = ("the client lost its connection" if "cancel" in type(exc).__name__.lower()
+                            else f"{type(exc).__name__}: {' '.join(str(exc).split())}")
+                    raise self._lost(f"is gone ({what}; {len(live)} tasks not finished)") from None
+                if not done:
+                    now = time.monotonic()
+                    status = str(getattr(self.client, "status", "running"))
+                    if status != "running":  # the connection to the scheduler is lost: it reconnects
+                        unreachable_since = unreachable_since or now
+                        if now - unreachable_since > self.scheduler_timeout_s:
+                            self._gone = True
+                            raise self._lost(f"does not answer (unreachable for {self.scheduler_timeout_s:g} s, "
+                                             f"client {status})")
+                        continue
+                    unreachable_since = None
+                    n = self._workers()
+                    if n:
+                        no_workers_since = None
+                    elif no_workers_since is None:
+                        no_workers_since = now
+                        logger.warning("the Dask scheduler at %s has no worker left: %d tasks wait (at most %g s)",
+                                       self.address, len(live), self.no_worker_timeout_s)
+                    elif now - no_workers_since > self.no_worker_timeout_s:
+                        raise self._lost(f"has had no worker for {self.no_worker_timeout_s:g} s ({len(live)} tasks "
+                                         "waiting): start workers, or rerun")
+                    continue
+                for f in done:
+                    live.pop(f.key, None)
+                    if f.status == "error":
+                        err = f.exception()
+                        if type(err).__name__ == "KilledWorker":  # every worker that took it died
+                            raise self._lost(f"lost task {index[f.key]}: {' '.join(str(err).split())}") from None
+                        f.result()  # the task's own exception, raised as it is
+                    try:
+                        res = f.result()
+                    except Exception as exc:  # cancelled: the client lost the scheduler (killed, restarted)
+                        self._gone = True
+                        raise self._lost(f"is gone: task {index[f.key]} was cancelled ({type(exc).__name__}"
+                                         f"{': ' if str(exc).strip() else ''}{' '.join(str(exc).split())})") from None
+                    yield index[f.key], res
+                    submit()
         finally:
-            if live:
-                self.client.cancel(list(live.values()))
+            if not self._gone:  # (a client without its scheduler would wait for it to come back)
+                if live:
+                    with contextlib.suppress(Exception):
+                        self.client.cancel(list(live.values()))
+                _release_worker_memory(self.client)
 
     def close(self) -> None:
         if self._own:
             cluster = getattr(self.client, "cluster", None)
-            self.client.close()
+            quiet = logging.getLogger("distributed.client")
+            level = quiet.level
+            if self._gone:  # closing stops its reconnection loop, which logs that as a traceback
+                quiet.setLevel(logging.CRITICAL + 1)
+            try:
+                with contextlib.suppress(Exception):
+                    self.client.close(timeout=2 if self._gone else None)  # (gone: it would wait to reconnect)
+            finally:
+                quiet.setLevel(level)
             if cluster is not None:
-                cluster.close()
+                with contextlib.suppress(Exception):
+                    cluster.close()
             self._own = False
+
+
+def _trim_memory(dask_worker: Any = None) -> int:  # pragma: no cover - runs on the workers
+    """On a worker: forget what grows with every task and every second of work -- the statistical
+    profiler's history (one call tree per profile cycle, kept for an hour) and the developer logs of
+    each task's events -- then collect garbage and give freed heap back to the system (glibc
+    ``malloc_trim``). Returns the worker's RSS [bytes]."""
+    import ctypes
+    import gc
+
+    if dask_worker is not None:
+        state = getattr(dask_worker, "state", None)
+        for log in (getattr(dask_worker, "profile_history", None), getattr(dask_worker, "profile_keys_history", None),
+                    getattr(dask_worker, "profile_keys", None), getattr(state, "stimulus_log", None),
+                    getattr(state, "log", None)):
+            if log is not None:
+                log.clear()
+        with contextlib.suppress(Exception):
+            from distributed import profile
+
+            dask_worker.profile_recent = profile.create()
+    gc.collect()
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    try:  # resident pages (Linux); -1 elsewhere
+        with open("/proc/self/statm", encoding="ascii") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return -1
+
+
+def _release_worker_memory(client: Any) -> None:
+    """After a map: :func:`_trim_memory` on every worker (long-lived workers otherwise keep growing
+    from one sweep to the next: docs/BENCHMARKS.md "Dask worker memory"). Never raises."""
+    with contextlib.suppress(Exception):
+        client.run(_trim_memory)
 
 
 EXECUTORS: dict[str, Callable[..., Executor]] = {

@@ -22,8 +22,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "extra 'dask')")
     p.add_argument("--out", help="output folder (default reports/<scene>-<UTC time>-<id>); an existing "
                    "non-empty folder is refused unless --overwrite")
-    p.add_argument("--overwrite", action="store_true", help="write into an existing --out folder, replacing "
-                   "files of the same name")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder, which must hold "
+                   "only what hil certify writes, as a whole (built beside it, then swapped in)")
     p.add_argument("--seed", type=int, help="override the scene's seed (runs, posterior sampling, draws)")
     p.add_argument("--no-experiments", action="store_true", help="skip the runs (certify from the scene's priors)")
     p.add_argument("--sign", metavar="KEY", help="sign the certificate's digest with this Ed25519 private key "
@@ -31,11 +31,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--signer", metavar="NAME", help="who signs (recorded and signed with --sign)")
     p.add_argument("--json", action="store_true", help="print one JSON object (decision, reasons, bench, files, "
                    "digest, measurements) instead of the table; no progress lines")
+    # a fleet's worker builds the folder in its own scratch space and the client writes it at this
+    # path: the certificate and reports name the folder where it will be (not for people)
+    p.add_argument("--named-as", help=argparse.SUPPRESS)
 
 
 def run(args: argparse.Namespace) -> int:
+    from hil.certify.fleet import CERTIFICATE_FOLDER  # what hil certify writes into its folder
     from hil.certify.pipeline import certify_scene
     from hil.protocols.registry import extras_message
+    from hil.record.outdir import stage_out_dir
     from hil.scene.spec import check_seed, load_scene
 
     if len(args.scene) > 1 or (args.scene and Path(args.scene[0]).is_dir()):
@@ -59,7 +64,10 @@ def run(args: argparse.Namespace) -> int:
         key = load_private_key(args.sign)
     elif args.signer:
         raise UsageError("--signer names who signs: give the key with --sign KEY")
-    out = out_dir(args.out, f"reports/{scene.name}", args.overwrite)
+    # the certificate folder is written as a unit: built in a sibling, moved into place at the end
+    staged = stage_out_dir(args.out, default_stem=f"reports/{scene.name}", overwrite=args.overwrite,
+                           owned=CERTIFICATE_FOLDER)
+    work = staged.path
 
     # stage lines, and between them a spinner (terminal) or a line every few seconds naming the stage,
     # the experiment running and its ticks
@@ -73,21 +81,35 @@ def run(args: argparse.Namespace) -> int:
     def ticks(name: str, k: int, n: int) -> None:  # which experiment runs, and how far it got
         beat.update(f"run {name}: {k}/{n} ticks ({100.0 * k / max(n, 1):.0f} %)")
 
-    with beat, bench_opening_said_once():
-        cert = certify_scene(scene, out, progress=say, run_experiments=not args.no_experiments,
-                             tick_progress=ticks)  # sealed
-        say(f"{scene.name}: reports ...")
-        from hil.report.render import build_reports
+    from hil.bench.stopflag import SignalInterrupt, StopRequested, signals_interrupt
 
-        integrity = None
-        if key is not None:
-            from hil.certify.signing import sign_certificate
-            from hil.certify.verify import check_certificate
+    try:
+        with signals_interrupt(), beat, bench_opening_said_once():  # SIGTERM/SIGHUP outside the bench: exit 20
+            cert = certify_scene(scene, work, progress=say, run_experiments=not args.no_experiments,
+                                 tick_progress=ticks)  # sealed
+            cert = _renamed(cert, work, Path(args.named_as) if getattr(args, "named_as", None) else staged.final)
+            say(f"{scene.name}: reports ...")
+            from hil.report.render import build_reports
 
-            cert = sign_certificate(cert, key, args.signer or "")
-            integrity = check_certificate(cert, public_key=key.public(),
-                                          verified_with="the signing key's public half, when signing")
-        files = build_reports(cert, out, integrity=integrity)
+            integrity = None
+            if key is not None:
+                from hil.certify.signing import sign_certificate
+                from hil.certify.verify import check_certificate
+
+                cert = sign_certificate(cert, key, args.signer or "")
+                integrity = check_certificate(cert, public_key=key.public(),
+                                              verified_with="the signing key's public half, when signing")
+            files = build_reports(cert, work, integrity=integrity)
+        out = staged.commit()  # signals held for the few renames
+    except BaseException as exc:
+        kept = staged.abandon()  # partial records (a stopped run) stay, and the message says where
+        if kept is not None and exc.args and isinstance(exc.args[0], str):
+            exc.args = (exc.args[0].replace(str(work), str(kept)), *exc.args[1:])
+        if isinstance(exc, SignalInterrupt):
+            where = f"; the records so far are in {kept}" if kept is not None else "; nothing was written"
+            raise StopRequested(f"signal: {exc.signame}{where}") from None
+        raise
+    files = {k: out / Path(v).relative_to(work) for k, v in files.items()}
     if args.json:
         print(json.dumps({"decision": cert.decision, "reasons": cert.reasons, "scene": scene.name,
                           "bench": None if cert.bench is None else cert.bench.model_dump(),
@@ -154,7 +176,7 @@ def run_fleet(args: argparse.Namespace) -> int:
     try:
         with STOP.install():
             res = certify_fleet(scenes, out, executor=ex, seed=seed, extra_args=extra, progress=said,
-                                should_stop=lambda: STOP.requested)
+                                should_stop=lambda: STOP.requested, overwrite=args.overwrite)
     finally:
         ex.close()
     if args.json:
@@ -178,6 +200,28 @@ def run_fleet(args: argparse.Namespace) -> int:
         con.print(f"index: {escape(str(out / 'index.html'))}")
     STOP.check()  # a signal stopped the fleet: exit 130 / 20 after the summary and the index
     return res.exit_code
+
+def _renamed(cert: Any, work: Path, final: Path) -> Any:
+    """``cert`` with every mention of the staging folder (record paths, reasons) naming the final
+    folder, sealed again (nothing is signed yet); unchanged when nothing mentions it."""
+    from hil.certify.certificate import Certificate, seal
+
+    old, new = str(work), str(final)
+    if old not in cert.model_dump_json():
+        return cert
+
+    def swap(v: Any) -> Any:
+        if isinstance(v, str):
+            return v.replace(old, new)
+        if isinstance(v, dict):
+            return {k: swap(x) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return type(v)(swap(x) for x in v)
+        return v
+
+    data = swap(cert.model_dump(exclude={"integrity"}))
+    return seal(Certificate.model_validate(data))
+
 
 def _short_value(v: Any) -> str:
     if isinstance(v, float):

@@ -8,7 +8,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from hil.cli.common import StepProgress, UsageError, bench_opening_said_once, console, out_dir
+from hil.cli.common import StepProgress, UsageError, bench_opening_said_once, cleanup_created, console, out_dir
 from hil.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_SAFETY_STOP, EXIT_USAGE
 
 
@@ -87,6 +87,8 @@ def run(args: argparse.Namespace) -> int:
             raise BenchUnavailable(f"{args.scene}: the bench could not be opened, no experiment ran: {why}")
         code = run_exit_code(outcomes, runner)
         _print_run(args, scene, out, outcomes, runner)
+    if not any(o.record is not None for o in outcomes):
+        cleanup_created()  # nothing recorded: the folder this command made is removed again (when empty)
     return code
 
 
@@ -162,9 +164,13 @@ def _print_run(args: argparse.Namespace, scene: Any, out: Any, outcomes: Sequenc
         con.print(tab)
         if stop is not None:
             con.print(f"run stopped: {stop['reason']}")
+        written = [o.record for o in outcomes if o.record is not None]
+        if not written:  # e.g. a stop while the first bench opened
+            con.print("no record was written (the run stopped before its first sample)")
+            return
         con.print(f"records in {out}:")  # paths outside the table: never split across lines
-        for o in outcomes:
-            con.print(f"  {o.record}")
+        for r in written:
+            con.print(f"  {r}")
 
 def _short(v: Any) -> str:
     if isinstance(v, bool):

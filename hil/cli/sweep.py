@@ -42,7 +42,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from hil.bench.stopflag import STOP, StopRequested
-    from hil.certify.sweep import SweepSpec, iter_table, make_executor, parse_grid, plot_sweep, run_sweep, save_sweep
+    from hil.certify.sweep import (
+        ExecutorLost,
+        SweepError,
+        SweepSpec,
+        iter_table,
+        make_executor,
+        parse_grid,
+        plot_sweep,
+        run_sweep,
+        save_sweep,
+    )
     from hil.models import get_model, model_names
 
     if bool(args.model) == bool(args.scene):
@@ -85,6 +95,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         with STOP.install(), bar:
             res = run_sweep(spec, ex, cache, progress=bar.update, should_stop=STOP.check)
+    except ExecutorLost as exc:  # the scheduler or every worker is gone: the finished tasks are cached
+        raise SweepError(f"{exc}; the finished tasks are cached in {cache}: rerun with --cache {cache} to resume"
+                         if cache else f"{exc} (--no-cache: nothing kept; give --cache DIR to resume next time)"
+                         ) from None
     except StopRequested as exc:
         raise StopRequested(f"{exc}: the finished tasks are cached in {cache}; run the same command "
                             "again to resume" if cache else f"{exc} (no cache: nothing kept)", exc.status) from None

@@ -107,6 +107,7 @@ import queue
 import re
 import shutil
 import signal
+import tempfile
 import threading
 import warnings
 import weakref
@@ -523,11 +524,17 @@ class _Block:
 def _writer_process_entry(fd: int) -> None:  # pragma: no cover - runs in the writer process
     """``python -c`` entry of the writer process: the connection is the inherited socket ``fd``; the
     first message carries :func:`_writer_process_main`'s arguments."""
+    import sys
     from multiprocessing.connection import Connection
 
-    conn = Connection(fd)
-    args = conn.recv()
-    _writer_process_main(conn, *args)
+    try:
+        conn = Connection(fd)
+        args = conn.recv()
+        _writer_process_main(conn, *args)
+    except BaseException as exc:  # e.g. the creator died during start-up and its shared memory is gone
+        with contextlib.suppress(Exception):  # stderr is a file the creator reads, never a terminal
+            sys.stderr.write(f"hil record writer process: {type(exc).__name__}: {exc}\n")
+        os._exit(1)
 
 
 def _writer_process_main(conn: Any, path: str, shm_name: str, n: int, shapes: Mapping[str, tuple[int, ...]],
@@ -747,6 +754,12 @@ class RecordWriter:
         self._proc: Any = None
         self._conn: Any = None
         self._shm: Any = None
+        self._proc_err: Any = None
+        #: why the writer process was lost (it died, or did not answer and was killed), else None
+        self._proc_lost: str | None = None
+        #: file offset of /status's bytes (contiguous, allocated at creation): written directly when
+        #: the writer process that held the file is lost
+        self._status_offset: int | None = None
         self._call_lock = threading.Lock()
         self.max_pending_blocks = int(max_pending_blocks)
         self.writer_timeout_s = float(writer_timeout_s)
@@ -817,6 +830,8 @@ class RecordWriter:
                 self._create_layout(scene_text, scene_sha256, meta_json)
                 self._f.flush()
                 self._f.swmr_mode = True
+                offset = self._f["status"].id.get_offset()
+                self._status_offset = None if offset is None else int(offset)
         except BaseException as exc:
             with contextlib.suppress(Exception):
                 self._f.close()
@@ -1144,7 +1159,7 @@ class RecordWriter:
                     rows, sizes = self._call("commit", shm_block.index if shm_block is not None else None, m,
                                              None if shm_block is not None else t,
                                              None if shm_block is not None else block, logs, self._rows,
-                                             dict(self._bytes), reserve)
+                                             dict(self._bytes), reserve, timeout=self.writer_timeout_s)
                 else:
                     assert not isinstance(block, _Block)
                     rows, sizes = _write_block(self._f, self._dsets, self._rows, self._bytes, t, block, logs)
@@ -1312,8 +1327,12 @@ class RecordWriter:
             try:
                 code = ("import sys; from hil.record.hdf5 import _writer_process_entry; "
                         "_writer_process_entry(int(sys.argv[1]))")
+                # its stdout/stderr are never the caller's (a frozen writer must not hold a CI job's
+                # pipes); what it says on stderr lands in a file read when it fails
+                self._proc_err = tempfile.TemporaryFile()  # noqa: SIM115 (closed with the process)
                 self._proc = subprocess.Popen([sys.executable, "-c", code, str(theirs.fileno())],
                                               pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
+                                              stdout=subprocess.DEVNULL, stderr=self._proc_err,
                                               start_new_session=True)  # Ctrl-C reaches the loop's process only
             finally:
                 theirs.close()
@@ -1335,42 +1354,96 @@ class RecordWriter:
         :class:`_WriteFailed` (a process that ended or does not answer within ``timeout``: broken,
         the file is left as a kill leaves it)."""
         with self._call_lock:
+            if self._proc_lost is not None:
+                raise _WriteFailed("the record writer process", self._proc_lost, True)
             try:
                 self._conn.send((kind, *args))
                 if timeout is not None and not self._conn.poll(timeout):
-                    self._writer_stuck = True
                     raise TimeoutError(f"no answer within {timeout:g} s")
                 reply = self._conn.recv()
             except (EOFError, OSError, TimeoutError) as exc:
-                code = self._proc.poll() if self._proc is not None else None
-                why = f"{_one_line(exc) or type(exc).__name__}" + (f" (exit code {code})" if code is not None else "")
+                if isinstance(exc, TimeoutError):  # frozen (SIGSTOP) or stuck: it must not outlive its use
+                    why = f"did not answer within {timeout:g} s and was killed"
+                    self._kill_process()
+                else:
+                    why = self._how_it_ended(exc)
+                self._proc_lost = why
                 raise _WriteFailed("the record writer process", why, True) from None
         if reply[0] == "ok":
             return reply[1]
         raise _WriteFailed(reply[1], reply[2], reply[3])
 
+    def _kill_process(self) -> None:
+        """SIGKILL the writer process (it also ends a stopped one) and reap it."""
+        import subprocess
+
+        proc = self._proc
+        if proc is None:
+            return
+        with contextlib.suppress(OSError):
+            proc.kill()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(5.0)
+
+    def _how_it_ended(self, exc: BaseException) -> str:
+        """One phrase on a writer process whose connection failed: its exit (signal or code) and the
+        last line it wrote on stderr."""
+        import subprocess
+
+        proc, code = self._proc, None
+        if proc is not None:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                code = proc.wait(2.0)
+        if code is None:
+            self._kill_process()
+            return f"stopped answering ({_one_line(exc) or type(exc).__name__}) and was killed"
+        if code < 0:
+            try:
+                name = signal.Signals(-code).name
+            except ValueError:
+                name = f"signal {-code}"
+            why = f"was killed by {name}"
+        else:
+            why = f"ended with exit code {code}"
+        said = self._process_said()
+        return f"{why}{': ' + said if said else ''}"
+
+    def _process_said(self) -> str:
+        """The last line the writer process wrote on its stderr (a file), at most 200 characters."""
+        err = self._proc_err
+        if err is None:
+            return ""
+        try:
+            err.seek(0)
+            lines = err.read()[-4096:].decode("utf-8", "replace").strip().splitlines()
+        except (OSError, ValueError):
+            return ""
+        return _one_line(lines[-1])[:200] if lines else ""
+
     def _end_process(self, graceful: bool = True) -> None:
         """Close the file in the writer process (``graceful``, bounded by ``writer_timeout_s``) and
         let it end; release the shared memory's name. A stuck process is left to finish alone."""
         proc, conn = self._proc, self._conn
-        if graceful and conn is not None and proc is not None and not self._writer_stuck:
+        if graceful and conn is not None and proc is not None and self._proc_lost is None:
             with contextlib.suppress(_WriteFailed):
                 self._call("close", timeout=self.writer_timeout_s)
         if conn is not None:
             with contextlib.suppress(OSError):
                 conn.close()
-        if proc is not None and not self._writer_stuck:
+        if proc is not None:
             import subprocess
 
             try:
-                proc.wait(self.writer_timeout_s if graceful else 2.0)
-            except subprocess.TimeoutExpired:  # pragma: no cover - a process that does not end after closing
-                proc.kill()
-                with contextlib.suppress(subprocess.TimeoutExpired):
-                    proc.wait(2.0)
+                proc.wait(self.writer_timeout_s if graceful and self._proc_lost is None else 2.0)
+            except subprocess.TimeoutExpired:  # a process that does not end: never left running
+                self._kill_process()
         if self._shm is not None:
             with contextlib.suppress(Exception):
                 self._shm.unlink()
+        if self._proc_err is not None:
+            with contextlib.suppress(OSError):
+                self._proc_err.close()
+            self._proc_err = None
         self._conn = None
 
     def _stop_writer(self) -> bool:
@@ -1410,13 +1483,16 @@ class RecordWriter:
                     self.flush()
                 except RecordWriteError as exc:
                     failure = exc
-            if not self._stop_writer() or self._writer_stuck:
+            stopped = self._stop_writer()
+            if isinstance(failure, RecordLagError) and self.failure is not None:
+                failure = self.failure  # the writer failed meanwhile (e.g. a lost process): the real reason
+            if not stopped or self._writer_stuck:
                 # a thread may still be inside h5py: the file is not touched again (left as a kill leaves it)
                 failure = failure or self._fail(TimeoutError(
                     f"the writer thread did not finish within {self.writer_timeout_s:g} s"), "background write")
             if _TEST_HOOK is not None:
                 _TEST_HOOK("close:flushed", self)
-            if not self._hdf5_broken and not self._writer_stuck:
+            if self._proc_lost is None and not self._hdf5_broken and not self._writer_stuck:
                 if failure is not None and status == "ok":
                     stop_reason, status = str(failure), "error"
                 self._write_status(str(stop_reason), str(status))
@@ -1434,6 +1510,8 @@ class RecordWriter:
             except Exception as exc:  # the samples flushed before are on disk; the handle is gone
                 if failure is None:
                     failure = self._fail(exc, "close")
+            if self._proc_lost is not None:  # nothing holds the file now: the reason goes into it
+                self._write_lost_status(str(stop_reason), "error" if status == "ok" else str(status))
         if failure is not None:
             raise failure
         self._trim()
@@ -1446,17 +1524,52 @@ class RecordWriter:
             if not swmr and end is not None and self.path.stat().st_size > end:
                 os.truncate(self.path, end)
 
-    def _write_status(self, stop_reason: str, status: str) -> None:
-        """Overwrite the fixed ``/status`` bytes with one JSON line (zero padded) and flush. The space
-        was allocated at creation, so this cannot run out of disk."""
+    @staticmethod
+    def _status_bytes(stop_reason: str, status: str, samples: int) -> tuple[np.ndarray, dict[str, Any]]:
+        """The ``/status`` bytes: one JSON line, zero padded to ``_STATUS_BYTES`` (a very long
+        reason is shortened so the line stays valid JSON), and the document."""
         doc: dict[str, Any] = {"stop_reason": stop_reason, "status": status, "closed_utc": _utc_now(),
-                               "samples": self.samples}
+                               "samples": samples}
         raw = (_to_json(doc, "status") + "\n").encode()
-        if len(raw) > _STATUS_BYTES:  # a very long reason: shorten it, keep the line valid JSON
+        if len(raw) > _STATUS_BYTES:
             doc["stop_reason"] = stop_reason[: max(0, len(stop_reason) - (len(raw) - _STATUS_BYTES) - 8)] + "..."
             raw = (_to_json(doc, "status") + "\n").encode()
         buf = np.zeros(_STATUS_BYTES, dtype=np.uint8)
         buf[: len(raw)] = np.frombuffer(raw[:_STATUS_BYTES], dtype=np.uint8)
+        return buf, doc
+
+    def _write_lost_status(self, stop_reason: str, status: str) -> None:
+        """The writer process was lost (killed, died, or frozen and killed): nothing holds the file,
+        whose HDF5 state is what that process last flushed. Its ``/status`` bytes (contiguous, at a
+        fixed offset since creation, outside HDF5's metadata) are written directly with the reason,
+        saying that the record holds the samples of the last flushed block and how many taken after
+        it are not in it. Failures are logged (the record then reads as not closed, as before)."""
+        lost = self.samples - self.samples_flushed
+        note = (f"record writer process {self._proc_lost}: the record holds the {self.samples_flushed} samples "
+                f"of its last flushed block" + (f"; the {lost} samples taken after it are not in it" if lost else ""))
+        reason = note if not stop_reason or stop_reason == "completed" else f"{stop_reason}; {note}"
+        buf, doc = self._status_bytes(reason, status, self.samples_flushed)
+        if self._status_offset is None:
+            logger.error("record %s: %s (no /status offset: not written into the record)", self.path, reason)
+            return
+        try:
+            fd = os.open(self.path, os.O_WRONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+            try:
+                os.pwrite(fd, buf.tobytes(), self._status_offset)
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        except OSError as exc:
+            logger.error("record %s: the stop reason could not be written into it (%s): %s", self.path,
+                         _one_line(exc), reason)
+            return
+        self.stop_reason, self.status = doc["stop_reason"], status
+        logger.error("record %s: %s", self.path, reason)
+
+    def _write_status(self, stop_reason: str, status: str) -> None:
+        """Overwrite the fixed ``/status`` bytes with one JSON line (zero padded) and flush. The space
+        was allocated at creation, so this cannot run out of disk."""
+        buf, doc = self._status_bytes(stop_reason, status, self.samples)
         err: RecordWriteError | None = None
         with _signals_held():
             try:

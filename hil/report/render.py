@@ -55,7 +55,6 @@ from pydantic import ValidationError
 from hil.certify.certificate import SCHEMA_VERSION, Certificate, Series, content_digest, seal
 from hil.certify.verify import MODIFIED, IntegrityStatus, check_certificate
 from hil.errors import HilError
-from hil.inputs import read_text_file
 from hil.report.sections import (
     CHARTS,
     Section,
@@ -675,9 +674,13 @@ def _atomic_write(path: Path, data: bytes) -> Path:
 def write_json(cert: Certificate, out_path: str | os.PathLike[str]) -> Path:
     """Write the record as ``certificate.json`` (indented UTF-8). The text is checked to load back:
     a non-finite number in a required field (JSON has no NaN) raises :class:`ReportError`."""
+    from hil.certify.strict_json import StrictJsonError, loads
+
     text = _canonical_json(cert)
-    try:
-        Certificate.model_validate_json(text)
+    try:  # read back as hil verify reads it (strict JSON), so nothing is written that it would refuse
+        Certificate.model_validate(loads(text))
+    except StrictJsonError as exc:
+        raise ReportError(f"certificate would not read back: {exc}") from None
     except ValidationError as exc:
         raise ReportError(f"certificate does not survive JSON (non-finite number?): {_first_error(exc)}") from None
     return _atomic_write(Path(out_path), text.encode("utf-8"))
@@ -702,12 +705,13 @@ def _resolve(path: str | os.PathLike[str]) -> Path:
 
 def load_certificate(path: str | os.PathLike[str]) -> Certificate:
     """Read and validate a certificate (a ``certificate.json`` file, or a folder holding one)."""
+    from hil.certify.strict_json import StrictJsonError, read_json_file
+
     p = _resolve(path)
-    text = read_text_file(p, "certificate", ReportError)  # missing, unreadable, binary, not UTF-8: one line
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ReportError(f"{p}: not valid JSON: line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+    try:  # a regular file, bounded, no duplicate member, only finite numbers (docs/INTEGRITY.md)
+        data = read_json_file(p)
+    except StrictJsonError as exc:
+        raise ReportError(str(exc)) from None
     if not isinstance(data, dict):
         raise ReportError(f"{p}: not a certificate: the top level is not a JSON object")
     ver = str(data.get("schema_version", SCHEMA_VERSION))

@@ -549,7 +549,8 @@ class Runner:
 
         with safe_stop_context(stop, on_stop):  # first reading: channel sizes
             STOP.check()
-            meas0 = self.bench.read()
+            first_wait = self._realtime_wait_s()
+            meas0 = self.bench.read() if first_wait is None else self.bench.read(first_wait)
         if state["status"] != "completed":
             return ExperimentOutcome(name, state["status"], state["reason"], None, {}, stats.summary())
         meta = {"scene": self.scene.name, "experiment": ecfg, "seed": getattr(self.scene, "seed", 0),
@@ -604,6 +605,7 @@ class Runner:
                     steal0 = steal_time_s()
                     pacer.start()
                 read_timeout = self._tick_read_timeout()
+                cmd_wait = self._realtime_wait_s()
                 row = _TickRow(self, meas0)  # the record row's keys and constant arrays, built once
                 for k in range(n):
                     t = k * self.dt
@@ -643,7 +645,10 @@ class Runner:
                     safety.check_feedback(t, meas)
                     safety.check_command(u)
                     safety.check_energy(energy)
-                    self.bench.command(u)
+                    if cmd_wait is None:
+                        self.bench.command(u)
+                    else:  # realtime: bounded by the watchdog (see _realtime_wait_s)
+                        self.bench.command(u, timeout=cmd_wait)
                     for port, f in (exc.human or {}).items():
                         self.bench.set_human_force(port, np.asarray(f, float))
                     if self.progress and k % max(1, int(self.rate_hz / 10)) == 0:
@@ -675,6 +680,8 @@ class Runner:
                 if results:
                     with contextlib.suppress(HilError):
                         writer.set_results(name, results)
+            if writer.samples == 0 and state["status"] != "completed":  # say so: an empty record is not a run
+                state["reason"] = f"{state['reason']} (before the first sample: the record holds none)"
             try:
                 writer.close(stop_reason=state["reason"], status=state["status"])
             except (HilError, OSError) as exc:  # the record could not be closed: still a safe stop
@@ -757,7 +764,19 @@ class Runner:
             return self.read_timeout
         if self.realtime and not getattr(self.bench, "lockstep", False):
             return REALTIME_READ_TIMEOUT_S
-        return None
+        return self._realtime_wait_s()
+
+    def _realtime_wait_s(self) -> float | None:
+        """Realtime mode: the longest a device call of the loop may wait, ``watchdog_ms`` (or the
+        bench's own timeout when shorter). A device that answers later than that is lost whatever the
+        bench: an in-process simulated bench (``lockstep``, whose own timeout is
+        ``LOCKSTEP_WAIT_FACTOR`` x ``watchdog_ms`` for lockstep runs) then stops within about
+        ``watchdog_ms`` too (issue 27). None in lockstep mode: the bench's own timeouts."""
+        if not self.realtime:
+            return None
+        w = float(getattr(getattr(self.scene, "safety", None), "watchdog_ms", 50.0)) / 1000.0
+        own = getattr(self.bench, "timeout", None)
+        return min(w, float(own)) if isinstance(own, int | float) else w
 
     def _port_energy(self, k: int, meas: Mapping[str, Any], exc: Any, energy: dict[str, float],
                      last_power: dict[str, float], values: dict[str, Any]) -> None:

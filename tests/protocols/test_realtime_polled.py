@@ -342,7 +342,9 @@ def ft300(request):
     relay = TcpRelay(sim.port)
     scheme = "rtu-over-tcp" if request.param == "rtu" else "tcp"
     with _released(relay):
-        dev = RobotiqFT300(f"{scheme}://127.0.0.1:{relay.port}", timeout=TIMEOUT)
+        # a constant source stands for one sampled value here: frozen readings are tested elsewhere
+        # (tests/run/test_fault_matrix.py), these tests are about the transaction
+        dev = RobotiqFT300(f"{scheme}://127.0.0.1:{relay.port}", timeout=TIMEOUT, frozen_is_stale=False)
         s = dev.read(timeout=0.0)  # primes with one blocking read (Modbus/TCP: and sends the next request)
         dev._settle(0.5)  # that request answered and dropped: the tests start with nothing outstanding
     relay.release()

@@ -415,9 +415,9 @@ def test_a_killed_writer_process_is_a_write_error_at_the_next_call_keeping_the_f
     assert "\n" not in msg and "record writer process" in msg and f"the {2 * BLOCK} samples flushed" in msg
     with pytest.raises(RecordWriteError):
         w.close()
-    rec = RunRecord.open(path)  # as a kill leaves it: every flushed row, not closed
+    rec = RunRecord.open(path)  # as a kill leaves it: every flushed row; the reason written into it (issue 27)
     _check_exact(rec, 2 * BLOCK)
-    assert not rec.closed
+    assert rec.closed and "record writer process was killed by SIGKILL" in rec.stop_reason
 
 
 def test_writer_scheduling_applies_to_the_writer_process_too(tmp_path: Path) -> None:
