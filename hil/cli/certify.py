@@ -65,6 +65,8 @@ def run(args: argparse.Namespace) -> int:
     elif args.signer:
         raise UsageError("--signer names who signs: give the key with --sign KEY")
     # the certificate folder is written as a unit: built in a sibling, moved into place at the end
+    target = Path(args.out or f"reports/{scene.name}").absolute()
+    fresh_parent = None if target.parent.exists() else target.parent  # made here: removed again if left empty
     staged = stage_out_dir(args.out, default_stem=f"reports/{scene.name}", overwrite=args.overwrite,
                            owned=CERTIFICATE_FOLDER)
     work = staged.path
@@ -103,6 +105,10 @@ def run(args: argparse.Namespace) -> int:
         out = staged.commit()  # signals held for the few renames
     except BaseException as exc:
         kept = staged.abandon()  # partial records (a stopped run) stay, and the message says where
+        if kept is None and fresh_parent is not None:
+            from hil.record.outdir import remove_if_empty
+
+            remove_if_empty(fresh_parent)
         if kept is not None and exc.args and isinstance(exc.args[0], str):
             exc.args = (exc.args[0].replace(str(work), str(kept)), *exc.args[1:])
         if isinstance(exc, SignalInterrupt):
