@@ -56,12 +56,18 @@ class DeviceDisconnected(DeviceError, ConnectionError):
     """The transport was closed or lost."""
 
 
+class BenchUnavailable(DeviceError):
+    """The bench could not be opened before any experiment ran (a device absent or unreachable): no
+    record was written, so the command stops with one line, exit 2 (the scene names hardware that is
+    not there), and leaves no folder behind."""
+
+
 class SafetyStop(HilError):
     """An experiment was stopped by a safety limit, the watchdog or a signal."""
 
 
 class ExitCode(IntEnum):
-    """The exit codes of every ``hil`` command: the one table (README.md "exit code | meaning" shows
+    """The exit codes of every ``hil`` command: the one table (docs/guide/troubleshooting.md "exit code | meaning" shows
     :data:`EXIT_MEANINGS`, and a test compares them)."""
 
     OK = 0
@@ -76,7 +82,7 @@ class ExitCode(IntEnum):
     INTERRUPTED = 130
 
 
-#: what each exit code means, word for word as in README.md's exit-code table
+#: what each exit code means, word for word as in docs/guide/troubleshooting.md's exit-code table
 EXIT_MEANINGS: dict[ExitCode, str] = {
     ExitCode.OK: "stable; `hil certify`: GO; `hil verify`: the certificate and its evidence match",
     ExitCode.MARGINAL: "marginal: only with `hil stability --rtol R`, the verdict can flip within a relative "
@@ -86,7 +92,7 @@ EXIT_MEANINGS: dict[ExitCode, str] = {
     ExitCode.NOT_APPLICABLE: "criterion not applicable (e.g. Theorem 1's symmetrization conditions fail)",
     ExitCode.SAFETY_STOP: "`hil run`: a safe stop ended the run (limit, non-finite value, watchdog, late loop, "
                           "device or record failure, SIGTERM/SIGHUP)",
-    ExitCode.NOT_HELD: "`hil check-realtime`: this machine cannot hold `--rate` (see \"Realtime at the bench\")",
+    ExitCode.NOT_HELD: "`hil check-realtime`: this machine cannot hold `--rate` (docs/guide/realtime.md)",
     ExitCode.INTERRUPTED: "`hil run`: interrupted (Ctrl-C / SIGINT); every record is closed with the reason",
     ExitCode.USAGE: "usage or input error; the message is one line and names the file and field, or the flag; "
                     "`hil verify` / `hil report`: the certificate does not match its digest, an evidence file or "

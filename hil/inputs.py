@@ -24,16 +24,27 @@ __all__ = ["SEED_MAX", "DuplicateKeyError", "field_path", "number_type", "parse_
 SEED_MAX = 2**32 - 1
 
 
-def read_text_file(path: str | Path, what: str = "file", error: type[HilError] = HilError) -> str:
+#: the largest text input read (scenes, network files, certificates): a scene is a few kB, a
+#: certificate with its plot data a few MB; anything longer (a device such as /dev/zero, a stray log)
+#: is refused after reading at most this much, never read to exhaustion
+MAX_TEXT_BYTES = 32 * 1024 * 1024
+
+
+def read_text_file(path: str | Path, what: str = "file", error: type[HilError] = HilError,
+                   max_bytes: int = MAX_TEXT_BYTES) -> str:
     """The UTF-8 text of ``path`` (a BOM is dropped). Raises ``error`` with one line for a folder, a
-    missing or unreadable file, binary data (NUL bytes) or a file that is not UTF-8."""
+    missing or unreadable file, one longer than ``max_bytes`` (read no further: /dev/zero ends
+    here), binary data (NUL bytes) or a file that is not UTF-8."""
     p = Path(path)
     if p.is_dir():
         raise error(f"{p}: is a folder, not a {what}")
     if not p.exists():
         raise error(f"{p}: no such file")
     try:
-        raw = p.read_bytes()
+        with open(p, "rb") as f:
+            raw = f.read(max_bytes + 1)
+        if len(raw) > max_bytes:
+            raise error(f"{p}: larger than {max_bytes / 2**20:.0f} MiB: not a {what} (read no further)")
     except PermissionError:
         raise error(f"{p}: cannot read the {what}: permission denied") from None
     except OSError as exc:

@@ -292,6 +292,12 @@ def plan_from_record(
         skip = res.get("skip")
         if skip is None and period is not None and int(cfg.get("periods") or 1) > 1:
             skip = period
+        elif skip is None and period is not None and not cfg and t1 - t0 >= 2.0 * float(period):
+            # an imported record with --period: its first period holds the start-up transient (a
+            # record started from rest is not yet periodic), dropped as for the suite's own records
+            skip = float(period)
+            notes.append(f"the first period ({float(period):g} s) is dropped as start-up transient (--skip 0 "
+                         "keeps it)")
     band = ov.pop("band", None)
     if band is None:
         band = res.get("band") or ([cfg["f0"], cfg["f1"]] if "f0" in cfg and "f1" in cfg else None)

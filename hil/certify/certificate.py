@@ -62,6 +62,7 @@ VerdictStr = Literal["stable", "marginal", "potentially_unstable", "not_applicab
 __all__ = [
     "CANONICALIZATION",
     "SCHEMA_VERSION",
+    "BenchInfo",
     "Certificate",
     "Evidence",
     "Integrity",
@@ -141,7 +142,8 @@ class ConditionRow(_M):
 
 
 class Nominal(_M):
-    """The criterion on the nominal network (posterior mean parameters + the scene's gains)."""
+    """The criterion on the nominal network: each drawn parameter at its median (the posterior median
+    of an identified one, the stated value of an uncertain one) plus the scene's gains."""
 
     network: str
     criterion: str
@@ -170,7 +172,8 @@ class Reliability(_M):
     evaluations: int = Field(default=0, description="verdicts evaluated by the search")
     verified: bool | None = Field(default=None, description="the exact criterion (check) confirms the verdicts "
                                   "at 0.95·u* and 1.05·u* (None: it calls a side marginal)")
-    coordinates: str = "posterior mean and Cholesky factor of the posterior covariance of the independent draws"
+    coordinates: str = ("the nominal point (each parameter's median) and the Cholesky factor of the posterior "
+                        "covariance of the independent draws")
     method: str = ""
 
 
@@ -313,6 +316,20 @@ class MultiPort(_M):
     symmetrization: str = ""
 
 
+class BenchInfo(_M):
+    """Where the evidence came from (docs/CERTIFICATION.md#bench; :mod:`hil.certify.provenance`)."""
+
+    kind: Literal["simulated", "hardware", "none"] = Field(
+        description="simulated: the scene's simulated devices (no hardware); hardware: real devices; none: no "
+                    "experiment ran (the scene's stated parameters only)")
+    clock: Literal["lockstep", "realtime"] | None = Field(
+        default=None, description="lockstep: simulated time, one control period per tick; realtime: the wall "
+                                  "clock; None when nothing ran")
+    devices: list[str] = Field(default_factory=list, description="the scene's devices, 'name (driver)'")
+    label: str = Field(description="the banner the reports print on every page, e.g. 'SIMULATED BENCH — lockstep'")
+    note: str = Field(default="", description="one sentence saying what the label means")
+
+
 class Evidence(_M):
     """A file the certificate rests on: a run record or the scene text."""
 
@@ -360,6 +377,9 @@ class Certificate(_M):
     witness: Witness | None = None
     energy: list[EnergyEvidence] | None = None
     multiport: MultiPort | None = None
+    bench: BenchInfo | None = Field(
+        json_schema_extra=SINCE_1_2, default=None, description="where the evidence came from: simulated bench "
+                                                               "or hardware, and on which clock")
     plots: dict[str, Series] = Field(default_factory=dict)
     errors: list[str] = Field(default_factory=list)
     evidence: list[Evidence] = Field(default_factory=list)

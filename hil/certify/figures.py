@@ -187,8 +187,39 @@ def _symmetrized(tmn: Any, idx: list[int]) -> list[list[Any]] | None:
     return Zs
 
 
+def _margin_curve(tm: Any, r: Any, c: Any) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(ω [rad/s], curve, exact) of a frequency condition: when the condition carries the ratio its
+    margin minimizes (``Condition.ratio``: the exact condition polynomial p and the magnitude
+    polynomial m_r, in the criterion's normalized frequency), ρ(ω) = p(x)/m_r(x) at x = (ω/ω₀)²
+    itself -- the function whose minimum over ω is the margin the table prints (``exact`` True);
+    otherwise (a condition decided on a grid) the criterion's normalized function on a grid."""
+    from hil.stability import criteria as C
+    from hil.stability.minimize import _Ratio
+    from hil.stability.rational import _qpoly_floats
+
+    tmn, w0 = C._normalized(tm)
+    lo, hi = C._freq_range(tmn.entries)
+    w = np.geomspace(lo * w0, hi * w0, 800)
+    wf = c.worst_frequency
+    if wf is not None and math.isfinite(wf) and wf > 0:
+        w = np.unique(np.concatenate([w, [float(wf)]]))  # the table's worst frequency is on the curve
+    ratio = getattr(c, "ratio", None)
+    if ratio is not None:
+        p, m_r = ratio
+        rho = _Ratio(np.array(_qpoly_floats(p), float), np.asarray(m_r, float))
+        scale = float((getattr(r, "network", None) or {}).get("omega_scale", w0))
+        return w, np.asarray(rho((w / scale) ** 2), float), True
+    wc, y = _condition_curve(tm, r, c)
+    return wc, y, False
+
+
 def decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
-    """The ``decided`` plot (see the module docstring)."""
+    """The ``decided`` plot (see the module docstring). One source with the conditions table: the
+    curve is the condition's own margin function p/m_r (from the same evidence as its margin), the
+    marked point is the row's (worst frequency, margin), and every number in the legend is printed
+    by :func:`hil.certify.numbers.fmt`, the table's formatter."""
+    from hil.certify.numbers import fmt
+
     dec = decisive_condition(r)
     freq = [c for c in r.conditions if _is_frequency(c) and c.margin is not None and math.isfinite(c.margin)]
     shown = dec if dec is not None and _is_frequency(dec) else None
@@ -201,22 +232,22 @@ def decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
         plots["decided"] = Series(title=f"Decisive condition ({r.criterion}): {dec.name if dec else '—'}",
                                   x=[], x_label="ω [rad/s]", y_label="normalized margin [1]", bars=residues)
         return
-    w, y = _condition_curve(tm, r, shown)
+    w, y, exact = _margin_curve(tm, r, shown)
     pts: dict[str, tuple[float, float]] = {}
-    vl: dict[str, float] = {}
     wf = shown.worst_frequency
-    fin = np.isfinite(y)
-    k = int(np.argmin(np.where(fin, y, np.inf))) if fin.any() else -1
-    if wf is not None and math.isfinite(wf) and wf > 0 and (k < 0 or abs(math.log(wf / w[k])) <= math.log(1.5)):
-        pts[f"worst: {shown.name} = {shown.margin:.3g} at ω = {wf:.4g} rad/s"] = (float(wf), float(shown.margin))
-        vl["worst frequency"] = float(wf)
-    elif k >= 0:
-        # the criterion minimizes its margin function with the structural zeros at ω = 0 and ∞
-        # factored out, which can be as low at another frequency (a flat minimum): the point marks
-        # the plotted curve's own minimum, the line the criterion's worst frequency
-        pts[f"minimum of the curve: {y[k]:.3g} at ω = {w[k]:.4g} rad/s"] = (float(w[k]), float(y[k]))
-        if wf is not None and math.isfinite(wf) and wf > 0:
-            vl["criterion's worst ω (structural zeros factored out)"] = float(wf)
+    m = float(shown.margin)
+    name = f"{shown.name}: {shown.label}"
+    if wf is None:  # ρ constant in ω: the minimum is attained at every frequency (no single point)
+        name += f" (margin {fmt(m)}, the same at every ω)"
+    elif math.isfinite(wf) and wf > 0:
+        pts[f"margin {shown.name} = {fmt(m)} at ω = {fmt(float(wf))} rad/s"] = (float(wf), m)
+    else:  # attained as ω → 0 or ω → ∞ (the table's "0" / "inf"): drawn at that end of the axis
+        at_zero = wf == 0
+        end = float(w[0] if at_zero else w[-1])
+        pts[f"margin {shown.name} = {fmt(m)} at ω = {'0' if at_zero else 'inf'} rad/s (its limit, drawn at the "
+            f"{'left' if at_zero else 'right'} edge)"] = (end, m)
+    if not exact:
+        name += " (on a grid)"
     if shown is dec:
         title = f"Decisive condition {shown.name} ({r.criterion})"
     else:
@@ -224,8 +255,8 @@ def decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
                  f"the {'most negative' if shown.status == 'violated' else 'smallest'} margin, {shown.name}")
     plots["decided"] = Series(
         title=title, x=[float(v) for v in w], x_label="ω [rad/s]",
-        y_label="normalized margin [1]", log_x=True, lines={f"{shown.name}: {shown.label}": _clean(y)},
-        points=pts, vlines=vl, hline=0.0, shade_negative=True, bars=residues)
+        y_label="margin p(ω²)/m_r(ω²) [1]" if exact else "normalized margin [1]", log_x=True,
+        lines={name: _clean(y)}, points=pts, hline=0.0, shade_negative=True, bars=residues)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -331,6 +362,7 @@ def headroom_plot(plots: dict[str, Series], cert_cfg: Any, params: Any, draws: A
     """P(stable) and its lower confidence bound against the SDEA design parameter (k22 or b22)
     over the scene's design range, with the requirement, the current value and the largest value
     meeting the requirement (where the lower bound crosses it: the headroom) marked."""
+    from hil.certify.numbers import fmt, fmt_signed
     from hil.certify.statistics import probability_of_stability
     from hil.models.batch import sdea_passivity_batch
 
@@ -361,15 +393,17 @@ def headroom_plot(plots: dict[str, Series], cert_cfg: Any, params: Any, draws: A
     req = float(policy.required_probability)
     pts: dict[str, tuple[float, float]] = {}
     vl: dict[str, float] = {}
+    # legend numbers: the design table's fields printed by its formatters (one source)
     if has_limit:
-        hr = design.posterior_headroom
-        pts[f"requirement crossing (posterior limit): {d.parameter} = {limit:.5g} {unit}"
-            + ("" if hr is None else f", headroom {hr:+.1%}")] = (float(limit), req)
+        hr = design.posterior_headroom if design.posterior_limit is not None else None
+        what = "posterior limit" if design.posterior_limit is not None else "largest value meeting the requirement"
+        pts[f"requirement crossing ({what}): {d.parameter} = {fmt(float(limit))} {unit}"
+            + ("" if hr is None else f", headroom {fmt_signed(hr)}")] = (float(limit), req)
     if design.current is not None:
         vl[f"current {d.parameter}"] = float(design.current)
     if design.nominal_limit is not None and math.isfinite(design.nominal_limit):
         hn = design.nominal_headroom
-        vl[f"nominal limit {d.parameter}_max" + ("" if hn is None else f" (headroom {hn:+.1%})")] = \
+        vl[f"nominal limit {d.parameter}_max" + ("" if hn is None else f" (headroom {fmt_signed(hn)})")] = \
             float(design.nominal_limit)
     panels = []
     if has_limit and limit > 0:  # a zoom on the crossing: the drop is steep at the scale of the design range
@@ -381,7 +415,7 @@ def headroom_plot(plots: dict[str, Series], cert_cfg: Any, params: Any, draws: A
         panels.append(Series(title=f"zoom on the requirement crossing ({d.parameter} in [{a:.4g}, {b:.4g}] {unit})",
                              x=zx.tolist(), x_label=f"{d.parameter} [{unit}]", y_label="P(stable) [1]",
                              lines={"P̂(stable)": _clean(zp), f"lower {policy.confidence:.0%} bound": _clean(zl)},
-                             points={f"posterior limit {limit:.5g}": (float(limit), req)} if has_limit else {},
+                             points={f"posterior limit {fmt(float(limit))}": (float(limit), req)} if has_limit else {},
                              vlines=zv, hline=req))
     plots["headroom"] = Series(
         title=f"Headroom: P(stable) against {d.parameter} (the lower {policy.confidence:.0%} bound must stay "

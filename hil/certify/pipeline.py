@@ -12,12 +12,13 @@ recorded, never FAIL:
 1. **run** the scene's experiments on its bench (mocked or real) -- records, energy evidence;
 2. **identify** the parameters named in ``certification.identify`` from their records (emcee
    posterior); parameters listed in ``certification.uncertain`` are drawn log-normally instead;
-3. **nominal**: the network model at the posterior means (plus the scene's fixed parameters,
-   e.g. controller gains) through the criterion, with margins and evidence;
+3. **nominal**: the network model at the nominal values -- each parameter's median: the posterior
+   median of an identified one, the stated value of an uncertain one -- (plus the scene's fixed
+   parameters, e.g. controller gains) through the criterion, with margins and evidence;
 4. **robust**: the criterion on every posterior draw (vectorized for the SDEA; per draw,
    verdict-only, for other networks), P(stable) with a Clopper-Pearson interval, the worst-case
    margin over the credible ellipsoid (optimized), the critical band (where the binding condition is
-   within 10 % of its minimum; README "Definitions of the robust numbers"); P(stable) counts only
+   within 10 % of its minimum; docs/CERTIFICATION.md "critical band"); P(stable) counts only
    independent draws: each emcee chain is thinned by its autocorrelation time first; the worst case
    minimizes the nominal margin's own function (the exact criterion's margin), so worst ≤ nominal;
    the reliability index β (FORM) with its design point, and, when plain Monte Carlo cannot reach
@@ -74,6 +75,7 @@ from hil.certify.certificate import (
     Witness,
     seal,
 )
+from hil.certify.provenance import bench_info
 from hil.certify.stages import (
     NOMINAL_MARGIN,
     Context,
@@ -147,19 +149,21 @@ def _check(tm: Any, criterion: str, margins: bool = True) -> Any:
 
 def certify_scene(scene: Any, out_dir: str | Path, *, seed: int | None = None, progress: Progress | None = None,
                   run_experiments: bool = True, max_ticks: int | None = None,
-                  outcomes: Mapping[str, Any] | None = None) -> Certificate:
+                  outcomes: Mapping[str, Any] | None = None,
+                  tick_progress: Callable[[str, int, int], None] | None = None) -> Certificate:
     """Run the whole pipeline for ``scene`` (see the module docstring). Never raises for bad
     evidence: problems become an ERROR certificate with their reasons (a scene without a
     ``certification`` section too, and a stage that raised: its name and reason). ``outcomes``
     (experiment name -> ExperimentOutcome) reuses runs already made instead of running the
-    experiments again.
+    experiments again. ``tick_progress(record name, tick, ticks)`` follows each run (what ``hil
+    certify`` shows while an experiment runs).
 
     The certificate comes back sealed: ``evidence`` holds the SHA-256 of the scene text (written
     to ``out_dir/scene.yaml``) and of every record it rests on (the records written under
     ``out_dir/records`` and any reused record it names), ``integrity.digest`` the digest of its
     content (see :mod:`hil.certify.certificate`)."""
     cert = _assess(scene, out_dir, seed=seed, progress=progress, run_experiments=run_experiments,
-                   max_ticks=max_ticks, outcomes=outcomes)
+                   max_ticks=max_ticks, outcomes=outcomes, tick_progress=tick_progress)
     return _seal(cert, scene, Path(out_dir))
 
 
@@ -181,13 +185,22 @@ def _seal(cert: Certificate, scene: Any, out: Path) -> Certificate:
     records: list[Path] = sorted((out / "records").glob("*.h5")) if (out / "records").is_dir() else []
     named = [i.record for i in cert.identification or []] + [e.record for e in cert.energy or []]
     for r in named:
-        p = Path(r)
+        p = Path(r) if Path(r).is_absolute() else out / r  # named relative to the certificate folder
         if not p.is_file():
             logger.warning("evidence: record %s named by the certificate is not a file; not hashed", r)
         elif all(p.resolve() != q.resolve() for q in records):
             records.append(p)
     evidence += [file_evidence(out, r, "record") for r in records]
     return seal(cert.model_copy(update={"evidence": evidence}))
+
+
+def _relative(folder: Path, record: str) -> str:
+    """A record path as the certificate names it: POSIX, relative to the certificate's folder (so a
+    moved folder still finds its records), whatever the working directory was."""
+    p = Path(record)
+    if not p.is_absolute():
+        p = Path.cwd() / p
+    return Path(os.path.relpath(p.resolve(), Path(folder).resolve())).as_posix()
 
 
 def _scene_info(scene: Any) -> SceneInfo:
@@ -201,7 +214,8 @@ def _now() -> str:
 
 def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progress: Progress | None = None,
             run_experiments: bool = True, max_ticks: int | None = None,
-            outcomes: Mapping[str, Any] | None = None) -> Certificate:
+            outcomes: Mapping[str, Any] | None = None,
+            tick_progress: Callable[[str, int, int], None] | None = None) -> Certificate:
     """The pipeline proper (:func:`certify_scene` adds the evidence and the digest): the stages in
     order, each a function of the context and the stages' outputs before it."""
     if scene.certification is None:
@@ -220,7 +234,8 @@ def _assess(scene: Any, out_dir: str | Path, *, seed: int | None = None, progres
     sheet = Sheet()
     stage = "run"
     try:
-        run = stage_run(ctx, sheet, run_experiments=run_experiments, max_ticks=max_ticks, outcomes=outcomes)
+        run = stage_run(ctx, sheet, run_experiments=run_experiments, max_ticks=max_ticks, outcomes=outcomes,
+                        tick_progress=tick_progress)
         stage = "identify"
         draws = stage_identify(ctx, sheet, run)
         stage = "nominal"
@@ -262,6 +277,10 @@ def _certificate(ctx: Context, sheet: Sheet, verdict: Verdict, *, run: RunOutput
         f"{k} {v:.1f} s" for k, v in sheet.timings.items())))
     policy = ctx.policy
     reasons = list(verdict.reasons) + (list(witness.reasons) if witness is not None else [])
+    idents = [i.model_copy(update={"record": _relative(ctx.out, i.record)}) for i in draws.identification] \
+        if draws is not None else []
+    energy = [e.model_copy(update={"record": _relative(ctx.out, e.record)}) for e in run.energy] \
+        if run is not None else []
     return Certificate(
         created_utc=_now(), software=_versions(), scene=_scene_info(ctx.scene),
         decision=_DECISIONS[verdict.decision], reasons=reasons,
@@ -269,9 +288,10 @@ def _certificate(ctx: Context, sheet: Sheet, verdict: Verdict, *, run: RunOutput
                 "credible": policy.credible},
         measurements=sheet.measurements, nominal=None if nominal is None else nominal.section,
         robust=None if robust is None else robust.section,
-        identification=(list(draws.identification) or None) if draws is not None else None,
+        identification=(idents or None) if draws is not None else None,
         design=None if design is None else design.design, witness=None if witness is None else witness.witness,
-        energy=(list(run.energy) or None) if run is not None else None, multiport=multiport, plots=sheet.plots,
+        energy=(energy or None) if run is not None else None, multiport=multiport,
+        bench=bench_info(ctx.scene, None if run is None else run.outcomes), plots=sheet.plots,
         errors=sheet.errors + sheet.optional_errors)
 
 
@@ -280,7 +300,8 @@ def _certificate(ctx: Context, sheet: Sheet, verdict: Verdict, *, run: RunOutput
 
 
 def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_ticks: int | None = None,
-              outcomes: Mapping[str, Any] | None = None) -> RunOutput:
+              outcomes: Mapping[str, Any] | None = None,
+              tick_progress: Callable[[str, int, int], None] | None = None) -> RunOutput:
     """Run the scene's experiments (or take ``outcomes`` already made): one measurement per
     experiment, the energy evidence, fault counters and realtime loop timing."""
     scene, out = ctx.scene, ctx.out
@@ -306,7 +327,7 @@ def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_t
                                            "injection); `hil run` runs it"))
         select = [i for i, n in enumerate(names) if n in used]
         with sheet.timed("run", ctx.say, scene.name) if select else contextlib.nullcontext():
-            runner = Runner(scene, out / "records", max_ticks=max_ticks)
+            runner = Runner(scene, out / "records", max_ticks=max_ticks, progress=tick_progress)
             ran = [names[i] for i in select]
             for name, o in zip(ran, runner.run(select=select) if select else [], strict=False):
                 done[name] = o
@@ -320,6 +341,12 @@ def stage_run(ctx: Context, sheet: Sheet, *, run_experiments: bool = True, max_t
             stop_reason = getattr(runner, "stop_reason", None) if select else None
             if stop_reason and all(o.status == "completed" for o in done.values()):
                 sheet.errors.append(f"run stopped: {stop_reason}")  # e.g. a signal after the last experiment
+            from hil.run.runner import bench_never_opened
+
+            if select and (why := bench_never_opened(list(done.values()), runner)) is not None:
+                from hil.errors import BenchUnavailable  # nothing ran: no certificate, exit 2 at the CLI
+
+                raise BenchUnavailable(f"{scene.name}: the bench could not be opened, no experiment ran: {why}")
             if (stop_reason or "").startswith("signal"):
                 # the person at the bench asked to stop: no identification or certificate follows
                 kept = sorted((out / "records").glob("*.h5")) if (out / "records").is_dir() else []
@@ -455,12 +482,25 @@ def stage_identify(ctx: Context, sheet: Sheet, run: RunOutput) -> PosteriorDraws
 # 3. nominal
 
 
+def nominal_values(draws: Mapping[str, np.ndarray], uncertain: Mapping[str, Any]) -> dict[str, float]:
+    """The nominal value of each drawn parameter: its **median** (docs/CERTIFICATION.md, "nominal"):
+    the median of an identified parameter's independent posterior draws, and for a parameter of
+    ``certification.uncertain`` its stated ``value``, the exact median of its log-normal draws
+    value·exp(rel_std·z) (not a sample statistic: the scene's 2.0 stays 2.0)."""
+    out = {}
+    for k, v in draws.items():
+        u = uncertain.get(k)
+        out[k] = float(u.value) if u is not None else float(np.median(np.asarray(v, float)))
+    return out
+
+
 def stage_nominal(ctx: Context, sheet: Sheet, post: PosteriorDraws) -> NominalOutput:
-    """The network at the posterior means (plus the fixed parameters) through the criterion: its
+    """The network at the nominal values (each parameter's median, :func:`nominal_values`; plus the
+    fixed parameters) through the criterion: its
     verdict and margin as measurements, the decided condition's plot. A network that cannot be
     built is an evidence error (ERROR)."""
     nominal_params = dict(ctx.params)
-    nominal_params.update({k: float(np.mean(v)) for k, v in post.draws.items()})
+    nominal_params.update(nominal_values(post.draws, ctx.cert.uncertain))
     with sheet.timed("nominal", ctx.say, ctx.scene.name):
         try:
             tm = build_network(ctx.model, nominal_params)
@@ -570,7 +610,8 @@ def stage_robust(ctx: Context, sheet: Sheet, post: PosteriorDraws, nominal: Nomi
         sheet.optional("plots (posterior Bode)", _bode_plot, sheet.plots, ctx.model, params, draws, seed,
                        ctx.scene.units, cmap)
         if fast and band is not None:
-            sheet.optional("plots (critical band)", _critical_band_plot, sheet.plots, ctx.model, params, draws, band)
+            sheet.optional("plots (critical band)", _critical_band_plot, sheet.plots, ctx.model, params, draws, band,
+                           nominal_params)
     return RobustOutput(stable_draws=stable_draws, section=robust, form=form_res, rare=rare)
 
 
@@ -648,7 +689,9 @@ def stage_witness(ctx: Context, sheet: Sheet, nominal: NominalOutput) -> Witness
     if ctx.cert.witness and unstable and nominal.network is not None:
         with sheet.timed("witness", ctx.say, ctx.scene.name):
             witness = sheet.optional("witness", _witness, nominal.network, sheet.plots, sheet, ctx.scene)
-        if witness is None:
+        if witness is not None:
+            reasons.append(_witness_reason(witness, ctx.scene.units))
+        else:
             why = sheet.failed.get("witness")
             reasons.append(f"no destabilizing passive termination reported: the witness search failed ({why})"
                            if why is not None else
@@ -658,6 +701,30 @@ def stage_witness(ctx: Context, sheet: Sheet, nominal: NominalOutput) -> Witness
         reasons.append("no destabilizing passive termination reported: the scene disables the witness search "
                        "(certification.witness: false)")
     return WitnessOutput(witness, tuple(reasons))
+
+def _witness_reason(w: Witness, units: str | None) -> str:
+    """The witness in one plain sentence: which passive termination, what it does to the closed
+    loop, and how soon the bench's first safety limit would be crossed (numbers as the witness
+    section prints them)."""
+    from hil.certify.numbers import fmt
+    from hil.certify.units import termination_units
+
+    terms = []
+    for port, t in w.terminations.items():
+        if isinstance(t, dict) and "params" in t:
+            tu = termination_units(t["params"], w.units or units)
+            where = f"port {int(port) + 1}" if str(port).isdigit() else f"port {port}"
+            terms.append(f"a {t.get('kind', 'passive termination')} ("
+                         + ", ".join(f"{k} = {fmt(v)} {tu.get(k, '')}".rstrip() for k, v in t["params"].items())
+                         + f") at {where}")
+    text = "for example " + (" and ".join(terms) or "a passive termination") + " makes it unstable"
+    if w.growth_rate_1_s is not None and w.growth_rate_1_s > 0:
+        text += f": the response grows as e^(σt) with σ = {fmt(w.growth_rate_1_s)} 1/s"
+    if w.limit_exceeded is not None and w.time_to_limit_s is not None:
+        text += (f", and the bench's {w.limit_exceeded.replace('_', ' ')} limit would be exceeded after "
+                 f"{fmt(w.time_to_limit_s)} s")
+    return text
+
 
 # ---------------------------------------------------------------------------------------------
 # helpers
@@ -1104,10 +1171,13 @@ def _decided_plot(plots: dict[str, Series], tm: Any, r: Any) -> None:
     decided_plot(plots, tm, r)
 
 def _critical_band_plot(plots: dict[str, Series], model: str, params: Mapping[str, Any],
-                        draws: Mapping[str, np.ndarray], band: tuple[float, float]) -> None:
+                        draws: Mapping[str, np.ndarray], band: tuple[float, float],
+                        centre: Mapping[str, Any] | None = None) -> None:
     """The model's normalized band condition (the SDEA's coupler condition) g(ω) = t(ω²)/|t|(ω²)
-    at the posterior mean and its 5-95 % band over the draws, with the 10 % threshold of the mean
-    and the certificate's critical band (over the draws) marked; nothing for a model without one."""
+    at the nominal point ``centre`` (the nominal stage's parameters) and its 5-95 % band over the
+    draws, with the 10 % threshold of the nominal curve and the certificate's critical band (over the
+    draws) marked; nothing for a model without one."""
+    centre = dict(centre or {k: float(np.median(v)) for k, v in draws.items()})
     from hil.models import get_model
     from hil.models.batch import BAND_GRID_RAD_S, CRITICAL_BAND_FRACTION
 
@@ -1132,16 +1202,16 @@ def _critical_band_plot(plots: dict[str, Series], model: str, params: Mapping[st
     qd = {k: np.asarray(draws[k], float)[sub] if k in draws else np.full(len(range(n)[sub]), base[k])
           for k in table}
     gd = g_of(qd)
-    gm = g_of({k: np.array([float(np.mean(draws[k])) if k in draws else base[k]]) for k in table})[:, 0]
+    gm = g_of({k: np.array([float(centre[k]) if k in centre else base[k]]) for k in table})[:, 0]
     q05, q95 = np.nanquantile(gd, [0.05, 0.95], axis=1)
     gmin = float(np.nanmin(gm))
     thr = gmin + CRITICAL_BAND_FRACTION * (1.0 - gmin)
     plots["critical_band"] = Series(
         title="Critical band: the coupler condition (c-ii) within 10 % of its minimum",
         x=w.tolist(), x_label="ω [rad/s]", y_label="g(ω) = t(ω²)/|t|(ω²) [1]", log_x=True,
-        lines={"posterior mean": _clean(gm), "10 % threshold (posterior mean)": [thr] * w.size},
+        lines={"nominal (posterior median)": _clean(gm), "10 % threshold (nominal)": [thr] * w.size},
         bands={"5-95 % over the draws": (_clean(q05), _clean(q95))},
-        points={"worst (posterior mean)": (float(w[int(np.nanargmin(gm))]), gmin),
+        points={"worst (nominal)": (float(w[int(np.nanargmin(gm))]), gmin),
                 "critical band, low edge (over the draws)": (float(band[0]), thr),
                 "critical band, high edge (over the draws)": (float(band[1]), thr)},
         hline=0.0)

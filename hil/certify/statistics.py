@@ -327,7 +327,8 @@ def decide(nominal_verdict: str | None, stable_draws: np.ndarray | None, policy:
     if nominal_verdict == "not_applicable":
         return Decision.ERROR, ["the criterion does not apply to the nominal network"], prob
     if nominal_verdict == "potentially_unstable":
-        reasons.append("the nominal (posterior-mean) network is potentially unstable")
+        reasons.append("at its nominal parameters (posterior medians) the network fails the exact stability "
+                       "criterion: some passive operator and environment can make it unstable")
         return Decision.NO_GO, reasons, prob
     if headroom_nominal is not None and headroom_nominal < 0:
         reasons.append(f"the design parameter exceeds its limit at the nominal plant (headroom "

@@ -3,7 +3,7 @@ parameters of a built-in network model, with the stability boundary refined by b
 
 ``hil sweep --model sdea --grid b22=0.05:0.3:26 --grid k22=100:600:26 --criterion passivity``
 
-Definitions (also in README, "Stability maps"):
+Definitions (also in docs/guide/certification.md, "Stability maps"):
 
 * **grid point**: one assignment of the swept parameters (``NAME=LO:HI:N`` gives N values from LO
   to HI inclusive, evenly spaced; ``NAME=log:LO:HI:N`` evenly spaced in log). The other model

@@ -9,13 +9,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from hil.cli.common import StepProgress, UsageError, out_dir
+from hil.cli.common import StepProgress, UsageError, bench_opening_said_once, console, out_dir
 from hil.errors import DECISION_EXIT, EXIT_USAGE
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", nargs="*", help="scene file, built-in name or folder of scenes (default "
-                   "sdea_bench); several: a fleet certified in parallel (see README, Fleet certification)")
+                   "sdea_bench); several: a fleet certified in parallel (docs/guide/certification.md, Fleet "
+                   "certification)")
     p.add_argument("--workers", type=int, help="fleet: parallel scenes (default: all cores)")
     p.add_argument("--scheduler", metavar="ADDR", help="fleet: run on a Dask scheduler (tcp://host:8786; "
                    "extra 'dask')")
@@ -23,12 +24,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "non-empty folder is refused unless --overwrite")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder, which must hold "
                    "only what hil certify writes, as a whole (built beside it, then swapped in)")
-    p.add_argument("--seed", type=int)
+    p.add_argument("--seed", type=int, help="override the scene's seed (runs, posterior sampling, draws)")
     p.add_argument("--no-experiments", action="store_true", help="skip the runs (certify from the scene's priors)")
     p.add_argument("--sign", metavar="KEY", help="sign the certificate's digest with this Ed25519 private key "
                                                  "(PEM, see hil keygen; needs the 'sign' extra)")
     p.add_argument("--signer", metavar="NAME", help="who signs (recorded and signed with --sign)")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print one JSON object (decision, reasons, bench, files, "
+                   "digest, measurements) instead of the table; no progress lines")
     # a fleet's worker builds the folder in its own scratch space and the client writes it at this
     # path: the certificate and reports name the folder where it will be (not for people)
     p.add_argument("--named-as", help=argparse.SUPPRESS)
@@ -47,6 +49,9 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--workers and --scheduler apply to a fleet (several scenes or a folder)")
     args.scene = args.scene[0] if args.scene else None
     scene = load_scene(args.scene or "sdea_bench")
+    if scene.certification is None:  # a usage error, not an ERROR certificate (nothing is written)
+        raise UsageError(f"{args.scene or 'sdea_bench'}: the scene has no 'certification' section: nothing to "
+                         "certify (hil run runs its experiments)")
     if args.seed is not None:
         scene.seed = check_seed(args.seed)
     if need := extras_message(None if args.no_experiments else scene, report=True):  # before any folder
@@ -60,23 +65,32 @@ def run(args: argparse.Namespace) -> int:
     elif args.signer:
         raise UsageError("--signer names who signs: give the key with --sign KEY")
     # the certificate folder is written as a unit: built in a sibling, moved into place at the end
+    target = Path(args.out or f"reports/{scene.name}").absolute()
+    fresh_parent = None if target.parent.exists() else target.parent  # made here: removed again if left empty
     staged = stage_out_dir(args.out, default_stem=f"reports/{scene.name}", overwrite=args.overwrite,
                            owned=CERTIFICATE_FOLDER)
     work = staged.path
 
-    beat = StepProgress(f"hil certify {scene.name}", enabled=not sys.stderr.isatty())  # stage lines on a terminal
+    # stage lines, and between them a spinner (terminal) or a line every few seconds naming the stage,
+    # the experiment running and its ticks
+    beat = StepProgress(f"hil certify {scene.name}", enabled=not args.json)
 
     def say(msg: str) -> None:
-        beat.message = f"{msg.removeprefix(scene.name + ': ')} (still running)"
+        beat.update(f"{msg.removeprefix(scene.name + ': ')} (still running)")
         if not args.json:
-            print(msg, file=sys.stderr)
+            beat.say(msg)
+
+    def ticks(name: str, k: int, n: int) -> None:  # which experiment runs, and how far it got
+        beat.update(f"run {name}: {k}/{n} ticks ({100.0 * k / max(n, 1):.0f} %)")
 
     from hil.bench.stopflag import SignalInterrupt, StopRequested, signals_interrupt
 
     try:
-        with signals_interrupt(), beat:  # SIGTERM/SIGHUP outside the bench: exit 20, the folder in order
-            cert = certify_scene(scene, work, progress=say, run_experiments=not args.no_experiments)  # sealed
+        with signals_interrupt(), beat, bench_opening_said_once():  # SIGTERM/SIGHUP outside the bench: exit 20
+            cert = certify_scene(scene, work, progress=say, run_experiments=not args.no_experiments,
+                                 tick_progress=ticks)  # sealed
             cert = _renamed(cert, work, Path(args.named_as) if getattr(args, "named_as", None) else staged.final)
+            say(f"{scene.name}: reports ...")
             from hil.report.render import build_reports
 
             integrity = None
@@ -91,6 +105,10 @@ def run(args: argparse.Namespace) -> int:
         out = staged.commit()  # signals held for the few renames
     except BaseException as exc:
         kept = staged.abandon()  # partial records (a stopped run) stay, and the message says where
+        if kept is None and fresh_parent is not None:
+            from hil.record.outdir import remove_if_empty
+
+            remove_if_empty(fresh_parent)
         if kept is not None and exc.args and isinstance(exc.args[0], str):
             exc.args = (exc.args[0].replace(str(work), str(kept)), *exc.args[1:])
         if isinstance(exc, SignalInterrupt):
@@ -100,18 +118,19 @@ def run(args: argparse.Namespace) -> int:
     files = {k: out / Path(v).relative_to(work) for k, v in files.items()}
     if args.json:
         print(json.dumps({"decision": cert.decision, "reasons": cert.reasons, "scene": scene.name,
+                          "bench": None if cert.bench is None else cert.bench.model_dump(),
                           "files": {k: str(v) for k, v in files.items()},
                           "digest": cert.integrity.digest if cert.integrity else None,
                           "signed": bool(cert.integrity and cert.integrity.signature),
                           "measurements": [m.model_dump() for m in cert.measurements]}, indent=2, default=str))
     else:
-        from rich.console import Console
         from rich.markup import escape
         from rich.table import Table
 
-        con = Console(highlight=False, soft_wrap=True)  # prose and paths are never broken by the console
+        con = console()  # prose and paths are never broken by the console
         colour = {"GO": "green", "MARGINAL": "yellow", "NO-GO": "red", "ERROR": "magenta"}[cert.decision]
-        con.print(f"[bold]{escape(scene.name)}[/bold]: [bold {colour}]{cert.decision}[/]")
+        con.print(f"[bold]{escape(scene.name)}[/bold]: [bold {colour}]{cert.decision}[/]"
+                  + (f" ({escape(cert.bench.label)})" if cert.bench is not None else ""))
         for r in cert.reasons:
             con.print(f"  - {escape(r)}")
         tab = Table()
@@ -169,11 +188,10 @@ def run_fleet(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(res.to_dict(), indent=2))
     else:
-        from rich.console import Console
         from rich.markup import escape
         from rich.table import Table
 
-        con = Console(highlight=False, soft_wrap=True)
+        con = console()
         colour = {"GO": "green", "MARGINAL": "yellow", "NO-GO": "red", "ERROR": "magenta"}
         tab = Table(title=f"fleet: {len(res.entries)} scene(s)")
         for col in ("scene", "decision", "bench", "time [s]"):

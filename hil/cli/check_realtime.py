@@ -11,7 +11,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rate", type=number_type("positive"), default=2000.0, help="loop rate to check [Hz]")
     p.add_argument("--seconds", type=number_type("positive"), default=5.0, help="seconds per measurement")
     p.add_argument("--no-rt", action="store_true", help="without SCHED_FIFO / mlockall / CPU affinity")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of the tables")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -76,9 +76,12 @@ def out_dir(path: str | None, default_stem: str, overwrite: bool) -> Path:
     from hil.record.outdir import prepare_out_dir
 
     existed = path is not None and Path(path).exists()
+    # the ancestors this call creates (e.g. runs/ for runs/<scene>-<time>): removed with it on failure
+    parent = (Path(path) if path is not None else Path(default_stem)).absolute().parent
+    missing = [a for a in [parent, *parent.parents] if not a.exists()]
     out = prepare_out_dir(path, default_stem=default_stem, overwrite=overwrite)
     if not existed:
-        CREATED.append(out)
+        CREATED.append(missing[-1] if missing else out)
     return out
 
 def cleanup_created() -> None:
@@ -86,6 +89,26 @@ def cleanup_created() -> None:
 
     while CREATED:
         remove_if_empty(CREATED.pop())
+
+#: columns of a table printed where stdout is not a terminal (a pipe, a file, CI): wide enough
+#: that no row of the suite's tables is cut at rich's default of 80 columns
+PIPE_COLUMNS = 240
+
+
+def console(stderr: bool = False) -> Any:
+    """The rich Console of a command's tables: the terminal's width on a terminal, otherwise
+    ``COLUMNS`` when set and :data:`PIPE_COLUMNS` if not (never the default 80 of a pipe)."""
+    from rich.console import Console
+
+    stream = sys.stderr if stderr else sys.stdout
+    width = None
+    if not stream.isatty():
+        try:
+            width = int(os.environ.get("COLUMNS", "")) or PIPE_COLUMNS
+        except ValueError:
+            width = PIPE_COLUMNS
+    return Console(highlight=False, soft_wrap=True, width=width, stderr=stderr)
+
 
 def progress_interval() -> float:
     try:
@@ -113,6 +136,13 @@ class StepProgress:
         if self._status is not None:
             self._status.update(f"{self.label}: {message}")
 
+    def say(self, line: str) -> None:
+        """Print ``line`` on stderr, above the spinner on a terminal (never through it)."""
+        if self._status is not None:
+            self._status.console.print(line, highlight=False, markup=False)
+        else:
+            print(line, file=sys.stderr, flush=True)
+
     def _loop(self) -> None:
         while not self._stop.wait(self.interval):
             print(f"{self.label}: {time.monotonic() - self._t0:.0f} s: {self.message}", file=sys.stderr, flush=True)
@@ -137,6 +167,31 @@ class StepProgress:
             self._thread.join()
         if self._status is not None:
             self._status.__exit__(*exc)
+
+class _BenchOpeningFilter:
+    """Drops the log lines of a bench that failed while opening (``… (while the bench was opening)``):
+    the command says it once, in its one-line error (nothing ran) or its result table."""
+
+    @staticmethod
+    def filter(record: Any) -> bool:
+        return "(while the bench was opening)" not in record.getMessage()
+
+
+@contextlib.contextmanager
+def bench_opening_said_once() -> Iterator[None]:
+    """While a command runs experiments: a device that cannot be opened is reported once, by the
+    command (:class:`_BenchOpeningFilter` on the root logger's handlers), not also as warnings."""
+    import logging
+
+    handlers = list(logging.getLogger().handlers)
+    for h in handlers:
+        h.addFilter(_BenchOpeningFilter)
+    try:
+        yield
+    finally:
+        for h in handlers:
+            h.removeFilter(_BenchOpeningFilter)
+
 
 @contextlib.contextmanager
 def numeric_guard(source: str) -> Iterator[None]:

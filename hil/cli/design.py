@@ -11,12 +11,14 @@ from hil.errors import EXIT_OK, HilError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--criterion", choices=["passivity", "absolute_stability"], default="passivity")
+    p.add_argument("--criterion", choices=["passivity", "absolute_stability"], default="passivity",
+                   help="the condition the coupler must meet: two-port passivity (default) or Llewellyn's "
+                        "absolute stability")
     p.add_argument("--alpha", type=float, help="feed-forward ratio alpha in [0, 1] (default 1)")
     p.add_argument("--optimize-alpha", action="store_true", help="also maximize over alpha")
     p.add_argument("--b22", type=float, help="fix the coupler damping instead of optimizing it")
     p.add_argument("--set", action="append", metavar="PARAM=VALUE", help="override an SDEA parameter")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
 
 
 def run(args: argparse.Namespace) -> int:

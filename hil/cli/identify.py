@@ -89,7 +89,10 @@ def _print_table(res: IdentificationResult) -> None:
         for t in res.adequacy.tests:
             rng = f" expected {t.expected[0]:.3g}..{t.expected[1]:.3g}" if t.expected else ""
             pv = f" p={t.p_value:.2g}" if t.p_value is not None else ""
-            print(f"  adequacy {t.name} ({t.channel}): {t.statistic:.4g}{rng}{pv} {'ok' if t.passed else 'FAIL'}")
+            # the threshold the verdict used: p ≥ alpha passes (alpha Bonferroni-split over the tests)
+            thr = f" (ok when p ≥ {t.alpha:.2g})" if t.p_value is not None else ""
+            print(f"  adequacy {t.name} ({t.channel}): {t.statistic:.4g}{rng}{pv} "
+                  f"{'ok' if t.passed else 'FAIL'}{thr}")
 
 
 def _position_and_force(rec: Any, res: Any) -> tuple[np.ndarray, np.ndarray, float] | None:
@@ -185,9 +188,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--resolution", default=None,
                    help="rounding of the recorded signals: float32 (default), auto (a whole-count quantizer "
                    "detected from the values, else float32), float64, none, or a step")
-    p.add_argument("--noise", choices=["student", "gaussian", "scaled"], default=None)
+    p.add_argument("--noise", choices=["student", "gaussian", "scaled"], default=None,
+                   help="likelihood of the FRF residuals: student (default: the variance estimated from the "
+                        "coherence, Student-t), gaussian (variance known), scaled (gaussian with a fitted common "
+                        "scale)")
     p.add_argument("--set", action="append", metavar="PARAM=VALUE", help="starting value of a parameter (theta0)")
-    p.add_argument("--seed", type=seed_type, default=None)
+    p.add_argument("--seed", type=seed_type, default=None, help="seed of the least-squares restarts and the "
+                   "emcee sampler (default 0)")
     p.add_argument("--max-seconds", type=number_type("positive"), default=None, help="time budget of the sampler [s]")
     p.add_argument("--excitation", choices=["refuse", "warn"], default=None, help="a band that cannot pin a parameter: "
                    "refuse (default, exit 13) or warn and fit anyway (hil.identify.excitation)")

@@ -17,7 +17,7 @@ file that is not UTF-8 text, a bad flag or value) prints exactly one line on std
 one line pointing at ``--debug`` and exit 1. ``--debug`` adds the traceback (and debug logs).
 Output folders never overwrite: see :mod:`hil.record.outdir` (``--overwrite``).
 
-Exit codes: one table, :class:`hil.errors.ExitCode` with :data:`hil.errors.EXIT_MEANINGS` (README.md
+Exit codes: one table, :class:`hil.errors.ExitCode` with :data:`hil.errors.EXIT_MEANINGS` (docs/guide/troubleshooting.md
 shows it; tests/cli/test_exit_codes.py compares the two).
 """
 
@@ -33,6 +33,7 @@ import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from hil import __version__
 from hil.cli.common import CREATED, OneLineArgumentParser, UsageError, cleanup_created, debug_parent, one_line
 from hil.errors import (  # the exit codes: one table in hil.errors (re-exported here for callers)
     DECISION_EXIT,
@@ -63,8 +64,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "stability": ("hil.cli.stability", 'check passivity / absolute stability of a network (file or built-in model)'),
     "design": ("hil.cli.design", 'largest virtual-coupler stiffness k22 of the SDEA (002 Table II)'),
     "sweep": ("hil.cli.sweep",
-        "stability map of a built-in model over 1-3 parameters, boundary refined by bisection (see README, Stability "
-        "maps)"),
+        "stability map of a built-in model over 1-3 parameters, boundary refined by bisection (see "
+        "docs/guide/certification.md, Stability maps)"),
     "scenes": ("hil.cli.scenes", 'list the built-in scenes'),
     "run": ("hil.cli.run", "run a scene's experiments (chirp, energy injection, static hold) and record them"),
     "plan": ("hil.cli.plan",
@@ -103,8 +104,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     p = OneLineArgumentParser(
         prog="hil", description="Hardware-in-the-loop identification and stability certification of haptic "
         "devices, teleoperators and series elastic actuators.",
-        epilog="Global options go before the COMMAND: hil --debug COMMAND ... Exit codes: see the README.")
+        epilog="Global options go before the COMMAND: hil --debug COMMAND ... Exit codes: "
+               "docs/guide/troubleshooting.md.")
     p.add_argument("--debug", action="store_true", help="show tracebacks and debug logs (before the COMMAND)")
+    p.add_argument("--version", action="version", version=f"hil-certify {__version__}",
+                   help="print the version and exit")
     common = debug_parent()
     sub = p.add_subparsers(dest="cmd", metavar="COMMAND", parser_class=OneLineArgumentParser)
     for name, (module, help_text) in COMMANDS.items():

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from hil.cli.common import parse_set
+from hil.cli.common import console, parse_set
 from hil.errors import EXIT_OK
 
 
@@ -29,11 +29,10 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"scene": scene.name, "experiments": [p.to_dict() for p in preds]}, indent=2, default=str))
         return EXIT_OK
-    from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
 
-    con = Console(highlight=False, soft_wrap=True)
+    con = console()
     for p in preds:
         c = p.config
         tab = Table(title=f"{escape(scene.name)}: {escape(p.name)} ({p.model}; {c['type']} {c['f0']:.4g}-"

@@ -6,8 +6,9 @@ import argparse
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("record")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("record", help="a run record (.h5) written by hil run, hil certify or hil import")
+    p.add_argument("--json", action="store_true", help="print one JSON object (channels, timing, lateness, "
+                   "stop reason, device counters)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -8,7 +8,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from hil.cli.common import StepProgress, UsageError, cleanup_created, out_dir
+from hil.cli.common import StepProgress, UsageError, bench_opening_said_once, cleanup_created, console, out_dir
 from hil.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_SAFETY_STOP, EXIT_USAGE
 
 
@@ -19,7 +19,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true", help="write into an existing --out folder, replacing "
                    "records of the same name")
     p.add_argument("--seed", type=int, help="override the scene's seed")
-    p.add_argument("--experiment", action="append", help="run only this experiment (index or type; repeatable)")
+    p.add_argument("--experiment", action="append", metavar="NAME",
+                   help="run only this experiment, by its name in the scene (repeatable; hil plan and the "
+                        "certification name experiments the same way)")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--realtime", action="store_true", help="fixed-rate loop on the wall clock")
     mode.add_argument("--lockstep", action="store_true",
@@ -31,11 +33,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hil.errors import BenchUnavailable
     from hil.protocols.registry import extras_message
-    from hil.run.runner import Runner
+    from hil.run.runner import Runner, bench_never_opened
     from hil.scene.spec import check_seed, load_scene
 
     scene = load_scene(args.scene)
+    if not scene.experiments:
+        raise UsageError(f"{args.scene}: the scene has no experiments: nothing to run")
     if args.seed is not None:
         scene.seed = check_seed(args.seed)
     if need := extras_message(scene):  # a base install: say which extra, before anything is on disk
@@ -43,22 +48,7 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     select = None
     if args.experiment:
-        select = []
-        for item in args.experiment:
-            try:
-                select.append(int(item))
-            except ValueError:
-                idx = [i for i, e in enumerate(scene.experiments) if getattr(e, "type", None) == item]
-                if not idx:
-                    names = [str(getattr(e, "type", "?")) for e in scene.experiments]
-                    raise UsageError(f"--experiment {item}: no such experiment in scene {scene.name} "
-                                     f"(indices 0-{len(names) - 1}, types: {', '.join(dict.fromkeys(names))})"
-                                     ) from None
-                select += idx
-        bad = [i for i in select if not 0 <= i < len(scene.experiments)]
-        if bad:
-            raise UsageError(f"--experiment {bad[0]}: scene {scene.name} has experiments 0-"
-                             f"{len(scene.experiments) - 1}")
+        select = select_experiments(scene, args.experiment)
     out = out_dir(args.out, f"runs/{scene.name}", args.overwrite)
     realtime = True if args.realtime else (False if args.lockstep else None)
     progress_cb = None
@@ -88,16 +78,38 @@ def run(args: argparse.Namespace) -> int:
     runner = Runner(scene, out, realtime=realtime, progress=progress_cb, overwrite=args.overwrite, live=live)
     with STOP.install():  # signals stay stop requests until the results are printed
         try:
-            with prog if prog is not None else beat:
+            with prog if prog is not None else beat, bench_opening_said_once():
                 outcomes = runner.run(select)
         finally:
             if live is not None:
                 live.close()
+        if (why := bench_never_opened(outcomes, runner)) is not None:  # nothing ran, nothing recorded
+            raise BenchUnavailable(f"{args.scene}: the bench could not be opened, no experiment ran: {why}")
         code = run_exit_code(outcomes, runner)
         _print_run(args, scene, out, outcomes, runner)
     if not any(o.record is not None for o in outcomes):
         cleanup_created()  # nothing recorded: the folder this command made is removed again (when empty)
     return code
+
+
+def select_experiments(scene: Any, items: Sequence[str]) -> list[int]:
+    """The indices of the experiments named in ``items``, by name (``experiments[].name``, default
+    ``<type>`` or ``<type>_<variant>``, as the records and the certification name them); for scripts
+    written before names, an index or a type is still accepted when no name matches."""
+    names = [str(e["name"]) for e in scene.experiment_configs()]
+    types = [str(getattr(e, "type", "")) for e in scene.experiments]
+    out: list[int] = []
+    for item in items:
+        if item in names:
+            out.append(names.index(item))
+        elif item.isdigit() and int(item) < len(names):
+            out.append(int(item))
+        elif item in types:
+            out += [i for i, t in enumerate(types) if t == item]
+        else:
+            raise UsageError(f"--experiment {item}: no experiment named {item!r} in scene {scene.name} "
+                             f"(names: {', '.join(names) or 'none'})")
+    return list(dict.fromkeys(out))
 
 
 def _start_live(port: int | None, scene: Any, realtime: bool | None) -> Any:
@@ -137,10 +149,9 @@ def _print_run(args: argparse.Namespace, scene: Any, out: Any, outcomes: Sequenc
         print(json.dumps({"scene": scene.name, "out": str(out), "stop": stop,
                           "experiments": [o.to_dict() for o in outcomes]}, indent=2, default=str), flush=True)
     else:
-        from rich.console import Console
         from rich.table import Table
 
-        con = Console(highlight=False, soft_wrap=True)
+        con = console()
         tab = Table(title=f"hil run {scene.name}")
         tab.add_column("experiment", no_wrap=True)
         tab.add_column("status", no_wrap=True)

@@ -7,7 +7,7 @@ import json
 import math
 from typing import Any
 
-from hil.cli.common import StepProgress, UsageError, numeric_guard, one_line, parse_set, suggest
+from hil.cli.common import StepProgress, UsageError, console, numeric_guard, one_line, parse_set, suggest
 from hil.errors import EXIT_OK, VERDICT_EXIT, HilError
 from hil.stability.criteria import CriterionChoices  # the criterion names, from their registry
 
@@ -101,10 +101,9 @@ def _stability_tol(args: argparse.Namespace):
     return Tolerances(rtol=float(r))
 
 def _print_result(result: Any, verbose: bool) -> None:
-    from rich.console import Console
     from rich.table import Table
 
-    con = Console(highlight=False, soft_wrap=True)
+    con = console()
     colour = {"stable": "green", "marginal": "yellow", "potentially_unstable": "red", "not_applicable": "magenta"}
     v = str(result.verdict)
     title = f"{result.network.get('name') or 'network'} — {result.criterion}"

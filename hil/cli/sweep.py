@@ -1,5 +1,5 @@
 """``hil sweep``: stability map of a built-in model over 1-3 parameters, boundary refined by
-bisection (see README, Stability maps)."""
+bisection (docs/guide/certification.md, Stability maps)."""
 
 from __future__ import annotations
 

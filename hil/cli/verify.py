@@ -31,5 +31,7 @@ def run(args: argparse.Namespace) -> int:
     if not st.valid:
         print(f"hil verify: {where}: NOT VALID: {st.reason()}", file=sys.stderr)
         return EXIT_USAGE
-    print(f"OK {where}: {ok_summary(st)}")
+    from hil.report.render import bench_banner
+
+    print(f"OK {where}: {ok_summary(st)}; bench: {bench_banner(cert)[0]}")
     return EXIT_OK

@@ -1597,6 +1597,22 @@ def _attr_str(v: Any) -> str:
     return v.decode() if isinstance(v, bytes) else str(v)
 
 
+def _check_lengths(p: Path, lengths: Mapping[str, int], closed: bool, attrs: Mapping[str, Any]) -> None:
+    """Every channel is as long as the time column: exactly in a closed record; in a record whose
+    writer was killed (SWMR), within the rows of two flushes (a flush cut short is read up to its
+    shortest dataset). A channel cut short beyond that -- a damaged or edited record -- is refused in
+    one line, never silently truncated to (e.g. half its length)."""
+    nt = lengths["t"]
+    rate = float(attrs.get("rate_hz", math.nan))
+    every = float(attrs.get("flush_every_s", 0.1) or 0.1)
+    slack = 0 if closed else (2 * max(1, round(rate * every)) if math.isfinite(rate) and rate > 0 else nt)
+    for name, n in lengths.items():
+        if abs(n - nt) > slack:
+            state = "closed" if closed else "unclosed"
+            raise RecordError(f"{p}: channel {name} has {n} samples but the time column {nt}: a damaged or "
+                              f"altered record ({state}; at most {slack} may differ)")
+
+
 @dataclass
 class RunRecord:
     """A run record loaded into memory. ``stop_reason``/``status`` are None when the run never closed."""
@@ -1661,7 +1677,8 @@ class RunRecord:
                 f[name].refresh()
             for name in names:
                 g[name].refresh()
-        n = min([f["t"].shape[0], *(g[k].shape[0] for k in names)])
+        lengths = {"t": f["t"].shape[0], **{k: g[k].shape[0] for k in names}}
+        n = min(lengths.values())
         t = np.array(f["t"][:n])
         # keep the longest prefix of finite, strictly increasing times: a flush cut short (kill, full
         # disk) may leave rows whose time was never written (NaN fill, or zeros past the end of file)
@@ -1706,6 +1723,7 @@ class RunRecord:
             if snaps:
                 counters = {str(d): {str(k): int(v) for k, v in cs.items()}
                             for d, cs in snaps[-1]["counters"].items()}
+        _check_lengths(p, lengths, status is not None, attrs)
         scene = f["scene"][()]
         return cls(
             path=p,

@@ -41,6 +41,7 @@ from __future__ import annotations
 import base64
 import io
 import json
+import logging
 import math
 import os
 import textwrap
@@ -64,12 +65,16 @@ from hil.report.sections import (
     fmt,
     fmt_p,
     fmt_range,
+    fmt_signed,
     headroom,
+    margin_note,
     measurements_table,
     policy_label,
     report_sections,
     robust_status,
 )
+
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "ReportError",
@@ -186,6 +191,21 @@ def _evidence_note(st: IntegrityStatus) -> str:
     return f"All {st.n_evidence} evidence files match their recorded SHA-256."
 
 
+def bench_banner(cert: Certificate) -> tuple[str, str, str]:
+    """(banner label, sentence, kind) saying where the evidence came from (the certificate's
+    ``bench`` block); a certificate written before that block existed says so."""
+    b = cert.bench
+    if b is None:
+        return ("BENCH NOT RECORDED", "This certificate does not record whether its evidence came from a "
+                "simulated bench or from hardware (written before schema 1.2 recorded it).", "unknown")
+    return b.label, b.note, b.kind
+
+
+#: bench kind -> (banner background, text colour): a simulated bench is never mistaken for hardware
+BENCH_STYLE: dict[str, tuple[str, str]] = {"simulated": ("#fff1c2", "#6b4e00"), "hardware": ("#dbe8f6", "#0b3d91"),
+                                           "none": ("#eceff1", "#37474f"), "unknown": ("#eceff1", "#37474f")}
+
+
 def _present_sections(cert: Certificate) -> list[str]:
     out = ["errors"] if cert.errors else []
     out.append("measurements")
@@ -223,6 +243,8 @@ def _gauge(cert: Certificate) -> dict[str, Any]:
 # plots (matplotlib, imported lazily; Figure objects without pyplot, so no global state)
 
 _POINT_MARKERS = ("o", "D", "s", "^", "v", "P", "X")
+#: resolution of the HTML's figure images, cropped from the PDF's pages (6.8 in wide: 745 px)
+HTML_DPI = 110
 _PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22")
 
 
@@ -350,9 +372,75 @@ def _draw_series(ax: Any, s: Series) -> list[str]:
         notes.append("no finite data to draw")
     handles, _ = ax.get_legend_handles_labels()
     if handles:
-        loc = "best" if n * max(1, len(s.lines)) <= 4000 else "upper right"
-        ax.legend(loc=loc, fontsize=7 if width_in >= 4.5 else 6, framealpha=0.85)
+        place_legend(ax, fontsize=7 if width_in >= 4.5 else 6)
     return notes
+
+
+_LEGEND_LOCS = ("upper right", "upper left", "lower right", "lower left", "center right", "center left",
+                "upper center", "lower center")
+
+
+def _legend_cover(ax: Any, leg: Any, renderer: Any) -> tuple[int, int]:
+    """(marked points, data vertices) of ``ax`` that the legend's box covers, in display space; a
+    marked point (a Line2D drawn as markers only with at most a few vertices: a named point) counts
+    with its marker's radius, and so does a text annotation the box overlaps."""
+    import numpy as np
+
+    bb = leg.get_window_extent(renderer)
+    points = vertices = 0
+    for line in ax.get_lines():
+        xy = np.asarray(line.get_xydata(), float)
+        xy = xy[np.all(np.isfinite(xy), axis=1)]
+        if xy.size == 0:
+            continue
+        d = ax.transData.transform(xy[:: max(1, len(xy) // 400)])
+        marker_only = line.get_linestyle() in ("None", "none", "", " ") and len(xy) <= 4
+        pad = (line.get_markersize() * ax.figure.dpi / 72.0) / 2 if marker_only else 0.0
+        inside = ((d[:, 0] >= bb.x0 - pad) & (d[:, 0] <= bb.x1 + pad) & (d[:, 1] >= bb.y0 - pad)
+                  & (d[:, 1] <= bb.y1 + pad))
+        if marker_only:
+            points += int(inside.sum())
+        else:
+            vertices += int(inside.sum())
+    for t in ax.texts:  # an annotation (a value printed next to its marker) is never covered either
+        if t.get_text().strip() and bb.overlaps(t.get_window_extent(renderer)):
+            points += 1
+    return points, vertices
+
+
+def place_legend(ax: Any, fontsize: float = 7) -> Any:
+    """A legend that never covers a marked point (issue 28): of the inside locations the one
+    covering no marked point and the fewest data vertices; when every location covers a marked
+    point, the y range is extended upwards to make room for it above the data. Returns the legend."""
+    leg = ax.legend(loc="upper right", fontsize=fontsize, framealpha=0.85)
+    try:
+        renderer = ax.figure._get_renderer()
+        ax.apply_aspect()
+        scores = []
+        for loc in _LEGEND_LOCS:
+            leg.set_loc(loc)
+            scores.append((_legend_cover(ax, leg, renderer), loc))
+        (best_points, _), best = min(scores)
+        leg.set_loc(best)
+        if best_points:  # every place covers a marked point: room above the data for it
+            leg.set_loc("upper right")
+            frac = leg.get_window_extent(renderer).height / max(ax.get_window_extent(renderer).height, 1.0)
+            lo, hi = ax.get_ylim()
+            grow = min(frac + 0.06, 0.7) / max(1.0 - frac - 0.06, 0.3)
+            if ax.get_yscale() == "log" and lo > 0 and hi > 0:
+                import math
+
+                ax.set_ylim(lo, 10 ** (math.log10(hi) + grow * (math.log10(hi) - math.log10(lo))))
+            else:
+                ax.set_ylim(lo, hi + grow * (hi - lo))
+            for loc in _LEGEND_LOCS[:2]:
+                leg.set_loc(loc)
+                if _legend_cover(ax, leg, renderer)[0] == 0:
+                    break
+    except Exception as exc:  # placement is cosmetic: never lose the plot over it
+        logger.debug("legend placement fell back to 'best': %s", exc)
+        leg.set_loc("best")
+    return leg
 
 
 def _wrap_title(title: str, width_in: float) -> str:
@@ -652,7 +740,17 @@ def _jinja_env() -> Any:
     return env
 
 
-def _html_context(cert: Certificate, st: IntegrityStatus) -> dict[str, Any]:
+def _html_context(cert: Certificate, st: IntegrityStatus, images: dict[str, _Plot] | None = None
+                  ) -> dict[str, Any]:
+    """The template's context. ``images``: the figures as :func:`render_pdf` drew them (one draw for
+    both documents); without them (the HTML alone) each figure is drawn here."""
+    short = cert.decision == "ERROR"  # an ERROR certificate's report is short: no figures
+    if images is not None:
+        plots = {k: v for k, v in images.items() if not k.startswith("chart:")}
+        charts = {k.removeprefix("chart:"): v for k, v in images.items() if k.startswith("chart:")}
+    else:
+        plots = _plots_png(cert) if cert.plots and not short else {}
+        charts = _charts_png(cert) if cert.robust is not None and not short else {}
     ctx: dict[str, Any] = {
         "cert": cert,
         "title": (f"{MODIFIED} — " if not st.valid else "") + f"Certificate: {cert.scene.name} — {cert.decision}",
@@ -660,6 +758,7 @@ def _html_context(cert: Certificate, st: IntegrityStatus) -> dict[str, Any]:
         "modified": not st.valid,
         "modified_text": MODIFIED,
         "modified_reason": st.reason(),
+        "bench": dict(zip(("label", "note", "kind"), bench_banner(cert), strict=True)),
         "integrity": st,
         "digest_text": _digest_text(st),
         "signature_text": st.signature_text(),
@@ -667,10 +766,11 @@ def _html_context(cert: Certificate, st: IntegrityStatus) -> dict[str, Any]:
         "toc": [(k, SECTION_TITLES[k]) for k in _present_sections(cert)],
         "sections": report_sections(cert),
         "summary": _kv_table(summary_rows(cert, st)),
+        "margin_note": margin_note(cert),
         "measurements": measurements_table(cert),
         "outcome_counts": _outcome_counts(cert),
-        "plots": _plots_png(cert) if cert.plots else {},
-        "charts": _charts_png(cert) if cert.robust is not None else {},
+        "plots": plots,
+        "charts": charts,
         "robust_status": None,
         "gauge": None,
         "show_truth": False,
@@ -707,12 +807,12 @@ def _outcome_counts(cert: Certificate) -> list[tuple[str, int]]:
 
 
 def render_html(cert: Certificate, out_path: str | os.PathLike[str], *,
-                integrity: IntegrityStatus | None = None) -> Path:
+                integrity: IntegrityStatus | None = None, images: dict[str, _Plot] | None = None) -> Path:
     """Write the certificate as one self-contained, printable HTML file; returns its path.
     ``integrity`` (default: the digest check of ``cert``) decides the MODIFIED marking and the
     signature status shown."""
     env = _jinja_env()
-    html = env.get_template("report.html.j2").render(**_html_context(cert, _status(cert, integrity)))
+    html = env.get_template("report.html.j2").render(**_html_context(cert, _status(cert, integrity), images))
     return _atomic_write(Path(out_path), html.encode("utf-8"))
 
 
@@ -744,7 +844,10 @@ class _PdfDoc:
         self.y = 0.0
         self.section = ""
         self.captions: dict[int, tuple[str, str | None]] = {}  # id(figure Series) -> (caption, definition link)
-        self.figure_section: dict[int, str] = {}  # id(figure Series) -> title of the section it belongs to
+        self.keys: dict[int, str] = {}  # id(figure Series) -> its plot key
+        #: key -> the figure as drawn on its PDF page, cropped to PNG for the HTML (one draw, two files);
+        #: None: not collected
+        self.images: dict[str, _Plot] | None = None
         self.current_section = ""
 
     @property
@@ -763,7 +866,8 @@ class _PdfDoc:
         c = self.cert
         bg, fg = self.style[1:]
         st = self.integrity
-        self._t(self.ML, self.H - 0.45, f"hil-certify certificate · scene {c.scene.name}", 8, color="#555555")
+        self._t(self.ML, self.H - 0.45, f"hil-certify certificate · scene {c.scene.name} · {bench_banner(c)[0]}", 8,
+                color="#555555")
         self._t(self.W - self.MR, self.H - 0.45, f" {c.decision} " if not self.modified else " MODIFIED ", 8,
                 weight="bold", color=fg, ha="right",
                 bbox={"boxstyle": "round,pad=0.25", "facecolor": bg, "edgecolor": "none"})
@@ -970,8 +1074,6 @@ class _PdfDoc:
         this page?"""
         h = min(_plot_height(s), self.H - self.MT - self.MB - 0.6)
         cap = self.caption_height(*self.captions.get(id(s), ("", None)))
-        if self.figure_section.get(id(s), self.current_section) != self.current_section:
-            cap += self._lh(7.5)  # its "(Figure of the section …)" prefix
         return self.fig is not None and 0.72 * h + cap <= self.y - self.MB - 0.25
 
     def caption(self, text: str, link: str | None) -> None:
@@ -996,23 +1098,59 @@ class _PdfDoc:
         if h <= 0:
             return
         self.ensure(h + self.caption_height(caption, link) + 0.1)
-        draw_chart(self.fig, cert, key, (self.ML, self.y - h, self.width, h))
+        rect = (self.ML, self.y - h, self.width, h)
+        before = self._artists()
+        draw_chart(self.fig, cert, key, rect)
+        self._keep_image(f"chart:{key}", caption, rect, before, [])
         self.y -= h
         self.caption(caption, link)
         self.space(0.1)
 
+    # one draw, two files: the figure drawn on the PDF page is also the HTML's image
+    def _artists(self) -> list[Any]:
+        f = self.fig
+        return [*f.axes, *f.texts, *f.artists, *f.patches, *f.lines, *f.images, *f.subfigs]
+
+    def _keep_image(self, key: str, title: str, rect: tuple[float, float, float, float], before: list[Any],
+                    notes: list[str]) -> None:
+        """Save what was just drawn in ``rect`` of the page as PNG (the page's other artists hidden
+        for the moment), so the HTML shows the very figure the PDF holds, drawn once."""
+        if self.images is None:
+            return
+        import warnings
+
+        from matplotlib.transforms import Bbox
+
+        hidden = [a for a in before if a.get_visible()]
+        for a in hidden:
+            a.set_visible(False)
+        buf = io.BytesIO()
+        try:
+            x, y, w, h = rect
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", category=UserWarning)
+                self.fig.savefig(buf, format="png", dpi=HTML_DPI, facecolor="white",
+                                 bbox_inches=Bbox.from_bounds(x - 0.05, y - 0.05, w + 0.1, h + 0.1))
+        finally:
+            for a in hidden:
+                a.set_visible(True)
+        self.images[key] = _Plot(key.removeprefix("chart:"), title, base64.b64encode(buf.getvalue()).decode("ascii"),
+                                 list(notes))
+
     def figure(self, s: Series, caption: str = "", link: str | None = None) -> None:
         """A plot in the flow, 6.8 in wide; its height follows its panels."""
-        home = self.figure_section.get(id(s))
-        if home and home != self.current_section:  # a figure that floated into the next section says whose it is
-            caption = f"(Figure of the section {home}.) {caption}"
         cap = self.caption_height(caption, link)
         h = min(_plot_height(s), self.H - self.MT - self.MB - 0.6 - cap)
         room = self.y - self.MB - 0.25 - cap
         if self.fig is not None and 0.72 * h <= room < h:
             h = room - 0.02  # shrink a little rather than leave most of a page empty
         self.ensure(h + 0.25 + cap)  # the caption stays with its figure
-        notes = draw_plot(self.fig, s, (self.ML, self.y - h, self.width, h))
+        rect = (self.ML, self.y - h, self.width, h)
+        before = self._artists()
+        notes = draw_plot(self.fig, s, rect)
+        key = self.keys.get(id(s))
+        if key is not None:
+            self._keep_image(key, s.title, rect, before, notes)
         self.y -= h
         self.caption(caption, link)
         for n in notes:
@@ -1070,11 +1208,9 @@ def summary_rows(cert: Certificate, st: IntegrityStatus) -> list[tuple[str, str,
             rows.append((f"current {d.parameter}", fmt(d.current) + (f" ({headroom(d)})" if headroom(d) else ""),
                          d.unit or "—", "design.current"))
     if d is not None and (d.nominal_headroom is not None or d.posterior_headroom is not None):
-        def signed(v: float | None) -> str:
-            return "—" if v is None else f"{v:+.4g}"
-
         rows.append((f"{d.parameter} headroom: nominal, posterior",
-                     f"{signed(d.nominal_headroom)}, {signed(d.posterior_headroom)}", "1", "design.posterior_headroom"))
+                     f"{fmt_signed(d.nominal_headroom)}, {fmt_signed(d.posterior_headroom)}", "1",
+                     "design.posterior_headroom"))
     w = cert.witness
     if w is not None:
         from hil.certify.units import termination_units
@@ -1103,7 +1239,7 @@ def summary_rows(cert: Certificate, st: IntegrityStatus) -> list[tuple[str, str,
 
 
 def _pdf_summary(doc: _PdfDoc, cert: Certificate) -> None:
-    """Page 1: everything a signer needs, and the signature block."""
+    """Page 1: everything a signer needs, and the signature block (one page)."""
     doc.new_page("title")
     bg, fg = doc.style[1:]
     doc.y -= 0.3
@@ -1113,40 +1249,59 @@ def _pdf_summary(doc: _PdfDoc, cert: Certificate) -> None:
     doc._t(doc.W - doc.MR - 0.15, doc.y + 0.1, f"  {cert.decision}  ", 24, weight="bold", color=fg, ha="right",
            va="center", bbox={"boxstyle": "round,pad=0.35", "facecolor": bg, "edgecolor": "none"})
     doc.y -= 0.16
+    _pdf_bench_banner(doc, cert)
     if cert.scene.description:
-        doc.para(cert.scene.description, 8, color="#444444")
+        doc.para(cert.scene.description, 7.5, color="#444444")
     doc.para(f"scene sha256 {cert.scene.sha256}" + (f" · source {cert.scene.source}" if cert.scene.source else "")
-             + (f" · units {cert.scene.units} (SI)" if cert.scene.units else ""), 7, color="#666666")
-    doc.para(f"created {cert.created_utc} (UTC) · schema {cert.schema_version} · "
-             + ", ".join(f"{k} {v}" for k, v in cert.software.items()), 7, color="#666666")
+             + (f" · units {cert.scene.units} (SI)" if cert.scene.units else "")
+             + f" · created {cert.created_utc} (UTC) · schema {cert.schema_version} · "
+             + ", ".join(f"{k} {v}" for k, v in cert.software.items()), 6.5, color="#666666")
     doc.subheading("Reasons", 10)
     doc.bullets(cert.reasons or ["(no reasons recorded)"], 8.5)
     doc.subheading("Summary", 10)
     from hil.report.sections import _kv
 
     t = _kv(summary_rows(cert, doc.integrity))
-    t.size = 8.5  # page 1 holds the summary and the signature block: one page a person can sign alone
+    t.size = 8.0  # page 1 holds the summary and the signature block: one page a person can sign alone
     doc.model_table(t)
+    if note := margin_note(cert):
+        doc.y += 0.06
+        doc.para(note, 7.5, color="#333333")
     st = doc.integrity
     doc.subheading("Review and signature", 10)
     doc.kv([("digest (sha256, hil-c14n/1)", _digest_text(st)), ("electronic signature", st.signature_text())],
-           size=7)
-    doc.para(f"I have reviewed this certificate for scene {cert.scene.name} (scene sha256 {cert.scene.sha256}; "
-             f"digest {st.recorded_digest or 'none'}), its evidence on the following pages, and I accept the "
-             "decision above.", 8)
+           size=6.5)
+    doc.para(f"I have reviewed this certificate for scene {cert.scene.name} (digest above), its evidence on the "
+             "following pages, and I accept the decision above.", 8)
     # two signature columns side by side
-    doc.ensure(1.35)
+    doc.ensure(1.15)
     col_w = (doc.width - 0.3) / 2
     top = doc.y
     for k, role in enumerate(("Reviewed by", "Approved by")):
         x0 = doc.ML + k * (col_w + 0.3)
-        y = top - 0.2
+        y = top - 0.15
         doc._t(x0, y, role, 9.5, weight="bold", color="#1d2733")
         for label in ("Name", "Date", "Signature"):
-            y -= 0.36
+            y -= 0.31
             doc._t(x0, y + 0.03, label, 8.5, color="#333333")
             doc._hrule(y, "#222222", 0.8, x0 + 0.8, x0 + col_w)
-    doc.y = top - 1.35
+    doc.y = top - 1.15
+
+
+def _pdf_bench_banner(doc: _PdfDoc, cert: Certificate) -> None:
+    """Page 1: where the evidence came from, in a coloured strip (label in bold, then its sentence)."""
+    label, note, kind = bench_banner(cert)
+    bg, fg = BENCH_STYLE[kind]
+    chars = max(20, int((doc.width - 0.2) * 72 / (doc.SANS_EM * 7.5)))
+    lines = textwrap.wrap(_one_line(note), chars) if note else []
+    h = 0.27 + doc._lh(7.5) * len(lines) + 0.07
+    doc._rect(doc.ML - 0.04, doc.y - h, doc.width + 0.08, h, bg)
+    doc._t(doc.ML + 0.06, doc.y - 0.2, label, 10.5, weight="bold", color=fg)
+    y = doc.y - 0.2
+    for line in lines:
+        y -= doc._lh(7.5)
+        doc._t(doc.ML + 0.06, y, line, 7.5, color=fg)
+    doc.y -= h + 0.1
 
 
 def _pdf_block_flow(doc: _PdfDoc, cert: Certificate) -> None:
@@ -1167,11 +1322,8 @@ def _pdf_block_flow(doc: _PdfDoc, cert: Certificate) -> None:
                   row_links=[definition_link(f"policy.{k}") for k in cert.policy])
     else:
         doc.para("(no policy recorded)", 9)
-    floating: list[Series] = []
     for sec in report_sections(cert):
-        floating = _pdf_section(doc, cert, sec, floating)
-    for f in floating:
-        doc.figure(f, *doc.captions.get(id(f), ("", None)))
+        _pdf_section(doc, cert, sec)
     st = doc.integrity
     # the integrity block is kept together: a last page never holds only its tail
     doc.ensure(0.55 + 0.75 + 0.16 * (len(cert.evidence) + 1) + 0.4)
@@ -1184,20 +1336,17 @@ def _pdf_block_flow(doc: _PdfDoc, cert: Certificate) -> None:
     doc.para(_evidence_note(st), 8, color="#444444" if st.valid else "#8e1616")
 
 
-def _pdf_section(doc: _PdfDoc, cert: Certificate, sec: Section, carried: list[Series] | None = None
-                 ) -> list[Series]:
-    """One section in the flow. A figure that does not fit on the current page floats: the
-    following tables and paragraphs come first (those of this section, then of the next one),
-    the figure as soon as it fits, and at the latest at the end of the next section, so no page is
-    left mostly empty. Returns this section's figures still floating."""
-    carried = list(carried or [])
+def _pdf_section(doc: _PdfDoc, cert: Certificate, sec: Section) -> None:
+    """One section in the flow, its figures under its own heading: a figure that does not fit on
+    the current page floats after the section's following tables and paragraphs, and is placed as
+    soon as it fits, at the latest at the section's end (on a new page if it must): a figure never
+    appears under another section's heading (issue 28)."""
     pending: list[Series] = []
 
     def place(force: bool = False) -> None:
-        for queue in (carried, pending):
-            while queue and (force or doc.fits(queue[0])):
-                f = queue.pop(0)
-                doc.figure(f, *doc.captions.get(id(f), ("", None)))
+        while pending and (force or doc.fits(pending[0])):
+            f = pending.pop(0)
+            doc.figure(f, *doc.captions.get(id(f), ("", None)))
 
     doc.heading(sec.title, 13)
     doc.current_section = sec.title
@@ -1205,19 +1354,15 @@ def _pdf_section(doc: _PdfDoc, cert: Certificate, sec: Section, carried: list[Se
         if b.kind == "figure" and b.plot in cert.plots:
             s = cert.plots[b.plot]
             doc.captions[id(s)] = (b.text, b.link)
-            doc.figure_section[id(s)] = sec.title
-            if carried or pending or not doc.fits(s):
+            doc.keys[id(s)] = b.plot
+            if pending or not doc.fits(s):
                 pending.append(s)
             else:
                 doc.figure(s, *doc.captions[id(s)])
             continue
         _pdf_block(doc, cert, b)
         place()
-    while carried:
-        f = carried.pop(0)
-        doc.figure(f, *doc.captions.get(id(f), ("", None)))
-    place()
-    return pending
+    place(force=True)
 
 
 def _pdf_block(doc: _PdfDoc, cert: Certificate, b: Any) -> None:
@@ -1319,7 +1464,7 @@ def draw_chart(fig: Any, cert: Certificate, key: str, rect: tuple[float, float, 
     ax.set_title(f"P(not stable) against the allowance: {status}", fontsize=10)
     ax.tick_params(labelsize=8)
     ax.grid(True, axis="x", which="major", alpha=0.35)
-    ax.legend(loc="lower right", fontsize=7, framealpha=0.9)
+    place_legend(ax, fontsize=7)
     if rel is None:
         return
     bx = fig.add_axes(((x0 + 0.2) / fw, (y0 + 0.45) / fh, (w - 0.35) / fw, (beta_h - 0.75) / fh))
@@ -1382,9 +1527,11 @@ def _outcome_text_colour(o: str) -> str:
 
 
 def render_pdf(cert: Certificate, out_path: str | os.PathLike[str], *,
-               integrity: IntegrityStatus | None = None) -> Path:
+               integrity: IntegrityStatus | None = None, images: dict[str, _Plot] | None = None) -> Path:
     """Write the certificate as a PDF for signing (matplotlib ``PdfPages`` only); returns its path.
-    ``integrity`` as for :func:`render_html` (a modified certificate is marked on every page)."""
+    ``integrity`` as for :func:`render_html` (a modified certificate is marked on every page).
+    ``images`` (a dict, filled here): each figure and chart as drawn on its page, cropped to PNG,
+    for :func:`render_html` (one draw serves both documents)."""
     import warnings
 
     import matplotlib
@@ -1406,6 +1553,7 @@ def render_pdf(cert: Certificate, out_path: str | os.PathLike[str], *,
         try:
             with PdfPages(tmp, metadata=meta) as pdf:
                 doc = _PdfDoc(pdf, cert, st)
+                doc.images = images
                 _pdf_summary(doc, cert)
                 _pdf_block_flow(doc, cert)
                 doc.flush()
@@ -1435,8 +1583,13 @@ def build_reports(cert: Certificate, out_dir: str | os.PathLike[str], *,
         cert = seal(cert)
     elif cert.integrity.digest != content_digest(cert):
         raise ReportError("the certificate was changed after its digest was computed; refusing to write it")
-    return {"json": write_json(cert, d / CERT_NAME), "html": render_html(cert, d / "report.html", integrity=integrity),
-            "pdf": render_pdf(cert, d / "report.pdf", integrity=integrity)}
+    if integrity is None:  # the evidence was hashed from this folder: the reports say it matches
+        integrity = check_certificate(cert, d)
+    json_path = write_json(cert, d / CERT_NAME)
+    images: dict[str, _Plot] = {}  # each figure drawn once, on its PDF page; the HTML shows that drawing
+    pdf = render_pdf(cert, d / "report.pdf", integrity=integrity, images=images)
+    return {"json": json_path, "html": render_html(cert, d / "report.html", integrity=integrity, images=images),
+            "pdf": pdf}
 
 
 def rebuild_reports(path: str | Path, out: str | Path | None = None, public_key: str | Path | None = None,
@@ -1446,20 +1599,26 @@ def rebuild_reports(path: str | Path, out: str | Path | None = None, public_key:
     or a folder holding it) into ``out`` (default: the certificate's folder). Returns the
     certificate, its integrity status and the two paths.
 
-    A certificate that does not match its digest (or has none), or whose signature fails with
-    ``public_key``, raises :class:`ReportError`; ``allow_modified`` renders it marked MODIFIED: NOT
-    A VALID CERTIFICATE on every page."""
+    A certificate that does not match its digest (or has none), whose evidence files (records,
+    scene copy, relative to the certificate's folder) no longer match their recorded SHA-256, or
+    whose signature fails with ``public_key``, raises :class:`ReportError`; ``allow_modified``
+    renders it marked MODIFIED: NOT A VALID CERTIFICATE on every page."""
     cert = load_certificate(path)
     key = None
     if public_key:
         from hil.certify.signing import load_public_key
 
         key = load_public_key(public_key)
-    st = check_certificate(cert, public_key=key)
+    # the evidence files are re-hashed too: a record swapped after certification is refused (or,
+    # with --allow-modified, marked on every page), as hil verify refuses it
+    st = check_certificate(cert, _resolve(path).parent, public_key=key)
+    if key is not None and st.signature == "absent":
+        st.signature, st.signature_detail = "invalid", "the certificate is not signed"
     if not st.valid and not allow_modified:
         raise ReportError(f"{_resolve(path)}: {st.reason()}; refusing to render it "
                           f"(--allow-modified renders it marked '{MODIFIED}')")
     folder = Path(out) if out else _resolve(path).parent
-    paths = {"html": render_html(cert, folder / "report.html", integrity=st),
-             "pdf": render_pdf(cert, folder / "report.pdf", integrity=st)}
+    images: dict[str, _Plot] = {}
+    pdf = render_pdf(cert, folder / "report.pdf", integrity=st, images=images)
+    paths = {"html": render_html(cert, folder / "report.html", integrity=st, images=images), "pdf": pdf}
     return cert, st, paths

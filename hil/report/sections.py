@@ -22,11 +22,30 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hil.certify.certificate import Certificate, Series
+from hil.certify.numbers import fmt, fmt_p, fmt_range, fmt_signed, fmt_w
 from hil.certify.units import parameter_unit, pretty_unit, termination_units
 
-__all__ = ["CHARTS", "DEFINITIONS", "DEFINITIONS_DOC", "Block", "Column", "Estimate", "Section", "Table",
-           "definition_link", "failure_estimates", "figure_caption", "log10_phi_minus", "plot_sections",
-           "report_sections"]
+__all__ = [
+    "CHARTS",
+    "DEFINITIONS",
+    "DEFINITIONS_DOC",
+    "Block",
+    "Column",
+    "Estimate",
+    "Section",
+    "Table",
+    "definition_link",
+    "failure_estimates",
+    "figure_caption",
+    "fmt",
+    "fmt_p",
+    "fmt_range",
+    "fmt_w",
+    "log10_phi_minus",
+    "margin_note",
+    "plot_sections",
+    "report_sections",
+]
 
 #: where the definitions live (relative to the repository root)
 DEFINITIONS_DOC = "docs/CERTIFICATION.md"
@@ -35,6 +54,7 @@ DEFINITIONS_DOC = "docs/CERTIFICATION.md"
 #: report links numbers to definitions: align the anchors here when the document's headings change.
 DEFINITIONS: dict[str, str] = {
     "decision": "decision",
+    "bench": "bench",
     "policy.required_probability": "policy",
     "policy.confidence": "policy",
     "policy.credible": "policy",
@@ -151,61 +171,6 @@ class Section:
 # formatting (shared with hil.report.render)
 
 
-def fmt(v: Any, digits: int = 4) -> str:
-    """A value as a short human-readable string (None -> an em dash, NaN/inf spelled out)."""
-    if v is None:
-        return "—"
-    if isinstance(v, bool):
-        return "yes" if v else "no"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "NaN"
-        if math.isinf(v):
-            return "∞" if v > 0 else "−∞"
-        if v == 0.0:
-            return "0"
-        return f"{v:.{digits}g}"
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(fmt(x, digits) for x in v) + "]"
-    if isinstance(v, dict):
-        s = "{" + ", ".join(f"{k}: {fmt(x, digits)}" for k, x in v.items()) + "}"
-        return s if len(s) <= 240 else s[:237] + "…"
-    return str(v)
-
-
-def fmt_p(v: float | None) -> str:
-    """A probability with enough digits that a value below 1 never prints as 1."""
-    if v is None or not isinstance(v, int | float) or not math.isfinite(v):
-        return fmt(v)
-    if v in (0.0, 1.0):
-        return f"{v:.0f}"
-    for d in range(4, 10):
-        s = f"{v:.{d}f}"
-        if float(s) not in (0.0, 1.0):
-            return s
-    return f"{v:.3g}"
-
-
-def fmt_w(w: Any) -> str:
-    """A frequency in rad/s (the unit is the column's) with Hz in parentheses; strings as given."""
-    if isinstance(w, int | float) and not isinstance(w, bool) and math.isfinite(w):
-        return f"{fmt(float(w))} ({fmt(float(w) / (2 * math.pi))} Hz)"
-    return fmt(w)
-
-
-def fmt_range(lo: Any, hi: Any) -> str:
-    """``lo … hi`` with enough digits that two different ends never print alike."""
-    if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in (lo, hi)):
-        return f"{fmt(lo)} … {fmt(hi)}"
-    for d in range(4, 12):
-        a, b = fmt(float(lo), d), fmt(float(hi), d)
-        if a != b or lo == hi:
-            return f"{a} … {b}"
-    return f"{fmt(lo)} … {fmt(hi)}"
-
-
 def is_number_text(s: str) -> bool:
     """True if a cell's text is (or starts with) a number: then its unit must be stated."""
     return bool(re.match(r"^\s*[\[(]?\s*[−\-+]?(\d|∞|NaN)", s))
@@ -269,6 +234,28 @@ def robust_status(cert: Certificate) -> tuple[str, str]:
         return "MARGINAL", (f"the estimate {fmt_p(r.p_stable)} clears the required {fmt_p(r.required)} "
                             f"but its lower {r.confidence:.0%} bound {fmt_p(r.lower)} does not")
     return "FAIL", f"P(stable) = {fmt_p(r.p_stable)} is below the required {fmt_p(r.required)}"
+
+
+def margin_note(cert: Certificate) -> str:
+    """Page 1's sentence on the margins: the decision uses their sign, never their size (docs/
+    CERTIFICATION.md#decision), what "nominal" is, and what a coefficient tolerance asks instead."""
+    n, r = cert.nominal, cert.robust
+    if n is None or n.margin is None:
+        return ""
+    parts = [f"nominal {fmt(n.margin)}"]
+    wc = None if r is None else r.worst_case_margin
+    if wc is not None and r is not None:
+        parts.append(f"worst case over the {r.credible:.0%} credible region {fmt(wc)}")
+    text = (f"Margins ({', '.join(parts)}): the decision uses only their sign, which is the exact verdict, never "
+            "their size.")
+    if n.margin >= 0:
+        text += (" A small positive margin is still an exact 'stable'; how far the device is from instability is "
+                 "what P(stable) and β measure.")
+    if wc is not None and wc == n.margin:
+        text += " The worst case over the credible region is the nominal point itself."
+    return text + (" Nominal: each parameter at its median (the posterior median of an identified parameter, the "
+                   "stated value of an uncertain one). A tolerance on the network's coefficients (hil stability "
+                   "--rtol R) asks another question: whether the verdict flips under a relative change R.")
 
 
 def headroom(d: Any) -> str:
@@ -339,9 +326,10 @@ def report_sections(cert: Certificate) -> list[Section]:
     if cert.nominal is not None:
         n = cert.nominal
         s = Section("nominal", "Nominal verdict")
-        s.blocks.append(Block("para", "The criterion on the nominal network (posterior-mean parameters and the "
-                                      f"scene's gains): {n.verdict}" + (" (weak: a condition holds only with "
-                                                                        "equality)" if n.weak else "") + "."))
+        weak = " (weak: a condition holds only with equality)" if n.weak else ""
+        s.blocks.append(Block("para", "The criterion on the nominal network (each parameter at its median: the "
+                                      "posterior median of an identified parameter, the stated value of an uncertain "
+                                      f"one; and the scene's gains): {n.verdict}{weak}."))
         s.blocks.append(Block("table", table=_kv([
             ("network", n.network, "—", "nominal.network"), ("criterion", n.criterion, "—", "nominal.criterion"),
             ("verdict", n.verdict + (" (weak)" if n.weak else ""), "—", "nominal.verdict"),
@@ -427,6 +415,17 @@ def report_sections(cert: Certificate) -> list[Section]:
                 ("required", fmt_p(d.required), "1", "robust.required")]
         if headroom(d):
             drows.append(("headroom", headroom(d), "—", "design.max_value"))
+        if d.nominal_limit is not None:
+            drows.append((f"nominal limit ({d.parameter}_max at the nominal plant)", fmt(d.nominal_limit), du,
+                          "design.nominal_limit"))
+            drows.append(("nominal headroom (nominal limit / current − 1)", fmt_signed(d.nominal_headroom), "1",
+                          "design.nominal_headroom"))
+        if d.posterior_limit is not None:
+            kind = {"at_least": "≥ ", "at_most": "≤ "}.get(str(d.posterior_limit_kind), "")
+            drows.append(("posterior limit (the lower bound crosses the requirement)",
+                          kind + fmt(d.posterior_limit), du, "design.posterior_limit"))
+            drows.append(("posterior headroom (posterior limit / current − 1)", fmt_signed(d.posterior_headroom),
+                          "1", "design.posterior_headroom"))
         s.blocks.append(Block("table", table=_kv(drows)))
         if d.note:
             s.blocks.append(Block("para", d.note))
@@ -460,6 +459,10 @@ def report_sections(cert: Certificate) -> list[Section]:
         s = Section("plots", "Plots")
         figures(s)
         out.append(s)
+    if cert.decision == "ERROR":  # evidence missing or broken: the report is short, tables and errors only
+        for sec in out:
+            sec.blocks = [b for b in sec.blocks if b.kind not in ("figure", "chart", "gauge")]
+        out = [sec for sec in out if sec.key != "plots"]
     return out
 
 

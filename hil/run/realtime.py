@@ -29,7 +29,7 @@ Pieces (each usable on its own; :class:`hil.run.runner.Runner` uses them in real
 * :func:`hil.certify.lateness.lateness_measurements` -- the certificate rows (p50/p99/max lateness, overruns, sample
   timing) of the experiments' outcomes, with limits from the scene.
 
-Definitions (also in the README, "Realtime at the bench"): percentiles are of the per-tick lateness
+Definitions (also in docs/guide/realtime.md): percentiles are of the per-tick lateness
 of one experiment (``numpy.percentile``, linear interpolation, on the recorded ``loop.late``
 channel; :class:`hil.run.runner.LoopStats` keeps a ±2.4 % histogram estimate in bounded memory);
 overruns count ticks with lateness > one period; the overrun fraction is overruns / ticks.

@@ -51,7 +51,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -916,3 +916,16 @@ class _RecordChannels(Mapping[str, Any]):
 
     def __len__(self) -> int:
         return 1 + len(self._f["channels"])
+
+
+def bench_never_opened(outcomes: Sequence[Any], runner: Any) -> str | None:
+    """The reason when the run ended while its bench was still opening (a device absent or
+    unreachable) and no experiment wrote a record: then nothing ran, and ``hil run`` / ``hil
+    certify`` stop with :class:`hil.errors.BenchUnavailable`. None otherwise (a signal while opening
+    is the person's stop, not a missing device)."""
+    reason = str(getattr(runner, "stop_reason", "") or "")
+    if not reason.endswith("(while the bench was opening)") or reason.startswith("signal"):
+        return None
+    if any(getattr(o, "record", None) is not None for o in outcomes):
+        return None
+    return reason.removesuffix(" (while the bench was opening)").removeprefix("watchdog: ")

@@ -107,7 +107,7 @@ class NetworkFile(BaseModel):
 def load_network(path: str | Path) -> tuple[TransferMatrix, str]:
     """Load a network file; returns the transfer matrix and the requested criterion."""
     p = Path(path)
-    text = read_text_file(p, "network file", SceneError)
+    text = read_text_file(p, "network file", SceneError, max_bytes=4 * 1024 * 1024)  # a network is a few kB
     if p.suffix.lower() == ".json":
         try:
             data = json.loads(text, parse_constant=lambda c: float(c))

@@ -1188,6 +1188,24 @@ def _check_network_builds(sc: Scene, cert: CertificationCfg) -> None:
 # ---------------------------------------------------------------------------------------------
 
 
+#: the most ticks one experiment may last (duration × rate_hz): 5·10⁷ is 6.9 h at 2 kHz; its signal
+#: and its record's channels are arrays of that length (400 MB per float64 channel), so a longer one
+#: is refused at load time, naming the field and the size, instead of failing to allocate later
+MAX_EXPERIMENT_TICKS = 50_000_000
+
+
+def _check_length(i: int, cfg: Any, rate_hz: float) -> None:
+    """Refuse an experiment longer than :data:`MAX_EXPERIMENT_TICKS` (one line naming the field)."""
+    duration = float(getattr(cfg, "duration", 0.0) or 0.0) + float(getattr(cfg, "settle", 0.0) or 0.0)
+    ticks = duration * float(rate_hz)
+    if ticks > MAX_EXPERIMENT_TICKS:
+        gib = ticks * 8 / 2**30
+        raise FieldError(f"experiments[{i}].duration", f"{duration:g} s at {rate_hz:g} Hz is {ticks:.3g} ticks, "
+                         f"{gib:.3g} GiB per float64 channel; an experiment may last at most "
+                         f"{MAX_EXPERIMENT_TICKS:.3g} ticks ({MAX_EXPERIMENT_TICKS / rate_hz / 3600:.3g} h at "
+                         f"{rate_hz:g} Hz)")
+
+
 def _check_blocks(sc: Scene) -> None:
     """Build every experiment and the controller as the runner will (``make_experiment`` +
     ``check(scene)``, ``make_controller``), so their checks (band against the rate, peak effort
@@ -1196,7 +1214,13 @@ def _check_blocks(sc: Scene) -> None:
     from hil.controllers import make_controller
     from hil.experiments import make_experiment
 
-    for cfg in sc.experiment_models():
+    tick_ms = 1000.0 / sc.rate_hz
+    if sc.safety.watchdog_ms < tick_ms:  # a sample is at least one tick old when read: never fresh enough
+        raise FieldError("safety.watchdog_ms", f"{sc.safety.watchdog_ms:g} ms is shorter than one tick "
+                         f"({tick_ms:.4g} ms at {sc.rate_hz:g} Hz): every sample would be stale; give at least "
+                         f"{tick_ms:.4g} ms")
+    for i, cfg in enumerate(sc.experiment_models()):
+        _check_length(i, cfg, sc.rate_hz)  # before anything is built: an experiment's signals are arrays
         make_experiment(cfg, rate_hz=sc.rate_hz).check(sc)
     make_controller(sc.controller, units=sc.units, scene=sc)
 
@@ -1269,6 +1293,11 @@ def scene_from_dict(data: Any, *, label: str = "<scene>", source_text: str = "",
     return sc
 
 
+#: the largest scene file read: the built-in scenes are 2-5 kB; a megabyte of YAML (a pasted data
+#: set under a mistyped key) would only be parsed to be refused
+SCENE_MAX_BYTES = 1024 * 1024
+
+
 def load_scene(src: str | Path) -> Scene:
     """Load and validate a scene from a YAML path or a built-in scene name.
 
@@ -1276,10 +1305,13 @@ def load_scene(src: str | Path) -> Scene:
     key, at any depth, is one).
     """
     path, label = _resolve(src)
+    from hil.inputs import read_text_file
+
+    # size-limited (a scene is a few kB: SCENE_MAX_BYTES), NUL bytes and non-UTF-8 refused in one line
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SceneError(f"{label}: cannot read: {exc}") from None
+        text = read_text_file(path, "scene", SceneError, max_bytes=SCENE_MAX_BYTES)
+    except SceneError as exc:
+        raise SceneError(f"{label}: cannot read: {str(exc).removeprefix(f'{path}: ')}") from None
     data = parse_yaml(text, label)
     is_builtin = path.parent.resolve() == _builtin_dir().resolve()
     sc = scene_from_dict(data, label=label, source_text=text,

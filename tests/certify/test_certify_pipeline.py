@@ -72,7 +72,7 @@ def test_sdea_inside_passive_region_is_GO(sdea_run, tmp_path):
     w = sdea_passivity_batch(nominal, band=True)["worst_omega"][0]
     assert 0 < lo < w < hi and hi / lo > 1.2
     pts = c.plots["critical_band"].points  # plotted, with the band's edges and the worst frequency
-    assert lo < pts["worst (posterior mean)"][0] < hi
+    assert lo < pts["worst (nominal)"][0] < hi
     assert pts["critical band, low edge (over the draws)"][0] == lo
 
 

@@ -226,6 +226,26 @@ CASES: list[tuple[str, dict[str, str | bytes], list[str], list[str]]] = [
     ("mock-missing-scene", {}, ["mock", "serve", "{d}/nope.yaml"], ["nope.yaml"]),
     ("mock-no-serve", {}, ["mock", "start"], ["serve"]),
     ("mock-debug-before", {}, ["--debug", "mock", "serve", "--duration", "-1"], ["--duration"]),
+    # ---- issue 28: inputs that used to fail badly (MemoryError, a hang, a misleading stop, an empty folder)
+    ("scene-duration-1e9", {"s.yaml": "SCENE:duration: 16.0=duration: 1.0e9"}, ["run", "{d}/s.yaml"],
+     ["s.yaml", "experiments[0].duration", "1e+09 s", "GiB"]),
+    ("certify-duration-1e9", {"s.yaml": "SCENE:duration: 16.0=duration: 1.0e9"}, ["certify", "{d}/s.yaml"],
+     ["s.yaml", "experiments[0].duration", "ticks"]),
+    ("stability-dev-zero", {}, ["stability", "/dev/zero"], ["/dev/zero", "larger than"]),
+    ("run-dev-zero", {}, ["run", "/dev/zero"], ["zero: cannot read", "larger than"]),
+    ("certify-dev-zero", {}, ["certify", "/dev/zero"], ["zero: cannot read", "larger than"]),
+    ("scene-watchdog-below-a-tick", {"s.yaml": "SCENE:watchdog_ms: 50=watchdog_ms: 0.01"}, ["run", "{d}/s.yaml"],
+     ["s.yaml", "safety.watchdog_ms", "one tick"]),
+    ("run-no-experiments", {"s.yaml": "SCENEPOP:experiments,certification"}, ["run", "{d}/s.yaml"],
+     ["s.yaml", "no experiments"]),
+    ("certify-no-certification", {"s.yaml": "SCENEPOP:certification"}, ["certify", "{d}/s.yaml"],
+     ["s.yaml", "no 'certification' section"]),
+    ("scene-50mb-list-under-unknown-key", {"s.yaml": "BIG:name: x\njunk:\n"}, ["run", "{d}/s.yaml"],
+     ["s.yaml", "larger than 1 MiB"]),
+    ("run-real-devices-absent", {"s.yaml": "SCENEPOP:simulation,certification;REAL"}, ["run", "{d}/s.yaml"],
+     ["s.yaml", "could not be opened", "no experiment ran"]),
+    ("certify-real-devices-absent", {"s.yaml": "SCENEPOP:simulation;REAL"}, ["certify", "{d}/s.yaml", "--json"],
+     ["could not be opened", "no experiment ran"]),
     # ---- top level
     ("unknown-command", {}, ["certfy"], ["certfy"]),
     ("debug-unknown-command", {}, ["--debug", "bogus"], ["bogus"]),
@@ -243,6 +263,25 @@ def _write(d: Path, files: dict[str, str | bytes]) -> None:
             text = (Path(hil.scene.spec.__file__).parent / "builtin" / "sdea_bench.yaml").read_text()
             assert old in text
             p.write_text(text.replace(old, new, 1))
+        elif isinstance(content, str) and content.startswith("SCENEPOP:"):  # sdea_bench without these sections
+            import yaml
+
+            from hil.scene.spec import load_scene
+
+            keys, _, real = content[9:].partition(";")
+            d = yaml.safe_load(load_scene("sdea_bench").source_text)
+            for k in keys.split(","):
+                d.pop(k, None)
+            if real:  # real devices: no simulated twins, a CAN interface this machine does not have
+                for dev in d["devices"]:
+                    dev.pop("body", None)
+                    dev.pop("sim", None)
+                d["devices"][0]["params"].update(interface="socketcan", channel="hil_absent0")
+            p.write_text(yaml.safe_dump(d, sort_keys=False), encoding="utf-8")
+        elif isinstance(content, str) and content.startswith("BIG:"):  # a YAML list of 50 MB
+            with open(p, "w", encoding="utf-8") as f:
+                f.write(content[4:].replace("\\n", "\n"))
+                f.write("  - 1.2345\n" * 5_000_000)
         elif isinstance(content, str) and content.startswith("MAT:"):
             from scipy.io import savemat
 
@@ -357,3 +396,65 @@ def test_design_api_refuses_bad_inputs() -> None:
             optimize_coupler("passivity", alpha)
     with pytest.raises(ModelError, match="b22 bounds"):
         optimize_coupler("passivity", 1.0, b22_bounds=(0.5, 0.1))
+
+
+def _record(path: Path, n: int = 4000, closed: bool = True) -> Path:
+    """A small run record: a periodic input and its response, 1 kHz."""
+    from hil.record.hdf5 import ChannelSpec, RecordWriter
+
+    t = np.arange(n) / 1000.0
+    u = np.sin(2 * np.pi * 5 * t)
+    specs = {"motor.effort_cmd": ChannelSpec((), "N", ""), "motor.velocity": ChannelSpec((), "m/s", "")}
+    w = RecordWriter(path, scene_text="", scene_sha256="", meta={}, rate_hz=1000.0, channels=specs)
+    w.append_block(t, {"motor.effort_cmd": u, "motor.velocity": 0.1 * u})
+    if closed:
+        w.close(stop_reason="completed", status="ok")
+    return path
+
+
+@pytest.mark.parametrize("argv", [["replay", "{r}"],
+                                  ["identify", "{r}", "--model", "mbk", "--input", "motor.effort_cmd", "--output",
+                                   "velocity_0=motor.velocity", "--period", "1"]])
+def test_a_record_with_a_channel_cut_short_is_refused(tmp_path, capsys, argv) -> None:
+    """A closed record whose one channel holds half the samples (edited, or damaged) is refused in one
+    line naming the channel; ``hil replay`` and ``hil identify`` accepted it, truncating every
+    channel to the shortest."""
+    import h5py
+
+    rec = _record(tmp_path / "r.h5")
+    with h5py.File(rec, "a") as f:
+        f["channels"]["motor.velocity"].resize(2000, axis=0)
+    line = assert_one_line_error([a.replace("{r}", str(rec)) for a in argv], capsys,
+                                 ["r.h5", "channel motor.velocity has 2000 samples but the time column 4000"])
+    assert "damaged or altered" in line
+
+
+def test_an_intact_record_is_read_whole(tmp_path, capsys) -> None:
+    from hil.record.hdf5 import RunRecord
+
+    rec = _record(tmp_path / "r.h5")
+    assert RunRecord.open(rec).t.size == 4000
+    code, out, _ = run_cli(["replay", str(rec)], capsys)
+    assert code == 0 and "4000" in out
+
+
+def test_a_csv_timed_in_milliseconds_warns(tmp_path, capsys, caplog) -> None:
+    """Time in ms read as seconds gives a 1 Hz record: imported (the data may be right), with a warning
+    naming the rate and the fix."""
+    import logging
+
+    csv = tmp_path / "ms.csv"
+    csv.write_text("time,force,vel\n" + "\n".join(f"{k},{np.sin(k / 10):.6f},{np.cos(k / 10):.6f}" for k in range(200)))
+    with caplog.at_level(logging.WARNING, logger="hil.record.importers"):
+        code, _, _ = run_cli(["import", str(csv), "--map", "motor.effort_cmd=force", "--map", "motor.velocity=vel"],
+                             capsys)
+    assert code == 0
+    msgs = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert any("sample rate of 1 Hz, implausible" in m and "--unit t=ms" in m for m in msgs), msgs
+    caplog.clear()
+    ok = tmp_path / "s.csv"
+    ok.write_text("time,force,vel\n" + "\n".join(f"{k / 1000},{k},{k}" for k in range(200)))
+    with caplog.at_level(logging.WARNING, logger="hil.record.importers"):
+        assert run_cli(["import", str(ok), "--map", "motor.effort_cmd=force", "--map", "motor.velocity=vel"],
+                       capsys)[0] == 0
+    assert not [r for r in caplog.records if "implausible" in r.getMessage()]

@@ -138,7 +138,7 @@ def two_port_nogo() -> Certificate:
     i_min = int(np.argmin(e))
     return Certificate.model_validate(_base(
         "NO-GO", "bilateral_2dof_B",
-        reasons=["the nominal (posterior-mean) network is potentially unstable",
+        reasons=["at its nominal parameters (posterior medians) the network fails the exact stability criterion",
                  "energy injection: E_s(t) went below its noise bound at the operator port"],
         measurements=[
             {"name": "nominal_margin", "value": -0.21, "lower": 0.0, "outcome": "FAIL"},

@@ -15,7 +15,7 @@ from hil.certify import pipeline as pl
 from hil.certify.certificate import Certificate, Series
 from hil.certify.figures import decisive_condition, witness_response
 from hil.certify.units import parameter_unit, termination_units
-from hil.report.sections import DEFINITIONS, fmt_range, missing_units, report_sections
+from hil.report.sections import DEFINITIONS, fmt, fmt_range, missing_units, report_sections
 from hil.scene.spec import builtin_scenes, load_scene
 from hil.stability.witness import find_witness, termination_family
 
@@ -92,6 +92,38 @@ def test_energy_columns_and_termination_parameters_carry_units():
 # the decisive condition
 
 
+def _curve(s: Series) -> tuple[np.ndarray, np.ndarray]:
+    (curve,) = s.lines.values()
+    return np.array(s.x), np.array([np.nan if v is None else v for v in curve])
+
+
+def _assert_curve_is_the_margin_function(s: Series, c) -> None:
+    """One source (issue 28): the plotted curve is the condition's own p/m_r, whose minimum over ω
+    is the margin the table prints; the marked point is the row's (worst frequency, margin) and the
+    legend prints them with the table's formatter."""
+    x, y = _curve(s)
+    scale = max(1.0, abs(c.margin))
+    # the margin is the minimum of the function: no plotted value lies below it ...
+    assert np.nanmin(y) >= c.margin - 1e-12 * scale, (np.nanmin(y), c.margin)
+    # ... and the function reaches it where the table says
+    if c.worst_frequency is None:  # constant in ω: the curve is flat at the margin, no point
+        assert c.evidence.get("ratio_constant")
+        assert np.nanmax(np.abs(y - c.margin)) <= 1e-9 * scale and not s.points
+        (label,) = s.lines
+        assert f"margin {fmt(c.margin)}, the same at every ω" in label
+        return
+    ((name, (px, py)),) = s.points.items()
+    assert py == c.margin and f"= {fmt(c.margin)} at ω = " in name
+    if math.isfinite(c.worst_frequency) and c.worst_frequency > 0:
+        assert px == c.worst_frequency and f"at ω = {fmt(c.worst_frequency)} rad/s" in name
+        k = int(np.argmin(np.abs(x - px)))
+        assert y[k] == pytest.approx(c.margin, rel=1e-9, abs=1e-15)
+    else:  # the limit ω → 0 (or ∞), drawn at that edge of the axis, where the curve tends to it
+        edge = 0 if c.worst_frequency == 0 else -1
+        assert px == x[edge] and ("at ω = 0 rad/s" if edge == 0 else "at ω = inf rad/s") in name
+        assert y[edge] == pytest.approx(c.margin, rel=1e-3)
+
+
 def test_nogo_plots_its_decisive_condition_below_zero(bilateral_b):
     _, tm, r = bilateral_b
     plots: dict[str, Series] = {}
@@ -99,31 +131,27 @@ def test_nogo_plots_its_decisive_condition_below_zero(bilateral_b):
     s = plots["decided"]
     failed_freq = [c for c in r.conditions if c.name.startswith("E") and c.status == "violated"]
     worst = min(failed_freq, key=lambda c: c.margin)
-    (label, curve), = s.lines.items()
+    (label,) = s.lines
     assert label.startswith(f"{worst.name}:")
-    y = np.array([np.nan if v is None else v for v in curve])
+    _, y = _curve(s)
     assert np.nanmin(y) < 0 and s.shade_negative
-    # the curve is the criterion's own normalized function: its grid minimum matches the exact
-    # minimization within the grid's resolution (800 log-spaced points: ~0.3 % relative here)
-    assert np.nanmin(y) == pytest.approx(worst.margin, rel=0.02)
-    # the marked point is the plotted curve's minimum: at the criterion's worst frequency when that
-    # lies within a factor 1.5 of it, else (a flat minimum of the criterion's function, whose
-    # structural zeros are factored out) at the curve's own minimum, the criterion's frequency a line
-    ((name, (px, py)),) = s.points.items()
-    x = np.array(s.x)
-    k = int(np.nanargmin(y))
-    if worst.worst_frequency is None:  # p/m_r constant in ω: no worst frequency, the curve's minimum marked
-        assert worst.evidence.get("ratio_constant") and name.startswith("minimum of the curve")
-        assert (px, py) == (pytest.approx(x[k]), pytest.approx(y[k])) and not s.vlines
-    elif abs(math.log(worst.worst_frequency / x[k])) <= math.log(1.5):
-        assert px == pytest.approx(worst.worst_frequency) and py == pytest.approx(worst.margin)
-    else:
-        assert (px, py) == (pytest.approx(x[k]), pytest.approx(y[k])) and name.startswith("minimum of the curve")
-        assert list(s.vlines.values()) == [pytest.approx(worst.worst_frequency)]
+    _assert_curve_is_the_margin_function(s, worst)
     # the decision's own failed condition (an imaginary-axis residue) is shown as its residue margin
     dec = decisive_condition(r)
     assert dec.name == r.failed_condition and s.bars[dec.name] == pytest.approx(dec.margin) and dec.margin < 0
     assert dec.name in s.title and worst.name in s.title
+
+
+def test_sdea_plot_marks_its_margin_at_omega_zero_as_the_table_prints_it():
+    """The default scene's decisive condition reaches its margin as ω → 0 (5.99e-08, a cancelling
+    lowest-order coefficient): the plot marks that value at the left edge, never a grid minimum of
+    another function (it showed 6.62e-16 at 0.0175 rad/s against the table's 5.994e-08 at 0)."""
+    _, tm, r = _nominal("sdea_bench")
+    plots: dict[str, Series] = {}
+    pl._decided_plot(plots, tm, r)
+    dec = decisive_condition(r)
+    assert dec.worst_frequency == 0.0 and 0 < dec.margin < 1e-6
+    _assert_curve_is_the_margin_function(plots["decided"], dec)
 
 
 def test_go_plots_the_condition_with_the_smallest_margin():

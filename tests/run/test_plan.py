@@ -201,6 +201,7 @@ def test_cia402_velocity_quantization_is_in_the_plan(tmp_path) -> None:
 
     d = yaml.safe_load(load_scene("cia402_bench").source_text)
     d["experiments"] = [dict(d["experiments"][0], duration=0.5, periods=1)]
+    d["simulation"]["sensor_noise"]["velocity_std"] = 0.0  # the quantization alone (the built-in adds noise)
     sc = scene_from_dict(d, label="cia402-short", source_text=yaml.safe_dump(d, sort_keys=False))
     (step,) = _velocity_steps(sc, "motor")
     assert step == pytest.approx(2 * np.pi / 131072, rel=1e-12)

@@ -2,8 +2,8 @@
 reaches the implementation (issue 13: one schema per concept).
 
 Where the options are documented: the schemas and implementations of :mod:`hil.experiments` and
-:mod:`hil.controllers` (``hil.scene.spec`` points there: "see ``hil.scene.spec`` for every field", README's
-scene section), docs/RUNNER_SPEC.md's scene example and README's minimal scene. The tests below
+:mod:`hil.controllers` (``hil.scene.spec`` points there: "see ``hil.scene.spec`` for every field", the
+user guide's scene section), docs/RUNNER_SPEC.md's scene example and the guide's minimal scene. The tests below
 
 * load one scene per option (a built-in scene with one experiment or controller entry replaced by
   YAML text using the option) and check that the built experiment / controller carries the value
@@ -389,8 +389,8 @@ def test_runner_spec_documents_only_existing_controller_options() -> None:
         assert keys <= _schema_fields(CONTROLLER_TYPES[name].schema) | {"type"}, (name, keys)
 
 
-def test_readme_minimal_scene_loads(tmp_path: Path) -> None:
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
+def test_guide_minimal_scene_loads(tmp_path: Path) -> None:
+    text = (ROOT / "docs" / "guide" / "bench-runs.md").read_text(encoding="utf-8")
     i = text.index("A minimal scene")
     block = text[text.index("```yaml", i) + len("```yaml"):]
     p = tmp_path / "minimal.yaml"
