@@ -77,10 +77,31 @@ def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+def platform_fingerprint() -> dict[str, Any]:
+    """What the figures' numbers depend on besides the code: numpy and scipy versions, the CPU
+    architecture, the C library and the SIMD targets numpy dispatches to. Elsewhere, last-bit
+    differences in BLAS and libm change emcee's accept/reject steps, so the posterior draws (and the
+    numbers derived from them, e.g. β) move by their Monte Carlo error."""
+    import platform
+
+    import numpy as np
+    import scipy
+
+    try:
+        simd = np.__config__.show(mode="dicts")["SIMD Extensions"]["found"]  # type: ignore[call-arg, index]
+    except Exception:
+        from numpy._core._multiarray_umath import __cpu_features__  # type: ignore[import-not-found]
+
+        simd = sorted(k for k, v in __cpu_features__.items() if v)
+    return {"numpy": np.__version__, "scipy": scipy.__version__, "machine": platform.machine(),
+            "libc": " ".join(platform.libc_ver()), "numpy_simd": list(simd)}
+
+
 def make(img: Path = IMG) -> dict[str, Any]:
     """Write the images into ``img`` and return the record (also written as ``figures.json``)."""
     img.mkdir(parents=True, exist_ok=True)
-    record: dict[str, Any] = {"generated_by": "python docs/make_figures.py", "images": {}}
+    record: dict[str, Any] = {"generated_by": "python docs/make_figures.py", "platform": platform_fingerprint(),
+                              "images": {}}
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for name, scene in CERTIFICATES.items():
