@@ -35,6 +35,16 @@ def _get_logger_calls(path: Path) -> list[tuple[str | None, str | None, int]]:
     return out
 
 
+def _configures_another_logger(arg: str | None) -> bool:
+    """The root logger (no argument) or a third-party library's logger named by a literal (e.g.
+    ``'distributed.client'`` to quiet it): configured, never logged to, so not a module logger."""
+    if arg is None:
+        return True
+    if not (arg[:1] in "'\"" and arg[-1:] == arg[:1]):
+        return False
+    return arg[1:-1].split(".")[0] not in {"hil", *FOLDERS}
+
+
 def _offenders() -> dict[str, list[str]]:
     bad: dict[str, list[str]] = {}
     for folder in FOLDERS:
@@ -43,6 +53,8 @@ def _offenders() -> dict[str, list[str]]:
             for name, arg, line in _get_logger_calls(p):
                 if name is None and rel == "hil/cli/main.py" and arg == "'hil'":
                     continue  # hil --debug sets the level of the package's parent logger (not a module logger)
+                if _configures_another_logger(arg):
+                    continue
                 if (name, arg) != ("logger", "__name__"):
                     bad.setdefault(rel, []).append(f"line {line}: {name} = logging.getLogger({arg})")
     return bad
@@ -53,6 +65,12 @@ def test_reader_sees_the_binding(tmp_path: Path) -> None:
     p.write_text("import logging\nlog = logging.getLogger(__name__)\nlogger = logging.getLogger('x')\n"
                  "def f():\n    return logging.getLogger(__name__)\n", encoding="utf-8")
     assert _get_logger_calls(p) == [("log", "__name__", 2), ("logger", "'x'", 3), (None, "__name__", 5)]
+
+
+def test_only_other_libraries_and_the_root_are_configured_by_name() -> None:
+    assert _configures_another_logger(None) and _configures_another_logger("'distributed.client'")
+    assert not _configures_another_logger("'hil.run'") and not _configures_another_logger("'identify'")
+    assert not _configures_another_logger("__name__") and not _configures_another_logger("name")
 
 
 def test_module_loggers_follow_the_convention() -> None:

@@ -172,9 +172,9 @@ def test_friction_rows_and_the_network_sees_only_B() -> None:
 
 
 def test_linear_friction_screen_flags_dry_friction_only(tmp_path: Path) -> None:
-    # records of the EMPS-sized axis with and without Coulomb friction (tests/friction_synth.py): the
+    # records of the EMPS-sized axis with and without Coulomb friction (tests/axis_friction_synth.py): the
     # score test for the omitted sgn(v)/constant regressors flags the first only
-    from friction_synth import AxisTruth, axis_record, write_record
+    from axis_friction_synth import AxisTruth, axis_record, write_record
 
     res = SimpleNamespace(model=SimpleNamespace(name="mbk"), names=["LM_00", "LB_00", "LK_00"])
     linear, with_friction = SimpleNamespace(friction=[]), SimpleNamespace(friction=["coulomb"])

@@ -94,8 +94,8 @@ def test_overwrite_replaces_the_folder_as_a_whole(old_folder, scenes, tmp_path, 
     assert sorted(p.name for p in d.iterdir()) == ["certificate.json", "records", "report.html", "report.pdf",
                                                    "scene.yaml"]
     assert not [p for p in tmp_path.iterdir() if ".incomplete-" in p.name or ".replaced-" in p.name]
-    # the record paths the certificate names are in the final folder, not the staging one
-    assert f'"record": "{d}/records/00_energy_injection.h5"' in text
+    # the record paths the certificate names are relative to its folder (issue 28), never the staging one's
+    assert '"record": "records/00_energy_injection.h5"' in text and ".incomplete-" not in text
 
 
 def test_a_link_planted_in_the_folder_is_never_followed(old_folder, scenes, tmp_path, capsys):

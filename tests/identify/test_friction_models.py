@@ -293,9 +293,9 @@ def test_twin_record_with_excitation_to_10_hz_is_not_biased() -> None:
     import importlib.util
     import sys
 
-    # tests/friction_synth.py (h25b's twin records; its module name is taken by this folder's simulator)
+    # tests/axis_friction_synth.py (h25b's twin records)
     spec = importlib.util.spec_from_file_location("twin_friction_synth",
-                                                  Path(__file__).resolve().parents[1] / "friction_synth.py")
+                                                  Path(__file__).resolve().parents[1] / "axis_friction_synth.py")
     assert spec is not None and spec.loader is not None
     twin = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = twin  # its dataclasses look their module up

@@ -293,9 +293,9 @@ def test_agrees_with_the_identification_models_independent_simulator() -> None:
 
 
 def test_friction_synth_records_carry_their_truth(tmp_path) -> None:
-    # tests/friction_synth.py (the calibration datasets): the encoder grid, the difference velocity,
+    # tests/axis_friction_synth.py (the calibration datasets): the encoder grid, the difference velocity,
     # the exact friction work (= F_c times the true path length) and a readable run record
-    from friction_synth import AxisTruth, axis_record, write_record
+    from axis_friction_synth import AxisTruth, axis_record, write_record
 
     from hil.record.hdf5 import RunRecord
 

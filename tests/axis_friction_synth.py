@@ -18,7 +18,7 @@ N.s/m, F_c 20 N; 1 kHz) whose friction the inverse-dynamics estimator recovers (
 
 Usage (20 seeds)::
 
-    from friction_synth import AxisTruth, axis_record   # pytest puts tests/ on sys.path (as for sdea_synth)
+    from axis_friction_synth import AxisTruth, axis_record   # pytest puts tests/ on sys.path (as for sdea_synth)
     for seed in range(20):
         rec = axis_record(seed, AxisTruth(F_s=5.0, v_s=0.005), encoder_step=5e-8)
         res = identify_friction_arrays(rec.t, rec.u, rec.q, ("coulomb", "stribeck", "offset"))
@@ -131,7 +131,7 @@ def write_record(rec: AxisRecord, path: str | Path, target: str = "axis") -> Pat
     specs = {f"{target}.effort_cmd": ChannelSpec((), "N"), f"{target}.position": ChannelSpec((), "m"),
              f"{target}.velocity": ChannelSpec((), "m/s")}
     fs = 1.0 / float(rec.t[1] - rec.t[0])
-    meta = {"units": "linear", "synthetic": "tests/friction_synth.py", "truth": asdict(rec.truth),
+    meta = {"units": "linear", "synthetic": "tests/axis_friction_synth.py", "truth": asdict(rec.truth),
             "encoder_step": rec.encoder_step, "position_std": rec.position_std}
     with RecordWriter(path, scene_text="", scene_sha256="", meta=meta, channels=specs, rate_hz=fs) as w:
         for k in range(rec.t.size):
