@@ -87,18 +87,43 @@ def test_a_signal_during_the_runs_of_certify_ends_the_command(tmp_path, sig, cod
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200"}
     p = subprocess.Popen([sys.executable, "-m", "hil.cli.main", "certify", "sdea_bench", "--out", str(out)],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=env)
-    while not list((out / "records").glob("*.h5")):  # a state, however long a loaded box takes
-        if p.poll() is not None:
-            break
-        time.sleep(0.05)
-    assert p.poll() is None, p.communicate()
-    time.sleep(0.3)  # where the signal lands (during the runs), not a synchronisation
-    p.send_signal(sig)
+    # The signal is sent at a state, however long a loaded box takes: a record of the run is open in the
+    # certify process. The folder is built under <out>.incomplete-<hex> and moved to <out> only at the
+    # end (after identify, robust and reports), so the record is looked for there. The process is
+    # frozen while that state is checked and the signal sent, so the run cannot end in between: the
+    # signal reaches it while the record is open (during the run, where STOP handles it at the next tick).
+    held = None
+    while held is None and p.poll() is None:
+        staged = list(tmp_path.glob(f"{out.name}.incomplete-*/records/*.h5"))
+        if staged:
+            p.send_signal(signal.SIGSTOP)
+            held = _open_in(p.pid, staged)
+            if held is None:
+                p.send_signal(signal.SIGCONT)
+                break
+        else:
+            time.sleep(0.01)
+    assert held is not None, (p.poll(), p.communicate())
+    p.send_signal(sig)  # pending until the process continues
+    p.send_signal(signal.SIGCONT)
     _stdout, stderr = p.communicate()
     assert p.returncode == code, stderr
     assert f"signal: {signal.Signals(sig).name}" in stderr
     assert "Traceback" not in stderr
     assert not (out / "certificate.json").exists()  # nothing certified from a run the person stopped
-    for rec in (out / "records").glob("*.h5"):
-        r = RunRecord.open(rec)
-        assert r.closed and "signal" in r.stop_reason
+    rec = out / "records" / held.name  # the stopped run's records are kept at --out
+    r = RunRecord.open(rec)
+    assert r.closed and "signal" in r.stop_reason, r.stop_reason
+
+
+def _open_in(pid: int, paths: list[Path]) -> Path | None:
+    """The first of ``paths`` that process ``pid`` holds open (a record being written), else None."""
+    wanted = {os.path.realpath(q): q for q in paths}
+    for fd in os.listdir(f"/proc/{pid}/fd"):
+        try:
+            target = os.readlink(f"/proc/{pid}/fd/{fd}")
+        except OSError:
+            continue
+        if target in wanted:
+            return wanted[target]
+    return None

@@ -180,8 +180,19 @@ def test_hil_run_with_a_frozen_writer_ends_with_the_reason_in_the_record_and_fre
         time.sleep(0.05)
     assert writer is not None, "no writer process found"
     records = out / "00_chirp_locked.h5"
-    while time.monotonic() < end and (not records.exists() or records.stat().st_size < 200_000):
-        time.sleep(0.05)  # let it write a few blocks
+    # Freeze the writer once hil run holds a flushed block (a state, not a time). Each block is one call
+    # to the writer process that starts by reserving disk for the block past HDF5's end of file: the
+    # file grows (past the ~20 kB of a new record's metadata) at the start of every block's call, and
+    # the next call is sent only after the previous one answered. So a second growth means the first
+    # block was flushed and acknowledged. (Freezing at the first growth could stop the writer inside
+    # the first block's call: nothing flushed, an empty record.)
+    grown: list[int] = []
+    while time.monotonic() < end and len(grown) < 2 and p.poll() is None:  # a hang guard, not a time bound
+        size = records.stat().st_size if records.exists() else 0
+        if size >= 200_000 and (not grown or size > grown[-1]):
+            grown.append(size)
+        time.sleep(0.01)
+    assert len(grown) == 2 and p.poll() is None, (grown, p.poll())
     os.kill(writer, signal.SIGSTOP)
     try:
         # communicate() returns only once every holder of hil's stdout/stderr has closed them: before,

@@ -97,6 +97,9 @@ def test_a_websocket_client_receives_the_channels_and_records_are_unchanged(tmp_
             waited.append(live.wait_subscribed("/motor", timeout=60))
 
     try:
+        # /safety exists before any client connects and its "running" goes out when the experiment starts,
+        # before the first tick: the run starts only once the viewer listens to it (an event, not a clock)
+        assert live.wait_subscribed("/safety", timeout=60)
         out_live = Runner(_scene(), tmp_path / "live", max_ticks=TICKS, live=live, progress=progress).run()[0]
         assert waited == [True]
         done = client.wait_for(lambda r: any(m.get("state") == "completed" for m in r.get("/safety", [])), 60)
