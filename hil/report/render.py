@@ -1238,8 +1238,43 @@ def summary_rows(cert: Certificate, st: IntegrityStatus) -> list[tuple[str, str,
     return rows
 
 
+#: scales of page 1's flowing text (scene description, reasons, summary table, margin note, review
+#: sentence; titles, banner and signature block keep their size), tried in turn until page 1 holds
+#: the summary and the signature block; past the last one the signature block flows to page 2
+TITLE_TEXT_SCALES = (1.0, 0.94, 0.88, 0.82)
+
+
+class _NoPages:
+    """Stands in for ``PdfPages`` in a trial layout: pages are counted, nothing is written."""
+
+    def savefig(self, fig: Any) -> None:
+        pass
+
+
+def title_text_scale(cert: Certificate, integrity: IntegrityStatus | None = None) -> float | None:
+    """The largest of :data:`TITLE_TEXT_SCALES` at which page 1 (summary and signature block) is one
+    page, found by laying page 1 out without writing it; None if none fits."""
+    for scale in TITLE_TEXT_SCALES:
+        trial = _PdfDoc(_NoPages(), cert, integrity)
+        _pdf_title_page(trial, cert, scale)
+        if trial.page == 1:
+            return scale
+    return None
+
+
 def _pdf_summary(doc: _PdfDoc, cert: Certificate) -> None:
-    """Page 1: everything a signer needs, and the signature block (one page)."""
+    """Page 1: everything a signer needs, and the signature block, on one page: a long scene
+    description or many reasons shrink page 1's flowing text (:func:`title_text_scale`) rather than
+    push the signature block alone onto page 2."""
+    scale = title_text_scale(cert, doc.integrity)
+    if scale is None:
+        logger.warning("page 1 of %s's report does not hold its signature block even at text scale %.2f",
+                       cert.scene.name, TITLE_TEXT_SCALES[-1])
+    _pdf_title_page(doc, cert, TITLE_TEXT_SCALES[-1] if scale is None else scale)
+
+
+def _pdf_title_page(doc: _PdfDoc, cert: Certificate, scale: float = 1.0) -> None:
+    """Lay out page 1 with its flowing text at ``scale`` times its size (see :data:`TITLE_TEXT_SCALES`)."""
     doc.new_page("title")
     bg, fg = doc.style[1:]
     doc.y -= 0.3
@@ -1251,28 +1286,28 @@ def _pdf_summary(doc: _PdfDoc, cert: Certificate) -> None:
     doc.y -= 0.16
     _pdf_bench_banner(doc, cert)
     if cert.scene.description:
-        doc.para(cert.scene.description, 7.5, color="#444444")
+        doc.para(cert.scene.description, 7.5 * scale, color="#444444")
     doc.para(f"scene sha256 {cert.scene.sha256}" + (f" · source {cert.scene.source}" if cert.scene.source else "")
              + (f" · units {cert.scene.units} (SI)" if cert.scene.units else "")
              + f" · created {cert.created_utc} (UTC) · schema {cert.schema_version} · "
              + ", ".join(f"{k} {v}" for k, v in cert.software.items()), 6.5, color="#666666")
     doc.subheading("Reasons", 10)
-    doc.bullets(cert.reasons or ["(no reasons recorded)"], 8.5)
+    doc.bullets(cert.reasons or ["(no reasons recorded)"], 8.5 * scale)
     doc.subheading("Summary", 10)
     from hil.report.sections import _kv
 
     t = _kv(summary_rows(cert, doc.integrity))
-    t.size = 8.0  # page 1 holds the summary and the signature block: one page a person can sign alone
+    t.size = 8.0 * scale  # page 1 holds the summary and the signature block: one page a person can sign alone
     doc.model_table(t)
     if note := margin_note(cert):
         doc.y += 0.06
-        doc.para(note, 7.5, color="#333333")
+        doc.para(note, 7.5 * scale, color="#333333")
     st = doc.integrity
     doc.subheading("Review and signature", 10)
     doc.kv([("digest (sha256, hil-c14n/1)", _digest_text(st)), ("electronic signature", st.signature_text())],
            size=6.5)
     doc.para(f"I have reviewed this certificate for scene {cert.scene.name} (digest above), its evidence on the "
-             "following pages, and I accept the decision above.", 8)
+             "following pages, and I accept the decision above.", 8 * scale)
     # two signature columns side by side
     doc.ensure(1.15)
     col_w = (doc.width - 0.3) / 2
