@@ -37,7 +37,8 @@ from hil.errors import HilError
 logger = logging.getLogger(__name__)
 
 __all__ = ["decided_plot", "decisive_condition", "design_point_axes", "design_point_plot", "headroom_plot",
-           "identification_plots", "immittance_db_label", "witness_response"]
+           "identification_plots", "immittance_db_label", "limit_trace_height", "limit_trace_resolution",
+           "witness_response"]
 
 
 def _clean(a: Any) -> list[float | None]:
@@ -448,6 +449,27 @@ def design_point_axes(u_star: Any) -> tuple[int, int]:
     return order[0], order[1]
 
 
+#: the limit-state trace of :func:`design_point_plot`: (columns, grid rows, bisection steps) with a
+#: cheap verdict (``fast``) and with the exact criterion
+LIMIT_TRACE_FAST = (121, 40, 24)
+LIMIT_TRACE_EXACT = (7, 4, 4)
+
+
+def limit_trace_height(beta: float) -> float:
+    """The height [1] up to which :func:`design_point_plot` looks for the limit state along each
+    column: max(1.3 |β|, |β| + 3)."""
+    return max(1.3 * abs(beta), abs(beta) + 3.0)
+
+
+def limit_trace_resolution(beta: float, fast: bool) -> float:
+    """Width [1] of the bracket within which :func:`design_point_plot` places the limit state on
+    each traced column: the grid step top/n_grid halved n_bisect times. The drawn point is the
+    bracket's far end (the first point where the verdict has turned), so it lies between 0 and this
+    width beyond the column's boundary."""
+    _, n_grid, n_bisect = LIMIT_TRACE_FAST if fast else LIMIT_TRACE_EXACT
+    return limit_trace_height(beta) / n_grid / 2 ** n_bisect
+
+
 def design_point_plot(plots: dict[str, Series], stable_u: Any, reliability: Any, names: list[str],
                       model: str = "", fast: bool = True) -> None:
     """The ``reliability`` plot: the slice of posterior-standardized space u = L⁻¹(θ − μ) through
@@ -470,13 +492,13 @@ def design_point_plot(plots: dict[str, Series], stable_u: Any, reliability: Any,
     rho2 = float(sum(u_star[k] ** 2 for k in range(d) if k not in (i, j)))
     sgn = 1.0 if u_star[i] >= 0 else -1.0
     half = max(1.25 * R, 4.0)
-    n_cols, n_grid, n_bisect = (121, 40, 24) if fast else (7, 4, 4)
+    n_cols, n_grid, n_bisect = LIMIT_TRACE_FAST if fast else LIMIT_TRACE_EXACT
     req = float(getattr(reliability, "required_beta", float("nan")))
     radii = [r for r in (math.sqrt(max(R * R - rho2, 0.0)), math.sqrt(max(req * req - rho2, 0.0))
                          if math.isfinite(req) else 0.0, R99_2D) if 0 < r < half]
     dense = np.unique(np.concatenate([np.linspace(-half, half, 161), [u_star[j]], radii, [-r for r in radii]]))
     xs = dense if fast else np.unique(np.concatenate([np.linspace(-half, half, n_cols), [u_star[j]]]))
-    top = max(1.3 * R, R + 3.0)
+    top = limit_trace_height(R)
     base = u_star.copy()
     base[i] = base[j] = 0.0
 
