@@ -1,6 +1,6 @@
 """Benchmark: robust certification over posterior-like draws for networks without a closed-form
 batch (issue 15): the screened general path (hil.models.batch_general, what
-hil.certify.pipeline._robust_eval runs) against the per-draw exact path (build + exact criterion for
+hil.certify.evaluation._robust_eval runs) against the per-draw exact path (build + exact criterion for
 every draw), both measured in the same run on the same draws.
 
 Columns: model and posterior ("straddling": spread across the stability boundary, "stable": a
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.certify.pipeline import exactly_stable
+from hil.certify.evaluation import exactly_stable
 from hil.models import get_model
 from hil.models.batch_general import screened_stability
 

@@ -73,6 +73,7 @@ def test_a_failing_witness_search_is_recorded_logged_and_reported(monkeypatch, t
 
 @pytest.mark.timeout(300)
 def test_failing_plots_and_witness_simulation_are_recorded_and_decide_nothing(monkeypatch, tmp_path):
+    import hil.certify.evaluation as ev
     import hil.certify.pipeline as pl
 
     def plot_fails(*_a, **_k):
@@ -83,7 +84,7 @@ def test_failing_plots_and_witness_simulation_are_recorded_and_decide_nothing(mo
 
     monkeypatch.setattr(pl, "_decided_plot", plot_fails)
     monkeypatch.setattr(pl, "_bode_plot", plot_fails)
-    monkeypatch.setattr(pl, "_simulate_witness", sim_fails)
+    monkeypatch.setattr(ev, "_simulate_witness", sim_fails)  # called by the witness stage
     c = certify_scene(_scene("bilateral_2dof_B"), tmp_path, run_experiments=False)
     assert c.decision == "NO-GO", c.reasons
     assert c.errors == ["plots (decided quantities) failed: cannot normalize",

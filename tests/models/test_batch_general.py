@@ -1,4 +1,4 @@
-"""The general robust path (hil.models.batch_general, used by hil.certify.pipeline._robust_eval for models
+"""The general robust path (hil.models.batch_general, used by hil.certify.evaluation._robust_eval for models
 without a closed-form batch): its per-draw stability equals the exact criterion's on every draw,
 its screen rejects only real violations, and its coefficient map is refused when not affine."""
 
@@ -11,7 +11,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hil.certify.pipeline import _check, _robust_eval, build_network, exactly_stable
+from hil.certify.evaluation import _check, _robust_eval, exactly_stable
+from hil.certify.pipeline import build_network
 from hil.models import get_model
 from hil.models.batch_general import coefficient_map, screen, screened_stability
 from hil.stability.rational import Rational, TransferMatrix
