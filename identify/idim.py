@@ -71,6 +71,8 @@ __all__ = ["IdimResult", "Motion", "decimate", "diffcent", "filtered_derivatives
 
 #: the benchmark's dynamics bandwidth [Hz]: Butterworth at 5x, decimation to 2x of it
 F_DYN = 20.0
+#: consecutive sample periods without an encoder count over which a joint is taken as stuck (:func:`stuck_periods`)
+STICK_RUN = 5
 
 
 def diffcent(y: ArrayLike, dt: float) -> NDArray[np.float64]:
@@ -138,9 +140,15 @@ class Motion:
     ``"input"`` (an equation balancing a held force: averaged columns) or ``"measured"``/``"zero"``
     (point columns). ``crop`` drops ``n_border`` samples at both ends (filter transients)."""
 
-    def __init__(self, Q: ArrayLike, fs: float, f_filter: float, n_border: int = 50) -> None:
+    def __init__(self, Q: ArrayLike, fs: float, f_filter: float, n_border: int = 50,
+                 stick: Sequence[int] = ()) -> None:
         QQ = np.asarray(Q, float)
         self.Q = QQ[:, None] if QQ.ndim == 1 else QQ
+        #: per sample period ``[k, k+1)`` and coordinate: False where the coordinate is taken as stuck
+        #: (:func:`stuck_periods`, only for the coordinates ``stick``; True elsewhere)
+        self.moving = np.ones(self.Q.shape, bool)
+        for c in stick:
+            self.moving[:, c] = ~stuck_periods(self.Q[:, c])
         self.fs = float(fs)
         self.f_filter = float(f_filter)
         if not 0 < self.f_filter < self.fs / 2:
@@ -203,13 +211,59 @@ class Motion:
         tau = np.concatenate([theta[:, None] * x, theta[:, None] + (1 - theta)[:, None] * x], axis=1)
         wt = np.concatenate([theta[:, None] * w, (1 - theta)[:, None] * w], axis=1)
         f = np.asarray(fn(va[:, None] + (vb - va)[:, None] * tau), float)
-        i0 = np.sum(wt * f, axis=1)  # integral over the period of fn(v)
-        i1 = np.sum(wt * tau * f, axis=1)  # ... times the time since its start (in periods)
+        mv = self.moving[:-1, c]  # a stuck period contributes nothing (its friction is the held force)
+        i0 = np.sum(wt * f, axis=1) * mv  # integral over the period of fn(v)
+        i1 = np.sum(wt * tau * f, axis=1) * mv  # ... times the time since its start (in periods)
         # Lambda(t - k) is (t - k + 2)/4 on the period k-2, (t - k + 2)/4 on k-1, (2 - (t - k))/4 on k and k+1:
         i0p, i1p = np.pad(i0, 2, mode="edge"), np.pad(i1, 2, mode="edge")  # period j at index j + 2
         k = np.arange(self.n)
         avg = (i1p[k] + (i0p[k + 1] + i1p[k + 1]) + (2 * i0p[k + 2] - i1p[k + 2]) + (i0p[k + 3] - i1p[k + 3])) / 4.0
         return self.lowpass(avg)
+
+
+    def stuck(self, c: int) -> bool:
+        """Whether stuck periods were found (and are taken out) on coordinate ``c``."""
+        return not bool(np.all(self.moving[:, c]))
+
+    def held_force(self, u: ArrayLike, c: int) -> NDArray[np.float64]:
+        """:func:`held_force` of a force ``u`` (n,) balancing the friction of coordinate ``c``, the
+        periods where ``c`` is stuck left out (there the friction is that force: the equation is
+        ``0 = 0``; :func:`stuck_periods`)."""
+        return held_force(np.asarray(u, float) * self.moving[:, c])
+
+    def offset(self, c: int, kind: str) -> NDArray[np.float64]:
+        """The column of a constant force (``F_0``) in an equation balancing the friction of coordinate
+        ``c``: ones, or (stuck periods on ``c``, ``kind == "input"``) the triangle average of the moving
+        periods' indicator, filtered as the friction columns."""
+        if kind != "input" or not self.stuck(c):
+            return np.ones(self.n)
+        return self.friction(c, np.ones_like, kind)
+
+
+def stuck_periods(q: ArrayLike, run: int | None = None) -> NDArray[np.bool_]:
+    """Sample periods ``[k, k+1)`` (n,) (the last one: False) over which a joint is taken as stuck: its
+    encoder reading ``q`` (n,) does not change over a run of at least ``run`` (default
+    :data:`STICK_RUN`) consecutive periods.
+
+    While a joint sticks, its friction is the holding force (anything within the break-away level), which
+    no kinetic friction law expresses: with the held force ``u`` the joint's whole equation there is
+    ``u = f`` (``a = v = 0``), so a stuck period is left out of the equation's every term (its held force,
+    friction and offset columns; the acceleration and velocity columns are zero there). Why a run: a
+    joint reversing (not sticking) with acceleration ``a`` moves ``a t^2 / 2`` from its turning point,
+    so its reading stays within one count ``dq`` for at most ``2 sqrt(2 dq / |a|)``; a flat run of
+    ``L`` periods ``T`` thus bounds ``|a| < 8 dq / (L T)^2`` and a moving joint taken as stuck
+    costs the equation only ``M a + B v`` with ``|v| < dq / T`` (at ``L = 5``, 1 um counts at 1 kHz:
+    ``|a| < 0.32 m/s^2``, ``|v| < 1 mm/s``). A position that is not quantized (noise on every sample)
+    never repeats: nothing is taken as stuck."""
+    qq = np.asarray(q, float).ravel()
+    L = STICK_RUN if run is None else int(run)
+    flat = np.concatenate([np.diff(qq) == 0.0, [False]])
+    d = np.diff(np.concatenate([[0], flat.astype(np.int8), [0]]))
+    out = np.zeros(qq.size, bool)
+    for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True):
+        if b - a >= L:
+            out[a:b] = True
+    return out
 
 
 @dataclass
