@@ -73,6 +73,10 @@ __all__ = ["IdimResult", "Motion", "decimate", "diffcent", "filtered_derivatives
 F_DYN = 20.0
 #: consecutive sample periods without an encoder count over which a joint is taken as stuck (:func:`stuck_periods`)
 STICK_RUN = 5
+#: samples before a stuck run whose positions locate the stop (:meth:`Motion._stops`)
+STOP_WINDOW = 10
+#: periods before and after a reversal whose velocities locate it (:meth:`Motion._reversals`)
+REVERSAL_FIT = (3, 7)
 
 
 def diffcent(y: ArrayLike, dt: float) -> NDArray[np.float64]:
@@ -167,6 +171,100 @@ class Motion:
         ba = signal.butter(4, self.f_velocity / (self.fs / 2))
         qv = signal.filtfilt(*ba, self.Q, axis=0, padlen=3 * (max(len(ba[0]), len(ba[1])) - 1))
         self._v_fric = _stencil(np.asarray(qv, float), _PT_V) / T
+        self.moving_fraction, self._v_stop = self.moving.astype(float), np.zeros(self.Q.shape)
+        self._zero = np.full(self.Q.shape, np.nan)  # a reversal's place in its period (kinked velocity)
+        for c in stick:
+            self._stops(c)
+            self._reversals(c)
+
+    def _stops(self, c: int) -> None:
+        """The stop before each stuck run of coordinate ``c`` (:func:`stuck_periods`), within a period.
+        The filtered velocity smooths the stop's kink over a few samples; the raw (encoder) positions
+        do not: they are fitted, over the ``STOP_WINDOW`` samples before the run's first sample ``j`` and
+        3 after it, by ``q = q_s + c_2 x^2 + c_3 x^3`` before the stop and ``q_s`` after it (``x = t - t_0``
+        in periods; least squares, linear in ``q_s, c_2, c_3``; ``t_0`` on a 1/50-period grid within
+        ``(t_j-2, t_j+2]``, smallest residual). The period holding ``t_0`` moves over ``[t_p, t_0)``
+        (velocity linear to 0 from the fit's value at its start), the later ones are stuck, and the
+        velocity samples from ``j - 3`` to the stop are the fit's. A fit that does not decelerate towards
+        the stop (or a previous run within the window): the filtered velocity and the run as detected."""
+        v, mv, q = self._v_fric[:, c], self.moving[:, c], self.Q[:, c]
+        th = self.moving_fraction[:, c]
+        starts = np.flatnonzero(~mv[1:] & mv[:-1]) + 1
+        for j in starts:
+            ks = np.arange(j - STOP_WINDOW, j + 4)
+            if ks[0] < 0 or ks[-1] >= self.n or not np.all(mv[ks[0] : j]):
+                continue
+            sg = np.sign(q[j] - q[ks[0]])
+            best: tuple[float, float, NDArray] | None = None
+            for t0 in np.linspace(j - 2.0 + 0.02, j + 2.0, 200):
+                x = np.minimum(ks - t0, 0.0)
+                X = np.column_stack([np.ones(ks.size), x**2, x**3])
+                cf = np.linalg.lstsq(X, q[ks], rcond=None)[0]
+                sse = float(np.sum((q[ks] - X @ cf) ** 2))
+                if best is None or sse < best[0]:
+                    best = (sse, float(t0), cf)
+            assert best is not None
+            _, t0, cf = best
+
+            def vel(t: float, t0: float = t0, cf: NDArray = cf) -> float:
+                x = min(t - t0, 0.0)
+                return float((2 * cf[1] * x + 3 * cf[2] * x * x) * self.fs)
+
+            if sg == 0 or sg * vel(j - 3.0) <= 0:  # not moving towards the stop
+                continue
+            for pp in range(j - 2, j + 2):
+                frac = min(max(t0 - pp, 0.0), 1.0)
+                th[pp] = frac
+                if 0.0 < frac < 1.0:
+                    self._v_stop[pp, c] = vel(pp)
+            for kk in range(j - 3, j + 2):
+                if kk < t0:
+                    v[kk] = vel(kk)
+
+    def _reversals(self, c: int) -> None:
+        """Each reversal of coordinate ``c`` outside its stuck runs (the filtered velocity changes sign
+        between samples ``k`` and ``k + 1``): the dry friction flips there, so the acceleration jumps by
+        ``2 (F_c + F_s) / M`` and the velocity has a kink, which the velocity filter smooths over a few
+        samples (moving the zero and the Stribeck dip by up to a period). The velocity is refitted as
+        two lines through a common zero ``t_0`` (least squares on the samples ``REVERSAL_FIT`` periods
+        before ``k`` and after ``k + 1``, ``t_0`` on a 1/50-period grid in ``[t_k-1, t_k+2]``); the
+        samples in between are set on them and the period holding ``t_0`` is split there
+        (:meth:`friction`). A stop or a reversal within the fit's reach: left as filtered."""
+        v, th = self._v_fric[:, c], self.moving_fraction[:, c]
+        lo, hi = REVERSAL_FIT[0], REVERSAL_FIT[-1]
+        ks = np.flatnonzero(v[:-1] * v[1:] < 0)
+        for k in ks:
+            if k - hi - 1 < 0 or k + hi + 2 >= self.n or np.any(th[k - hi - 1 : k + hi + 2] < 1.0):
+                continue
+            if np.any((ks != k) & (np.abs(ks - k) <= hi + 1)):
+                continue
+            tb = np.arange(k - hi, k - lo + 1, dtype=float)
+            ta = np.arange(k + 1 + lo, k + 1 + hi + 1, dtype=float)
+            vb_, va_ = v[tb.astype(int)], v[ta.astype(int)]
+            best: tuple[float, float, NDArray, NDArray] | None = None
+            for t0 in np.linspace(k - 1.0, k + 2.0, 151):
+                Xb = np.column_stack([tb - t0, (tb - t0) ** 2])  # each side: v = a x + b x^2, x = t - t_0
+                Xa = np.column_stack([ta - t0, (ta - t0) ** 2])
+                cb = np.linalg.lstsq(Xb, vb_, rcond=None)[0]
+                ca = np.linalg.lstsq(Xa, va_, rcond=None)[0]
+                sse = float(np.sum((vb_ - Xb @ cb) ** 2) + np.sum((va_ - Xa @ ca) ** 2))
+                if best is None or sse < best[0]:
+                    best = (sse, float(t0), cb, ca)
+            assert best is not None
+            _, t0, cb, ca = best
+            if np.sign(cb[0]) != np.sign(ca[0]):  # not a reversal through zero with a kink: keep the filtered samples
+                continue
+
+            def line(t: float, t0: float = t0, cb: NDArray = cb, ca: NDArray = ca) -> float:
+                x = t - t0
+                cc = cb if x <= 0 else ca
+                return float(cc[0] * x + cc[1] * x * x)
+
+            for kk in range(k - lo + 1, k + 1 + lo):
+                v[kk] = line(kk)
+            p = int(np.floor(t0))
+            if 0 <= p < self.n - 1:
+                self._zero[p, c] = t0 - p
 
     def lowpass(self, x: ArrayLike) -> NDArray:
         """The positions' filter (Butterworth order 4 at ``f_filter``, forward and backward) applied to
@@ -203,23 +301,39 @@ class Motion:
         v = self._v_fric[:, c]
         if kind != "input":
             return self.lowpass(fn(v))
-        va, vb = v[:-1], v[1:]
+        # per period: the moving part [0, th) (th = 1 moving, 0 stuck, in between: the joint stops in it),
+        # the velocity linear over it from va to vb (0 at a stop)
+        th, va = self.moving_fraction[:-1, c], v[:-1].copy()
+        vb = np.where(th < 1.0, 0.0, v[1:])
+        part = (th > 0.0) & (th < 1.0)
+        va[part] = self._v_stop[:-1, c][part]
         cross = (va * vb) < 0
-        theta = np.where(cross, va / np.where(cross, va - vb, 1.0), 1.0)  # the zero's place in the period
+        s = np.where(cross, va / np.where(cross, va - vb, 1.0), 1.0)  # the zero's place in the moving part
+        z = self._zero[:-1, c]
+        kink = cross & np.isfinite(z) & (th == 1.0)
+        s = np.where(kink, np.clip(z, 1e-9, 1 - 1e-9), s)
         x, w = np.polynomial.legendre.leggauss(4)
         x, w = (x + 1) / 2, w / 2  # on (0, 1)
-        tau = np.concatenate([theta[:, None] * x, theta[:, None] + (1 - theta)[:, None] * x], axis=1)
-        wt = np.concatenate([theta[:, None] * w, (1 - theta)[:, None] * w], axis=1)
-        f = np.asarray(fn(va[:, None] + (vb - va)[:, None] * tau), float)
-        mv = self.moving[:-1, c]  # a stuck period contributes nothing (its friction is the held force)
-        i0 = np.sum(wt * f, axis=1) * mv  # integral over the period of fn(v)
-        i1 = np.sum(wt * tau * f, axis=1) * mv  # ... times the time since its start (in periods)
+        tau = np.concatenate([s[:, None] * x, s[:, None] + (1 - s)[:, None] * x], axis=1)  # in the moving part
+        wt = np.concatenate([s[:, None] * w, (1 - s)[:, None] * w], axis=1) * th[:, None]
+        # the velocity: linear over the moving part, or (a reversal) linear to 0 at s and from 0 after it
+        vel = va[:, None] + (vb - va)[:, None] * tau
+        sk = s[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            vk = np.where(tau < sk, va[:, None] * (1 - tau / sk), vb[:, None] * (tau - sk) / (1 - sk))
+        f = np.asarray(fn(np.where(kink[:, None], vk, vel)), float)
+        i0 = np.sum(wt * f, axis=1)  # integral over the period of fn(v) (a stuck part contributes nothing)
+        i1 = np.sum(wt * (th[:, None] * tau) * f, axis=1)  # ... times the time since its start (in periods)
+        return self.lowpass(self._triangle(i0, i1))
+
+    def _triangle(self, i0: NDArray, i1: NDArray) -> NDArray:
+        """The average with the triangle ``Lambda`` at every sample (n,) of a force known by its integrals
+        over each period ``j`` (n - 1,): ``i0_j = integral f``, ``i1_j = integral (t - jT)/T f`` (per T)."""
         # Lambda(t - k) is (t - k + 2)/4 on the period k-2, (t - k + 2)/4 on k-1, (2 - (t - k))/4 on k and k+1:
         i0p, i1p = np.pad(i0, 2, mode="edge"), np.pad(i1, 2, mode="edge")  # period j at index j + 2
         k = np.arange(self.n)
-        avg = (i1p[k] + (i0p[k + 1] + i1p[k + 1]) + (2 * i0p[k + 2] - i1p[k + 2]) + (i0p[k + 3] - i1p[k + 3])) / 4.0
-        return self.lowpass(avg)
-
+        return np.asarray((i1p[k] + (i0p[k + 1] + i1p[k + 1]) + (2 * i0p[k + 2] - i1p[k + 2])
+                           + (i0p[k + 3] - i1p[k + 3])) / 4.0, float)
 
     def stuck(self, c: int) -> bool:
         """Whether stuck periods were found (and are taken out) on coordinate ``c``."""
@@ -227,9 +341,12 @@ class Motion:
 
     def held_force(self, u: ArrayLike, c: int) -> NDArray[np.float64]:
         """:func:`held_force` of a force ``u`` (n,) balancing the friction of coordinate ``c``, the
-        periods where ``c`` is stuck left out (there the friction is that force: the equation is
-        ``0 = 0``; :func:`stuck_periods`)."""
-        return held_force(np.asarray(u, float) * self.moving[:, c])
+        periods (or the part of a period after a stop) where ``c`` is stuck left out (there the friction
+        is that force: the equation is ``0 = 0``; :func:`stuck_periods`)."""
+        if not self.stuck(c):
+            return held_force(u)
+        uu, th = np.asarray(u, float)[:-1], self.moving_fraction[:-1, c]
+        return self._triangle(uu * th, uu * th**2 / 2.0)
 
     def offset(self, c: int, kind: str) -> NDArray[np.float64]:
         """The column of a constant force (``F_0``) in an equation balancing the friction of coordinate
