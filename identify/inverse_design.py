@@ -97,6 +97,8 @@ def inverse_part(model: InverseDynamicsModel, rec: InverseRecord, fs: float, *, 
     r, f_filter, _ = decimation_for(fs, f_dyn)
     stick = {jt.equation: jt.coordinate for jt in model.stick_joints()} if hold else {}
     motion = Motion(rec.Q, fs, f_filter, n_border, stick=tuple(stick.values()))
+    for e, c in stick.items():
+        motion.breakaways(c, rec.Y[:, e])
     n = motion.n
     if n - 2 * n_border < 40 * r:
         raise DataQualityError(f"IDIM: {n} samples are too few (need >= {40 * r + 2 * n_border})")
