@@ -159,6 +159,11 @@ class FrictionModel(InverseDynamicsModel):
         core += self.friction_parameters(nom, span=span, force_scale=fscale)
         super().__init__(core, ins, outs, zoh_fs=zoh_fs)
 
+    def stick_joints(self) -> tuple[Joint, ...]:
+        """One DOF with dry friction (``coulomb``; the spring-free joint of the module docstring): its
+        joint, whose equation is ``u = f`` while it sticks (:func:`hil.identify.idim.stuck_periods`)."""
+        return self.joints if self.n_dof == 1 and "stribeck" in self.terms else ()
+
     def structural_columns(self, m: Motion) -> list[tuple[int, int, NDArray]]:
         """``M`` with the acceleration, ``B`` the velocity, ``K`` the position: entry ``A_ij`` (``i <= j``)
         enters equation ``i`` with coordinate ``j`` and equation ``j`` with coordinate ``i``."""

@@ -95,7 +95,10 @@ def inverse_part(model: InverseDynamicsModel, rec: InverseRecord, fs: float, *, 
                                f"coordinates {list(model.coordinates)} and equations "
                                f"{[e.name for e in model.equations]}")
     r, f_filter, _ = decimation_for(fs, f_dyn)
-    motion = Motion(rec.Q, fs, f_filter, n_border)
+    stick = {jt.equation: jt.coordinate for jt in model.stick_joints()} if hold else {}
+    motion = Motion(rec.Q, fs, f_filter, n_border, stick=tuple(stick.values()))
+    for e, c in stick.items():
+        motion.breakaways(c, rec.Y[:, e])
     n = motion.n
     if n - 2 * n_border < 40 * r:
         raise DataQualityError(f"IDIM: {n} samples are too few (need >= {40 * r + 2 * n_border})")
@@ -107,7 +110,7 @@ def inverse_part(model: InverseDynamicsModel, rec: InverseRecord, fs: float, *, 
     for e, kind in enumerate(kinds):
         y = rec.Y[:, e]
         if kind == "input" and hold:
-            y = held_force(y)
+            y = motion.held_force(y, stick[e]) if e in stick else held_force(y)
         elif kind == "zero":
             y = np.zeros(n)
         if select[e] is None:  # filtered as the columns (a held sensor's samples are taken as recorded)

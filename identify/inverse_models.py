@@ -178,8 +178,14 @@ class InverseDynamicsModel(GreyBoxModel):
             if "coulomb" in self.terms:
                 out.append((idx["F_c" + jt.suffix], jt.equation, m.friction(jt.coordinate, np.sign, kind)))
             if "offset" in self.terms:
-                out.append((idx["F_0" + jt.suffix], jt.equation, np.ones(m.n)))
+                out.append((idx["F_0" + jt.suffix], jt.equation, m.offset(jt.coordinate, kind)))
         return out
+
+    def stick_joints(self) -> tuple[Joint, ...]:
+        """The joints whose stuck periods are left out of their equation
+        (:func:`hil.identify.idim.stuck_periods`): those whose equation balances a held force against
+        their own motion only, so that while stuck the equation is exactly ``u = f`` (none here)."""
+        return ()
 
     def stribeck(self) -> list[tuple[int, int, Joint]]:
         """``(index of F_s, index of v_s, joint)`` per joint with a Stribeck term."""
@@ -202,7 +208,7 @@ class InverseDynamicsModel(GreyBoxModel):
             if "coulomb" in missing:
                 out.append((jt.equation, m.friction(jt.coordinate, np.sign, kind)))
             if "offset" in missing:
-                out.append((jt.equation, np.ones(m.n)))
+                out.append((jt.equation, m.offset(jt.coordinate, kind)))
         return out
 
 
