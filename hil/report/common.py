@@ -15,6 +15,7 @@ from hil.errors import HilError
 from hil.report.sections import (
     fmt,
     fmt_range,
+    limits_text,
     policy_label,
     report_sections,
     robust_status,
@@ -98,14 +99,9 @@ def fmt_band(b: Any) -> str:
 
 
 def fmt_limits(lower: float | None, upper: float | None, unit: str = "") -> str:
-    u = f" {unit}" if unit else ""
-    if lower is not None and upper is not None:
-        return f"{fmt(lower)} … {fmt(upper)}{u}"
-    if lower is not None:
-        return f"≥ {fmt(lower)}{u}"
-    if upper is not None:
-        return f"≤ {fmt(upper)}{u}"
-    return "—"
+    """A measurement's declared limits (:func:`hil.report.sections.limits_text`) with their unit."""
+    text = limits_text(lower, upper)
+    return f"{text} {unit}" if unit and text != "—" else text
 
 
 def _value_unit(v: Any, unit: str) -> str:
