@@ -87,8 +87,10 @@ class InversePart:
 
 
 def inverse_part(model: InverseDynamicsModel, rec: InverseRecord, fs: float, *, f_dyn: float | None = None,
-                 hold: bool = True, n_border: int = 50) -> InversePart:
-    """The decimated inverse model of one record (module docstring)."""
+                 hold: bool = True, n_border: int = 50, theta: NDArray[np.float64] | None = None) -> InversePart:
+    """The decimated inverse model of one record (module docstring). ``theta``: parameters at which the
+    model's held-force acceleration jumps are taken (:meth:`InverseDynamicsModel.held_input`; ``hold``
+    only), for its point columns and its friction velocity between samples."""
     n_e, p = len(model.equations), model.n_params
     if rec.Q.shape[1] != len(model.coordinates) or rec.Y.shape[1] != n_e:
         raise DataQualityError(f"{model.name}: {rec.Q.shape[1]} positions and {rec.Y.shape[1]} forces for "
@@ -96,6 +98,9 @@ def inverse_part(model: InverseDynamicsModel, rec: InverseRecord, fs: float, *, 
                                f"{[e.name for e in model.equations]}")
     r, f_filter, _ = decimation_for(fs, f_dyn)
     motion = Motion(rec.Q, fs, f_filter, n_border)
+    held = model.held_input(np.asarray(theta, float), rec.Y) if hold and theta is not None else None
+    if held is not None:
+        motion.set_held_input(*held)
     n = motion.n
     if n - 2 * n_border < 40 * r:
         raise DataQualityError(f"IDIM: {n} samples are too few (need >= {40 * r + 2 * n_border})")

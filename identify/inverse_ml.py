@@ -234,6 +234,11 @@ def fit_inverse(
     model0 = make_model({}, {})
     parts = [inverse_part(model0, r, fs, f_dyn=f_dyn, hold=hold) for r in records]
     idim = start if start is not None else inverse_ls(model0, parts)
+    if hold and any(model0.held_input(idim.theta, r.Y) is not None for r in records):
+        # the held force's acceleration jumps (point columns, velocity between samples) at the start's values
+        parts = [inverse_part(model0, r, fs, f_dyn=f_dyn, hold=hold, theta=idim.theta) for r in records]
+        if start is None:
+            idim = inverse_ls(model0, parts)
     fscale = float(max(np.std(np.concatenate([p.y[:, 0] for p in parts])), 1e-12))
     nominal, scale = {}, {}
     for par, v, sd in zip(model0.parameters, idim.theta, idim.std, strict=True):
