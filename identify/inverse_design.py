@@ -15,6 +15,10 @@ sensor slower than the loop (a held output, :mod:`hil.identify.sensor_hold`) rep
 record sample ``k`` holds the force of sample ``k - a_k`` (``a_k`` its age), so that equation's columns
 are taken at ``k - a_k`` too -- exact for any hold pattern, nothing is lost but the repeats' noise.
 
+Held force in the point kinematics: :func:`inverse_part` with ``theta`` (``hold`` only) asks the model
+for the acceleration steps of its held input (:meth:`InverseDynamicsModel.held_input`) and declares them
+to the motion (:meth:`hil.identify.idim.Motion.set_held_input`).
+
 :func:`inverse_ls` is the start of the ML fit: least squares with every equation scaled by its residual
 standard deviation (two rounds), each Stribeck velocity by a bounded 1-D search (log scale, between
 ``1e-3`` and 1 times the joint's largest speed) with the rest solved linearly.

@@ -9,7 +9,10 @@ force aligned with the double central difference, ``hold=True``), for any model 
     y_e = X_e(v_s) beta + w_e
 
 ``beta`` the parameters entering linearly (``M, B, K``, ``K_f, B_f``, ``F_c, F_s, F_0``, ...), the
-Stribeck velocities ``v_s`` inside the regressors. The estimate is the least-squares one, every
+Stribeck velocities ``v_s`` inside the regressors. A model whose point columns or friction velocity
+feel the held force's acceleration steps (the SDEA: :meth:`InverseDynamicsModel.held_input`,
+:mod:`hil.identify.held_kinematics`) has its records rebuilt with the steps at the LS start's values
+(and the LS start recomputed) before the fit. The estimate is the least-squares one, every
 equation scaled by its residual standard deviation (iterated: the maximum likelihood for white
 Gaussian equation errors of unknown variances; one equation: the benchmark's own weighting), found by
 :func:`scipy.optimize.least_squares` in z (log of the positive parameters; ``v_s`` nonlinear).
