@@ -129,17 +129,24 @@ def held_point_kinematics(S: NDArray, A: NDArray, fs: float, node_jumps: NDArray
     applied to the correction sequences (the stencils were taken on filtered positions)."""
     n = S.size
     T = 1.0 / fs
-    times = np.concatenate([np.arange(n, dtype=float), np.asarray(rev_times, float)])
-    jumps = np.concatenate([np.asarray(node_jumps, float), np.asarray(rev_jumps, float)])
-    jerk = -float(damping_rate) * jumps
-    ev = _event_sum(times, jumps, n, lambda t: jump_kernels(t)[0]) * T
-    ea = {side: _event_sum(times, jumps, n, lambda t, side=side: jump_kernels(t, side)[1])  # type: ignore[misc]
-          for side in ("mid", "right", "left")}
-    if damping_rate:
-        ev = ev + _event_sum(times, jerk, n, lambda t: jerk_kernels(t)[0]) * T**2
-        fa = _event_sum(times, jerk, n, lambda t: jerk_kernels(t)[1]) * T
-        ea = {k: x + fa for k, x in ea.items()}
-    return S - smooth(ev), A - smooth(ea["mid"]), A - smooth(ea["right"]), A - smooth(ea["left"])
+    beta = float(damping_rate)
+    rt, rj = np.asarray(rev_times, float), np.asarray(rev_jumps, float)
+
+    def total(kernel: Callable[[NDArray], NDArray], J: NDArray, jr: NDArray) -> NDArray:
+        # the nodes at integer offsets d from the centre: a fixed FIR, sum_d kernel(d) J_k+d; the reversals
+        taps = kernel(_TAPS)  # offsets -_HALF.._HALF
+        node = np.convolve(np.pad(J, _HALF), taps[::-1], mode="valid")
+        return np.asarray(node + _event_sum(rt, jr, n, kernel), float)
+
+    J = np.asarray(node_jumps, float)
+    ev = total(lambda t: jump_kernels(t)[0], J, rj) * T
+    ea = total(lambda t: jump_kernels(t)[1], J, rj)  # point values ("mid": half of a jump at the centre)
+    if beta:
+        ev = ev + total(lambda t: jerk_kernels(t)[0], -beta * J, -beta * rj) * T**2
+        ea = ea + total(lambda t: jerk_kernels(t)[1], -beta * J, -beta * rj) * T
+    a_mid = A - smooth(ea)
+    half = smooth(J / 2.0)  # a_k^+ counts the whole jump at its own instant, a_k^- none of it
+    return S - smooth(ev), a_mid, a_mid + half, a_mid - half
 
 
 def _hermite_basis(t: NDArray) -> NDArray[np.float64]:
