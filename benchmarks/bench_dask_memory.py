@@ -9,7 +9,7 @@ shows the worker's resident memory [MB] (from /proc) in two configurations measu
 * ``as before``: the worker's statistical profiler on (distributed's default) and nothing released
   after a map (the executor's release step replaced by a no-op);
 * ``now``: what ``hil sweep --executor dask`` without ``--scheduler`` does (profiler off for the
-  cluster it starts) and the release after every map (:func:`hil.certify.sweep._trim_memory`: the
+  cluster it starts) and the release after every map (:func:`hil.certify.executors._trim_memory`: the
   profiler's history and the task logs forgotten, garbage collected, freed heap returned).
 
 A plain loop (the same tasks called in this process, no Dask) is the baseline column. The last
@@ -24,7 +24,7 @@ from typing import Any
 import dask
 import distributed
 
-import hil.certify.sweep as sweep
+import hil.certify.executors as executors
 from hil.certify.sweep import DaskExecutor, SerialExecutor, SweepSpec, parse_grid, run_sweep
 
 
@@ -39,9 +39,9 @@ def _spec(n: int) -> SweepSpec:
 
 
 def _series(n: int, sweeps: int, release: bool, profile: bool) -> list[float]:
-    keep = sweep._release_worker_memory
+    keep = executors._release_worker_memory
     if not release:
-        sweep._release_worker_memory = lambda client: None  # type: ignore[assignment]
+        executors._release_worker_memory = lambda client: None  # type: ignore[assignment]
     try:
         with dask.config.set({"distributed.worker.profile.enabled": profile}), \
                 distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
@@ -54,7 +54,7 @@ def _series(n: int, sweeps: int, release: bool, profile: bool) -> list[float]:
                 out.append(float(next(iter(rss.values()))))
             return out
     finally:
-        sweep._release_worker_memory = keep
+        executors._release_worker_memory = keep
 
 
 def main() -> None:

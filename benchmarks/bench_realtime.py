@@ -234,12 +234,44 @@ def loop_row(rate: float, seconds: float, config: str, tmp: Path, phases: bool =
     return row
 
 
+def summary(rows: list[dict[str, Any]], configs: list[str], rates: list[float]) -> None:
+    """Per rate and configuration over the interleaved rounds: rows completed, the overrun fraction of
+    every tick run (completed or not), its median over the rounds, and the ratio of each
+    configuration's pooled fraction to the first configuration's (the baseline of the same run), and
+    the rounds in which its fraction was no higher than the baseline's of the same round (a row
+    stopped early counts with the fraction of the ticks it ran)."""
+    print()
+    print(f"Summary over the rounds (pooled: overruns / ticks of every row of the config; ratio: to {configs[0]!r})")
+    print(f"{'config':8s} {'rate':>5s} {'rows':>4s} {'completed':>9s} {'ticks':>8s} {'pooled %':>9s} "
+          f"{'median %':>9s} {'ratio':>6s} {'<=base':>7s} {'steal':>7s}")
+    for rate in rates:
+        base = math.nan
+        for config in configs:
+            rs = [r for r in rows if r["config"] == config and r["rate"] == rate]
+            ticks = sum(int(r["ticks"]) for r in rs)
+            over = sum(int(r.get("overruns", 0)) for r in rs)
+            pooled = over / ticks if ticks else math.nan
+            med = float(np.median([r["frac"] for r in rs if "frac" in r])) if any("frac" in r for r in rs) else math.nan
+            if config == configs[0]:
+                base = pooled
+            done = sum(r["status"] == "completed" for r in rs)
+            # paired: rounds in which this config's overrun fraction was no higher than the baseline's
+            fr = {r["round"]: r.get("frac", 1.0) for r in rs}
+            b0 = {r["round"]: r.get("frac", 1.0) for r in rows if r["config"] == configs[0] and r["rate"] == rate}
+            paired = sum(fr[k] <= b0[k] for k in fr if k in b0)
+            print(f"{config:8s} {rate:5g} {len(rs):4d} {done:9d} {ticks:8d} {100 * pooled:9.3f} {100 * med:9.3f} "
+                  f"{pooled / base if base > 0 else math.nan:6.2f} {paired:3d}/{len(fr):<3d} "
+                  f"{sum(r['steal'] for r in rs):5.0f}ms")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="seconds per row")
     ap.add_argument("--rates", type=float, nargs="+", default=[500.0, 1000.0, 2000.0])
     ap.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
     ap.add_argument("--phases", action="store_true", help="per-phase CPU time of the loop thread per tick")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="rounds of the configurations, interleaved (config A, B, A, B, ...), and a summary per config")
     ap.add_argument("--no-wakeup", action="store_true", help="skip the machine wake-up latency table")
     ap.add_argument("--fifo-only", action="store_true", help="wake-up table: only under SCHED_FIFO (the loop's)")
     args = ap.parse_args(argv)
@@ -249,12 +281,16 @@ def main(argv: list[str] | None = None) -> int:
     print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print(f"{'config':8s} {'rate':>5s} {'ticks':>7s} {'p50 µs':>9s} {'p99 µs':>9s} {'max µs':>9s} {'overruns':>8s} "
           f"{'overrun %':>9s} {'<flush':>6s} {'stale':>6s} {'dev CPU':>7s} {'steal':>7s} {'status':12s} scheduling")
+    rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as d:
         for rate in args.rates:
-            for config in args.configs:
+            for k, config in ((k, c) for k in range(args.repeat) for c in args.configs):
                 st0 = 1e3 * steal_time_s()
-                r = loop_row(rate, args.seconds, config, Path(d), phases=args.phases)
+                (Path(d) / f"{k}").mkdir(exist_ok=True)
+                r = loop_row(rate, args.seconds, config, Path(d) / f"{k}", phases=args.phases)
                 r["steal"] = 1e3 * steal_time_s() - st0
+                r["round"] = k
+                rows.append(r)
                 if "p50" in r:
                     print(f"{config:8s} {rate:5g} {r['ticks']:7d} {us * r['p50']:9.1f} {us * r['p99']:9.1f} "
                           f"{us * r['max']:9.1f} {r['overruns']:8d} {100 * r['frac']:9.3f} {r['after_flush']:6d} "
@@ -275,6 +311,8 @@ def main(argv: list[str] | None = None) -> int:
           "in % of one CPU: the process has every CPU but the loop's; steal: the machine's steal time during the row, "
           "all CPUs)")
     print(f"load average after the loop rows: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    if args.repeat > 1:
+        summary(rows, args.configs, args.rates)
     if args.no_wakeup:
         return 0
     print()

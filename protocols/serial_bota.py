@@ -166,9 +166,13 @@ class BotaSerial(StreamingSensor):
         self._timeouts = 0
         try:
             # a write that takes longer than the timeout is an error at a bench; on a lockstep bench
-            # nothing is measured on the wall clock (pyserial's write timeout is)
+            # nothing is measured on the wall clock (pyserial's write timeout is). While the sensor is
+            # configured (open, read_identity) the configuration timeout applies: pyserial's POSIX write
+            # raises "Write timeout" when the whole call, preemption included, took longer than the
+            # timeout even though every byte went out, which a loaded machine makes of a 5 ms watchdog
+            self._run_write_timeout = None if waits.lockstep else timeout
             self._ser = serial.serial_for_url(url, baudrate=baudrate, timeout=poll_s,
-                                              write_timeout=None if waits.lockstep else timeout)
+                                              write_timeout=self._config_write_timeout(config_timeout))
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DeviceDisconnected(f"cannot open {url!r}: {exc}") from exc
         self.info = DeviceInfo(driver="bota_serial", transport=f"serial:{url}", vendor="Bota Systems",
@@ -188,6 +192,13 @@ class BotaSerial(StreamingSensor):
             except BaseException:
                 self.close()
                 raise
+        self._ser.write_timeout = self._run_write_timeout
+
+    def _config_write_timeout(self, config_timeout: float) -> float | None:
+        """pyserial's write timeout while configuring [s]: the larger of the run's and ``config_timeout``
+        (None on a lockstep bench)."""
+        run = self._run_write_timeout
+        return None if run is None else max(run, float(config_timeout))
 
     def _command(self, cmd: str, timeout: float) -> None:
         """Send one ASCII configuration command and wait for its ``r,0,X,N`` reply; bytes after the
@@ -324,6 +335,14 @@ class BotaSerial(StreamingSensor):
         The sensor comes back with its *saved* configuration, so the configuration sent on open is
         sent again. Not during a run (the stream pauses for the reboot). Returns what was found
         (``{}`` if no boot text arrived within ``timeout`` s)."""
+        self._ser.write_timeout = self._config_write_timeout(config_timeout)
+        try:
+            return self._read_identity(timeout, config_timeout)
+        finally:
+            if self._ser.is_open:
+                self._ser.write_timeout = self._run_write_timeout
+
+    def _read_identity(self, timeout: float, config_timeout: float) -> dict[str, str]:
         from hil.protocols.codecs.bota import parse_bota_boot
 
         try:

@@ -1,7 +1,10 @@
 """Run records: every sample streamed to HDF5 as it is taken, readable even after ``kill -9``.
 
-Writer: :class:`RecordWriter` (context manager). Reader: :class:`RunRecord`. CLI: :func:`replay`
-(``hil replay RECORD [--json]``). Importers of other tools' runs: :mod:`hil.record.importers`.
+Writer: :class:`RecordWriter` (context manager; this module). Reader: :class:`~hil.record.reader.RunRecord`
+(:mod:`hil.record.reader`). The format's constants, errors, channel spec and JSON encoding:
+:mod:`hil.record.format`. CLI: :func:`~hil.record.replay.replay` (``hil replay RECORD [--json]``,
+:mod:`hil.record.replay`). All are importable from here. Importers of other tools' runs:
+:mod:`hil.record.importers`.
 
 File layout (format ``hil-record``, ``format_version`` 2; all values SI, time in seconds)::
 
@@ -91,30 +94,22 @@ from __future__ import annotations
 
 import atexit
 import contextlib
-import ctypes
-import dataclasses
 import datetime as _dt
 import errno
-import functools
 import hashlib
 import io
-import json
 import logging
 import math
 import os
 import platform
 import queue
-import re
 import shutil
 import signal
 import tempfile
 import threading
-import warnings
 import weakref
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass, field
 from importlib import metadata as _metadata
-from itertools import pairwise
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -123,48 +118,43 @@ import h5py
 import numpy as np
 
 from hil import __version__
-from hil.errors import HilError
+from hil.record.format import (
+    _BYTE_LOGS,
+    _MAX_CHUNK_BYTES,
+    _MIN_CHUNK_ROWS,
+    _STATUS_BYTES,
+    FORMAT,
+    FORMAT_VERSION,
+    ChannelSpec,
+    RecordError,
+    RecordWriteError,
+    _check_name,
+    _one_line,
+    _probe_hdf5,
+    _split_arrays,
+    _to_json,
+)
+from hil.record.reader import LATENESS_BINS_S, RunRecord, lateness_distribution
+from hil.record.replay import replay
 
 logger = logging.getLogger(__name__)
 
+# the format's names, the reader and replay are re-exported: ``from hil.record.hdf5 import RunRecord`` etc.
 __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
+    "LATENESS_BINS_S",
     "ChannelSpec",
     "RecordError",
     "RecordLagError",
     "RecordWriteError",
     "RecordWriter",
     "RunRecord",
+    "lateness_distribution",
     "replay",
+    "store_identification",
 ]
 
-FORMAT = "hil-record"
-FORMAT_VERSION = 2
-_DATASET_KEY = "__dataset__"
-_MAX_CHUNK_BYTES = 1 << 20  # 1 MiB per HDF5 chunk at most
-_MIN_CHUNK_ROWS = 1024
-
-
-class RecordError(HilError):
-    """A run record cannot be written or read (bad channel, shape, time, file, ...)."""
-
-
-class RecordWriteError(RecordError):
-    """Writing a record failed (disk full, file-size limit, IO error). The message is one line; the
-    samples flushed before the failure stay readable."""
-
-
-#: byte-log datasets (uint8, resizable) -> (chunk bytes, ``encoding`` attribute). All are created
-#: with the file, so nothing is ever created after SWMR mode is on; each is appended to only.
-_BYTE_LOGS: dict[str, tuple[int, str]] = {
-    "events": (4096, "utf-8 JSON lines"),
-    "results": (4096, "utf-8 JSON lines {experiment, results, arrays}"),
-    "results_npy": (8192, "concatenated .npy arrays; offsets in /results"),
-    "device_counters": (1024, "utf-8 JSON lines {t, counters}"),
-}
-#: size of the fixed ``/status`` dataset [bytes]: written in place at close, so closing never grows the file
-_STATUS_BYTES = 1024
 #: extra file space reserved before every block [bytes] (HDF5 metadata: chunk index, object headers)
 _RESERVE_MARGIN = 1 << 16
 
@@ -174,8 +164,6 @@ _HELD_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP"
 
 #: tests only: called as ``hook(point, writer)`` at "flushed", "close", "close:flushed", "close:status"
 _TEST_HOOK: Callable[[str, RecordWriter], None] | None = None
-
-_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 
 @contextlib.contextmanager
@@ -215,12 +203,6 @@ def _signals_held() -> Iterator[None]:
                 os.kill(os.getpid(), signum)
 
 
-def _one_line(exc: BaseException | str) -> str:
-    """An exception's message on one line (HDF5 messages can span several)."""
-    text = str(exc) if not isinstance(exc, str) else exc
-    text = " ".join(text.split())
-    return text[:300] + ("..." if len(text) > 300 else "")
-
 
 def _mib(n: float) -> str:
     return f"{n / (1 << 20):.1f} MiB"
@@ -234,125 +216,6 @@ def _fsize_limit() -> int | None:
         return None
     soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
     return None if soft == resource.RLIM_INFINITY else int(soft)
-
-
-def _probe_hdf5(p: Path) -> tuple[bool, int | None]:
-    """Check that ``p`` looks like a complete HDF5 file before HDF5 sees it. Returns (swmr, end):
-    ``swmr`` True when its superblock says it is (or was, for a killed writer) open for SWMR
-    writing; ``end`` the end-of-file address it stores [bytes] (None when undefined).
-
-    Why: HDF5 refuses a truncated file in normal read mode, but in SWMR-read mode (needed for a
-    record whose writer was killed) it skips that check and retries every metadata read that fails
-    its checksum (100 attempts with back-off, inside the C library: minutes, deaf to Ctrl-C). So the
-    stored end-of-file address is compared with the real size here, and SWMR mode is used only for
-    files flagged for it."""
-    try:
-        size = p.stat().st_size
-        with p.open("rb") as fh:
-            head = fh.read(96)
-    except OSError as exc:
-        raise RecordError(f"{p}: cannot read: {_one_line(exc.strerror or exc)}") from None
-    if size == 0:
-        raise RecordError(f"{p}: empty file, not a run record")
-    if head[:8] != _HDF5_SIGNATURE:
-        raise RecordError(f"{p}: not an HDF5 file (no HDF5 signature at the start)")
-    if len(head) < 48:
-        raise RecordError(f"{p}: truncated HDF5 file ({size} bytes, shorter than its superblock)")
-    version = head[8]
-    if version in (0, 1):
-        osize, flags_at = head[13], None
-        base_at = 24 + (4 if version == 1 else 0)
-        eof_at = base_at + 2 * osize
-    elif version in (2, 3):
-        osize, flags_at = head[9], 11
-        base_at = 12
-        eof_at = base_at + 2 * osize
-    else:
-        raise RecordError(f"{p}: unknown HDF5 superblock version {version}")
-    if osize not in (2, 4, 8) or len(head) < eof_at + osize:
-        raise RecordError(f"{p}: malformed HDF5 superblock (size of offsets {osize})")
-    base = int.from_bytes(head[base_at:base_at + osize], "little")
-    eof = int.from_bytes(head[eof_at:eof_at + osize], "little")
-    undefined = (1 << (8 * osize)) - 1
-    end = None if undefined in (eof, base) else base + eof
-    if end is not None and size < end:
-        raise RecordError(f"{p}: truncated HDF5 file ({size} bytes, its superblock says {end})")
-    return flags_at is not None and version == 3 and bool(head[flags_at] & 0b101), end
-
-
-#: metadata read attempts in SWMR-read mode (HDF5's default is 100, each failed checksum retried with a
-#: back-off, so a damaged killed file takes minutes per object; a live writer needs only a few)
-_SWMR_READ_ATTEMPTS = 8
-
-
-@functools.cache
-def _hdf5_library() -> Any:
-    """The libhdf5 that h5py is linked to (ctypes handle), or None when it cannot be located (then
-    HDF5's default number of read attempts applies)."""
-    candidates: list[str] = []
-    with contextlib.suppress(OSError):  # Linux: the copy already mapped into this process (h5py wheels)
-        for line in Path("/proc/self/maps").read_text().splitlines():
-            name = line.rsplit(" ", 1)[-1]
-            if re.search(r"/libhdf5(-[0-9a-f]+)?\.so", name) and name not in candidates:
-                candidates.append(name)
-    # no ctypes.util.find_library fallback: another copy of libhdf5 than h5py's would not know its ids
-    for name in candidates:
-        try:
-            lib = ctypes.CDLL(name)
-            fn = lib.H5Pset_metadata_read_attempts
-        except (OSError, AttributeError):
-            continue
-        fn.argtypes = [ctypes.c_int64, ctypes.c_uint]
-        fn.restype = ctypes.c_int
-        return lib
-    return None
-
-
-def _open_h5_read(p: Path, swmr: bool) -> h5py.File:
-    """Open ``p`` read-only without file locking (a reader never waits for, nor blocks, a writer);
-    in SWMR-read mode with at most :data:`_SWMR_READ_ATTEMPTS` metadata read attempts."""
-    if not swmr:
-        return h5py.File(p, "r", locking=False)
-    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
-    fapl.set_libver_bounds(h5py.h5f.LIBVER_LATEST, h5py.h5f.LIBVER_LATEST)
-    fapl.set_file_locking(False, True)
-    fapl.set_fclose_degree(h5py.h5f.CLOSE_STRONG)
-    lib = _hdf5_library()
-    if lib is None or lib.H5Pset_metadata_read_attempts(fapl.id, _SWMR_READ_ATTEMPTS) < 0:
-        logger.debug("cannot limit HDF5 metadata read attempts (libhdf5 not found)")
-    fid = h5py.h5f.open(os.fsencode(p), h5py.h5f.ACC_RDONLY | h5py.h5f.ACC_SWMR_READ, fapl=fapl)
-    return h5py.File(fid)
-
-
-def _json_lines(raw: bytes, p: Path, what: str) -> list[dict[str, Any]]:
-    """The JSON objects of a UTF-8 JSON-lines log; an incomplete last line (a killed writer) is skipped."""
-    out = []
-    for line in raw.decode("utf-8", errors="replace").splitlines():
-        if not line.strip("\x00 "):
-            continue
-        try:
-            obj = json.loads(line)
-        except json.JSONDecodeError:
-            logger.warning("%s: skipped an unreadable %s line %r", p, what, line[:80])
-            continue
-        if isinstance(obj, dict):
-            out.append(obj)
-    return out
-
-
-@dataclass(frozen=True)
-class ChannelSpec:
-    """One recorded channel: per-sample ``shape`` (``()`` for a scalar), SI ``unit``, free ``description``."""
-
-    shape: tuple[int, ...]
-    unit: str
-    description: str = ""
-
-    def __post_init__(self) -> None:
-        shape = tuple(int(d) for d in self.shape)
-        if any(d < 1 for d in shape):
-            raise RecordError(f"channel shape {self.shape} must have positive dimensions")
-        object.__setattr__(self, "shape", shape)
 
 
 # --------------------------------------------------------------------------------------------- helpers
@@ -371,94 +234,6 @@ def _software_versions() -> dict[str, str]:
     except _metadata.PackageNotFoundError:  # pragma: no cover - scipy is a dependency
         out["scipy"] = "not installed"
     return out
-
-
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, set | frozenset):
-        return sorted(obj)
-    raise TypeError(f"{type(obj).__name__} is not JSON serializable")
-
-
-def _to_json(obj: Any, what: str) -> str:
-    try:
-        return json.dumps(obj, default=_json_default, ensure_ascii=False)
-    except (TypeError, ValueError) as exc:
-        raise RecordError(f"{what} is not JSON-serializable: {exc}") from None
-
-
-def _check_name(name: str, what: str) -> str:
-    if not isinstance(name, str) or not name or "/" in name or name in (".", ".."):
-        raise RecordError(f"{what} name {name!r} must be a non-empty string without '/'")
-    return name
-
-
-def _finite_or_none(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
-
-
-def _jsonable(obj: Any) -> Any:
-    """Replace non-finite floats by None (strict JSON for ``--json``)."""
-    if isinstance(obj, dict):
-        return {k: _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, float):
-        return _finite_or_none(obj)
-    return obj
-
-
-def _split_arrays(obj: Any, path: tuple[str, ...], arrays: dict[str, np.ndarray]) -> Any:
-    """JSON-able copy of ``obj``; numeric numpy arrays (and complex numbers) go to ``arrays`` by path."""
-    if not isinstance(obj, Mapping | np.ndarray) and callable(getattr(obj, "to_dict", None)):
-        obj = obj.to_dict()  # result objects that know their dict form
-    elif dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        obj = {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
-    if isinstance(obj, Mapping):
-        return {str(k): _split_arrays(v, (*path, str(k)), arrays) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_split_arrays(v, (*path, str(i)), arrays) for i, v in enumerate(obj)]
-    if isinstance(obj, complex | np.complexfloating) or (
-        isinstance(obj, np.ndarray) and obj.dtype.kind in "biufc" and (obj.ndim > 0 or obj.dtype.kind == "c")
-    ):
-        parts = [re.sub(r"[/.]", "_", p) or "_" for p in path] or ["_"]
-        key = "/".join(parts)
-        base, i = key, 1
-        while key in arrays or any(k.startswith(key + "/") or key.startswith(k + "/") for k in arrays):
-            key, i = f"{base}~{i}", i + 1
-        arrays[key] = np.asarray(obj)
-        return {_DATASET_KEY: key}
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if obj is None or isinstance(obj, bool | int | float | str):
-        return obj
-    if isinstance(obj, Path):
-        return str(obj)
-    raise RecordError(f"result {'/'.join(path) or '<root>'}: {type(obj).__name__} is not JSON-serializable")
-
-
-def _indexed(array: Callable[[Any], Any], index: Mapping[str, Any], key: str) -> Any:
-    """``array(index[key])`` (a ``get`` for :func:`_join_arrays`)."""
-    return array(index[key])
-
-
-def _join_arrays(obj: Any, get: Callable[[str], Any]) -> Any:
-    """Inverse of :func:`_split_arrays`: ``get(key)`` returns the array stored under ``key``."""
-    if isinstance(obj, dict):
-        if set(obj) == {_DATASET_KEY}:
-            arr = get(obj[_DATASET_KEY])
-            return arr[()] if isinstance(arr, h5py.Dataset) else arr
-        return {k: _join_arrays(v, get) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_join_arrays(v, get) for v in obj]
-    return obj
 
 
 # ---------------------------------------------------------------------------------------------- writer
@@ -1593,365 +1368,6 @@ class RecordWriter:
 # ---------------------------------------------------------------------------------------------- reader
 
 
-def _attr_str(v: Any) -> str:
-    return v.decode() if isinstance(v, bytes) else str(v)
-
-
-def _check_lengths(p: Path, lengths: Mapping[str, int], closed: bool, attrs: Mapping[str, Any]) -> None:
-    """Every channel is as long as the time column: exactly in a closed record; in a record whose
-    writer was killed (SWMR), within the rows of two flushes (a flush cut short is read up to its
-    shortest dataset). A channel cut short beyond that -- a damaged or edited record -- is refused in
-    one line, never silently truncated to (e.g. half its length)."""
-    nt = lengths["t"]
-    rate = float(attrs.get("rate_hz", math.nan))
-    every = float(attrs.get("flush_every_s", 0.1) or 0.1)
-    slack = 0 if closed else (2 * max(1, round(rate * every)) if math.isfinite(rate) and rate > 0 else nt)
-    for name, n in lengths.items():
-        if abs(n - nt) > slack:
-            state = "closed" if closed else "unclosed"
-            raise RecordError(f"{p}: channel {name} has {n} samples but the time column {nt}: a damaged or "
-                              f"altered record ({state}; at most {slack} may differ)")
-
-
-@dataclass
-class RunRecord:
-    """A run record loaded into memory. ``stop_reason``/``status`` are None when the run never closed."""
-
-    path: Path
-    meta: dict[str, Any]
-    scene_text: str
-    scene_sha256: str
-    stop_reason: str | None
-    status: str | None
-    t: np.ndarray
-    channels: dict[str, np.ndarray]
-    units: dict[str, str]
-    events: list[dict[str, Any]]
-    results: dict[str, Any]
-    descriptions: dict[str, str] = field(default_factory=dict)
-    rate_hz: float = math.nan
-    attrs: dict[str, Any] = field(default_factory=dict)
-    #: per-device fault counters, the writer's last snapshot: device -> counter -> count
-    device_counters: dict[str, dict[str, int]] = field(default_factory=dict)
-
-    @property
-    def closed(self) -> bool:
-        """True when the writer closed the record (False: killed / still running)."""
-        return self.status is not None
-
-    @classmethod
-    def open(cls, path: str | Path) -> RunRecord:
-        """Read a record (also one whose writer was killed, or is still writing: SWMR read).
-
-        Fails fast with a one-line :class:`RecordError` naming the file for a missing, empty,
-        truncated or non-HDF5 file, a directory, or a file that is not a run record."""
-        p = Path(path)
-        if p.is_dir():
-            raise RecordError(f"{p}: is a directory, not a run record")
-        if not p.is_file():
-            raise RecordError(f"{p}: no such file")
-        swmr, _ = _probe_hdf5(p)
-        try:
-            f = _open_h5_read(p, swmr)  # swmr: a file left "open for SWMR write" (killed or live writer)
-        except (OSError, RuntimeError, ValueError) as exc:
-            raise RecordError(f"{p}: not a readable HDF5 file ({_one_line(exc)})") from None
-        try:
-            with f:
-                return cls._load(p, f)
-        except RecordError:
-            raise
-        except (OSError, RuntimeError, KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
-            raise RecordError(f"{p}: malformed run record ({_one_line(exc)})") from None
-
-    @classmethod
-    def _load(cls, p: Path, f: h5py.File) -> RunRecord:
-        attrs = {k: (_attr_str(v) if isinstance(v, bytes | str) else v) for k, v in f.attrs.items()}
-        if attrs.get("format") != FORMAT:
-            raise RecordError(f"{p}: not a {FORMAT} file (format attribute {attrs.get('format')!r})")
-        if int(attrs.get("format_version", 0)) > FORMAT_VERSION:
-            raise RecordError(f"{p}: format_version {attrs['format_version']} is newer than this reader")
-        g = f["channels"]
-        names = list(g)
-        if f.swmr_mode:
-            for name in ("t", *(n for n in _BYTE_LOGS if isinstance(f.get(n), h5py.Dataset))):
-                f[name].refresh()
-            for name in names:
-                g[name].refresh()
-        lengths = {"t": f["t"].shape[0], **{k: g[k].shape[0] for k in names}}
-        n = min(lengths.values())
-        t = np.array(f["t"][:n])
-        # keep the longest prefix of finite, strictly increasing times: a flush cut short (kill, full
-        # disk) may leave rows whose time was never written (NaN fill, or zeros past the end of file)
-        ok = np.isfinite(t)
-        ok[1:] &= np.diff(t) > 0
-        bad = np.flatnonzero(~ok)
-        if bad.size:
-            n = int(bad[0])
-            t = t[:n]
-        channels = {k: np.array(g[k][:n]) for k in names}
-        units = {k: _attr_str(g[k].attrs.get("unit", "")) for k in names}
-        descr = {k: _attr_str(g[k].attrs.get("description", "")) for k in names}
-        events = _json_lines(bytes(f["events"][:]), p, "event")
-
-        results: dict[str, Any] = {}
-        stop_reason = status = None
-        counters: dict[str, dict[str, int]] = {}
-        if isinstance(f.get("results"), h5py.Group):  # format_version 1: a group per experiment
-            for exp, rg in f["results"].items():
-                results[exp] = _join_arrays(json.loads(_attr_str(rg.attrs["json"])), rg.__getitem__)
-        elif isinstance(f.get("results"), h5py.Dataset):
-            npy = f["results_npy"]
-
-            def array(ref: Any) -> np.ndarray:
-                off, size = int(ref[0]), int(ref[1])
-                return np.load(io.BytesIO(bytes(npy[off:off + size])), allow_pickle=False)
-
-            for line in _json_lines(bytes(f["results"][:]), p, "results"):
-                index: dict[str, Any] = line.get("arrays", {})
-                get = functools.partial(_indexed, array, index)
-                results[str(line["experiment"])] = _join_arrays(line["results"], get)
-        if isinstance(f.get("status"), h5py.Group):  # format_version 1
-            stop_reason = _attr_str(f["status"].attrs["stop_reason"])
-            status = _attr_str(f["status"].attrs["status"])
-        elif isinstance(f.get("status"), h5py.Dataset):
-            lines = [x for x in _json_lines(bytes(f["status"][:]), p, "status") if "status" in x]
-            if lines:
-                stop_reason, status = str(lines[-1].get("stop_reason")), str(lines[-1]["status"])
-        if isinstance(f.get("device_counters"), h5py.Dataset):
-            snaps = [x for x in _json_lines(bytes(f["device_counters"][:]), p, "device counters")
-                     if isinstance(x.get("counters"), dict)]
-            if snaps:
-                counters = {str(d): {str(k): int(v) for k, v in cs.items()}
-                            for d, cs in snaps[-1]["counters"].items()}
-        _check_lengths(p, lengths, status is not None, attrs)
-        scene = f["scene"][()]
-        return cls(
-            path=p,
-            meta=json.loads(attrs.get("meta", "{}")),
-            scene_text=_attr_str(scene),
-            scene_sha256=str(attrs.get("scene_sha256", "")),
-            stop_reason=stop_reason,
-            status=status,
-            t=t,
-            channels=channels,
-            units=units,
-            events=events,
-            results=results,
-            descriptions=descr,
-            rate_hz=float(attrs.get("rate_hz", math.nan)),
-            attrs=attrs,
-            device_counters=counters,
-        )
-
-    # -- derived views
-    def summary(self) -> dict[str, Any]:
-        """Duration [s], samples, measured rate [Hz], per-channel unit/shape/min/max/mean (NaN-aware;
-        per column for vector channels), stop reason/status, events, experiments and, when the
-        ``loop.overrun`` / ``loop.latency`` / ``loop.late`` channels exist, loop timing statistics
-        (``loop.late``: tick start after its deadline [s]; ``late_over_period`` counts ticks later than
-        one period); ``device_counters``: the per-device fault counters (see
-        :meth:`RecordWriter.set_device_counters`); ``lateness``: :func:`lateness_distribution` of
-        ``loop.late`` for realtime records (p50/p99/max, overruns, histogram)."""
-        n = self.t.size
-        duration = float(self.t[-1] - self.t[0]) if n > 1 else 0.0
-        chans: dict[str, Any] = {}
-        for name, a in self.channels.items():
-            flat = a.reshape(n, int(np.prod(a.shape[1:], dtype=int)))
-            if n:
-                with np.errstate(all="ignore"), warnings.catch_warnings():
-                    warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns
-                    mn, mx, mean = np.nanmin(flat, axis=0), np.nanmax(flat, axis=0), np.nanmean(flat, axis=0)
-            else:
-                mn = mx = mean = np.full(flat.shape[1], np.nan)
-            scalar = a.ndim == 1
-            conv = (lambda v: float(v[0])) if scalar else (lambda v: [float(x) for x in v])
-            chans[name] = {
-                "unit": self.units.get(name, ""),
-                "shape": list(a.shape[1:]),
-                "min": conv(mn), "max": conv(mx), "mean": conv(mean),
-                "nan": int(np.count_nonzero(np.isnan(a))),
-            }
-        out: dict[str, Any] = {
-            "path": str(self.path),
-            "closed": self.closed,
-            "status": self.status,
-            "stop_reason": self.stop_reason,
-            "samples": int(n),
-            "duration_s": duration,
-            "t_start_s": float(self.t[0]) if n else None,
-            "t_end_s": float(self.t[-1]) if n else None,
-            "rate_hz": self.rate_hz,
-            "measured_rate_hz": (n - 1) / duration if duration > 0 else None,
-            "scene_sha256": self.scene_sha256,
-            "created_utc": self.attrs.get("created_utc"),
-            "channels": chans,
-            "events": len(self.events),
-            "event_kinds": dict(sorted(_count(e.get("kind", "") for e in self.events).items())),
-            "experiments": sorted(self.results),
-            "device_counters": {d: dict(c) for d, c in self.device_counters.items()},
-        }
-        loop: dict[str, Any] = {}
-        if "loop.overrun" in self.channels:
-            ov = self.channels["loop.overrun"].reshape(n, -1)[:, 0] if n else np.zeros(0)
-            hit = np.nan_to_num(ov) > 0
-            loop["overrun_samples"] = int(np.count_nonzero(hit))
-            loop["overrun_total"] = float(np.nansum(ov)) if n else 0.0
-            loop["overrun_fraction"] = float(np.count_nonzero(hit) / n) if n else 0.0
-        if "loop.latency" in self.channels and n:
-            lat = self.channels["loop.latency"].reshape(n, -1)[:, 0]
-            lat = lat[np.isfinite(lat)]
-            if lat.size:
-                loop["latency_unit"] = self.units.get("loop.latency", "")
-                loop["latency_mean"] = float(np.mean(lat))
-                loop["latency_p50"] = float(np.percentile(lat, 50))
-                loop["latency_p99"] = float(np.percentile(lat, 99))
-                loop["latency_max"] = float(np.max(lat))
-        if "loop.late" in self.channels and n:  # the runner's tick lateness [s] (realtime mode)
-            late = self.channels["loop.late"].reshape(n, -1)[:, 0]
-            late = late[np.isfinite(late)]
-            if late.size:
-                dt = 1.0 / self.rate_hz if self.rate_hz > 0 else math.inf
-                loop["late_mean_s"] = float(np.mean(late))
-                loop["late_p99_s"] = float(np.percentile(late, 99))
-                loop["late_max_s"] = float(np.max(late))
-                loop["late_over_period"] = int(np.count_nonzero(late > dt))
-                if self.meta.get("mode") == "realtime" or np.any(late > 0):
-                    out["lateness"] = lateness_distribution(late, self.rate_hz)
-        if loop:
-            out["loop"] = loop
-        return out
-
-    def to_identify_dict(self, *, meta: Mapping[str, Any] | None = None,
-                         t_range: tuple[float, float] | None = None) -> dict[str, Any]:
-        """``{"t", "signals", "meta"}`` for :func:`hil.identify.api.identify_record`.
-
-        Vector channels are split into 1-D signals ``name[0]``, ``name[1]``, ... (``name[i,j]`` for
-        matrices). ``meta`` entries override the record's meta; ``t_range`` = (t0, t1) [s] keeps
-        t0 <= t <= t1 (e.g. one experiment of a multi-experiment run)."""
-        keep = slice(None) if t_range is None else (self.t >= t_range[0]) & (self.t <= t_range[1])
-        signals: dict[str, np.ndarray] = {}
-        for name, a in self.channels.items():
-            a = a[keep]
-            if a.ndim == 1:
-                signals[name] = a
-                continue
-            for idx in np.ndindex(*a.shape[1:]):
-                signals[f"{name}[{','.join(map(str, idx))}]"] = np.ascontiguousarray(a[(slice(None), *idx)])
-        m = dict(self.meta)
-        m.setdefault("rate_hz", self.rate_hz)
-        m["channel_units"] = dict(self.units)
-        if meta:
-            m.update(meta)
-        return {"t": self.t[keep], "signals": signals, "meta": m}
-
-
-#: upper edges [s] of the lateness histogram of ``hil replay`` (the last bin is open)
-LATENESS_BINS_S = (1e-5, 1e-4, 1e-3, 1e-2)
-
-
-def lateness_distribution(late_s: np.ndarray, rate_hz: float) -> dict[str, Any]:
-    """The distribution of per-tick lateness ``late_s`` [s] (the ``loop.late`` channel): ``ticks``,
-    ``p50_s`` / ``p99_s`` (``numpy.percentile``, linear interpolation), ``max_s``, ``overruns`` (ticks
-    later than one period ``1 / rate_hz``), ``overrun_fraction`` (overruns / ticks) and ``histogram``:
-    ``[[label, count], ...]`` over :data:`LATENESS_BINS_S` (bin i holds edge[i-1] < late <= edge[i])."""
-    a = np.asarray(late_s, dtype=float).reshape(-1)
-    a = a[np.isfinite(a)]
-    dt = 1.0 / rate_hz if rate_hz > 0 else math.inf
-    if a.size == 0:
-        return {"ticks": 0, "p50_s": None, "p99_s": None, "max_s": None, "overruns": 0, "overrun_fraction": 0.0,
-                "histogram": []}
-    edges = np.asarray(LATENESS_BINS_S)
-    counts = np.bincount(np.searchsorted(edges, a, side="left"), minlength=edges.size + 1)
-    names = [f"≤ {_fmt_s(edges[0])}"] + [f"{_fmt_s(lo)} – {_fmt_s(hi)}" for lo, hi in pairwise(edges)]
-    names.append(f"> {_fmt_s(edges[-1])}")
-    over = int(np.count_nonzero(a > dt))
-    return {"ticks": int(a.size), "p50_s": float(np.percentile(a, 50)), "p99_s": float(np.percentile(a, 99)),
-            "max_s": float(a.max()), "overruns": over, "overrun_fraction": over / a.size,
-            "histogram": [[n, int(c)] for n, c in zip(names, counts, strict=True)]}
-
-
-def _fmt_s(x: float) -> str:
-    return f"{x * 1e6:g} µs" if x < 1e-3 else f"{x * 1e3:g} ms"
-
-
-def _count(items: Any) -> dict[str, int]:
-    out: dict[str, int] = {}
-    for k in items:
-        out[k] = out.get(k, 0) + 1
-    return out
-
-
-# ---------------------------------------------------------------------------------------------- replay
-
-
-def _fmt(v: Any) -> str:
-    if v is None:
-        return "—"
-    if isinstance(v, list):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    if isinstance(v, float):
-        return "nan" if math.isnan(v) else f"{v:.5g}"
-    return str(v)
-
-
-def _print_summary(s: Mapping[str, Any]) -> None:
-    from rich.console import Console  # lazy: only to print (the runner and workers import records)
-    from rich.markup import escape
-    from rich.table import Table
-
-    con = Console()
-    con.print(f"[bold]{s['path']}[/bold]")
-    if s["closed"]:
-        colour = "green" if s["status"] == "ok" else "red"
-        con.print(f"status: [bold {colour}]{s['status']}[/] — stop reason: {s['stop_reason']}")
-    else:
-        con.print("status: [bold yellow]not closed[/] (killed or still running; samples up to the last flush)")
-    rate = s["measured_rate_hz"]
-    con.print(f"samples: {s['samples']}  duration: {s['duration_s']:.6g} s  rate: {_fmt(s['rate_hz'])} Hz "
-              f"(measured {_fmt(rate)} Hz)")
-    if s["experiments"]:
-        con.print("results: " + ", ".join(s["experiments"]))
-    kinds = ", ".join(f"{k} x{n}" for k, n in s["event_kinds"].items())
-    con.print(f"events: {s['events']}" + (f" ({kinds})" if kinds else ""))
-    if "loop" in s:
-        con.print("loop: " + "  ".join(f"{k}={_fmt(v)}" for k, v in s["loop"].items()))
-    lat = s.get("lateness")
-    if lat and lat["ticks"]:
-        con.print(f"lateness (tick start after its deadline, {lat['ticks']} ticks): p50 {_fmt_s(lat['p50_s'])}  "
-                  f"p99 {_fmt_s(lat['p99_s'])}  max {_fmt_s(lat['max_s'])}  overruns {lat['overruns']} "
-                  f"({100 * lat['overrun_fraction']:.2f} %, ticks later than one period)", highlight=False)
-        width = lat["ticks"]
-        for label, c in lat["histogram"]:
-            bar = "#" * (round(40 * c / width) if c else 0)
-            con.print(f"  {label:>17s} {c:9d} {bar}", highlight=False, markup=False)
-    counters = s.get("device_counters") or {}
-    if counters:
-        con.print("device counters:")
-        for dev, cs in counters.items():
-            text = "  ".join((f"[bold red]{escape(k)}={v}[/]" if v else f"{escape(k)}={v}")
-                             for k, v in cs.items()) or "(none)"
-            con.print(f"  {escape(dev)}: {text}", highlight=False)
-    tab = Table(show_header=True, header_style="bold")
-    for col in ("channel", "unit", "shape", "min", "max", "mean", "NaN"):
-        tab.add_column(col, justify="left" if col in ("channel", "unit") else "right", no_wrap=col == "channel")
-    for name, c in s["channels"].items():
-        tab.add_row(name, c["unit"], "x".join(map(str, c["shape"])) or "scalar", _fmt(c["min"]), _fmt(c["max"]),
-                    _fmt(c["mean"]), str(c["nan"]))
-    con.print(tab)
-
-
-def replay(record: str | Path, as_json: bool = False) -> int:
-    """``hil replay RECORD [--json]`` (parsed by hil.cli.main): print a record's summary and return 0;
-    a missing file or one that is not a readable run record raises :class:`RecordError` (one line,
-    exit 2)."""
-    s = RunRecord.open(record).summary()
-    if as_json:
-        print(json.dumps(_jsonable(s), ensure_ascii=False))
-    else:
-        _print_summary(s)
-    return 0
-
-
 # ---------------------------------------------------------------------------------------- identification
 
 
@@ -1990,3 +1406,4 @@ def store_identification(path: str | Path, name: str, samples: Any, summary: Map
             g.create_dataset("summary", data=text, dtype=h5py.string_dtype("utf-8"))
     except OSError as exc:
         raise RecordError(f"{path}: cannot write the identification: {exc}") from None
+

@@ -249,3 +249,38 @@ def test_tare(rig):
     j.apply_effort(np.array([5.0]))
     sim.emit()
     assert dev.read().wrench[2] == pytest.approx(3.0)
+
+
+def test_configuration_writes_use_the_configuration_timeout(monkeypatch):
+    """pyserial's POSIX write raises "Write timeout" when the call, preemption included, outlasts the
+    write timeout even though every byte went out: with a 5 ms watchdog a loaded machine made the
+    configuration on open fail ("port lost ... while the bench was opening"). The configuration
+    commands (open, read_identity) are written under ``config_timeout``; the run's writes under
+    ``timeout`` again."""
+    import serial
+
+    import hil.protocols.serial_bota as sb
+
+    seen: list[float | None] = []
+    real = serial.serial_for_url
+
+    def recording(*args, **kwargs):
+        port = real(*args, **kwargs)
+        write = port.write
+
+        def write_recorded(data):
+            seen.append(port.write_timeout)
+            return write(data)
+
+        port.write = write_recorded
+        return port
+
+    monkeypatch.setattr(sb.serial, "serial_for_url", recording)
+    j = FreeJoints()
+    with SimBota(j, period_s=0.002) as sim, BotaSerial(sim.path, timeout=0.005, config_timeout=2.0) as dev:
+        assert seen == [2.0] * 4  # the four configuration commands
+        assert dev._ser.write_timeout == 0.005
+        sim.start()
+        dev.read_identity(timeout=0.2, config_timeout=3.0)
+        assert seen[4:] == [3.0] * 5  # the reset "#", then the four commands again
+        assert dev._ser.write_timeout == 0.005

@@ -16,18 +16,24 @@ pytest.importorskip("jinja2")
 
 from test_report import _tool, error_cert, sdea_go
 
+import hil.report.drawing as D
+import hil.report.pdf as P
 import hil.report.render as R
+from hil.report.sections import report_sections
 
 
 def _count(monkeypatch, name: str) -> list[str]:
+    """Count the calls of the drawing function ``name`` wherever the report modules call it (the
+    PDF's pages, and the HTML's own drawings when it has none from the PDF)."""
     calls: list[str] = []
-    real = getattr(R, name)
+    real = getattr(D, name)
 
     def counted(fig, s_or_cert, *a, **k):
         calls.append(getattr(s_or_cert, "title", name))
         return real(fig, s_or_cert, *a, **k)
 
-    monkeypatch.setattr(R, name, counted)
+    for mod in (D, P):
+        monkeypatch.setattr(mod, name, counted)
     return calls
 
 
@@ -36,7 +42,7 @@ def test_every_figure_is_drawn_once_for_both_documents(tmp_path, monkeypatch):
     plots = _count(monkeypatch, "draw_plot")
     charts = _count(monkeypatch, "draw_chart")
     files = R.build_reports(cert, tmp_path)
-    drawn = {b.plot for sec in R.report_sections(cert) for b in sec.blocks if b.kind == "figure"}
+    drawn = {b.plot for sec in report_sections(cert) for b in sec.blocks if b.kind == "figure"}
     assert len(plots) == len(drawn) == len(cert.plots)  # once each (it was twice: PNG for HTML, vectors for PDF)
     assert len(charts) <= 1
     html = files["html"].read_text(encoding="utf-8")

@@ -20,7 +20,8 @@ import yaml
 
 from hil.certify.numbers import fmt
 from hil.certify.pipeline import certify_scene
-from hil.report.render import build_reports, draw_plot, place_legend
+from hil.report.drawing import draw_plot, place_legend
+from hil.report.render import build_reports
 from hil.report.sections import figure_caption, report_sections
 from hil.scene.spec import load_scene, scene_from_dict
 
@@ -175,7 +176,7 @@ def test_a_legend_never_covers_a_marked_point():
     from matplotlib.figure import Figure
 
     from hil.certify.certificate import Series
-    from hil.report.render import _legend_cover
+    from hil.report.drawing import _legend_cover
 
     x = np.linspace(0.0, 1.0, 50)
     # a point in each corner and one in the middle: no inside location is free
@@ -201,7 +202,7 @@ def test_a_legend_never_covers_a_marked_point():
 def test_no_legend_of_a_certificate_covers_a_marked_point(made, key):
     from matplotlib.figure import Figure
 
-    from hil.report.render import _legend_cover, _plot_height
+    from hil.report.drawing import _legend_cover, _plot_height
 
     cert, _, _ = made[key]
     for name, s in cert.plots.items():

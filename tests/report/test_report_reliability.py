@@ -20,7 +20,8 @@ from test_report import _tool, sdea_go
 
 from hil.certify.certificate import Certificate, Series
 from hil.certify.figures import design_point_axes, design_point_plot
-from hil.report.render import _corner_offset, render_pdf
+from hil.report.drawing import _corner_offset
+from hil.report.render import render_pdf
 from hil.report.sections import (
     CHARTS,
     Block,

@@ -16,7 +16,7 @@ pytest.importorskip("matplotlib")
 from test_report import _tool, assert_pages_carry_content, sdea_go
 
 from hil.certify.certificate import Certificate, seal
-from hil.report import render
+from hil.report import pdf as render  # the PDF layout (hil.report.pdf)
 
 SENTENCE = ("SDEA of the SDEA paper's Table I, Mengilli et al., with an ODrive motor on a virtual CAN bus and the "
             "spring torque from a Bota sensor on a pty; ")

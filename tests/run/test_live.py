@@ -146,7 +146,9 @@ def test_a_full_queue_drops_and_counts_never_blocks() -> None:
     live._q, live._started = queue.Queue(maxsize=5), True  # started without a server: nothing drains the queue
     for k in range(12):
         live.offer(k * 1e-3, {"motor.position": np.array([float(k)])})
-    assert (live.offered, live.dropped) == (12, 7)
+    # the queue holds the samples' layout (keys and shapes, sent before the first sample) and 4 samples
+    assert (live.offered, live.dropped) == (12, 8)
+    assert live._q.get_nowait()[0] == "layout" and [live._q.get_nowait()[0] for _ in range(4)] == ["packed"] * 4
     # decimation: at most max_rate_hz samples per second of run time
     live = LiveView(0, max_rate_hz=50.0, queue_size=1000)
     live._q, live._started = queue.Queue(maxsize=1000), True
@@ -167,6 +169,14 @@ def test_realtime_mode_serves_from_a_separate_process() -> None:
     assert live._proc is not None and live._proc.pid != os.getpid()
     # no thread of the loop's process carries the items (a queue feeder thread could hold its GIL)
     assert not [t for t in threading.enumerate() if "Feeder" in t.name or t.name == "hil-live"]
+    # every thread of the server's process off the realtime loop's CPU and below ordinary processes
+    from hil.bench.affinity import loop_cpu
+    from hil.run.live import NICE
+
+    for tid in (int(x) for x in os.listdir(f"/proc/{live._proc.pid}/task")):
+        assert os.getpriority(os.PRIO_PROCESS, tid) == NICE
+        if loop_cpu() is not None:
+            assert loop_cpu() not in os.sched_getaffinity(tid)
     client = _Client(live.port)
     client.start()
     try:
@@ -186,3 +196,31 @@ def test_realtime_mode_serves_from_a_separate_process() -> None:
     assert all(m["position"] == [round(m["t"] * 1e3)] for m in got)  # each sample's value with its time
     assert stats["sent"] >= len(got) > 0 and stats["offered"] == k
     assert live._proc.poll() is not None
+
+
+def test_packed_samples_carry_every_value_and_shape() -> None:
+    """The loop offers a sample as float64 ``[t, *values]`` after its layout (keys, shapes): what the
+    consumer unpacks equals what was offered (scalars, a (1,)-array, a wrench, a matrix, NaN), and a
+    value whose shape changes sends a new layout rather than a wrong sample."""
+    import queue
+
+    from hil.run.live import LiveView, unpack
+
+    live = LiveView(0, queue_size=100)
+    live._q, live._started = queue.Queue(maxsize=100), True
+    sample = {"loop.late": 1.5e-5, "motor.position": np.array([0.25]), "spring_ft.wrench": np.arange(6.0) - 2,
+              "arm.jacobian": np.array([[1.0, 2.0], [3.0, np.nan]]), "motor.flag": np.True_}
+    live.offer(0.125, sample)
+    changed = {**sample, "motor.position": np.array([0.5, 0.75])}
+    live.offer(0.25, changed)
+    items = [live._q.get_nowait() for _ in range(live._q.qsize())]
+    assert [i[0] for i in items] == ["layout", "packed", "layout", "packed"]
+    for (_, layout), (_, packed), want, t_want in ((items[0], items[1], sample, 0.125),
+                                                     (items[2], items[3], changed, 0.25)):
+        t, got = unpack([(k, tuple(sh)) for k, sh in layout], packed)
+        assert t == t_want and list(got) == list(want)
+        for k, v in want.items():
+            np.testing.assert_array_equal(np.asarray(got[k]), np.asarray(v, float), err_msg=k)
+            assert np.shape(got[k]) == np.shape(v), k
+    with pytest.raises(ValueError, match="packed sample of 3 values for a layout of 2"):
+        unpack([("a", ()), ("b", ())], np.zeros(4))

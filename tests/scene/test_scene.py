@@ -246,7 +246,7 @@ def test_scalar_gain_means_identity_and_flat_list_diagonal(tmp_path: Path) -> No
 def test_cross_checks_are_pure_and_normalization_is_a_validator(tmp_path: Path) -> None:
     """issue 13: the checks change nothing; the final values (full gain matrices) come from the
     Scene model validator, so a scene validated without the checks already holds them."""
-    from hil.scene.spec import _cross_check
+    from hil.scene.checks import cross_check
 
     d = _set("controller.C_4", {"kp": 7.0, "kv": [1.0, 2.0, 3.0]}, "dual_master_3dof")
     d.pop("certification")
@@ -256,7 +256,7 @@ def test_cross_checks_are_pure_and_normalization_is_a_validator(tmp_path: Path) 
     for name, _ in builtin_scenes():
         sc = load_scene(name)
         before = sc.model_dump()
-        _cross_check(sc)
+        cross_check(sc)
         assert sc.model_dump() == before, name
 
 
