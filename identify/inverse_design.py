@@ -15,6 +15,10 @@ sensor slower than the loop (a held output, :mod:`hil.identify.sensor_hold`) rep
 record sample ``k`` holds the force of sample ``k - a_k`` (``a_k`` its age), so that equation's columns
 are taken at ``k - a_k`` too -- exact for any hold pattern, nothing is lost but the repeats' noise.
 
+Held force in the point kinematics: :func:`inverse_part` with ``theta`` (``hold`` only) asks the model
+for the acceleration steps of its held input (:meth:`InverseDynamicsModel.held_input`) and declares them
+to the motion (:meth:`hil.identify.idim.Motion.set_held_input`).
+
 :func:`inverse_ls` is the start of the ML fit: least squares with every equation scaled by its residual
 standard deviation (two rounds), each Stribeck velocity by a bounded 1-D search (log scale, between
 ``1e-3`` and 1 times the joint's largest speed) with the rest solved linearly.
@@ -87,8 +91,10 @@ class InversePart:
 
 
 def inverse_part(model: InverseDynamicsModel, rec: InverseRecord, fs: float, *, f_dyn: float | None = None,
-                 hold: bool = True, n_border: int = 50) -> InversePart:
-    """The decimated inverse model of one record (module docstring)."""
+                 hold: bool = True, n_border: int = 50, theta: NDArray[np.float64] | None = None) -> InversePart:
+    """The decimated inverse model of one record (module docstring). ``theta``: parameters at which the
+    model's held-force acceleration jumps are taken (:meth:`InverseDynamicsModel.held_input`; ``hold``
+    only), for its point columns and its friction velocity between samples."""
     n_e, p = len(model.equations), model.n_params
     if rec.Q.shape[1] != len(model.coordinates) or rec.Y.shape[1] != n_e:
         raise DataQualityError(f"{model.name}: {rec.Q.shape[1]} positions and {rec.Y.shape[1]} forces for "
@@ -99,6 +105,9 @@ def inverse_part(model: InverseDynamicsModel, rec: InverseRecord, fs: float, *, 
     motion = Motion(rec.Q, fs, f_filter, n_border, stick=tuple(stick.values()))
     for e, c in stick.items():
         motion.breakaways(c, rec.Y[:, e])
+    held = model.held_input(np.asarray(theta, float), rec.Y) if hold and theta is not None else None
+    if held is not None:
+        motion.set_held_input(*held)
     n = motion.n
     if n - 2 * n_border < 40 * r:
         raise DataQualityError(f"IDIM: {n} samples are too few (need >= {40 * r + 2 * n_border})")

@@ -9,7 +9,10 @@ force aligned with the double central difference, ``hold=True``), for any model 
     y_e = X_e(v_s) beta + w_e
 
 ``beta`` the parameters entering linearly (``M, B, K``, ``K_f, B_f``, ``F_c, F_s, F_0``, ...), the
-Stribeck velocities ``v_s`` inside the regressors. The estimate is the least-squares one, every
+Stribeck velocities ``v_s`` inside the regressors. A model whose point columns or friction velocity
+feel the held force's acceleration steps (the SDEA: :meth:`InverseDynamicsModel.held_input`,
+:mod:`hil.identify.held_kinematics`) has its records rebuilt with the steps at the LS start's values
+(and the LS start recomputed) before the fit. The estimate is the least-squares one, every
 equation scaled by its residual standard deviation (iterated: the maximum likelihood for white
 Gaussian equation errors of unknown variances; one equation: the benchmark's own weighting), found by
 :func:`scipy.optimize.least_squares` in z (log of the positive parameters; ``v_s`` nonlinear).
@@ -234,6 +237,11 @@ def fit_inverse(
     model0 = make_model({}, {})
     parts = [inverse_part(model0, r, fs, f_dyn=f_dyn, hold=hold) for r in records]
     idim = start if start is not None else inverse_ls(model0, parts)
+    if hold and any(model0.held_input(idim.theta, r.Y) is not None for r in records):
+        # the held force's acceleration jumps (point columns, velocity between samples) at the start's values
+        parts = [inverse_part(model0, r, fs, f_dyn=f_dyn, hold=hold, theta=idim.theta) for r in records]
+        if start is None:
+            idim = inverse_ls(model0, parts)
     fscale = float(max(np.std(np.concatenate([p.y[:, 0] for p in parts])), 1e-12))
     nominal, scale = {}, {}
     for par, v, sd in zip(model0.parameters, idim.theta, idim.std, strict=True):

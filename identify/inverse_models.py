@@ -187,6 +187,14 @@ class InverseDynamicsModel(GreyBoxModel):
         their own motion only, so that while stuck the equation is exactly ``u = f`` (none here)."""
         return ()
 
+    def held_input(self, theta: NDArray[np.float64], Y: NDArray[np.float64]
+                   ) -> tuple[NDArray[np.float64], list[float], list[float]] | None:
+        """The acceleration jumps a held force makes (:meth:`hil.identify.idim.Motion.set_held_input`) at
+        parameters ``theta`` for the left sides ``Y`` (n, n_e) of a record: ``(node_jumps (n, n_c),
+        kinks (n_c,), damping_rates (n_c,))``, or None (the default: the point kinematics are taken as
+        smooth; the models whose equations are all held forces use averaged columns, which need no jumps)."""
+        return None
+
     def stribeck(self) -> list[tuple[int, int, Joint]]:
         """``(index of F_s, index of v_s, joint)`` per joint with a Stribeck term."""
         if "stribeck" not in self.terms:
@@ -271,6 +279,26 @@ class SdeaFrictionModel(InverseDynamicsModel):
             elif eq.name == "output":
                 out.append((idx["m_h"], e, m.a(1, k)))
         return out
+
+    def held_input(self, theta: NDArray[np.float64], Y: NDArray[np.float64]
+                   ) -> tuple[NDArray[np.float64], list[float], list[float]] | None:
+        """The held motor torque ``tau_k`` (the ``torque`` equation's left side) steps the motor's
+        acceleration by ``(tau_k - tau_k-1) / M`` at every sample instant; a motor reversal steps it by
+        ``-2 (F_c + F_s) / M`` per unit of the new sign, and each step of the acceleration steps its derivative
+        by ``-(B + B_f) / M`` times it (the damping forces follow the velocity); the output's acceleration
+        is continuous (the spring and damper forces are). Used for the point columns of the spring-torque
+        and output equations and the motor's velocity between samples (:mod:`hil.identify.held_kinematics`)."""
+        idx = {n: i for i, n in enumerate(self.names)}
+        M = float(theta[idx["M"]])
+        if not (np.isfinite(M) and M > 0):
+            return None
+        tau = np.asarray(Y, float)[:, 0]
+        jumps = np.zeros((tau.size, len(self.coordinates)))
+        jumps[1:, 0] = np.diff(tau) / M
+        brk = sum(max(float(theta[idx[k]]), 0.0) for k in ("F_c", "F_s") if k in idx)
+        kinks = [-2.0 * brk / M] + [0.0] * (len(self.coordinates) - 1)
+        damping = max(float(theta[idx["B"]]), 0.0) + max(float(theta[idx["B_f"]]), 0.0)
+        return jumps, kinks, [damping / M] + [0.0] * (len(self.coordinates) - 1)
 
     def _state_space(self, theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64],
                                                                   NDArray[np.float64]]:
